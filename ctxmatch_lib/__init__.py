@@ -1,0 +1,12 @@
+"""ctxmatch: SIFT Matching by Context Exposed (F. Bellavia, IEEE TPAMI 2022).
+
+Blob matching (Sec. 3), Delaunay Triangulation Matching (Sec. 4) and the evaluation of Sec. 5.
+Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the
+top-left pixel.
+"""
+
+from .filters import FILTERS, register_filter
+
+__version__ = "0.1.0"
+
+__all__ = ["FILTERS", "register_filter", "__version__"]

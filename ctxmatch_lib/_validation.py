@@ -1,0 +1,89 @@
+"""Argument checks shared by every stage.
+
+Each helper returns a clean array or raises a ``ValueError`` that names the offending argument, so that
+public functions can validate their inputs in one line.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix"]
+
+
+def as_finite_matrix(x, name: str, *, ndim: int = 2, dtype=None) -> np.ndarray:
+    """Return ``x`` as an array of ``ndim`` dimensions with only finite values."""
+    arr = np.asarray(x, dtype=dtype)
+    if arr.ndim != ndim:
+        raise ValueError(f"{name} must be a {ndim}-D array, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be numeric, got dtype {arr.dtype}")
+    if arr.size and not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
+    """Return keypoint coordinates as a float64 ``(N, 2)`` array of (x, y) pixels.
+
+    Accepts ``(N, 2)`` or wider arrays (extra columns such as scale or angle are dropped), and
+    ``None``/empty input as ``(0, 2)``. The origin is the centre of the top-left pixel, x right, y down.
+    """
+    if x is None:
+        arr = np.empty((0, 2))
+    else:
+        arr = np.asarray(x, dtype=np.float64)
+        if arr.size == 0:
+            arr = arr.reshape(0, 2)
+    if arr.ndim != 2 or arr.shape[1] < 2:
+        raise ValueError(f"{name} must have shape (N, 2), got {arr.shape}")
+    arr = arr[:, :2]
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    if n is not None and len(arr) != n:
+        raise ValueError(f"{name} must have {n} rows, got {len(arr)}")
+    return np.ascontiguousarray(arr)
+
+
+def as_matches(matches, n1: int | None = None, n2: int | None = None, name: str = "matches") -> np.ndarray:
+    """Return matches as an int64 ``(K, 2)`` array, checking the indices against ``n1`` and ``n2``."""
+    arr = np.asarray(matches)
+    if arr.size == 0:
+        return np.empty((0, 2), np.int64)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (K, 2), got {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.integer):
+        if not np.all(np.equal(np.mod(arr, 1), 0)):
+            raise ValueError(f"{name} must hold integer indices")
+    arr = arr.astype(np.int64)
+    if arr.min() < 0:
+        raise ValueError(f"{name} holds negative indices")
+    for col, n in ((0, n1), (1, n2)):
+        if n is not None and arr[:, col].max() >= n:
+            raise ValueError(
+                f"{name}[:, {col}] indexes row {arr[:, col].max()} but only {n} keypoints were given"
+            )
+    return arr
+
+
+def as_scores(scores, k: int, name: str = "scores") -> np.ndarray:
+    """Return per-match scores as float64 ``(K,)`` (lower is better); ``None`` gives all zeros."""
+    if scores is None:
+        return np.zeros(k)
+    arr = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if len(arr) != k:
+        raise ValueError(f"{name} must have one value per match ({k}), got {len(arr)}")
+    if np.isnan(arr).any():
+        raise ValueError(f"{name} contains NaN values")
+    return arr
+
+
+def as_image_size(size, name: str) -> tuple[int, int]:
+    """Return an image size as ``(width, height)`` of positive ints."""
+    try:
+        w, h = (int(v) for v in size)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be (width, height), got {size!r}") from None
+    if w <= 0 or h <= 0:
+        raise ValueError(f"{name} must be positive, got {(w, h)}")
+    return w, h

@@ -1,0 +1,61 @@
+"""Spatial match filters behind one registry.
+
+Every filter has the same signature::
+
+    FILTERS[name](kpts1, kpts2, matches, scores, *, image_size1, image_size2,
+                  shapes1=None, shapes2=None, **params) -> keep  # (K,) bool
+
+``kpts*`` are ``(N, 2)`` (x, y) pixels with the origin at the centre of the top-left pixel, ``matches`` is
+``(K, 2)`` int64 into ``kpts1``/``kpts2`` (many-to-many allowed), ``scores`` is ``(K,)`` with lower is
+better (``None``: all equal), image sizes are ``(width, height)``. The mask selects the kept matches:
+``matches[keep]``.
+
+Filters are imported lazily on first use, so ``import ctxmatch_lib`` stays cheap; users add their own with
+:func:`register_filter`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Iterator, Mapping
+
+__all__ = ["FILTERS", "register_filter"]
+
+# name -> "module:function"; modules live in this package (dtm lives in ctxmatch_lib.dtm).
+_BUILTIN: dict[str, str] = {}
+
+
+class _Registry(Mapping):
+    """Read-only mapping name -> filter function that imports built-in filters on first access."""
+
+    def __init__(self) -> None:
+        self._loaded: dict[str, Callable] = {}
+
+    def __getitem__(self, name: str) -> Callable:
+        if name in self._loaded:
+            return self._loaded[name]
+        if name not in _BUILTIN:
+            raise KeyError(f"unknown filter {name!r}; known filters: {', '.join(self)}")
+        module, func = _BUILTIN[name].split(":")
+        self._loaded[name] = getattr(importlib.import_module(module), func)
+        return self._loaded[name]
+
+    def __iter__(self) -> Iterator[str]:
+        yield from _BUILTIN
+        yield from (k for k in self._loaded if k not in _BUILTIN)
+
+    def __len__(self) -> int:
+        return len(set(_BUILTIN) | set(self._loaded))
+
+
+FILTERS = _Registry()
+
+
+def register_filter(name: str, func: Callable | None = None):
+    """Register ``func`` under ``name`` (usable as a decorator: ``@register_filter("mine")``)."""
+
+    def _add(f: Callable) -> Callable:
+        FILTERS._loaded[name] = f
+        return f
+
+    return _add if func is None else _add(func)
