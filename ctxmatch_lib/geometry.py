@@ -1,0 +1,541 @@
+"""Two-view models: normalised DLT homography, normalised 8-point fundamental matrix, 1SAC and RANSAC.
+
+The model step of the pipeline (Sec. 5.1): after the spatial filter, a global model -- a homography
+``H`` for planar pairs, a fundamental matrix ``F`` otherwise -- is fitted and only the matches consistent
+with it are kept. 1SAC (one SAmple Consensus, Sec. 5.1 and its footnote) fits the model once, on the
+``3 q`` top-ranked matches (``q = 4`` for ``H``, ``q = 8`` for ``F``); :func:`ransac` is the seeded robust
+alternative (OpenCV's USAC with MAGSAC++ scoring).
+
+Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
+pixel. ``H`` maps image-1 points to image 2 (``x2 ~ H x1``); ``F`` satisfies ``x2^T F x1 = 0``.
+
+The error functions here (:func:`homography_transfer_errors`, :func:`epipolar_distances`) are shared with
+:mod:`ctxmatch_lib.groundtruth`, so the model step and the ground truth measure distances the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ._validation import as_matches, as_points, as_scores
+
+__all__ = [
+    "MODEL_STEPS",
+    "MIN_SAMPLE",
+    "CONSISTENCY_THRESHOLD_PX",
+    "ModelFit",
+    "normalise_points",
+    "fit_homography",
+    "fit_fundamental",
+    "apply_homography",
+    "homography_transfer_errors",
+    "epipolar_distances",
+    "model_errors",
+    "top_ranked_sample",
+    "one_sac",
+    "ransac",
+    "apply_model_step",
+    "model_kind_for",
+]
+
+ModelKind = Literal["H", "F"]
+
+#: Names accepted by :func:`apply_model_step` (``none`` keeps the filter output as it is).
+MODEL_STEPS = ("none", "1sac", "ransac")
+
+#: Minimal sample size ``q`` of each model (Sec. 5.1, footnote).
+MIN_SAMPLE = {"H": 4, "F": 8}
+
+#: Default consistency threshold of the model step, in pixels. It equals the method-D ground-truth
+#: tolerance (15 px, Sec. 5.1): a correct model then keeps what the ground truth would call correct, so
+#: the model step removes outliers without being stricter than the evaluation itself.
+CONSISTENCY_THRESHOLD_PX = 15.0
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """Result of a model step.
+
+    Attributes
+    ----------
+    keep : ndarray of shape (K,), bool
+        Matches consistent with the model (all ``False`` when no model could be fitted).
+    model : ndarray of shape (3, 3) or None
+        The fitted ``H`` (image 1 -> image 2) or ``F`` (``x2^T F x1 = 0``); ``None`` on failure.
+    kind : {"H", "F"}
+        Which model was fitted.
+    sample : ndarray of shape (S,), int64
+        Indices (into the matches given) of the sample the model was fitted on; for RANSAC, its inliers.
+    errors : ndarray of shape (K,)
+        Per-match error against the model (``inf`` when there is no model).
+    """
+
+    keep: np.ndarray
+    model: np.ndarray | None
+    kind: str
+    sample: np.ndarray
+    errors: np.ndarray
+
+
+# --------------------------------------------------------------------------------------------- fitting
+
+
+def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
+    """Hartley normalisation: centroid at the origin, mean distance sqrt(2).
+
+    Parameters
+    ----------
+    pts : array_like of shape (N, 2)
+        (x, y) pixels, origin at the centre of the top-left pixel.
+
+    Returns
+    -------
+    pts_n : ndarray of shape (N, 2)
+        Normalised points, ``pts_n ~ T @ [x, y, 1]``.
+    T : ndarray of shape (3, 3)
+        The similarity that normalises.
+    """
+    pts = as_points(pts, "pts")
+    if len(pts) == 0:
+        return pts.copy(), np.eye(3)
+    c = pts.mean(axis=0)
+    d = np.sqrt(((pts - c) ** 2).sum(axis=1)).mean()
+    s = np.sqrt(2.0) / d if d > 0 else 1.0
+    T = np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+    return (pts - c) * s, T
+
+
+def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
+    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D."""
+    _, s, vt = np.linalg.svd(A)
+    n = A.shape[1]
+    # Fewer rows than unknowns pads the spectrum with zeros.
+    s = np.r_[s, np.zeros(max(0, n - len(s)))]
+    if s[0] <= 0 or s[n - 2] <= min_gap * s[0]:
+        return None  # degenerate configuration (collinear, duplicated points...): no unique solution
+    return vt[-1] if vt.shape[0] == n else None
+
+
+def fit_homography(pts1, pts2) -> np.ndarray | None:
+    """Least-squares homography by the normalised DLT (Hartley & Zisserman, Alg. 4.2).
+
+    Parameters
+    ----------
+    pts1, pts2 : array_like of shape (N, 2), N >= 4
+        Corresponding (x, y) pixels (origin at the centre of the top-left pixel) in images 1 and 2.
+
+    Returns
+    -------
+    H : ndarray of shape (3, 3) or None
+        Maps image 1 to image 2, scaled so that ``H[2, 2] = 1`` when possible; ``None`` for fewer than 4
+        points or a degenerate configuration (e.g. three or more collinear points leaving no unique
+        solution).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p1 = np.array([[0.0, 0.0], [10, 0], [10, 10], [0, 10]])
+    >>> np.round(fit_homography(p1, p1 * 2 + 5), 6) + 0.0  # + 0.0 turns -0. into 0.
+    array([[2., 0., 5.],
+           [0., 2., 5.],
+           [0., 0., 1.]])
+    """
+    pts1 = as_points(pts1, "pts1")
+    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    if len(pts1) < 4:
+        return None
+    n1, T1 = normalise_points(pts1)
+    n2, T2 = normalise_points(pts2)
+    x, y = n1[:, 0], n1[:, 1]
+    u, v = n2[:, 0], n2[:, 1]
+    z, o = np.zeros_like(x), np.ones_like(x)
+    A = np.empty((2 * len(x), 9))
+    A[0::2] = np.stack([-x, -y, -o, z, z, z, u * x, u * y, u], axis=1)
+    A[1::2] = np.stack([z, z, z, -x, -y, -o, v * x, v * y, v], axis=1)
+    h = _null_vector(A)
+    if h is None:
+        return None
+    H = np.linalg.solve(T2, h.reshape(3, 3) @ T1)
+    if abs(np.linalg.det(H)) < 1e-12 * np.abs(H).max() ** 3:
+        return None
+    if abs(H[2, 2]) > 1e-12 * np.abs(H).max():
+        H = H / H[2, 2]
+    else:
+        H = H / np.linalg.norm(H)
+    return H
+
+
+def fit_fundamental(pts1, pts2) -> np.ndarray | None:
+    """Least-squares fundamental matrix by the normalised 8-point algorithm with rank-2 enforcement.
+
+    Parameters
+    ----------
+    pts1, pts2 : array_like of shape (N, 2), N >= 8
+        Corresponding (x, y) pixels (origin at the centre of the top-left pixel) in images 1 and 2.
+
+    Returns
+    -------
+    F : ndarray of shape (3, 3) or None
+        Rank-2 matrix with ``x2^T F x1 = 0``, unit Frobenius norm; ``None`` for fewer than 8 points or a
+        degenerate configuration.
+    """
+    pts1 = as_points(pts1, "pts1")
+    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    if len(pts1) < 8:
+        return None
+    n1, T1 = normalise_points(pts1)
+    n2, T2 = normalise_points(pts2)
+    x, y = n1[:, 0], n1[:, 1]
+    u, v = n2[:, 0], n2[:, 1]
+    A = np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], axis=1)
+    f = _null_vector(A)
+    if f is None:
+        return None
+    U, s, Vt = np.linalg.svd(f.reshape(3, 3))
+    F = U @ np.diag([s[0], s[1], 0.0]) @ Vt
+    F = T2.T @ F @ T1
+    nrm = np.linalg.norm(F)
+    return F / nrm if nrm > 0 else None
+
+
+# ---------------------------------------------------------------------------------------------- errors
+
+
+def apply_homography(H, pts) -> np.ndarray:
+    """Map ``(N, 2)`` (x, y) points through ``H``; points sent to infinity come back as ``inf``."""
+    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    hom = pts @ np.asarray(H, dtype=np.float64)[:, :2].T + np.asarray(H, dtype=np.float64)[:, 2]
+    w = hom[:, 2:3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = hom[:, :2] / w
+    out[~np.isfinite(out).all(axis=1) | (np.abs(w[:, 0]) < 1e-12)] = np.inf
+    return out
+
+
+def homography_transfer_errors(H, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
+    """Reprojection errors of corresponding points in both directions.
+
+    Parameters
+    ----------
+    H : array_like of shape (3, 3)
+        Image 1 -> image 2.
+    pts1, pts2 : array_like of shape (N, 2)
+        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+
+    Returns
+    -------
+    forward : ndarray of shape (N,)
+        ``||H x1 - x2||`` in image-2 pixels.
+    backward : ndarray of shape (N,)
+        ``||H^-1 x2 - x1||`` in image-1 pixels (``inf`` everywhere when ``H`` is singular).
+    """
+    H = np.asarray(H, dtype=np.float64)
+    pts1 = as_points(pts1, "pts1")
+    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    fwd = np.linalg.norm(apply_homography(H, pts1) - pts2, axis=1)
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return fwd, np.full(len(pts1), np.inf)
+    bwd = np.linalg.norm(apply_homography(Hinv, pts2) - pts1, axis=1)
+    return fwd, bwd
+
+
+def epipolar_distances(F, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
+    """Point-to-epipolar-line distances in both images.
+
+    Parameters
+    ----------
+    F : array_like of shape (3, 3)
+        Fundamental matrix with ``x2^T F x1 = 0``.
+    pts1, pts2 : array_like of shape (N, 2)
+        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+
+    Returns
+    -------
+    d2 : ndarray of shape (N,)
+        Distance in image 2 of ``x2`` from the epipolar line ``F x1``.
+    d1 : ndarray of shape (N,)
+        Distance in image 1 of ``x1`` from the epipolar line ``F^T x2``.
+        A degenerate line (``x`` at an epipole) gives ``inf``.
+    """
+    F = np.asarray(F, dtype=np.float64)
+    pts1 = as_points(pts1, "pts1")
+    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    h1 = np.c_[pts1, np.ones(len(pts1))]
+    h2 = np.c_[pts2, np.ones(len(pts2))]
+    l2 = h1 @ F.T  # lines in image 2
+    l1 = h2 @ F  # lines in image 1
+    num = np.abs((h2 * l2).sum(axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = num / np.hypot(l2[:, 0], l2[:, 1])
+        d1 = num / np.hypot(l1[:, 0], l1[:, 1])
+    d2[~np.isfinite(d2)] = np.inf
+    d1[~np.isfinite(d1)] = np.inf
+    return d2, d1
+
+
+def model_errors(model, kind: ModelKind, pts1, pts2) -> np.ndarray:
+    """Symmetric error of each correspondence against ``model``: the larger of the two directions.
+
+    For ``kind="H"`` the larger of the forward and backward reprojection errors, for ``kind="F"`` the larger
+    of the two point-to-epipolar-line distances, in pixels.
+    """
+    if kind == "H":
+        a, b = homography_transfer_errors(model, pts1, pts2)
+    elif kind == "F":
+        a, b = epipolar_distances(model, pts1, pts2)
+    else:
+        raise ValueError(f"kind must be 'H' or 'F', got {kind!r}")
+    return np.maximum(a, b)
+
+
+# -------------------------------------------------------------------------------------------- sampling
+
+
+def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
+    """Indices of the shortest top-ranked prefix holding ``size`` matches once normalised.
+
+    Matches are ranked by ascending score (stable: ties keep their given order). A prefix is counted
+    like the recall of Sec. 5.1, as ``min(#distinct image-1 keypoints, #distinct image-2 keypoints)``,
+    so many-to-many duplicates of a keypoint count once; the sample is the shortest prefix whose count
+    reaches ``size`` (or every match when the whole set counts less).
+
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+        Indices into the keypoints of images 1 and 2.
+    scores : array_like of shape (K,), optional
+        Lower is better; ``None`` keeps the given order.
+    size : int
+        Normalised sample size, ``3 q`` for 1SAC.
+
+    Returns
+    -------
+    ndarray of shape (S,), int64
+        Indices into ``matches``, best first.
+
+    Examples
+    --------
+    >>> top_ranked_sample([[0, 0], [0, 1], [1, 1], [2, 2]], [0.1, 0.2, 0.3, 0.4], size=2)
+    array([0, 1, 2])
+    """
+    matches = as_matches(matches)
+    scores = as_scores(scores, len(matches))
+    if len(matches) == 0 or size <= 0:
+        return np.empty(0, np.int64)
+    order = np.argsort(scores, kind="stable")
+    ranked = matches[order]
+    count = np.minimum(_cumulative_distinct(ranked[:, 0]), _cumulative_distinct(ranked[:, 1]))
+    reached = np.flatnonzero(count >= size)
+    stop = reached[0] + 1 if len(reached) else len(order)
+    return order[:stop].astype(np.int64)
+
+
+def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
+    """``out[k]`` = number of distinct values among ``values[:k + 1]``."""
+    first = np.zeros(len(values), bool)
+    _, idx = np.unique(values, return_index=True)
+    first[idx] = True
+    return np.cumsum(first)
+
+
+# ---------------------------------------------------------------------------------------- model steps
+
+
+def _fit(kind: ModelKind, p1: np.ndarray, p2: np.ndarray) -> np.ndarray | None:
+    return fit_homography(p1, p2) if kind == "H" else fit_fundamental(p1, p2)
+
+
+def _check_kind(kind) -> ModelKind:
+    if kind not in MIN_SAMPLE:
+        raise ValueError(f"kind must be 'H' or 'F', got {kind!r}")
+    return kind
+
+
+def _failed(k: int, kind: str, sample=None) -> ModelFit:
+    sample = np.empty(0, np.int64) if sample is None else sample
+    return ModelFit(np.zeros(k, bool), None, kind, sample, np.full(k, np.inf))
+
+
+def one_sac(
+    kpts1,
+    kpts2,
+    matches,
+    scores=None,
+    *,
+    kind: ModelKind = "H",
+    threshold: float = CONSISTENCY_THRESHOLD_PX,
+    sample_factor: int = 3,
+) -> ModelFit:
+    """1SAC: fit one model on the top-ranked matches and keep those consistent with it (Sec. 5.1).
+
+    The sample is the shortest top-ranked prefix counting ``sample_factor * q`` matches with the
+    normalisation of the recall (see :func:`top_ranked_sample`); ``q = 4`` for ``H`` (normalised DLT) and
+    ``q = 8`` for ``F`` (normalised 8-point). Every match whose :func:`model_errors` is at most
+    ``threshold`` pixels is kept. With fewer than ``q`` normalised matches, or a degenerate sample, no model
+    exists and nothing is kept.
+
+    Parameters
+    ----------
+    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
+        (x, y) pixels, origin at the centre of the top-left pixel.
+    matches : array_like of shape (K, 2), int
+        Indices into ``kpts1`` and ``kpts2`` (many-to-many allowed).
+    scores : array_like of shape (K,), optional
+        Lower is better; ``None`` uses the given order as the ranking.
+    kind : {"H", "F"}
+        Homography (planar pairs) or fundamental matrix (non-planar and depth pairs).
+    threshold : float
+        Consistency threshold in pixels (default: 15, the method-D ground-truth tolerance).
+    sample_factor : int
+        The sample holds ``sample_factor * q`` normalised matches (3 in the paper).
+
+    Returns
+    -------
+    ModelFit
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> p1 = rng.uniform(0, 100, (20, 2))
+    >>> m = np.c_[np.arange(20), np.arange(20)]
+    >>> fit = one_sac(p1, p1 + [5.0, -3.0], m, kind="H")
+    >>> int(fit.keep.sum()), len(fit.sample)
+    (20, 12)
+    """
+    kind = _check_kind(kind)
+    kpts1 = as_points(kpts1, "kpts1")
+    kpts2 = as_points(kpts2, "kpts2")
+    matches = as_matches(matches, len(kpts1), len(kpts2))
+    scores = as_scores(scores, len(matches))
+    if threshold <= 0:
+        raise ValueError(f"threshold must be positive, got {threshold}")
+    q = MIN_SAMPLE[kind]
+    k = len(matches)
+    sample = top_ranked_sample(matches, scores, size=sample_factor * q)
+    if len(sample) == 0:
+        return _failed(k, kind)
+    s = matches[sample]
+    if min(len(np.unique(s[:, 0])), len(np.unique(s[:, 1]))) < q:
+        return _failed(k, kind, sample)
+    model = _fit(kind, kpts1[s[:, 0]], kpts2[s[:, 1]])
+    if model is None:
+        return _failed(k, kind, sample)
+    err = model_errors(model, kind, kpts1[matches[:, 0]], kpts2[matches[:, 1]])
+    return ModelFit(err <= threshold, model, kind, sample, err)
+
+
+def ransac(
+    kpts1,
+    kpts2,
+    matches,
+    scores=None,
+    *,
+    kind: ModelKind = "H",
+    threshold: float = CONSISTENCY_THRESHOLD_PX,
+    magsac_threshold: float = 3.0,
+    confidence: float = 0.999,
+    max_iters: int = 10000,
+    rng=None,
+) -> ModelFit:
+    """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
+
+    The model is estimated by USAC with ``magsac_threshold`` as its noise bound; the matches kept are then
+    chosen with the same rule as :func:`one_sac` (error at most ``threshold`` pixels against the returned
+    model), so that 1SAC and RANSAC differ only in how the model is estimated.
+
+    Parameters
+    ----------
+    kpts1, kpts2, matches, scores, kind, threshold
+        As in :func:`one_sac`; ``scores`` are accepted for a uniform signature but unused (uniform sampling).
+    magsac_threshold : float
+        USAC's threshold in pixels.
+    confidence : float
+        RANSAC confidence.
+    max_iters : int
+        Iteration cap.
+    rng : None, int or numpy.random.Generator
+        Seeds USAC's own generator, so results are reproducible for a given seed.
+
+    Returns
+    -------
+    ModelFit
+        ``sample`` holds the inliers reported by USAC.
+    """
+    import cv2
+
+    kind = _check_kind(kind)
+    kpts1 = as_points(kpts1, "kpts1")
+    kpts2 = as_points(kpts2, "kpts2")
+    matches = as_matches(matches, len(kpts1), len(kpts2))
+    as_scores(scores, len(matches))
+    k = len(matches)
+    q = MIN_SAMPLE[kind]
+    if k == 0 or min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < q:
+        return _failed(k, kind)
+    seed = int(np.random.default_rng(rng).integers(0, 2**31 - 1))
+    params = cv2.UsacParams()
+    params.threshold = float(magsac_threshold)
+    params.confidence = float(confidence)
+    params.maxIterations = int(max_iters)
+    params.randomGeneratorState = seed
+    params.sampler = cv2.SAMPLING_UNIFORM
+    params.score = cv2.SCORE_METHOD_MAGSAC
+    params.loMethod = cv2.LOCAL_OPTIM_SIGMA
+    params.final_polisher = cv2.MAGSAC
+    params.isParallel = False
+    p1 = np.ascontiguousarray(kpts1[matches[:, 0]], np.float64)
+    p2 = np.ascontiguousarray(kpts2[matches[:, 1]], np.float64)
+    try:
+        if kind == "H":
+            model, mask = cv2.findHomography(p1, p2, params)
+        else:
+            model, mask = cv2.findFundamentalMat(p1, p2, params)
+    except cv2.error:
+        return _failed(k, kind)
+    if model is None or np.asarray(model).shape != (3, 3) or not np.isfinite(model).all():
+        return _failed(k, kind)
+    model = np.asarray(model, np.float64)
+    inl = np.flatnonzero(np.asarray(mask).reshape(-1) > 0) if mask is not None else np.empty(0, np.int64)
+    err = model_errors(model, kind, p1, p2)
+    return ModelFit(err <= threshold, model, kind, inl.astype(np.int64), err)
+
+
+def model_kind_for(pair_kind: str) -> ModelKind:
+    """``"H"`` for planar pairs, ``"F"`` for non-planar and depth pairs."""
+    if pair_kind == "planar":
+        return "H"
+    if pair_kind in ("nonplanar", "depth"):
+        return "F"
+    raise ValueError(f"pair kind must be 'planar', 'nonplanar' or 'depth', got {pair_kind!r}")
+
+
+def apply_model_step(
+    name: str,
+    kpts1,
+    kpts2,
+    matches,
+    scores=None,
+    *,
+    kind: ModelKind,
+    threshold: float = CONSISTENCY_THRESHOLD_PX,
+    rng=None,
+) -> ModelFit:
+    """Run the model step ``name`` (one of :data:`MODEL_STEPS`) on the matches.
+
+    ``"none"`` keeps every match (``model`` is ``None``); ``"1sac"`` calls :func:`one_sac`; ``"ransac"`` calls
+    :func:`ransac` with ``rng``.
+    """
+    if name == "none":
+        k = len(as_matches(matches))
+        return ModelFit(np.ones(k, bool), None, _check_kind(kind), np.arange(k, dtype=np.int64), np.zeros(k))
+    if name == "1sac":
+        return one_sac(kpts1, kpts2, matches, scores, kind=kind, threshold=threshold)
+    if name == "ransac":
+        return ransac(kpts1, kpts2, matches, scores, kind=kind, threshold=threshold, rng=rng)
+    raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")
