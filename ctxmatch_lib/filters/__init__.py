@@ -22,7 +22,10 @@ from collections.abc import Callable, Iterator, Mapping
 __all__ = ["FILTERS", "register_filter"]
 
 # name -> "module:function"; modules live in this package (dtm lives in ctxmatch_lib.dtm).
-_BUILTIN: dict[str, str] = {}
+_BUILTIN: dict[str, str] = {
+    "th": "ctxmatch_lib.filters.th:th_filter",
+    "gms": "ctxmatch_lib.filters.gms:gms_filter",
+}
 
 
 class _Registry(Mapping):
