@@ -1,5 +1,102 @@
-"""Datasets: image pairs with ground truth (embedded offline default, real loaders, custom folders)."""
+"""Datasets: image pairs with ground truth (embedded offline default, real loaders, custom folders).
 
-from .base import EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind
+``load_dataset(name_or_path)`` accepts a registered name (see :func:`list_datasets`) or a folder holding
+``pairs.csv`` in the custom format (:mod:`ctxmatch_lib.datasets.custom`).
 
-__all__ = ["EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind"]
+=====================  ============================================================================
+name                   pairs
+=====================  ============================================================================
+embedded               the whole offline default (planar + nonplanar + depth), the default everywhere
+embedded-planar        its 3 planar sequences (15 pairs, homographies)
+embedded-nonplanar     its 4 layered synthetic scenes (dense exact flow with occlusion)
+embedded-depth         the Middlebury motorcycle stereo pair (disparity as dense flow)
+hpatches               HPatches sequences under ``$CTXMATCH_DATA/planar/hpatches``
+oxford                 Oxford affine sequences under ``$CTXMATCH_DATA/planar/oxford``
+homogr                 Lebeda homogr pairs under ``$CTXMATCH_DATA/planar/homogr``
+kusvod2                Lebeda kusvod2 pairs under ``$CTXMATCH_DATA/nonplanar/kusvod2``
+planar                 hpatches + oxford + homogr
+nonplanar              kusvod2
+=====================  ============================================================================
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind
+from .custom import read_custom_dataset, write_custom_dataset
+from .embedded import embedded_root
+from .real import REAL_LOADERS
+
+__all__ = [
+    "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS",
+    "DEFAULT_DATASET", "load_dataset", "list_datasets", "read_custom_dataset", "write_custom_dataset",
+]
+
+DEFAULT_DATASET = "embedded"
+
+_EMBEDDED = {"embedded": None, "embedded-planar": "planar", "embedded-nonplanar": "nonplanar",
+             "embedded-depth": "depth"}
+_GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "nonplanar": ("kusvod2",)}
+
+
+def list_datasets() -> list[str]:
+    """The registered dataset names, embedded ones first.
+
+    Examples
+    --------
+    >>> list_datasets()[:2]
+    ['embedded', 'embedded-planar']
+    """
+    return [*_EMBEDDED, *REAL_LOADERS, *_GROUPS]
+
+
+def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
+    """Load a dataset by registered name or from a custom-format folder.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        A name from :func:`list_datasets`, or a folder holding ``pairs.csv``.
+    root : str or Path, optional
+        For real datasets, the data root (default ``$CTXMATCH_DATA``, see ``ctxmatch_lib._paths.data_root``)
+        or the dataset folder itself; for the embedded ones, the parent folder the dataset is generated into
+        (default the ``datasets`` cache). Ignored for a custom folder.
+
+    Returns
+    -------
+    Dataset
+        ``.name``, ``.pairs`` (list of :class:`Pair`), iterable, ``len()``.
+
+    Raises
+    ------
+    ValueError
+        ``name_or_path`` is neither a registered name nor a folder with ``pairs.csv``.
+    FileNotFoundError
+        The real data are not found (``CTXMATCH_DATA`` unset or wrong), or a listed file is missing.
+
+    Examples
+    --------
+    >>> ds = load_dataset("embedded-planar")
+    >>> len(ds), ds[0].kind
+    (15, 'planar')
+    """
+    if isinstance(name_or_path, str) and name_or_path in _EMBEDDED:
+        folder = embedded_root(root)
+        ds = read_custom_dataset(folder, name="embedded")
+        kind = _EMBEDDED[name_or_path]
+        pairs = [p for p in ds.pairs if kind is None or p.kind == kind]
+        return Dataset(name_or_path, pairs, folder)
+    if isinstance(name_or_path, str) and name_or_path in REAL_LOADERS:
+        return Dataset(name_or_path, REAL_LOADERS[name_or_path](root), Path(root) if root else None)
+    if isinstance(name_or_path, str) and name_or_path in _GROUPS:
+        pairs = [p for sub in _GROUPS[name_or_path] for p in REAL_LOADERS[sub](root)]
+        return Dataset(name_or_path, pairs, Path(root) if root else None)
+    path = Path(name_or_path)
+    if path.is_dir():
+        return read_custom_dataset(path)
+    if path.is_file() and path.name == "pairs.csv":
+        return read_custom_dataset(path.parent)
+    raise ValueError(
+        f"name_or_path must be one of {list_datasets()} or a folder holding pairs.csv, got {str(name_or_path)!r}"
+    )

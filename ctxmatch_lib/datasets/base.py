@@ -8,20 +8,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Union
+from typing import Iterator, Literal, Union
 
 import numpy as np
 
-__all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "GroundTruth", "Pair", "PairKind"]
+__all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "GroundTruth", "Pair", "PairKind", "Dataset", "PAIR_KINDS"]
 
 PairKind = Literal["planar", "nonplanar", "depth"]
+PAIR_KINDS = ("planar", "nonplanar", "depth")
 
 
 @dataclass(frozen=True, eq=False)
 class HomographyGT:
-    """Planar ground truth: ``H`` (3, 3) maps image-1 points to image 2, ``x2 ~ H @ [x1, y1, 1]``."""
+    """Planar ground truth: ``H`` (3, 3) maps image-1 points to image 2, ``x2 ~ H @ [x1, y1, 1]``.
+
+    ``pts1``/``pts2`` (N, 2), optional: hand-taken corresponding points the homography was checked or
+    fitted on (the Lebeda homogr set ships them), ``None`` when the dataset has none.
+    """
 
     H: np.ndarray
+    pts1: np.ndarray | None = None
+    pts2: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,3 +77,35 @@ class Pair:
     kind: PairKind
     gt: GroundTruth = field(repr=False)
     dataset: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """A named, ordered list of :class:`Pair`; iterable, indexable and sized.
+
+    ``root`` is the folder the pairs were read from (or generated into), when there is one.
+    """
+
+    name: str
+    pairs: list[Pair]
+    root: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __iter__(self) -> Iterator[Pair]:
+        return iter(self.pairs)
+
+    def __getitem__(self, index):
+        return self.pairs[index]
+
+    def __repr__(self) -> str:
+        kinds = {k: sum(p.kind == k for p in self.pairs) for k in PAIR_KINDS}
+        counts = ", ".join(f"{k}={n}" for k, n in kinds.items() if n)
+        return f"Dataset({self.name!r}, {len(self.pairs)} pairs{': ' + counts if counts else ''})"
+
+    def by_kind(self, kind: str) -> "Dataset":
+        """The sub-dataset of the pairs of one kind (``"planar"``, ``"nonplanar"`` or ``"depth"``)."""
+        if kind not in PAIR_KINDS:
+            raise ValueError(f"kind must be one of {PAIR_KINDS}, got {kind!r}")
+        return Dataset(f"{self.name}[{kind}]", [p for p in self.pairs if p.kind == kind], self.root)

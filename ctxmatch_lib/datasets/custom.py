@@ -1,0 +1,215 @@
+"""The custom folder format: run your own image pairs without writing code.
+
+A folder holding ``pairs.csv`` with the header ``pair_id,image1,image2,kind,gt`` and an optional ``F``
+column; paths are relative to the folder (absolute paths work too). Pixel convention: x right, y down,
+(0, 0) the centre of the top-left pixel.
+
+``kind`` and ``gt``:
+
+- ``planar``: ``gt`` is a text file with a 3×3 whitespace-separated homography mapping image1 → image2.
+- ``nonplanar``: ``gt`` is an N×4 text file of hand-taken correspondences ``x1 y1 x2 y2`` (N >= 7); the
+  fundamental matrix is fitted from them (normalised 8-point) unless the ``F`` column names a 3×3 text
+  file with ``x2^T F x1 = 0``.
+- any kind, including ``depth``: ``gt`` may be a ``.npz`` file with a dense ``flow12`` array (H1, W1, 2)
+  and optionally ``flow21`` (see :class:`~ctxmatch_lib.datasets.base.FlowGT`; NaN where unknown or
+  occluded).
+
+Example ``pairs.csv``::
+
+    pair_id,image1,image2,kind,gt,F
+    graf-1-2,graf/img1.png,graf/img2.png,planar,graf/H1to2.txt,
+    castle,castle/A.png,castle/B.png,nonplanar,castle/points.txt,castle/F.txt
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ._io import fit_fundamental, image_size, read_matrix
+from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair
+
+__all__ = ["read_custom_dataset", "write_custom_dataset", "read_flow", "write_flow", "REQUIRED_COLUMNS"]
+
+REQUIRED_COLUMNS = ("pair_id", "image1", "image2", "kind", "gt")
+
+
+def read_flow(path) -> FlowGT:
+    """Read a dense ``.npz`` ground truth (arrays ``flow12`` and optionally ``flow21``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ground-truth file not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            flow12 = np.asarray(z["flow12"], np.float64)
+            flow21 = np.asarray(z["flow21"], np.float64) if "flow21" in z.files else None
+    except Exception as exc:
+        raise ValueError(f"cannot read dense ground truth (flow12[, flow21]) from {path}: {exc}") from None
+    for name, flow in (("flow12", flow12), ("flow21", flow21)):
+        if flow is not None and (flow.ndim != 3 or flow.shape[2] != 2):
+            raise ValueError(f"{path}: {name} must have shape (H, W, 2), got {flow.shape}")
+    return FlowGT(flow12, flow21)
+
+
+def write_flow(path, gt: FlowGT) -> None:
+    """Write a :class:`FlowGT` as a compressed ``.npz`` (float32), atomically."""
+    arrays = {"flow12": np.asarray(gt.flow12, np.float32)}
+    if gt.flow21 is not None:
+        arrays["flow21"] = np.asarray(gt.flow21, np.float32)
+    path = Path(path)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    os.replace(tmp, path)
+
+
+def _read_points(path) -> np.ndarray:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ground-truth file not found: {path}")
+    try:
+        pts = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"cannot parse correspondences file {path}: {exc}") from None
+    if pts.size == 0:
+        raise ValueError(f"correspondences file {path} is empty; it needs N >= 7 rows 'x1 y1 x2 y2'")
+    if pts.shape[1] != 4:
+        raise ValueError(f"correspondences file {path} must have 4 columns 'x1 y1 x2 y2', got {pts.shape[1]}")
+    if not np.isfinite(pts).all():
+        raise ValueError(f"correspondences file {path} contains NaN or infinite values")
+    return pts
+
+
+def _gt_for(folder: Path, row: dict, csv_path: Path, line: int):
+    kind = row["kind"].strip().lower()
+    if kind not in PAIR_KINDS:
+        raise ValueError(f"{csv_path}, line {line}: kind must be one of {PAIR_KINDS}, got {row['kind']!r}")
+    gt_name = (row.get("gt") or "").strip()
+    if not gt_name:
+        raise ValueError(f"{csv_path}, line {line}: the gt column is empty")
+    gt_path = folder / gt_name
+    if gt_path.suffix.lower() == ".npz":
+        return kind, read_flow(gt_path)
+    if kind == "planar":
+        H = read_matrix(gt_path, what="homography")
+        return kind, HomographyGT(H / H[2, 2] if H[2, 2] != 0 else H)
+    if kind == "nonplanar":
+        pts = _read_points(gt_path)
+        f_name = (row.get("F") or "").strip()
+        if f_name:
+            F = read_matrix(folder / f_name, what="fundamental matrix")
+        else:
+            if len(pts) < 7:
+                raise ValueError(f"{gt_path}: fitting F needs at least 7 correspondences, got {len(pts)}")
+            F = fit_fundamental(pts[:, :2], pts[:, 2:])
+        return kind, EpipolarGT(F / np.linalg.norm(F), pts[:, :2].copy(), pts[:, 2:].copy())
+    raise ValueError(f"{csv_path}, line {line}: kind 'depth' needs a dense .npz ground truth, got {gt_name!r}")
+
+
+def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
+    """Load a folder in the custom format (see the module docstring).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder holding ``pairs.csv``.
+    name : str, optional
+        Dataset name; default the folder name.
+
+    Raises
+    ------
+    FileNotFoundError
+        No ``pairs.csv``, or a listed image or ground-truth file is missing (the message names it).
+    ValueError
+        ``pairs.csv`` has no rows, misses a column, has an unknown kind; an image or gt file is corrupt.
+    """
+    folder = Path(folder)
+    csv_path = folder / "pairs.csv"
+    if not csv_path.is_file():
+        raise FileNotFoundError(f"pairs.csv not found in {folder}")
+    with open(csv_path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f, skipinitialspace=True)
+        header = [c.strip() for c in (reader.fieldnames or [])]
+        reader.fieldnames = header
+        rows = [(i + 2, r) for i, r in enumerate(reader) if any((v or "").strip() for v in r.values())]
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if not header:
+        raise ValueError(f"{csv_path} is empty: expected the header {','.join(REQUIRED_COLUMNS)} and one row per pair")
+    if missing:
+        raise ValueError(f"{csv_path} misses the column(s) {', '.join(missing)}; header is {','.join(header)}")
+    if not rows:
+        raise ValueError(f"{csv_path} lists no pairs: add one row per pair under the header")
+    name = name or folder.resolve().name
+    pairs, seen = [], set()
+    for line, row in rows:
+        pair_id = (row["pair_id"] or "").strip()
+        if not pair_id:
+            raise ValueError(f"{csv_path}, line {line}: pair_id is empty")
+        if pair_id in seen:
+            raise ValueError(f"{csv_path}, line {line}: duplicate pair_id {pair_id!r}")
+        seen.add(pair_id)
+        images = []
+        for col in ("image1", "image2"):
+            value = (row[col] or "").strip()
+            if not value:
+                raise ValueError(f"{csv_path}, line {line}: the {col} column is empty")
+            images.append(folder / value)
+        sizes = [image_size(p) for p in images]  # raises naming a missing or corrupt image
+        kind, gt = _gt_for(folder, row, csv_path, line)
+        if isinstance(gt, FlowGT):
+            w, h = sizes[0]
+            if gt.flow12.shape[:2] != (h, w):
+                raise ValueError(
+                    f"{folder / row['gt'].strip()}: flow12 has shape {gt.flow12.shape[:2]} but image1 is {h}x{w}"
+                )
+        pairs.append(Pair(pair_id, images[0], images[1], sizes[0], sizes[1], kind, gt, dataset=name))
+    return Dataset(name, pairs, folder)
+
+
+def _rel(path: Path, folder: Path) -> str:
+    try:
+        return Path(os.path.relpath(Path(path).resolve(), folder.resolve())).as_posix()
+    except ValueError:  # another drive on Windows
+        return Path(path).resolve().as_posix()
+
+
+def write_custom_dataset(dataset, folder) -> Path:
+    """Write ``dataset`` (a :class:`Dataset` or a list of pairs) as a custom-format folder.
+
+    Images are referenced, not copied (relative paths from ``folder``). Ground truth goes to ``gt/``:
+    homographies and F as 3×3 text, hand points as N×4 text, dense flows as ``.npz``. Returns the path
+    of the written ``pairs.csv``. :func:`read_custom_dataset` reads it back.
+    """
+    folder = Path(folder)
+    gt_dir = folder / "gt"
+    gt_dir.mkdir(parents=True, exist_ok=True)
+    pairs = list(dataset)
+    lines = []
+    for i, p in enumerate(pairs):
+        stem = f"{i:04d}"
+        f_rel = ""
+        if isinstance(p.gt, FlowGT):
+            gt_rel = f"gt/{stem}_flow.npz"
+            write_flow(folder / gt_rel, p.gt)
+        elif isinstance(p.gt, HomographyGT):
+            gt_rel = f"gt/{stem}_H.txt"
+            np.savetxt(folder / gt_rel, p.gt.H, fmt="%.17g")
+        elif isinstance(p.gt, EpipolarGT):
+            gt_rel = f"gt/{stem}_points.txt"
+            np.savetxt(folder / gt_rel, np.c_[p.gt.pts1, p.gt.pts2], fmt="%.17g")
+            f_rel = f"gt/{stem}_F.txt"
+            np.savetxt(folder / f_rel, p.gt.F, fmt="%.17g")
+        else:
+            raise ValueError(f"pair {p.pair_id!r}: unsupported ground truth {type(p.gt).__name__}")
+        lines.append([p.pair_id, _rel(p.image1, folder), _rel(p.image2, folder), p.kind, gt_rel, f_rel])
+    csv_path = folder / "pairs.csv"
+    tmp = csv_path.with_name(f"pairs.csv.{os.getpid()}.tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow([*REQUIRED_COLUMNS, "F"])
+        w.writerows(lines)
+    os.replace(tmp, csv_path)
+    return csv_path

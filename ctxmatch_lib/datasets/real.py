@@ -1,0 +1,186 @@
+"""Loaders for the public real datasets, in the formats their authors distribute.
+
+Each loader takes the data root (the folder holding ``planar/`` and ``nonplanar/``, from ``CTXMATCH_DATA``
+by default) or the dataset folder itself, and returns the pairs with ground truth in the conventions of
+:mod:`ctxmatch_lib.datasets.base` (x right, y down, origin at the centre of the top-left pixel;
+``H`` maps image 1 to image 2; ``x2^T F x1 = 0``).
+
+==========  ===================================  ===========================================================
+name        layout                               ground truth
+==========  ===================================  ===========================================================
+hpatches    ``<seq>/1.ppm … 6.ppm``, ``H_1_k``   ``H_1_k`` maps image 1 to image k (pairs 1→2 … 1→6)
+oxford      ``<seq>/img1.* … img6.*``, ``H1tokp`` ``H1tokp`` maps image 1 to image k (pairs 1→2 … 1→6)
+homogr      ``<n>A.*``, ``<n>B.*``, ``<n>_vpts``  the model maps **B to A**: image 1 = A gets ``inv(model)``
+kusvod2     ``<n>A.*``, ``<n>B.*``, ``<n>_vpts``  ``xA^T F xB = 0``: image 1 = A gets ``F^T``; fitted from the
+                                                 hand points (normalised 8-point) when absent or all zeros
+==========  ===================================  ===========================================================
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .._paths import data_root
+from ._io import fit_fundamental, image_size, read_matrix, read_vpts
+from .base import EpipolarGT, HomographyGT, Pair
+
+__all__ = ["load_hpatches", "load_oxford", "load_homogr", "load_kusvod2", "REAL_LOADERS"]
+
+
+def _resolve(root, subpath: str, marker) -> Path:
+    """The dataset folder: ``root/subpath``, ``root/<last part>`` or ``root`` itself, first that ``marker`` accepts."""
+    if root is None:
+        root = data_root(required=True)
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"data root not found: {root}")
+    last = Path(subpath).name
+    for cand in (root / subpath, root / last, root):
+        if cand.is_dir() and marker(cand):
+            return cand
+    raise FileNotFoundError(
+        f"{last} data not found under {root} (looked in {root / subpath}, {root / last} and {root}); "
+        f"run `ctxmatch data download {last}` or set CTXMATCH_DATA"
+    )
+
+
+def _images_in(folder: Path, pattern: str) -> dict[str, Path]:
+    rx = re.compile(pattern)
+    out = {}
+    for p in sorted(folder.iterdir()):
+        m = rx.fullmatch(p.name)
+        if m and p.is_file():
+            out.setdefault(m.group(1), p)
+    return out
+
+
+def _sequence_pairs(seq: Path, images: dict[str, Path], gt_name, dataset: str) -> list[Pair]:
+    if "1" not in images:
+        raise FileNotFoundError(f"reference image 1 not found in sequence folder {seq}")
+    ref = images["1"]
+    size1 = image_size(ref)
+    pairs = []
+    for k in sorted((k for k in images if k != "1"), key=int):
+        H = read_matrix(seq / gt_name(k), what="homography")
+        pairs.append(Pair(
+            pair_id=f"{dataset}/{seq.name}/1-{k}", image1=ref, image2=images[k], image_size1=size1,
+            image_size2=image_size(images[k]), kind="planar", gt=HomographyGT(H / H[2, 2]), dataset=dataset,
+        ))
+    return pairs
+
+
+def load_hpatches(root=None) -> list[Pair]:
+    """HPatches sequences (Balntas et al., CVPR 2017): every ``v_*``/``i_*`` folder, pairs 1→k.
+
+    Parameters
+    ----------
+    root : str or Path, optional
+        The data root (``planar/hpatches`` under it), the ``hpatches`` folder, or the folder of the
+        extracted ``hpatches-sequences-release``; default ``CTXMATCH_DATA``.
+    """
+    def is_seq(p):
+        return (p / "H_1_2").is_file()
+
+    folder = _resolve(root, "planar/hpatches", lambda d: any(is_seq(s) for s in d.iterdir() if s.is_dir()))
+    if not (folder / "planar").exists() and (folder / "hpatches-sequences-release").is_dir():
+        folder = folder / "hpatches-sequences-release"
+    pairs = []
+    for seq in sorted(s for s in folder.iterdir() if s.is_dir() and is_seq(s)):
+        images = _images_in(seq, r"(\d+)\.(?:ppm|png|jpg|pgm)")
+        pairs += _sequence_pairs(seq, images, lambda k: f"H_1_{k}", "hpatches")
+    return pairs
+
+
+def load_oxford(root=None) -> list[Pair]:
+    """Oxford affine sequences (Mikolajczyk et al., IJCV 2005): ``img1 … img6`` with ``H1tokp``, pairs 1→k."""
+    def is_seq(p):
+        return (p / "H1to2p").is_file()
+
+    folder = _resolve(root, "planar/oxford", lambda d: any(is_seq(s) for s in d.iterdir() if s.is_dir()))
+    pairs = []
+    for seq in sorted(s for s in folder.iterdir() if s.is_dir() and is_seq(s)):
+        images = _images_in(seq, r"img(\d+)\.(?:ppm|png|jpg|pgm)")
+        pairs += _sequence_pairs(seq, images, lambda k: f"H1to{k}p", "oxford")
+    return pairs
+
+
+def _ab_pairs(folder: Path):
+    """(name, imageA, imageB, vpts) for each ``<name>_vpts.mat`` in ``folder``."""
+    out = []
+    for vpts in sorted(folder.glob("*_vpts.mat")):
+        name = vpts.name[: -len("_vpts.mat")]
+        imgs = {}
+        for side in "AB":
+            found = [p for p in sorted(folder.glob(f"{name}{side}.*")) if p.suffix.lower() != ".mat"]
+            if not found:
+                raise FileNotFoundError(f"image file not found: {folder / name}{side}.* (for {vpts.name})")
+            imgs[side] = found[0]
+        out.append((name, imgs["A"], imgs["B"], vpts))
+    return out
+
+
+def _model_file(folder: Path, name: str, mat_model):
+    """The 3x3 model from ``<name>_model.txt`` or the .mat, ``None`` when absent or all zeros."""
+    txt = folder / f"{name}_model.txt"
+    if txt.is_file():
+        M = read_matrix(txt, what="model")
+        return M if np.any(M) else None
+    return mat_model
+
+
+def load_homogr(root=None) -> list[Pair]:
+    """Lebeda, Matas & Chum (BMVC 2012) planar "homogr" pairs; image 1 = A, image 2 = B.
+
+    The distributed model maps B to A, so the pair's ``H`` (image 1 → image 2) is its inverse. When no
+    model is shipped, ``H`` is fitted to the hand-taken points (normalised DLT). The hand points are kept
+    in ``HomographyGT.pts1/pts2``.
+    """
+    import cv2
+
+    folder = _resolve(root, "planar/homogr", lambda d: any(d.glob("*_vpts.mat")))
+    pairs = []
+    for name, a, b, vpts in _ab_pairs(folder):
+        ptsA, ptsB, mat_model = read_vpts(vpts)
+        model = _model_file(folder, name, mat_model)
+        if model is not None:
+            H = np.linalg.inv(model)
+        else:
+            if len(ptsA) < 4:
+                raise ValueError(f"{vpts}: no model and fewer than 4 hand points to fit a homography")
+            H, _ = cv2.findHomography(ptsA, ptsB, 0)
+        pairs.append(Pair(
+            pair_id=f"homogr/{name}", image1=a, image2=b, image_size1=image_size(a), image_size2=image_size(b),
+            kind="planar", gt=HomographyGT(H / H[2, 2], ptsA, ptsB), dataset="homogr",
+        ))
+    return pairs
+
+
+def load_kusvod2(root=None) -> list[Pair]:
+    """Lebeda, Matas & Chum (BMVC 2012) non-planar "kusvod2" pairs; image 1 = A, image 2 = B.
+
+    The distributed F satisfies ``xA^T F xB = 0``, so the pair's F (``x2^T F x1 = 0``) is its transpose.
+    When it is absent or all zeros (8 of the 24 pairs), F is fitted to the hand-taken points with
+    :func:`ctxmatch_lib.datasets._io.fit_fundamental`.
+    """
+    folder = _resolve(root, "nonplanar/kusvod2", lambda d: any(d.glob("*_vpts.mat")))
+    pairs = []
+    for name, a, b, vpts in _ab_pairs(folder):
+        ptsA, ptsB, mat_model = read_vpts(vpts)
+        model = _model_file(folder, name, mat_model)
+        F = model.T if model is not None else fit_fundamental(ptsA, ptsB)
+        pairs.append(Pair(
+            pair_id=f"kusvod2/{name}", image1=a, image2=b, image_size1=image_size(a), image_size2=image_size(b),
+            kind="nonplanar", gt=EpipolarGT(F / np.linalg.norm(F), ptsA, ptsB), dataset="kusvod2",
+        ))
+    return pairs
+
+
+REAL_LOADERS = {
+    "hpatches": load_hpatches,
+    "oxford": load_oxford,
+    "homogr": load_homogr,
+    "kusvod2": load_kusvod2,
+}
