@@ -1,0 +1,309 @@
+"""Match-set statistics of Sec. 5.1 and Appendix "DTM evaluation": precision, normalised recall, recall*,
+correct/output counts, failure, AP and mAP.
+
+Counting with many-to-many matches (Sec. 5.1, Fig. 4). A set ``Z`` of correct matches is counted as
+``min(|Z_rows|, |Z_cols|)`` -- the number of distinct image-1 keypoints or distinct image-2 keypoints it
+uses, whichever is smaller -- instead of ``|Z|``, so a keypoint matched several times is counted once.
+Both the numerator and the denominator of the recall are counted this way; for one-to-one matches it is
+the usual count. The precision is computed as usual, ``correct / output``.
+
+The recall reference is the set of ground-truth-correct matches among the blob candidates of the same
+pipeline (Sec. 5.3: a filter cannot output matches it was not given); recall* uses instead the union of
+the correct matches over all the configurations tested on the pair (Appendix, Tables 1-3).
+
+Conventions for degenerate cases (documented so that averages over pairs are well defined):
+
+* empty output: precision 0, recall 0 (when the reference is not empty), failure ``True``, AP 0;
+* empty reference (no correct candidate at all): recall, recall* and AP are NaN (undefined; pandas' mean
+  skips them), precision and failure as above.
+
+``matches`` are ``(K, 2)`` int64 indices into the keypoints of images 1 and 2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ._validation import as_matches, as_scores
+
+__all__ = [
+    "MatchMetrics",
+    "normalised_count",
+    "cumulative_normalised_count",
+    "precision",
+    "recall",
+    "ground_truth_union",
+    "average_precision",
+    "mean_average_precision",
+    "evaluate_matches",
+]
+
+
+def normalised_count(matches) -> int:
+    """``min(|Z_rows|, |Z_cols|)``: distinct image-1 or image-2 keypoints, whichever fewer (Sec. 5.1, Fig. 4).
+
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    The example of Fig. 4: rows {0, 1, 2, 3}, columns {0, 1, 2, 3, 4}.
+
+    >>> normalised_count([[0, 0], [0, 1], [1, 2], [2, 3], [3, 4], [3, 0]])
+    4
+    """
+    m = as_matches(matches)
+    if len(m) == 0:
+        return 0
+    return int(min(len(np.unique(m[:, 0])), len(np.unique(m[:, 1]))))
+
+
+def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
+    first = np.zeros(len(values), bool)
+    first[np.unique(values, return_index=True)[1]] = True
+    return np.cumsum(first)
+
+
+def cumulative_normalised_count(matches) -> np.ndarray:
+    """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (for ranked lists).
+
+    Returns
+    -------
+    ndarray of shape (K,), int64
+    """
+    m = as_matches(matches)
+    if len(m) == 0:
+        return np.empty(0, np.int64)
+    return np.minimum(_cumulative_distinct(m[:, 0]), _cumulative_distinct(m[:, 1])).astype(np.int64)
+
+
+def _labels(is_correct, k: int) -> np.ndarray:
+    lab = np.asarray(is_correct, dtype=bool).reshape(-1)
+    if len(lab) != k:
+        raise ValueError(f"is_correct must have one label per match ({k}), got {len(lab)}")
+    return lab
+
+
+def precision(is_correct) -> float:
+    """``correct / output``; 0 for an empty output.
+
+    Examples
+    --------
+    >>> precision([True, False, True, True])
+    0.75
+    """
+    lab = np.asarray(is_correct, dtype=bool).reshape(-1)
+    return float(lab.mean()) if len(lab) else 0.0
+
+
+def recall(matches, is_correct, reference) -> float:
+    """Normalised recall: :func:`normalised_count` of the correct output over that of ``reference``.
+
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+        The output matches.
+    is_correct : array_like of shape (K,), bool
+        Ground-truth label of each output match.
+    reference : array_like of shape (M, 2), int
+        The ground-truth-correct matches to recall: the correct blob candidates (recall) or the union over
+        configurations from :func:`ground_truth_union` (recall*).
+
+    Returns
+    -------
+    float
+        NaN when ``reference`` is empty.
+
+    Examples
+    --------
+    >>> recall([[0, 0], [0, 1]], [True, True], [[0, 0], [0, 1], [1, 1], [2, 2]])
+    0.3333333333333333
+    """
+    m = as_matches(matches)
+    lab = _labels(is_correct, len(m))
+    den = normalised_count(reference)
+    if den == 0:
+        return float("nan")
+    return normalised_count(m[lab]) / den
+
+
+def ground_truth_union(*correct_sets) -> np.ndarray:
+    """Union of sets of correct matches (same keypoints), e.g. over the configurations tested on a pair.
+
+    Parameters
+    ----------
+    *correct_sets : array_like of shape (M_i, 2), int
+
+    Returns
+    -------
+    ndarray of shape (M, 2), int64
+        Distinct matches, sorted lexicographically.
+    """
+    sets = [as_matches(s, name=f"correct_sets[{i}]") for i, s in enumerate(correct_sets)]
+    if not sets:
+        return np.empty((0, 2), np.int64)
+    allm = np.concatenate(sets, axis=0)
+    if len(allm) == 0:
+        return allm
+    return np.unique(allm, axis=0)
+
+
+def average_precision(matches, is_correct, scores, reference) -> float:
+    """Average precision of the ranking of ``matches`` by ascending score, with the normalised recall.
+
+    Definition: walking down the ranking (stable sort, ties keep their given order), the precision at
+    rank ``k`` is ``P_k = (#correct in the top k) / k`` and the normalised count of the correct matches
+    in the top ``k`` is ``N_k`` (:func:`cumulative_normalised_count`). Then
+
+    ``AP = sum_k P_k * (N_k - N_{k-1}) / normalised_count(reference)``,
+
+    the area under the precision-recall curve of the ranking with the recall of Sec. 5.1. A correct match
+    that only repeats an already counted keypoint adds no recall and so no area. For the blob candidates
+    themselves (``reference`` = their correct subset) ``AP`` is 1 exactly when every correct match is
+    ranked before every wrong one; for a filtered subset it integrates up to the subset's recall.
+
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+    is_correct : array_like of shape (K,), bool
+    scores : array_like of shape (K,)
+        Lower is better; ``None`` keeps the given order.
+    reference : array_like of shape (M, 2), int
+        As in :func:`recall`.
+
+    Returns
+    -------
+    float
+        NaN when ``reference`` is empty; 0 for an empty output.
+
+    Examples
+    --------
+    >>> average_precision([[0, 0], [1, 1], [2, 2]], [True, False, True], [0.1, 0.2, 0.3], [[0, 0], [2, 2]])
+    0.8333333333333333
+    """
+    m = as_matches(matches)
+    lab = _labels(is_correct, len(m))
+    s = as_scores(scores, len(m))
+    den = normalised_count(reference)
+    if den == 0:
+        return float("nan")
+    if len(m) == 0:
+        return 0.0
+    order = np.argsort(s, kind="stable")
+    lab = lab[order]
+    ranked = m[order]
+    prec = np.cumsum(lab) / np.arange(1, len(lab) + 1)
+    n = np.zeros(len(lab), np.int64)
+    if lab.any():
+        # N_k counts the correct matches only: cumulative distinct keypoints among the correct ones so far.
+        n[lab] = cumulative_normalised_count(ranked[lab])
+        n = np.maximum.accumulate(n)
+    dn = np.diff(np.r_[0, n])
+    return float((prec * dn).sum() / den)
+
+
+def mean_average_precision(aps) -> float:
+    """Mean of per-pair APs, skipping undefined (NaN) ones; NaN when none is defined."""
+    a = np.asarray(list(aps), dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if len(a) else float("nan")
+
+
+@dataclass(frozen=True)
+class MatchMetrics:
+    """Statistics of one output match set (one row of the Appendix tables).
+
+    Attributes
+    ----------
+    precision, recall, recall_star, ap : float
+        In [0, 1]; recall, recall* and AP are NaN when their reference is empty.
+    correct : int
+        Correct output matches (plain count).
+    correct_norm : int
+        Correct output matches, normalised count (the recall numerator).
+    output : int
+        Output matches.
+    failure : bool
+        No correct match in the output.
+    n_gt, n_gt_star : int
+        Normalised size of the recall and recall* references.
+    time_s : float
+        Running time of the step, seconds (NaN when not measured).
+    """
+
+    precision: float
+    recall: float
+    recall_star: float
+    ap: float
+    correct: int
+    correct_norm: int
+    output: int
+    failure: bool
+    n_gt: int
+    n_gt_star: int
+    time_s: float = float("nan")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def evaluate_matches(
+    matches,
+    is_correct,
+    *,
+    reference,
+    reference_star=None,
+    scores=None,
+    time_s: float = float("nan"),
+) -> MatchMetrics:
+    """All statistics of one output match set.
+
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+        The output matches (indices into the keypoints of images 1 and 2).
+    is_correct : array_like of shape (K,), bool
+        Their ground-truth labels.
+    reference : array_like of shape (M, 2), int
+        Correct blob candidates of the same configuration (the recall reference).
+    reference_star : array_like of shape (M*, 2), int, optional
+        Union of correct matches over all configurations (recall*); defaults to ``reference``.
+    scores : array_like of shape (K,), optional
+        Ranking for the AP, lower is better; ``None`` keeps the given order.
+    time_s : float
+        Running time to report.
+
+    Returns
+    -------
+    MatchMetrics
+
+    Examples
+    --------
+    >>> mm = evaluate_matches([[0, 0], [1, 1]], [True, False], reference=[[0, 0], [2, 2]])
+    >>> mm.precision, mm.recall, mm.correct, mm.output, mm.failure
+    (0.5, 0.5, 1, 2, False)
+    """
+    m = as_matches(matches)
+    lab = _labels(is_correct, len(m))
+    ref_star = reference if reference_star is None else reference_star
+    correct = int(lab.sum())
+    return MatchMetrics(
+        precision=precision(lab),
+        recall=recall(m, lab, reference),
+        recall_star=recall(m, lab, ref_star),
+        ap=average_precision(m, lab, scores, reference),
+        correct=correct,
+        correct_norm=normalised_count(m[lab]),
+        output=len(m),
+        failure=correct == 0,
+        n_gt=normalised_count(reference),
+        n_gt_star=normalised_count(ref_star),
+        time_s=float(time_s),
+    )
