@@ -25,6 +25,8 @@ __all__ = ["FILTERS", "register_filter"]
 _BUILTIN: dict[str, str] = {
     "th": "ctxmatch_lib.filters.th:th_filter",
     "gms": "ctxmatch_lib.filters.gms:gms_filter",
+    "lpm": "ctxmatch_lib.filters.lpm:lpm_filter",
+    "glpm": "ctxmatch_lib.filters.lpm:glpm_filter",
 }
 
 

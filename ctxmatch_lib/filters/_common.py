@@ -74,22 +74,23 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
     return int(value) if integer else float(value)
 
 
-def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int) -> np.ndarray:
-    """Indices (into ``points``) of the ``k`` nearest ``candidates`` of every point, the point itself excluded.
+def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries: np.ndarray | None = None):
+    """Indices (into ``points``) of the ``k`` nearest ``candidates`` of every query, the query excluded.
 
-    ``candidates`` is an index array into ``points``; the answer has shape ``(len(points), k')`` with
-    ``k' = min(k, len(candidates) - 1)`` (the point itself may or may not be a candidate). Ties are broken by
-    the k-d tree, deterministically.
+    ``candidates`` and ``queries`` (default: every point) are index arrays into ``points``; the answer has
+    shape ``(len(queries), k')`` with ``k' = min(k, len(candidates) - 1)``, nearest first. A query that is
+    itself a candidate is not its own neighbour. Ties are broken by the k-d tree, deterministically.
     """
-    n = len(points)
+    queries = np.arange(len(points)) if queries is None else np.asarray(queries)
+    n = len(queries)
     kk = min(k, len(candidates) - 1)
     if kk <= 0 or n == 0:
         return np.empty((n, 0), np.int64)
     tree = cKDTree(points[candidates])
-    _, idx = tree.query(points, k=kk + 1)
-    idx = candidates[idx.reshape(n, kk + 1)]
-    # Drop the point itself where it came back; otherwise drop the farthest extra neighbour.
-    is_self = idx == np.arange(n)[:, None]
+    _, idx = tree.query(points[queries], k=kk + 1)
+    idx = np.asarray(candidates)[idx.reshape(n, kk + 1)]
+    # Drop the query itself where it came back; otherwise drop the farthest extra neighbour.
+    is_self = idx == queries[:, None]
     order = np.argsort(is_self, axis=1, kind="stable")
     return np.take_along_axis(idx, order, axis=1)[:, :kk]
 
