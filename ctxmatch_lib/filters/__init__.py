@@ -27,6 +27,8 @@ _BUILTIN: dict[str, str] = {
     "gms": "ctxmatch_lib.filters.gms:gms_filter",
     "lpm": "ctxmatch_lib.filters.lpm:lpm_filter",
     "glpm": "ctxmatch_lib.filters.lpm:glpm_filter",
+    "vfc": "ctxmatch_lib.filters.vfc:vfc_filter",
+    "llt": "ctxmatch_lib.filters.llt:llt_filter",
 }
 
 
