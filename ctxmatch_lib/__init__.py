@@ -5,8 +5,19 @@ Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels with the origi
 top-left pixel.
 """
 
+from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching
 from .filters import FILTERS, register_filter
 
 __version__ = "0.1.0"
 
-__all__ = ["FILTERS", "register_filter", "__version__"]
+__all__ = [
+    "BLOB_PRESETS",
+    "BlobConfig",
+    "BlobContext",
+    "BlobMatches",
+    "FILTERS",
+    "blob_grid",
+    "blob_matching",
+    "register_filter",
+    "__version__",
+]

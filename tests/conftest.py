@@ -1,0 +1,23 @@
+import os
+
+import matplotlib
+import pytest
+from hypothesis import HealthCheck, settings
+
+matplotlib.use("Agg")
+
+# Deterministic property tests in CI: the same examples every run.
+settings.register_profile("ci", derandomize=True, deadline=None, max_examples=60,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+@pytest.fixture(scope="session")
+def data_root():
+    """The shared real data (CTXMATCH_DATA); skips the test with a reason when it is absent."""
+    from ctxmatch_lib._paths import data_root as _root
+
+    root = _root()
+    if root is None:
+        pytest.skip("CTXMATCH_DATA is not set or not a folder: real-data test skipped")
+    return root
