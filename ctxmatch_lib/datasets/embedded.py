@@ -408,28 +408,29 @@ def motorcycle_flows(disp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     flow12[valid, 0] = -disp[valid]
     flow12[valid, 1] = 0.0
     flow21 = np.full((h, w, 2), np.nan, np.float32)
-    best = np.full((h, w), -np.inf)
-    cols = np.arange(w, dtype=np.float64)
-    for r in range(h):
-        d = disp[r]
-        xr = cols - d  # right-image position of each left pixel
-        seg = valid[r, :-1] & valid[r, 1:] & (np.abs(d[1:] - d[:-1]) <= 1.0)
-        for c in np.flatnonzero(seg):
-            a, b = xr[c], xr[c + 1]
-            if b < a:  # a steep surface folds over; skip the degenerate segment
-                continue
-            lo, hi = int(np.ceil(a)), int(np.floor(b))
-            lo, hi = max(lo, 0), min(hi, w - 1)
-            if hi < lo:
-                continue
-            xs = np.arange(lo, hi + 1, dtype=np.float64)
-            f = (xs - a) / (b - a) if b > a else np.zeros_like(xs)
-            dd = d[c] + f * (d[c + 1] - d[c])
-            xi = xs.astype(np.int64)
-            closer = dd > best[r, xi]
-            best[r, xi[closer]] = dd[closer]
-            flow21[r, xi[closer], 0] = dd[closer]
-            flow21[r, xi[closer], 1] = 0.0
+    d = np.where(valid, disp, 0.0)
+    xr = np.arange(w, dtype=np.float64)[None, :] - d  # right-image position of each left pixel
+    seg = valid[:, :-1] & valid[:, 1:] & (np.abs(d[:, 1:] - d[:, :-1]) <= 1.0)
+    seg &= xr[:, 1:] > xr[:, :-1]  # a surface steep enough to fold over has no inverse here
+    rows, c = np.nonzero(seg)
+    a, b = xr[rows, c], xr[rows, c + 1]
+    # With |d[c+1] - d[c]| <= 1 a segment spans at most 2 px, so at most 3 integer right pixels.
+    cand_r, cand_x, cand_d = [], [], []
+    for j in range(3):
+        xi = np.ceil(a) + j
+        ok = (xi <= b) & (xi >= 0) & (xi <= w - 1)
+        f = (xi[ok] - a[ok]) / (b[ok] - a[ok])
+        cand_r.append(rows[ok])
+        cand_x.append(xi[ok].astype(np.int64))
+        cand_d.append(d[rows[ok], c[ok]] + f * (d[rows[ok], c[ok] + 1] - d[rows[ok], c[ok]]))
+    cand_r, cand_x, cand_d = map(np.concatenate, (cand_r, cand_x, cand_d))
+    if len(cand_r):
+        key = cand_r * w + cand_x
+        order = np.lexsort((cand_d, key))  # per right pixel, the largest disparity (nearest surface) last
+        last = np.r_[key[order][1:] != key[order][:-1], True]
+        win = order[last]
+        flow21[cand_r[win], cand_x[win], 0] = cand_d[win]
+        flow21[cand_r[win], cand_x[win], 1] = 0.0
     return flow12, flow21
 
 

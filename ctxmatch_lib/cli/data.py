@@ -1,0 +1,87 @@
+"""``ctxmatch data``: list the datasets, generate the embedded one, download the public ones.
+
+Examples::
+
+    ctxmatch data list
+    ctxmatch data embedded
+    ctxmatch data download hpatches --root ~/data/ctxmatch
+    ctxmatch data download kusvod2 --url file:///mirror/Lebeda-2012-kusvod2.tar.gz --sha256 <64 hex>
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "data", help="list, generate or download datasets",
+        description="List the datasets, generate the embedded default, download the public real datasets.",
+    )
+    sub = parser.add_subparsers(dest="data_command", required=True)
+
+    p = sub.add_parser("list", help="registered dataset names and whether their files are present")
+    p.add_argument("--root", help="data root of the real datasets (default: $CTXMATCH_DATA)")
+    p.set_defaults(func=_list)
+
+    p = sub.add_parser("embedded", help="generate the embedded default dataset into the cache (if needed)")
+    p.add_argument("--root", help="parent folder (default: the datasets cache)")
+    p.set_defaults(func=_embedded)
+
+    from ..datasets.download import download_names
+
+    p = sub.add_parser(
+        "download", help="download a public dataset (pooch, pinned SHA-256)",
+        description="Download and unpack a public dataset under the data root, checking its SHA-256.",
+    )
+    p.add_argument("name", choices=download_names())
+    p.add_argument("--root", help="data root to fill (default: $CTXMATCH_DATA, else the cache)")
+    p.add_argument("--url", help="archive URL override (http, https, ftp or file://); single-archive datasets")
+    p.add_argument("--sha256", help="expected SHA-256 of the archive (required with an unpinned --url)")
+    p.add_argument("--allow-unpinned", action="store_true",
+                   help="accept an archive with no pinned hash and print its SHA-256")
+    p.add_argument("--force", action="store_true", help="replace a dataset folder that already exists")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.set_defaults(func=_download)
+
+    parser.set_defaults(func=lambda args: parser.print_help() or 2)
+    return parser
+
+
+def _list(args) -> int:
+    from ..datasets import list_datasets, load_dataset
+
+    for name in list_datasets():
+        if name.startswith("embedded"):
+            status = "offline (generated into the cache on first use)"
+        else:
+            try:
+                status = f"{len(load_dataset(name, root=args.root))} pairs"
+            except (FileNotFoundError, ValueError) as exc:
+                status = f"not available: {exc}"
+        print(f"{name:20s} {status}")
+    return 0
+
+
+def _embedded(args) -> int:
+    from ..datasets import load_dataset
+
+    ds = load_dataset("embedded", root=args.root)
+    print(f"{ds!r} at {ds.root}")
+    return 0
+
+
+def _download(args) -> int:
+    from ..datasets.download import download_dataset
+
+    try:
+        paths = download_dataset(
+            args.name, root=args.root, url=args.url, sha256=args.sha256, allow_unpinned=args.allow_unpinned,
+            force=args.force, progress=args.progress,
+        )
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"ctxmatch data download: error: {exc}")
+        return 1
+    for p in paths:
+        print(p)
+    return 0
