@@ -1,0 +1,145 @@
+"""``ctxmatch eval``: run the evaluation pipeline of Sec. 5.1 on a dataset and write one row per
+(pair, blob setup, method, model) to Parquet, then print the per-kind, per-method mean table."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+DESCRIPTION = """\
+Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac)
+-> ground truth (method D) -> metrics. The unfiltered candidates appear as method 'blob'.
+Columns: dataset, pair_id, kind, blob, method, model, precision, recall, recall_star, ap, correct,
+correct_norm, output, failure, time_s, model_time_s, n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star,
+gt_method. Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image) against the correct
+blob candidates of the same setup; recall_star against their union over all --blob setups."""
+
+EXAMPLE = """\
+example:
+  ctxmatch eval --dataset embedded --blob paper-best --filters dtm --model none,1sac --out results.parquet
+  CTXMATCH_DATA=../shared/data ctxmatch eval --dataset kusvod2 --filters dtm,th --model none,1sac,ransac
+"""
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate blob matching, filters and 1SAC/RANSAC on a dataset (one Parquet row per pair/method/model)",
+        description=DESCRIPTION,
+        epilog=EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--dataset", default="embedded",
+                   help="registered dataset name (embedded, planar, kusvod2, ...) or a folder with pairs.csv "
+                        "(default: embedded)")
+    p.add_argument("--data-root", default=None,
+                   help="root of the real data (default: $CTXMATCH_DATA)")
+    p.add_argument("--blob", default="paper-best",
+                   help="comma-separated blob presets (default: paper-best); recall_star uses their union")
+    p.add_argument("--filters", default="dtm",
+                   help="comma-separated registered filters, or 'none' for the blob candidates only (default: dtm)")
+    p.add_argument("--model", default="none,1sac",
+                   help="comma-separated model steps among none, 1sac, ransac (default: none,1sac)")
+    p.add_argument("--out", default="results.parquet", help="output Parquet file (default: results.parquet)")
+    p.add_argument("--gt", default="D", choices=["D", "A"], help="ground-truth method (default: D)")
+    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
+    p.add_argument("--model-threshold", type=float, default=15.0,
+                   help="1SAC/RANSAC consistency threshold in px (default: 15)")
+    p.add_argument("--max-keypoints", type=int, default=8000, help="keypoints per image (default: 8000)")
+    p.add_argument("--descriptor", default="rootsift", choices=["rootsift", "sift"])
+    p.add_argument("--upright", action="store_true", help="upright SIFT (no dominant orientation)")
+    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
+    p.add_argument("--limit", type=int, default=None, help="evaluate only the first N pairs")
+    p.add_argument("--kind", default=None, choices=["planar", "nonplanar", "depth"],
+                   help="evaluate only the pairs of this kind")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.set_defaults(func=run)
+    return p
+
+
+def _error(msg: str) -> int:
+    print(f"ctxmatch eval: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
+    """Write ``df`` to ``path`` through a temporary file in the same folder and ``os.replace``.
+
+    ``metadata`` is stored as JSON under the ``ctxmatch`` key of the Parquet schema metadata.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if metadata is not None:
+        meta = dict(table.schema.metadata or {})
+        meta[b"ctxmatch"] = json.dumps(metadata, sort_keys=True).encode()
+        table = table.replace_schema_metadata(meta)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def run(args) -> int:
+    import pandas as pd
+
+    from ..datasets import load_dataset
+    from ..features import FeatureConfig
+    from ..pipeline import check_filters, check_models, evaluate_dataset, resolve_blobs, summary_table
+
+    filters = [] if args.filters.strip().lower() in ("", "none") else _csv(args.filters)
+    try:
+        filters = list(check_filters(filters))
+        models = list(check_models(_csv(args.model)))
+        blobs = resolve_blobs(_csv(args.blob))
+        features = FeatureConfig(max_keypoints=args.max_keypoints, descriptor=args.descriptor,
+                                 upright=args.upright)
+    except ValueError as exc:
+        return _error(str(exc))
+    if args.limit is not None and args.limit < 1:
+        return _error(f"--limit must be positive, got {args.limit}")
+    out = Path(args.out)
+    if out.suffix.lower() != ".parquet":
+        return _error(f"--out must end with .parquet, got {out}")
+    try:
+        dataset = load_dataset(args.dataset, root=args.data_root)
+    except (ValueError, FileNotFoundError, OSError) as exc:
+        return _error(f"cannot load dataset {args.dataset!r}: {exc}")
+    pairs = list(dataset)
+    if args.kind:
+        pairs = [p for p in pairs if p.kind == args.kind]
+    if args.limit:
+        pairs = pairs[: args.limit]
+    if not pairs:
+        return _error(f"dataset {args.dataset!r} has no pairs to evaluate")
+
+    df = evaluate_dataset(pairs, progress=not args.no_progress, features=features, blobs=blobs,
+                          filters=filters, models=models, gt_method=args.gt, gt_threshold=args.gt_threshold,
+                          model_threshold=args.model_threshold, seed=args.seed)
+    meta = {
+        "dataset": args.dataset, "blobs": {k: v.kwargs() for k, v in blobs.items()}, "filters": filters,
+        "models": models, "gt_method": args.gt, "gt_threshold": args.gt_threshold,
+        "model_threshold": args.model_threshold, "features": features.key(), "seed": args.seed,
+        "pairs": len(pairs),
+    }
+    write_parquet_atomic(df, out, meta)
+    table = summary_table(df)
+    with pd.option_context("display.max_rows", 500, "display.width", 160, "display.float_format", "{:.2f}".format):
+        print(f"{len(pairs)} pairs of {args.dataset!r}, {len(df)} rows -> {out}")
+        print("means per pair (precision, recall, recall_star, mAP in %; failures: pairs without a correct match)")
+        print(table.to_string())
+    return 0

@@ -1,0 +1,450 @@
+"""The per-pair evaluation of Sec. 5.1: features -> blob -> filters -> model -> ground truth -> metrics.
+
+Each step is a function that can be called on its own (:func:`pair_features`, :func:`blob_candidates`,
+:func:`run_filter`, :func:`run_model`, :func:`label_candidates`, :func:`metrics_rows`);
+:func:`evaluate_pair` chains them for one pair and keeps every intermediate result in a
+:class:`PairEvaluation`, and :func:`evaluate_dataset` runs a whole dataset into a ``pandas.DataFrame`` with
+one row per (pair, blob setup, method, model).
+
+How the pieces fit:
+
+* the ground truth labels the **blob candidates** once per blob setup; every later output (a filter's
+  mask, then a model's mask) is a subset of them, so its labels are read off, never recomputed;
+* the recall reference of a row is the set of correct candidates of its own blob setup (Sec. 5.3), the
+  recall* reference the union of the correct candidates of all blob setups evaluated on the pair (same
+  keypoints, so the union is well defined);
+* the unfiltered candidates appear as method ``"blob"``; models are ``"none"``, ``"1sac"``, ``"ransac"``,
+  fitted on the method's output, ``H`` for planar pairs and ``F`` for non-planar and depth pairs;
+* ``time_s`` is the running time of the method itself (blob matching for ``"blob"``, the filter alone for
+  a filter), the same on every model row of that method as in the paper's tables; ``model_time_s`` is
+  the model step's own time.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .datasets.base import Dataset, Pair
+from .features import FeatureConfig, Features, extract_features
+from .geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ModelFit, apply_model_step, model_kind_for
+from .groundtruth import GT_METHODS, GT_THRESHOLD_PX, label_matches
+from .metrics import evaluate_matches, ground_truth_union
+
+__all__ = [
+    "BLOB_METHOD",
+    "ROW_COLUMNS",
+    "BlobStage",
+    "PairEvaluation",
+    "resolve_blobs",
+    "check_filters",
+    "check_models",
+    "pair_features",
+    "blob_candidates",
+    "run_filter",
+    "run_model",
+    "label_candidates",
+    "metrics_rows",
+    "evaluate_pair",
+    "evaluate_dataset",
+    "summary_table",
+]
+
+#: Method name of the unfiltered blob candidates.
+BLOB_METHOD = "blob"
+
+#: Columns of a result row, in order.
+ROW_COLUMNS = (
+    "dataset", "pair_id", "kind", "blob", "method", "model",
+    "precision", "recall", "recall_star", "ap", "correct", "correct_norm", "output", "failure",
+    "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method",
+)
+
+
+# ------------------------------------------------------------------------------------------ arguments
+
+
+def resolve_blobs(blobs) -> dict:
+    """Named blob setups: ``"paper-best"``, ``["paper-best", "baseline"]``, a ``BlobConfig`` or a dict.
+
+    Returns
+    -------
+    dict of str -> BlobConfig
+        In the given order; a bare ``BlobConfig`` is named by its ``label``.
+    """
+    from .blob import BLOB_PRESETS, BlobConfig
+
+    if isinstance(blobs, (str, BlobConfig)):
+        blobs = [blobs]
+    items = blobs.items() if isinstance(blobs, Mapping) else [(None, b) for b in blobs]
+    out = {}
+    for name, b in items:
+        if isinstance(b, str):
+            if b not in BLOB_PRESETS:
+                raise ValueError(f"unknown blob preset {b!r}; known presets: {', '.join(BLOB_PRESETS)}")
+            name, b = name or b, BLOB_PRESETS[b]
+        elif not isinstance(b, BlobConfig):
+            raise ValueError(f"blobs must hold preset names or BlobConfig, got {type(b).__name__}")
+        out[name or b.label] = b
+    if not out:
+        raise ValueError("blobs must name at least one blob setup")
+    return out
+
+
+def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
+    """Validate filter names against the registry; raises ``ValueError`` listing the known ones."""
+    from .filters import FILTERS
+
+    names = tuple(filters)
+    for name in names:
+        if name == BLOB_METHOD:
+            raise ValueError(f"{BLOB_METHOD!r} is always evaluated (the unfiltered candidates); not a filter name")
+        try:
+            FILTERS[name]
+        except KeyError:
+            raise ValueError(f"unknown filter {name!r}; known filters: {', '.join(sorted(FILTERS))}") from None
+    if len(set(names)) != len(names):
+        raise ValueError(f"filters are repeated: {names}")
+    return names
+
+
+def check_models(models: Iterable[str]) -> tuple[str, ...]:
+    """Validate model-step names (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`)."""
+    names = tuple(models)
+    for name in names:
+        if name not in MODEL_STEPS:
+            raise ValueError(f"unknown model {name!r}; known models: {', '.join(MODEL_STEPS)}")
+    if not names:
+        raise ValueError(f"models must name at least one of {', '.join(MODEL_STEPS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"models are repeated: {names}")
+    return names
+
+
+def _pair_seed(seed: int, pair_id: str) -> int:
+    """Per-pair seed independent of the order pairs are run in (so sweeps can cache per pair)."""
+    return int(np.random.SeedSequence([int(seed), zlib.crc32(pair_id.encode())]).generate_state(1)[0])
+
+
+# ------------------------------------------------------------------------------------------------ steps
+
+
+def pair_features(pair: Pair, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> tuple[Features, Features]:
+    """Features of both images of ``pair`` (disk-cached by :func:`~ctxmatch_lib.features.extract_features`)."""
+    return (
+        extract_features(pair.image1, config, cache_dir=cache_dir),
+        extract_features(pair.image2, config, cache_dir=cache_dir),
+    )
+
+
+def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.ndarray, float]:
+    """Blob matching of two feature sets.
+
+    Returns
+    -------
+    matches : ndarray of shape (K, 2), int64
+    scores : ndarray of shape (K,), lower is better, sorted
+    time_s : float
+    """
+    from .blob import blob_matching
+
+    t0 = time.perf_counter()
+    if len(f1) == 0 or len(f2) == 0:
+        return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
+    bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
+                       **config.kwargs())
+    return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
+
+
+def run_filter(
+    name: str,
+    f1: Features,
+    f2: Features,
+    matches: np.ndarray,
+    scores: np.ndarray,
+    *,
+    image_size1,
+    image_size2,
+    **params,
+) -> tuple[np.ndarray, float]:
+    """Run the registered filter ``name`` on candidate matches.
+
+    Returns
+    -------
+    keep : ndarray of shape (K,), bool
+    time_s : float
+    """
+    from .filters import FILTERS
+
+    func: Callable = FILTERS[name]
+    k = len(matches)
+    t0 = time.perf_counter()
+    if k == 0:
+        return np.zeros(0, bool), 0.0
+    out = func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
+               shapes1=f1.shapes, shapes2=f2.shapes, **params)
+    elapsed = time.perf_counter() - t0
+    keep = np.asarray(getattr(out, "keep", out))
+    if keep.shape != (k,) or keep.dtype != bool:
+        raise ValueError(f"filter {name!r} must return a ({k},) bool mask, got {keep.dtype} {keep.shape}")
+    return keep, elapsed
+
+
+def run_model(
+    name: str,
+    f1: Features,
+    f2: Features,
+    matches: np.ndarray,
+    scores: np.ndarray,
+    *,
+    pair_kind: str,
+    threshold: float = CONSISTENCY_THRESHOLD_PX,
+    rng=None,
+) -> tuple[ModelFit, float]:
+    """Model step ``name`` (``none``, ``1sac``, ``ransac``) on a match set, ``H`` or ``F`` by ``pair_kind``."""
+    t0 = time.perf_counter()
+    fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
+                           threshold=threshold, rng=rng)
+    return fit, time.perf_counter() - t0
+
+
+def label_candidates(
+    pair: Pair, f1: Features, f2: Features, matches: np.ndarray, *, method: str = "D",
+    threshold: float = GT_THRESHOLD_PX,
+) -> np.ndarray:
+    """Ground-truth labels of ``matches`` under ``pair.gt`` (:func:`~ctxmatch_lib.groundtruth.label_matches`)."""
+    return label_matches(f1.kpts, f2.kpts, matches, pair.gt, method=method, threshold=threshold)
+
+
+# -------------------------------------------------------------------------------------- per-pair state
+
+
+@dataclass
+class BlobStage:
+    """Everything computed for one blob setup on one pair.
+
+    ``keeps[method]`` masks the candidates (``keeps["blob"]`` is all ``True``); ``fits[(method, model)]``
+    is the :class:`~ctxmatch_lib.geometry.ModelFit` over the method's output, whose ``keep`` masks that
+    output; :meth:`final_mask` combines the two into a mask over the candidates.
+    """
+
+    name: str
+    config: object
+    matches: np.ndarray
+    scores: np.ndarray
+    labels: np.ndarray
+    time_s: float
+    keeps: dict = field(default_factory=dict)
+    method_times: dict = field(default_factory=dict)
+    fits: dict = field(default_factory=dict)
+    model_times: dict = field(default_factory=dict)
+
+    @property
+    def correct_candidates(self) -> np.ndarray:
+        """The recall reference: ground-truth-correct candidates, ``(M, 2)``."""
+        return self.matches[self.labels]
+
+    def final_mask(self, method: str, model: str) -> np.ndarray:
+        """Mask over the candidates of the output of ``method`` followed by ``model``."""
+        keep = self.keeps[method].copy()
+        keep[np.flatnonzero(keep)] = self.fits[(method, model)].keep
+        return keep
+
+
+@dataclass
+class PairEvaluation:
+    """All intermediate results of :func:`evaluate_pair` and its result rows."""
+
+    pair: Pair
+    features: tuple
+    stages: dict
+    gt_method: str
+    rows: list = field(default_factory=list)
+
+    @property
+    def reference_star(self) -> np.ndarray:
+        """Union of the correct candidates over the blob setups (the recall* reference)."""
+        return ground_truth_union(*(s.correct_candidates for s in self.stages.values()))
+
+
+def metrics_rows(evaluation: PairEvaluation, *, reference_star=None) -> list[dict]:
+    """One row dict per (blob setup, method, model) of an evaluated pair.
+
+    ``reference_star`` overrides the recall* reference (by default :attr:`PairEvaluation.reference_star`),
+    e.g. with a union over configurations run elsewhere on the same keypoints.
+    """
+    pair = evaluation.pair
+    f1, f2 = evaluation.features
+    ref_star = evaluation.reference_star if reference_star is None else reference_star
+    rows = []
+    for stage in evaluation.stages.values():
+        ref = stage.correct_candidates
+        for method in stage.keeps:
+            for (m, model), fit in stage.fits.items():
+                if m != method:
+                    continue
+                mask = stage.final_mask(method, model)
+                mm = evaluate_matches(stage.matches[mask], stage.labels[mask], reference=ref,
+                                      reference_star=ref_star, scores=stage.scores[mask],
+                                      time_s=stage.method_times[method])
+                rows.append({
+                    "dataset": pair.dataset, "pair_id": pair.pair_id, "kind": pair.kind, "blob": stage.name,
+                    "method": method, "model": model,
+                    "precision": mm.precision, "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
+                    "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
+                    "failure": mm.failure, "time_s": mm.time_s, "model_time_s": stage.model_times[(method, model)],
+                    "n_kpts1": len(f1), "n_kpts2": len(f2), "n_candidates": len(stage.matches),
+                    "n_gt": mm.n_gt, "n_gt_star": mm.n_gt_star, "gt_method": evaluation.gt_method,
+                })
+    return rows
+
+
+def evaluate_pair(
+    pair: Pair,
+    *,
+    features: FeatureConfig = FeatureConfig(),
+    blobs="paper-best",
+    filters: Sequence[str] = ("dtm",),
+    models: Sequence[str] = ("none", "1sac"),
+    gt_method: str = "D",
+    gt_threshold: float = GT_THRESHOLD_PX,
+    model_threshold: float = CONSISTENCY_THRESHOLD_PX,
+    filter_params: Mapping[str, dict] | None = None,
+    seed: int = 0,
+    cache_dir=None,
+    precomputed_features: tuple | None = None,
+) -> PairEvaluation:
+    """Evaluate one pair: features, then for each blob setup candidates, labels, filters, models, metrics.
+
+    Parameters
+    ----------
+    pair : Pair
+    features : FeatureConfig
+    blobs : str, BlobConfig, list or dict
+        Blob setups (:func:`resolve_blobs`).
+    filters : sequence of str
+        Registered filter names; ``"blob"`` (no filter) is always included.
+    models : sequence of str
+        Model steps among ``none``, ``1sac``, ``ransac``.
+    gt_method : {"D", "A"}
+        Ground-truth method; ``gt_threshold`` its distance in pixels.
+    model_threshold : float
+        Consistency threshold of 1SAC / RANSAC in pixels.
+    filter_params : dict of str -> dict, optional
+        Extra keyword arguments per filter.
+    seed : int
+        RANSAC seed; combined with ``pair.pair_id``.
+    cache_dir
+        Feature cache (see :func:`~ctxmatch_lib.features.extract_features`).
+    precomputed_features : (Features, Features), optional
+        Skip extraction.
+
+    Returns
+    -------
+    PairEvaluation
+        ``.rows`` holds the result rows (see :data:`ROW_COLUMNS`).
+    """
+    if gt_method not in GT_METHODS:
+        raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
+    blob_cfgs = resolve_blobs(blobs)
+    filters = check_filters(filters)
+    models = check_models(models)
+    filter_params = dict(filter_params or {})
+    f1, f2 = precomputed_features if precomputed_features is not None else pair_features(
+        pair, features, cache_dir=cache_dir)
+    rng_seed = _pair_seed(seed, pair.pair_id)
+    stages = {}
+    for bname, cfg in blob_cfgs.items():
+        matches, scores, t_blob = blob_candidates(f1, f2, cfg)
+        labels = label_candidates(pair, f1, f2, matches, method=gt_method, threshold=gt_threshold)
+        stage = BlobStage(bname, cfg, matches, scores, labels, t_blob)
+        stage.keeps[BLOB_METHOD] = np.ones(len(matches), bool)
+        stage.method_times[BLOB_METHOD] = t_blob
+        for name in filters:
+            try:
+                keep, t = run_filter(name, f1, f2, matches, scores, image_size1=pair.image_size1,
+                                     image_size2=pair.image_size2, **filter_params.get(name, {}))
+            except Exception as exc:
+                raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
+            stage.keeps[name], stage.method_times[name] = keep, t
+        for method, keep in stage.keeps.items():
+            for model in models:
+                fit, t = run_model(model, f1, f2, matches[keep], scores[keep], pair_kind=pair.kind,
+                                   threshold=model_threshold, rng=rng_seed)
+                stage.fits[(method, model)], stage.model_times[(method, model)] = fit, t
+        stages[bname] = stage
+    evaluation = PairEvaluation(pair, (f1, f2), stages, gt_method)
+    evaluation.rows = metrics_rows(evaluation)
+    return evaluation
+
+
+def evaluate_dataset(
+    dataset: Dataset | Iterable[Pair],
+    *,
+    progress: bool = True,
+    on_pair: Callable[[PairEvaluation], None] | None = None,
+    **kwargs,
+):
+    """Run :func:`evaluate_pair` on every pair; returns a ``pandas.DataFrame`` of all rows.
+
+    ``kwargs`` go to :func:`evaluate_pair` (validated once up front, so a bad filter name fails before any
+    work). ``on_pair`` receives each :class:`PairEvaluation` (to keep intermediate results; by default they
+    are dropped as soon as the rows are taken). ``progress`` shows a tqdm bar on stderr.
+    """
+    import pandas as pd
+    from tqdm.auto import tqdm
+
+    check_filters(kwargs.get("filters", ("dtm",)))
+    check_models(kwargs.get("models", ("none", "1sac")))
+    resolve_blobs(kwargs.get("blobs", "paper-best"))
+    pairs = list(dataset)
+    rows: list[dict] = []
+    bar = tqdm(pairs, desc="ctxmatch eval", unit="pair", disable=not progress, dynamic_ncols=True)
+    for pair in bar:
+        bar.set_postfix_str(pair.pair_id, refresh=False)
+        ev = evaluate_pair(pair, **kwargs)
+        rows.extend(ev.rows)
+        if on_pair is not None:
+            on_pair(ev)
+    df = pd.DataFrame(rows, columns=list(ROW_COLUMNS))
+    return df.astype({"correct": "int64", "correct_norm": "int64", "output": "int64", "failure": "bool",
+                      "n_kpts1": "int64", "n_kpts2": "int64", "n_candidates": "int64", "n_gt": "int64",
+                      "n_gt_star": "int64"})
+
+
+def summary_table(df):
+    """Per-kind, per-method (and model) means, as the Appendix tables: one row per group.
+
+    Columns: ``pairs``, mean ``precision``/``recall``/``recall_star`` (in %), mean ``mAP`` (%), mean
+    ``correct`` and ``output`` counts, ``failures`` (number of pairs with no correct match) and mean
+    ``time_s``. Grouped by ``blob`` too when several blob setups are present. Means skip NaN (pairs
+    without any correct candidate have no recall).
+    """
+    import pandas as pd
+
+    if df.empty:
+        return pd.DataFrame()
+    keys = ["kind"] + (["blob"] if df["blob"].nunique() > 1 else []) + ["method", "model"]
+    d = df.copy()
+    # Keep the order of appearance (blob first, filters as given, models as given) rather than sorting.
+    for k in keys:
+        d[k] = pd.Categorical(d[k], categories=list(dict.fromkeys(d[k])), ordered=True)
+    g = d.groupby(keys, observed=True, sort=True)
+    out = pd.DataFrame({
+        "pairs": g["pair_id"].nunique(),
+        "precision": 100 * g["precision"].mean(),
+        "recall": 100 * g["recall"].mean(),
+        "recall_star": 100 * g["recall_star"].mean(),
+        "mAP": 100 * g["ap"].mean(),
+        "correct": g["correct"].mean(),
+        "output": g["output"].mean(),
+        "failures": g["failure"].sum().astype(int),
+        "time_s": g["time_s"].mean(),
+    })
+    return out

@@ -1,0 +1,244 @@
+"""The per-pair pipeline and ``ctxmatch eval`` end to end on a tiny dataset synthesised in tmp_path."""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ctxmatch_lib.datasets.base import EpipolarGT, HomographyGT, Pair
+from ctxmatch_lib.features import Features
+from ctxmatch_lib.filters import FILTERS, register_filter
+from ctxmatch_lib.geometry import apply_homography
+from ctxmatch_lib.pipeline import (
+    ROW_COLUMNS,
+    evaluate_dataset,
+    evaluate_pair,
+    summary_table,
+)
+
+H_TRUE = np.array([[0.95, -0.08, 25.0], [0.06, 1.02, -10.0], [1e-4, -5e-5, 1.0]])
+REQUIRED = ["pair_id", "kind", "method", "model", "precision", "recall", "correct", "output", "failure", "time_s"]
+
+
+@register_filter("test-first-half")
+def _first_half(kpts1, kpts2, matches, scores, *, image_size1, image_size2, shapes1=None, shapes2=None):
+    """A trivial filter for the plumbing tests: keeps the better-ranked half."""
+    keep = np.zeros(len(matches), bool)
+    keep[: len(matches) // 2] = True
+    return keep
+
+
+# ------------------------------------------------------------------------------ synthetic features
+
+
+def _features(kpts, desc):
+    n = len(kpts)
+    return Features(np.asarray(kpts, float), np.tile(2 * np.eye(2), (n, 1, 1)), desc.astype(np.float32),
+                    np.full(n, 2.0), np.zeros(n), np.linspace(1, 0, n))
+
+
+def _planted_pair(n_in=120, n_out=80, rng=0):
+    """Keypoints and descriptors where the first ``n_in`` keypoints correspond through ``H_TRUE``."""
+    rng = np.random.default_rng(rng)
+    k1 = rng.uniform([40, 40], [600, 440], (n_in + n_out, 2))
+    k2 = rng.uniform([0, 0], [639, 479], (n_in + n_out, 2))
+    k2[:n_in] = apply_homography(H_TRUE, k1[:n_in])
+    d1 = rng.normal(size=(n_in + n_out, 128))
+    d2 = rng.normal(size=(n_in + n_out, 128))
+    d2[:n_in] = d1[:n_in] + 0.3 * rng.normal(size=(n_in, 128))
+    d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
+    d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
+    pair = Pair("synthetic/h", Path("none1.png"), Path("none2.png"), (640, 480), (640, 480), "planar",
+                HomographyGT(H_TRUE), dataset="synthetic")
+    return pair, (_features(k1, d1), _features(k2, d2))
+
+
+def test_evaluate_pair_rows_and_intermediates():
+    pair, feats = _planted_pair()
+    ev = evaluate_pair(pair, blobs=["paper-best", "baseline"], filters=["test-first-half"],
+                       models=["none", "1sac", "ransac"], precomputed_features=feats)
+    assert len(ev.rows) == 2 * 2 * 3  # blob setups x (blob + 1 filter) x models
+    df = pd.DataFrame(ev.rows)
+    assert list(df.columns) == list(ROW_COLUMNS)
+    stage = ev.stages["paper-best"]
+    # Candidates: every planted pair's keypoints are nearest neighbours, so each correct match is found.
+    assert stage.labels.sum() >= 110
+    blob_none = df[(df.blob == "paper-best") & (df.method == "blob") & (df.model == "none")].iloc[0]
+    assert blob_none.recall == 1.0 and blob_none.output == len(stage.matches)
+    assert blob_none.correct == stage.labels.sum()
+    # The filter's output is the first half of the candidates; the model masks that output further.
+    half = ev.stages["paper-best"].final_mask("test-first-half", "none")
+    assert half.sum() == len(stage.matches) // 2 and half[: half.sum()].all()
+    sac = stage.final_mask("test-first-half", "1sac")
+    assert not (sac & ~half).any()
+    # The planted homography is easy: 1SAC keeps the correct matches and drops most wrong ones.
+    row = df[(df.blob == "paper-best") & (df.method == "blob") & (df.model == "1sac")].iloc[0]
+    assert row.precision > 0.9 and row.recall > 0.9
+    # recall* uses the union over both blob setups: never above the recall.
+    assert (df.recall_star <= df.recall + 1e-12).all()
+    assert (df.n_gt_star >= df.n_gt).all()
+    # Seeded RANSAC: the same pair gives the same rows.
+    again = evaluate_pair(pair, blobs=["paper-best", "baseline"], filters=["test-first-half"],
+                          models=["none", "1sac", "ransac"], precomputed_features=feats)
+    pd.testing.assert_frame_equal(df.drop(columns=["time_s", "model_time_s"]),
+                                  pd.DataFrame(again.rows).drop(columns=["time_s", "model_time_s"]))
+
+
+def test_evaluate_pair_without_correct_candidates_and_without_keypoints():
+    pair, feats = _planted_pair()
+    # A wrong homography: no candidate is correct, so recall is undefined and every row fails.
+    wrong = Pair(pair.pair_id, pair.image1, pair.image2, pair.image_size1, pair.image_size2, "planar",
+                 HomographyGT(np.array([[1.0, 0, 300], [0, 1, 200], [0, 0, 1]])))
+    df = pd.DataFrame(evaluate_pair(wrong, filters=[], models=["none", "1sac"], precomputed_features=feats).rows)
+    assert df.failure.all() and df.recall.isna().all() and (df.n_gt == 0).all()
+    empty = (Features.empty(), Features.empty())
+    df = pd.DataFrame(evaluate_pair(pair, filters=["test-first-half"], models=["none", "1sac"],
+                                    precomputed_features=empty).rows)
+    assert len(df) == 4 and (df.output == 0).all() and df.failure.all()
+
+
+def test_pipeline_rejects_bad_names():
+    pair, feats = _planted_pair()
+    with pytest.raises(ValueError, match="unknown filter 'nope'"):
+        evaluate_pair(pair, filters=["nope"], precomputed_features=feats)
+    with pytest.raises(ValueError, match="unknown model 'lmeds'"):
+        evaluate_pair(pair, filters=[], models=["lmeds"], precomputed_features=feats)
+    with pytest.raises(ValueError, match="unknown blob preset 'best'"):
+        evaluate_pair(pair, blobs="best", filters=[], precomputed_features=feats)
+    with pytest.raises(ValueError, match="gt_method"):
+        evaluate_pair(pair, filters=[], gt_method="C", precomputed_features=feats)
+
+
+def test_summary_table_means_and_order():
+    df = pd.DataFrame({
+        "pair_id": ["a", "a", "b", "b"], "kind": "planar", "blob": "paper-best",
+        "method": ["blob", "dtm", "blob", "dtm"], "model": "none",
+        "precision": [0.5, 1.0, 0.3, float("nan")], "recall": [1.0, 0.5, 1.0, 0.0], "recall_star": 1.0,
+        "ap": [0.5, 0.4, 0.7, 0.0], "correct": [10, 5, 6, 0], "output": [20, 5, 20, 0],
+        "failure": [False, False, False, True], "time_s": [0.1, 0.2, 0.1, 0.2],
+    })
+    t = summary_table(df)
+    assert list(t.index.get_level_values("method")) == ["blob", "dtm"]
+    assert t.loc[("planar", "dtm", "none"), "failures"] == 1
+    assert t.loc[("planar", "blob", "none"), "precision"] == pytest.approx(40.0)
+    assert t.loc[("planar", "dtm", "none"), "recall"] == pytest.approx(25.0)
+    assert summary_table(df.iloc[:0]).empty
+
+
+# ------------------------------------------------------------------------- ctxmatch eval end to end
+
+
+def _texture(h=240, w=320, seed=0):
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    img = rng.uniform(0, 255, (h // 8, w // 8)).astype(np.float32)
+    img = cv2.resize(img, (w, h), interpolation=cv2.INTER_CUBIC)
+    img += rng.normal(0, 20, (h, w))
+    return np.clip(cv2.GaussianBlur(img, (0, 0), 1.2), 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """Two pairs in the custom format: a homography warp and a two-layer rectified 'stereo' pair."""
+    import cv2
+
+    root = tmp_path_factory.mktemp("tiny")
+    img = _texture()
+    H = np.array([[0.97, -0.05, 8.0], [0.04, 1.0, -5.0], [5e-5, 0.0, 1.0]])
+    cv2.imwrite(str(root / "p1.png"), img)
+    cv2.imwrite(str(root / "p2.png"), cv2.warpPerspective(img, H, (320, 240)))
+    np.savetxt(root / "H.txt", H)
+    # Non-planar: left half shifts 6 px, right half 14 px (two depths); epipolar lines are the rows.
+    s2 = np.empty_like(img)
+    s2[:, :160] = np.roll(img, -6, axis=1)[:, :160]
+    s2[:, 160:] = np.roll(img, -14, axis=1)[:, 160:]
+    cv2.imwrite(str(root / "s2.png"), s2)
+    hand1 = np.array([[x, y] for x in (30.0, 90.0, 150.0, 200.0, 260.0, 300.0) for y in (30.0, 120.0, 210.0)])
+    hand2 = hand1 - np.where(hand1[:, :1] < 160, 6.0, 14.0) * [1.0, 0.0]
+    np.savetxt(root / "hand.txt", np.c_[hand1, hand2])
+    np.savetxt(root / "F.txt", np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]]))
+    (root / "pairs.csv").write_text(
+        "pair_id,image1,image2,kind,gt,F\n"
+        "warp,p1.png,p2.png,planar,H.txt,\n"
+        "layers,p1.png,s2.png,nonplanar,hand.txt,F.txt\n"
+    )
+    return root
+
+
+def _cli(argv):
+    from ctxmatch_lib.cli import eval as eval_cli
+
+    parser = argparse.ArgumentParser(prog="ctxmatch")
+    eval_cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["eval", *argv])
+    return args.func(args)
+
+
+def test_cli_eval_end_to_end(tiny_dataset, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "res" / "results.parquet"
+    rc = _cli(["--dataset", str(tiny_dataset), "--blob", "paper-best", "--filters", "th,test-first-half",
+               "--model", "none,1sac,ransac", "--out", str(out), "--max-keypoints", "600", "--no-progress"])
+    assert rc == 0
+    df = pd.read_parquet(out)
+    assert set(REQUIRED) <= set(df.columns)
+    assert len(df) == 2 * 3 * 3
+    assert set(df.method) == {"blob", "th", "test-first-half"} and set(df.model) == {"none", "1sac", "ransac"}
+    assert set(df.kind) == {"planar", "nonplanar"}
+    blob = df[(df.method == "blob") & (df.model == "none")].set_index("pair_id")
+    # Both synthetic pairs are easy: many correct candidates, full recall for the unfiltered set.
+    assert (blob.correct > 50).all() and (blob.recall == 1.0).all()
+    sac = df[(df.method == "blob") & (df.model == "1sac")].set_index("pair_id")
+    assert (sac.precision > blob.precision).all()
+    import pyarrow.parquet as pq
+
+    assert b"ctxmatch" in pq.read_schema(out).metadata
+    assert not list(out.parent.glob(".*.tmp"))  # atomic write leaves no temporary file
+    text = capsys.readouterr().out
+    assert "precision" in text and "nonplanar" in text and "test-first-half" in text
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--filters", "nope"], "unknown filter 'nope'"),
+        (["--model", "none,lmeds"], "unknown model 'lmeds'"),
+        (["--blob", "best"], "unknown blob preset 'best'"),
+        (["--out", "results.csv"], "--out must end with .parquet"),
+    ],
+)
+def test_cli_eval_bad_arguments(tiny_dataset, tmp_path, capsys, argv, message):
+    argv = ["--dataset", str(tiny_dataset), "--out", str(tmp_path / "r.parquet"), "--no-progress", "--filters", "th",
+            *argv]
+    assert _cli(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "r.parquet").exists()
+
+
+def test_cli_eval_missing_dataset(tmp_path, capsys):
+    assert _cli(["--dataset", str(tmp_path / "nowhere"), "--filters", "none", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot load dataset" in err and "nowhere" in err
+
+
+def test_eval_registered_in_cli():
+    from ctxmatch_lib.cli import _COMMANDS
+
+    assert "eval" in _COMMANDS
+
+
+def test_evaluate_dataset_with_dtm_on_tiny_dataset(tiny_dataset, tmp_path, monkeypatch):
+    if "dtm" not in FILTERS:
+        pytest.skip("TEMPORARY: the 'dtm' filter has not landed in ctxmatch_lib.filters yet")
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    df = evaluate_dataset(load_dataset(str(tiny_dataset)), progress=False, features=FeatureConfig(max_keypoints=600),
+                          filters=["dtm"], models=["none", "1sac"])
+    dtm = df[(df.method == "dtm") & (df.model == "none")]
+    blob = df[(df.method == "blob") & (df.model == "none")]
+    assert len(dtm) == 2 and (dtm.precision.values >= blob.precision.values).all()
