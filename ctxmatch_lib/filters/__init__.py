@@ -29,6 +29,7 @@ _BUILTIN: dict[str, str] = {
     "glpm": "ctxmatch_lib.filters.lpm:glpm_filter",
     "vfc": "ctxmatch_lib.filters.vfc:vfc_filter",
     "llt": "ctxmatch_lib.filters.llt:llt_filter",
+    "adalam": "ctxmatch_lib.filters.adalam:adalam_filter",
 }
 
 
