@@ -1,0 +1,250 @@
+"""Features: SIFT frames, RootSIFT, upright option, keypoint cap and the atomic, config-keyed disk cache."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from ctxmatch_lib import features as F
+from ctxmatch_lib.features import FeatureConfig, Features, extract_features, load_image
+
+
+@pytest.fixture(scope="module")
+def gray():
+    from skimage.data import camera
+
+    return np.ascontiguousarray(camera()[60:316, 100:420])  # 256 x 320, textured
+
+
+@pytest.fixture(scope="module")
+def feats(gray):
+    return extract_features(gray, cache_dir=False)
+
+
+# ------------------------------------------------------------------------------------------- output
+def test_shapes_dtypes_and_order(feats):
+    n = len(feats)
+    assert n > 100
+    assert feats.kpts.shape == (n, 2) and feats.kpts.dtype == np.float64
+    assert feats.shapes.shape == (n, 2, 2) and feats.shapes.dtype == np.float64
+    assert feats.desc.shape == (n, 128) and feats.desc.dtype == np.float32
+    for a in (feats.scales, feats.angles, feats.responses):
+        assert a.shape == (n,)
+    assert np.all(np.diff(feats.responses) <= 0), "strongest first"
+    assert np.all((feats.angles > -np.pi - 1e-9) & (feats.angles <= np.pi + 1e-9))
+    assert np.all(feats.scales > 0)
+
+
+def test_rootsift_is_unit_norm_and_nonnegative(feats):
+    assert np.allclose(np.linalg.norm(feats.desc, axis=1), 1, atol=1e-5)
+    assert feats.desc.min() >= 0
+
+
+def test_rootsift_is_sqrt_of_l1_normalised_sift(gray):
+    sift = extract_features(gray, FeatureConfig(descriptor="sift", max_keypoints=50), cache_dir=False)
+    root = extract_features(gray, FeatureConfig(max_keypoints=50), cache_dir=False)
+    np.testing.assert_array_equal(sift.kpts, root.kpts)
+    expected = np.sqrt(sift.desc / sift.desc.sum(1, keepdims=True))
+    np.testing.assert_allclose(root.desc, expected, atol=1e-6)
+
+
+def test_affine_shape_is_rotated_disc(feats):
+    r = FeatureConfig().patch_radius * feats.scales
+    c, s = np.cos(feats.angles), np.sin(feats.angles)
+    np.testing.assert_allclose(feats.shapes[:, :, 0], np.c_[c, s] * r[:, None])  # first axis along the angle
+    np.testing.assert_allclose(feats.shapes[:, :, 1], np.c_[-s, c] * r[:, None])
+
+
+def test_pixel_centre_convention_by_mirror(gray, feats):
+    # Mirroring maps x to W - 1 - x exactly when the origin is the centre of the top-left pixel.
+    mirrored = extract_features(np.ascontiguousarray(gray[:, ::-1]), cache_dir=False)
+    expected = np.c_[gray.shape[1] - 1 - feats.kpts[:, 0], feats.kpts[:, 1]]
+    d, _ = cKDTree(mirrored.kpts).query(expected)
+    assert np.mean(d < 0.05) > 0.75
+    assert np.median(d) < 0.01  # a quarter-pixel upscaling bias would give 0.5
+
+
+def test_angles_turn_with_the_image(gray, feats):
+    # Rotating the image 90 deg clockwise on screen maps (x, y) to (H - 1 - y, x): +90 deg in the y-down frame.
+    rot = extract_features(np.ascontiguousarray(np.rot90(gray, k=-1)), cache_dir=False)
+    expected = np.c_[gray.shape[0] - 1 - feats.kpts[:, 1], feats.kpts[:, 0]]
+    d, _ = cKDTree(rot.kpts).query(expected)
+    errs = []
+    for angle, pt, ok in zip(feats.angles, expected, d < 0.05):
+        if ok:  # several orientations may share a location: compare with the closest one
+            cand = rot.angles[np.linalg.norm(rot.kpts - pt, axis=1) < 0.05]
+            errs.append(np.min(np.abs(np.angle(np.exp(1j * (cand - angle - np.pi / 2))))))
+    assert len(errs) > 0.8 * len(feats)
+    assert np.median(errs) < 1e-3
+
+
+# ------------------------------------------------------------------------------------------ options
+def test_keypoint_cap_keeps_the_strongest(gray, feats):
+    capped = extract_features(gray, FeatureConfig(max_keypoints=40), cache_dir=False)
+    assert len(capped) == 40
+    np.testing.assert_array_equal(capped.responses, feats.responses[:40])
+    np.testing.assert_array_equal(capped.kpts, feats.kpts[:40])
+    everything = extract_features(gray, FeatureConfig(max_keypoints=0), cache_dir=False)
+    assert len(everything) == len(feats)  # the default 8000 does not bind on this small image
+    huge = extract_features(gray, FeatureConfig(max_keypoints=10**6), cache_dir=False)
+    assert len(huge) == len(everything)
+
+
+def test_upright(gray, feats):
+    up = extract_features(gray, FeatureConfig(upright=True), cache_dir=False)
+    assert np.all(up.angles == 0)
+    # One keypoint per blob: the oriented duplicates of a location are merged.
+    keys = np.c_[up.kpts, up.scales]
+    assert len(np.unique(keys, axis=0)) == len(up)
+    assert len(up) == len(np.unique(np.c_[feats.kpts, feats.scales], axis=0))
+    np.testing.assert_allclose(up.shapes[:, 0, 1], 0, atol=1e-12)
+    assert FeatureConfig(upright=True).key() != FeatureConfig().key()
+
+
+def test_empty_and_tiny_images():
+    for img in (np.zeros((120, 160), np.uint8), np.full((5, 5), 200, np.uint8), np.zeros((0, 0), np.uint8)):
+        f = extract_features(img, cache_dir=False)
+        assert len(f) == 0
+        assert f.kpts.shape == (0, 2) and f.shapes.shape == (0, 2, 2) and f.desc.shape == (0, 128)
+
+
+def test_array_inputs_agree(gray):
+    rgb = np.repeat(gray[..., None], 3, axis=2)
+    a = extract_features(gray, FeatureConfig(max_keypoints=30), cache_dir=False)
+    b = extract_features(rgb, FeatureConfig(max_keypoints=30), cache_dir=False)
+    c = extract_features(gray / 255.0, FeatureConfig(max_keypoints=30), cache_dir=False)
+    for other in (b, c):
+        np.testing.assert_array_equal(a.kpts, other.kpts)
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [({"detector": "harris"}, "detector"), ({"descriptor": "hardnet"}, "descriptor"),
+     ({"max_keypoints": -1}, "max_keypoints"), ({"sigma": 0.0}, "sigma"), ({"n_octave_layers": 0}, "n_octave_layers")],
+)
+def test_bad_config_names_the_field(kwargs, word):
+    with pytest.raises(ValueError, match=word):
+        FeatureConfig(**kwargs)
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="config"):
+        extract_features(np.zeros((32, 32), np.uint8), {"max_keypoints": 5}, cache_dir=False)
+    with pytest.raises(ValueError, match="image"):
+        extract_features(np.zeros((4, 4, 4, 4)), cache_dir=False)
+
+
+# ---------------------------------------------------------------------------------------- load_image
+def test_load_image(tmp_path, gray):
+    import cv2
+
+    path = tmp_path / "g.png"
+    cv2.imwrite(str(path), gray)
+    np.testing.assert_array_equal(load_image(path), gray)
+    rgb = load_image(path, gray=False)
+    assert rgb.shape == gray.shape + (3,)
+
+
+def test_load_image_errors_name_the_file(tmp_path):
+    missing = tmp_path / "nope.png"
+    with pytest.raises(FileNotFoundError, match="nope.png"):
+        load_image(missing)
+    corrupt = tmp_path / "broken.png"
+    corrupt.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)
+    with pytest.raises(ValueError, match="broken.png"):
+        load_image(corrupt)
+    with pytest.raises(ValueError, match="broken.png"):
+        extract_features(corrupt, cache_dir=False)
+    empty = tmp_path / "empty.jpg"
+    empty.write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.jpg"):
+        load_image(empty)
+
+
+# --------------------------------------------------------------------------------------------- cache
+def _entries(cache):
+    return sorted(p for p in cache.rglob("*") if p.is_file())
+
+
+def test_cache_hit(tmp_path, gray, monkeypatch):
+    cfg = FeatureConfig(max_keypoints=60)
+    first = extract_features(gray, cfg, cache_dir=tmp_path)
+    files = _entries(tmp_path)
+    assert len(files) == 1 and files[0].suffix == ".npz"
+    assert files[0] == F.feature_cache_path(gray, cfg, cache_dir=tmp_path)
+    assert cfg.key() in str(files[0])
+
+    def boom(*args, **kwargs):
+        raise AssertionError("cache miss: features recomputed")
+
+    monkeypatch.setattr(F, "_extract", boom)
+    again = extract_features(gray, cfg, cache_dir=tmp_path)
+    for name in ("kpts", "shapes", "desc", "scales", "angles", "responses"):
+        np.testing.assert_array_equal(getattr(first, name), getattr(again, name))
+        assert getattr(first, name).dtype == getattr(again, name).dtype
+    # Keyed by content, not by how the image was passed: a file with the same pixels hits too.
+    import cv2
+
+    path = tmp_path / "same.png"
+    cv2.imwrite(str(path), gray)
+    extract_features(path, cfg, cache_dir=tmp_path)
+
+
+def test_cache_is_config_keyed(tmp_path, gray):
+    a = extract_features(gray, FeatureConfig(max_keypoints=20), cache_dir=tmp_path)
+    b = extract_features(gray, FeatureConfig(max_keypoints=30), cache_dir=tmp_path)
+    c = extract_features(gray, FeatureConfig(max_keypoints=30, upright=True), cache_dir=tmp_path)
+    assert (len(a), len(b), len(c)) == (20, 30, 30)
+    assert len(_entries(tmp_path)) == 3
+    keys = {FeatureConfig(max_keypoints=20).key(), FeatureConfig(max_keypoints=30).key(),
+            FeatureConfig(max_keypoints=30, upright=True).key(), FeatureConfig(contrast_threshold=0.03).key(),
+            FeatureConfig(patch_radius=2.0).key()}
+    assert len(keys) == 5
+    # Stable across calls and processes (no id() or hash randomisation inside).
+    assert FeatureConfig().key() == FeatureConfig().key() == "sift-rootsift-k8000-v1-441d0e9b"
+    assert all(ch.isalnum() or ch in "-_." for ch in FeatureConfig(upright=True).key())
+
+
+def test_cache_write_is_atomic(tmp_path, gray, monkeypatch):
+    cfg = FeatureConfig(max_keypoints=25)
+    target = F.feature_cache_path(gray, cfg, cache_dir=tmp_path)
+
+    def interrupted(f, **arrays):
+        f.write(b"partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(F.np, "savez", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        extract_features(gray, cfg, cache_dir=tmp_path)
+    assert not target.exists()
+    assert _entries(tmp_path) == [], "no temporary file left behind"
+    monkeypatch.undo()
+    f = extract_features(gray, cfg, cache_dir=tmp_path)
+    assert target.is_file() and len(f) == 25
+
+
+def test_corrupt_cache_entry_is_recomputed(tmp_path, gray):
+    cfg = FeatureConfig(max_keypoints=25)
+    target = F.feature_cache_path(gray, cfg, cache_dir=tmp_path)
+    target.parent.mkdir(parents=True)
+    target.write_bytes(b"not an npz")
+    f = extract_features(gray, cfg, cache_dir=tmp_path)
+    assert len(f) == 25
+    with np.load(target) as z:
+        np.testing.assert_array_equal(z["kpts"], f.kpts)
+
+
+def test_default_cache_location(tmp_path, gray, monkeypatch):
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path))
+    extract_features(gray, FeatureConfig(max_keypoints=10))
+    files = _entries(tmp_path / "features")
+    assert len(files) == 1
+    assert not any(name.endswith(".tmp") for name in os.listdir(files[0].parent))
+
+
+def test_features_empty_constructor():
+    f = Features.empty()
+    assert len(f) == 0 and f.desc.dtype == np.float32
