@@ -30,6 +30,7 @@ _BUILTIN: dict[str, str] = {
     "vfc": "ctxmatch_lib.filters.vfc:vfc_filter",
     "llt": "ctxmatch_lib.filters.llt:llt_filter",
     "adalam": "ctxmatch_lib.filters.adalam:adalam_filter",
+    "rfm_scan": "ctxmatch_lib.filters.rfm_scan:rfm_scan_filter",
 }
 
 

@@ -1,0 +1,395 @@
+"""Boundary points ``B`` added to the DTM triangulations (Sec. 4, Fig. 2, footnotes 2-3, Appendix A).
+
+Points are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel; image
+sizes are ``(width, height)``.
+
+DTM's own boundary (``method="alpha"``, Fig. 2):
+
+1. the alpha-shape boundary edges of the vertex set ``V``, as MATLAB's ``boundary(x, y)`` with its default
+   shrink factor 0.5 returns them (footnote 2; :func:`matlab_boundary_alpha` says how alpha is picked);
+2. for each boundary edge, the four points at distance ``s = min(width, height) / 10`` (footnote 3) on the
+   perpendiculars to the edge through its two vertices form ``B'``;
+3. the alpha-shape boundary of ``V ∪ B'`` is split into segments of length at most ``s``; the segment
+   vertices are ``B``.
+
+The alternatives that Appendix A (Fig. 11) compares are ``"corners"`` (the four image corners),
+``"canvas"`` (the image border split into segments of length ``s``) and ``"convex"`` (steps 1-3 with the
+convex hull, i.e. shrink factor 0, instead of the alpha shape).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import Delaunay, cKDTree
+
+from .._validation import as_image_size, as_points
+from .triangulation import delaunay_or_none
+
+__all__ = [
+    "BOUNDARY_METHODS",
+    "AlphaShape",
+    "Boundary",
+    "alpha_shape",
+    "matlab_boundary_alpha",
+    "boundary_step",
+    "dtm_boundary",
+]
+
+BOUNDARY_METHODS = ("alpha", "convex", "canvas", "corners")
+_EMPTY2 = np.empty((0, 2))
+_EMPTY_EDGES = np.empty((0, 2), np.int64)
+
+
+@dataclass(frozen=True)
+class AlphaShape:
+    """The holes-filled alpha shape of a point set, as MATLAB ``alphaShape``/``boundary`` build it.
+
+    Attributes
+    ----------
+    points : ndarray of shape (N, 2)
+        The input points.
+    simplices : ndarray of shape (T, 3)
+        Their Delaunay triangles (rows into ``points``).
+    radii : ndarray of shape (T,)
+        Circumradius of each triangle.
+    alpha : float
+        The alpha radius used; triangles with ``radii <= alpha`` form the shape (``inf`` if degenerate).
+    inside : ndarray of shape (T,) bool
+        Triangles of the shape, holes filled.
+    edges : ndarray of shape (E, 2)
+        Boundary edges of the shape (rows into ``points``).
+    """
+
+    points: np.ndarray
+    simplices: np.ndarray
+    radii: np.ndarray
+    alpha: float
+    inside: np.ndarray
+    edges: np.ndarray
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """Boundary set ``B`` of one image and every intermediate of its construction (Fig. 2, App. A).
+
+    Attributes
+    ----------
+    points : ndarray of shape (Q, 2)
+        The final boundary set ``B`` (purple vertices in Fig. 2), (x, y) pixels.
+    method : str
+        One of :data:`BOUNDARY_METHODS`.
+    s : float
+        Fattening distance and segment length ``min(width, height) / 10`` (footnote 3).
+    vertices : ndarray of shape (V, 2)
+        The vertex set ``V`` the boundary was built for.
+    vertex_simplices : ndarray of shape (T, 3)
+        Delaunay triangles of ``V`` alone (blue in Fig. 2; empty if ``V`` is degenerate or the method
+        does not triangulate ``V``).
+    hull_edges : ndarray of shape (H, 2)
+        Convex-hull edges of ``V`` (red in Fig. 2), rows into ``vertices``.
+    alpha : float
+        Alpha radius of the first shape (``inf`` for ``"convex"``, ``nan`` when not computed).
+    shape_edges : ndarray of shape (E, 2)
+        Boundary edges of the first shape (solid orange in Fig. 2; the hull for ``"convex"``), rows into
+        ``vertices``.
+    fattened : ndarray of shape (F, 2)
+        ``B'``: the four points at distance ``s`` on the perpendiculars of each shape edge (dashed
+        orange in Fig. 2 joins them edge by edge: rows ``4e:4e+4`` belong to ``shape_edges[e]`` and are
+        ``(v0 + s n, v1 + s n, v0 - s n, v1 - s n)``).
+    contour : list of ndarray of shape (R, 2)
+        Closed rings (first point repeated at the end) of the second shape, i.e. the boundary of
+        ``V ∪ B'`` (purple contour in Fig. 2) that ``points`` samples; for ``"canvas"``/``"corners"`` the
+        image border.
+    contour_alpha : float
+        Alpha radius of the second shape (``nan`` when not computed).
+    """
+
+    points: np.ndarray
+    method: str
+    s: float
+    vertices: np.ndarray
+    vertex_simplices: np.ndarray
+    hull_edges: np.ndarray
+    alpha: float
+    shape_edges: np.ndarray
+    fattened: np.ndarray
+    contour: list
+    contour_alpha: float
+
+
+def boundary_step(image_size) -> float:
+    """Fattening distance / segment length ``s = min(width, height) / 10`` (footnote 3)."""
+    w, h = as_image_size(image_size, "image_size")
+    return min(w, h) / 10.0
+
+
+def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    a, b, c = points[simplices[:, 0]], points[simplices[:, 1]], points[simplices[:, 2]]
+    la = np.hypot(*(b - c).T)
+    lb = np.hypot(*(c - a).T)
+    lc = np.hypot(*(a - b).T)
+    area2 = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = la * lb * lc / (2.0 * area2)
+    return np.where(area2 > 0, r, np.inf)
+
+
+def _adjacent_pairs(neighbors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each pair of edge-adjacent triangles once, as two index arrays."""
+    t = np.repeat(np.arange(len(neighbors)), 3)
+    u = neighbors.reshape(-1)
+    keep = u > t  # drops the hull (-1) and the reversed duplicates
+    return t[keep], u[keep]
+
+
+def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: np.ndarray,
+                          n_points: int, shrink: float = 0.5) -> float:
+    """Alpha radius that MATLAB ``boundary(P, shrink)`` picks for a Delaunay triangulation.
+
+    MATLAB builds ``alphaShape(P, Inf)``, takes its *alpha spectrum* (the distinct alpha values at which the
+    shape changes: for a 2-D regularised alpha shape, the distinct triangle circumradii) and its critical
+    alpha ``a_c = criticalAlpha('one-region')`` (the smallest alpha whose shape encloses every point in a
+    single region), keeps the spectrum values ``>= a_c`` in increasing order, ``a_c = v_1 < ... < v_n``,
+    and uses ``v_k`` with ``k = max(ceil((1 - shrink) n), 1)``. So ``shrink = 0`` gives ``v_n`` (the convex
+    hull), ``shrink = 1`` the tightest single region ``a_c``, and the default 0.5 the median of the range.
+
+    Here a triangle belongs to the shape when its circumradius is ``<= alpha``; regions are sets of
+    triangles connected through shared edges; a point is enclosed when one of its triangles is in the shape
+    (points that Qhull leaves out of every triangle are ignored). ``a_c`` is found exactly, in one pass,
+    from a minimum spanning forest of the triangle adjacency graph weighted by the larger circumradius
+    rank of each adjacent pair: at threshold ``alpha`` the number of regions is the number of shape
+    triangles minus the number of forest edges of weight ``<= alpha`` (Kruskal).
+
+    Parameters
+    ----------
+    radii : ndarray of shape (T,)
+        Triangle circumradii.
+    simplices, neighbors : ndarray of shape (T, 3)
+        ``scipy.spatial.Delaunay`` ``simplices`` and ``neighbors``.
+    n_points : int
+        Number of triangulated points.
+    shrink : float
+        MATLAB's shrink factor ``S`` in ``[0, 1]``.
+
+    Returns
+    -------
+    float
+        The alpha radius (``inf`` if there are no triangles).
+    """
+    if not 0.0 <= shrink <= 1.0:
+        raise ValueError(f"shrink must be in [0, 1], got {shrink}")
+    n_tri = len(radii)
+    if n_tri == 0:
+        return math.inf
+    spectrum, rank = np.unique(radii, return_inverse=True)  # ascending; rank in 0..n-1
+    rank = rank.reshape(-1)
+    # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
+    first = np.full(n_points, len(spectrum), np.int64)
+    np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
+    first = first[first < len(spectrum)]
+    all_points = int(first.max())
+    # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph.
+    t, u = _adjacent_pairs(neighbors)
+    n_regions = np.cumsum(np.bincount(rank, minlength=len(spectrum)))
+    if len(t):
+        w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
+        graph = coo_matrix((w, (t, u)), shape=(n_tri, n_tri)).tocsr()
+        forest = minimum_spanning_tree(graph).data.astype(np.int64) - 1
+        n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=len(spectrum)))
+    ok = np.flatnonzero(n_regions[all_points:] == 1)
+    critical = all_points + int(ok[0]) if len(ok) else len(spectrum) - 1
+    n = len(spectrum) - critical
+    k = max(math.ceil((1.0 - shrink) * n), 1)
+    return float(spectrum[critical + k - 1])
+
+
+def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: Delaunay | None = None) -> AlphaShape | None:
+    """Holes-filled alpha shape of ``points`` with MATLAB ``boundary``'s choice of alpha.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 2)
+        Distinct (x, y) points.
+    shrink : float
+        MATLAB shrink factor: 0 convex hull, 1 tightest single region, 0.5 MATLAB's default.
+    tri : scipy.spatial.Delaunay, optional
+        Precomputed Delaunay triangulation of ``points``.
+
+    Returns
+    -------
+    AlphaShape or None
+        ``None`` when the points are fewer than three or collinear (no triangle). Holes are filled, as
+        MATLAB ``boundary`` does by setting ``HoleThreshold`` to the hull area.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    tri = delaunay_or_none(points) if tri is None else tri
+    if tri is None or len(tri.simplices) == 0:
+        return None
+    simplices = tri.simplices.astype(np.int64)
+    neighbors = tri.neighbors.astype(np.int64)
+    radii = _circumradii(points, simplices)
+    alpha = matlab_boundary_alpha(radii, simplices, neighbors, len(points), shrink)
+    inside = radii <= alpha
+    n_tri = len(simplices)
+    if not inside.all():
+        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior.
+        t, u = _adjacent_pairs(neighbors)
+        both_out = ~inside[t] & ~inside[u]
+        hull_out = np.flatnonzero(~inside & (neighbors < 0).any(axis=1))
+        rows = np.concatenate([t[both_out], hull_out])
+        cols = np.concatenate([u[both_out], np.full(len(hull_out), n_tri)])
+        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_tri + 1, n_tri + 1))
+        _, label = connected_components(graph, directed=False)
+        inside = inside | (label[:n_tri] != label[n_tri])
+    nb_inside = np.where(neighbors >= 0, inside[np.maximum(neighbors, 0)], False)
+    border = inside[:, None] & ~nb_inside  # edge k of triangle t (opposite vertex k) is on the boundary
+    tt, kk = np.nonzero(border)
+    edges = np.stack([simplices[tt, (kk + 1) % 3], simplices[tt, (kk + 2) % 3]], axis=1)
+    return AlphaShape(points, simplices, radii, alpha, inside, edges)
+
+
+def _fatten(points: np.ndarray, edges: np.ndarray, s: float) -> np.ndarray:
+    """``B'``: the points at distance ``s`` on both sides of each edge, through both its vertices."""
+    p0, p1 = points[edges[:, 0]], points[edges[:, 1]]
+    d = p1 - p0
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+    return np.stack([p0 + s * n, p1 + s * n, p0 - s * n, p1 - s * n], axis=1).reshape(-1, 2)
+
+
+def _rings_from_edges(points: np.ndarray, edges: np.ndarray) -> list:
+    """Closed rings (as (R, 2) arrays, first point repeated) of the polygons bounded by ``edges``."""
+    if len(edges) == 0:
+        return []
+    lines = shapely.linestrings(np.stack([points[edges[:, 0]], points[edges[:, 1]]], axis=1))
+    polys = shapely.get_parts(shapely.polygonize(lines))
+    return [shapely.get_coordinates(shapely.get_exterior_ring(p)) for p in polys]
+
+
+def _sample_rings(rings: list, s: float) -> np.ndarray:
+    """Split every ring into equal segments of length at most ``s``; return the segment vertices."""
+    out = []
+    for ring in rings:
+        line = shapely.linestrings(ring)
+        length = float(shapely.length(line))
+        if length <= 0:
+            continue
+        n = max(math.ceil(length / s - 1e-9), 3)
+        out.append(shapely.get_coordinates(shapely.line_interpolate_point(line, np.arange(n) * (length / n))))
+    return np.vstack(out) if out else _EMPTY2
+
+
+def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
+    """Push boundary samples closer than ``s`` to ``V`` radially out to distance ``s`` from their nearest
+    vertex; drop the ones still closer than ``s / 2`` after that (see :func:`dtm_boundary`)."""
+    if len(b) == 0 or len(vertices) == 0:
+        return b
+    tree = cKDTree(vertices)
+    d, j = tree.query(b)
+    close = d < s * (1 - 1e-9)
+    if close.any():
+        b = b.copy()
+        movable = close & (d > 1e-9 * s)
+        b[movable] = vertices[j[movable]] + (b[movable] - vertices[j[movable]]) * (s / d[movable, None])
+        d2, _ = tree.query(b)
+        b = b[d2 >= 0.5 * s]
+    return np.unique(b, axis=0)
+
+
+def _degenerate_boundary(vertices: np.ndarray, s: float) -> tuple[list, np.ndarray]:
+    """Contour for 1 point or collinear points: the ring of their ``s``-buffer (no alpha shape exists)."""
+    if len(vertices) == 1:
+        geom = shapely.points(vertices[0])
+    else:
+        centred = vertices - vertices.mean(axis=0)
+        direction = np.linalg.svd(centred, full_matrices=False)[2][0]
+        proj = centred @ direction
+        geom = shapely.linestrings(vertices[[np.argmin(proj), np.argmax(proj)]])
+    poly = shapely.buffer(geom, s, quad_segs=8)
+    ring = shapely.get_coordinates(shapely.get_exterior_ring(poly))
+    return [ring], _sample_rings([ring], s)
+
+
+def _image_border(image_size) -> np.ndarray:
+    w, h = image_size
+    # Pixel centres are integers, so the canvas edges lie half a pixel outside them.
+    x0, y0, x1, y1 = -0.5, -0.5, w - 0.5, h - 0.5
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])
+
+
+def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float = 0.5) -> Boundary:
+    """Boundary set ``B`` that DTM adds to the triangulation of the vertex set ``V`` (Sec. 4, Fig. 2).
+
+    Parameters
+    ----------
+    vertices : array_like of shape (V, 2)
+        Distinct vertex points ``V``, (x, y) pixels with the origin at the centre of the top-left pixel
+        (typically collapsed keypoints, :func:`~ctxmatch_lib.dtm.collapse_vertices`).
+    image_size : tuple of int
+        ``(width, height)`` of the image; sets ``s = min(width, height) / 10`` (footnote 3) and the canvas
+        for ``"canvas"``/``"corners"``.
+    method : {"alpha", "convex", "canvas", "corners"}
+        ``"alpha"`` is DTM's boundary (Fig. 2): alpha-shape edges of ``V`` (MATLAB ``boundary`` with shrink
+        factor ``shrink``), fattened by ``s`` into ``B'``, alpha-shape contour of ``V ∪ B'`` split into
+        segments of length at most ``s``. ``"convex"`` does the same with the convex hull (Appendix A,
+        Fig. 11c-d). ``"canvas"`` splits the image border into segments of length at most ``s``
+        (Fig. 11b); ``"corners"`` uses the four image corners (Fig. 11a).
+    shrink : float
+        MATLAB shrink factor for ``"alpha"`` (default 0.5, MATLAB's default, as in footnote 2).
+
+    Returns
+    -------
+    Boundary
+        ``.points`` is ``B``; the other fields keep every intermediate for plotting.
+
+    Notes
+    -----
+    Two details the paper leaves open are fixed as follows.
+
+    - The contour of ``V ∪ B'`` cuts the convex corners of ``B'`` with chords, which pass closer than ``s``
+      to the corner vertex (``s cos(θ/2)`` for a turn of ``θ``: ``0.71 s`` at a right angle). Samples that
+      fall closer than ``s`` to ``V`` are pushed radially out to distance ``s`` from their nearest vertex
+      (any still closer than ``s/2``, which needs a very thin spike, are dropped), so ``B`` keeps the
+      clearance ``s`` that the construction aims for.
+    - When ``V`` has fewer than three points or is collinear the alpha shape is empty; the contour is then
+      the boundary of the ``s``-buffer of ``V`` (a circle, or a stadium around the segment), sampled the
+      same way. An empty ``V`` gives an empty ``B`` for ``"alpha"`` and ``"convex"``.
+
+    Examples
+    --------
+    >>> xy = np.stack(np.meshgrid(np.arange(100, 301, 20.0), np.arange(100, 301, 20.0)), -1).reshape(-1, 2)
+    >>> b = dtm_boundary(xy, (640, 480))
+    >>> b.s, len(b.shape_edges)
+    (48.0, 40)
+    """
+    if method not in BOUNDARY_METHODS:
+        raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
+    image_size = as_image_size(image_size, "image_size")
+    vertices = as_points(vertices, "vertices")
+    s = boundary_step(image_size)
+    empty = dict(vertex_simplices=np.empty((0, 3), np.int64), hull_edges=_EMPTY_EDGES, alpha=math.nan,
+                 shape_edges=_EMPTY_EDGES, fattened=_EMPTY2, contour_alpha=math.nan)
+    if method in ("canvas", "corners"):
+        border = _image_border(image_size)
+        pts = border[:4] if method == "corners" else _sample_rings([border], s)
+        return Boundary(pts, method, s, vertices, contour=[border], **empty)
+    if len(vertices) == 0:
+        return Boundary(_EMPTY2, method, s, vertices, contour=[], **empty)
+    tri = delaunay_or_none(vertices)
+    first = alpha_shape(vertices, 0.0 if method == "convex" else shrink, tri=tri)
+    if first is None:
+        contour, pts = _degenerate_boundary(vertices, s)
+        return Boundary(_keep_clear(pts, vertices, s), method, s, vertices, contour=contour, **empty)
+    hull_edges = tri.convex_hull.astype(np.int64)
+    fattened = _fatten(vertices, first.edges, s)
+    both = np.unique(np.vstack([vertices, fattened]), axis=0)
+    second = alpha_shape(both, 0.0 if method == "convex" else shrink)
+    contour = _rings_from_edges(both, second.edges)
+    pts = _keep_clear(_sample_rings(contour, s), vertices, s)
+    return Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
+                    contour, second.alpha)
