@@ -23,6 +23,7 @@ __all__ = ["FILTERS", "register_filter"]
 
 # name -> "module:function"; modules live in this package (dtm lives in ctxmatch_lib.dtm).
 _BUILTIN: dict[str, str] = {
+    "dtm": "ctxmatch_lib.dtm:dtm_filter",
     "th": "ctxmatch_lib.filters.th:th_filter",
     "gms": "ctxmatch_lib.filters.gms:gms_filter",
     "lpm": "ctxmatch_lib.filters.lpm:lpm_filter",
