@@ -426,3 +426,21 @@ def test_overlap_error_against_polygons():
     assert np.max(np.abs(err - ref)) < 0.01
     same = ellipse_overlap_error(c1, A1, c1, A1)
     assert np.allclose(same, 0, atol=1e-9)
+
+
+@pytest.mark.parametrize("f_prime", [1, 2, 3])
+def test_omega_heap_greedy_matches_a_full_sort(f_prime):
+    # Rows run past their sorted lists here, which exercises the vectorised continuation of the heap.
+    rng = np.random.default_rng(f_prime)
+    D = rng.integers(0, 50, (300, 250)).astype(np.float64)  # many ties
+    out = blob_matching(distances=D, f="omega", f_prime=f_prime, t_o=None)
+    i, j = np.indices(D.shape)
+    order = np.lexsort((j.ravel(), i.ravel(), D.ravel()))
+    rc, cc, ref = np.zeros(300, int), np.zeros(250, int), set()
+    for k in order:
+        a, b = divmod(int(k), 250)
+        if rc[a] < f_prime and cc[b] < f_prime:
+            rc[a] += 1
+            cc[b] += 1
+            ref.add((a, b))
+    assert pairs(out) == ref

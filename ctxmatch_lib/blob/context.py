@@ -122,7 +122,7 @@ class BlobContext:
 
     def __init__(self, desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
                  shapes2=None, depth: int = 10, keep_dense: bool | None = None,
-                 max_dense_bytes: int = 1536 * _MiB, block_bytes: int = 64 * _MiB):
+                 max_dense_bytes: int = 1024 * _MiB, block_bytes: int = 64 * _MiB):
         self.kpts = (kpts1, kpts2)
         self.shapes = (shapes1, shapes2)
         self.max_dense_bytes = int(max_dense_bytes)
@@ -261,46 +261,62 @@ class BlobContext:
         return np.stack([keys // m, keys % m], axis=1), vals[accepted]
 
     def _greedy_dense(self, f_prime: int):
-        """Greedy over all of D (f = Ω) without sorting D: a heap of each row's next-best entry."""
+        """Greedy over all of D (f = Ω) without sorting D.
+
+        A heap holds each row's next entry in (value, column) order. Saturated columns stay saturated, so
+        a row skips them when it advances; past its sorted list, the next entry of a row is found with one
+        vectorised scan of the row.
+        """
         D = self._ensure_dense()
         n, m = self.n, self.m
-        rows, T = self.rows, self.rows.idx.shape[1]
-        full_order: dict[int, np.ndarray] = {}
-
-        def entry(i: int, p: int):
-            if p < T:
-                return rows.val[i, p], int(rows.idx[i, p])
-            if i not in full_order:
-                full_order[i] = np.lexsort((np.arange(m), np.maximum(D[i], 0)))
-            j = int(full_order[i][p])
-            d = float(D[i, j])
-            return (np.sqrt(max(d, 0.0)) if self._squared else d), j
-
+        T = self.rows.idx.shape[1]
+        lidx, lval = self.rows.idx.tolist(), self.rows.val.tolist()
+        cols = np.arange(m)
+        col_full = np.zeros(m, bool)
         rc, cc = [0] * n, [0] * m
         ptr = [0] * n
-        heap = [(float(rows.val[i, 0]), i, int(rows.idx[i, 0])) for i in range(n)]
+        heap = [(lval[i][0], i, lidx[i][0]) for i in range(n)]
         heapq.heapify(heap)
+
+        def push_next(i: int, d: float, j: int) -> None:
+            p = ptr[i] + 1
+            while p < T:
+                jj = lidx[i][p]
+                if cc[jj] < f_prime:
+                    ptr[i] = p
+                    heapq.heappush(heap, (lval[i][p], i, jj))
+                    return
+                p += 1
+            if ptr[i] < T:  # leaving the sorted list: continue after its last entry
+                ptr[i] = T
+                d, j = lval[i][T - 1], lidx[i][T - 1]
+            if T == m:
+                return
+            row = np.asarray(D[i], np.float64)
+            row = np.sqrt(np.maximum(row, 0)) if self._squared else row
+            ok = ~col_full & ((row > d) | ((row == d) & (cols > j)))
+            cand = np.flatnonzero(ok)
+            if len(cand):
+                k = int(cand[np.argmin(row[cand])])  # first minimum: ties go to the lowest column
+                heapq.heappush(heap, (float(row[k]), i, k))
+
         out_i, out_j, out_d = [], [], []
         free_cols = m
         while heap and free_cols:
             d, i, j = heapq.heappop(heap)
             if cc[j] < f_prime:
-                out_i.append(i), out_j.append(j), out_d.append(d)
+                out_i.append(i)
+                out_j.append(j)
+                out_d.append(d)
                 rc[i] += 1
                 cc[j] += 1
-                free_cols -= cc[j] == f_prime
+                if cc[j] == f_prime:
+                    col_full[j] = True
+                    free_cols -= 1
             if rc[i] < f_prime:
-                p = ptr[i] + 1
-                # Saturated columns stay saturated: skip them now rather than through the heap.
-                while p < m:
-                    dd, jj = entry(i, p)
-                    if cc[jj] < f_prime:
-                        heapq.heappush(heap, (float(dd), i, jj))
-                        break
-                    p += 1
-                ptr[i] = p
-        return np.stack([np.asarray(out_i, np.int64), np.asarray(out_j, np.int64)], axis=1).reshape(-1, 2), \
-            np.asarray(out_d, np.float64)
+                push_next(i, d, j)
+        G = np.stack([np.asarray(out_i, np.int64), np.asarray(out_j, np.int64)], axis=1).reshape(-1, 2)
+        return G, np.asarray(out_d, np.float64)
 
     # -- step 3: NNR-like ratios ---------------------------------------------------------------------
     def second_best(self, side: int, anchors: np.ndarray, others: np.ndarray, dist: np.ndarray, *,

@@ -93,7 +93,7 @@ def _sorted(matches: np.ndarray, scores: np.ndarray) -> BlobMatches:
 
 def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
                   shapes2=None, f=10, prefilter="cup", f_prime=5, ratio="D+", t_o=10.0, t_o_kind="px",
-                  combine="harmonic", max_dense_bytes: int = 1536 << 20) -> BlobMatches:
+                  combine="harmonic", max_dense_bytes: int = 1 << 30) -> BlobMatches:
     """Blob matching (Sec. 3): pre-filter, greedy many-to-many selection, NNR-like ratio, combination.
 
     1. Pre-filter D to the entries among the ``f`` best of their row and column (F∩, Eq. 10) or of their
