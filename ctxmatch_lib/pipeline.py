@@ -13,7 +13,7 @@ How the pieces fit:
 * the recall reference of a row is the set of correct candidates of its own blob setup (Sec. 5.3), the
   recall* reference the union of the correct candidates of all blob setups evaluated on the pair (same
   keypoints, so the union is well defined);
-* the unfiltered candidates appear as method ``"blob"``; models are ``"none"``, ``"1sac"``, ``"ransac"``,
+* the unfiltered candidates appear as method ``"blob"``; models are ``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``,
   fitted on the method's output, ``H`` for planar pairs and ``F`` for non-planar and depth pairs;
 * ``time_s`` is the running time of the method itself (blob matching for ``"blob"``, the filter alone for
   a filter), the same on every model row of that method as in the paper's tables; ``model_time_s`` is
@@ -207,7 +207,7 @@ def run_model(
     threshold: float = CONSISTENCY_THRESHOLD_PX,
     rng=None,
 ) -> tuple[ModelFit, float]:
-    """Model step ``name`` (``none``, ``1sac``, ``ransac``) on a match set, ``H`` or ``F`` by ``pair_kind``."""
+    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set, ``H`` or ``F`` by ``pair_kind``."""
     t0 = time.perf_counter()
     fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
                            threshold=threshold, rng=rng)
@@ -331,7 +331,7 @@ def evaluate_pair(
     filters : sequence of str
         Registered filter names; ``"blob"`` (no filter) is always included.
     models : sequence of str
-        Model steps among ``none``, ``1sac``, ``ransac``.
+        Model steps among ``none``, ``1sac``, ``ransac``, ``prosac``.
     gt_method : {"D", "A"}
         Ground-truth method; ``gt_threshold`` its distance in pixels.
     model_threshold : float

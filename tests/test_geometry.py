@@ -205,6 +205,18 @@ def test_ransac_seeded_and_recovers_homography():
     assert a.keep[~pm.is_inlier].mean() < 0.03
 
 
+def test_ransac_prosac_uses_the_ranking_and_maps_back():
+    """PROSAC sees the matches best first; the returned mask and errors follow the caller's order."""
+    pm = planted_homography_matches(500, 0.1, noise=0.5, informative_scores=True, rng=3)
+    fit = ransac(pm.kpts1, pm.kpts2, pm.matches, pm.scores, kind="H", threshold=5.0, sampler="prosac", rng=1)
+    assert fit.keep[pm.is_inlier].mean() > 0.98 and fit.keep[~pm.is_inlier].mean() < 0.03
+    np.testing.assert_array_equal(fit.keep, fit.errors <= 5.0)
+    np.testing.assert_allclose(fit.errors, model_errors(fit.model, "H", pm.kpts1, pm.kpts2))
+    assert set(fit.sample) <= set(np.flatnonzero(fit.keep))
+    with pytest.raises(ValueError, match="sampler"):
+        ransac(pm.kpts1, pm.kpts2, pm.matches, kind="H", sampler="napsac")
+
+
 def test_ransac_fundamental_and_too_few():
     p1, p2, _ = _two_view_scene(120, rng=5)
     m = np.c_[np.arange(120), np.arange(120)]
@@ -219,6 +231,8 @@ def test_apply_model_step_dispatch():
     none = apply_model_step("none", pm.kpts1, pm.kpts2, pm.matches, pm.scores, kind="H")
     assert none.keep.all()
     assert apply_model_step("1sac", pm.kpts1, pm.kpts2, pm.matches, pm.scores, kind="H").keep.shape == (100,)
+    pro = apply_model_step("prosac", pm.kpts1, pm.kpts2, pm.matches, pm.scores, kind="H", threshold=5.0, rng=0)
+    assert pro.keep[pm.is_inlier].mean() > 0.98
     with pytest.raises(ValueError, match="unknown model step"):
         apply_model_step("lmeds", pm.kpts1, pm.kpts2, pm.matches, pm.scores, kind="H")
     assert model_kind_for("planar") == "H" and model_kind_for("depth") == "F"
