@@ -207,7 +207,10 @@ def run_model(
     threshold: float = CONSISTENCY_THRESHOLD_PX,
     rng=None,
 ) -> tuple[ModelFit, float]:
-    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set, ``H`` or ``F`` by ``pair_kind``."""
+    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set.
+
+    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`).
+    """
     t0 = time.perf_counter()
     fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
                            threshold=threshold, rng=rng)

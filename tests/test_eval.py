@@ -9,7 +9,7 @@ import pytest
 
 from ctxmatch_lib.datasets.base import EpipolarGT, HomographyGT, Pair
 from ctxmatch_lib.features import Features
-from ctxmatch_lib.filters import FILTERS, register_filter
+from ctxmatch_lib.filters import register_filter
 from ctxmatch_lib.geometry import apply_homography
 from ctxmatch_lib.pipeline import (
     ROW_COLUMNS,
@@ -231,8 +231,6 @@ def test_eval_registered_in_cli():
 
 
 def test_evaluate_dataset_with_dtm_on_tiny_dataset(tiny_dataset, tmp_path, monkeypatch):
-    if "dtm" not in FILTERS:
-        pytest.skip("TEMPORARY: the 'dtm' filter has not landed in ctxmatch_lib.filters yet")
     from ctxmatch_lib.datasets import load_dataset
     from ctxmatch_lib.features import FeatureConfig
 

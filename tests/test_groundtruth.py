@@ -126,7 +126,12 @@ def test_piecewise_affine_map_reproduces_global_affine():
 
 @pytest.mark.parametrize(
     "src",
-    [np.empty((0, 2)), np.array([[0.0, 0.0]]), np.array([[0.0, 0.0], [1.0, 1.0]]), np.c_[np.arange(5.0), np.arange(5.0)]],
+    [
+        np.empty((0, 2)),
+        np.array([[0.0, 0.0]]),
+        np.array([[0.0, 0.0], [1.0, 1.0]]),
+        np.c_[np.arange(5.0), np.arange(5.0)],
+    ],
     ids=["0 points", "1 point", "2 points", "collinear"],
 )
 def test_piecewise_affine_map_degenerate(src):

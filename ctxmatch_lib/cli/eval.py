@@ -46,7 +46,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--filters", default="dtm",
                    help="comma-separated registered filters, or 'none' for the blob candidates only (default: dtm)")
     p.add_argument("--model", default="none,1sac",
-                   help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC), prosac (MAGSAC++ with PROSAC sampling by score) (default: none,1sac)")
+                   help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC), "
+                        "prosac (MAGSAC++ with PROSAC sampling by score) (default: none,1sac)")
     p.add_argument("--out", default="results.parquet", help="output Parquet file (default: results.parquet)")
     p.add_argument("--gt", default="D", choices=["D", "A"], help="ground-truth method (default: D)")
     p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
