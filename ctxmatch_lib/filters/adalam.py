@@ -1,7 +1,8 @@
 """AdaLAM: Adaptive Locally-Affine Matching (Cavalli et al., ECCV 2020).
 
 1. Seeds (Sec. 3.1): a match is a seed when its score passes the ratio test and is the best (lowest) among
-   all matches whose image-1 keypoint lies within ``R1 = sqrt(w1 h1 / (pi * area_ratio))`` of its own.
+   all matches whose image-1 keypoint lies within ``R1 = sqrt(w1 h1 / (pi * area_ratio))`` of its own
+   (score ties broken in a seeded random order).
 2. Neighbourhoods (Sec. 3.2): a match joins the neighbourhood of a seed when its keypoints are within
    ``search_expansion * R1`` and ``search_expansion * R2`` of the seed's in both images and, when the
    keypoint shapes are known, its relative orientation and scale agree with the seed's (within
@@ -105,6 +106,7 @@ def adalam_filter(
     detected_scale_rate_threshold: float = 5.0,
     seed_threshold: float = 0.8,
     refit: bool = True,
+    rng=0,
 ) -> np.ndarray:
     """Adaptive Locally-Affine Matching.
 
@@ -116,7 +118,7 @@ def adalam_filter(
         Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better: seeds must pass ``seed_threshold`` and beat their neighbours,
-        samples are drawn best first. ``None`` means all equal (ties broken by match order).
+        samples are drawn best first. ``None`` means all equal (ties broken in a seeded random order).
     image_size1, image_size2 : (int, int)
         Image sizes (width, height), which set the radii ``R1`` and ``R2``.
     shapes1, shapes2 : ndarray of shape (N1, 2, 2) and (N2, 2, 2), optional
@@ -141,6 +143,9 @@ def adalam_filter(
         Seeds must have ``score < seed_threshold`` (ratio test of the reference implementation).
     refit : bool, default True
         Refit the best hypothesis of each neighbourhood on its inliers (Sec. 3.3).
+    rng : None, int or numpy.random.Generator, default 0
+        Seed of the random order that breaks score ties (all scores tie when ``scores`` is None); the
+        fixed default makes the result deterministic.
 
     Returns
     -------
@@ -171,6 +176,7 @@ def adalam_filter(
     min_conf = check_positive(min_confidence, "min_confidence")
     det_thr = check_positive(detected_scale_rate_threshold, "detected_scale_rate_threshold")
     seed_threshold = check_positive(seed_threshold, "seed_threshold")
+    rng = np.random.default_rng(rng)
     if (shapes1 is None) != (shapes2 is None):
         raise ValueError("shapes1 and shapes2 must be given together")
     n = len(ms)
@@ -181,9 +187,10 @@ def adalam_filter(
     R1 = np.sqrt(ms.size1[0] * ms.size1[1] / (np.pi * area_ratio))
     R2 = np.sqrt(ms.size2[0] * ms.size2[1] / (np.pi * area_ratio))
 
-    # 1. Seeds: best score within R1 in image 1 (strict total order: score, then match index).
+    # 1. Seeds: best score within R1 in image 1. Ties are broken in a random (seeded) order: breaking
+    # them by index would let one match suppress a whole chain of equal-scored matches on a regular layout.
     rank = np.empty(n, np.int64)
-    rank[np.lexsort((np.arange(n), s))] = np.arange(n)
+    rank[np.lexsort((rng.permutation(n), s))] = np.arange(n)
     tree1 = cKDTree(x)
     pairs = tree1.query_pairs(R1, output_type="ndarray")
     beaten = np.zeros(n, bool)
@@ -229,7 +236,7 @@ def adalam_filter(
 
     # 3. Local affine RANSACs, a block of seeds at a time to bound memory.
     couples = _couples(iters)
-    m_max = int(sizes.max())
+    m_max = max(int(sizes.max()), int(couples.max()) + 1)  # room for every couple index
     U = np.zeros((len(seeds), m_max, 2))
     V = np.zeros((len(seeds), m_max, 2))
     U[sid, pos], V[sid, pos] = u, v
