@@ -1,0 +1,288 @@
+"""Tests for DTM (Sec. 4): hand-built case, planted outliers, invariants, degenerate geometry, boundary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import cKDTree
+
+from ctxmatch_lib.dtm import (
+    BOUNDARY_METHODS,
+    alpha_shape,
+    collapse_vertices,
+    dtm,
+    dtm_boundary,
+    matlab_boundary_alpha,
+)
+from ctxmatch_lib.filters import FILTERS
+from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
+
+SIZE = (640, 480)
+
+
+def _run(k1, k2, matches=None, scores=None, size=SIZE, **kw):
+    k1, k2 = np.asarray(k1, float), np.asarray(k2, float)
+    if matches is None:
+        matches = np.stack([np.arange(len(k1))] * 2, axis=1)
+    return dtm(k1, k2, matches, scores, image_size1=size, image_size2=size, **kw)
+
+
+# --- hand-built case ---------------------------------------------------------------------------------
+
+def _hexagon_case():
+    """Centre c (match 0) and hexagon h0..h5 (matches 1-6, radius 20, h_k at 60k degrees, y down) move
+    by t = (10, 5). Outliers: o1 (7) sits inside the hexagon in I1 but far away in I2; o2 (8) far away in
+    I1 but inside the hexagon in I2; o3 (9) just right of h0 in I1 and below h2/h3 in I2."""
+    ang = np.deg2rad(np.arange(0, 360, 60))
+    c = np.array([500.0, 500.0])
+    hexa = c + 20 * np.c_[np.cos(ang), np.sin(ang)]
+    t = np.array([10.0, 5.0])
+    k1 = np.vstack([c, hexa, [[505, 497], [150, 850], [545, 500]]])
+    k2 = np.vstack([c + t, hexa + t, [[900, 150], [505, 512], [480, 545]]])
+    scores = np.r_[np.arange(7) * 0.1, 0.8, 0.9, 1.0]  # rank = match index
+    return k1, k2, scores
+
+
+def test_hand_built_case_exact():
+    """Worked by hand from the steps (image 1000 x 1000, so s = 100 keeps B far from the points).
+
+    Iteration 1, ranks 0..9 by score. Neighbours (other matches in A_v) in I1 / I2:
+    c: {h1,h2,h3,h4,o1} / {h0,h1,h3,h4,h5,o2} -> cluster {h1,h3,h4}; discards h0,h2,h5,o1,o2.
+    h1 (next alive): {c,h0,h2,o1,o3} / {c,h0,h2,o2,o3} -> cluster {c,h0,h2,o3}.
+    h3: {c,h2,h4} / {c,h2,h4,o2,o3} -> cluster {c,h2,h4}; discards o3 from M' (not from clusters).
+    h4: {c,h3,h5,o1} / {c,h3,h5} -> cluster {c,h3,h5}. Nothing else is alive: T = (c, h1, h3, h4).
+    M^1 = union of clusters = all inliers + o3; o1 and o2 are removed at iteration 1.
+    Iteration 2 changes nothing (every hexagon match supports its fan neighbours, o3 stays in h1's
+    cluster), so ī = 2. DTM2 level 1: o1's I1 keypoint lies in the fan triangle (c, h4, h5) whose partners
+    in I2 are far from (900, 150); o2's I1 keypoint lies in a boundary triangle and the translations of
+    the base matches map its I2 keypoint near the hexagon, not there: neither is re-added.
+    """
+    k1, k2, scores = _hexagon_case()
+    res = _run(k1, k2, scores=scores, size=(1000, 1000), trace=True)
+    np.testing.assert_array_equal(res.keep, [1, 1, 1, 1, 1, 1, 1, 0, 0, 1])
+    np.testing.assert_array_equal(res.removed_at, [0, 0, 0, 0, 0, 0, 0, 1, 1, 0])
+    np.testing.assert_array_equal(res.readded_at, np.zeros(10))
+    it1 = res.trace.iterations[0]
+    np.testing.assert_array_equal(it1.rank, np.arange(10))
+    np.testing.assert_array_equal(it1.contraction, [0, 2, 4, 5])
+    clusters = [set(it1.cluster_members[a:b].tolist()) for a, b in zip(it1.cluster_ptr[:-1], it1.cluster_ptr[1:])]
+    assert clusters == [{2, 4, 5}, {0, 1, 3, 9}, {0, 3, 5}, {0, 4, 6}]
+    assert len(res.trace.iterations) == 2
+    lv = res.trace.levels[0]
+    assert lv.level == 1 and lv.candidates.tolist() == [7, 8] and lv.added.tolist() == []
+
+
+# --- planted outliers --------------------------------------------------------------------------------
+
+def _pr(keep, is_inlier):
+    return is_inlier[keep].mean(), keep[is_inlier].mean()
+
+
+def test_planted_outliers_precision_recall():
+    rows = []
+    for seed in range(5):
+        p = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, rng=seed)
+        res = _run(p.kpts1, p.kpts2, p.matches, p.scores)
+        p1, r1 = _pr(res.removed_at == 0, p.is_inlier)
+        p2, r2 = _pr(res.keep, p.is_inlier)
+        assert r2 >= r1, f"seed {seed}: DTM2 recall {r2:.3f} < DTM1 recall {r1:.3f}"
+        rows.append((p1, r1, p2, r2))
+    p1, r1, p2, r2 = np.mean(rows, axis=0)
+    assert p2 >= 0.97, f"mean precision {p2:.3f}"
+    assert r2 >= 0.90, f"mean recall {r2:.3f}"
+
+
+def test_two_independent_motions_survive():
+    rng = np.random.default_rng(1)
+    w, h = SIZE
+    H_left = np.array([[1.0, 0.05, 20.0], [-0.05, 1.0, 10.0], [0.0, 0.0, 1.0]])
+    H_right = np.array([[0.9, -0.1, -40.0], [0.1, 0.9, 60.0], [0.0, 0.0, 1.0]])
+    left = rng.uniform([10, 10], [w / 2 - 10, h - 10], (400, 2))
+    right = rng.uniform([w / 2 + 10, 10], [w - 10, h - 10], (400, 2))
+    out1, out2 = rng.uniform([0, 0], [w, h], (2, 600, 2))
+    k1 = np.vstack([left, right, out1])
+    k2 = np.vstack([apply_homography(H_left, left), apply_homography(H_right, right), out2])
+    k2[:800] += rng.normal(scale=0.5, size=(800, 2))
+    keep = _run(k1, k2, scores=rng.uniform(size=1400)).keep
+    assert keep[:400].mean() > 0.7 and keep[400:800].mean() > 0.7
+    assert keep[800:].mean() < 0.05
+
+
+# --- invariants --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("with_scores", [True, False])
+def test_independent_of_match_order(with_scores):
+    p = planted_homography_matches(400, 0.5, rng=3)
+    scores = p.scores if with_scores else None
+    ref = _run(p.kpts1, p.kpts2, p.matches, scores)
+    perm = np.random.default_rng(0).permutation(len(p.matches))
+    res = _run(p.kpts1, p.kpts2, p.matches[perm], None if scores is None else scores[perm])
+    np.testing.assert_array_equal(res.keep, ref.keep[perm])
+    np.testing.assert_array_equal(res.removed_at, ref.removed_at[perm])
+    np.testing.assert_array_equal(res.readded_at, ref.readded_at[perm])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(0, 60), stages=st.sampled_from([1, 2]))
+def test_result_invariants(seed, n, stages):
+    rng = np.random.default_rng(seed)
+    k1 = np.round(rng.uniform(0, 100, (n, 2)) * 2) / 2  # many collapsed and collinear points
+    k2 = k1 + rng.normal(scale=5, size=(n, 2))
+    res = _run(k1, k2, scores=rng.integers(0, 3, n).astype(float), size=(100, 100), stages=stages)
+    assert res.keep.shape == res.removed_at.shape == res.readded_at.shape == (n,)
+    assert res.keep.dtype == bool
+    readded = res.readded_at > 0
+    np.testing.assert_array_equal(res.removed_at[readded], res.readded_at[readded])  # level i re-adds iteration i
+    np.testing.assert_array_equal(res.keep, (res.removed_at == 0) | readded)
+    if stages == 1:
+        assert not readded.any()
+
+
+def test_trace_is_consistent():
+    p = planted_homography_matches(300, 0.5, rng=5)
+    res = _run(p.kpts1, p.kpts2, p.matches, p.scores, trace=True)
+    tr = res.trace
+    prev = np.arange(300)
+    for it in tr.iterations:
+        np.testing.assert_array_equal(it.active, prev)
+        assert set(it.contraction) <= set(it.active)
+        np.testing.assert_array_equal(np.unique(it.cluster_members), it.kept)
+        assert it.tri1.n_vertices == len(np.unique(it.vertex1)) and len(it.boundary1.points) > 0
+        np.testing.assert_array_equal(it.tri1.boundary_points, it.boundary1.points)
+        np.testing.assert_array_equal(np.flatnonzero(res.removed_at == it.iteration), it.removed)
+        prev = it.kept
+    assert len(tr.iterations[-1].removed) == 0
+    for lv in tr.levels:
+        np.testing.assert_array_equal(np.flatnonzero(res.readded_at == lv.level), lv.added)
+        np.testing.assert_array_equal(np.flatnonzero(res.removed_at == lv.level), lv.candidates)
+
+
+@pytest.mark.parametrize("boundary", BOUNDARY_METHODS)
+def test_boundary_methods_run_and_filter(boundary):
+    p = planted_homography_matches(600, 0.5, rng=2)
+    keep = _run(p.kpts1, p.kpts2, p.matches, p.scores, boundary=boundary).keep
+    precision, recall = _pr(keep, p.is_inlier)
+    assert precision > 0.9 and recall > 0.6
+
+
+def test_registry_adapter():
+    p = planted_homography_matches(300, 0.5, rng=0)
+    kw = dict(image_size1=SIZE, image_size2=SIZE)
+    keep = FILTERS["dtm"](p.kpts1, p.kpts2, p.matches, p.scores, shapes1=None, shapes2=None, **kw)
+    np.testing.assert_array_equal(keep, dtm(p.kpts1, p.kpts2, p.matches, p.scores, **kw).keep)
+    keep1 = FILTERS["dtm"](p.kpts1, p.kpts2, p.matches, p.scores, stages=1, **kw)
+    assert keep1.sum() <= keep.sum()
+
+
+# --- degenerate inputs -------------------------------------------------------------------------------
+
+def test_empty():
+    res = _run(np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.int64), trace=True)
+    assert res.keep.shape == (0,) and res.keep.dtype == bool and res.removed_at.shape == (0,)
+
+
+@pytest.mark.parametrize(
+    "k1, k2, expected",
+    [
+        ([[10, 10]], [[20, 20]], [False]),  # nothing supports a lone match
+        ([[10, 10], [50, 60]], [[20, 20], [70, 90]], [True, True]),
+        ([[10, 10], [50, 60], [90, 10]], [[20, 20], [70, 90], [100, 30]], [True] * 3),
+        ([[10, 10], [10.2, 10.1], [9.9, 10.3]], [[20, 20], [20.1, 19.8], [20, 20]], [True] * 3),  # one vertex
+        (np.c_[np.linspace(0, 600, 10), np.linspace(0, 300, 10)],
+         np.c_[np.linspace(5, 605, 10), np.linspace(3, 303, 10)], [True] * 10),  # collinear
+    ],
+    ids=["one", "two", "three", "one-vertex", "collinear"],
+)
+def test_degenerate_geometry(k1, k2, expected):
+    for stages in (1, 2):
+        res = _run(k1, k2, stages=stages, trace=True)
+        np.testing.assert_array_equal(res.keep, expected)
+
+
+def test_outside_image_duplicates_and_many_to_many():
+    k1 = np.array([[-100, -50], [700, 500], [300, 200], [320, 260], [300, 200], [310, 240]], float)
+    k2 = np.array([[-90, -40], [710, 520], [300, 210], [330, 250], [305, 215]], float)
+    matches = np.array([[0, 0], [1, 1], [2, 2], [3, 3], [4, 2], [2, 4], [5, 4], [2, 2]])
+    res = _run(k1, k2, matches)
+    assert res.keep.shape == (8,)
+    assert res.keep[2] == res.keep[7]  # duplicate rows share their fate
+
+
+def test_bad_arguments_name_themselves():
+    k = np.zeros((3, 2))
+    m = np.zeros((3, 2), np.int64)
+    with pytest.raises(ValueError, match="kpts1"):
+        dtm(np.zeros((3, 3, 1)), k, m, image_size1=SIZE, image_size2=SIZE)
+    with pytest.raises(ValueError, match="matches"):
+        dtm(k, k, [[0, 5]], image_size1=SIZE, image_size2=SIZE)
+    with pytest.raises(ValueError, match="scores"):
+        dtm(k, k, m, [1.0], image_size1=SIZE, image_size2=SIZE)
+    with pytest.raises(ValueError, match="image_size2"):
+        dtm(k, k, m, image_size1=SIZE, image_size2=(0, 4))
+    with pytest.raises(ValueError, match="boundary"):
+        dtm(k, k, m, image_size1=SIZE, image_size2=SIZE, boundary="hull")
+    with pytest.raises(ValueError, match="stages"):
+        dtm(k, k, m, image_size1=SIZE, image_size2=SIZE, stages=3)
+
+
+# --- boundary ----------------------------------------------------------------------------------------
+
+def _grid(n=11, step=20.0, origin=100.0):
+    g = origin + step * np.arange(n)
+    return np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+
+
+def test_alpha_boundary_of_grid_is_outer_square():
+    xy = _grid()
+    b = dtm_boundary(xy, SIZE)
+    on_edge = xy[np.unique(b.shape_edges)]
+    assert len(b.shape_edges) == 40
+    assert np.all((on_edge == 100).any(axis=1) | (on_edge == 300).any(axis=1))
+    assert len(on_edge) == 40  # every outer grid point, no inner one
+
+
+@pytest.mark.parametrize("method", ["alpha", "convex"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_boundary_points_keep_clear_of_vertices(method, seed):
+    rng = np.random.default_rng(seed)
+    pts = [_grid(), collapse_vertices(rng.uniform([0, 0], SIZE, (800, 2)))[0],
+           collapse_vertices(rng.normal([320, 240], [80, 30], (300, 2)))[0]]
+    for xy in pts:
+        b = dtm_boundary(xy, SIZE, method)
+        d, _ = cKDTree(xy).query(b.points)
+        assert d.min() >= 0.9 * b.s
+        assert len(b.points) >= 3
+
+
+@pytest.mark.parametrize("xy", [np.empty((0, 2)), [[5.0, 5.0]], [[0, 0], [10, 10]], [[0, 0], [10, 10], [20, 20]]])
+def test_boundary_degenerate_vertex_sets(xy):
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    b = dtm_boundary(xy, (100, 100))
+    if len(xy):
+        assert len(b.points) >= 3 and cKDTree(xy).query(b.points)[0].min() >= 0.9 * b.s
+    else:
+        assert b.points.shape == (0, 2)
+
+
+def test_canvas_and_corners():
+    c = dtm_boundary(np.zeros((0, 2)), (640, 480), "corners").points
+    np.testing.assert_array_equal(c, [[-0.5, -0.5], [639.5, -0.5], [639.5, 479.5], [-0.5, 479.5]])
+    b = dtm_boundary(np.zeros((0, 2)), (640, 480), "canvas")
+    seg = np.diff(np.vstack([b.points, b.points[:1]]), axis=0)
+    assert np.hypot(*seg.T).max() <= b.s + 1e-9
+
+
+def test_matlab_alpha_extremes():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 100, (200, 2))
+    hull = alpha_shape(xy, 0.0)
+    assert hull.alpha == hull.radii.max() and hull.inside.all()
+    tight = alpha_shape(xy, 1.0)
+    mid = alpha_shape(xy, 0.5)
+    assert tight.alpha <= mid.alpha <= hull.alpha
+    # The tightest single region still encloses every point.
+    assert np.isin(np.arange(200), tight.simplices[tight.inside]).all()
+    a = matlab_boundary_alpha(tight.radii, tight.simplices, np.full_like(tight.simplices, -1), 200, 1.0)
+    assert a >= tight.alpha  # without adjacency no single region exists below the hull alpha
