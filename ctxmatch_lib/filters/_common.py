@@ -70,7 +70,8 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
         ok = ok and float(value) == int(value)
     if not ok:
         kind = "integer" if integer else "number"
-        raise ValueError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} {kind}, got {value!r}")
+        sign = "non-negative" if allow_zero else "positive"
+        raise ValueError(f"{name} must be a {sign} {kind}, got {value!r}")
     return int(value) if integer else float(value)
 
 

@@ -118,7 +118,8 @@ def vfc_filter(
     (False, 63)
     """
     ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
-    beta, lam, a = check_positive(beta, "beta"), check_positive(lam, "lam", allow_zero=True), check_positive(a, "a")
+    beta, a = check_positive(beta, "beta"), check_positive(a, "a")
+    lam = check_positive(lam, "lam", allow_zero=True)
     tau = check_positive(tau, "tau", allow_zero=True)
     gamma = check_positive(gamma, "gamma")
     n_control = check_positive(n_control, "n_control", integer=True)
@@ -146,7 +147,8 @@ def vfc_filter(
         r2 = ((motion - field) ** 2).sum(1)
         p = posterior(r2, sigma2, gamma, a)
         # Eq. (12): the expected complete-data energy, plus the regulariser.
-        old, energy = energy, p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * np.trace(C.T @ G @ C)
+        old = energy
+        energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * np.trace(C.T @ G @ C)
         change = abs((energy - old) / energy) if energy != 0 else 0.0
         pw = np.maximum(p, min_p)
         # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
