@@ -88,7 +88,7 @@ class FeatureConfig:
         Examples
         --------
         >>> FeatureConfig().key()
-        'sift-rootsift-k8000-v1-5a0b0bf1'
+        'sift-rootsift-k8000-v1-441d0e9b'
         """
         items = sorted(asdict(self).items())
         digest = hashlib.sha1(repr(items).encode()).hexdigest()[:8]

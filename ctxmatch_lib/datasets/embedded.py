@@ -116,9 +116,9 @@ def _homography(src, dst) -> np.ndarray:
 
 def _apply(H, pts):
     pts = np.asarray(pts, np.float64)
-    q = pts @ H[:2, :2].T + H[:2, 2]
-    w = pts @ H[2, :2] + H[2, 2]
-    return q / w[:, None]
+    x, y = pts[:, 0], pts[:, 1]  # column arithmetic: (N, 2) @ (2, 2) products are slow in numpy
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    return np.stack([(H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w], 1)
 
 
 def _warp(img, G, size=(VIEW_W, VIEW_H), border=0.0):
