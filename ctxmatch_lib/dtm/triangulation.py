@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 __all__ = [
     "Triangulation",
@@ -99,11 +99,39 @@ class Triangulation:
         return self.points[self.n_vertices :]
 
     def find_simplex(self, xy: np.ndarray) -> np.ndarray:
-        """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate."""
+        """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
+
+        Points are looked up among the triangles around their nearest vertex, which almost always hold
+        them (a point on a shared edge gets the lowest-index triangle); the rest go to Qhull's exhaustive
+        search. Qhull's own walk is not used: on the near-degenerate triangles that rounded coordinates
+        produce it can fall back to the exhaustive search for every point (hundreds of ms per call).
+        """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        if self.delaunay is None or len(xy) == 0:
-            return np.full(len(xy), -1, np.int64)
-        return self.delaunay.find_simplex(xy).astype(np.int64)
+        out = np.full(len(xy), -1, np.int64)
+        if self.delaunay is None or len(xy) == 0 or len(self.simplices) == 0:
+            return out
+        simplices, p = self.simplices, self.points
+        _, nearest = cKDTree(p).query(xy)
+        ptr, tri_of = _vertex_triangles(simplices, len(p))
+        rows, pos = expand_ranges(ptr[nearest], np.diff(ptr)[nearest])
+        cand = tri_of[pos]
+        hit = points_in_triangles(xy[rows], p[simplices[cand, 0]], p[simplices[cand, 1]], p[simplices[cand, 2]])
+        # rows are grouped by query with increasing triangles inside a group: keep the first hit
+        rows_hit, first = np.unique(rows[hit], return_index=True)
+        out[rows_hit] = cand[hit][first]
+        miss = np.flatnonzero(out < 0)
+        if len(miss):
+            out[miss] = self.delaunay.find_simplex(xy[miss], bruteforce=True)
+        return out
+
+
+def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR map vertex -> incident triangles (increasing)."""
+    flat = simplices.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    ptr = np.zeros(n_points + 1, np.int64)
+    np.cumsum(np.bincount(flat, minlength=n_points), out=ptr[1:])
+    return ptr, order // 3
 
 
 def delaunay_or_none(points: np.ndarray) -> Delaunay | None:
