@@ -126,10 +126,12 @@ def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
     ValueError
         ``pairs.csv`` has no rows, misses a column, has an unknown kind; an image or gt file is corrupt.
     """
-    folder = Path(folder)
+    folder = Path(folder).expanduser()
     csv_path = folder / "pairs.csv"
     if not csv_path.is_file():
         raise FileNotFoundError(f"pairs.csv not found in {folder}")
+    folder = folder.resolve()  # pairs keep absolute paths, valid whatever the working directory
+    csv_path = folder / "pairs.csv"
     with open(csv_path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f, skipinitialspace=True)
         header = [c.strip() for c in (reader.fieldnames or [])]

@@ -34,9 +34,10 @@ def _resolve(root, subpath: str, marker) -> Path:
     """The dataset folder: ``root/subpath``, ``root/<last part>`` or ``root`` itself, first that ``marker`` accepts."""
     if root is None:
         root = data_root(required=True)
-    root = Path(root)
+    root = Path(root).expanduser()
     if not root.is_dir():
         raise FileNotFoundError(f"data root not found: {root}")
+    root = root.resolve()  # pairs keep absolute paths, valid whatever the working directory
     last = Path(subpath).name
     for cand in (root / subpath, root / last, root):
         if cand.is_dir() and marker(cand):
