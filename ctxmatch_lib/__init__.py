@@ -6,6 +6,8 @@ top-left pixel.
 """
 
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching
+from .datasets import Dataset, Pair, list_datasets, load_dataset
+from .features import FeatureConfig, Features, extract_features, load_image
 from .filters import FILTERS, register_filter
 
 __version__ = "0.1.0"
@@ -15,9 +17,17 @@ __all__ = [
     "BlobConfig",
     "BlobContext",
     "BlobMatches",
+    "Dataset",
     "FILTERS",
+    "FeatureConfig",
+    "Features",
+    "Pair",
     "blob_grid",
     "blob_matching",
+    "extract_features",
+    "list_datasets",
+    "load_dataset",
+    "load_image",
     "register_filter",
     "__version__",
 ]
