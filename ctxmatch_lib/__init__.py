@@ -7,6 +7,7 @@ top-left pixel.
 
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching
 from .datasets import Dataset, Pair, list_datasets, load_dataset
+from .dtm import DTMResult, DTMTrace, dtm, dtm_boundary
 from .features import FeatureConfig, Features, extract_features, load_image
 from .filters import FILTERS, register_filter
 
@@ -17,6 +18,8 @@ __all__ = [
     "BlobConfig",
     "BlobContext",
     "BlobMatches",
+    "DTMResult",
+    "DTMTrace",
     "Dataset",
     "FILTERS",
     "FeatureConfig",
@@ -24,6 +27,8 @@ __all__ = [
     "Pair",
     "blob_grid",
     "blob_matching",
+    "dtm",
+    "dtm_boundary",
     "extract_features",
     "list_datasets",
     "load_dataset",
