@@ -1,0 +1,223 @@
+"""Plot helpers for DTM (Sec. 4): the boundary construction of Fig. 2 / Appendix A and the DTM1/DTM2 steps
+of Fig. 3. Each helper draws overlays on a given ``ax`` (draw the image first with
+:func:`ctxmatch_lib.plots.viz2d.plot_image`) and never calls ``plt.show()``.
+
+Points are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel.
+
+Colours follow the paper: Delaunay triangulation blue, edges joining two keypoint vertices green (the
+final meshes), convex hull red, alpha-shape edges solid orange, fattening ``B'`` dashed, contour and
+boundary set ``B`` purple; DTM1 contraction set orange and expansion clusters yellow; matches green /
+red (kept, correct / wrong) and yellow / light red (dropped or re-added, correct / wrong).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.patches import Rectangle
+
+from .viz2d import MATCH_COLORS, match_colors, plot_flow
+
+__all__ = [
+    "DTM_COLORS",
+    "triangulation_edges",
+    "plot_triangulation",
+    "plot_canvas",
+    "plot_boundary_steps",
+    "plot_boundary_mesh",
+    "plot_dtm_iteration_flow",
+    "plot_dtm_clusters",
+    "plot_dtm_final",
+]
+
+DTM_COLORS = {
+    "delaunay": "#3a6fd8",     # blue
+    "keypoint_edge": "#1fae3a",  # green
+    "hull": "#e02020",         # red
+    "alpha": "#ff8c00",        # orange
+    "boundary": "#9b30d0",     # purple
+    "contraction": "#ff8c00",  # orange
+    "expansion": "#ffd400",    # yellow
+    "vertex": "black",
+}
+
+
+def triangulation_edges(simplices) -> np.ndarray:
+    """The distinct undirected edges ``(E, 2)`` (sorted rows, smaller index first) of triangles ``(T, 3)``.
+
+    Examples
+    --------
+    >>> triangulation_edges(np.array([[0, 1, 2], [1, 2, 3]])).tolist()
+    [[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]]
+    """
+    s = np.asarray(simplices, np.int64).reshape(-1, 3)
+    if len(s) == 0:
+        return np.empty((0, 2), np.int64)
+    e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def plot_triangulation(ax, points, simplices, n_vertices: int | None = None, *, color=None,
+                       keypoint_color=None, lw: float = 0.6, alpha: float = 0.9, zorder: float = 1) -> None:
+    """Draw the edges of a triangulation of ``points`` (``(P, 2)``).
+
+    With ``keypoint_color`` set, edges joining two of the first ``n_vertices`` points (the keypoint vertices
+    ``V``; the rest are boundary points ``B``) get that colour, the others ``color`` (Fig. 2 right, App. A).
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    edges = triangulation_edges(simplices)
+    if len(edges) == 0:
+        return
+    color = DTM_COLORS["delaunay"] if color is None else color
+    segs = points[edges]
+    if keypoint_color is None or n_vertices is None:
+        ax.add_collection(LineCollection(segs, colors=color, linewidths=lw, alpha=alpha, zorder=zorder))
+        return
+    kp = (edges < n_vertices).all(axis=1)
+    ax.add_collection(LineCollection(segs[~kp], colors=color, linewidths=lw, alpha=alpha, zorder=zorder))
+    ax.add_collection(LineCollection(segs[kp], colors=keypoint_color, linewidths=lw, alpha=alpha, zorder=zorder))
+
+
+def plot_canvas(ax, image_size, *, color="0.35", lw: float = 1.0, fill: str | None = "white") -> None:
+    """The image canvas ``(width, height)`` as a rectangle (pixel edges at -0.5 and size - 0.5), and axis
+    limits that show it with a margin large enough for boundary points outside it."""
+    w, h = image_size
+    ax.add_patch(Rectangle((-0.5, -0.5), w, h, fill=fill is not None, fc=fill or "none", ec=color, lw=lw,
+                           zorder=0))
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def _fit_view(ax, *arrays, margin: float = 0.04) -> None:
+    pts = np.vstack([np.asarray(a, np.float64).reshape(-1, 2) for a in arrays if len(a)])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    pad = margin * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(hi[1] + pad, lo[1] - pad)  # y down, as images
+
+
+def plot_boundary_steps(ax, boundary, *, shape_color=None, ps: float = 6, lw: float = 1.2) -> None:
+    """The boundary construction of Fig. 2 (left) / Appendix A (a, b, c, e) for one ``Boundary``.
+
+    ``"alpha"`` / ``"convex"``: Delaunay triangulation of ``V`` (blue), convex hull (red), first shape edges
+    (solid, orange for the alpha shape, red for the convex hull, or ``shape_color``), the fattened points
+    ``B'`` joined edge by edge (dashed), the contour of ``V ∪ B'`` (purple) and the final set ``B`` (purple
+    dots). ``"corners"`` / ``"canvas"``: the image border and its sample points ``B``.
+    """
+    v, c = boundary.vertices, DTM_COLORS
+    if len(boundary.vertex_simplices):
+        plot_triangulation(ax, v, boundary.vertex_simplices, color=c["delaunay"], lw=0.5, alpha=0.6)
+    if len(boundary.hull_edges):
+        ax.add_collection(LineCollection(v[boundary.hull_edges], colors=c["hull"], linewidths=lw, zorder=3))
+    if shape_color is None:
+        shape_color = c["hull"] if boundary.method == "convex" else c["alpha"]
+    if len(boundary.shape_edges):
+        ax.add_collection(LineCollection(v[boundary.shape_edges], colors=shape_color, linewidths=lw * 1.4,
+                                         zorder=4))
+    if len(boundary.fattened):
+        f = boundary.fattened.reshape(-1, 4, 2)
+        segs = np.concatenate([f[:, [0, 1]], f[:, [2, 3]]])  # the two offset copies of each edge
+        ax.add_collection(LineCollection(segs, colors=shape_color, linewidths=lw * 0.8, linestyles=(0, (3, 2)),
+                                         zorder=4))
+    for ring in boundary.contour:
+        ax.plot(ring[:, 0], ring[:, 1], color=c["boundary"], lw=lw, zorder=5)
+    ax.scatter(*v.T, s=ps, c=c["vertex"], linewidths=0, zorder=6)
+    if len(boundary.points):
+        ax.scatter(*boundary.points.T, s=ps * 2.5, c=c["boundary"], linewidths=0, zorder=7)
+    _fit_view(ax, v, boundary.points, *(r for r in boundary.contour))
+
+
+def plot_boundary_mesh(ax, boundary, *, ps: float = 6, lw: float = 0.7) -> None:
+    """The final Delaunay triangulation of ``V ∪ B`` (Fig. 2 right, Appendix A b, d, f): edges joining two
+    keypoint vertices green, edges touching ``B`` blue, ``B`` purple dots."""
+    from ..dtm import triangulate
+
+    tri = triangulate(boundary.vertices, boundary.points)
+    plot_triangulation(ax, tri.points, tri.simplices, tri.n_vertices, color=DTM_COLORS["delaunay"],
+                       keypoint_color=DTM_COLORS["keypoint_edge"], lw=lw)
+    ax.scatter(*boundary.vertices.T, s=ps, c=DTM_COLORS["vertex"], linewidths=0, zorder=6)
+    if len(boundary.points):
+        ax.scatter(*boundary.points.T, s=ps * 2.5, c=DTM_COLORS["boundary"], linewidths=0, zorder=7)
+    _fit_view(ax, tri.points)
+
+
+def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw: float = 0.9,
+                            ps: float = 4, tri_lw: float = 0.4, dropped_lw: float = 0.5,
+                            dropped_alpha: float = 0.35) -> None:
+    """Fig. 3 left column: triangulation ``T_1`` (blue) of iteration ``i`` and the flow vectors of its
+    input matches ``M^{i-1}``: kept in ``M^i`` green (correct) / red (wrong), removed yellow / light red.
+
+    Parameters
+    ----------
+    iteration : DTM1Iteration
+        From ``dtm(..., trace=True).trace.iterations``.
+    p1, p2 : ndarray of shape (K, 2)
+        Image-1 and image-2 keypoint of every input match (``kpts1[matches[:, 0]]``, ...), (x, y) pixels.
+    labels : ndarray of shape (K,) bool
+        Ground-truth correctness of every input match.
+    image : {1, 2}
+        Which image the overlay is for (its triangulation; flows start at its keypoints).
+    dropped_lw, dropped_alpha : float
+        Thinner, fainter lines for the removed matches, which are many and long in the first iterations.
+    """
+    tri = iteration.tri1 if image == 1 else iteration.tri2
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    active = iteration.active
+    kept = np.isin(active, iteration.kept)
+    src, dst = (p1, p2) if image == 1 else (p2, p1)
+    gone, stay = active[~kept], active[kept]
+    plot_flow(ax, src[gone], dst[gone], color=match_colors(labels[gone], np.zeros(len(gone), bool)),
+              lw=dropped_lw, ps=ps * 0.5, alpha=dropped_alpha)
+    plot_flow(ax, src[stay], dst[stay], color=match_colors(labels[stay]), lw=lw, ps=ps, zorder=3)
+
+
+def plot_dtm_clusters(ax, iteration, p1, p2, *, image: int = 2, lw: float = 0.9, ps: float = 14,
+                      tri_lw: float = 0.4) -> None:
+    """Fig. 3 right column: triangulation ``T_2`` (blue) of iteration ``i``, the contraction set ``T``
+    (orange dots) and each expansion cluster ``M_{A^1} ∩ M_{A^2}`` (yellow: segments from the contraction
+    match to its cluster members, members as yellow dots), drawn at the keypoints of image ``image``."""
+    tri = iteration.tri2 if image == 2 else iteration.tri1
+    pts = p2 if image == 2 else p1
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    ptr, members, t = iteration.cluster_ptr, iteration.cluster_members, iteration.contraction
+    centre = np.repeat(t, np.diff(ptr))
+    ax.add_collection(LineCollection(np.stack([pts[centre], pts[members]], axis=1),
+                                     colors=DTM_COLORS["expansion"], linewidths=lw, zorder=3))
+    ax.scatter(*pts[members].T, s=ps * 0.4, c=DTM_COLORS["expansion"], linewidths=0, zorder=4)
+    ax.scatter(*pts[t].T, s=ps, c=DTM_COLORS["contraction"], edgecolors="black", linewidths=0.4, zorder=5)
+
+
+def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1, lw: float = 0.9,
+                   ps: float = 4, tri_lw: float = 0.4) -> None:
+    """Fig. 3e-f: the DTM1 output ``M^ī`` (``stage=1``: kept matches green / red, with the last DTM1
+    triangulation) or the DTM2 output (``stage=2``: DTM1 matches green / red, re-added ones yellow /
+    light red, with the triangulation of the last DTM2 level), as flow vectors on image ``image``.
+
+    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
+    """
+    tr = result.trace
+    if stage == 1 or not tr.levels:
+        last = tr.iterations[-1]
+        tri = last.tri1 if image == 1 else last.tri2
+    else:
+        lev = tr.levels[-1]
+        tri = lev.tri1 if image == 1 else lev.tri2
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    dtm1 = np.flatnonzero(result.removed_at == 0)
+    src, dst = (p1, p2) if image == 1 else (p2, p1)
+    plot_flow(ax, src[dtm1], dst[dtm1], color=match_colors(labels[dtm1]), lw=lw, ps=ps)
+    if stage == 2:
+        added = np.flatnonzero(result.readded_at > 0)
+        plot_flow(ax, src[added], dst[added], color=match_colors(labels[added], np.zeros(len(added), bool)),
+                  lw=lw, ps=ps, zorder=3)
+
+
+#: Legend entries of the Fig. 3 panels.
+FLOW_LEGEND = {
+    "kept, correct": MATCH_COLORS["correct"],
+    "kept, wrong": MATCH_COLORS["wrong"],
+    "removed (DTM2: re-added), correct": MATCH_COLORS["correct_dropped"],
+    "removed (DTM2: re-added), wrong": MATCH_COLORS["wrong_dropped"],
+}

@@ -1,0 +1,165 @@
+"""Drawing images, keypoints and matches, after LightGlue's ``viz2d``: each helper draws on a given ``ax``
+and never calls ``plt.show()``.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel,
+which is exactly where ``imshow`` puts pixel ``(0, 0)``, so points are drawn without any shift. An image
+pair is drawn side by side in *one* axes (:func:`plot_image_pair`), so that match lines are plain line
+segments and a grid of pairs is a plain grid of axes; image-2 points are drawn shifted by the returned
+offset.
+
+Match colours follow the paper's figures (Fig. 3, the appendix match grids): correct matches that are kept
+green, wrong ones kept red, correct ones dropped (by a DTM iteration, by 1SAC) yellow, wrong ones dropped
+light red (:data:`MATCH_COLORS`, :func:`match_colors`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.collections import LineCollection
+
+__all__ = [
+    "MATCH_COLORS",
+    "match_colors",
+    "plot_image",
+    "plot_image_pair",
+    "plot_keypoints",
+    "plot_matches",
+    "plot_flow",
+    "add_text",
+    "color_legend",
+]
+
+#: The four-colour code of the paper's match figures.
+MATCH_COLORS = {
+    "correct": "#22c02c",          # kept, correct: green
+    "wrong": "#e8211d",            # kept, wrong: red
+    "correct_dropped": "#ffd400",  # dropped, correct: yellow
+    "wrong_dropped": "#ffa3a3",    # dropped, wrong: light red
+}
+
+
+def match_colors(correct, kept=None) -> np.ndarray:
+    """RGBA colour per match from its ground-truth label and whether a later step kept it.
+
+    Parameters
+    ----------
+    correct : array_like of shape (K,) bool
+        Ground-truth label of each match.
+    kept : array_like of shape (K,) bool, optional
+        Whether the match survived the later step (a DTM iteration, 1SAC); all ``True`` by default.
+
+    Returns
+    -------
+    ndarray of shape (K, 4)
+        Colours from :data:`MATCH_COLORS`.
+
+    Examples
+    --------
+    >>> match_colors([True, False], [True, False]).shape
+    (2, 4)
+    """
+    from matplotlib.colors import to_rgba
+
+    correct = np.asarray(correct, bool).reshape(-1)
+    kept = np.ones_like(correct) if kept is None else np.asarray(kept, bool).reshape(-1)
+    if kept.shape != correct.shape:
+        raise ValueError(f"correct and kept must have the same length, got {len(correct)} and {len(kept)}")
+    table = np.array([to_rgba(MATCH_COLORS[k]) for k in ("wrong_dropped", "correct_dropped", "wrong", "correct")])
+    return table[2 * kept.astype(int) + correct.astype(int)]
+
+
+def _as_display(img, dim: float) -> tuple[np.ndarray, dict]:
+    img = np.asarray(img)
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 1) * 255
+    shown = (img.astype(np.float32) * dim / 255.0).clip(0, 1)
+    kw = {"cmap": "gray", "vmin": 0, "vmax": 1} if shown.ndim == 2 else {}
+    return shown, kw
+
+
+def plot_image(ax, img, *, title: str | None = None, dim: float = 1.0, alpha: float = 1.0,
+               offset=(0.0, 0.0)) -> None:
+    """Show ``img`` (``(H, W)`` gray or ``(H, W, 3)`` RGB, uint8 or float in [0, 1]) with pixel ``(r, c)``
+    at ``(x, y) = (c, r) + offset``; ``dim`` < 1 darkens it so that coloured matches stand out, ``alpha``
+    < 1 fades it towards the background so that dark drawings stand out."""
+    shown, kw = _as_display(img, dim)
+    h, w = shown.shape[:2]
+    ox, oy = offset
+    ax.imshow(shown, extent=(ox - 0.5, ox + w - 0.5, oy + h - 0.5, oy - 0.5), interpolation="bilinear",
+              alpha=alpha, **kw)
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title)
+
+
+def plot_image_pair(ax, img1, img2, *, gap: int = 16, dim: float = 1.0, titles=None) -> np.ndarray:
+    """Draw two images side by side in one axes, image 2 to the right of image 1 with ``gap`` pixels
+    between them, tops aligned.
+
+    Returns
+    -------
+    ndarray of shape (2,)
+        The (x, y) offset to add to image-2 points.
+    """
+    h1, w1 = np.asarray(img1).shape[:2]
+    h2, w2 = np.asarray(img2).shape[:2]
+    offset = np.array([w1 + gap, 0.0])
+    plot_image(ax, img1, dim=dim)
+    plot_image(ax, img2, dim=dim, offset=offset)
+    ax.set_xlim(-0.5, offset[0] + w2 - 0.5)
+    ax.set_ylim(max(h1, h2) - 0.5, -0.5)
+    ax.set_aspect("equal")
+    if titles:
+        ax.set_title(titles if isinstance(titles, str) else " | ".join(titles))
+    return offset
+
+
+def plot_keypoints(ax, kpts, *, color="lime", ps: float = 4, offset=(0.0, 0.0), **kwargs) -> None:
+    """Scatter keypoints ``(N, 2)`` (x, y) pixels, shifted by ``offset``."""
+    kpts = np.asarray(kpts, np.float64).reshape(-1, 2) + np.asarray(offset, np.float64)
+    ax.scatter(kpts[:, 0], kpts[:, 1], c=color, s=ps, linewidths=0, **kwargs)
+
+
+def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float = 0.0, alpha: float = 1.0,
+                 offset=(0.0, 0.0), zorder: float = 2) -> None:
+    """Lines from ``kpts1[k]`` to ``kpts2[k] + offset`` (both ``(K, 2)`` (x, y) pixels).
+
+    ``color`` is one colour or one per match (``(K, 4)``, e.g. :func:`match_colors`); ``ps`` > 0 also marks
+    the endpoints. Use with :func:`plot_image_pair` and its offset.
+    """
+    p1 = np.asarray(kpts1, np.float64).reshape(-1, 2)
+    p2 = np.asarray(kpts2, np.float64).reshape(-1, 2) + np.asarray(offset, np.float64)
+    if len(p1) != len(p2):
+        raise ValueError(f"kpts1 and kpts2 must have the same length, got {len(p1)} and {len(p2)}")
+    if len(p1) == 0:
+        return
+    lines = LineCollection(np.stack([p1, p2], axis=1), colors=color, linewidths=lw, alpha=alpha, zorder=zorder)
+    ax.add_collection(lines)
+    if ps > 0:
+        ax.scatter(*p1.T, c=color, s=ps, linewidths=0, zorder=zorder, alpha=alpha)
+        ax.scatter(*p2.T, c=color, s=ps, linewidths=0, zorder=zorder, alpha=alpha)
+
+
+def plot_flow(ax, kpts_from, kpts_to, *, color="lime", lw: float = 0.8, ps: float = 3.0, alpha: float = 1.0,
+              zorder: float = 2) -> None:
+    """Motion-flow vectors drawn on one image: a segment from each keypoint ``kpts_from[k]`` of this
+    image to the position ``kpts_to[k]`` of its match in the other image, with a dot at the keypoint
+    (the paper's Fig. 3 style). Both are ``(K, 2)`` (x, y) pixels."""
+    plot_matches(ax, kpts_from, kpts_to, color=color, lw=lw, alpha=alpha, zorder=zorder)
+    p = np.asarray(kpts_from, np.float64).reshape(-1, 2)
+    if ps > 0 and len(p):
+        ax.scatter(p[:, 0], p[:, 1], c=color, s=ps, linewidths=0, zorder=zorder, alpha=alpha)
+
+
+def add_text(ax, text: str, *, pos=(0.01, 0.99), fs: float = 9, color="w", va="top", ha="left") -> None:
+    """A text label in axes coordinates on a dark rounded box (readable over any image)."""
+    ax.text(*pos, text, transform=ax.transAxes, fontsize=fs, va=va, ha=ha, color=color,
+            bbox=dict(boxstyle="round,pad=0.25", fc="black", ec="none", alpha=0.6))
+
+
+def color_legend(ax_or_fig, labels: dict, **kwargs):
+    """A legend of coloured line handles, ``labels`` mapping text -> colour; ``kwargs`` go to ``legend``."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=c, lw=2.5) for c in labels.values()]
+    return ax_or_fig.legend(handles, list(labels), **kwargs)
