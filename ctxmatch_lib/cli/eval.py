@@ -10,8 +10,9 @@ import sys
 from pathlib import Path
 
 DESCRIPTION = """\
-Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac)
--> ground truth (method D) -> metrics. The unfiltered candidates appear as method 'blob'.
+Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac)
+-> ground truth (method D) -> metrics. The unfiltered candidates appear as method 'blob'; the model is H
+for planar pairs, F for non-planar and depth pairs; time_s is the method's own running time.
 Columns: dataset, pair_id, kind, blob, method, model, precision, recall, recall_star, ap, correct,
 correct_norm, output, failure, time_s, model_time_s, n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star,
 gt_method. Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image) against the correct
