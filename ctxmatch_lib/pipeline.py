@@ -371,8 +371,11 @@ def evaluate_pair(
         stage.method_times[BLOB_METHOD] = t_blob
         for name in filters:
             try:
+                params = dict(filter_params.get(name, {}))
+                if name == "th":  # the 0.8 NNR threshold on the scale of this setup's scores
+                    params.setdefault("ratio", cfg.ratio)
                 keep, t = run_filter(name, f1, f2, matches, scores, image_size1=pair.image_size1,
-                                     image_size2=pair.image_size2, **filter_params.get(name, {}))
+                                     image_size2=pair.image_size2, **params)
             except Exception as exc:
                 raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
             stage.keeps[name], stage.method_times[name] = keep, t

@@ -246,3 +246,17 @@ def test_bad_arguments_name_the_argument(name):
     with pytest.raises(ValueError, match="shapes1"):
         f(k, k, m, None, image_size1=SIZE, image_size2=SIZE, shapes1=np.zeros((3, 2)),
           shapes2=np.zeros((3, 2, 2)))
+
+
+def test_th_applies_the_nnr_threshold_on_the_scale_of_d_plus_scores():
+    from ctxmatch_lib.filters import FILTERS
+
+    k = np.zeros((3, 2))
+    m = [[0, 0], [1, 1], [2, 2]]
+    r = np.array([0.7, 0.8, 0.9])  # NNR ratios
+    common = dict(image_size1=(8, 8), image_size2=(8, 8))
+    plain = FILTERS["th"](k, k, m, r, ratio="D>=", **common)
+    plus = FILTERS["th"](k, k, m, r / (1 + r), ratio="D+", **common)
+    assert plain.tolist() == plus.tolist() == [True, True, False]
+    with pytest.raises(ValueError, match="ratio"):
+        FILTERS["th"](k, k, m, r, ratio="D", **common)
