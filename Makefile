@@ -29,7 +29,7 @@ figures-paper: $(STAMP)
 
 test: $(STAMP)
 	mkdir -p build
-	CTXMATCH_FIGURES=$(abspath build/figures) $(BIN)/python -m pytest tests notebooks --nbval-lax --junitxml=build/junit.xml
+	CTXMATCH_FIGURES=$(abspath build/figures) $(BIN)/python -m pytest tests notebooks --nbval-lax --doctest-modules ctxmatch_lib --junitxml=build/junit.xml
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest tests -m "not slow" -x -q

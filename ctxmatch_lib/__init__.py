@@ -10,6 +10,10 @@ from .datasets import Dataset, Pair, list_datasets, load_dataset
 from .dtm import DTMResult, DTMTrace, dtm, dtm_boundary
 from .features import FeatureConfig, Features, extract_features, load_image
 from .filters import FILTERS, register_filter
+from .geometry import fit_fundamental, fit_homography, one_sac, ransac
+from .groundtruth import label_matches
+from .metrics import average_precision, evaluate_matches, mean_average_precision
+from .pipeline import evaluate_dataset, evaluate_pair, summary_table
 
 __version__ = "0.1.0"
 
@@ -34,5 +38,16 @@ __all__ = [
     "load_dataset",
     "load_image",
     "register_filter",
+    "average_precision",
+    "evaluate_dataset",
+    "evaluate_matches",
+    "evaluate_pair",
+    "fit_fundamental",
+    "fit_homography",
+    "label_matches",
+    "mean_average_precision",
+    "one_sac",
+    "ransac",
+    "summary_table",
     "__version__",
 ]
