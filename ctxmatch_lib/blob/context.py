@@ -147,8 +147,8 @@ class BlobContext:
             dense_bytes = self.n * self.m * np.dtype(dtype).itemsize
             if keep_dense is None:
                 keep_dense = dense_bytes <= 256 * _MiB
-            if keep_dense:
-                self._check_dense(dense_bytes, "keep_dense=True")
+            if keep_dense:  # fail fast, before any work
+                self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
         self.depth = int(depth)
         self._scan(bool(keep_dense) if distances is None else True, block_bytes)
 

@@ -197,11 +197,11 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
         shapes2 = as_shapes(shapes2, m, "shapes2")
     if n == 0 or m == 0:
         return BlobMatches.empty()
-    depth = max(cfg.f_prime, cfg.f if cfg.f != "omega" else 1)
-    if cfg.f != "omega" and cfg.f >= max(n, m):
-        depth = cfg.f_prime
+    dense = cfg.f == "omega" or cfg.f >= max(n, m)  # no pre-filter: the greedy needs all of D
+    depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
     ctx = BlobContext(desc1, desc2, distances=D if distances is not None else None, kpts1=kpts1, kpts2=kpts2,
-                      shapes1=shapes1, shapes2=shapes2, depth=depth, max_dense_bytes=max_dense_bytes)
+                      shapes1=shapes1, shapes2=shapes2, depth=depth, keep_dense=True if dense else None,
+                      max_dense_bytes=max_dense_bytes)
     return match_context(ctx, cfg)
 
 
