@@ -286,3 +286,57 @@ def test_matlab_alpha_extremes():
     assert np.isin(np.arange(200), tight.simplices[tight.inside]).all()
     a = matlab_boundary_alpha(tight.radii, tight.simplices, np.full_like(tight.simplices, -1), 200, 1.0)
     assert a >= tight.alpha  # without adjacency no single region exists below the hull alpha
+
+
+# --- triangulation kernel ----------------------------------------------------------------------------
+
+def _edge_set(simplices):
+    e = np.sort(np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]]), axis=1)
+    return set(map(tuple, e.tolist()))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fast_delaunay_kernel_matches_qhull(seed):
+    """The Subdiv2D path is a Delaunay triangulation of the same points as Qhull's: same triangle count,
+    every triangle has an empty circumcircle, and the edge sets differ only across cocircular ties."""
+    from scipy.spatial import Delaunay
+
+    from ctxmatch_lib.dtm.triangulation import _subdiv2d_simplices, delaunay_or_none
+
+    rng = np.random.default_rng(seed)
+    v = collapse_vertices(rng.uniform([0, 0], SIZE, (1500, 2)))[0]
+    b = dtm_boundary(v, SIZE).points
+    for pts in (v, np.vstack([v, b])):
+        fast = _subdiv2d_simplices(pts)
+        ref = Delaunay(pts).simplices
+        assert fast is not None and len(fast) == len(ref)
+        assert np.array_equal(np.unique(fast), np.arange(len(pts)))
+        a, bb, c = (pts[fast[:, k]] for k in range(3))
+        d = 2 * (a[:, 0] * (bb[:, 1] - c[:, 1]) + bb[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - bb[:, 1]))
+        sq = [(x ** 2).sum(1) for x in (a, bb, c)]
+        ux = (sq[0] * (bb[:, 1] - c[:, 1]) + sq[1] * (c[:, 1] - a[:, 1]) + sq[2] * (a[:, 1] - bb[:, 1])) / d
+        uy = (sq[0] * (c[:, 0] - bb[:, 0]) + sq[1] * (a[:, 0] - c[:, 0]) + sq[2] * (bb[:, 0] - a[:, 0])) / d
+        r = np.hypot(a[:, 0] - ux, a[:, 1] - uy)
+        nearest = cKDTree(pts).query(np.c_[ux, uy])[0]
+        assert np.all(nearest >= r * (1 - 1e-9))  # empty circumcircles
+        diff = _edge_set(fast) ^ _edge_set(ref)
+        assert len(diff) <= 0.01 * len(_edge_set(ref))  # cocircular ties only
+        mesh = delaunay_or_none(pts)
+        np.testing.assert_array_equal(mesh.simplices, fast)
+        nb = mesh.neighbors
+        t = np.flatnonzero((nb >= 0).all(axis=1))[0]
+        for k in range(3):  # the neighbour across edge k shares the two other vertices
+            assert len(set(fast[t]) & set(fast[nb[t, k]])) == 2 and fast[t, k] not in fast[nb[t, k]]
+
+
+@pytest.mark.parametrize("pts", [[[0, 0], [1, 1]], [[0, 0], [10, 10], [20, 20]], [[0, 0], [10, 0], [0, 10]],
+                                 [[0.1, 0.0], [10, 0], [0, 10], [0.1, 0.0]]],
+                         ids=["two", "collinear", "triangle", "duplicate-non-float32"])
+def test_delaunay_kernel_degenerate(pts):
+    from ctxmatch_lib.dtm.triangulation import delaunay_or_none, delaunay_simplices
+
+    pts = np.asarray(pts, float)
+    s = delaunay_simplices(pts)
+    expected = {2: 0, 3: 0 if np.linalg.matrix_rank(pts[1:] - pts[0]) < 2 else 1, 4: 1}[len(pts)]
+    assert s.shape == (expected, 3)
+    assert (delaunay_or_none(pts) is None) == (expected == 0)

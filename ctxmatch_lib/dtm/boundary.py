@@ -26,10 +26,10 @@ import numpy as np
 import shapely
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import delaunay_or_none
+from .triangulation import DelaunayMesh, delaunay_or_none
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -171,7 +171,7 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     radii : ndarray of shape (T,)
         Triangle circumradii.
     simplices, neighbors : ndarray of shape (T, 3)
-        ``scipy.spatial.Delaunay`` ``simplices`` and ``neighbors``.
+        Triangles and their adjacency (``scipy.spatial.Delaunay`` conventions; ``-1``: no neighbour).
     n_points : int
         Number of triangulated points.
     shrink : float
@@ -209,7 +209,7 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     return float(spectrum[critical + k - 1])
 
 
-def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: Delaunay | None = None) -> AlphaShape | None:
+def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | None = None) -> AlphaShape | None:
     """Holes-filled alpha shape of ``points`` with MATLAB ``boundary``'s choice of alpha.
 
     Parameters
@@ -218,8 +218,8 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: Delaunay | None
         Distinct (x, y) points.
     shrink : float
         MATLAB shrink factor: 0 convex hull, 1 tightest single region, 0.5 MATLAB's default.
-    tri : scipy.spatial.Delaunay, optional
-        Precomputed Delaunay triangulation of ``points``.
+    tri : DelaunayMesh, optional
+        Precomputed Delaunay triangulation of ``points`` (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_or_none`).
 
     Returns
     -------
@@ -254,12 +254,22 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: Delaunay | None
     return AlphaShape(points, simplices, radii, alpha, inside, edges)
 
 
+def _to_float32(points: np.ndarray) -> np.ndarray:
+    """Round constructed points to the nearest float32 (under 4e-5 px for coordinates below 1000).
+
+    The triangulation kernel (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`) is exact, and
+    fastest, on float32-representable coordinates; rounding here keeps the stored points identical to the
+    triangulated ones.
+    """
+    return np.asarray(points, np.float64).astype(np.float32).astype(np.float64)
+
+
 def _fatten(points: np.ndarray, edges: np.ndarray, s: float) -> np.ndarray:
     """``B'``: the points at distance ``s`` on both sides of each edge, through both its vertices."""
     p0, p1 = points[edges[:, 0]], points[edges[:, 1]]
     d = p1 - p0
     n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
-    return np.stack([p0 + s * n, p1 + s * n, p0 - s * n, p1 - s * n], axis=1).reshape(-1, 2)
+    return _to_float32(np.stack([p0 + s * n, p1 + s * n, p0 - s * n, p1 - s * n], axis=1).reshape(-1, 2))
 
 
 def _rings_from_edges(points: np.ndarray, edges: np.ndarray) -> list:
@@ -288,7 +298,7 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
     """Push boundary samples closer than ``s`` to ``V`` radially out to distance ``s`` from their nearest
     vertex; drop the ones still closer than ``s / 2`` after that (see :func:`dtm_boundary`)."""
     if len(b) == 0 or len(vertices) == 0:
-        return b
+        return _to_float32(b)
     tree = cKDTree(vertices)
     d, j = tree.query(b)
     close = d < s * (1 - 1e-9)
@@ -298,7 +308,7 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
         b[movable] = vertices[j[movable]] + (b[movable] - vertices[j[movable]]) * (s / d[movable, None])
         d2, _ = tree.query(b)
         b = b[d2 >= 0.5 * s]
-    return np.unique(b, axis=0)
+    return np.unique(_to_float32(b), axis=0)
 
 
 def _degenerate_boundary(vertices: np.ndarray, s: float) -> tuple[list, np.ndarray]:
@@ -356,6 +366,9 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
       fall closer than ``s`` to ``V`` are pushed radially out to distance ``s`` from their nearest vertex
       (any still closer than ``s/2``, which needs a very thin spike, are dropped), so ``B`` keeps the
       clearance ``s`` that the construction aims for.
+    - Constructed points (``B'`` and ``B``) are rounded to float32 (under 4e-5 px at image scale), so that
+      the fast triangulation kernel works on exactly the stored coordinates
+      (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`).
     - When ``V`` has fewer than three points or is collinear the alpha shape is empty; the contour is then
       the boundary of the ``s``-buffer of ``V`` (a circle, or a stadium around the segment), sampled the
       same way. An empty ``V`` gives an empty ``B`` for ``"alpha"`` and ``"convex"``.
@@ -376,7 +389,7 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
                  shape_edges=_EMPTY_EDGES, fattened=_EMPTY2, contour_alpha=math.nan)
     if method in ("canvas", "corners"):
         border = _image_border(image_size)
-        pts = border[:4] if method == "corners" else _sample_rings([border], s)
+        pts = border[:4] if method == "corners" else _to_float32(_sample_rings([border], s))
         return Boundary(pts, method, s, vertices, contour=[border], **empty)
     if len(vertices) == 0:
         return Boundary(_EMPTY2, method, s, vertices, contour=[], **empty)

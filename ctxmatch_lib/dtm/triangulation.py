@@ -14,16 +14,21 @@ The helpers here are the geometric kernel shared by DTM1 and DTM2:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 __all__ = [
+    "DelaunayMesh",
     "Triangulation",
     "collapse_vertices",
     "round_half_away",
     "triangulate",
+    "delaunay_or_none",
+    "delaunay_simplices",
     "points_in_triangles",
     "expand_ranges",
 ]
@@ -66,6 +71,134 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
+class DelaunayMesh:
+    """A 2-D Delaunay triangulation as index arrays (what DTM needs of ``scipy.spatial.Delaunay``).
+
+    Attributes
+    ----------
+    points : ndarray of shape (P, 2)
+        The triangulated points, (x, y) pixels.
+    simplices : ndarray of shape (T, 3)
+        Triangles as rows into ``points``.
+    neighbors : ndarray of shape (T, 3)
+        ``neighbors[t, k]``: the triangle across the edge of ``t`` opposite its vertex ``k``; ``-1`` on the
+        convex hull (scipy's convention).
+    """
+
+    points: np.ndarray
+    simplices: np.ndarray
+    neighbors: np.ndarray
+
+    @property
+    def convex_hull(self) -> np.ndarray:
+        """Convex-hull edges, ndarray of shape (H, 2) (rows into ``points``)."""
+        t, k = np.nonzero(self.neighbors < 0)
+        return np.stack([self.simplices[t, (k + 1) % 3], self.simplices[t, (k + 2) % 3]], axis=1)
+
+    @property
+    def vertex_neighbor_vertices(self) -> tuple[np.ndarray, np.ndarray]:
+        """CSR ``(indptr, indices)`` of the adjacent vertices of each point (increasing), as scipy's."""
+        s = self.simplices
+        a = np.concatenate([s[:, 0], s[:, 1], s[:, 2], s[:, 1], s[:, 2], s[:, 0]])
+        b = np.concatenate([s[:, 1], s[:, 2], s[:, 0], s[:, 0], s[:, 1], s[:, 2]])
+        n = len(self.points)
+        key = np.unique(a * n + b)  # each undirected edge appears in one or two triangles
+        indptr = np.zeros(n + 1, np.int64)
+        np.cumsum(np.bincount(key // n, minlength=n), out=indptr[1:])
+        return indptr, key % n
+
+
+def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
+    """``neighbors`` of :class:`DelaunayMesh`: triangles sharing each edge, matched through sorted keys."""
+    a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
+    b = simplices[:, [2, 0, 1]].reshape(-1)
+    key = np.minimum(a, b) * n_points + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    same = np.flatnonzero(ks[1:] == ks[:-1])
+    out = np.full(len(key), -1, np.int64)
+    i, j = order[same], order[same + 1]
+    out[i] = j // 3
+    out[j] = i // 3
+    return out.reshape(-1, 3)
+
+
+def _float32_exact(points: np.ndarray) -> bool:
+    with np.errstate(over="ignore"):
+        return bool(np.array_equal(points.astype(np.float32), points))
+
+
+def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
+    """Delaunay triangles by OpenCV's incremental ``Subdiv2D``, or ``None`` if it cannot be trusted.
+
+    ``Subdiv2D`` works on float32 coordinates (callers pass float32-exact points, so it triangulates exactly
+    the given points) inside a bounding rectangle whose three virtual outer vertices it connects to the hull.
+    Every triangle it returns among real points has an empty circumcircle, so it is a Delaunay triangle; the
+    result is complete when those triangles cover the convex hull (checked by area; a very flat hull
+    triangle whose circumcircle reached a virtual vertex would be missing) and every point is used.
+    """
+    p32 = points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0, so that bit patterns identify points
+    keys = p32.view(np.int64).reshape(-1)
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    if np.any(sorted_keys[1:] == sorted_keys[:-1]):
+        return None  # duplicates: let Qhull decide which copy it keeps
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    ext = float((hi - lo).max()) + 1.0
+    margin = 1024.0 * ext
+    size = int(math.ceil(ext + 2.0 * margin)) + 2
+    if size >= 2**30:
+        return None
+    sub = cv2.Subdiv2D((int(math.floor(lo[0] - margin)), int(math.floor(lo[1] - margin)), size, size))
+    sub.insert(p32)
+    tri = np.asarray(sub.getTriangleList(), np.float32).reshape(-1, 6)
+    if len(tri) == 0:
+        return np.empty((0, 3), np.int64)
+    tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
+    pos = np.minimum(np.searchsorted(sorted_keys, tk), len(keys) - 1)
+    if not np.array_equal(sorted_keys[pos], tk):
+        return None
+    simplices = order[pos].reshape(-1, 3).astype(np.int64)
+    a, b, c = points[simplices[:, 0]], points[simplices[:, 1]], points[simplices[:, 2]]
+    area = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])).sum()
+    hull = 2.0 * cv2.contourArea(cv2.convexHull(p32))
+    if abs(area - hull) > 1e-9 * max(hull, 1.0) or len(np.unique(simplices)) != len(points):
+        return None
+    return simplices
+
+
+def delaunay_simplices(points: np.ndarray) -> np.ndarray:
+    """Delaunay triangles of distinct ``(P, 2)`` points as ``(T, 3)`` rows into ``points`` (the kernel).
+
+    Float32-exact input (integer pixels, and the boundary points, which :mod:`.boundary` rounds to float32)
+    goes to OpenCV's ``Subdiv2D`` (C++, about 4x faster than Qhull at these sizes); anything else, or a
+    result that fails the completeness check of :func:`_subdiv2d_simplices`, to scipy's Qhull. Both give
+    the Delaunay triangulation; they may split a set of cocircular points (common among rounded pixels)
+    along different diagonals, a tie that the method does not define (Qhull's own choice depends on the
+    input order). Fewer than three points, or collinear points, give no triangle.
+    """
+    if len(points) < 3:
+        return np.empty((0, 3), np.int64)
+    if _float32_exact(points):
+        simplices = _subdiv2d_simplices(points)
+        if simplices is not None:
+            return simplices
+    try:
+        return Delaunay(points).simplices.astype(np.int64)
+    except (QhullError, ValueError):
+        return np.empty((0, 3), np.int64)
+
+
+def delaunay_or_none(points: np.ndarray) -> DelaunayMesh | None:
+    """Delaunay triangulation of ``points``, or ``None`` when they are fewer than three or all collinear."""
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    simplices = delaunay_simplices(points)
+    if len(simplices) == 0:
+        return None
+    return DelaunayMesh(points, simplices, _triangle_neighbors(simplices, len(points)))
+
+
+@dataclass(frozen=True)
 class Triangulation:
     """A Delaunay triangulation of ``V ∪ B`` with the neighbourhoods of the ``V`` vertices.
 
@@ -82,8 +215,8 @@ class Triangulation:
     indptr, indices : ndarray
         CSR neighbourhoods over ``V``: ``indices[indptr[v]:indptr[v + 1]]`` are the ``V`` vertices adjacent
         to ``v``, *including ``v`` itself* (``A_v`` of DTM1 step 3; boundary vertices dropped).
-    delaunay : scipy.spatial.Delaunay or None
-        The scipy object, kept for point location (``find_simplex``); ``None`` when degenerate.
+    delaunay : DelaunayMesh or None
+        The triangulation with its triangle adjacency; ``None`` when degenerate.
     """
 
     points: np.ndarray
@@ -91,7 +224,7 @@ class Triangulation:
     simplices: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
-    delaunay: Delaunay | None
+    delaunay: DelaunayMesh | None
 
     @property
     def boundary_points(self) -> np.ndarray:
@@ -102,9 +235,8 @@ class Triangulation:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
         Points are looked up among the triangles around their nearest vertex, which almost always hold
-        them (a point on a shared edge gets the lowest-index triangle); the rest go to Qhull's exhaustive
-        search. Qhull's own walk is not used: on the near-degenerate triangles that rounded coordinates
-        produce it can fall back to the exhaustive search for every point (hundreds of ms per call).
+        them (a point on a shared edge gets the lowest-index triangle); the rest are tested against every
+        triangle, in chunks (a walk can degrade badly on the near-degenerate triangles of rounded points).
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         out = np.full(len(xy), -1, np.int64)
@@ -121,7 +253,15 @@ class Triangulation:
         out[rows_hit] = cand[hit][first]
         miss = np.flatnonzero(out < 0)
         if len(miss):
-            out[miss] = self.delaunay.find_simplex(xy[miss], bruteforce=True)
+            a, b, c = p[simplices[:, 0]], p[simplices[:, 1]], p[simplices[:, 2]]
+            n_tri = len(simplices)
+            chunk = max(1, 65536 // n_tri)
+            for start in range(0, len(miss), chunk):
+                q = miss[start : start + chunk]
+                inside = points_in_triangles(np.repeat(xy[q], n_tri, axis=0), np.tile(a, (len(q), 1)),
+                                             np.tile(b, (len(q), 1)), np.tile(c, (len(q), 1))).reshape(len(q), -1)
+                found = inside.any(axis=1)
+                out[q[found]] = inside[found].argmax(axis=1)
         return out
 
 
@@ -132,16 +272,6 @@ def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray,
     ptr = np.zeros(n_points + 1, np.int64)
     np.cumsum(np.bincount(flat, minlength=n_points), out=ptr[1:])
     return ptr, order // 3
-
-
-def delaunay_or_none(points: np.ndarray) -> Delaunay | None:
-    """scipy Delaunay of ``points``, or ``None`` when they are fewer than three or all collinear."""
-    if len(points) < 3:
-        return None
-    try:
-        return Delaunay(points)
-    except (QhullError, ValueError):
-        return None
 
 
 def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None) -> Triangulation:
@@ -171,19 +301,15 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None) -> Tri
         indptr = np.arange(n + 1, dtype=np.int64)
         indices = np.arange(n, dtype=np.int64)
         return Triangulation(points, n, simplices, indptr, indices, None)
-    nb_ptr, nb_idx = tri.vertex_neighbor_vertices
-    # Neighbour lists of the V rows only, keypoint neighbours only, plus v itself.
-    nb_ptr = nb_ptr[: n + 1].astype(np.int64)
-    rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(nb_ptr))
-    cols = nb_idx[: nb_ptr[-1]].astype(np.int64)
-    keep = cols < n
-    rows = np.concatenate([rows[keep], np.arange(n, dtype=np.int64)])
-    cols = np.concatenate([cols[keep], np.arange(n, dtype=np.int64)])
-    order = np.argsort(rows, kind="stable")
-    indices = cols[order]
+    # Directed keypoint-keypoint edges plus the self loops, as sorted keys -> CSR over V.
+    s = tri.simplices
+    a = np.concatenate([s[:, 0], s[:, 1], s[:, 2], s[:, 1], s[:, 2], s[:, 0], np.arange(n)])
+    b = np.concatenate([s[:, 1], s[:, 2], s[:, 0], s[:, 0], s[:, 1], s[:, 2], np.arange(n)])
+    both = (a < n) & (b < n)
+    key = np.unique(a[both] * n + b[both])
     indptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
-    return Triangulation(points, n, tri.simplices.astype(np.int64), indptr, indices, tri)
+    np.cumsum(np.bincount(key // n, minlength=n), out=indptr[1:])
+    return Triangulation(points, n, s, indptr, key % n, tri)
 
 
 def expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
