@@ -340,3 +340,20 @@ def test_delaunay_kernel_degenerate(pts):
     expected = {2: 0, 3: 0 if np.linalg.matrix_rank(pts[1:] - pts[0]) < 2 else 1, 4: 1}[len(pts)]
     assert s.shape == (expected, 3)
     assert (delaunay_or_none(pts) is None) == (expected == 0)
+
+
+def test_find_simplex_locates_every_point():
+    """The walk returns a triangle holding the query, and -1 only when no triangle holds it."""
+    from ctxmatch_lib.dtm.triangulation import points_in_triangles, triangulate
+
+    rng = np.random.default_rng(4)
+    v = collapse_vertices(rng.uniform([100, 100], [500, 400], (800, 2)))[0]
+    tri = triangulate(v, dtm_boundary(v, SIZE).points)
+    q = np.vstack([rng.uniform(-60, 700, (2000, 2)), v[:50], np.round(rng.uniform(0, 640, (300, 2)))])
+    f = tri.find_simplex(q)
+    p, s = tri.points, tri.simplices
+    ok = f >= 0
+    assert points_in_triangles(q[ok], p[s[f[ok], 0]], p[s[f[ok], 1]], p[s[f[ok], 2]]).all()
+    for i in np.flatnonzero(~ok):
+        hit = points_in_triangles(np.repeat(q[i : i + 1], len(s), 0), p[s[:, 0]], p[s[:, 1]], p[s[:, 2]])
+        assert not hit.any()

@@ -234,35 +234,57 @@ class Triangulation:
     def find_simplex(self, xy: np.ndarray) -> np.ndarray:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
-        Points are looked up among the triangles around their nearest vertex, which almost always hold
-        them (a point on a shared edge gets the lowest-index triangle); the rest are tested against every
-        triangle, in chunks (a walk can degrade badly on the near-degenerate triangles of rounded points).
+        A visibility walk, vectorised over the queries: each starts in a triangle around its nearest vertex
+        (usually the one holding it) and crosses, while the point lies outside the current triangle, the edge
+        that separates them most; on a Delaunay triangulation this terminates, in a few steps from there.
+        Points on an edge count as inside (either triangle may be returned). Queries still walking after
+        many steps (only possible on near-degenerate slivers) are tested against every triangle.
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         out = np.full(len(xy), -1, np.int64)
         if self.delaunay is None or len(xy) == 0 or len(self.simplices) == 0:
             return out
-        simplices, p = self.simplices, self.points
+        simplices, p, nbr = self.simplices, self.points, self.delaunay.neighbors
         _, nearest = cKDTree(p).query(xy)
         ptr, tri_of = _vertex_triangles(simplices, len(p))
-        rows, pos = expand_ranges(ptr[nearest], np.diff(ptr)[nearest])
-        cand = tri_of[pos]
-        hit = points_in_triangles(xy[rows], p[simplices[cand, 0]], p[simplices[cand, 1]], p[simplices[cand, 2]])
-        # rows are grouped by query with increasing triangles inside a group: keep the first hit
-        rows_hit, first = np.unique(rows[hit], return_index=True)
-        out[rows_hit] = cand[hit][first]
-        miss = np.flatnonzero(out < 0)
-        if len(miss):
-            a, b, c = p[simplices[:, 0]], p[simplices[:, 1]], p[simplices[:, 2]]
-            n_tri = len(simplices)
-            chunk = max(1, 65536 // n_tri)
-            for start in range(0, len(miss), chunk):
-                q = miss[start : start + chunk]
-                inside = points_in_triangles(np.repeat(xy[q], n_tri, axis=0), np.tile(a, (len(q), 1)),
-                                             np.tile(b, (len(q), 1)), np.tile(c, (len(q), 1))).reshape(len(q), -1)
-                found = inside.any(axis=1)
-                out[q[found]] = inside[found].argmax(axis=1)
+        has = ptr[nearest + 1] > ptr[nearest]
+        cur = np.where(has, tri_of[np.minimum(ptr[nearest], len(tri_of) - 1)], 0)
+        active = np.arange(len(xy))
+        corners = p[simplices]  # (T, 3, 2)
+        area = _cross(corners[:, 0], corners[:, 1], corners[:, 2])
+        sgn, tol = np.sign(area), 1e-12 * np.abs(area)
+        for _ in range(max(64, int(math.isqrt(len(simplices))) * 4)):
+            t = cur[active]
+            q = xy[active]
+            c = corners[t]
+            # signed distance-like value of q to the edge opposite each vertex k, positive inside
+            d = np.stack([_cross(c[:, 1], c[:, 2], q), _cross(c[:, 2], c[:, 0], q), _cross(c[:, 0], c[:, 1], q)], 1)
+            d *= sgn[t, None]
+            bad = (d < -tol[t, None]) | (area[t, None] == 0)
+            inside = ~bad.any(axis=1)
+            out[active[inside]] = t[inside]
+            k = np.argmin(np.where(bad, d, np.inf), axis=1)
+            nxt = nbr[t, k]
+            go = ~inside & (nxt >= 0)
+            cur[active[go]] = nxt[go]
+            active = active[go]
+            if len(active) == 0:
+                return out
+        a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+        n_tri = len(simplices)
+        chunk = max(1, 65536 // n_tri)
+        for start in range(0, len(active), chunk):
+            q = active[start : start + chunk]
+            inside = points_in_triangles(np.repeat(xy[q], n_tri, axis=0), np.tile(a, (len(q), 1)),
+                                         np.tile(b, (len(q), 1)), np.tile(c, (len(q), 1))).reshape(len(q), -1)
+            found = inside.any(axis=1)
+            out[q[found]] = inside[found].argmax(axis=1)
         return out
+
+
+def _cross(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """z of ``(q - p) x (r - p)`` for rows of (x, y) points."""
+    return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
 
 
 def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
