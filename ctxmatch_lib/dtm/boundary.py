@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import DelaunayMesh, delaunay_or_none
+from .triangulation import DelaunayMesh, delaunay_or_none, unique_rows
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -187,8 +187,13 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     n_tri = len(radii)
     if n_tri == 0:
         return math.inf
-    spectrum, rank = np.unique(radii, return_inverse=True)  # ascending; rank in 0..n-1
-    rank = rank.reshape(-1)
+    order = np.argsort(radii, kind="stable")  # spectrum ascending; rank in 0..n-1 (np.unique, faster)
+    srt = radii[order]
+    new = np.ones(n_tri, bool)
+    new[1:] = srt[1:] != srt[:-1]
+    spectrum = srt[new]
+    rank = np.empty(n_tri, np.int64)
+    rank[order] = np.cumsum(new) - 1
     # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
     first = np.full(n_points, len(spectrum), np.int64)
     np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
@@ -308,7 +313,7 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
         b[movable] = vertices[j[movable]] + (b[movable] - vertices[j[movable]]) * (s / d[movable, None])
         d2, _ = tree.query(b)
         b = b[d2 >= 0.5 * s]
-    return np.unique(_to_float32(b), axis=0)
+    return unique_rows(_to_float32(b))[0]
 
 
 def _degenerate_boundary(vertices: np.ndarray, s: float) -> tuple[list, np.ndarray]:
@@ -400,7 +405,7 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
         return Boundary(_keep_clear(pts, vertices, s), method, s, vertices, contour=contour, **empty)
     hull_edges = tri.convex_hull.astype(np.int64)
     fattened = _fatten(vertices, first.edges, s)
-    both = np.unique(np.vstack([vertices, fattened]), axis=0)
+    both = unique_rows(np.vstack([vertices, fattened]))[0]
     second = alpha_shape(both, 0.0 if method == "convex" else shrink)
     contour = _rings_from_edges(both, second.edges)
     pts = _keep_clear(_sample_rings(contour, s), vertices, s)

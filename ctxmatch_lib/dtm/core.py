@@ -13,7 +13,8 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 from .boundary import BOUNDARY_METHODS, Boundary, dtm_boundary
-from .triangulation import Triangulation, collapse_vertices, expand_ranges, points_in_triangles, triangulate
+from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles, triangulate,
+                            unique_ints)
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -209,7 +210,7 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, s
     is_picked = np.zeros(n, bool)
     is_picked[picked] = True
     sel = in_both & is_picked[m_a]
-    kept_local = np.unique(o_a[sel])
+    kept_local = np.flatnonzero(np.bincount(o_a[sel], minlength=n))
     record = None
     if want_record:
         pos_in_t = np.full(n, -1, np.int64)
@@ -225,10 +226,11 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, s
 
 def _partner_csr(v_src: np.ndarray, v_dst: np.ndarray, n_src: int):
     """Distinct (source vertex -> destination vertex) partner pairs of the base matches, as CSR."""
-    pairs = np.unique(np.stack([v_src, v_dst], axis=1), axis=0) if len(v_src) else np.empty((0, 2), np.int64)
+    n_dst = int(v_dst.max()) + 1 if len(v_dst) else 1
+    key = unique_ints(v_src * n_dst + v_dst)
     ptr = np.zeros(n_src + 1, np.int64)
-    np.cumsum(np.bincount(pairs[:, 0], minlength=n_src), out=ptr[1:])
-    return ptr, pairs[:, 1]
+    np.cumsum(np.bincount(key // n_dst, minlength=n_src), out=ptr[1:])
+    return ptr, key % n_dst
 
 
 def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray, dst_vertices: np.ndarray,
@@ -267,7 +269,7 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
             combos = [c[rows] for c in combos] + [pdst[pos]]
         cidx, pa, pb, pc = combos
         hit = points_in_triangles(q_dst[full[cidx]], dst_vertices[pa], dst_vertices[pb], dst_vertices[pc])
-        ok[full[np.unique(cidx[hit])]] = True
+        ok[full[cidx[hit]]] = True
     # Triangles touching the boundary: local translations of nearby base matches.
     part = located[(n_kp == 1) | (n_kp == 2)]
     if len(part) and len(base_src):
@@ -282,7 +284,7 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
         moved = q_dst[part[cidx]] - base_dst[e] + base_src[e]
         tri_pts = tri_src.points[wp[cidx]]
         hit = points_in_triangles(moved, tri_pts[:, 0], tri_pts[:, 1], tri_pts[:, 2])
-        ok[part[np.unique(cidx[hit])]] = True
+        ok[part[cidx[hit]]] = True
     return ok
 
 
