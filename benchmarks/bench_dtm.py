@@ -2,8 +2,9 @@
 
 Prints, for 1500 and 5000 matches (640x480, 40 % inliers, 0.5 px noise): the median DTM time over a few
 seeds, its speed-up over the author's public Python port as measured on the project machine (0.52 s and
-2.77 s), the time spent inside the Delaunay triangulations DTM performs (Qhull, its floor), DTM's ratio to
-that floor, and precision / recall. Run: ``.venv/bin/python benchmarks/bench_dtm.py``.
+2.77 s), the time spent inside the Delaunay triangulations DTM performs (its floor; ``calls`` counts the
+triangulations extracted, from scratch or after inserting B into the triangulation of V), DTM's ratio to that
+floor, and precision / recall. Run: ``.venv/bin/python benchmarks/bench_dtm.py``.
 """
 
 from __future__ import annotations
@@ -23,38 +24,45 @@ from ctxmatch_lib.synthetic import planted_homography_matches
 
 PORT_SECONDS = {1500: 0.52, 5000: 2.77}  # author's Python port, measured on the project machine
 SEEDS = (0, 1, 2)
-REPEATS = 3
+REPEATS = 5
 
 
 class _DelaunayClock:
-    """Wraps the triangulation kernel (``delaunay_simplices``: OpenCV ``Subdiv2D``, Qhull as fallback) where
-    DTM calls it and adds up the time spent inside."""
+    """Adds up the time spent building Delaunay triangulations: the methods of ``IncrementalDelaunay``
+    (OpenCV ``Subdiv2D`` insertions and triangle extraction, Qhull as fallback), through which every
+    triangulation DTM performs goes."""
+
+    _METHODS = ("__init__", "add", "simplices")
 
     def __init__(self):
         self.seconds = 0.0
         self.calls = 0
-        self._orig = _triangulation.delaunay_simplices
+        self._orig = {name: getattr(_triangulation.IncrementalDelaunay, name) for name in self._METHODS}
 
     def __enter__(self):
-        orig, clock = self._orig, self
+        clock = self
 
-        def timed(*args, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return orig(*args, **kwargs)
-            finally:
-                clock.seconds += time.perf_counter() - t0
-                clock.calls += 1
+        def timed(orig, count):
+            def wrapper(*args, **kwargs):
+                t0 = time.perf_counter()
+                try:
+                    return orig(*args, **kwargs)
+                finally:
+                    clock.seconds += time.perf_counter() - t0
+                    clock.calls += count
+            return wrapper
 
-        _triangulation.delaunay_simplices = timed
+        for name, orig in self._orig.items():
+            setattr(_triangulation.IncrementalDelaunay, name, timed(orig, int(name == "simplices")))
         return self
 
     def __exit__(self, *exc):
-        _triangulation.delaunay_simplices = self._orig
+        for name, orig in self._orig.items():
+            setattr(_triangulation.IncrementalDelaunay, name, orig)
 
 
 def main() -> int:
-    assert _boundary.delaunay_or_none is _triangulation.delaunay_or_none  # every Delaunay goes through here
+    assert _boundary.IncrementalDelaunay is _triangulation.IncrementalDelaunay  # every Delaunay goes through it
     print(f"{'K':>5} {'dtm ms':>8} {'port ms':>8} {'speed-up':>8} {'delaunay ms':>11} {'calls':>5} "
           f"{'dtm/floor':>9} {'P':>6} {'R':>6} {'P1':>6} {'R1':>6}")
     for k, port in PORT_SECONDS.items():

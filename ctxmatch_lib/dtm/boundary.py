@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import DelaunayMesh, delaunay_or_none, unique_rows
+from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, unique_rows
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -39,6 +39,7 @@ __all__ = [
     "matlab_boundary_alpha",
     "boundary_step",
     "dtm_boundary",
+    "boundary_and_triangulation",
 ]
 
 BOUNDARY_METHODS = ("alpha", "convex", "canvas", "corners")
@@ -385,6 +386,17 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     >>> b.s, len(b.shape_edges)
     (48.0, 40)
     """
+    return boundary_and_triangulation(vertices, image_size, method, shrink=shrink)[0]
+
+
+def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *,
+                               shrink: float = 0.5) -> tuple[Boundary, np.ndarray | None]:
+    """:func:`dtm_boundary` and the Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``B``).
+
+    For ``"alpha"`` and ``"convex"`` the boundary points are inserted into the triangulation of ``V`` that
+    the first shape needed, which saves a full triangulation of ``V ∪ B``; the triangles are ``None`` when
+    not computed here (then :func:`~ctxmatch_lib.dtm.triangulation.triangulate` builds them).
+    """
     if method not in BOUNDARY_METHODS:
         raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
     image_size = as_image_size(image_size, "image_size")
@@ -395,19 +407,23 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     if method in ("canvas", "corners"):
         border = _image_border(image_size)
         pts = border[:4] if method == "corners" else _to_float32(_sample_rings([border], s))
-        return Boundary(pts, method, s, vertices, contour=[border], **empty)
+        return Boundary(pts, method, s, vertices, contour=[border], **empty), None
     if len(vertices) == 0:
-        return Boundary(_EMPTY2, method, s, vertices, contour=[], **empty)
-    tri = delaunay_or_none(vertices)
+        return Boundary(_EMPTY2, method, s, vertices, contour=[], **empty), None
+    inc = IncrementalDelaunay(vertices, pad=2.0 * s)  # B lies within s of V's bounding box
+    tri = inc.mesh()
     first = alpha_shape(vertices, 0.0 if method == "convex" else shrink, tri=tri)
     if first is None:
         contour, pts = _degenerate_boundary(vertices, s)
-        return Boundary(_keep_clear(pts, vertices, s), method, s, vertices, contour=contour, **empty)
+        pts = _keep_clear(pts, vertices, s)
+        inc.add(pts)
+        return Boundary(pts, method, s, vertices, contour=contour, **empty), inc.simplices()
     hull_edges = tri.convex_hull.astype(np.int64)
     fattened = _fatten(vertices, first.edges, s)
     both = unique_rows(np.vstack([vertices, fattened]))[0]
     second = alpha_shape(both, 0.0 if method == "convex" else shrink)
     contour = _rings_from_edges(both, second.edges)
     pts = _keep_clear(_sample_rings(contour, s), vertices, s)
-    return Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
-                    contour, second.alpha)
+    inc.add(pts)
+    return (Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
+                     contour, second.alpha), inc.simplices())

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
-from .boundary import BOUNDARY_METHODS, Boundary, dtm_boundary
+from .boundary import BOUNDARY_METHODS, Boundary, boundary_and_triangulation
 from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles, triangulate,
                             unique_ints)
 
@@ -180,9 +180,9 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, s
     # Steps 1-2: collapsed vertices, boundaries, triangulations.
     v1, vl = collapse_vertices(kp1[active])
     v2, vr = collapse_vertices(kp2[active])
-    b1 = dtm_boundary(v1, size1, boundary, shrink=shrink)
-    b2 = dtm_boundary(v2, size2, boundary, shrink=shrink)
-    t1, t2 = triangulate(v1, b1.points), triangulate(v2, b2.points)
+    b1, s1 = boundary_and_triangulation(v1, size1, boundary, shrink=shrink)
+    b2, s2 = boundary_and_triangulation(v2, size2, boundary, shrink=shrink)
+    t1, t2 = triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
     # Step 3: pairs (m, m') with m' in M_{A1(vl(m))}, flagged when also in M_{A2(vr(m))}; and vice versa.
     m_a, o_a = _neighbourhood_pairs(t1, vl, _csr_by(vl, len(v1)))
     in_both = _has_edge(t2, vr[m_a], vr[o_a])

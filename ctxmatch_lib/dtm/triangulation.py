@@ -24,6 +24,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 
 __all__ = [
     "DelaunayMesh",
+    "IncrementalDelaunay",
     "Triangulation",
     "collapse_vertices",
     "round_half_away",
@@ -154,67 +155,121 @@ def _float32_exact(points: np.ndarray) -> bool:
         return bool(np.array_equal(points.astype(np.float32), points))
 
 
-def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
-    """Delaunay triangles by OpenCV's incremental ``Subdiv2D``, or ``None`` if it cannot be trusted.
+class IncrementalDelaunay:
+    """Delaunay triangulation of a point set that can grow by insertion (OpenCV ``Subdiv2D``, Qhull fallback).
 
-    ``Subdiv2D`` works on float32 coordinates (callers pass float32-exact points, so it triangulates exactly
-    the given points) inside a bounding rectangle whose three virtual outer vertices it connects to the hull.
-    Every triangle it returns among real points has an empty circumcircle, so it is a Delaunay triangle; the
-    result is complete when those triangles cover the convex hull (checked by area; a very flat hull
-    triangle whose circumcircle reached a virtual vertex would be missing) and every point is used.
+    DTM triangulates ``V`` (for the alpha shape) and then ``V ∪ B``; inserting ``B`` into the triangulation of
+    ``V`` gives the second one for the price of the few boundary points.
+
+    ``Subdiv2D`` works on float32 coordinates, so it is used only for float32-exact points (integer pixels,
+    and the boundary points, which :mod:`.boundary` rounds to float32): it then triangulates exactly the given
+    points, inside a bounding rectangle whose three virtual outer vertices it connects to the hull. Every
+    triangle it returns among real points has an empty circumcircle, hence is a Delaunay triangle; the result
+    is accepted when those triangles use every point and cover the convex hull (checked by area: a very flat
+    hull triangle whose circumcircle reached a virtual vertex would be missing). Otherwise, and for
+    duplicates or non-float32 input, scipy's Qhull triangulates the points. Both give the Delaunay
+    triangulation; they may split a set of cocircular points (common among rounded pixels) along different
+    diagonals, a tie that the method does not define (Qhull's own choice depends on the input order).
+
+    Parameters
+    ----------
+    points : ndarray of shape (P, 2)
+        Initial points, (x, y) pixels.
+    pad : float
+        How far outside the bounding box of ``points`` later insertions may fall (a farther one just sends
+        the triangulation to Qhull).
     """
-    p32 = points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0, so that bit patterns identify points
-    keys = p32.view(np.int64).reshape(-1)
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
-    if np.any(sorted_keys[1:] == sorted_keys[:-1]):
-        return None  # duplicates: let Qhull decide which copy it keeps
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    ext = float((hi - lo).max()) + 1.0
-    margin = 1024.0 * ext
-    size = int(math.ceil(ext + 2.0 * margin)) + 2
-    if size >= 2**30:
-        return None
-    sub = cv2.Subdiv2D((int(math.floor(lo[0] - margin)), int(math.floor(lo[1] - margin)), size, size))
-    sub.insert(p32)
-    tri = np.asarray(sub.getTriangleList(), np.float32).reshape(-1, 6)
-    if len(tri) == 0:
-        return np.empty((0, 3), np.int64)
-    tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
-    pos = np.minimum(np.searchsorted(sorted_keys, tk), len(keys) - 1)
-    if not np.array_equal(sorted_keys[pos], tk):
-        return None
-    simplices = order[pos].reshape(-1, 3)
-    if np.count_nonzero(np.bincount(simplices.reshape(-1), minlength=len(points))) != len(points):
-        return None
-    t = tri.astype(np.float64)  # exact: these are the float32 input coordinates
-    area = np.abs((t[:, 2] - t[:, 0]) * (t[:, 5] - t[:, 1]) - (t[:, 3] - t[:, 1]) * (t[:, 4] - t[:, 0])).sum()
-    hull = 2.0 * cv2.contourArea(cv2.convexHull(p32))
-    if abs(area - hull) > 1e-9 * max(hull, 1.0):
-        return None
-    return simplices
+
+    def __init__(self, points: np.ndarray, pad: float = 0.0):
+        self.points = np.asarray(points, np.float64).reshape(-1, 2)
+        self._sub = None
+        if len(self.points) == 0 or not _float32_exact(self.points):
+            return
+        lo, hi = self.points.min(axis=0) - pad, self.points.max(axis=0) + pad
+        ext = float((hi - lo).max()) + 1.0
+        margin = 1024.0 * ext
+        size = int(math.ceil(ext + 2.0 * margin)) + 2
+        if size >= 2**30:
+            return
+        self._lo, self._hi = lo, hi
+        self._sub = cv2.Subdiv2D((int(math.floor(lo[0] - margin)), int(math.floor(lo[1] - margin)), size, size))
+        self._p32 = self.points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0: bit patterns identify points
+        self._sub.insert(self._p32)
+
+    def add(self, points: np.ndarray) -> None:
+        """Insert more points (rows appended to :attr:`points`)."""
+        points = np.asarray(points, np.float64).reshape(-1, 2)
+        if len(points) == 0:
+            return
+        self.points = np.vstack([self.points, points])
+        if self._sub is None:
+            return
+        if not _float32_exact(points) or (points < self._lo).any() or (points > self._hi).any():
+            self._sub = None
+            return
+        p32 = points.astype(np.float32) + np.float32(0.0)
+        self._p32 = np.vstack([self._p32, p32])
+        self._sub.insert(p32)
+
+    def simplices(self) -> np.ndarray:
+        """Delaunay triangles, ``(T, 3)`` rows into :attr:`points` (none for fewer than three or collinear
+        points)."""
+        if len(self.points) < 3:
+            return np.empty((0, 3), np.int64)
+        if self._sub is not None:
+            simplices = self._subdiv2d_simplices()
+            if simplices is not None:
+                return simplices
+        try:
+            return Delaunay(self.points).simplices.astype(np.int64)
+        except (QhullError, ValueError):
+            return np.empty((0, 3), np.int64)
+
+    def _subdiv2d_simplices(self) -> np.ndarray | None:
+        keys = self._p32.view(np.int64).reshape(-1)
+        order = np.argsort(keys)
+        sorted_keys = keys[order]
+        if np.any(sorted_keys[1:] == sorted_keys[:-1]):
+            return None  # duplicates: let Qhull decide which copy it keeps
+        tri = np.asarray(self._sub.getTriangleList(), np.float32).reshape(-1, 6)
+        if len(tri) == 0:
+            return np.empty((0, 3), np.int64)
+        tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
+        pos = np.minimum(np.searchsorted(sorted_keys, tk), len(keys) - 1)
+        if not np.array_equal(sorted_keys[pos], tk):
+            return None
+        simplices = order[pos].reshape(-1, 3)
+        n = len(keys)
+        if np.count_nonzero(np.bincount(simplices.reshape(-1), minlength=n)) != n:
+            return None
+        t = tri.astype(np.float64)  # exact: these are the float32 input coordinates
+        area = np.abs((t[:, 2] - t[:, 0]) * (t[:, 5] - t[:, 1]) - (t[:, 3] - t[:, 1]) * (t[:, 4] - t[:, 0])).sum()
+        hull = 2.0 * cv2.contourArea(cv2.convexHull(self._p32))
+        if abs(area - hull) > 1e-9 * max(hull, 1.0):
+            return None
+        return simplices
+
+    def mesh(self) -> DelaunayMesh | None:
+        """The current triangulation as a :class:`DelaunayMesh`, ``None`` if it has no triangle."""
+        simplices = self.simplices()
+        return DelaunayMesh(self.points, simplices) if len(simplices) else None
+
+
+def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
+    """Subdiv2D triangles of ``points`` or ``None`` when not usable (see :class:`IncrementalDelaunay`)."""
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    inc = IncrementalDelaunay(points)
+    return inc._subdiv2d_simplices() if inc._sub is not None else None
 
 
 def delaunay_simplices(points: np.ndarray) -> np.ndarray:
-    """Delaunay triangles of distinct ``(P, 2)`` points as ``(T, 3)`` rows into ``points`` (the kernel).
+    """Delaunay triangles of distinct ``(P, 2)`` points as ``(T, 3)`` rows into ``points``.
 
-    Float32-exact input (integer pixels, and the boundary points, which :mod:`.boundary` rounds to float32)
-    goes to OpenCV's ``Subdiv2D`` (C++, about 4x faster than Qhull at these sizes); anything else, or a
-    result that fails the completeness check of :func:`_subdiv2d_simplices`, to scipy's Qhull. Both give
-    the Delaunay triangulation; they may split a set of cocircular points (common among rounded pixels)
-    along different diagonals, a tie that the method does not define (Qhull's own choice depends on the
-    input order). Fewer than three points, or collinear points, give no triangle.
+    OpenCV's ``Subdiv2D`` (C++, about 4x faster than Qhull at these sizes) for float32-exact input, scipy's
+    Qhull otherwise or when the result fails the completeness check (see :class:`IncrementalDelaunay`).
+    Fewer than three points, or collinear points, give no triangle.
     """
-    if len(points) < 3:
-        return np.empty((0, 3), np.int64)
-    if _float32_exact(points):
-        simplices = _subdiv2d_simplices(points)
-        if simplices is not None:
-            return simplices
-    try:
-        return Delaunay(points).simplices.astype(np.int64)
-    except (QhullError, ValueError):
-        return np.empty((0, 3), np.int64)
+    return IncrementalDelaunay(points).simplices()
 
 
 def delaunay_or_none(points: np.ndarray) -> DelaunayMesh | None:
@@ -324,7 +379,8 @@ def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray,
     return ptr, order // 3
 
 
-def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None) -> Triangulation:
+def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
+                simplices: np.ndarray | None = None) -> Triangulation:
     """Delaunay triangulation of ``V ∪ B`` and the neighbourhoods ``A_v`` of the ``V`` vertices.
 
     Parameters
@@ -334,6 +390,9 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None) -> Tri
     boundary : ndarray of shape (Q, 2), optional
         Boundary points ``B`` (Sec. 4, Fig. 2). They take part in the triangulation but are excluded from
         the neighbourhoods, because they carry no match.
+    simplices : ndarray of shape (T, 3), optional
+        The Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``boundary``) when already known,
+        e.g. from an :class:`IncrementalDelaunay` that had ``B`` inserted.
 
     Returns
     -------
@@ -345,7 +404,10 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None) -> Tri
     boundary = np.empty((0, 2)) if boundary is None else np.asarray(boundary, np.float64).reshape(-1, 2)
     n = len(vertices)
     points = np.vstack([vertices, boundary]) if len(boundary) else vertices
-    tri = delaunay_or_none(points)
+    if simplices is None:
+        tri = delaunay_or_none(points)
+    else:
+        tri = DelaunayMesh(points, np.asarray(simplices, np.int64).reshape(-1, 3)) if len(simplices) else None
     if tri is None:
         simplices = np.empty((0, 3), np.int64)
         indptr = np.arange(n + 1, dtype=np.int64)
