@@ -1,0 +1,225 @@
+"""Tests for the plot helpers: ctxmatch_lib.plots.viz2d, .dtm and .eval (tiny synthetic inputs, Agg backend)."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import pytest  # noqa: E402
+from matplotlib.collections import LineCollection, PathCollection  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
+
+from ctxmatch_lib.dtm import dtm, dtm_boundary  # noqa: E402
+from ctxmatch_lib.plots import dtm as pdtm  # noqa: E402
+from ctxmatch_lib.plots import eval as peval  # noqa: E402
+from ctxmatch_lib.plots import viz2d  # noqa: E402
+from ctxmatch_lib.synthetic import planted_homography_matches  # noqa: E402
+
+
+@pytest.fixture
+def ax():
+    fig, ax = plt.subplots()
+    yield ax
+    plt.close(fig)
+
+
+def _segments(ax):
+    return sum(len(c.get_segments()) for c in ax.collections if isinstance(c, LineCollection))
+
+
+# ------------------------------------------------------------------------------------------- viz2d
+
+
+def test_match_colors_four_colour_code():
+    c = viz2d.match_colors([True, False, True, False], [True, True, False, False])
+    expected = [viz2d.MATCH_COLORS[k] for k in ("correct", "wrong", "correct_dropped", "wrong_dropped")]
+    assert c.shape == (4, 4)
+    assert [tuple(row) for row in c] == [to_rgba(e) for e in expected]
+    assert [tuple(r) for r in viz2d.match_colors([True])] == [to_rgba(viz2d.MATCH_COLORS["correct"])]
+    assert viz2d.match_colors([]).shape == (0, 4)
+    with pytest.raises(ValueError, match="same length"):
+        viz2d.match_colors([True, False], [True])
+
+
+def test_plot_image_pixel_centres(ax):
+    viz2d.plot_image(ax, np.zeros((4, 6), np.uint8), offset=(10, 0))
+    assert ax.images[0].get_extent() == [9.5, 15.5, 3.5, -0.5]
+
+
+def test_plot_image_pair_and_matches(ax):
+    img1, img2 = np.zeros((30, 40), np.uint8), np.full((20, 50, 3), 200, np.uint8)
+    off = viz2d.plot_image_pair(ax, img1, img2, gap=5)
+    assert off.tolist() == [45.0, 0.0]
+    assert ax.get_xlim() == (-0.5, 94.5) and ax.get_ylim() == (29.5, -0.5)
+    p1 = np.array([[1.0, 2.0], [3.0, 4.0]])
+    viz2d.plot_matches(ax, p1, p1, offset=off, color=viz2d.match_colors([True, False]), ps=2)
+    seg = [c for c in ax.collections if isinstance(c, LineCollection)][0].get_segments()
+    assert np.allclose(seg[0], [[1, 2], [46, 2]]) and len(seg) == 2
+    with pytest.raises(ValueError, match="same length"):
+        viz2d.plot_matches(ax, p1, p1[:1])
+
+
+def test_plot_matches_and_flow_empty(ax):
+    viz2d.plot_matches(ax, np.empty((0, 2)), np.empty((0, 2)))
+    viz2d.plot_flow(ax, np.empty((0, 2)), np.empty((0, 2)))
+    assert _segments(ax) == 0
+
+
+def test_plot_flow_draws_vectors_and_dots(ax):
+    viz2d.plot_flow(ax, [[0, 0], [5, 5]], [[1, 0], [5, 9]], color="r", ps=3)
+    assert _segments(ax) == 2
+    assert sum(isinstance(c, PathCollection) for c in ax.collections) == 1
+
+
+def test_add_text_and_legend(ax):
+    viz2d.add_text(ax, "hello")
+    leg = viz2d.color_legend(ax, {"a": "red", "b": "blue"})
+    assert ax.texts[0].get_text() == "hello"
+    assert [t.get_text() for t in leg.get_texts()] == ["a", "b"]
+
+
+# ------------------------------------------------------------------------------------------- dtm plots
+
+
+def test_triangulation_edges_exact():
+    assert pdtm.triangulation_edges([[0, 1, 2], [1, 2, 3]]).tolist() == [[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]]
+    assert pdtm.triangulation_edges(np.empty((0, 3), int)).shape == (0, 2)
+
+
+def test_plot_triangulation_splits_keypoint_edges(ax):
+    pts = np.array([[0, 0], [1, 0], [0, 1], [5, 5]], float)
+    simplices = np.array([[0, 1, 2], [1, 2, 3]])
+    pdtm.plot_triangulation(ax, pts, simplices, n_vertices=3, keypoint_color="g")
+    lc = [c for c in ax.collections if isinstance(c, LineCollection)]
+    # Edges among the first three points (keypoints): 3; edges touching point 3 (boundary): 2.
+    assert sorted(len(c.get_segments()) for c in lc) == [2, 3]
+    green = [c for c in lc if tuple(c.get_colors()[0][:3]) == to_rgba("g")[:3]][0]
+    assert len(green.get_segments()) == 3
+
+
+def test_plot_triangulation_degenerate(ax):
+    pdtm.plot_triangulation(ax, np.zeros((2, 2)), np.empty((0, 3), int))
+    assert _segments(ax) == 0
+
+
+GRID = np.stack(np.meshgrid(np.arange(100, 301, 40.0), np.arange(100, 261, 40.0)), -1).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("method", ["alpha", "convex", "canvas", "corners"])
+def test_plot_boundary_steps_and_mesh(method):
+    b = dtm_boundary(GRID, (640, 480), method)
+    fig, (a1, a2) = plt.subplots(1, 2)
+    pdtm.plot_canvas(a1, (640, 480))
+    pdtm.plot_boundary_steps(a1, b)
+    pdtm.plot_boundary_mesh(a2, b)
+    # The view holds every vertex and boundary point.
+    (x0, x1), (y1, y0) = a2.get_xlim(), a2.get_ylim()
+    allpts = np.vstack([GRID, b.points])
+    assert (allpts[:, 0] >= x0).all() and (allpts[:, 0] <= x1).all()
+    assert (allpts[:, 1] >= y0).all() and (allpts[:, 1] <= y1).all()
+    assert _segments(a2) > len(GRID)
+    if method in ("alpha", "convex"):
+        assert _segments(a1) >= len(b.shape_edges) + len(b.hull_edges)
+    plt.close(fig)
+
+
+def test_plot_boundary_single_vertex(ax):
+    b = dtm_boundary(np.array([[50.0, 50.0]]), (200, 100))
+    pdtm.plot_boundary_steps(ax, b)
+    pdtm.plot_boundary_mesh(ax, b)
+    assert ax.lines  # the circle contour
+
+
+@pytest.fixture(scope="module")
+def traced():
+    p = planted_homography_matches(300, 0.5, rng=1)
+    res = dtm(p.kpts1, p.kpts2, p.matches, p.scores, image_size1=p.image_size, image_size2=p.image_size, trace=True)
+    return p, res, p.kpts1[p.matches[:, 0]], p.kpts2[p.matches[:, 1]]
+
+
+def test_plot_dtm_iteration_flow_and_clusters(traced, ax):
+    p, res, p1, p2 = traced
+    it = res.trace.iterations[0]
+    pdtm.plot_dtm_iteration_flow(ax, it, p1, p2, p.is_inlier)
+    lc = [c for c in ax.collections if isinstance(c, LineCollection)]
+    # Triangulation, then removed flows, then kept flows.
+    assert len(lc[-1].get_segments()) == len(it.kept)
+    assert len(lc[-2].get_segments()) == len(it.active) - len(it.kept)
+    fig, ax2 = plt.subplots()
+    pdtm.plot_dtm_clusters(ax2, it, p1, p2)
+    lc2 = [c for c in ax2.collections if isinstance(c, LineCollection)]
+    assert len(lc2[-1].get_segments()) == len(it.cluster_members)
+    plt.close(fig)
+
+
+def test_plot_dtm_final(traced):
+    p, res, p1, p2 = traced
+    fig, (a1, a2) = plt.subplots(1, 2)
+    pdtm.plot_dtm_final(a1, res, p1, p2, p.is_inlier, stage=1)
+    pdtm.plot_dtm_final(a2, res, p1, p2, p.is_inlier, stage=2, image=2)
+    kept1 = [c for c in a1.collections if isinstance(c, LineCollection)][-1]
+    assert len(kept1.get_segments()) == int((res.removed_at == 0).sum())
+    added = [c for c in a2.collections if isinstance(c, LineCollection)][-1]
+    assert len(added.get_segments()) == int((res.readded_at > 0).sum())
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------- eval plots
+
+
+def _pr_table():
+    idx = pd.MultiIndex.from_product([["none", "1sac"], ["blob", "dtm2", "th"]], names=["model", "method"])
+    return pd.DataFrame({"precision (%)": [20, 80, 90, 90, 95, 96], "recall (%)": [100, 85, 60, 90, 80, 55]}, index=idx)
+
+
+def test_plot_pr_scatter(ax):
+    t = _pr_table()
+    peval.plot_pr_scatter(ax, t, title="x")
+    scatters = [c for c in ax.collections if isinstance(c, PathCollection)]
+    assert len(scatters) == 6
+    assert np.allclose(scatters[0].get_offsets(), [[100, 20]])  # blob, no model: (recall, precision)
+    assert tuple(scatters[0].get_facecolors()[0][:3]) == to_rgba(peval.MODEL_COLORS["none"])[:3]
+    assert len([a for a in ax.texts]) >= 3 + 3  # 3 labels + 3 arrows (annotations)
+    assert ax.get_xlabel() == "recall (%)" and ax.get_title() == "x"
+
+
+def test_plot_pr_scatter_accepts_kind_level(ax):
+    t = pd.concat({"planar": _pr_table()}, names=["kind"])
+    peval.plot_pr_scatter(ax, t, annotate=False, connect=False)
+    assert len([c for c in ax.collections if isinstance(c, PathCollection)]) == 6
+
+
+def test_pr_legend_lists_times(ax):
+    leg = peval.pr_legend(ax, ["th", "dtm2", "blob"], times={"dtm2": "0.10/0.50 s"})
+    texts = [t.get_text() for t in leg.get_texts()]
+    assert texts == ["blob", "th", "DTM$_2$ (0.10/0.50 s)", "no model", "1SAC"]
+
+
+def test_markers_and_colors_are_stable():
+    assert peval.method_marker("dtm2") == "D"
+    assert peval.method_marker("somefilter") == peval.method_marker("somefilter")
+    assert peval.method_color("dtm1") != peval.method_color("dtm2")
+
+
+def _bin_table():
+    bins, models, methods = ["0-10 %", "10-50 %", "50-100 %"], ["none", "1sac"], ["blob", "dtm2"]
+    idx = pd.MultiIndex.from_product([bins, models, methods], names=["bin", "model", "method"])
+    n = np.array([2, 0, 3]).repeat(4)
+    prec = np.where(n > 0, 50.0, np.nan)
+    share = np.array([40.0, 0.0, 60.0]).repeat(4)
+    return pd.DataFrame({"precision (%)": prec, "recall (%)": prec, "n": n, "share (%)": share}, index=idx)
+
+
+def test_plot_inlier_bars_and_share(ax):
+    t = _bin_table()
+    peval.plot_inlier_bars(ax, t, metric="precision (%)", model="none")
+    assert len(ax.patches) == 2 * 2  # the empty middle bin is dropped
+    assert [lbl.get_text() for lbl in ax.get_xticklabels()] == ["0-10 %\n(n=2)", "50-100 %\n(n=3)"]
+    fig, (a1, a2) = plt.subplots(1, 2)
+    peval.plot_inlier_bars(a1, t, drop_empty=False)
+    assert len(a1.patches) == 3 * 2
+    peval.plot_pair_share(a2, t)
+    assert [round(p.get_height()) for p in a2.patches] == [40, 60]
+    plt.close(fig)
