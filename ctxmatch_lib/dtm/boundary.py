@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
@@ -131,7 +131,8 @@ def boundary_step(image_size) -> float:
 
 
 def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    a, b, c = points[simplices[:, 0]], points[simplices[:, 1]], points[simplices[:, 2]]
+    corners = points[simplices]  # (T, 3, 2), one gather
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     la = np.hypot(*(b - c).T)
     lb = np.hypot(*(c - a).T)
     lc = np.hypot(*(a - b).T)
@@ -139,6 +140,13 @@ def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         r = la * lb * lc / (2.0 * area2)
     return np.where(area2 > 0, r, np.inf)
+
+
+def _graph(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, n: int) -> csr_matrix:
+    """CSR matrix straight from edges whose ``rows`` are non-decreasing (no COO sort)."""
+    indptr = np.zeros(n + 1, np.int32)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return csr_matrix((data, cols.astype(np.int32), indptr), shape=(n, n))
 
 
 def _adjacent_pairs(neighbors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,6 +193,11 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     """
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
+    return _matlab_alpha(radii, simplices, *_adjacent_pairs(neighbors), n_points, shrink)
+
+
+def _matlab_alpha(radii, simplices, t, u, n_points, shrink) -> float:
+    """:func:`matlab_boundary_alpha` with the adjacent triangle pairs ``(t, u)`` (``t`` non-decreasing)."""
     n_tri = len(radii)
     if n_tri == 0:
         return math.inf
@@ -201,12 +214,10 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     first = first[first < len(spectrum)]
     all_points = int(first.max())
     # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph.
-    t, u = _adjacent_pairs(neighbors)
     n_regions = np.cumsum(np.bincount(rank, minlength=len(spectrum)))
     if len(t):
         w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
-        graph = coo_matrix((w, (t, u)), shape=(n_tri, n_tri)).tocsr()
-        forest = minimum_spanning_tree(graph).data.astype(np.int64) - 1
+        forest = minimum_spanning_tree(_graph(t, u, w, n_tri)).data.astype(np.int64) - 1
         n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=len(spectrum)))
     ok = np.flatnonzero(n_regions[all_points:] == 1)
     critical = all_points + int(ok[0]) if len(ok) else len(spectrum) - 1
@@ -239,18 +250,21 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
         return None
     simplices = tri.simplices.astype(np.int64)
     neighbors = tri.neighbors.astype(np.int64)
+    if not 0.0 <= shrink <= 1.0:
+        raise ValueError(f"shrink must be in [0, 1], got {shrink}")
     radii = _circumradii(points, simplices)
-    alpha = matlab_boundary_alpha(radii, simplices, neighbors, len(points), shrink)
+    t, u = _adjacent_pairs(neighbors)
+    alpha = _matlab_alpha(radii, simplices, t, u, len(points), shrink)
     inside = radii <= alpha
     n_tri = len(simplices)
     if not inside.all():
-        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior.
-        t, u = _adjacent_pairs(neighbors)
+        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior
+        # (node n_tri; its edges go last so that the rows stay sorted).
         both_out = ~inside[t] & ~inside[u]
         hull_out = np.flatnonzero(~inside & (neighbors < 0).any(axis=1))
-        rows = np.concatenate([t[both_out], hull_out])
-        cols = np.concatenate([u[both_out], np.full(len(hull_out), n_tri)])
-        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_tri + 1, n_tri + 1))
+        rows = np.concatenate([t[both_out], np.full(len(hull_out), n_tri)])
+        cols = np.concatenate([u[both_out], hull_out])
+        graph = _graph(rows, cols, np.ones(len(rows)), n_tri + 1)
         _, label = connected_components(graph, directed=False)
         inside = inside | (label[:n_tri] != label[n_tri])
     nb_inside = np.where(neighbors >= 0, inside[np.maximum(neighbors, 0)], False)
