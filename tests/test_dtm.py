@@ -357,3 +357,41 @@ def test_find_simplex_locates_every_point():
     for i in np.flatnonzero(~ok):
         hit = points_in_triangles(np.repeat(q[i : i + 1], len(s), 0), p[s[:, 0]], p[s[:, 1]], p[s[:, 2]])
         assert not hit.any()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matlab_alpha_matches_definition(seed):
+    """The alpha radius equals the one computed literally from its definition: count the regions (edge-
+    connected sets of triangles with circumradius <= a) at every spectrum value a, take the first value at
+    or above the one enclosing every point that gives a single region, then MATLAB's index into the rest."""
+    import math
+
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ctxmatch_lib.dtm.triangulation import DelaunayMesh
+
+    rng = np.random.default_rng(seed)
+    # clusters make the first enclosing shape split into several regions, uniform points usually not
+    xy = np.vstack([rng.normal(c, 4.0, (25, 2)) for c in rng.uniform(0, 100, (1 + seed % 3, 2))])
+    for shrink in (0.0, 0.5, 1.0):
+        shape = alpha_shape(xy, shrink)
+        r, s = shape.radii, shape.simplices
+        spectrum = np.unique(r)
+        nb = DelaunayMesh(xy, s).neighbors
+        covered = [min(r[np.any(s == p, axis=1)]) for p in np.unique(s)]
+        start = int(np.searchsorted(spectrum, max(covered)))
+        critical = len(spectrum) - 1
+        for c in range(start, len(spectrum)):
+            on = r <= spectrum[c]
+            t = np.repeat(np.arange(len(s)), 3)
+            u = nb.reshape(-1)
+            e = (u >= 0) & on[t] & on[np.maximum(u, 0)]
+            g = coo_matrix((np.ones(e.sum()), (t[e], u[e])), shape=(len(s), len(s)))
+            _, lab = connected_components(g, directed=False)
+            if len(np.unique(lab[on])) == 1:
+                critical = c
+                break
+        n = len(spectrum) - critical
+        expected = spectrum[critical + max(math.ceil((1 - shrink) * n), 1) - 1]
+        assert shape.alpha == expected
