@@ -213,15 +213,7 @@ def _matlab_alpha(radii, simplices, t, u, n_points, shrink) -> float:
     np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
     first = first[first < len(spectrum)]
     all_points = int(first.max())
-    # Usually the shape that first encloses every point is already one region: one connected-components
-    # pass decides it; otherwise count the regions at each spectrum value from the minimum spanning forest.
-    shape = rank <= all_points
-    both = shape[t] & shape[u]
-    _, label = connected_components(_graph(t[both], u[both], np.ones(int(both.sum())), n_tri), directed=False)
-    if np.all(label[shape] == label[shape][0]):
-        critical = all_points
-        n = len(spectrum) - critical
-        return float(spectrum[critical + max(math.ceil((1.0 - shrink) * n), 1) - 1])
+    # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph.
     n_regions = np.cumsum(np.bincount(rank, minlength=len(spectrum)))
     if len(t):
         w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
