@@ -341,19 +341,37 @@ class _SweepContext(BlobContext):
     def __init__(self, *args, overlap_tables=None, **kwargs):
         super().__init__(*args, **kwargs)
         self._tables = overlap_tables
+        self._last: dict = {}
 
     def _excluded(self, img, cand, other, t_o, t_o_kind):
         if t_o is None or t_o_kind != "overlap" or self._tables is None:
             return super()._excluded(img, cand, other, t_o, t_o_kind)
+        other = np.asarray(other, np.int64)
+        last = self._last.get(img)
+        # The grid asks for the same look-up for every t_o and ratio in a row: reuse the last one.
+        if last is not None and last[1].shape == cand.shape and np.array_equal(last[0], other) \
+                and np.array_equal(last[1], cand):
+            return (cand == other[:, None]) | (last[2] <= t_o)
         keys_t, err_t = self._tables[img]
         size = len(self.kpts[img])
-        keys = np.asarray(other, np.int64)[:, None] * size + cand
-        err = np.ones(keys.shape)
-        if len(keys_t):
-            pos = np.minimum(np.searchsorted(keys_t, keys), len(keys_t) - 1)
-            found = keys_t[pos] == keys
-            err[found] = err_t[pos[found]]
-        return (cand == np.asarray(other)[:, None]) | (err <= t_o)
+        if cand.shape[1] == size and len(keys_t):
+            # Whole lines (the rare fallback of second_best): fill each anchor's row from the table.
+            lo, hi = np.searchsorted(keys_t, other * size), np.searchsorted(keys_t, (other + 1) * size)
+            cnt = hi - lo
+            rows = np.repeat(np.arange(len(other)), cnt)
+            at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
+            full = np.ones((len(other), size))
+            full[rows, keys_t[at] % size] = err_t[at]
+            err = np.take_along_axis(full, cand, axis=1)
+        else:
+            keys = other[:, None] * size + cand
+            err = np.ones(keys.shape)
+            if len(keys_t):
+                pos = np.minimum(np.searchsorted(keys_t, keys), len(keys_t) - 1)
+                found = keys_t[pos] == keys
+                err[found] = err_t[pos[found]]
+        self._last[img] = (other, cand.copy(), err)
+        return (cand == other[:, None]) | (err <= t_o)
 
 
 # ------------------------------------------------------------------------------------ average precision
