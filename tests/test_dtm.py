@@ -395,3 +395,32 @@ def test_matlab_alpha_matches_definition(seed):
         n = len(spectrum) - critical
         expected = spectrum[critical + max(math.ceil((1 - shrink) * n), 1) - 1]
         assert shape.alpha == expected
+
+
+def test_incremental_delaunay_insertion_equals_from_scratch():
+    """Inserting B into the triangulation of V gives the triangles of V ∪ B triangulated in one go; points
+    it cannot take (duplicates, outside its rectangle, not float32) fall back to Qhull with the same result
+    up to cocircular ties."""
+    from scipy.spatial import ConvexHull
+
+    from ctxmatch_lib.dtm.triangulation import IncrementalDelaunay, delaunay_simplices
+
+    rng = np.random.default_rng(7)
+    v = collapse_vertices(rng.uniform([0, 0], SIZE, (600, 2)))[0]
+    b = dtm_boundary(v, SIZE).points
+    inc = IncrementalDelaunay(v, pad=100.0)
+    first = inc.simplices()
+    np.testing.assert_array_equal(first, delaunay_simplices(v))
+    inc.add(b)
+    np.testing.assert_array_equal(inc.points, np.vstack([v, b]))
+    np.testing.assert_array_equal(inc.simplices(), delaunay_simplices(np.vstack([v, b])))
+    for extra, n_new in (([[1e5, 1e5]], 1), ([[100.1, 200.3]], 1), (v[:1], 0)):  # far, not float32, duplicate
+        inc2 = IncrementalDelaunay(v, pad=100.0)
+        inc2.add(np.asarray(extra, float))
+        s = inc2.simplices()
+        pts = inc2.points
+        assert len(np.unique(s)) == len(v) + n_new
+        a, bb, c = (pts[s[:, k]] for k in range(3))
+        area = np.abs((bb[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (bb[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+        np.testing.assert_allclose(area.sum() / 2, ConvexHull(pts).volume, rtol=1e-9)
+        assert inc2._sub is None or n_new == 0  # the fallback ran
