@@ -354,6 +354,11 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     it out. On the planted-outlier case of the tests this moves the DTM2 output from about 0.96 precision /
     0.77 recall to 0.99 / 0.96.
 
+    The triangulations are exact Delaunay triangulations (OpenCV ``Subdiv2D``, inserting ``B`` into the
+    triangulation of ``V``; Qhull as fallback, see :class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`).
+    Where rounded vertices are cocircular the diagonal is a tie that the method leaves open; it is broken by
+    the (order-independent) insertion order, so results can differ from a Qhull-based run in such ties only.
+
     Degenerate inputs need no special case: the boundary always surrounds the vertices (a circle around
     a single vertex, a stadium around collinear ones), so every step is defined. Hence: no matches give
     empty arrays; a single match is removed at iteration 1 (nothing supports it); two or more matches
