@@ -5,7 +5,9 @@ exploiting its structure: on each image pair one :class:`~ctxmatch_lib.blob.Blob
 setup, the candidate set G is built once per (f, ∩/∪, f') (27 sets), the NNR-like ratios (a, b) once per
 (t_o, D) on each set, and the five combinations W(a, b) reuse them. Each setup's candidates are ranked by
 their score and the ranking's average precision (:func:`~ctxmatch_lib.metrics.average_precision`, with
-method-D labels) is one row; the mean over pairs is the mAP of the heat map of Fig. 5.
+method-D labels) is one row: ``ap`` against the setup's own correct candidates, ``ap_star`` against the
+correct candidates of all setups of the sweep on the pair (the recall* reference). The mean of ``ap_star``
+over pairs is the mAP of the heat map of Fig. 5 (:func:`blob_map`).
 
 Work is split into **units**, one per (dataset, pair, feature configuration), each holding every blob
 setup, filter and model of the sweep for that pair. A unit's rows are written as one Parquet *part file*
@@ -49,7 +51,7 @@ from .datasets import load_dataset
 from .datasets.base import Pair
 from .features import FEATURE_PRESETS, FeatureConfig, Features
 from .groundtruth import GT_METHODS, GT_THRESHOLD_PX
-from .metrics import evaluate_matches, normalised_count
+from .metrics import average_precision, evaluate_matches, normalised_count
 
 __all__ = [
     "SWEEP_COLUMNS",
@@ -66,13 +68,13 @@ __all__ = [
 ]
 
 # Bump when the rows or the cached intermediates change meaning: old parts and caches are then ignored.
-_SWEEP_FORMAT = 1
+_SWEEP_FORMAT = 2
 
 #: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
 SWEEP_COLUMNS = (
     "dataset", "pair_id", "kind", "features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind",
-    "combine", "method", "model", "precision", "recall", "recall_star", "ap", "correct", "correct_norm",
-    "output", "failure", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star",
+    "combine", "method", "model", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
+    "correct_norm", "output", "failure", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star",
     "gt_method",
 )
 
@@ -547,6 +549,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                          "recall": 1.0 if n_gt else float("nan"),
                          "recall_star": n_gt / n_gt_star if n_gt_star else float("nan"),
                          "ap": _ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt, n, m),
+                         "ap_star": _ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt_star, n, m),
                          "correct": correct, "correct_norm": n_gt, "output": len(mt), "failure": correct == 0,
                          "time_s": float("nan"), "model_time_s": float("nan")})
             continue
@@ -559,9 +562,12 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
             if mkey in masks:
                 keeps[name] = (masks[mkey].astype(bool), float(masks[f"t_{mkey}"]))
                 continue
+            params = dict(filter_params.get(name, {}))
+            if name == "th":  # as the pipeline: the 0.8 NNR threshold on the scale of this setup's scores
+                params.setdefault("ratio", cfg.ratio)
             try:
                 keep, t = run_filter(name, f1, f2, sm, ss, image_size1=pair.image_size1,
-                                     image_size2=pair.image_size2, **filter_params.get(name, {}))
+                                     image_size2=pair.image_size2, **params)
             except Exception as exc:
                 raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
             keeps[name] = (keep, t)
@@ -576,6 +582,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                                       scores=ss[final], time_s=t_method)
                 rows.append({**common, "method": method, "model": model, "precision": mm.precision,
                              "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
+                             "ap_star": average_precision(sm[final], sl[final], ss[final], ref_star),
                              "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
                              "failure": mm.failure, "time_s": mm.time_s, "model_time_s": t_model})
     if masks_added and mask_path is not None:
@@ -587,6 +594,7 @@ def _frame(pd, rows):
     df = pd.DataFrame(rows, columns=list(SWEEP_COLUMNS))
     return df.astype({**{c: "int64" for c in _INT_COLUMNS}, "failure": "bool", "t_o": "float64",
                       "precision": "float64", "recall": "float64", "recall_star": "float64", "ap": "float64",
+                      "ap_star": "float64",
                       "time_s": "float64", "model_time_s": "float64"})
 
 
@@ -596,7 +604,7 @@ def _frame(pd, rows):
 def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
                pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
                model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
-               data_root=None) -> list[SweepUnit]:
+               max_keypoints: int | None = None, data_root=None) -> list[SweepUnit]:
     """The work units of a sweep, in the order of its result table (dataset, features, pair).
 
     Every argument is validated here, before any work; see :func:`run_sweep` for their meaning.
@@ -607,6 +615,10 @@ def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", f
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
     feats = resolve_features(features)
+    if max_keypoints is not None:
+        from dataclasses import replace
+
+        feats = {k: replace(v, max_keypoints=max_keypoints) for k, v in feats.items()}
     blob_cfgs = tuple(resolve_blob_configs(blobs))
     filters, models = _check_names(tuple(filters), tuple(models))
     params = dict(filter_params or {})
@@ -673,8 +685,8 @@ def _connect_dask(dask):
 def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
               pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
               model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
-              n_jobs: int = 1, dask=None, cache_dir=None, feature_cache_dir=None, out=None, progress: bool = True,
-              data_root=None, recompute: bool = False):
+              max_keypoints: int | None = None, n_jobs: int = 1, dask=None, cache_dir=None,
+              feature_cache_dir=None, out=None, progress: bool = True, data_root=None, recompute: bool = False):
     """Run (or resume) a sweep and return its rows as a ``pandas.DataFrame`` (:data:`SWEEP_COLUMNS`).
 
     Parameters
@@ -690,6 +702,8 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         method ``"blob"``); ``filter_params`` gives extra keyword arguments per filter.
     models : sequence of str
         Model steps (``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``) after each method.
+    max_keypoints : int, optional
+        Override the keypoint cap of every feature configuration (small values for quick runs).
     pairs : None, int or list of str
         Pair subset (:func:`select_pairs`): ``N`` evenly spread pairs, or pair ids; ``kinds`` keeps only
         some pair kinds.
@@ -728,7 +742,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     units = _keyed(plan_sweep(datasets, features=features, blobs=blobs, filters=filters, models=models,
                               pairs=pairs, kinds=kinds, gt_method=gt_method, gt_threshold=gt_threshold,
                               model_threshold=model_threshold, filter_params=filter_params, seed=seed,
-                              data_root=data_root))
+                              max_keypoints=max_keypoints, data_root=data_root))
     cache = _sweep_cache(cache_dir)
     parts_dir = cache / "results"
     parts_dir.mkdir(parents=True, exist_ok=True)
@@ -774,7 +788,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     frames = [pd.read_parquet(part[u.key]) for u in units]
     df = pd.concat(frames, ignore_index=True) if frames else _frame(pd, [])
     if out is not None:
-        meta = {"datasets": datasets, "features": {k: v.key() for k, v in resolve_features(features).items()},
+        meta = {"datasets": datasets, "features": {u.features_name: u.features.key() for u in units},
                 "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
                 "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": gt_method,
                 "gt_threshold": gt_threshold, "model_threshold": model_threshold, "seed": seed,
@@ -786,17 +800,25 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
 # --------------------------------------------------------------------------------------------- tables
 
 
-def blob_map(df, *, method: str = "blob", model: str = "none"):
+def blob_map(df, *, metric: str = "ap_star", method: str = "blob", model: str = "none"):
     """mAP of every (features, blob setup): the mean over pairs of the AP (NaN APs skipped), in %.
+
+    ``metric="ap_star"`` (default, the heat map of Fig. 5) ranks each setup's candidates against the
+    correct matches of *all* setups of the sweep on the pair (the recall* reference), so a setup that
+    misses correct matches is penalised: one-to-one matching can score lower than many-to-many.
+    ``metric="ap"`` uses each setup's own correct candidates, which rewards small, precise candidate
+    sets (mutual nearest neighbours score close to 100 %).
 
     Returns a frame with the blob fields, ``mAP`` and ``pairs`` (pairs with a defined AP), in the order of
     first appearance (the grid order for a grid sweep).
     """
     import pandas as pd
 
+    if metric not in ("ap", "ap_star"):
+        raise ValueError(f"metric must be 'ap' or 'ap_star', got {metric!r}")
     d = df[(df["method"] == method) & (df["model"] == model)]
     keys = ["features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind", "combine"]
-    g = d.groupby(keys, sort=False, dropna=False)["ap"]
+    g = d.groupby(keys, sort=False, dropna=False)[metric]
     out = pd.DataFrame({"mAP": 100 * g.mean(), "pairs": g.count()}).reset_index()
     return out
 
@@ -850,8 +872,7 @@ def heatmap_matrix(maps, features: str | None = None):
     tab = pd.DataFrame({"f": row_lab, "f'": d["f_prime"].to_numpy(), "t_o": col_t,
                         "D": [_RATIO_LABEL[r] for r in d["ratio"]], "W": d["combine"].to_numpy(),
                         "mAP": d["mAP"].to_numpy()})
-    mat = tab.pivot_table(index=["f", "f'"], columns=["t_o", "D", "W"], values="mAP", aggfunc="first",
-                          dropna=False)
+    mat = tab.pivot(index=["f", "f'"], columns=["t_o", "D", "W"], values="mAP")
     r_order = {lab: i for i, lab in enumerate(_RATIO_LABEL.values())}
     w_order = {w: i for i, w in enumerate(COMBINES)}
     rows = sorted(mat.index, key=lambda r: (f_order.get(r[0], 99), r[1]))
