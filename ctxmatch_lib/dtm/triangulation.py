@@ -235,10 +235,10 @@ class IncrementalDelaunay:
         if len(tri) == 0:
             return np.empty((0, 3), np.int64)
         tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
-        pos = np.minimum(np.searchsorted(sorted_keys, tk), len(keys) - 1)
-        if not np.array_equal(sorted_keys[pos], tk):
+        idx = _key_lookup(keys, order, sorted_keys, tk)
+        if idx is None:
             return None
-        simplices = order[pos].reshape(-1, 3)
+        simplices = idx.reshape(-1, 3)
         n = len(keys)
         if np.count_nonzero(np.bincount(simplices.reshape(-1), minlength=n)) != n:
             return None
@@ -253,6 +253,31 @@ class IncrementalDelaunay:
         """The current triangulation as a :class:`DelaunayMesh`, ``None`` if it has no triangle."""
         simplices = self.simplices()
         return DelaunayMesh(self.points, simplices) if len(simplices) else None
+
+
+_FIBONACCI = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _key_lookup(keys: np.ndarray, order: np.ndarray, sorted_keys: np.ndarray, queries: np.ndarray) -> np.ndarray | None:
+    """Row of ``keys`` (distinct int64) equal to each query, ``None`` if one is missing.
+
+    A Fibonacci-hashed table (8 slots per key; a later key overwrites an earlier one in its slot) answers most
+    queries in O(1); every answer is verified against ``keys`` and the queries it missed go through a binary
+    search of ``sorted_keys = keys[order]``. Same result as the binary search alone, several times faster.
+    """
+    n = len(keys)
+    bits = max((8 * n).bit_length(), 4)
+    shift = np.uint64(64 - bits)
+    table = np.zeros(1 << bits, np.intp)  # slot 0 of ``keys`` by default: verified like any other answer
+    table[(keys.view(np.uint64) * _FIBONACCI) >> shift] = np.arange(n)
+    idx = table[(queries.view(np.uint64) * _FIBONACCI) >> shift]
+    miss = np.flatnonzero(keys[idx] != queries)
+    if len(miss):
+        pos = np.minimum(np.searchsorted(sorted_keys, queries[miss]), n - 1)
+        if not np.array_equal(sorted_keys[pos], queries[miss]):
+            return None
+        idx[miss] = order[pos]
+    return idx
 
 
 def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
