@@ -47,7 +47,7 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     vmin, vmax : float, optional
         Colour range shared by the blocks of one figure.
     mark_best : bool
-        Outline the best cell and label it with its mAP.
+        Outline the best cell in red.
     row_labels, col_labels : bool
         Tick labels on the left (f, f') and at the bottom (t_o, with D sub-bands).
 
@@ -76,17 +76,15 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
         ax.set_yticks([])
     if col_labels:
         tg = _groups([c[0] for c in cols])
-        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"t_o={lab}" for _, _, lab in tg], fontsize=7)
+        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"$t_o$ = {lab}" for _, _, lab in tg], fontsize=8)
         ax.set_xticks([(a + b - 1) / 2 for a, b, _ in _groups([c[:2] for c in cols])], minor=True)
         ax.tick_params(axis="x", which="minor", length=2)
-        ax.set_xlabel("t_o × D (sub-bands D≥, D+≥, D+) × W (a, b, min, max, 2ab/(a+b))", fontsize=7)
+        ax.set_xlabel("$t_o$ × D (sub-bands D≥, D+≥, D+) × W (a, b, min, max, 2ab/(a+b) in each)", fontsize=8)
     else:
         ax.set_xticks([])
     if mark_best and np.isfinite(values).any():
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
-        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
-        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(4, -4), textcoords="offset points",
-                    color="red", fontsize=7, fontweight="bold", ha="left", va="bottom")
+        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=2, clip_on=False))
     ax.set_title(title, fontsize=9)
     return im
 
@@ -113,7 +111,7 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
     for k, (a, b, lab) in enumerate(t_groups):
         if k % 2 == 0:
             ax.axvspan(a - 0.5, b - 0.5, color="0.93", zorder=0)
-        ax.text((a + b - 1) / 2, 1.0, f"t_o = {lab}", transform=ax.get_xaxis_transform(), ha="center",
+        ax.text((a + b - 1) / 2, 1.005, f"$t_o$ = {lab}", transform=ax.get_xaxis_transform(), ha="center",
                 va="bottom", fontsize=8)
     for a, b, (_, d) in _groups([c[:2] for c in labels]):
         colour = _D_COLOURS.get(d, "k")
@@ -131,5 +129,6 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
         d_handles = [Line2D([], [], color=c, lw=1.5, label=d) for d, c in _D_COLOURS.items()]
         w_handles = [Line2D([], [], color="0.3", ls="", marker=mk, label=f"W = {W_LABELS[w]}")
                      for w, mk in _W_MARKERS.items()]
-        ax.legend(handles=d_handles + w_handles, loc="lower right", fontsize=6.5, ncol=2, framealpha=0.9)
-    ax.set_title(title, fontsize=9, pad=14)
+        ax.legend(handles=d_handles + w_handles, loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7,
+                  frameon=False)
+    ax.set_title(title, fontsize=9, pad=16)
