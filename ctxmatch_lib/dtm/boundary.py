@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, unique_rows
+from .triangulation import DelaunayMesh, IncrementalDelaunay, _triangle_neighbors, delaunay_or_none, unique_rows
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -40,6 +40,7 @@ __all__ = [
     "boundary_step",
     "dtm_boundary",
     "boundary_and_triangulation",
+    "boundaries_and_triangulations",
 ]
 
 BOUNDARY_METHODS = ("alpha", "convex", "canvas", "corners")
@@ -198,32 +199,10 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
 
 def _matlab_alpha(radii, simplices, t, u, n_points, shrink) -> float:
     """:func:`matlab_boundary_alpha` with the adjacent triangle pairs ``(t, u)`` (``t`` non-decreasing)."""
-    n_tri = len(radii)
-    if n_tri == 0:
+    if len(radii) == 0:
         return math.inf
-    order = np.argsort(radii, kind="stable")  # spectrum ascending; rank in 0..n-1 (np.unique, faster)
-    srt = radii[order]
-    new = np.ones(n_tri, bool)
-    new[1:] = srt[1:] != srt[:-1]
-    spectrum = srt[new]
-    rank = np.empty(n_tri, np.int64)
-    rank[order] = np.cumsum(new) - 1
-    # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
-    first = np.full(n_points, len(spectrum), np.int64)
-    np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
-    first = first[first < len(spectrum)]
-    all_points = int(first.max())
-    # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph.
-    n_regions = np.cumsum(np.bincount(rank, minlength=len(spectrum)))
-    if len(t):
-        w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
-        forest = minimum_spanning_tree(_graph(t, u, w, n_tri)).data.astype(np.int64) - 1
-        n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=len(spectrum)))
-    ok = np.flatnonzero(n_regions[all_points:] == 1)
-    critical = all_points + int(ok[0]) if len(ok) else len(spectrum) - 1
-    n = len(spectrum) - critical
-    k = max(math.ceil((1.0 - shrink) * n), 1)
-    return float(spectrum[critical + k - 1])
+    gid = np.zeros(len(radii), np.int64)
+    return float(_matlab_alphas(radii, gid, simplices, t, u, np.array([0, n_points]), shrink)[0])
 
 
 def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | None = None) -> AlphaShape | None:
@@ -248,30 +227,97 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
     tri = delaunay_or_none(points) if tri is None else tri
     if tri is None or len(tri.simplices) == 0:
         return None
-    simplices = tri.simplices.astype(np.int64)
-    neighbors = tri.neighbors.astype(np.int64)
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
+    return _alpha_shapes([points], [tri.simplices], shrink, tri.neighbors.astype(np.int64))[0][0]
+
+
+def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
+                  neighbors: np.ndarray | None = None) -> tuple[list, list]:
+    """:func:`alpha_shape` of several triangulated point sets (each with triangles) in one vectorised pass.
+
+    The meshes are concatenated into one disjoint mesh (vertex and triangle indices offset); every step of
+    :func:`alpha_shape` then runs once for all of them, with the alpha spectrum ranked per mesh, so each shape
+    is exactly the one :func:`alpha_shape` gives alone while the fixed cost of the graph passes is paid once.
+    ``neighbors`` is the concatenated triangle adjacency when already known. Returns the shapes and the
+    triangle adjacency of each mesh.
+    """
+    n_groups = len(points_list)
+    p_off = np.zeros(n_groups + 1, np.int64)
+    np.cumsum([len(p) for p in points_list], out=p_off[1:])
+    t_off = np.zeros(n_groups + 1, np.int64)
+    np.cumsum([len(s) for s in simplices_list], out=t_off[1:])
+    points = np.vstack(points_list) if n_groups > 1 else points_list[0]
+    simplices = np.vstack([np.asarray(s, np.int64) + o for s, o in zip(simplices_list, p_off)])
+    if neighbors is None:
+        neighbors = _triangle_neighbors(simplices, len(points))
+    n_tri = len(simplices)
+    gid = np.repeat(np.arange(n_groups), np.diff(t_off))
     radii = _circumradii(points, simplices)
     t, u = _adjacent_pairs(neighbors)
-    alpha = _matlab_alpha(radii, simplices, t, u, len(points), shrink)
-    inside = radii <= alpha
-    n_tri = len(simplices)
+    alphas = _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink)
+    inside = radii <= alphas[gid]
     if not inside.all():
-        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior
-        # (node n_tri; its edges go last so that the rows stay sorted).
+        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior of
+        # their mesh (node n_tri + g; these edges go last so that the rows stay sorted).
         both_out = ~inside[t] & ~inside[u]
         hull_out = np.flatnonzero(~inside & (neighbors < 0).any(axis=1))
-        rows = np.concatenate([t[both_out], np.full(len(hull_out), n_tri)])
+        rows = np.concatenate([t[both_out], n_tri + gid[hull_out]])
         cols = np.concatenate([u[both_out], hull_out])
-        graph = _graph(rows, cols, np.ones(len(rows)), n_tri + 1)
+        graph = _graph(rows, cols, np.ones(len(rows)), n_tri + n_groups)
         _, label = connected_components(graph, directed=False)
-        inside = inside | (label[:n_tri] != label[n_tri])
+        inside = inside | (label[:n_tri] != label[n_tri + gid])
     nb_inside = np.where(neighbors >= 0, inside[np.maximum(neighbors, 0)], False)
     border = inside[:, None] & ~nb_inside  # edge k of triangle t (opposite vertex k) is on the boundary
     tt, kk = np.nonzero(border)
     edges = np.stack([simplices[tt, (kk + 1) % 3], simplices[tt, (kk + 2) % 3]], axis=1)
-    return AlphaShape(points, simplices, radii, alpha, inside, edges)
+    e_off = np.searchsorted(tt, t_off)
+    shapes, neighbors_list = [], []
+    for g in range(n_groups):
+        ts = slice(t_off[g], t_off[g + 1])
+        nb = neighbors[ts]
+        neighbors_list.append(np.where(nb >= 0, nb - t_off[g], -1))
+        shapes.append(AlphaShape(points_list[g], simplices[ts] - p_off[g], radii[ts], float(alphas[g]),
+                                 inside[ts], edges[e_off[g] : e_off[g + 1]] - p_off[g]))
+    return shapes, neighbors_list
+
+
+def _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink) -> np.ndarray:
+    """:func:`_matlab_alpha` of each mesh of a disjoint union (triangles grouped by ``gid``, non-decreasing;
+    points of mesh ``g`` are rows ``p_off[g]:p_off[g + 1]``; every mesh has triangles)."""
+    n_groups = len(p_off) - 1
+    order = np.lexsort((radii, gid))  # spectrum ascending within each mesh, meshes in turn
+    srt, sgid = radii[order], gid[order]
+    new = np.ones(len(srt), bool)
+    new[1:] = (srt[1:] != srt[:-1]) | (sgid[1:] != sgid[:-1])
+    spectrum = srt[new]
+    n_spec = len(spectrum)
+    s_off = np.searchsorted(sgid[new], np.arange(n_groups + 1))
+    rank = np.empty(len(srt), np.int64)
+    rank[order] = np.cumsum(new) - 1
+    # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
+    first = np.full(p_off[-1], n_spec, np.int64)
+    np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
+    # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph; the forest of a
+    # disjoint union is the union of the forests, and ranks of later meshes come after, so the running count
+    # minus its value at the end of the previous mesh is the count of this mesh.
+    n_regions = np.cumsum(np.bincount(rank, minlength=n_spec))
+    if len(t):
+        w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
+        forest = minimum_spanning_tree(_graph(t, u, w, len(radii))).data.astype(np.int64) - 1
+        n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=n_spec))
+    alphas = np.empty(n_groups)
+    for g in range(n_groups):
+        lo, hi = s_off[g], s_off[g + 1]
+        f = first[p_off[g] : p_off[g + 1]]
+        all_points = int(f[f < n_spec].max())
+        before = n_regions[lo - 1] if lo > 0 else 0
+        ok = np.flatnonzero(n_regions[all_points:hi] - before == 1)
+        critical = all_points + int(ok[0]) if len(ok) else hi - 1
+        n = hi - critical
+        k = max(math.ceil((1.0 - shrink) * n), 1)
+        alphas[g] = spectrum[critical + k - 1]
+    return alphas
 
 
 def _to_float32(points: np.ndarray) -> np.ndarray:
@@ -441,3 +487,53 @@ def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *,
     inc.add(pts)
     return (Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
                      contour, second.alpha), inc.simplices())
+
+
+def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alpha", *,
+                                  shrink: float = 0.5) -> list:
+    """:func:`boundary_and_triangulation` of several vertex sets (DTM: the two images), as a list of pairs.
+
+    For ``"alpha"`` and ``"convex"`` the alpha shapes of all the sets are computed together, one vectorised
+    pass per construction step instead of one per set; the results are exactly those of
+    :func:`boundary_and_triangulation` on each set, which degenerate sets and the other methods fall back to.
+    """
+    if method not in BOUNDARY_METHODS:
+        raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
+    sizes = [as_image_size(size, "image_size") for size in image_sizes]
+    vertices_list = [as_points(v, "vertices") for v in vertices_list]
+    if len(vertices_list) != len(sizes):
+        raise ValueError(f"vertices_list and image_sizes must have the same length, got {len(vertices_list)} "
+                         f"and {len(sizes)}")
+
+    def one_by_one():
+        return [boundary_and_triangulation(v, size, method, shrink=shrink) for v, size in zip(vertices_list, sizes)]
+
+    if method not in ("alpha", "convex") or any(len(v) < 3 for v in vertices_list):
+        return one_by_one()
+    if not 0.0 <= shrink <= 1.0:
+        raise ValueError(f"shrink must be in [0, 1], got {shrink}")
+    shrink = 0.0 if method == "convex" else shrink
+    steps = [boundary_step(size) for size in sizes]
+    incs = [IncrementalDelaunay(v, pad=2.0 * s) for v, s in zip(vertices_list, steps)]
+    meshes = [inc.mesh() for inc in incs]
+    if any(mesh is None for mesh in meshes):
+        return one_by_one()  # collinear: the degenerate boundary
+    firsts, neighbors = _alpha_shapes(vertices_list, [mesh.simplices for mesh in meshes], shrink)
+    fattened = [_fatten(v, first.edges, s) for v, first, s in zip(vertices_list, firsts, steps)]
+    boths = [unique_rows(np.vstack([v, f]))[0] for v, f in zip(vertices_list, fattened)]
+    second_meshes = [delaunay_or_none(both) for both in boths]
+    if any(mesh is None for mesh in second_meshes):
+        return one_by_one()
+    seconds, _ = _alpha_shapes(boths, [mesh.simplices for mesh in second_meshes], shrink)
+    out = []
+    for v, s, inc, first, nb, fat, both, second in zip(vertices_list, steps, incs, firsts, neighbors, fattened,
+                                                         boths, seconds):
+        hull_t, hull_k = np.nonzero(nb < 0)
+        hull_edges = np.stack([first.simplices[hull_t, (hull_k + 1) % 3], first.simplices[hull_t, (hull_k + 2) % 3]],
+                              axis=1)
+        contour = _rings_from_edges(both, second.edges)
+        pts = _keep_clear(_sample_rings(contour, s), v, s)
+        inc.add(pts)
+        out.append((Boundary(pts, method, s, v, first.simplices, hull_edges, first.alpha, first.edges, fat, contour,
+                             second.alpha), inc.simplices()))
+    return out

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
-from .boundary import BOUNDARY_METHODS, Boundary, boundary_and_triangulation
+from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations
 from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles, triangulate,
                             unique_ints)
 
@@ -180,8 +180,7 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, s
     # Steps 1-2: collapsed vertices, boundaries, triangulations.
     v1, vl = collapse_vertices(kp1[active])
     v2, vr = collapse_vertices(kp2[active])
-    b1, s1 = boundary_and_triangulation(v1, size1, boundary, shrink=shrink)
-    b2, s2 = boundary_and_triangulation(v2, size2, boundary, shrink=shrink)
+    (b1, s1), (b2, s2) = boundaries_and_triangulations([v1, v2], [size1, size2], boundary, shrink=shrink)
     t1, t2 = triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
     # Step 3: pairs (m, m') with m' in M_{A1(vl(m))}, flagged when also in M_{A2(vr(m))}; and vice versa.
     m_a, o_a = _neighbourhood_pairs(t1, vl, _csr_by(vl, len(v1)))
