@@ -731,7 +731,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         in which units finished: identical for serial, joblib and Dask runs, and for a resumed run.
     """
     import pandas as pd
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     if isinstance(n_jobs, bool) or not isinstance(n_jobs, (int, np.integer)) or n_jobs == 0 or n_jobs < -1:
         raise ValueError(f"n_jobs must be a positive int or -1, got {n_jobs!r}")
