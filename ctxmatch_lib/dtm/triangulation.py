@@ -227,15 +227,14 @@ class IncrementalDelaunay:
 
     def _subdiv2d_simplices(self) -> np.ndarray | None:
         keys = self._p32.view(np.int64).reshape(-1)
-        order = np.argsort(keys)
-        sorted_keys = keys[order]
-        if np.any(sorted_keys[1:] == sorted_keys[:-1]):
+        index = _KeyIndex(keys)
+        if index.has_duplicates:
             return None  # duplicates: let Qhull decide which copy it keeps
         tri = np.asarray(self._sub.getTriangleList(), np.float32).reshape(-1, 6)
         if len(tri) == 0:
             return np.empty((0, 3), np.int64)
         tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
-        idx = _key_lookup(keys, order, sorted_keys, tk)
+        idx = index.lookup(tk)
         if idx is None:
             return None
         simplices = idx.reshape(-1, 3)
@@ -258,26 +257,46 @@ class IncrementalDelaunay:
 _FIBONACCI = np.uint64(0x9E3779B97F4A7C15)
 
 
-def _key_lookup(keys: np.ndarray, order: np.ndarray, sorted_keys: np.ndarray, queries: np.ndarray) -> np.ndarray | None:
-    """Row of ``keys`` (distinct int64) equal to each query, ``None`` if one is missing.
+class _KeyIndex:
+    """Row of each of a set of int64 keys, for fast exact look-ups (the point coordinates' bit patterns).
 
-    A Fibonacci-hashed table (8 slots per key; a later key overwrites an earlier one in its slot) answers most
-    queries in O(1); every answer is verified against ``keys`` and the queries it missed go through a binary
-    search of ``sorted_keys = keys[order]``. Same result as the binary search alone, several times faster.
+    A Fibonacci-hashed table with 8 slots per key holds, in each slot, the last key hashed there; the keys
+    that lost their slot (a few percent) are kept sorted for a binary search. Every table answer is verified,
+    so a look-up finds a key's row exactly, as a binary search over all keys would, without sorting them.
     """
-    n = len(keys)
-    bits = max((8 * n).bit_length(), 4)
-    shift = np.uint64(64 - bits)
-    table = np.zeros(1 << bits, np.intp)  # slot 0 of ``keys`` by default: verified like any other answer
-    table[(keys.view(np.uint64) * _FIBONACCI) >> shift] = np.arange(n)
-    idx = table[(queries.view(np.uint64) * _FIBONACCI) >> shift]
-    miss = np.flatnonzero(keys[idx] != queries)
-    if len(miss):
-        pos = np.minimum(np.searchsorted(sorted_keys, queries[miss]), n - 1)
-        if not np.array_equal(sorted_keys[pos], queries[miss]):
-            return None
-        idx[miss] = order[pos]
-    return idx
+
+    def __init__(self, keys: np.ndarray):
+        n = len(keys)
+        self._keys = keys
+        self._shift = np.uint64(64 - max((8 * n).bit_length(), 4))
+        slot = self._slot(keys)
+        rows = np.arange(n)
+        self._table = np.zeros(1 << (64 - int(self._shift)), np.intp)
+        self._table[slot] = rows  # the last key wins a shared slot
+        winner = self._table[slot]
+        lost = np.flatnonzero(winner != rows)
+        lost_keys = keys[lost]
+        order = np.argsort(lost_keys)
+        self._lost_keys, self._lost_rows = lost_keys[order], lost[order]
+        # A duplicate either lost to an equal key or lost, like its copy, to a different one.
+        self.has_duplicates = bool(np.any(keys[winner[lost]] == lost_keys)
+                                   or np.any(self._lost_keys[1:] == self._lost_keys[:-1]))
+
+    def _slot(self, keys: np.ndarray) -> np.ndarray:
+        return (keys.view(np.uint64) * _FIBONACCI) >> self._shift
+
+    def lookup(self, queries: np.ndarray) -> np.ndarray | None:
+        """Rows of the keys equal to ``queries`` (int64), ``None`` if one is not a key."""
+        idx = self._table[self._slot(queries)]
+        miss = np.flatnonzero(self._keys[idx] != queries)
+        if len(miss):
+            if len(self._lost_keys) == 0:
+                return None
+            pos = np.minimum(np.searchsorted(self._lost_keys, queries[miss]), len(self._lost_keys) - 1)
+            if not np.array_equal(self._lost_keys[pos], queries[miss]):
+                return None
+            idx[miss] = self._lost_rows[pos]
+        return idx
 
 
 def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
