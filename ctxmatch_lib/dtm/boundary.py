@@ -132,12 +132,12 @@ def boundary_step(image_size) -> float:
 
 
 def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    corners = points[simplices]  # (T, 3, 2), one gather
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    la = np.hypot(*(b - c).T)
-    lb = np.hypot(*(c - a).T)
-    lc = np.hypot(*(a - b).T)
-    area2 = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    t = simplices.T
+    (ax, bx, cx), (ay, by, cy) = points[:, 0][t], points[:, 1][t]  # contiguous (T,) rows: faster ufuncs
+    la = np.hypot(bx - cx, by - cy)
+    lb = np.hypot(cx - ax, cy - ay)
+    lc = np.hypot(ax - bx, ay - by)
+    area2 = np.abs((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
     with np.errstate(divide="ignore", invalid="ignore"):
         r = la * lb * lc / (2.0 * area2)
     return np.where(area2 > 0, r, np.inf)
