@@ -140,7 +140,10 @@ def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
     a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
     b = simplices[:, [2, 0, 1]].reshape(-1)
     key = np.minimum(a, b) * n_points + np.maximum(a, b)
-    order = np.argsort(key, kind="stable")
+    if n_points < 46340:  # n_points**2 < 2**31: int32 keys sort faster
+        key = key.astype(np.int32)
+    # An edge is in at most two triangles, so the pairs do not depend on how equal keys are ordered.
+    order = np.argsort(key)
     ks = key[order]
     same = np.flatnonzero(ks[1:] == ks[:-1])
     out = np.full(len(key), -1, np.int64)
