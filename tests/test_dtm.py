@@ -453,3 +453,26 @@ def test_subdiv2d_duplicates_fall_back_to_qhull():
     pts = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [10.0, 0.0]])
     assert _subdiv2d_simplices(pts) is None
     assert len(delaunay_simplices(pts)) == 2
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_unique_rows_and_sort_helpers_match_numpy(seed):
+    """The packed-key path of unique_rows (float32-exact rows, negatives included) and the fallbacks
+    (-0.0, non-float32 values) equal np.unique; the int16 radix argsort equals the stable argsort."""
+    from ctxmatch_lib.dtm.triangulation import stable_argsort_small, unique_ints, unique_rows
+
+    rng = np.random.default_rng(seed)
+    ints = rng.integers(-50, 50, (400, 2)).astype(np.float64)
+    halves = rng.integers(-200, 200, (400, 2)) / 4.0
+    with_nz = ints.copy()
+    with_nz[:3] = -0.0
+    for pts in (ints, halves, np.vstack([ints, halves]), with_nz, ints + 0.1, ints[:1]):
+        u, inv = unique_rows(pts)
+        ref_u, ref_inv = np.unique(pts, axis=0, return_inverse=True)
+        np.testing.assert_array_equal(u, ref_u)
+        np.testing.assert_array_equal(inv, ref_inv.reshape(-1))
+    keys = rng.integers(0, 300, 5000)
+    np.testing.assert_array_equal(stable_argsort_small(keys, 300), np.argsort(keys, kind="stable"))
+    big = rng.integers(0, 2**40, 1000)
+    for x in (keys, big, keys[:10]):
+        np.testing.assert_array_equal(unique_ints(x), np.unique(x))

@@ -13,8 +13,8 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations
-from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles, triangulate,
-                            unique_ints)
+from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles,
+                            stable_argsort_small, triangulate, unique_ints)
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -145,7 +145,7 @@ class DTMResult:
 def _csr_by(keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
     """``(ptr, order)`` grouping positions ``0..len(keys)-1`` by key: group ``k`` is
     ``order[ptr[k]:ptr[k + 1]]`` (positions increasing inside each group)."""
-    order = np.argsort(keys, kind="stable")
+    order = stable_argsort_small(keys, n_keys)
     ptr = np.zeros(n_keys + 1, np.int64)
     np.cumsum(np.bincount(keys, minlength=n_keys), out=ptr[1:])
     return ptr, order

@@ -74,8 +74,11 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one lexsort
-    (several times faster than numpy's generic row path)."""
-    order = np.lexsort((points[:, 1], points[:, 0]))
+    (several times faster than numpy's generic row path), or one argsort of packed keys when every
+    coordinate is float32-exact (integer pixels, the rounded boundary points)."""
+    order = _packed_row_order(points)
+    if order is None:
+        order = np.lexsort((points[:, 1], points[:, 0]))
     srt = points[order]
     new = np.ones(len(srt), bool)
     new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
@@ -84,14 +87,40 @@ def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return srt[new], inverse
 
 
+def _packed_row_order(points: np.ndarray) -> np.ndarray | None:
+    """An order sorting the rows lexicographically by (x, y), from one int64 key per row: the float32 bit
+    patterns of x and y made monotonic. ``None`` when a coordinate is not float32-exact or is -0.0 (equal
+    to 0.0 but with other bits; the lexsort then decides which copy represents the pair, as before)."""
+    if len(points) < 2:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        p32 = points.astype(np.float32)
+    if not np.array_equal(p32, points) or np.any(np.signbit(p32) & (p32 == 0)):
+        return None
+    bits = p32.view(np.int32).astype(np.int64)
+    bits ^= (bits >> 31) & 0x7FFFFFFF  # float order -> integer order (negatives reversed)
+    # Rows that compare equal have equal keys, so the unstable argsort yields the same groups and values.
+    return np.argsort((bits[:, 0] << 32) + (bits[:, 1] + 2**31))
+
+
 def unique_ints(x: np.ndarray) -> np.ndarray:
     """Sorted distinct values of a 1-D integer array (``np.unique`` without its hashing overhead)."""
+    if len(x) > 64 and x.dtype == np.int64 and -2**31 <= x.min() and x.max() < 2**31:
+        return unique_ints(x.astype(np.int32)).astype(np.int64)  # int32 sorts about twice as fast
     x = np.sort(x)
     if len(x) < 2:
         return x
     keep = np.ones(len(x), bool)
     keep[1:] = x[1:] != x[:-1]
     return x[keep]
+
+
+def stable_argsort_small(keys: np.ndarray, n_keys: int) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` for integer keys in ``[0, n_keys)``: radix sort through int16
+    when the keys fit (about ten times faster at DTM's sizes)."""
+    if n_keys <= 2**15:
+        return np.argsort(keys.astype(np.int16), kind="stable")
+    return np.argsort(keys, kind="stable")
 
 
 @dataclass(frozen=True)
@@ -420,7 +449,7 @@ def _cross(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
 def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """CSR map vertex -> incident triangles (increasing)."""
     flat = simplices.reshape(-1)
-    order = np.argsort(flat, kind="stable")
+    order = stable_argsort_small(flat, n_points)
     ptr = np.zeros(n_points + 1, np.int64)
     np.cumsum(np.bincount(flat, minlength=n_points), out=ptr[1:])
     return ptr, order // 3
