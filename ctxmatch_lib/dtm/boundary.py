@@ -286,9 +286,9 @@ def _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink) -> np.ndarray:
     """:func:`_matlab_alpha` of each mesh of a disjoint union (triangles grouped by ``gid``, non-decreasing;
     points of mesh ``g`` are rows ``p_off[g]:p_off[g + 1]``; every mesh has triangles)."""
     n_groups = len(p_off) - 1
-    # Spectrum ascending within each mesh, meshes in turn (ties need no order: they share a rank).
+    # Spectrum ascending within each mesh, meshes in turn (equal radii share a rank, their order is irrelevant).
     t_off = np.searchsorted(gid, np.arange(n_groups + 1))
-    order = np.concatenate([np.argsort(radii[lo:hi]) + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
+    order = np.concatenate([np.argsort(radii[lo:hi], kind="stable") + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
     srt, sgid = radii[order], gid[order]
     new = np.ones(len(srt), bool)
     new[1:] = (srt[1:] != srt[:-1]) | (sgid[1:] != sgid[:-1])

@@ -74,33 +74,14 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one lexsort
-    (several times faster than numpy's generic row path), or one argsort of packed keys when every
-    coordinate is float32-exact (integer pixels, the rounded boundary points)."""
-    order = _packed_row_order(points)
-    if order is None:
-        order = np.lexsort((points[:, 1], points[:, 0]))
+    (several times faster than numpy's generic row path)."""
+    order = np.lexsort((points[:, 1], points[:, 0]))
     srt = points[order]
     new = np.ones(len(srt), bool)
     new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
     inverse = np.empty(len(points), np.int64)
     inverse[order] = np.cumsum(new) - 1
     return srt[new], inverse
-
-
-def _packed_row_order(points: np.ndarray) -> np.ndarray | None:
-    """An order sorting the rows lexicographically by (x, y), from one int64 key per row: the float32 bit
-    patterns of x and y made monotonic. ``None`` when a coordinate is not float32-exact or is -0.0 (equal
-    to 0.0 but with other bits; the lexsort then decides which copy represents the pair, as before)."""
-    if len(points) < 2:
-        return None
-    with np.errstate(over="ignore", invalid="ignore"):
-        p32 = points.astype(np.float32)
-    if not np.array_equal(p32, points) or np.any(np.signbit(p32) & (p32 == 0)):
-        return None
-    bits = p32.view(np.int32).astype(np.int64)
-    bits ^= (bits >> 31) & 0x7FFFFFFF  # float order -> integer order (negatives reversed)
-    # Rows that compare equal have equal keys, so the unstable argsort yields the same groups and values.
-    return np.argsort((bits[:, 0] << 32) + (bits[:, 1] + 2**31))
 
 
 def unique_ints(x: np.ndarray) -> np.ndarray:
@@ -169,10 +150,7 @@ def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
     a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
     b = simplices[:, [2, 0, 1]].reshape(-1)
     key = np.minimum(a, b) * n_points + np.maximum(a, b)
-    if n_points < 46340:  # n_points**2 < 2**31: int32 keys sort faster
-        key = key.astype(np.int32)
-    # An edge is in at most two triangles, so the pairs do not depend on how equal keys are ordered.
-    order = np.argsort(key)
+    order = np.argsort(key, kind="stable")  # timsort: faster than quicksort on these partly ordered keys
     ks = key[order]
     same = np.flatnonzero(ks[1:] == ks[:-1])
     out = np.full(len(key), -1, np.int64)
