@@ -168,7 +168,8 @@ def _has_edge(tri: Triangulation, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Whether ``b`` is in ``A_a`` (adjacent or equal), vectorised through sorted CSR keys."""
     n = tri.n_vertices
     keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(tri.indptr)) * n + tri.indices
-    keys.sort()
+    if np.any(keys[1:] < keys[:-1]):  # triangulate() lists each A_v in increasing order: already sorted
+        keys.sort()
     q = a * n + b
     pos = np.minimum(np.searchsorted(keys, q), max(len(keys) - 1, 0))
     return (keys[pos] == q) if len(keys) else np.zeros(len(q), bool)
