@@ -457,8 +457,8 @@ def test_subdiv2d_duplicates_fall_back_to_qhull():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_unique_rows_and_sort_helpers_match_numpy(seed):
-    """The packed-key path of unique_rows (float32-exact rows, negatives included) and the fallbacks
-    (-0.0, non-float32 values) equal np.unique; the int16 radix argsort equals the stable argsort."""
+    """unique_rows equals np.unique on integer, quarter-pixel, -0.0 and non-float32 rows; the int16 radix
+    argsort equals the stable argsort; the int32 path of unique_ints equals np.unique."""
     from ctxmatch_lib.dtm.triangulation import stable_argsort_small, unique_ints, unique_rows
 
     rng = np.random.default_rng(seed)
