@@ -189,7 +189,7 @@ def evaluate_cached(
         the time measured when the row was computed, possibly by an earlier run.
     """
     import pandas as pd
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     from ._paths import cache_dir as default_cache_dir
     from .pipeline import ROW_COLUMNS, check_models, evaluate_pair, resolve_blobs
