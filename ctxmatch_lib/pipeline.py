@@ -127,7 +127,7 @@ def check_models(models: Iterable[str]) -> tuple[str, ...]:
     return names
 
 
-def _pair_seed(seed: int, pair_id: str) -> int:
+def pair_seed(seed: int, pair_id: str) -> int:
     """Per-pair seed independent of the order pairs are run in (so sweeps can cache per pair)."""
     return int(np.random.SeedSequence([int(seed), zlib.crc32(pair_id.encode())]).generate_state(1)[0])
 
@@ -171,9 +171,13 @@ def run_filter(
     *,
     image_size1,
     image_size2,
+    blob_ratio: str | None = None,
     **params,
 ) -> tuple[np.ndarray, float]:
     """Run the registered filter ``name`` on candidate matches.
+
+    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
+    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
 
     Returns
     -------
@@ -183,6 +187,8 @@ def run_filter(
     from .filters import FILTERS
 
     func: Callable = FILTERS[name]
+    if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
+        params.setdefault("ratio", blob_ratio)
     k = len(matches)
     t0 = time.perf_counter()
     if k == 0:
@@ -361,7 +367,7 @@ def evaluate_pair(
     filter_params = dict(filter_params or {})
     f1, f2 = precomputed_features if precomputed_features is not None else pair_features(
         pair, features, cache_dir=cache_dir)
-    rng_seed = _pair_seed(seed, pair.pair_id)
+    rng_seed = pair_seed(seed, pair.pair_id)
     stages = {}
     for bname, cfg in blob_cfgs.items():
         matches, scores, t_blob = blob_candidates(f1, f2, cfg)
@@ -371,11 +377,9 @@ def evaluate_pair(
         stage.method_times[BLOB_METHOD] = t_blob
         for name in filters:
             try:
-                params = dict(filter_params.get(name, {}))
-                if name == "th":  # the 0.8 NNR threshold on the scale of this setup's scores
-                    params.setdefault("ratio", cfg.ratio)
                 keep, t = run_filter(name, f1, f2, matches, scores, image_size1=pair.image_size1,
-                                     image_size2=pair.image_size2, **params)
+                                     image_size2=pair.image_size2, blob_ratio=cfg.ratio,
+                                     **filter_params.get(name, {}))
             except Exception as exc:
                 raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
             stage.keeps[name], stage.method_times[name] = keep, t

@@ -331,7 +331,7 @@ def _overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.
 
 
 class _SweepContext(BlobContext):
-    """A :class:`BlobContext` whose FGINN-by-overlap test looks the overlap errors up in per-image tables.
+    """A :class:`BlobContext` whose :meth:`overlap_errors` looks the errors up in per-image tables.
 
     The overlap error of two keypoints of one image depends neither on the candidate set, nor on the
     ratio, nor on the threshold ``t_o``; the grid asks for it 27 × 9 × 2 times per pair, so it is
@@ -345,15 +345,15 @@ class _SweepContext(BlobContext):
         self._tables = overlap_tables
         self._last: dict = {}
 
-    def _excluded(self, img, cand, other, t_o, t_o_kind):
-        if t_o is None or t_o_kind != "overlap" or self._tables is None:
-            return super()._excluded(img, cand, other, t_o, t_o_kind)
+    def overlap_errors(self, img, other, cand):
+        if self._tables is None:
+            return super().overlap_errors(img, other, cand)
         other = np.asarray(other, np.int64)
         last = self._last.get(img)
         # The grid asks for the same look-up for every t_o and ratio in a row: reuse the last one.
         if last is not None and last[1].shape == cand.shape and np.array_equal(last[0], other) \
                 and np.array_equal(last[1], cand):
-            return (cand == other[:, None]) | (last[2] <= t_o)
+            return last[2]
         keys_t, err_t = self._tables[img]
         size = len(self.kpts[img])
         if cand.shape[1] == size and len(keys_t):
@@ -373,7 +373,7 @@ class _SweepContext(BlobContext):
                 found = keys_t[pos] == keys
                 err[found] = err_t[pos[found]]
         self._last[img] = (other, cand.copy(), err)
-        return (cand == other[:, None]) | (err <= t_o)
+        return err
 
 
 # ------------------------------------------------------------------------------------ average precision
@@ -478,7 +478,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     """
     import pandas as pd
 
-    from .pipeline import _pair_seed, label_candidates, pair_features, run_filter, run_model
+    from .pipeline import label_candidates, pair_features, pair_seed, run_filter, run_model
 
     cache = None if cache_dir is False else _sweep_cache(cache_dir)
     pair = unit.pair
@@ -528,7 +528,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     if unit.filters and cache is not None:
         mask_path = cache / "filters" / f"{_sha1(_SWEEP_FORMAT, digest, unit.filters, unit.filter_params)}.npz"
         masks = _load_npz(mask_path) or {}
-    rng_seed = _pair_seed(unit.seed, pair.pair_id)
+    rng_seed = pair_seed(unit.seed, pair.pair_id)
     base_row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
                 "features": unit.features_name, "n_kpts1": n, "n_kpts2": m, "gt_method": unit.gt_method}
 
@@ -562,12 +562,10 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
             if mkey in masks:
                 keeps[name] = (masks[mkey].astype(bool), float(masks[f"t_{mkey}"]))
                 continue
-            params = dict(filter_params.get(name, {}))
-            if name == "th":  # as the pipeline: the 0.8 NNR threshold on the scale of this setup's scores
-                params.setdefault("ratio", cfg.ratio)
             try:
                 keep, t = run_filter(name, f1, f2, sm, ss, image_size1=pair.image_size1,
-                                     image_size2=pair.image_size2, **params)
+                                     image_size2=pair.image_size2, blob_ratio=cfg.ratio,
+                                     **filter_params.get(name, {}))
             except Exception as exc:
                 raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
             keeps[name] = (keep, t)

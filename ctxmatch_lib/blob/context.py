@@ -362,11 +362,18 @@ class BlobContext:
         if t_o_kind == "px":
             d2 = np.sum((pts[cand] - pts[other][:, None, :]) ** 2, axis=-1)
             return same | (d2 < t_o * t_o)
-        shapes = self.shapes[img]
+        return same | (self.overlap_errors(img, other, cand) <= t_o)
+
+    def overlap_errors(self, img: int, other: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img``.
+
+        The one place FGINN by overlap computes patch overlaps; sweeps override it with a table look-up.
+        """
+        pts, shapes = self.kpts[img], self.shapes[img]
         K, L = cand.shape
         anchor = np.broadcast_to(other[:, None], (K, L)).ravel()
         err = ellipse_overlap_error(pts[anchor], shapes[anchor], pts[cand.ravel()], shapes[cand.ravel()])
-        return same | (err.reshape(K, L) <= t_o)
+        return err.reshape(K, L)
 
 
 def _greedy(rows: np.ndarray, cols: np.ndarray, n: int, m: int, f_prime: int) -> np.ndarray:

@@ -74,3 +74,6 @@ def th_filter(
     if ratio != "D>=":
         threshold = threshold / (1.0 + threshold)
     return ms.scores <= threshold
+
+
+th_filter.uses_blob_ratio = True  # the pipeline passes the blob setup's ratio (see pipeline.run_filter)
