@@ -18,17 +18,9 @@ from ctxmatch_lib.blob import (
     ellipse_overlap_error,
     shapes_from_scale_angle,
 )
+from ctxmatch_lib.blob.toy import FIG1A_D
 
-# Fig. 1a of the paper.
-TOY = np.array([
-    [1.6, 2.5, 1.0, 4.0, 2.3],
-    [4.2, 0.5, 1.7, 3.0, 1.1],
-    [5.1, 3.5, 3.1, 1.2, 2.0],
-    [2.8, 0.6, 2.1, 4.1, 5.0],
-    [4.4, 3.4, 2.4, 4.3, 4.5],
-    [3.2, 5.5, 5.8, 6.1, 3.6],
-    [1.3, 6.0, 3.7, 2.7, 1.4],
-])
+TOY = FIG1A_D  # Fig. 1a of the paper
 S_MNN = {(2, 2), (1, 3), (3, 4), (7, 1)}
 S_GNN = S_MNN | {(6, 5)}
 F2 = {(2, 2), (4, 2), (1, 3), (2, 5), (3, 4), (7, 1), (7, 5), (1, 1), (4, 3)}
