@@ -9,7 +9,6 @@ there. Run: `.venv/bin/python benchmarks/bench_blob.py [--quick]`.
 from __future__ import annotations
 
 import argparse
-import resource
 import subprocess
 import sys
 import time

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["cache_dir", "data_root", "repo_root"]
+__all__ = ["atomic_path", "cache_dir", "data_root", "repo_root", "write_parquet_atomic"]
 
 
 def repo_root() -> Path | None:
@@ -45,3 +49,39 @@ def data_root(required: bool = False) -> Path | None:
             f"(currently {env!r})"
         )
     return None
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it replaces ``path`` in one ``os.replace``.
+
+    Readers never see a half-written file, and an interrupted write leaves nothing behind. The temporary
+    name is hidden and ends in ``.tmp``, so globs for the real suffix never pick it up; writers that infer
+    the format from the suffix must be told it.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
+    """Write ``df`` to ``path`` (Parquet) atomically; ``metadata`` goes, as JSON, under the ``ctxmatch``
+    key of the schema metadata."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if metadata is not None:
+        meta = dict(table.schema.metadata or {})
+        meta[b"ctxmatch"] = json.dumps(metadata, sort_keys=True, default=str).encode()
+        table = table.replace_schema_metadata(meta)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
+    return Path(path)

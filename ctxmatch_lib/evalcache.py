@@ -20,6 +20,8 @@ import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from ._paths import atomic_path
+
 __all__ = [
     "PAPER_FILTER_ORDER",
     "register_dtm_stages",
@@ -141,13 +143,8 @@ def _feature_config(features):
 
 
 def _write_atomic(df, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(path) as tmp:
         df.to_parquet(tmp, index=False)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def evaluate_cached(

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from ._paths import atomic_path
 
 __all__ = ["FeatureConfig", "Features", "extract_features", "load_image", "FEATURE_PRESETS"]
 
@@ -301,18 +302,8 @@ def _load_entry(path: Path) -> Features | None:
 
 
 def _save_entry(path: Path, feats: Features) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{name: getattr(feats, name) for name in _FIELDS})
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **{name: getattr(feats, name) for name in _FIELDS})
 
 
 def feature_cache_path(image, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> Path:

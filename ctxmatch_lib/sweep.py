@@ -36,15 +36,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._paths import atomic_path, write_parquet_atomic
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, blob_grid, combine_ratios, rank_candidates
 from .blob.overlap import ellipse_overlap_error
 from .datasets import load_dataset
@@ -221,28 +220,9 @@ def _blob_record(cfg: BlobConfig) -> dict:
 # ------------------------------------------------------------------------------------------ disk I/O
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then ``os.replace``: never a partial file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def _save_npz(path: Path, arrays: dict) -> None:
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-
-    _atomic_write(path, write)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
 
 
 def _load_npz(path: Path) -> dict | None:
@@ -253,25 +233,6 @@ def _load_npz(path: Path) -> dict | None:
             return {k: z[k] for k in z.files}
     except Exception:  # a foreign or damaged file is a miss; it is overwritten
         return None
-
-
-def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
-    """Write ``df`` to ``path`` (Parquet) through a temporary file and ``os.replace``.
-
-    ``metadata`` is stored as JSON under the ``ctxmatch`` key of the Parquet schema metadata.
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    path = Path(path)
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    if metadata is not None:
-        meta = dict(table.schema.metadata or {})
-        meta[b"ctxmatch"] = json.dumps(metadata, sort_keys=True, default=str).encode()
-        table = table.replace_schema_metadata(meta)
-    _atomic_write(path, lambda tmp: pq.write_table(table, tmp))
-    return path
-
 
 def _sweep_cache(cache_dir) -> Path:
     if cache_dir is None:

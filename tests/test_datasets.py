@@ -6,15 +6,13 @@ import argparse
 import hashlib
 import io
 import tarfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
 from ctxmatch_lib.datasets import (
-    Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, list_datasets, load_dataset, read_custom_dataset,
-    write_custom_dataset,
+    Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, list_datasets, load_dataset, write_custom_dataset,
 )
 from ctxmatch_lib.datasets._io import fit_fundamental
 from ctxmatch_lib.datasets.download import download_dataset

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ctxmatch_lib.datasets.base import EpipolarGT, HomographyGT, Pair
+from ctxmatch_lib.datasets.base import HomographyGT, Pair
 from ctxmatch_lib.features import Features
 from ctxmatch_lib.filters import register_filter
 from ctxmatch_lib.geometry import apply_homography

@@ -4,8 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 from pathlib import Path
 
@@ -71,31 +69,6 @@ def _error(msg: str) -> int:
     return 2
 
 
-def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
-    """Write ``df`` to ``path`` through a temporary file in the same folder and ``os.replace``.
-
-    ``metadata`` is stored as JSON under the ``ctxmatch`` key of the Parquet schema metadata.
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    if metadata is not None:
-        meta = dict(table.schema.metadata or {})
-        meta[b"ctxmatch"] = json.dumps(metadata, sort_keys=True).encode()
-        table = table.replace_schema_metadata(meta)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        pq.write_table(table, tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
 def run(args) -> int:
     import pandas as pd
 
@@ -138,6 +111,8 @@ def run(args) -> int:
         "model_threshold": args.model_threshold, "features": features.key(), "seed": args.seed,
         "pairs": len(pairs),
     }
+    from .._paths import write_parquet_atomic
+
     write_parquet_atomic(df, out, meta)
     table = summary_table(df)
     with pd.option_context("display.max_rows", 500, "display.width", 160, "display.float_format", "{:.2f}".format):

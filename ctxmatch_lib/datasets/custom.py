@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._paths import atomic_path
+
 from ._io import fit_fundamental, image_size, read_matrix
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair
 
@@ -59,11 +61,8 @@ def write_flow(path, gt: FlowGT) -> None:
     arrays = {"flow12": np.asarray(gt.flow12, np.float32)}
     if gt.flow21 is not None:
         arrays["flow21"] = np.asarray(gt.flow21, np.float32)
-    path = Path(path)
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **arrays)
-    os.replace(tmp, path)
 
 
 def _read_points(path) -> np.ndarray:
@@ -208,10 +207,8 @@ def write_custom_dataset(dataset, folder) -> Path:
             raise ValueError(f"pair {p.pair_id!r}: unsupported ground truth {type(p.gt).__name__}")
         lines.append([p.pair_id, _rel(p.image1, folder), _rel(p.image2, folder), p.kind, gt_rel, f_rel])
     csv_path = folder / "pairs.csv"
-    tmp = csv_path.with_name(f"pairs.csv.{os.getpid()}.tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow([*REQUIRED_COLUMNS, "F"])
         w.writerows(lines)
-    os.replace(tmp, csv_path)
     return csv_path

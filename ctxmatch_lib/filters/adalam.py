@@ -261,7 +261,7 @@ def adalam_filter(
         count, thr, conf = _adaptive_inliers(res, nb[:, None], min_conf)
         best = count.argmax(1)
         rows = np.arange(len(nb))
-        A_best, thr_best, conf_best = A[rows, best], thr[rows, best], conf[rows, best]
+        thr_best, conf_best = thr[rows, best], conf[rows, best]
         count_best = count[rows, best]
         inl = res[rows, best] <= thr_best[:, None]
         if refit:

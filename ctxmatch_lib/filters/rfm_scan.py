@@ -24,7 +24,6 @@ cluster. The O(K^2) distances are computed in row blocks, never stored whole.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.distance import cdist
 
 from ._common import check_positive, prepare
 

@@ -8,6 +8,8 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .._paths import atomic_path
+
 __all__ = ["save_figure", "figure_path", "plot_toy_matrix", "plot_toy_table"]
 
 
@@ -27,9 +29,8 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
     if not Path(name).suffix:
         name = f"{name}.png"
     path = figure_path(name, output_dir)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:])
     plt.close(fig)
     return path
 
