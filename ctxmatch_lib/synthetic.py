@@ -6,14 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import apply_homography  # re-exported: tests and examples use it from here
+
 __all__ = ["PlantedMatches", "planted_homography_matches", "apply_homography"]
-
-
-def apply_homography(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Map (N, 2) (x, y) points through the 3x3 homography ``H``."""
-    pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-    hom = pts @ H[:, :2].T + H[:, 2]
-    return hom[:, :2] / hom[:, 2:3]
 
 
 @dataclass(frozen=True)

@@ -66,19 +66,11 @@ def write_flow(path, gt: FlowGT) -> None:
 
 
 def _read_points(path) -> np.ndarray:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"ground-truth file not found: {path}")
-    try:
-        pts = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except ValueError as exc:
-        raise ValueError(f"cannot parse correspondences file {path}: {exc}") from None
+    pts = read_matrix(path, shape=None, what="ground-truth correspondences")
     if pts.size == 0:
         raise ValueError(f"correspondences file {path} is empty; it needs N >= 7 rows 'x1 y1 x2 y2'")
     if pts.shape[1] != 4:
         raise ValueError(f"correspondences file {path} must have 4 columns 'x1 y1 x2 y2', got {pts.shape[1]}")
-    if not np.isfinite(pts).all():
-        raise ValueError(f"correspondences file {path} contains NaN or infinite values")
     return pts
 
 
