@@ -59,7 +59,8 @@ def planted_homography_matches(
         ok = (proj[:, 0] >= 0) & (proj[:, 0] <= w - 1) & (proj[:, 1] >= 0) & (proj[:, 1] <= h - 1)
         pts1 = np.vstack([pts1, cand[ok]])
     pts1 = pts1[:n_in]
-    pts2 = apply_homography(H, pts1) + rng.normal(scale=noise, size=pts1.shape)
+    # Noise must not push a detection off the image: keypoints are pixel centres in [0, w - 1] x [0, h - 1].
+    pts2 = np.clip(apply_homography(H, pts1) + rng.normal(scale=noise, size=pts1.shape), 0, [w - 1, h - 1])
     n_out = n_matches - n_in
     out1 = rng.uniform([0, 0], [w - 1, h - 1], size=(n_out, 2))
     out2 = rng.uniform([0, 0], [w - 1, h - 1], size=(n_out, 2))

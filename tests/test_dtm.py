@@ -100,11 +100,12 @@ def test_two_independent_motions_survive():
     H_left = np.array([[1.0, 0.05, 20.0], [-0.05, 1.0, 10.0], [0.0, 0.0, 1.0]])
     H_right = np.array([[0.9, -0.1, -40.0], [0.1, 0.9, 60.0], [0.0, 0.0, 1.0]])
     left = rng.uniform([10, 10], [w / 2 - 10, h - 10], (400, 2))
-    right = rng.uniform([w / 2 + 10, 10], [w - 10, h - 10], (400, 2))
-    out1, out2 = rng.uniform([0, 0], [w, h], (2, 600, 2))
+    right = rng.uniform([w / 2 + 10, 10], [w - 10, h - 70], (400, 2))  # H_right moves y down by up to 60
+    out1, out2 = rng.uniform([0, 0], [w - 1, h - 1], (2, 600, 2))
     k1 = np.vstack([left, right, out1])
     k2 = np.vstack([apply_homography(H_left, left), apply_homography(H_right, right), out2])
     k2[:800] += rng.normal(scale=0.5, size=(800, 2))
+    k2 = np.clip(k2, 0, [w - 1, h - 1])  # the few inliers moved off the image stay on its edge
     keep = _run(k1, k2, scores=rng.uniform(size=1400)).keep
     assert keep[:400].mean() > 0.7 and keep[400:800].mean() > 0.7
     assert keep[800:].mean() < 0.05
@@ -128,8 +129,8 @@ def test_independent_of_match_order(with_scores):
 @given(seed=st.integers(0, 2**16), n=st.integers(0, 60), stages=st.sampled_from([1, 2]))
 def test_result_invariants(seed, n, stages):
     rng = np.random.default_rng(seed)
-    k1 = np.round(rng.uniform(0, 100, (n, 2)) * 2) / 2  # many collapsed and collinear points
-    k2 = k1 + rng.normal(scale=5, size=(n, 2))
+    k1 = np.round(rng.uniform(0, 99, (n, 2)) * 2) / 2  # many collapsed and collinear points
+    k2 = np.clip(k1 + rng.normal(scale=5, size=(n, 2)), 0, 99)
     res = _run(k1, k2, scores=rng.integers(0, 3, n).astype(float), size=(100, 100), stages=stages)
     assert res.keep.shape == res.removed_at.shape == res.readded_at.shape == (n,)
     assert res.keep.dtype == bool
@@ -189,7 +190,8 @@ def test_empty():
         ([[10, 10]], [[20, 20]], [False]),  # nothing supports a lone match
         ([[10, 10], [50, 60]], [[20, 20], [70, 90]], [True, True]),
         ([[10, 10], [50, 60], [90, 10]], [[20, 20], [70, 90], [100, 30]], [True] * 3),
-        ([[10, 10], [10.2, 10.1], [9.9, 10.3]], [[20, 20], [20.1, 19.8], [20, 20]], [True] * 3),  # one vertex
+        # matches collapsed onto one vertex pair do not support each other (as in the author's port)
+        ([[10, 10], [10.2, 10.1], [9.9, 10.3]], [[20, 20], [20.1, 19.8], [20, 20]], [False] * 3),
         (np.c_[np.linspace(0, 600, 10), np.linspace(0, 300, 10)],
          np.c_[np.linspace(5, 605, 10), np.linspace(3, 303, 10)], [True] * 10),  # collinear
     ],
@@ -201,13 +203,25 @@ def test_degenerate_geometry(k1, k2, expected):
         np.testing.assert_array_equal(res.keep, expected)
 
 
-def test_outside_image_duplicates_and_many_to_many():
-    k1 = np.array([[-100, -50], [700, 500], [300, 200], [320, 260], [300, 200], [310, 240]], float)
-    k2 = np.array([[-90, -40], [710, 520], [300, 210], [330, 250], [305, 215]], float)
+def test_duplicates_and_many_to_many():
+    k1 = np.array([[100, 50], [600, 400], [300, 200], [320, 260], [300, 200], [310, 240]], float)
+    k2 = np.array([[110, 60], [610, 420], [300, 210], [330, 250], [305, 215]], float)
     matches = np.array([[0, 0], [1, 1], [2, 2], [3, 3], [4, 2], [2, 4], [5, 4], [2, 2]])
     res = _run(k1, k2, matches)
     assert res.keep.shape == (8,)
     assert res.keep[2] == res.keep[7]  # duplicate rows share their fate
+
+
+@pytest.mark.parametrize("which", ["kpts1", "kpts2"])
+def test_keypoints_outside_the_image_are_an_error(which):
+    k = np.array([[10.0, 10.0], [300.0, 200.0], [600.0, 470.0]])
+    m = np.stack([np.arange(3)] * 2, axis=1)
+    with pytest.raises(ValueError, match=rf"{which} has points outside.*\(width, height\)"):
+        dtm(k, k, m, image_size1=(480, 640) if which == "kpts1" else SIZE,
+            image_size2=(480, 640) if which == "kpts2" else SIZE)
+    # half a pixel of slack: pixel centres span [0, w - 1], the pixels themselves [-0.5, w - 0.5]
+    edge = np.array([[-0.5, -0.5], [639.5, 479.5], [300.0, 200.0]])
+    assert dtm(edge, edge, m, image_size1=SIZE, image_size2=SIZE).keep.shape == (3,)
 
 
 def test_bad_arguments_name_themselves():

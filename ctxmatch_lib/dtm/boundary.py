@@ -15,6 +15,11 @@ DTM's own boundary (``method="alpha"``, Fig. 2):
 The alternatives that Appendix A (Fig. 11) compares are ``"corners"`` (the four image corners),
 ``"canvas"`` (the image border split into segments of length ``s``) and ``"convex"`` (steps 1-3 with the
 convex hull, i.e. shrink factor 0, instead of the alpha shape).
+
+``"keypoints"`` is the construction of the author's public Python port of DTM (github fb82/DTM,
+``prepare_data_shaped``), which has no alpha shape: the image frame split into segments of about the mean
+vertex spacing, plus the image's other keypoints (those not among the vertices) that share a Delaunay
+triangle free of vertices with a frame point (:func:`keypoint_boundary`).
 """
 
 from __future__ import annotations
@@ -29,7 +34,8 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import DelaunayMesh, IncrementalDelaunay, _triangle_neighbors, delaunay_or_none, unique_rows
+from .triangulation import (DelaunayMesh, IncrementalDelaunay, _triangle_neighbors, delaunay_or_none, round_half_away,
+                            unique_rows)
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -41,9 +47,10 @@ __all__ = [
     "dtm_boundary",
     "boundary_and_triangulation",
     "boundaries_and_triangulations",
+    "keypoint_boundary",
 ]
 
-BOUNDARY_METHODS = ("alpha", "convex", "canvas", "corners")
+BOUNDARY_METHODS = ("alpha", "convex", "canvas", "corners", "keypoints")
 _EMPTY2 = np.empty((0, 2))
 _EMPTY_EDGES = np.empty((0, 2), np.int64)
 
@@ -379,6 +386,14 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
     return unique_rows(_to_float32(b))[0]
 
 
+def _outside_shape(b: np.ndarray, vertices: np.ndarray, shape_edges: np.ndarray) -> np.ndarray:
+    """Drop the boundary samples that fall inside the first alpha shape of ``V`` (see :func:`dtm_boundary`)."""
+    if len(b) == 0 or len(shape_edges) == 0:
+        return b
+    region = shapely.union_all([shapely.Polygon(r) for r in _rings_from_edges(vertices, shape_edges)])
+    return b[~shapely.contains_xy(region, b[:, 0], b[:, 1])]
+
+
 def _degenerate_boundary(vertices: np.ndarray, s: float) -> tuple[list, np.ndarray]:
     """Contour for 1 point or collinear points: the ring of their ``s``-buffer (no alpha shape exists)."""
     if len(vertices) == 1:
@@ -400,7 +415,88 @@ def _image_border(image_size) -> np.ndarray:
     return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])
 
 
-def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float = 0.5) -> Boundary:
+def _row_keys(points: np.ndarray) -> np.ndarray:
+    """One int64 per row of integer-valued (x, y) points (|x|, |y| < 2**30), for set operations on rows."""
+    xy = points.astype(np.int64) + (1 << 30)
+    return (xy[:, 0] << 31) | xy[:, 1]
+
+
+def keypoint_boundary(vertices, image_size, keypoints, *, collapsed: bool = False) -> Boundary:
+    """Boundary set of the author's Python port of DTM (``boundary="keypoints"``).
+
+    The paper builds ``B`` from an alpha shape of ``V`` (Fig. 2); the author's public port (github
+    fb82/DTM, ``prepare_data_shaped``) instead uses the image itself:
+
+    1. the image frame ``[0, width] x [0, height]`` split into equal segments of about
+       ``l = ceil(sqrt(width * height / |V|))`` pixels (the mean spacing of ``|V|`` points spread over the
+       image), the segment vertices rounded to integers;
+    2. the image's other keypoints ``O`` (rounded, not among ``V``) that are vertices of a Delaunay
+       triangle of ``V ∪ O ∪ frame`` having a frame vertex and no ``V`` vertex: the detections just inside
+       the frame that no candidate match uses.
+
+    ``B`` is the frame points plus those keypoints. Where ``V`` is concentrated in part of the image, the
+    unmatched keypoints around it pull the boundary close to ``V``, much as the alpha shape does.
+
+    Parameters
+    ----------
+    vertices : array_like of shape (V, 2)
+        Distinct vertex points ``V``, (x, y) pixels with the origin at the centre of the top-left pixel.
+    image_size : tuple of int
+        ``(width, height)``.
+    keypoints : array_like of shape (N, 2)
+        All keypoints detected in the image, (x, y) pixels (those collapsing onto ``V`` are ignored).
+    collapsed : bool
+        ``keypoints`` are already rounded and distinct (:func:`~ctxmatch_lib.dtm.collapse_vertices`).
+
+    Returns
+    -------
+    Boundary
+        ``.points`` is ``B`` (frame points first); ``.contour`` is the frame ring; ``.fattened`` holds the
+        keypoints taken into ``B``.
+
+    Examples
+    --------
+    >>> v = np.array([[100.0, 100.0], [300.0, 120.0], [200.0, 300.0]])
+    >>> others = np.array([[20.0, 20.0], [200.0, 200.0]])
+    >>> b = keypoint_boundary(v, (400, 400), others)
+    >>> len(b.points), b.fattened.tolist()   # frame every 400 / ceil(400 / 231) = 200 px, and one keypoint
+    (9, [[20.0, 20.0]])
+    """
+    image_size = as_image_size(image_size, "image_size")
+    vertices = as_points(vertices, "vertices")
+    w, h = image_size
+    s = boundary_step(image_size)
+    empty = dict(vertex_simplices=np.empty((0, 3), np.int64), hull_edges=_EMPTY_EDGES, alpha=math.nan,
+                 shape_edges=_EMPTY_EDGES, contour_alpha=math.nan)
+    border = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h], [0.0, 0.0]])
+    if len(vertices) == 0:
+        return Boundary(_EMPTY2, "keypoints", s, vertices, fattened=_EMPTY2, contour=[border], **empty)
+    step = math.ceil(math.sqrt(w * h / len(vertices)))
+    xs = np.arange(0.0, w + 1e-3, w / math.ceil(w / step))
+    ys = np.arange(0.0, h + 1e-3, h / math.ceil(h / step))
+    frame = np.vstack([np.c_[xs, np.zeros_like(xs)], np.c_[xs, np.full_like(xs, h)],
+                       np.c_[np.zeros_like(ys), ys], np.c_[np.full_like(ys, w), ys]])
+    frame = unique_rows(np.round(frame))[0]
+    kp = np.asarray(keypoints, np.float64).reshape(-1, 2)[:, :2]
+    others = kp if collapsed else unique_rows(round_half_away(kp))[0]
+    # Priority where points coincide: vertices, then other keypoints, then frame points.
+    v_keys = _row_keys(round_half_away(vertices))
+    others = others[~np.isin(_row_keys(others), v_keys)]
+    frame = frame[~np.isin(_row_keys(frame), np.concatenate([v_keys, _row_keys(others)]))]
+    pts = np.vstack([vertices, others, frame])
+    kind = np.repeat(np.array([0, 1, 2], np.int8), [len(vertices), len(others), len(frame)])
+    mesh = delaunay_or_none(pts)
+    taken = _EMPTY2
+    if mesh is not None and len(others):
+        k = kind[mesh.simplices]
+        near_frame = (k != 0).all(axis=1) & (k == 2).any(axis=1)
+        corner = mesh.simplices[near_frame][k[near_frame] == 1]
+        taken = pts[np.unique(corner)] if len(corner) else _EMPTY2
+    points = np.vstack([frame, taken])
+    return Boundary(points, "keypoints", s, vertices, fattened=taken, contour=[border], **empty)
+
+
+def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float = 0.5, keypoints=None) -> Boundary:
     """Boundary set ``B`` that DTM adds to the triangulation of the vertex set ``V`` (Sec. 4, Fig. 2).
 
     Parameters
@@ -411,14 +507,17 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     image_size : tuple of int
         ``(width, height)`` of the image; sets ``s = min(width, height) / 10`` (footnote 3) and the canvas
         for ``"canvas"``/``"corners"``.
-    method : {"alpha", "convex", "canvas", "corners"}
+    method : {"alpha", "convex", "canvas", "corners", "keypoints"}
         ``"alpha"`` is DTM's boundary (Fig. 2): alpha-shape edges of ``V`` (MATLAB ``boundary`` with shrink
         factor ``shrink``), fattened by ``s`` into ``B'``, alpha-shape contour of ``V ∪ B'`` split into
         segments of length at most ``s``. ``"convex"`` does the same with the convex hull (Appendix A,
         Fig. 11c-d). ``"canvas"`` splits the image border into segments of length at most ``s``
-        (Fig. 11b); ``"corners"`` uses the four image corners (Fig. 11a).
+        (Fig. 11b); ``"corners"`` uses the four image corners (Fig. 11a). ``"keypoints"`` is the author's
+        Python port's frame-and-unmatched-keypoints boundary (:func:`keypoint_boundary`).
     shrink : float
         MATLAB shrink factor for ``"alpha"`` (default 0.5, MATLAB's default, as in footnote 2).
+    keypoints : array_like of shape (N, 2), optional
+        All keypoints of the image; required by ``"keypoints"``, ignored otherwise.
 
     Returns
     -------
@@ -434,6 +533,11 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
       fall closer than ``s`` to ``V`` are pushed radially out to distance ``s`` from their nearest vertex
       (any still closer than ``s/2``, which needs a very thin spike, are dropped), so ``B`` keeps the
       clearance ``s`` that the construction aims for.
+    - When ``V`` is sparse (vertices further apart than about ``2 s``), the alpha shape of ``V ∪ B'`` can
+      cut into the shape of ``V`` it should surround, and its samples then fall between the vertices and
+      cut their Delaunay edges (a set of four matches in agreement could lose every neighbourhood).
+      Samples inside the first shape are dropped: ``B`` bounds the shape of ``V`` from outside, as Fig. 2
+      intends. On dense sets no sample lies there and nothing changes.
     - Constructed points (``B'`` and ``B``) are rounded to float32 (under 4e-5 px at image scale), so that
       the fast triangulation kernel works on exactly the stored coordinates
       (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`).
@@ -448,11 +552,11 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     >>> b.s, len(b.shape_edges)
     (48.0, 40)
     """
-    return boundary_and_triangulation(vertices, image_size, method, shrink=shrink)[0]
+    return boundary_and_triangulation(vertices, image_size, method, shrink=shrink, keypoints=keypoints)[0]
 
 
-def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *,
-                               shrink: float = 0.5) -> tuple[Boundary, np.ndarray | None]:
+def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *, shrink: float = 0.5,
+                               keypoints=None) -> tuple[Boundary, np.ndarray | None]:
     """:func:`dtm_boundary` and the Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``B``).
 
     For ``"alpha"`` and ``"convex"`` the boundary points are inserted into the triangulation of ``V`` that
@@ -463,6 +567,10 @@ def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *,
         raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
     image_size = as_image_size(image_size, "image_size")
     vertices = as_points(vertices, "vertices")
+    if method == "keypoints":
+        if keypoints is None:
+            raise ValueError('boundary "keypoints" needs keypoints= (all keypoints of the image)')
+        return keypoint_boundary(vertices, image_size, keypoints), None
     s = boundary_step(image_size)
     empty = dict(vertex_simplices=np.empty((0, 3), np.int64), hull_edges=_EMPTY_EDGES, alpha=math.nan,
                  shape_edges=_EMPTY_EDGES, fattened=_EMPTY2, contour_alpha=math.nan)
@@ -485,14 +593,14 @@ def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *,
     both = unique_rows(np.vstack([vertices, fattened]))[0]
     second = alpha_shape(both, 0.0 if method == "convex" else shrink)
     contour = _rings_from_edges(both, second.edges)
-    pts = _keep_clear(_sample_rings(contour, s), vertices, s)
+    pts = _outside_shape(_keep_clear(_sample_rings(contour, s), vertices, s), vertices, first.edges)
     inc.add(pts)
     return (Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
                      contour, second.alpha), inc.simplices())
 
 
 def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alpha", *,
-                                  shrink: float = 0.5) -> list:
+                                  shrink: float = 0.5, keypoints_list=None) -> list:
     """:func:`boundary_and_triangulation` of several vertex sets (DTM: the two images), as a list of pairs.
 
     For ``"alpha"`` and ``"convex"`` the alpha shapes of all the sets are computed together, one vectorised
@@ -508,7 +616,9 @@ def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alp
                          f"and {len(sizes)}")
 
     def one_by_one():
-        return [boundary_and_triangulation(v, size, method, shrink=shrink) for v, size in zip(vertices_list, sizes)]
+        kps = keypoints_list if keypoints_list is not None else [None] * len(sizes)
+        return [boundary_and_triangulation(v, size, method, shrink=shrink, keypoints=kp)
+                for v, size, kp in zip(vertices_list, sizes, kps)]
 
     if method not in ("alpha", "convex") or any(len(v) < 3 for v in vertices_list):
         return one_by_one()
@@ -534,7 +644,7 @@ def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alp
         hull_edges = np.stack([first.simplices[hull_t, (hull_k + 1) % 3], first.simplices[hull_t, (hull_k + 2) % 3]],
                               axis=1)
         contour = _rings_from_edges(both, second.edges)
-        pts = _keep_clear(_sample_rings(contour, s), v, s)
+        pts = _outside_shape(_keep_clear(_sample_rings(contour, s), v, s), v, first.edges)
         inc.add(pts)
         out.append((Boundary(pts, method, s, v, first.simplices, hull_edges, first.alpha, first.edges, fat, contour,
                              second.alpha), inc.simplices()))

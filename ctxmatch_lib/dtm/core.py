@@ -13,8 +13,7 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations
-from .triangulation import (Triangulation, collapse_vertices, expand_ranges, points_in_triangles,
-                            stable_argsort_small, triangulate, unique_ints)
+from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -152,37 +151,57 @@ def _csr_by(keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _neighbourhood_pairs(tri: Triangulation, vertex: np.ndarray, by_vertex: tuple) -> tuple:
-    """All pairs ``(m, m')``, ``m' != m``, with ``m'`` in ``M_{A_v}`` for ``v`` the vertex of ``m``
-    (DTM1 step 3). ``A_v`` includes ``v``, so matches collapsed onto the same vertex are neighbours; a
-    match is not its own neighbour (see :func:`dtm`, Notes)."""
+    """All pairs ``(m, m')`` with the vertex of ``m'`` adjacent to the vertex ``v`` of ``m`` (DTM1 step 3).
+
+    Only *adjacent* vertices count: ``v`` itself is left out, so neither ``m`` nor the other matches
+    collapsed onto ``v`` are neighbours of ``m`` (see :func:`dtm`, Notes)."""
     ptr, order = by_vertex
     rows, pos = expand_ranges(tri.indptr[vertex], np.diff(tri.indptr)[vertex])
     nb = tri.indices[pos]  # vertices u in A_v, one row per (m, u)
+    adjacent = nb != vertex[rows]
+    rows, nb = rows[adjacent], nb[adjacent]
     rows2, pos2 = expand_ranges(ptr[nb], np.diff(ptr)[nb])
-    m, other = rows[rows2], order[pos2]
-    keep = m != other
-    return m[keep], other[keep]
+    return rows[rows2], order[pos2]
 
 
 def _has_edge(tri: Triangulation, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether ``b`` is in ``A_a`` (adjacent or equal), vectorised through sorted CSR keys."""
+    """Whether vertices ``a`` and ``b`` are adjacent (an edge of ``tri``; ``a == b`` is not), vectorised
+    through sorted CSR keys."""
     n = tri.n_vertices
     keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(tri.indptr)) * n + tri.indices
     if np.any(keys[1:] < keys[:-1]):  # triangulate() lists each A_v in increasing order: already sorted
         keys.sort()
     q = a * n + b
     pos = np.minimum(np.searchsorted(keys, q), max(len(keys) - 1, 0))
-    return (keys[pos] == q) if len(keys) else np.zeros(len(q), bool)
+    return (keys[pos] == q) & (a != b) if len(keys) else np.zeros(len(q), bool)
 
 
-def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, shrink, want_record):
+@dataclass(frozen=True)
+class _Setup:
+    """What every triangulation of one :func:`dtm` run needs besides its vertices."""
+
+    size1: tuple
+    size2: tuple
+    boundary: str
+    shrink: float
+    others1: np.ndarray | None  # all keypoints of each image, collapsed ("keypoints" boundary only)
+    others2: np.ndarray | None
+
+    def triangulations(self, v1: np.ndarray, v2: np.ndarray):
+        """Boundaries ``B_1``, ``B_2`` of the vertex sets and the triangulations of ``V ∪ B``."""
+        others = None if self.others1 is None else [self.others1, self.others2]
+        (b1, s1), (b2, s2) = boundaries_and_triangulations([v1, v2], [self.size1, self.size2], self.boundary,
+                                                           shrink=self.shrink, keypoints_list=others)
+        return b1, b2, triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
+
+
+def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_record):
     """One DTM1 iteration (steps 1-6) on the active matches; local indices are positions in ``active``."""
     n = len(active)
     # Steps 1-2: collapsed vertices, boundaries, triangulations.
     v1, vl = collapse_vertices(kp1[active])
     v2, vr = collapse_vertices(kp2[active])
-    (b1, s1), (b2, s2) = boundaries_and_triangulations([v1, v2], [size1, size2], boundary, shrink=shrink)
-    t1, t2 = triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
+    b1, b2, t1, t2 = setup.triangulations(v1, v2)
     # Step 3: pairs (m, m') with m' in M_{A1(vl(m))}, flagged when also in M_{A2(vr(m))}; and vice versa.
     m_a, o_a = _neighbourhood_pairs(t1, vl, _csr_by(vl, len(v1)))
     in_both = _has_edge(t2, vr[m_a], vr[o_a])
@@ -224,104 +243,130 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, size1, size2, boundary, s
     return active[kept_local], b1.points, b2.points, record
 
 
-def _partner_csr(v_src: np.ndarray, v_dst: np.ndarray, n_src: int):
-    """Distinct (source vertex -> destination vertex) partner pairs of the base matches, as CSR."""
-    n_dst = int(v_dst.max()) + 1 if len(v_dst) else 1
-    key = unique_ints(v_src * n_dst + v_dst)
-    ptr = np.zeros(n_src + 1, np.int64)
-    np.cumsum(np.bincount(key // n_dst, minlength=n_src), out=ptr[1:])
-    return ptr, key % n_dst
+def _strictly_inside(xy, a, b, c, orientation) -> np.ndarray:
+    """Whether ``xy[k]`` lies strictly inside triangle ``(a[k], b[k], c[k])`` *and* that triangle turns the
+    same way as ``orientation[k]`` (+1 or -1): a mirrored partner triangle holds nothing."""
+    def cross(p, q, r):
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    return ((cross(a, b, xy) * orientation > 0) & (cross(b, c, xy) * orientation > 0)
+            & (cross(c, a, xy) * orientation > 0))
 
 
-def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray, dst_vertices: np.ndarray,
-                   partners: tuple, base_src: np.ndarray, base_dst: np.ndarray, base_vertex: np.ndarray,
-                   ) -> np.ndarray:
-    """DTM2 step 2 in one direction.
+def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray, base_src: np.ndarray,
+                   base_dst: np.ndarray, base_vertex: np.ndarray) -> np.ndarray:
+    """DTM2 step 2 in one direction: the candidates ``(q_src, q_dst)`` that pass.
 
-    For each candidate, ``W`` is the triangle of ``tri_src`` holding its source keypoint ``q_src``. When
-    the three vertices of ``W`` are keypoint vertices, the candidate passes if its destination keypoint
-    ``q_dst`` lies in a triangle formed by destination partners of those vertices, trying every partner
-    combination (many-to-many). When ``W`` has one or two boundary vertices, which have no partner, the
-    candidate passes if translating ``q_dst`` by the motion of a base match collapsed on a keypoint
-    vertex of ``W`` or on one of their keypoint neighbours lands inside ``W`` (a local-translation
-    stand-in for the missing partners, as in the author's reference implementation; the paper leaves this
-    case open). ``W`` made only of boundary vertices, or no ``W``, fails.
+    ``W`` is the triangle of ``tri_src`` (the base matches' vertices plus ``B``) holding ``q_src``.
+
+    - ``W`` with three keypoint vertices: the candidate passes if ``q_dst`` lies strictly inside a triangle
+      formed by the destination keypoints of base matches collapsed onto the three vertices (every
+      combination, many-to-many) that turns the same way as ``W``.
+    - ``W`` with one or two boundary vertices, which have no partner: the candidate passes if translating
+      ``q_dst`` by the motion of a base match whose vertex is adjacent to the keypoint vertex of ``W``
+      nearest to ``q_src`` lands strictly inside ``W``.
+    - ``W`` of boundary vertices only, or no ``W``: the candidate fails.
+
+    The paper states only the first case; the rest follows the author's Python port (see :func:`dtm`).
     """
     n = len(q_src)
     ok = np.zeros(n, bool)
     simplex = tri_src.find_simplex(q_src)
     located = np.flatnonzero(simplex >= 0)
-    if len(located) == 0:
+    if len(located) == 0 or len(base_src) == 0:
         return ok
-    w = tri_src.simplices[simplex[located]]  # (c, 3) vertex rows
-    is_kp = w < tri_src.n_vertices
-    n_kp = is_kp.sum(axis=1)
-    pptr, pdst = partners
-    # Full keypoint triangles: all partner triangles, by two CSR expansions per vertex.
-    full = located[n_kp == 3]
+    w = tri_src.simplices[simplex[located]]  # (c, 3) rows into tri_src.points
+    n_kp = (w < tri_src.n_vertices).sum(axis=1)
+    corners = tri_src.points[w]
+    area = ((corners[:, 1, 0] - corners[:, 0, 0]) * (corners[:, 2, 1] - corners[:, 0, 1])
+            - (corners[:, 1, 1] - corners[:, 0, 1]) * (corners[:, 2, 0] - corners[:, 0, 0]))
+    orientation = np.sign(area)
+    ptr, order = _csr_by(base_vertex, tri_src.n_vertices)  # base matches collapsed onto each vertex
+    # Keypoint triangles: every partner triangle, by one CSR expansion per vertex.
+    full = np.flatnonzero(n_kp == 3)
     if len(full):
-        wf = tri_src.simplices[simplex[full]]
-        cand = np.arange(len(full))
-        combos = [cand]
+        combos = [np.arange(len(full))]
         for k in range(3):
-            v = wf[combos[0], k]
-            rows, pos = expand_ranges(pptr[v], np.diff(pptr)[v])
-            combos = [c[rows] for c in combos] + [pdst[pos]]
-        cidx, pa, pb, pc = combos
-        hit = points_in_triangles(q_dst[full[cidx]], dst_vertices[pa], dst_vertices[pb], dst_vertices[pc])
-        ok[full[cidx[hit]]] = True
-    # Triangles touching the boundary: local translations of nearby base matches.
-    part = located[(n_kp == 1) | (n_kp == 2)]
-    if len(part) and len(base_src):
-        wp = tri_src.simplices[simplex[part]]
-        rows_c, cols = np.nonzero(wp < tri_src.n_vertices)
-        kv = wp[rows_c, cols]  # keypoint vertices of each W
-        r1, pos = expand_ranges(tri_src.indptr[kv], np.diff(tri_src.indptr)[kv])
-        cand_of_nb, nb = rows_c[r1], tri_src.indices[pos]
-        ptr, order = _csr_by(base_vertex, tri_src.n_vertices)
+            v = w[full[combos[0]], k]
+            rows, pos = expand_ranges(ptr[v], np.diff(ptr)[v])
+            combos = [c[rows] for c in combos] + [order[pos]]
+        cidx, ea, eb, ec = combos
+        c = full[cidx]
+        hit = _strictly_inside(q_dst[located[c]], base_dst[ea], base_dst[eb], base_dst[ec], orientation[c])
+        ok[located[c[hit]]] = True
+    # Triangles touching the boundary: translations by the base matches around the nearest keypoint vertex.
+    part = np.flatnonzero((n_kp == 1) | (n_kp == 2))
+    if len(part):
+        wp = w[part]
+        d2 = ((tri_src.points[wp] - q_src[located[part], None, :]) ** 2).sum(axis=2)
+        d2[wp >= tri_src.n_vertices] = np.inf
+        near = wp[np.arange(len(part)), np.argmin(d2, axis=1)]
+        r1, pos = expand_ranges(tri_src.indptr[near], np.diff(tri_src.indptr)[near])
+        nb = tri_src.indices[pos]
+        adjacent = nb != near[r1]
+        r1, nb = r1[adjacent], nb[adjacent]
         r2, pos2 = expand_ranges(ptr[nb], np.diff(ptr)[nb])
-        cidx, e = cand_of_nb[r2], order[pos2]
-        moved = q_dst[part[cidx]] - base_dst[e] + base_src[e]
-        tri_pts = tri_src.points[wp[cidx]]
-        hit = points_in_triangles(moved, tri_pts[:, 0], tri_pts[:, 1], tri_pts[:, 2])
-        ok[part[cidx[hit]]] = True
+        c, e = part[r1[r2]], order[pos2]
+        moved = q_dst[located[c]] - base_dst[e] + base_src[e]
+        hit = _strictly_inside(moved, corners[c, 0], corners[c, 1], corners[c, 2], orientation[c])
+        ok[located[c[hit]]] = True
     return ok
 
 
-def _dtm2_level(level, base, cand, kp1, kp2, bnd1, bnd2):
-    """One DTM2 level: triangulate ``E ∪ B^i`` in both images and two-way test the candidates."""
+def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored):
+    """One DTM2 level: triangulate ``E`` with its boundaries in both images, two-way test the candidates.
+
+    ``stored`` is ``(B_1^i, B_2^i)`` from DTM1, or ``None`` to build the boundaries around ``E``."""
     v1, vl = collapse_vertices(kp1[base])
     v2, vr = collapse_vertices(kp2[base])
-    t1, t2 = triangulate(v1, bnd1), triangulate(v2, bnd2)
+    if stored is None:
+        _, _, t1, t2 = setup.triangulations(v1, v2)
+    else:
+        t1, t2 = triangulate(v1, stored[0]), triangulate(v2, stored[1])
     q1, q2 = kp1[cand], kp2[cand]
-    ok = _transfer_test(t1, q1, q2, v2, _partner_csr(vl, vr, len(v1)), kp1[base], kp2[base], vl)
+    ok = _transfer_test(t1, q1, q2, kp1[base], kp2[base], vl)
     if ok.any():
         sub = np.flatnonzero(ok)
-        ok2 = _transfer_test(t2, q2[sub], q1[sub], v1, _partner_csr(vr, vl, len(v2)), kp2[base], kp1[base], vr)
-        ok[sub[~ok2]] = False
+        ok[sub[~_transfer_test(t2, q2[sub], q1[sub], kp2[base], kp1[base], vr)]] = False
     return cand[ok], t1, t2
 
 
+def _check_inside(points: np.ndarray, size: tuple, name: str, size_name: str) -> None:
+    """Keypoints must lie on the image: pixel centres are integers, so x in [-0.5, width - 0.5]."""
+    if len(points) == 0:
+        return
+    w, h = size
+    lo = points.min(axis=0)
+    hi = points.max(axis=0)
+    if lo[0] < -0.5 or lo[1] < -0.5 or hi[0] > w - 0.5 or hi[1] > h - 0.5:
+        raise ValueError(
+            f"{name} has points outside the image {size_name}={size} (width, height): x spans "
+            f"[{lo[0]:.1f}, {hi[0]:.1f}], y spans [{lo[1]:.1f}, {hi[1]:.1f}], pixel centres must lie in "
+            f"[0, width - 1] x [0, height - 1] (half a pixel of slack); was (height, width) passed?")
+
+
 def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages: int = 2,
-        boundary: str = "alpha", shrink: float = 0.5, trace: bool = False) -> DTMResult:
+        boundary: str = "alpha", shrink: float = 0.5, dtm2_boundary: str | None = None,
+        trace: bool = False) -> DTMResult:
     """Delaunay Triangulation Matching (Sec. 4): keep matches whose Delaunay neighbourhoods agree.
 
     DTM1 (steps 1-6) repeats, until nothing changes: collapse the keypoints of the surviving matches
     ``M^{i-1}`` into rounded vertices ``V_1``, ``V_2``; add the boundary sets ``B^i`` (Fig. 2) and
-    triangulate; take the neighbourhood ``A_v`` of each vertex (adjacent vertices and itself) and the
-    matches ``M_{A_v}`` collapsed into it; rank the matches by score, then by
-    ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` descending; *contract*: greedily pick the best remaining match
-    into ``T`` and discard ``(M_{A^1} ∪ M_{A^2}) \\ (M_{A^1} ∩ M_{A^2})`` around it; *expand*: ``M^i`` is
-    the union of ``M_{A^1} ∩ M_{A^2}`` over ``T``. DTM2 then walks the iterations backwards,
-    ``i = ī - 1 .. 1``: it triangulates the current output ``E`` with the stored ``B^i`` and re-adds each
-    match removed at iteration ``i`` whose keypoint in one image falls in a triangle whose partner
-    triangle in the other image holds its other keypoint, both ways (DTM2 steps 1-2).
+    triangulate; take the neighbourhood ``A_v`` of each vertex and the matches ``M_{A_v}`` collapsed into
+    it; rank the matches by score, then by ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` descending; *contract*:
+    greedily pick the best remaining match into ``T`` and discard ``(M_{A^1} ∪ M_{A^2}) \\ (M_{A^1} ∩
+    M_{A^2})`` around it; *expand*: ``M^i`` is the union of ``M_{A^1} ∩ M_{A^2}`` over ``T``. DTM2 then
+    walks the iterations backwards, ``i = ī - 1 .. 1``: it triangulates the current output ``E`` with the
+    boundaries ``B^i`` and re-adds each match removed at iteration ``i`` whose keypoint in one image falls
+    in a triangle whose partner triangle in the other image holds its other keypoint, both ways (DTM2
+    steps 1-2).
 
     Parameters
     ----------
     kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
         Keypoints, (x, y) pixels with the origin at the centre of the top-left pixel (extra columns such
-        as scale are ignored).
+        as scale are ignored). All of them must lie on their image (``-0.5 <= x <= width - 0.5``, same
+        for y); ``boundary="keypoints"`` also uses the keypoints no match refers to.
     matches : array_like of shape (K, 2)
         Indices into ``kpts1``/``kpts2``; many-to-many allowed.
     scores : array_like of shape (K,), optional
@@ -330,10 +375,16 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
         ``(width, height)`` of the images; they set the boundary distance ``s = min(w, h) / 10``.
     stages : {1, 2}
         1 runs DTM1 only, 2 also DTM2.
-    boundary : {"alpha", "convex", "canvas", "corners"}
-        Boundary construction (Fig. 2, Appendix A); ``"alpha"`` is the paper's.
+    boundary : {"alpha", "convex", "canvas", "corners", "keypoints"}
+        Boundary construction (Fig. 2, Appendix A); ``"alpha"`` is the paper's. ``"keypoints"`` is the
+        construction of the author's Python port: the image frame plus the unmatched keypoints next to it
+        (:func:`~ctxmatch_lib.dtm.boundary.keypoint_boundary`).
     shrink : float
         MATLAB ``boundary`` shrink factor for the alpha shape (footnote 2; default 0.5).
+    dtm2_boundary : {"stored", "current"}, optional
+        Boundaries of the DTM2 triangulations. ``"stored"``: ``B^i`` kept from DTM1 iteration ``i``, as
+        the paper states (DTM2 step 1); ``"current"``: built anew around ``E^i``, as the port does. Default:
+        ``"current"`` with ``boundary="keypoints"`` (the port's pipeline), ``"stored"`` otherwise.
     trace : bool
         Record every step in ``result.trace`` (:class:`DTMTrace`).
 
@@ -342,35 +393,60 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     DTMResult
         ``keep`` (K,) bool, ``removed_at`` (K,) int, ``readded_at`` (K,) int, ``trace``.
 
+    Raises
+    ------
+    ValueError
+        On keypoints outside their image (typically an image size given as (height, width)), and on
+        arguments out of their domains.
+
     Notes
     -----
-    The result does not depend on the order of the matches: vertices are sorted, and ties in the ranking
-    are broken by the keypoint coordinates, then the keypoint indices.
+    **Where the paper leaves a choice open, DTM follows the author's public Python port** (github
+    fb82/DTM, ``src/dtm.py``), read side by side with it on the real pairs
+    (``benchmarks/bench_dtm_real.py``):
 
-    A match is not its own neighbour: ``M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}`` is taken without ``m`` itself
-    (``A_v`` still includes ``v``, so other matches collapsed onto the same vertices count). Read
-    literally, every match picked into ``T`` would re-enter ``M^i`` through its own cluster, so DTM1 could
-    never remove an outlier ranked above its neighbours; the author's reference implementation also leaves
-    it out. On the planted-outlier case of the tests this moves the DTM2 output from about 0.96 precision /
-    0.77 recall to 0.99 / 0.96.
+    - *Neighbourhoods.* The paper defines ``A_v`` as "the set of vertexes adjacent to ``v`` [...],
+      including ``v`` itself" (step 3). Taken literally, every match would be its own neighbour, so every
+      match picked into ``T`` would re-enter ``M^i`` through its own cluster and DTM1 could never remove an
+      outlier ranked above its neighbours. The port counts only the matches on the *adjacent* vertices
+      (its adjacency lists leave ``v`` out): neither ``m`` nor other matches collapsed onto the same
+      vertex support ``m``. DTM follows the port. (Counting the co-collapsed matches, as an earlier
+      version did, kept more matches on the real pairs at lower precision: 66.6 / 68.9 against the port's
+      70.4 / 62.8 precision / recall, paper-best planar.)
+    - *DTM2 near the boundary.* When the triangle ``W`` holding a removed match has one or two boundary
+      vertices (no partner in the other image), the paper says nothing. The port translates the other
+      keypoint by the motion of each base match adjacent to the keypoint vertex of ``W`` nearest to the
+      match (not that vertex's own matches) and accepts when one lands in ``W``; DTM does the same.
+      (Trying every keypoint vertex of ``W`` and its own matches, as an earlier version did, re-added
+      mostly gross outliers, median reprojection error about 300 px.)
+    - *Inside.* As in the port, "inside" is strict and a partner triangle must turn the same way as ``W``
+      (a mirrored triangle is no correspondence).
+    - *DTM2 boundaries.* Here the paper is explicit (``B^i`` from DTM1) and the port is not
+      (it rebuilds them around ``E``): ``dtm2_boundary`` chooses, see above.
+
+    The result does not depend on the order of the matches: vertices are sorted, and ties in the ranking
+    are broken by the keypoint coordinates, then the keypoint indices. Keypoints are rounded half away
+    from zero (the paper's ``⌈·⌋``; the port rounds halves to even, which only matters at exact halves).
 
     The triangulations are exact Delaunay triangulations (OpenCV ``Subdiv2D``, inserting ``B`` into the
     triangulation of ``V``; Qhull as fallback, see :class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`).
     Where rounded vertices are cocircular the diagonal is a tie that the method leaves open; it is broken by
     the (order-independent) insertion order, so results can differ from a Qhull-based run in such ties only.
 
-    Degenerate inputs need no special case: the boundary always surrounds the vertices (a circle around
-    a single vertex, a stadium around collinear ones), so every step is defined. Hence: no matches give
-    empty arrays; a single match is removed at iteration 1 (nothing supports it); two or more matches
-    that all collapse onto one vertex pair are kept (each supports the others); two matches are kept
-    (their vertices are adjacent in both images); collinear and duplicate keypoints, keypoints outside
-    the image and many-to-many matches are handled like any other. When DTM1 empties the set, DTM2 has
-    no triangle with keypoint vertices and adds nothing, so the output is empty (the paper's worst case).
+    Small and degenerate sets need no special case: the boundary always surrounds the vertices (for
+    ``"alpha"``: a circle around a single vertex, a stadium around collinear ones), so every step is
+    defined. No matches give empty arrays. A match is kept only when another match supports it, so **a
+    single match is always removed** (DTM decides nothing about it), and so is a match whose vertex has no
+    adjacent keypoint vertex in one of the images. Two or more matches related by one similarity (a rigid
+    motion with a scale) have the same triangulation in both images and are all kept; under a general
+    homography, matches whose Delaunay neighbourhoods differ between the images are removed by DTM1 and
+    re-added by DTM2 when they fall in corresponding triangles. When DTM1 empties the set, DTM2 has no
+    triangle with keypoint vertices and adds nothing, so the output is empty (the paper's worst case).
 
     References
     ----------
     F. Bellavia, "SIFT Matching by Context Exposed", IEEE TPAMI 2022, Sec. 4 (DTM1 steps 1-6, DTM2
-    steps 1-2), Fig. 2-3, Appendix A.
+    steps 1-2), Fig. 2-3, Appendix A. F. Bellavia, DTM Python port, https://github.com/fb82/DTM.
 
     Examples
     --------
@@ -394,12 +470,20 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
         raise ValueError(f"boundary must be one of {BOUNDARY_METHODS}, got {boundary!r}")
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
+    if dtm2_boundary is None:
+        dtm2_boundary = "current" if boundary == "keypoints" else "stored"
+    if dtm2_boundary not in ("stored", "current"):
+        raise ValueError(f"dtm2_boundary must be 'stored' or 'current', got {dtm2_boundary!r}")
+    _check_inside(kp1, size1, "kpts1", "image_size1")
+    _check_inside(kp2, size2, "kpts2", "image_size2")
     removed_at = np.zeros(k, np.int64)
     readded_at = np.zeros(k, np.int64)
     if k == 0:
         empty_trace = DTMTrace((), (), size1, size2) if trace else None
         return DTMResult(np.zeros(0, bool), removed_at, readded_at, empty_trace)
 
+    others = (collapse_vertices(kp1)[0], collapse_vertices(kp2)[0]) if boundary == "keypoints" else (None, None)
+    setup = _Setup(size1, size2, boundary, shrink, *others)
     p1, p2 = kp1[m[:, 0]], kp2[m[:, 1]]
     # Order-independent tie-break key: keypoint coordinates, then keypoint indices.
     canon = np.empty(k, np.int64)
@@ -411,8 +495,7 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     i = 0
     while True:
         i += 1
-        kept, bnd1, bnd2, record = _dtm1_iteration(i, active, p1, p2, score[active], canon[active],
-                                                   size1, size2, boundary, shrink, trace)
+        kept, bnd1, bnd2, record = _dtm1_iteration(i, active, p1, p2, score[active], canon[active], setup, trace)
         boundaries[i] = (bnd1, bnd2)
         if trace:
             records.append(DTM1Iteration(**record))
@@ -430,7 +513,8 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
         base = active
         for level in range(last - 1, 0, -1):
             cand = np.flatnonzero(removed_at == level)
-            added, t1, t2 = _dtm2_level(level, base, cand, p1, p2, *boundaries[level])
+            stored = boundaries[level] if dtm2_boundary == "stored" else None
+            added, t1, t2 = _dtm2_level(base, cand, p1, p2, setup, stored)
             readded_at[added] = level
             if trace:
                 levels.append(DTM2Level(level, base, t1, t2, cand, added))
@@ -447,7 +531,7 @@ def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, 
 
     Keypoints are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel. ``shapes1`` and
     ``shapes2`` are ignored (DTM uses keypoint positions only); ``params`` go to :func:`dtm`
-    (``stages``, ``boundary``, ``shrink``).
+    (``stages``, ``boundary``, ``shrink``, ``dtm2_boundary``).
 
     Returns
     -------
