@@ -50,6 +50,17 @@ _SIMPLE_RADIAL = 2
 def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
     """hloc's pair key: ``"name0/name1"`` with ``/`` inside each name replaced by ``-``.
 
+    Parameters
+    ----------
+    name0, name1 : str
+        Image names (paths relative to the image folder).
+    separator : str, default "/"
+        hloc's current separator (``"_"`` in its older files).
+
+    Returns
+    -------
+    str
+
     Examples
     --------
     >>> names_to_pair("db/a.jpg", "q/b.jpg")
@@ -198,6 +209,16 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
 
 def colmap_pair_id(image_id1: int, image_id2: int) -> int:
     """COLMAP's ``pair_id`` of two image ids (symmetric).
+
+    Parameters
+    ----------
+    image_id1, image_id2 : int
+        COLMAP image ids (1 <= id < 2147483647).
+
+    Returns
+    -------
+    int
+        ``2147483647 * min(ids) + max(ids)`` (COLMAP's ``doc/database.rst``).
 
     Examples
     --------

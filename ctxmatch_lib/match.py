@@ -481,8 +481,23 @@ def read_pairs(path) -> list[tuple[str, str]]:
 
 
 def pair_filename(name1: str, name2: str) -> str:
-    """File name of a pair's result in folder mode: ``"{name1}__{name2}.npz"`` with ``/`` turned into ``-``
-    (hloc's ``names_to_pair`` escaping)."""
+    """File name of a pair's result in folder mode.
+
+    Parameters
+    ----------
+    name1, name2 : str
+        Image names of the pairs file.
+
+    Returns
+    -------
+    str
+        ``"{name1}__{name2}.npz"`` with ``/`` turned into ``-`` (hloc's ``names_to_pair`` escaping).
+
+    Examples
+    --------
+    >>> pair_filename("db/a.jpg", "b.jpg")
+    'db-a.jpg__b.jpg.npz'
+    """
     return f"{name1.replace('/', '-')}__{name2.replace('/', '-')}.npz"
 
 
