@@ -22,12 +22,16 @@ kornia (needs ``torch`` and ``kornia``: ``pip install 'ctxmatch[kornia]'``; impo
   like ``kornia.feature.match_smnn``.
 
 The LAF scale convention is an explicit, required argument ``mr_size``: the half-size of the LAF in units
-of the keypoint's Gaussian sigma, ``A_laf = mr_size * sigma * R``. kornia's own detectors
-(``ScaleSpaceDetector``, ``SIFTFeature``) use ``mr_size=6``; kornia_moons' ``laf_from_opencv_SIFT_kpts``
-multiplies OpenCV's size (2 sigma) by 6, i.e. ``mr_size=12``, four times the project's 3 sigma patch (a
-SIFT keypoint of sigma 1.9 has ``|A| = 22.6`` there and 5.6 here). Reading such LAFs as if they were
-ctxmatch shapes would silently change the overlap-FGINN of blob matching (``t_o_kind="overlap"``) and
-AdaLAM's scale check, hence no default.
+of the keypoint's Gaussian sigma, ``A_laf = mr_size * sigma * R``. kornia's scale-space detectors
+(``ScaleSpaceDetector``, ``SIFTFeatureScaleSpace``) use ``mr_size=6``; kornia_moons'
+``laf_from_opencv_SIFT_kpts`` multiplies OpenCV's size (2 sigma) by 6, i.e. ``mr_size=12``, four times the
+project's 3 sigma patch (a SIFT keypoint of sigma 1.9 has ``|A| = 22.6`` there and 5.6 here). Reading such
+LAFs as if they were ctxmatch shapes would silently change the overlap-FGINN of blob matching
+(``t_o_kind="overlap"``), hence no default. Detectors whose LAF size is not a multiple of a blob sigma
+(kornia's ``SIFTFeature``, ``KeyNet``: a fixed size per pyramid level) have no true ``mr_size``: pick the one
+that makes the patch the region you want compared. Only the overlap test reads the LAF size: the default
+blob setup (FGINN in pixels) and the built-in filters (only AdaLAM reads shapes, as scale *ratios*) do not
+depend on it.
 """
 
 from __future__ import annotations
@@ -245,7 +249,7 @@ def from_cv2_matches(dmatches, *, return_scores: bool = False):
 def _check_mr_size(mr_size) -> float:
     if mr_size is None:
         raise ValueError("mr_size is required: the LAF half-size in keypoint sigmas (ctxmatch shapes: 3, kornia's "
-                         "detectors: 6, kornia_moons' laf_from_opencv_SIFT_kpts: 12)")
+                         "ScaleSpaceDetector: 6, kornia_moons' laf_from_opencv_SIFT_kpts: 12)")
     v = float(mr_size)
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"mr_size must be a positive number, got {mr_size!r}")
@@ -260,8 +264,9 @@ def from_kornia_lafs(lafs, *, mr_size: float, patch_radius: float = 3.0):
     lafs : torch.Tensor or ndarray of shape (1, N, 2, 3) or (N, 2, 3)
         ``[A | c]``: centre ``c`` (x, y) pixels, ``A`` mapping the unit disc onto the region.
     mr_size : float
-        Scale convention of ``lafs``: ``A = mr_size * sigma * R`` (kornia's detectors: 6; kornia_moons'
-        ``laf_from_opencv_SIFT_kpts``: 12; LAFs made by :func:`to_kornia_lafs` with ``mr_size=m``: m).
+        Scale convention of ``lafs``: ``A = mr_size * sigma * R`` (kornia's ``ScaleSpaceDetector``: 6;
+        kornia_moons' ``laf_from_opencv_SIFT_kpts``: 12; LAFs made by :func:`to_kornia_lafs` with
+        ``mr_size=m``: m).
     patch_radius : float, default 3
         Radius of the returned shapes in sigmas (the project's convention).
 

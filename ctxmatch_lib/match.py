@@ -513,8 +513,9 @@ def match_pairs(
     """Match every pair of a pairs list, one ``.npz`` per pair in ``out_dir``; resumable.
 
     A pair whose file already exists with the same settings is skipped, so a run killed at any moment
-    (even by SIGKILL) loses nothing already written and a re-run does only the rest. Files are written
-    atomically, so a half-written file never exists under its final name.
+    (even by SIGKILL) loses nothing already written and a re-run does only the rest; a pair written with
+    other settings is redone. Files are written atomically, so a half-written file never exists under its
+    final name. A pair is known by its image names: delete its file to redo it after changing an image.
 
     Parameters
     ----------
