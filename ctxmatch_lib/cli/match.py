@@ -124,7 +124,9 @@ def run(args) -> int:
               f"{len(res.matches)} matches kept -> {out}")
         if args.plot:
             print(f"picture -> {save_plot(plot_result(res, img1, img2), args.plot)}")
-        results = {(img1.name, img2.name): out}
+        # Export names: the file names, or the paths as given when the two file names are the same.
+        names = (img1.name, img2.name) if img1.name != img2.name else (args.images_pair[0], args.images_pair[1])
+        results = {names: out}
     else:
         try:
             pairs = read_pairs(args.pairs)
@@ -137,6 +139,8 @@ def run(args) -> int:
             return _error(f"in folder mode --out is a folder, got {out_dir}")
         plot_dir = Path(args.plot) if args.plot else None
 
+        import numpy as np
+
         def on_pair(name1, name2, path, skipped):
             if plot_dir is None:
                 return
@@ -146,8 +150,9 @@ def run(args) -> int:
             from ..match import MatchResult, load_result
 
             d = load_result(path)
+            keep = np.ones(len(d["matches"]), bool)  # only the kept matches are stored
             res = MatchResult(d["kpts1"], d["kpts2"], d["shapes1"], d["shapes2"], d["matches"], d["scores"],
-                              d["matches"], d["scores"], None, tuple(d["image_size1"]), tuple(d["image_size2"]),
+                              d["matches"], d["scores"], keep, tuple(d["image_size1"]), tuple(d["image_size2"]),
                               settings=d["settings"])
             save_plot(plot_result(res, Path(args.images) / name1, Path(args.images) / name2,
                                   title=f"{name1} - {name2}: {len(d['matches'])} matches"), pic)
