@@ -54,7 +54,7 @@ def test_cv2_keypoints_match_the_feature_extractor():
     """The shapes of from_cv2_keypoints are those of extract_features (3 sigma, same orientation)."""
     from skimage.data import camera
 
-    f = extract_features(camera()[::2, ::2], FeatureConfig(max_keypoints=200), cache_dir=False)
+    f = extract_features(camera()[::2, ::2], FeatureConfig(max_keypoints=120), cache_dir=False)
     kpts, shapes, angles, _ = from_cv2_keypoints(to_cv2_keypoints(f.kpts, f.shapes, responses=f.responses))
     np.testing.assert_allclose(kpts, f.kpts, atol=1e-4)
     np.testing.assert_allclose(shapes, f.shapes, rtol=1e-5, atol=1e-5)
@@ -159,8 +159,8 @@ def test_match_blob_is_blob_matching_kornia_style(sift_kps):
     from skimage.data import camera
 
     img = camera()[::2, ::2]
-    f1 = extract_features(img, FeatureConfig(max_keypoints=300), cache_dir=False)
-    f2 = extract_features(np.ascontiguousarray(img[7:, 5:]), FeatureConfig(max_keypoints=300), cache_dir=False)
+    f1 = extract_features(img, FeatureConfig(max_keypoints=120), cache_dir=False)
+    f2 = extract_features(np.ascontiguousarray(img[7:, 5:]), FeatureConfig(max_keypoints=120), cache_dir=False)
     lafs1 = to_kornia_lafs(f1.kpts, f1.shapes, mr_size=6.0, dtype=torch.float32)
     lafs2 = to_kornia_lafs(f2.kpts, f2.shapes, mr_size=6.0, dtype=torch.float32)
     d1, d2 = torch.from_numpy(f1.desc), torch.from_numpy(f2.desc)
