@@ -10,7 +10,7 @@ export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
 export MPLBACKEND := Agg
 export PYTHONHASHSEED := 0
 
-.PHONY: env figures figures-paper test test-fast bench clean
+.PHONY: env figures figures-paper test test-fast bench docs clean
 
 env: $(STAMP)
 
@@ -36,6 +36,18 @@ test-fast: $(STAMP)
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+# The numpydoc API of ctxmatch_lib as HTML (pdoc, the optional 'docs' extra) in build/docs: the package and
+# every public module and subpackage (pdoc alone follows only the submodules named in __all__, like dtm).
+DOC_MODULES := ctxmatch_lib \
+	$(subst /,.,$(patsubst %.py,%,$(filter-out ctxmatch_lib/_%,$(wildcard ctxmatch_lib/*.py)))) \
+	$(filter-out ctxmatch_lib.dtm,$(subst /,.,$(patsubst %/__init__.py,%,$(wildcard ctxmatch_lib/*/__init__.py))))
+
+docs: $(STAMP)
+	$(BIN)/python -m pip install -q "pdoc>=14"
+	rm -rf build/docs
+	$(BIN)/pdoc --docformat numpy --no-show-source -o build/docs $(DOC_MODULES)
+	@echo "API docs -> build/docs/index.html"
 
 clean:
 	rm -rf build figures/executed .pytest_cache

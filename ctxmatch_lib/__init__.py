@@ -3,19 +3,30 @@
 Blob matching (Sec. 3), Delaunay Triangulation Matching (Sec. 4) and the evaluation of Sec. 5.
 Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the
 top-left pixel.
+
+``ctxmatch_lib.dtm`` is the DTM subpackage (``ctxmatch_lib.dtm.boundary``, ``.core``, ``.triangulation``);
+the function is ``ctxmatch_lib.dtm.dtm``. Glue for OpenCV and kornia is in :mod:`ctxmatch_lib.interop`,
+hloc and COLMAP exports in :mod:`ctxmatch_lib.export`, two images to filtered matches in
+:func:`ctxmatch_lib.match.match_images` (``ctxmatch match`` on the command line).
 """
+
+# The one source of the version: pyproject.toml reads it (setuptools dynamic version), and so does
+# ``ctxmatch --version``.
+__version__ = "0.1.0"
 
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching
 from .datasets import Dataset, Pair, list_datasets, load_dataset
-from .dtm import DTMResult, DTMTrace, dtm, dtm_boundary
+# Only names from the subpackage: binding the function ``dtm`` here would shadow the subpackage itself
+# (``import ctxmatch_lib.dtm.boundary`` would then fail).
+from . import dtm
+from .dtm import DTMResult, DTMTrace, dtm_boundary
 from .features import FeatureConfig, Features, extract_features, load_image
 from .filters import FILTERS, register_filter
 from .geometry import fit_fundamental, fit_homography, one_sac, ransac
 from .groundtruth import label_matches
 from .metrics import average_precision, evaluate_matches, mean_average_precision
+from .match import MatchResult, match_images
 from .pipeline import evaluate_dataset, evaluate_pair, summary_table
-
-__version__ = "0.1.0"
 
 __all__ = [
     "BLOB_PRESETS",
@@ -45,6 +56,8 @@ __all__ = [
     "fit_fundamental",
     "fit_homography",
     "label_matches",
+    "MatchResult",
+    "match_images",
     "mean_average_precision",
     "one_sac",
     "ransac",

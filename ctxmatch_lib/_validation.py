@@ -23,6 +23,20 @@ def as_finite_matrix(x, name: str, *, ndim: int = 2, dtype=None) -> np.ndarray:
     return arr
 
 
+def _first_cv2_object(x, cls: str) -> bool:
+    """Whether ``x`` is a non-empty sequence whose first item is an OpenCV ``cls`` (checked by name: no import)."""
+    if isinstance(x, np.ndarray) and x.dtype != object:
+        return False
+    try:
+        first = next(iter(x))
+    except (TypeError, StopIteration):
+        return False
+    if isinstance(first, (list, tuple)) and first:  # knnMatch's nested lists
+        first = first[0]
+    t = type(first)
+    return t.__name__ == cls and t.__module__.split(".")[0] == "cv2"
+
+
 def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
     """Return keypoint coordinates as a float64 ``(N, 2)`` array of (x, y) pixels.
 
@@ -32,6 +46,10 @@ def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
     if x is None:
         arr = np.empty((0, 2))
     else:
+        if _first_cv2_object(x, "KeyPoint"):
+            raise ValueError(
+                f"{name} must be an (N, 2) array of (x, y) pixels, got a list of cv2.KeyPoint; convert it with "
+                f"ctxmatch_lib.interop.from_cv2_keypoints({name}) (returns kpts, shapes, angles, responses)")
         arr = np.asarray(x, dtype=np.float64)
         if arr.size == 0:
             arr = arr.reshape(0, 2)
@@ -47,6 +65,9 @@ def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
 
 def as_matches(matches, n1: int | None = None, n2: int | None = None, name: str = "matches") -> np.ndarray:
     """Return matches as an int64 ``(K, 2)`` array, checking the indices against ``n1`` and ``n2``."""
+    if _first_cv2_object(matches, "DMatch"):
+        raise ValueError(f"{name} must be a (K, 2) array of indices, got a list of cv2.DMatch; convert it with "
+                         f"ctxmatch_lib.interop.from_cv2_matches({name})")
     arr = np.asarray(matches)
     if arr.size == 0:
         return np.empty((0, 2), np.int64)

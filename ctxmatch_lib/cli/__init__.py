@@ -11,7 +11,7 @@ import importlib
 import sys
 
 # Sub-command modules, in the order shown by --help.
-_COMMANDS = ["eval", "sweep", "figures", "data"]
+_COMMANDS = ["match", "eval", "sweep", "figures", "data"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -19,6 +19,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="ctxmatch",
         description="SIFT Matching by Context Exposed: blob matching, DTM and the benchmark.",
     )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"ctxmatch {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in _COMMANDS:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)

@@ -1,0 +1,177 @@
+"""``ctxmatch match``: two image files (or an hloc pairs list) to filtered matches, a picture and exports."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+DESCRIPTION = """\
+Match two images with the paper's pipeline: SIFT features -> blob matching (Sec. 3) -> spatial filter(s)
+(DTM by default, Sec. 4) -> optional model step (1SAC / RANSAC, Sec. 5.1). Image sizes are read from the
+images. --out writes an .npz with kpts1, kpts2 ((N, 2) x, y pixels, origin at the centre of the top-left
+pixel), shapes1, shapes2, matches ((K, 2) int64 rows into kpts1/kpts2), scores ((K,), lower is better),
+image_size1, image_size2 (width, height) and settings (JSON). --plot draws the kept matches.
+
+Folder mode: --pairs pairs.txt --images DIR (one "name1 name2" per line, hloc's convention) writes one .npz
+per pair into --out (a folder); it is resumable: finished pairs are skipped on a re-run, a killed run
+loses nothing written. --export-h5 DIR writes hloc's features.h5 and matches.h5 there; --export-colmap DB
+writes the keypoints and matches into a COLMAP database."""
+
+EXAMPLE = """\
+examples:
+  ctxmatch match img1.jpg img2.jpg --out matches.npz --plot matches.png
+  ctxmatch match img1.jpg img2.jpg --filter dtm --filter adalam --model 1sac --model-kind H
+  ctxmatch match img1.jpg img2.jpg --blob "paper-best:t_o=none" --features sift --max-keypoints 4000
+  ctxmatch match --pairs pairs.txt --images images/ --out matches/ --export-h5 hloc/ --export-colmap db.db
+"""
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "match",
+        help="match two images (or an hloc pairs list): features, blob matching, DTM; npz, plot, hloc/COLMAP exports",
+        description=DESCRIPTION,
+        epilog=EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("images_pair", nargs="*", metavar="IMAGE", help="the two images (omit with --pairs)")
+    p.add_argument("--pairs", default=None, help="hloc pairs file: one 'name1 name2' per line (folder mode)")
+    p.add_argument("--images", default=None, help="folder the names of --pairs are relative to")
+    p.add_argument("--out", default=None,
+                   help="output .npz (default: matches.npz); in folder mode a folder (default: matches/)")
+    p.add_argument("--plot", default=None,
+                   help="picture of the kept matches (.png, .pdf, ...); in folder mode a folder of pictures")
+    p.add_argument("--features", default="sift-rootsift",
+                   help="feature preset: sift-rootsift (default), sift-rootsift-upright, sift")
+    p.add_argument("--max-keypoints", type=int, default=None, help="keypoints per image (default: the preset's, 8000)")
+    p.add_argument("--blob", default="paper-best",
+                   help="blob preset (paper-best, paper-best-overlap, baseline), optionally with overrides "
+                        "'NAME:key=value,...' or just 'key=value,...' (keys: f, prefilter, f_prime, ratio, t_o, "
+                        "t_o_kind, combine) (default: paper-best)")
+    p.add_argument("--filter", action="append", default=None, dest="filters",
+                   help="spatial filter, repeatable or comma-separated, applied in order; 'none' for the blob "
+                        "candidates (default: dtm)")
+    p.add_argument("--model", default="none", choices=["none", "1sac", "ransac", "prosac"],
+                   help="model step on the filtered matches (default: none)")
+    p.add_argument("--model-kind", default="F", choices=["F", "H"],
+                   help="F (any scene, default) or H (planar scene, pure rotation)")
+    p.add_argument("--model-threshold", type=float, default=None, help="model step threshold in px (default: 15)")
+    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
+    p.add_argument("--export-h5", default=None, metavar="DIR",
+                   help="write hloc's features.h5 and matches.h5 into DIR (needs h5py: pip install 'ctxmatch[export]')")
+    p.add_argument("--export-colmap", default=None, metavar="DB",
+                   help="write cameras, images, keypoints and matches into the COLMAP database DB (created if absent)")
+    p.add_argument("--no-cache", action="store_true", help="do not read or write the feature cache")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar (folder mode)")
+    p.set_defaults(func=run)
+    return p
+
+
+def _error(msg: str) -> int:
+    print(f"ctxmatch match: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def _filters(values) -> list[str]:
+    if values is None:
+        return ["dtm"]
+    names = [t.strip() for v in values for t in v.split(",") if t.strip()]
+    return [n for n in names if n.lower() != "none"]
+
+
+def run(args) -> int:
+    from ..match import match_images, match_pairs, plot_result, read_pairs, resolve_blob, resolve_features, save_plot, save_result
+
+    folder = args.pairs is not None
+    if folder:
+        if args.images_pair:
+            return _error("give either two images or --pairs/--images, not both")
+        if args.images is None:
+            return _error("--pairs needs --images DIR (the folder the names are relative to)")
+    elif len(args.images_pair) != 2:
+        return _error(f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
+    if args.max_keypoints is not None and args.max_keypoints < 0:
+        return _error(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
+    settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
+                    model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
+                    cache_dir=False if args.no_cache else None)
+    try:
+        settings["features"] = resolve_features(args.features)
+        settings["blob"] = resolve_blob(args.blob)
+        from ..match import _as_filter_list
+
+        _as_filter_list(settings["filters"])
+    except ValueError as exc:
+        return _error(str(exc))
+    if args.export_h5 is not None:
+        try:
+            import h5py  # noqa: F401
+        except ImportError:
+            return _error("--export-h5 needs h5py: pip install 'ctxmatch[export]'")
+
+    if not folder:
+        img1, img2 = (Path(a) for a in args.images_pair)
+        try:
+            res = match_images(img1, img2, **settings)
+        except (FileNotFoundError, ValueError) as exc:
+            return _error(str(exc))
+        out = Path(args.out or "matches.npz")
+        if out.suffix.lower() != ".npz":
+            return _error(f"--out must end with .npz, got {out}")
+        save_result(res, out)
+        print(f"{len(res.kpts1)} + {len(res.kpts2)} keypoints, {len(res.candidates)} blob candidates, "
+              f"{len(res.matches)} matches kept -> {out}")
+        if args.plot:
+            print(f"picture -> {save_plot(plot_result(res, img1, img2), args.plot)}")
+        # Export names: the file names, or the paths as given when the two file names are the same.
+        names = (img1.name, img2.name) if img1.name != img2.name else (args.images_pair[0], args.images_pair[1])
+        results = {names: out}
+    else:
+        try:
+            pairs = read_pairs(args.pairs)
+        except (OSError, ValueError) as exc:
+            return _error(str(exc))
+        if not pairs:
+            return _error(f"pairs file {args.pairs} lists no pair")
+        out_dir = Path(args.out or "matches")
+        if out_dir.suffix.lower() == ".npz":
+            return _error(f"in folder mode --out is a folder, got {out_dir}")
+        plot_dir = Path(args.plot) if args.plot else None
+
+        import numpy as np
+
+        def on_pair(name1, name2, path, skipped):
+            if plot_dir is None:
+                return
+            pic = plot_dir / (path.stem + ".png")
+            if skipped and pic.is_file():
+                return
+            from ..match import MatchResult, load_result
+
+            d = load_result(path)
+            keep = np.ones(len(d["matches"]), bool)  # only the kept matches are stored
+            res = MatchResult(d["kpts1"], d["kpts2"], d["shapes1"], d["shapes2"], d["matches"], d["scores"],
+                              d["matches"], d["scores"], keep, tuple(d["image_size1"]), tuple(d["image_size2"]),
+                              settings=d["settings"])
+            save_plot(plot_result(res, Path(args.images) / name1, Path(args.images) / name2,
+                                  title=f"{name1} - {name2}: {len(d['matches'])} matches"), pic)
+
+        try:
+            summary = match_pairs(pairs, args.images, out_dir, progress=not args.no_progress, on_pair=on_pair,
+                                  **settings)
+        except (FileNotFoundError, ValueError) as exc:
+            return _error(str(exc))
+        print(f"{len(pairs)} pairs: {summary['done']} matched, {summary['skipped']} already done -> {out_dir}")
+        results = summary["files"]
+
+    if args.export_h5 is not None or args.export_colmap is not None:
+        from ..export import export_results
+
+        try:
+            report = export_results(results, h5_dir=args.export_h5, colmap_db=args.export_colmap)
+        except (ValueError, OSError) as exc:
+            return _error(f"export failed: {exc}")
+        for line in report:
+            print(line)
+    return 0

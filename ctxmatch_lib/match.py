@@ -1,0 +1,595 @@
+"""Two images in, filtered matches out: features -> blob matching -> spatial filters -> optional model step.
+
+The library side of ``ctxmatch match``: :func:`match_images` runs the paper's pipeline (Sec. 3 blob
+matching, Sec. 4 DTM or any registered filter, the model step of Sec. 5.1) on a pair of images of your own
+and returns a :class:`MatchResult`; :func:`save_result` / :func:`load_result` write and read it as ``.npz``,
+:func:`plot_result` draws it, and :func:`match_pairs` runs a whole ``pairs.txt`` (hloc's "name1 name2" per
+line) resumably, one ``.npz`` per pair.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel;
+image sizes are (width, height) and always read from the images; scores are lower-is-better.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "MatchResult",
+    "match_images",
+    "resolve_features",
+    "resolve_blob",
+    "save_result",
+    "load_result",
+    "plot_result",
+    "read_pairs",
+    "pair_filename",
+    "match_pairs",
+]
+
+#: Keys of the ``.npz`` written by :func:`save_result`.
+NPZ_KEYS = ("kpts1", "kpts2", "shapes1", "shapes2", "matches", "scores", "image_size1", "image_size2", "settings")
+
+
+@dataclass(frozen=True, eq=False)
+class MatchResult:
+    """Filtered matches between two images and everything needed to use them.
+
+    Attributes
+    ----------
+    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
+        Keypoints (x, y) in pixels, origin at the centre of the top-left pixel.
+    shapes1, shapes2 : ndarray of shape (N1, 2, 2) and (N2, 2, 2), float64
+        Affine shape ``A`` of each keypoint: its patch is ``{kpt + A @ u : |u| <= 1}`` (3 sigma for SIFT).
+    matches : ndarray of shape (K, 2), int64
+        Kept matches, rows into ``kpts1`` / ``kpts2``, sorted by score.
+    scores : ndarray of shape (K,), float64
+        Blob-matching score of each kept match (lower is better).
+    candidates : ndarray of shape (M, 2), int64
+        The blob-matching candidates the filters started from.
+    candidate_scores : ndarray of shape (M,), float64
+    keep : ndarray of shape (M,), bool
+        Which candidates were kept: ``matches == candidates[keep]``.
+    image_size1, image_size2 : tuple of int
+        (width, height) read from the images.
+    model : ndarray of shape (3, 3) or None
+        The fitted ``H`` or ``F`` of the model step (``None`` for ``model="none"`` or a failed fit).
+    settings : dict
+        The settings used (features, blob setup, filters, model), JSON-serialisable.
+    """
+
+    kpts1: np.ndarray
+    kpts2: np.ndarray
+    shapes1: np.ndarray
+    shapes2: np.ndarray
+    matches: np.ndarray
+    scores: np.ndarray
+    candidates: np.ndarray
+    candidate_scores: np.ndarray
+    keep: np.ndarray
+    image_size1: tuple
+    image_size2: tuple
+    model: np.ndarray | None = None
+    settings: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.matches)
+
+
+# ------------------------------------------------------------------------------------------ arguments
+
+
+def resolve_features(features="sift-rootsift", *, max_keypoints: int | None = None):
+    """A :class:`~ctxmatch_lib.features.FeatureConfig` from a preset name or a config.
+
+    Parameters
+    ----------
+    features : str or FeatureConfig
+        A name of :data:`~ctxmatch_lib.features.FEATURE_PRESETS` (``"sift-rootsift"``, ...) or a config.
+    max_keypoints : int, optional
+        Overrides the preset's keypoint cap (0: no cap).
+
+    Returns
+    -------
+    FeatureConfig
+    """
+    from dataclasses import replace
+
+    from .features import FEATURE_PRESETS, FeatureConfig
+
+    if isinstance(features, str):
+        if features not in FEATURE_PRESETS:
+            raise ValueError(f"features must be one of {', '.join(FEATURE_PRESETS)} or a FeatureConfig, "
+                             f"got {features!r}")
+        features = FEATURE_PRESETS[features]
+    elif not isinstance(features, FeatureConfig):
+        raise ValueError(f"features must be a preset name or a FeatureConfig, got {type(features).__name__}")
+    if max_keypoints is not None:
+        features = replace(features, max_keypoints=max_keypoints)
+    return features
+
+
+def _parse_value(text: str):
+    low = text.strip().lower()
+    if low in ("none", "inf", "off"):
+        return None
+    try:
+        return int(low)
+    except ValueError:
+        pass
+    try:
+        return float(low)
+    except ValueError:
+        return text.strip()
+
+
+def resolve_blob(blob="paper-best"):
+    """A :class:`~ctxmatch_lib.blob.BlobConfig` from a preset, a spec string, a dict or a config.
+
+    Parameters
+    ----------
+    blob : str, dict or BlobConfig
+        A name of :data:`~ctxmatch_lib.blob.BLOB_PRESETS`; or ``"NAME:key=value,..."`` /
+        ``"key=value,..."`` overriding fields of that preset (of ``"paper-best"`` when no name is given),
+        e.g. ``"paper-best:t_o=none"`` or ``"f=omega,f_prime=1,ratio=D>=,t_o=none,combine=a"``; or a dict
+        of :class:`~ctxmatch_lib.blob.BlobConfig` fields; or a config.
+
+    Returns
+    -------
+    BlobConfig
+
+    Examples
+    --------
+    >>> resolve_blob("paper-best:t_o=5").label
+    "f=10∪ f'=5 t_o=5px D+ W=harmonic"
+    """
+    from .blob import BLOB_PRESETS, BlobConfig
+
+    if isinstance(blob, BlobConfig):
+        return blob
+    if isinstance(blob, Mapping):
+        return BlobConfig(**{**BLOB_PRESETS["paper-best"].kwargs(), **dict(blob)})
+    if not isinstance(blob, str):
+        raise ValueError(f"blob must be a preset name, a 'key=value,...' string, a dict or a BlobConfig, "
+                         f"got {type(blob).__name__}")
+    name, _, rest = blob.partition(":")
+    if "=" in name:  # no preset name: only overrides
+        name, rest = "paper-best", blob
+    name = name.strip()
+    if name not in BLOB_PRESETS:
+        raise ValueError(f"unknown blob preset {name!r}; known presets: {', '.join(BLOB_PRESETS)}")
+    params = BLOB_PRESETS[name].kwargs()
+    for item in filter(None, (t.strip() for t in rest.split(","))):
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or key not in params:
+            raise ValueError(f"blob override {item!r} must be key=value with key among {', '.join(params)}")
+        params[key] = value.strip() if key in ("ratio", "combine", "prefilter", "t_o_kind") else _parse_value(value)
+    if params.get("t_o") is not None and isinstance(params["t_o"], float) and math.isinf(params["t_o"]):
+        params["t_o"] = None
+    return BlobConfig(**params)
+
+
+def _as_filter_list(filters) -> tuple[str, ...]:
+    from .pipeline import check_filters
+
+    if filters is None:
+        return ()
+    if isinstance(filters, str):
+        filters = [filters]
+    names = [f for f in filters if f.strip().lower() != "none"]
+    return check_filters(names)
+
+
+# ------------------------------------------------------------------------------------------- one pair
+
+
+def _threshold(value) -> float:
+    from .geometry import CONSISTENCY_THRESHOLD_PX
+
+    value = CONSISTENCY_THRESHOLD_PX if value is None else float(value)
+    if not value > 0:
+        raise ValueError(f"model_threshold must be positive, got {value}")
+    return value
+
+
+def _read(image):
+    """The pixels of a path or an array (kept as given for plotting) and the gray image for the features."""
+    from .features import _as_gray_uint8
+
+    gray = _as_gray_uint8(image)
+    if gray.ndim != 2 or gray.size == 0:
+        raise ValueError(f"image must be a non-empty 2-D image, got shape {gray.shape}")
+    return gray
+
+
+def match_images(
+    image1,
+    image2,
+    *,
+    features="sift-rootsift",
+    blob="paper-best",
+    filters: Sequence[str] | str | None = ("dtm",),
+    model: str = "none",
+    model_kind: str = "F",
+    model_threshold: float | None = None,
+    filter_params: Mapping[str, dict] | None = None,
+    max_keypoints: int | None = None,
+    cache_dir=None,
+    rng=0,
+) -> MatchResult:
+    """Match two images: SIFT features, blob matching (Sec. 3), spatial filters (Sec. 4), a model step.
+
+    Parameters
+    ----------
+    image1, image2 : str, Path or ndarray
+        Image files, or pixels (``(H, W)`` gray or ``(H, W, 3|4)`` RGB(A)). Image sizes are taken from them.
+    features : str or FeatureConfig
+        Feature preset (:data:`~ctxmatch_lib.features.FEATURE_PRESETS`) or configuration.
+    blob : str, dict or BlobConfig
+        Blob-matching setup (:func:`resolve_blob`); default the paper's best, f = 10∪, f' = 5, D+,
+        t_o = 10 px, harmonic W.
+    filters : sequence of str, str or None
+        Registered filters (:data:`~ctxmatch_lib.filters.FILTERS`) applied one after the other, each to the
+        output of the previous one; ``None``, ``()`` or ``"none"`` keeps the blob candidates.
+    model : {"none", "1sac", "ransac", "prosac"}
+        Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`).
+    model_kind : {"F", "H"}
+        Fundamental matrix (any scene) or homography (planar scenes, pure rotations).
+    model_threshold : float, optional
+        Consistency threshold of the model step in pixels (default 15, Sec. 5.1).
+    filter_params : dict of str -> dict, optional
+        Extra keyword arguments per filter.
+    max_keypoints : int, optional
+        Overrides the keypoint cap of the feature preset.
+    cache_dir : str, Path, None or False
+        Feature cache (:func:`~ctxmatch_lib.features.extract_features`); ``False`` disables it.
+    rng : None, int or numpy.random.Generator
+        Seed of the RANSAC model steps.
+
+    Returns
+    -------
+    MatchResult
+        ``matches`` (K, 2) int64 rows into ``kpts1`` / ``kpts2``, ``scores`` (K,) lower is better. No
+        keypoint or no candidate gives K = 0, not an error.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skimage.data import camera
+    >>> img = camera()[::2, ::2]
+    >>> res = match_images(img, np.ascontiguousarray(img[10:, 12:]), max_keypoints=300, cache_dir=False)
+    >>> res.matches.shape[1], res.image_size1, res.image_size2
+    (2, (256, 256), (244, 246))
+    >>> shift = res.kpts1[res.matches[:, 0]] - res.kpts2[res.matches[:, 1]]
+    >>> np.median(shift, axis=0).round().tolist()  # image 2 is image 1 cropped by 12 columns and 10 rows
+    [12.0, 10.0]
+    """
+    from .features import extract_features
+    from .geometry import MODEL_STEPS, apply_model_step
+    from .pipeline import blob_candidates, run_filter
+
+    cfg_feat = resolve_features(features, max_keypoints=max_keypoints)
+    cfg_blob = resolve_blob(blob)
+    names = _as_filter_list(filters)
+    if model not in MODEL_STEPS:
+        raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
+    if model_kind not in ("F", "H"):
+        raise ValueError(f"model_kind must be 'F' or 'H', got {model_kind!r}")
+    threshold = _threshold(model_threshold)
+    filter_params = dict(filter_params or {})
+
+    gray1, gray2 = _read(image1), _read(image2)
+    size1 = (int(gray1.shape[1]), int(gray1.shape[0]))
+    size2 = (int(gray2.shape[1]), int(gray2.shape[0]))
+    f1 = extract_features(gray1, cfg_feat, cache_dir=cache_dir)
+    f2 = extract_features(gray2, cfg_feat, cache_dir=cache_dir)
+    cand, cand_scores, _ = blob_candidates(f1, f2, cfg_blob)
+    keep = np.ones(len(cand), bool)
+    for name in names:
+        idx = np.flatnonzero(keep)
+        sub, _ = run_filter(name, f1, f2, cand[idx], cand_scores[idx], image_size1=size1, image_size2=size2,
+                            blob_ratio=cfg_blob.ratio, **filter_params.get(name, {}))
+        keep[idx[~sub]] = False
+    fitted = None
+    if model != "none":
+        idx = np.flatnonzero(keep)
+        fit = apply_model_step(model, f1.kpts, f2.kpts, cand[idx], cand_scores[idx], kind=model_kind,
+                               threshold=threshold, rng=rng)
+        keep[idx[~fit.keep]] = False
+        fitted = fit.model
+    settings = {
+        "features": asdict(cfg_feat),
+        "blob": cfg_blob.kwargs(),
+        "filters": list(names),
+        "filter_params": filter_params,
+        "model": model,
+        "model_kind": model_kind,
+        "model_threshold": threshold,
+        "rng": rng if isinstance(rng, (int, type(None))) else repr(rng),
+    }
+    from . import __version__
+
+    settings["ctxmatch_version"] = __version__
+    return MatchResult(
+        kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
+        matches=np.ascontiguousarray(cand[keep], np.int64), scores=np.asarray(cand_scores[keep], np.float64),
+        candidates=cand, candidate_scores=cand_scores, keep=keep, image_size1=size1, image_size2=size2,
+        model=fitted, settings=settings,
+    )
+
+
+# ----------------------------------------------------------------------------------------------- files
+
+
+def save_result(result: MatchResult, path, **extra) -> Path:
+    """Write ``result`` to ``path`` (``.npz``) atomically.
+
+    Keys: ``kpts1``, ``kpts2``, ``shapes1``, ``shapes2``, ``matches`` (K, 2) int64, ``scores`` (K,),
+    ``image_size1``, ``image_size2`` (width, height), ``settings`` (a JSON string), plus ``model`` when one
+    was fitted and any ``extra`` arrays (e.g. image names).
+
+    Parameters
+    ----------
+    result : MatchResult
+    path : str or Path
+        Output file; missing folders are created. A run killed while writing leaves the old file (or none).
+    **extra
+        More arrays to store.
+
+    Returns
+    -------
+    Path
+    """
+    from ._paths import atomic_path
+
+    path = Path(path)
+    arrays = {
+        "kpts1": result.kpts1, "kpts2": result.kpts2, "shapes1": result.shapes1, "shapes2": result.shapes2,
+        "matches": np.asarray(result.matches, np.int64), "scores": np.asarray(result.scores, np.float64),
+        "image_size1": np.asarray(result.image_size1, np.int64),
+        "image_size2": np.asarray(result.image_size2, np.int64),
+        "settings": np.array(json.dumps(result.settings, sort_keys=True, default=str)),
+    }
+    if result.model is not None:
+        arrays["model"] = np.asarray(result.model, np.float64)
+    arrays.update({k: np.asarray(v) for k, v in extra.items()})
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    _honour_umask(path)
+    return path
+
+
+def _honour_umask(path: Path) -> None:
+    """Temporary files are created 0600; give the final file the permissions a plain ``open`` would."""
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
+
+def load_result(path) -> dict:
+    """Read a ``.npz`` of :func:`save_result` into a dict of arrays; ``settings`` is parsed back to a dict.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    dict
+    """
+    with np.load(path, allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    out["settings"] = json.loads(str(out["settings"]))
+    return out
+
+
+def plot_result(result: MatchResult, image1, image2, *, ax=None, color="lime", lw: float = 0.6,
+                title: str | None = None):
+    """Draw the two images side by side with the kept matches (:mod:`ctxmatch_lib.plots.viz2d`).
+
+    Parameters
+    ----------
+    result : MatchResult
+    image1, image2 : str, Path or ndarray
+        The images the result was computed on (paths are read in colour).
+    ax : matplotlib Axes, optional
+        Where to draw; a new figure is made when omitted.
+    color : colour or array of shape (K, 4)
+        Line colour(s).
+    lw : float
+        Line width.
+    title : str, optional
+        Default: the number of kept matches out of the candidates.
+
+    Returns
+    -------
+    matplotlib Figure
+    """
+    import matplotlib.pyplot as plt
+
+    from .features import load_image
+    from .plots.viz2d import plot_image_pair, plot_matches
+
+    imgs = [load_image(im, gray=False) if isinstance(im, (str, Path)) else np.asarray(im) for im in (image1, image2)]
+    if ax is None:
+        h = max(imgs[0].shape[0], imgs[1].shape[0])
+        w = imgs[0].shape[1] + imgs[1].shape[1]
+        fig, ax = plt.subplots(figsize=(min(14.0, 7.0 * w / max(h, 1) / 2 + 1), 4.5))
+    else:
+        fig = ax.figure
+    offset = plot_image_pair(ax, imgs[0], imgs[1], dim=0.8)
+    m = result.matches
+    plot_matches(ax, result.kpts1[m[:, 0]], result.kpts2[m[:, 1]], color=color, lw=lw, ps=2.0, offset=offset)
+    if title is None:
+        filt = "+".join(result.settings.get("filters", [])) or "no filter"
+        title = f"{len(m)} matches kept of {len(result.candidates)} blob candidates ({filt})"
+    ax.set_title(title, fontsize=9)
+    return fig
+
+
+def save_plot(fig, path, *, dpi: int = 150) -> Path:
+    """Write a figure to exactly ``path`` (format from the suffix), atomically, and close it."""
+    import matplotlib.pyplot as plt
+
+    from ._paths import atomic_path
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=(path.suffix[1:] or "png"))
+    plt.close(fig)
+    _honour_umask(path)
+    return path
+
+
+# ---------------------------------------------------------------------------------------- folder mode
+
+
+def read_pairs(path) -> list[tuple[str, str]]:
+    """Read hloc's pairs file: one ``name1 name2`` per line; blank lines and ``#`` comments are skipped.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    list of (str, str)
+        Image names relative to the image folder, in file order, duplicates removed.
+    """
+    pairs, seen = [], set()
+    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        if len(parts) != 2:
+            raise ValueError(f"pairs file {path}, line {n}: expected 'name1 name2', got {line!r}")
+        pair = (parts[0], parts[1])
+        if pair not in seen:
+            seen.add(pair)
+            pairs.append(pair)
+    return pairs
+
+
+def pair_filename(name1: str, name2: str) -> str:
+    """File name of a pair's result in folder mode.
+
+    Parameters
+    ----------
+    name1, name2 : str
+        Image names of the pairs file.
+
+    Returns
+    -------
+    str
+        ``"{name1}__{name2}.npz"`` with ``/`` turned into ``-`` (hloc's ``names_to_pair`` escaping).
+
+    Examples
+    --------
+    >>> pair_filename("db/a.jpg", "b.jpg")
+    'db-a.jpg__b.jpg.npz'
+    """
+    return f"{name1.replace('/', '-')}__{name2.replace('/', '-')}.npz"
+
+
+def match_pairs(
+    pairs: Iterable[tuple[str, str]],
+    image_dir,
+    out_dir,
+    *,
+    progress: bool = True,
+    on_pair: Callable[[str, str, Path, bool], None] | None = None,
+    **kwargs,
+) -> dict:
+    """Match every pair of a pairs list, one ``.npz`` per pair in ``out_dir``; resumable.
+
+    A pair whose file already exists with the same settings is skipped, so a run killed at any moment
+    (even by SIGKILL) loses nothing already written and a re-run does only the rest; a pair written with
+    other settings is redone. Files are written atomically, so a half-written file never exists under its
+    final name. A pair is known by its image names: delete its file to redo it after changing an image.
+
+    Parameters
+    ----------
+    pairs : iterable of (str, str)
+        Image names relative to ``image_dir`` (:func:`read_pairs`).
+    image_dir : str or Path
+    out_dir : str or Path
+        Output folder (created); file names from :func:`pair_filename`.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    on_pair : callable, optional
+        Called as ``on_pair(name1, name2, path, skipped)`` after each pair.
+    **kwargs
+        Settings of :func:`match_images`.
+
+    Returns
+    -------
+    dict
+        ``{"done": n, "skipped": n, "files": {(name1, name2): Path}}``.
+    """
+    from tqdm.auto import tqdm
+
+    pairs = list(pairs)
+    image_dir, out_dir = Path(image_dir), Path(out_dir)
+    files = {p: out_dir / pair_filename(*p) for p in pairs}
+    if len(set(files.values())) != len(files):
+        raise ValueError("two different pairs map to the same output file name (names that differ only by '/' "
+                         "and '-'); rename the images")
+    missing = sorted({n for p in pairs for n in p if not (image_dir / n).is_file()})
+    if missing:
+        raise FileNotFoundError(f"{len(missing)} image(s) of the pairs file not found under {image_dir}: "
+                                f"{', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
+    # The settings of this run, to tell a finished pair from one computed with other settings.
+    wanted = _settings_key(kwargs)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = skipped = 0
+    bar = tqdm(pairs, desc="ctxmatch match", unit="pair", disable=not progress, dynamic_ncols=True)
+    for name1, name2 in bar:
+        path = files[(name1, name2)]
+        bar.set_postfix_str(f"{name1} {name2}", refresh=False)
+        if path.is_file() and _stored_key(path) == wanted:
+            skipped += 1
+            if on_pair is not None:
+                on_pair(name1, name2, path, True)
+            continue
+        for stale in out_dir.glob(f".{path.name}.*.tmp"):  # left by a run killed while writing
+            stale.unlink(missing_ok=True)
+        res = match_images(image_dir / name1, image_dir / name2, **kwargs)
+        save_result(res, path, name1=np.array(name1), name2=np.array(name2))
+        done += 1
+        if on_pair is not None:
+            on_pair(name1, name2, path, False)
+    return {"done": done, "skipped": skipped, "files": files}
+
+
+def _settings_key(kwargs: Mapping) -> str:
+    cfg = {
+        "features": asdict(resolve_features(kwargs.get("features", "sift-rootsift"),
+                                            max_keypoints=kwargs.get("max_keypoints"))),
+        "blob": resolve_blob(kwargs.get("blob", "paper-best")).kwargs(),
+        "filters": list(_as_filter_list(kwargs.get("filters", ("dtm",)))),
+        "filter_params": dict(kwargs.get("filter_params") or {}),
+        "model": kwargs.get("model", "none"),
+        "model_kind": kwargs.get("model_kind", "F"),
+        "model_threshold": _threshold(kwargs.get("model_threshold")),
+    }
+    return json.dumps(cfg, sort_keys=True, default=str)
+
+
+def _stored_key(path: Path) -> str | None:
+    try:
+        s = load_result(path)["settings"]
+    except Exception:  # unreadable or foreign: recompute
+        return None
+    return json.dumps({k: s.get(k) for k in ("features", "blob", "filters", "filter_params", "model", "model_kind",
+                                             "model_threshold")},
+                      sort_keys=True, default=str)

@@ -1,0 +1,141 @@
+"""``ctxmatch match`` end to end on two embedded images, folder mode resumed after a SIGKILL, and the library
+side (:mod:`ctxmatch_lib.match`)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ctxmatch_lib.cli import main
+from ctxmatch_lib.match import load_result, match_images, read_pairs, resolve_blob
+
+# The planted homography between the two test images (image 1 -> image 2).
+H12 = np.array([[0.95, 0.08, 12.0], [-0.06, 0.97, 8.0], [1e-4, 0.0, 1.0]])
+
+
+def _write_pair(folder: Path, name1="a.png", name2="b.png", *, crop=0):
+    """Two images from scikit-image's bundled astronaut photo: image 2 is image 1 warped by H12."""
+    import cv2
+    from skimage.data import astronaut
+
+    img = cv2.cvtColor(astronaut(), cv2.COLOR_RGB2BGR)[::2, ::2][crop:, crop:]
+    folder.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / name1), img)
+    cv2.imwrite(str(folder / name2), cv2.warpPerspective(img, H12, (240, 220)))
+    return folder / name1, folder / name2
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    return _write_pair(tmp_path_factory.mktemp("imgs"))
+
+
+def test_match_cli_end_to_end(pair, tmp_path, capsys):
+    out, pic = tmp_path / "m.npz", tmp_path / "m.png"
+    rc = main(["match", str(pair[0]), str(pair[1]), "--out", str(out), "--plot", str(pic),
+               "--max-keypoints", "500", "--no-cache"])
+    assert rc == 0
+    with np.load(out) as z:
+        keys = set(z.files)
+        d = {k: z[k] for k in z.files}
+    assert {"kpts1", "kpts2", "matches", "scores", "image_size1", "image_size2", "settings"} <= keys
+    m = d["matches"]
+    assert m.dtype == np.int64 and m.ndim == 2 and m.shape[1] == 2 and len(m) > 50
+    assert d["scores"].shape == (len(m),) and np.all(np.diff(d["scores"]) >= 0)
+    # Sizes come from the files: 256 x 256 and 240 x 220.
+    assert d["image_size1"].tolist() == [256, 256] and d["image_size2"].tolist() == [240, 220]
+    settings = json.loads(str(d["settings"]))
+    assert settings["filters"] == ["dtm"] and settings["blob"]["f"] == 10 and settings["features"]["max_keypoints"] == 500
+    # Most kept matches agree with the planted homography (DTM keeps the consistent ones; blob matches are
+    # many-to-many, so neighbouring keypoints within a few pixels count too).
+    p1 = np.c_[d["kpts1"][m[:, 0]], np.ones(len(m))] @ H12.T
+    err = np.linalg.norm(p1[:, :2] / p1[:, 2:] - d["kpts2"][m[:, 1]], axis=1)
+    assert np.mean(err < 15) > 0.8  # the paper's ground-truth tolerance (Sec. 5.1)
+    assert pic.is_file() and pic.stat().st_size > 10_000
+    assert "matches kept" in capsys.readouterr().out
+
+
+def test_match_cli_filters_model_and_errors(pair, tmp_path, capsys):
+    out = tmp_path / "m.npz"
+    assert main(["match", str(pair[0]), str(pair[1]), "--out", str(out), "--max-keypoints", "400", "--no-cache",
+                 "--filter", "dtm,gms", "--model", "1sac", "--model-kind", "H"]) == 0
+    d = load_result(out)
+    assert d["settings"]["filters"] == ["dtm", "gms"] and d["settings"]["model"] == "1sac" and "model" in d
+    assert main(["match", str(pair[0]), "--out", str(out)]) == 2
+    assert main(["match", str(pair[0]), str(pair[1]), "--filter", "nope"]) == 2
+    assert main(["match", str(pair[0]), str(pair[1]), "--blob", "paper-best:zz=1"]) == 2
+    assert main(["match", str(pair[0]), str(tmp_path / "missing.png"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown filter 'nope'" in err and "zz=1" in err and "missing.png" in err
+
+
+def test_match_images_library(pair):
+    res = match_images(pair[0], pair[1], max_keypoints=400, cache_dir=False, filters=None)
+    assert len(res.matches) == len(res.candidates) and res.keep.all()
+    res2 = match_images(pair[0], pair[1], max_keypoints=400, cache_dir=False, filters="dtm")
+    np.testing.assert_array_equal(res2.candidates, res.candidates)
+    np.testing.assert_array_equal(res2.matches, res.candidates[res2.keep])
+    assert 0 < len(res2.matches) < len(res.matches)
+    # A blank image has no keypoints: an empty result, not an error.
+    empty = match_images(np.zeros((64, 64), np.uint8), pair[1], cache_dir=False)
+    assert empty.matches.shape == (0, 2) and empty.matches.dtype == np.int64 and empty.scores.shape == (0,)
+    with pytest.raises(ValueError, match="model must be"):
+        match_images(pair[0], pair[1], model="magic", cache_dir=False)
+
+
+def test_resolve_blob_and_pairs(tmp_path):
+    assert resolve_blob("baseline").f == "omega"
+    cfg = resolve_blob("f=3,prefilter=cap,t_o=none")
+    assert (cfg.f, cfg.prefilter, cfg.t_o, cfg.ratio) == (3, "cap", None, "D+")
+    assert resolve_blob({"f_prime": 1}).f_prime == 1
+    with pytest.raises(ValueError, match="unknown blob preset"):
+        resolve_blob("best")
+    p = tmp_path / "pairs.txt"
+    p.write_text("# hloc pairs\na.png b.png\n\na.png b.png\nsub/c.png a.png  # comment\n")
+    assert read_pairs(p) == [("a.png", "b.png"), ("sub/c.png", "a.png")]
+    p.write_text("a.png\n")
+    with pytest.raises(ValueError, match="line 1"):
+        read_pairs(p)
+
+
+def test_folder_mode_resumes_after_sigkill(tmp_path, monkeypatch, capsys):
+    imgs = tmp_path / "images"
+    _write_pair(imgs, "a.png", "b.png")
+    _write_pair(imgs, "c.png", "d.png", crop=6)
+    names = ["a.png", "b.png", "c.png", "d.png"]
+    pairs = [(x, y) for i, x in enumerate(names) for y in names[i + 1:]]  # 6 pairs
+    (tmp_path / "pairs.txt").write_text("".join(f"{x} {y}\n" for x, y in pairs))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "ctxmatch_lib.cli", "match", "--pairs", str(tmp_path / "pairs.txt"),
+           "--images", str(imgs), "--out", str(out), "--max-keypoints", "300", "--no-progress"]
+    env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not list(out.glob("*.npz")):
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    before = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.glob("*.npz")}
+    assert 0 < len(before) < 6, "the kill must land after the first pair and before the last"
+    for p in out.glob("*.npz"):  # what is there is complete
+        assert len(load_result(p)["matches"]) > 0
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert f"{len(before)} already done" in done.stdout
+    files = sorted(p.name for p in out.glob("*.npz"))
+    assert len(files) == 6
+    for name, (mtime, data) in before.items():  # finished pairs were not recomputed
+        assert (out / name).stat().st_mtime_ns == mtime and (out / name).read_bytes() == data
+    # In process from here on (faster): nothing left to do; other settings are recomputed, not mistaken
+    # for finished pairs.
+    monkeypatch.setenv("CTXMATCH_CACHE", env["CTXMATCH_CACHE"])
+    assert main(cmd[3:]) == 0
+    assert "0 matched, 6 already done" in capsys.readouterr().out
+    assert main(cmd[3:] + ["--filter", "none"]) == 0
+    assert "6 matched, 0 already done" in capsys.readouterr().out
