@@ -108,8 +108,8 @@ def test_scv_exact():
     x, y = _grid_translation()
     keep = _run("scv", x, y, _identity(len(x)))
     assert not keep[0] and keep[1:].all()
-    # A region of 4 neighbours is all the 5 matches have: the only step (4 shared of 4) is enough to
-    # accept (4 log(0.25 / 0.8)... the chance level 4/4 reaches p1: uninformative, nothing is accepted).
+    # Five matches: every region is capped at the 4 others, whose chance level 4 / 4 reaches p1, so the
+    # only step is uninformative and nothing is accepted.
     keep = _run("scv", x[1:6], y[1:6], _identity(5))
     assert not keep.any()
 
