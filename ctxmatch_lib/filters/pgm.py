@@ -13,8 +13,9 @@ PGM alternates two steps on an *active* subset of the candidate matches:
    score and by the pairwise affinity between the two (the posterior ``P(m | X)`` up to normalisation). The
    best voted candidates of every keypoint form the next active set, so candidates leave and re-enter it.
 
-The loop stops when the active set no longer changes (or after ``max_rounds``); the output is the final
-one-to-one matching, less the matches that no other match of the solution supports.
+The loop stops when the matching objective ``X' W X`` of the discrete solution no longer increases, when
+the active set no longer changes, or after ``max_rounds``; the output is the best one-to-one matching, less
+the matches that the other matches of the solution do not support.
 
 Pairwise affinity (RRWM and PGM image experiments): ``w_ab = max(tau - d_ab, 0)`` with ``tau = 50``
 pixels and ``d_ab`` the mutual projection error of the two local affine transformations,
@@ -73,10 +74,13 @@ def _pair_affinity(x, y, T, a: np.ndarray, b: np.ndarray, tau: float, rho: float
         with np.errstate(invalid="ignore", divide="ignore"):
             d = np.where(l1 + l2 > 0, 2.0 * np.abs(l1 - l2) / (l1 + l2), 0.0)
         return np.maximum(1.0 - d / rho, 0.0)
+    Ta, Tb = T.reshape(-1, 4)[a], T.reshape(-1, 4)[b]
     with np.errstate(invalid="ignore"):
-        e_a = dy - np.einsum("kij,kj->ki", T[a], dx)
-        e_b = -dy + np.einsum("kij,kj->ki", T[b], dx)
-        d = 0.5 * (np.hypot(e_a[:, 0], e_a[:, 1]) + np.hypot(e_b[:, 0], e_b[:, 1]))
+        e_a = np.hypot(dy[:, 0] - Ta[:, 0] * dx[:, 0] - Ta[:, 1] * dx[:, 1],
+                       dy[:, 1] - Ta[:, 2] * dx[:, 0] - Ta[:, 3] * dx[:, 1])
+        e_b = np.hypot(dy[:, 0] - Tb[:, 0] * dx[:, 0] - Tb[:, 1] * dx[:, 1],
+                       dy[:, 1] - Tb[:, 2] * dx[:, 0] - Tb[:, 3] * dx[:, 1])
+        d = 0.5 * (e_a + e_b)
     d = np.where(np.isfinite(d), d, np.inf)
     return np.maximum(1.0 - d / tau, 0.0)
 
@@ -109,11 +113,25 @@ def _affinity(x, y, T, m, k: int, tau: float, rho: float) -> sp.csr_matrix:
 
 
 def _sinkhorn(a: np.ndarray, g1: np.ndarray, g2: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
-    """Alternate normalisation of ``a`` over the conflict groups ``g1`` (image 1) and ``g2`` (image 2)."""
-    n1, n2 = g1.max() + 1, g2.max() + 1
+    """Sinkhorn normalisation of the candidates ``a`` over the conflict groups, with slack.
+
+    The candidates are the non-zero entries ``(g1, g2)`` of an ``n1 x n2`` assignment matrix, made square
+    as in the authors' code by ``|n1 - n2|`` dummy rows (or columns) over the whole of the larger side,
+    each entry starting at 1 (the jump weight of a candidate without support). The dummy rows stay equal to
+    one another, so they are kept as one vector with a multiplicity: ``O(K + n)`` per iteration.
+    """
+    n1, n2 = int(g1.max()) + 1, int(g2.max()) + 1
+    if n1 > n2:  # transpose the problem so that the dummies are rows
+        g1, g2, n1, n2 = g2, g1, n2, n1
+    extra = n2 - n1
+    dummy = np.ones(n2)
     for _ in range(max_iter):
         a = a / np.bincount(g1, a, n1)[g1]
-        b = a / np.bincount(g2, a, n2)[g2]
+        if extra:
+            dummy = dummy / dummy.sum()
+        col = np.bincount(g2, a, n2) + extra * dummy
+        b = a / col[g2]
+        dummy = dummy / col
         done = np.abs(b - a).max() < tol
         a = b
         if done:
@@ -131,7 +149,7 @@ def rrwm(
     max_iter: int = 300,
     tol: float = 1e-25,
     sinkhorn_tol: float = 1e-3,
-    sinkhorn_iter: int = 100,
+    sinkhorn_iter: int = 10,
 ) -> np.ndarray:
     """Reweighted random walks graph matching on a (sparse) affinity matrix.
 
@@ -149,8 +167,9 @@ def rrwm(
     max_iter, tol : int, float
         The walk stops after ``max_iter`` steps or when the squared change of the scores (against the last
         two iterates, to stop oscillations) is below ``tol`` (authors' defaults 300 and 1e-25).
-    sinkhorn_tol, sinkhorn_iter : float, int
-        Stopping rule of the Sinkhorn normalisation (authors' tolerance 1e-3).
+    sinkhorn_tol, sinkhorn_iter : float, int, default 1e-3 and 10
+        Stopping rule of the Sinkhorn normalisation of each step: the authors' tolerance, and a cap of 10
+        iterations instead of their 1000 (see the Notes of :func:`pgm_filter`).
 
     Returns
     -------
@@ -209,15 +228,16 @@ def greedy_assignment(score: np.ndarray, m: np.ndarray) -> np.ndarray:
     return keep
 
 
-def _top_per_keypoint(vote: np.ndarray, key: np.ndarray, per_node: int) -> np.ndarray:
-    """Mask of the ``per_node`` best voted candidates (vote > 0) of every keypoint ``key``."""
-    order = np.lexsort((-vote, key))
+def _top_per_keypoint(vote: np.ndarray, key: np.ndarray, per_node: int, positive: bool = True) -> np.ndarray:
+    """Mask of the ``per_node`` highest ``vote`` candidates of every keypoint ``key`` (only votes > 0 if
+    ``positive``); ties go to the lower index."""
+    order = np.lexsort((np.arange(len(key)), -vote, key))
     k_sorted = key[order]
     start = np.r_[0, np.flatnonzero(k_sorted[1:] != k_sorted[:-1]) + 1]
     rank = np.arange(len(key)) - np.repeat(start, np.diff(np.r_[start, len(key)]))
     sel = np.zeros(len(key), bool)
     sel[order[rank < per_node]] = True
-    return sel & (vote > 0)
+    return sel & (vote > 0) if positive else sel
 
 
 def pgm_filter(
@@ -235,6 +255,7 @@ def pgm_filter(
     rho: float = 0.5,
     max_rounds: int = 5,
     per_node: int = 3,
+    n_init: int = 1,
     min_support: float = 2.0,
     c: float = 0.2,
     amp_max: float = 30.0,
@@ -266,6 +287,8 @@ def pgm_filter(
         Maximum number of matching/progression rounds (PGM stops earlier when the active set is stable).
     per_node : int, default 3
         Best voted candidates kept per image-1 keypoint in the next active set.
+    n_init : int, default 1
+        Best-scored candidates per image-1 keypoint in the initial active set.
     min_support : float, default 2
         A match of the final matching is output when the sum of its affinities (each in [0, 1]) with its
         neighbours in the final matching reaches this value.
@@ -293,9 +316,24 @@ def pgm_filter(
       so a match is output only when its consistency with the other matches of the solution is worth at
       least two perfectly consistent neighbours (on the planted-outlier case, the 1st percentile of the
       correct matches is above 3, the median of the wrong ones below 1).
-    - The initial active set is the whole input (PGM's initial candidates are the top descriptor matches,
-      which is what the input already is). No randomness is involved, so there is no ``rng``: the result is
-      deterministic (ties broken by candidate order).
+    - ``n_init = 1``: PGM starts from a small, reliable graph and lets the progression grow it; the
+      initial active set is the best-scored candidate of every image-1 keypoint (with ``scores=None``, the
+      first one), and the other candidates enter only when the current matches vote for them. On four real
+      pairs (Graffiti 1-3 and 1-5, Brussels, booksh; paper-best blob candidates, SIFT shapes) this took the
+      first graph from all the candidates to a third of them and the running time down by 1.4x to 7x (one
+      measurement on a loaded machine), precision and recall moving by at most 0.02 down or 0.1 up.
+    - Stopping: the objective ``X' W X`` of the discrete solution must grow from one round to the next
+      (PGM), and ``max_rounds = 5`` bounds the rounds (three to five were used on the pairs above).
+    - The Sinkhorn normalisation of each RRWM step is capped at ``sinkhorn_iter = 10`` iterations (see
+      :func:`rrwm`): on sparse many-to-many candidate sets it rarely reaches the 1e-3 tolerance, so the
+      authors' cap of 1000 made it the dominant cost (a cap of 100 ran 3x to 6x slower than 10 on the
+      pairs above, precision and recall differing by at most 0.05).
+    - No randomness is involved, so there is no ``rng``: the result is deterministic (ties broken by
+      candidate order).
+
+    Without shapes the length-only affinity cannot see a rotation or a reflection: a wrong match whose
+    distances to its neighbours happen to be preserved in length is supported (for instance one match sent
+    from the corner of a small regular grid to the far side of it).
 
     References
     ----------
@@ -310,8 +348,9 @@ def pgm_filter(
     >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
     >>> y = g + (7.0, -3.0)
     >>> y[0] = (300.0, 200.0)  # one outlier
+    >>> shapes = np.tile(3.0 * np.eye(2), (64, 1, 1))  # keypoint frames: scale 3, upright
     >>> keep = pgm_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
-    ...                   image_size2=(400, 300))
+    ...                   image_size2=(400, 300), shapes1=shapes, shapes2=shapes)
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
@@ -321,6 +360,7 @@ def pgm_filter(
     rho = check_positive(rho, "rho")
     max_rounds = check_positive(max_rounds, "max_rounds", integer=True)
     per_node = check_positive(per_node, "per_node", integer=True)
+    n_init = check_positive(n_init, "n_init", integer=True)
     min_support = check_positive(min_support, "min_support", allow_zero=True)
     c = check_positive(c, "c", allow_zero=True)
     amp_max = check_positive(amp_max, "amp_max")
@@ -330,25 +370,32 @@ def pgm_filter(
         return np.zeros(n, bool)
     x, y, m = ms.x, ms.y, ms.matches
     T = _local_affines(ms.A1, ms.A2)
-    active = np.ones(n, bool)
+    # Initial active set: the best-scored candidate of every image-1 keypoint (the descriptor matches PGM
+    # starts from); the progression then brings in the alternatives that the matching supports.
+    active = _top_per_keypoint(-ms.scores, m[:, 0], n_init, positive=False)
     solution = np.zeros(n, bool)
-    score = np.zeros(n)
+    best = -1.0
     for _ in range(max_rounds):
         idx = np.flatnonzero(active)
         if len(idx) < 2:
-            solution[:] = False
             break
         Ta = None if T is None else T[idx]
         W = _affinity(x[idx], y[idx], Ta, m[idx], k, tau, rho)
         s = rrwm(W, m[idx, 0], m[idx, 1], c=c, amp_max=amp_max, max_iter=max_iter)
-        score[:] = 0.0
-        score[idx] = s
+        assigned = greedy_assignment(s, m[idx])
+        # The graph matching objective X' W X of the discrete solution; PGM stops when it no longer grows.
+        objective = float(W[assigned][:, assigned].sum())
+        if objective <= best:
+            break
+        best = objective
         solution[:] = False
-        solution[idx] = greedy_assignment(s, m[idx])
+        solution[idx[assigned]] = True
         # Graph progression (CVPR 2012): the current matches vote for every candidate.
         sol = np.flatnonzero(solution)
         if len(sol) < 2:
             break
+        score = np.zeros(n)
+        score[idx] = s
         vote = _votes(x, y, T, m, sol, score[sol], k, tau, rho)
         new_active = _top_per_keypoint(vote, m[:, 0], per_node) | solution
         if np.array_equal(new_active, active):
