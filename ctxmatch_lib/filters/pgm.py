@@ -1,6 +1,7 @@
 """PGM: Progressive Graph Matching (Cho & Lee, CVPR 2012) on a sparse k-nearest-neighbour affinity.
 
-PGM alternates two steps on an *active* subset of the candidate matches:
+PGM alternates two steps on an *active* subset of the candidate matches, starting from the best-scored
+candidate of every image-1 keypoint:
 
 1. **Graph matching** by reweighted random walks (RRWM, Cho, Lee & Lee, ECCV 2010): a random walker moves on
    the association graph whose nodes are the active candidates and whose edge weights are the pairwise
