@@ -32,6 +32,9 @@ _BUILTIN: dict[str, str] = {
     "llt": "ctxmatch_lib.filters.llt:llt_filter",
     "adalam": "ctxmatch_lib.filters.adalam:adalam_filter",
     "rfm_scan": "ctxmatch_lib.filters.rfm_scan:rfm_scan_filter",
+    "pgm": "ctxmatch_lib.filters.pgm:pgm_filter",
+    "scv": "ctxmatch_lib.filters.scv:scv_filter",
+    "bm": "ctxmatch_lib.filters.bm:bm_filter",
 }
 
 

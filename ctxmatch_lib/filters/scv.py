@@ -1,0 +1,164 @@
+"""SCV: sequential correspondence selection by cosegmentation (Čech, Matas, Perdoch, TPAMI 2010), geometric.
+
+Čech et al. verify every tentative correspondence by growing a pair of corresponding regions around it, a
+cosegmentation of the two images started from the correspondence, and by deciding *sequentially*: after
+each growth step a statistic of the grown pair is added to a log-likelihood ratio, and Wald's sequential
+probability ratio test (SPRT) accepts the correspondence, rejects it, or lets the region grow further.
+A correct correspondence grows a large consistent pair quickly; a wrong one stops growing.
+
+**This is a match-based stand-in, not the pixel-based method.** The paper grows the regions on the image
+pixels with a dense stereo matcher (seed growing), and the filters of this package see keypoints only. Here
+the regions grow over the other matches instead of over pixels: at step ``t`` the region of match ``i`` in
+image 1 is its ``k_t`` nearest matches around ``x_i``, in image 2 its ``k_t`` nearest around ``y_i``; the pair
+is cosegmented to the extent that the two regions hold the same matches. Each step observes the matches
+that entered the image-1 region since the last step and counts those that also lie in the image-2 region
+(a Bernoulli trial each, success probability ``p1`` for a correct match and the chance level ``p0`` for a
+wrong one), and the SPRT of Wald (1947) decides with the error rates ``alpha`` and ``beta``. Everything else
+of the paper (the SVM-projected image statistics, its timing model) has no counterpart here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._common import check_positive, knn_without_self, prepare
+
+__all__ = ["scv_filter", "SCV_GROWTH"]
+
+#: Region sizes (matches) of the growth steps: each step doubles the region.
+SCV_GROWTH = (4, 8, 16, 32, 64)
+
+
+def _shared_counts(n1: np.ndarray, n2: np.ndarray, sizes) -> np.ndarray:
+    """Matches common to the first ``s`` entries of ``n1`` and of ``n2``, for each ``s`` of ``sizes``.
+
+    Returns an array of shape (K, len(sizes)). Neighbour lists hold distinct match indices.
+    """
+    out = np.zeros((len(n1), len(sizes)), np.int64)
+    for t, s in enumerate(sizes):
+        both = np.sort(np.concatenate([n1[:, :s], n2[:, :s]], axis=1), axis=1)
+        out[:, t] = (both[:, 1:] == both[:, :-1]).sum(1)
+    return out
+
+
+def scv_filter(
+    kpts1,
+    kpts2,
+    matches,
+    scores=None,
+    *,
+    image_size1,
+    image_size2,
+    shapes1=None,
+    shapes2=None,
+    growth=SCV_GROWTH,
+    p1: float = 0.15,
+    p0: float = 0.03,
+    alpha: float = 0.05,
+    beta: float = 0.05,
+) -> np.ndarray:
+    """Sequential correspondence verification by growing co-segmented match regions (geometric stand-in).
+
+    Parameters
+    ----------
+    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
+        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
+    matches : ndarray of shape (K, 2)
+        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed (matches are the region elements).
+    scores : ndarray of shape (K,) or None
+        Unused (validated only): every correspondence is tested on its own.
+    image_size1, image_size2 : (int, int)
+        Image sizes (width, height), validated only.
+    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
+        Unused.
+    growth : sequence of int, default (4, 8, 16, 32, 64)
+        Increasing region sizes, in matches, of the growth steps (capped at ``K - 1``).
+    p1 : float, default 0.15
+        Probability that a match entering the image-1 region of a correct correspondence is also in its
+        image-2 region (hypothesis "correct").
+    p0 : float, default 0.03
+        The same for a wrong correspondence (hypothesis "wrong"); raised to the chance level ``k_t / (K - 1)``
+        of step ``t`` when that is larger. A step where the chance level reaches ``p1`` is uninformative and
+        ends the test.
+    alpha, beta : float, default 0.05
+        Target probabilities of accepting a wrong and of rejecting a correct correspondence; Wald's
+        thresholds are ``log((1 - beta) / alpha)`` and ``log(beta / (1 - alpha))``.
+
+    Returns
+    -------
+    keep : ndarray of shape (K,), bool
+        Correspondences accepted by the test. One still undecided after the last step is rejected.
+
+    Notes
+    -----
+    The paper's constants belong to its pixel statistics and do not carry over; the ones here are chosen as
+    follows. Growth doubles the region, as the paper's regions grow geometrically, from 4 matches (the
+    smallest region that says more than a single neighbour) to 64 (beyond which a region spans a large part of
+    the image on sparse inputs). ``p1 = 0.15`` and ``p0 = 0.03``: the many-to-many candidates of the
+    paper-best blob matcher hold 5-15 % correct matches, so the region of a correct match is far from all
+    correct, while random regions of ``k`` among ``K`` matches share about ``k / K`` of them (below 1 % for
+    ``K`` in the thousands), plus margin for locally clustered wrong matches. On four real pairs (Graffiti 1-3
+    and 1-5, Brussels, booksh; paper-best blob candidates, correct within 15 pixels) ``(0.25, 0.05)`` gave
+    recalls of 0-0.24 for precisions of 0-0.88, ``(0.15, 0.03)`` recalls of 0.03-0.61 for precisions of
+    0.04-0.81, ``(0.1, 0.02)`` recalls of 0.08-0.82 for precisions of 0.05-0.75; the middle pair is the
+    default. ``alpha = beta = 0.05``, the usual SPRT operating point. Undecided correspondences are rejected,
+    for precision. The test has no randomness (no ``rng``): it is deterministic, ties in the neighbour search
+    being broken by the k-d tree.
+
+    References
+    ----------
+    J. Čech, J. Matas, M. Perdoch, "Efficient sequential correspondence selection by cosegmentation", IEEE
+    TPAMI 32(9), 2010. A. Wald, "Sequential analysis", Wiley, 1947.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
+    >>> y = g + (7.0, -3.0)
+    >>> y[0] = (300.0, 200.0)  # one outlier
+    >>> keep = scv_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
+    ...                   image_size2=(400, 300))
+    >>> bool(keep[0]), int(keep[1:].sum())
+    (False, 63)
+    """
+    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
+    sizes = [check_positive(s, "growth", integer=True) for s in np.atleast_1d(growth)]
+    if not sizes or any(b <= a for a, b in zip(sizes, sizes[1:])):
+        raise ValueError(f"growth must be a non-empty increasing sequence of sizes, got {growth!r}")
+    p1, p0 = check_positive(p1, "p1"), check_positive(p0, "p0")
+    if not p0 < p1 < 1:
+        raise ValueError(f"p0 and p1 must satisfy 0 < p0 < p1 < 1, got p0={p0}, p1={p1}")
+    alpha, beta = check_positive(alpha, "alpha"), check_positive(beta, "beta")
+    if alpha >= 1 or beta >= 1:
+        raise ValueError(f"alpha and beta must be below 1, got alpha={alpha}, beta={beta}")
+    n = len(ms)
+    sizes = sorted({min(s, n - 1) for s in sizes if min(s, n - 1) > 0})
+    if not sizes:
+        return np.zeros(n, bool)
+    everyone = np.arange(n)
+    n1 = knn_without_self(ms.x, everyone, sizes[-1])
+    n2 = knn_without_self(ms.y, everyone, sizes[-1])
+    shared = _shared_counts(n1, n2, sizes)
+    upper, lower = np.log((1 - beta) / alpha), np.log(beta / (1 - alpha))
+    llr = np.zeros(n)
+    decided = np.zeros(n, bool)
+    keep = np.zeros(n, bool)
+    prev_size, prev_shared = 0, np.zeros(n, np.int64)
+    for t, s in enumerate(sizes):
+        chance = max(p0, s / (n - 1))
+        if chance >= p1:
+            break
+        trials = s - prev_size
+        # The matches entering the region at this step; the count can exceed them by the earlier entrants
+        # of the image-1 region that only now entered the image-2 one, so it is capped at the trials.
+        success = np.minimum(shared[:, t] - prev_shared, trials)
+        step = success * np.log(p1 / chance) + (trials - success) * np.log((1 - p1) / (1 - chance))
+        llr = np.where(decided, llr, llr + step)
+        accept = ~decided & (llr >= upper)
+        reject = ~decided & (llr <= lower)
+        keep |= accept
+        decided |= accept | reject
+        prev_size, prev_shared = s, shared[:, t]
+        if decided.all():
+            break
+    return keep
