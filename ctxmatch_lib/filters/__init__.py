@@ -32,6 +32,9 @@ _BUILTIN: dict[str, str] = {
     "llt": "ctxmatch_lib.filters.llt:llt_filter",
     "adalam": "ctxmatch_lib.filters.adalam:adalam_filter",
     "rfm_scan": "ctxmatch_lib.filters.rfm_scan:rfm_scan_filter",
+    # Learned filters (torch imported on the first call; default weights trained here, not the authors').
+    "oanet": "ctxmatch_lib.filters.learned.filters:oanet_filter",
+    "acne": "ctxmatch_lib.filters.learned.filters:acne_filter",
 }
 
 
