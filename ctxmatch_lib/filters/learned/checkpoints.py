@@ -18,6 +18,7 @@ Three formats are read by :func:`load_model`:
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,6 +155,10 @@ def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None =
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
+        # The temporary file is created private (0600); give the result the permissions the umask allows.
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)
     return path
 
 

@@ -74,6 +74,11 @@ def normalise_coordinates(pts: np.ndarray, image_size, mode: str = "image") -> n
     Returns
     -------
     ndarray of shape (K, 2), float64
+
+    Examples
+    --------
+    >>> normalise_coordinates(np.array([[-0.5, -0.5], [319.5, 239.5]]), (640, 480)).tolist()
+    [[-1.0, -0.75], [0.0, 0.0]]
     """
     pts = np.asarray(pts, np.float64)
     if mode == "image":
@@ -89,7 +94,13 @@ def normalise_coordinates(pts: np.ndarray, image_size, mode: str = "image") -> n
 
 
 def score_rank(scores: np.ndarray) -> np.ndarray:
-    """Scores (lower is better) as their average rank scaled to [0, 1] (0 best); all equal -> 0.5."""
+    """Scores (lower is better) as their average rank scaled to [0, 1] (0 best); all equal -> 0.5.
+
+    Examples
+    --------
+    >>> score_rank(np.array([0.3, 0.1, 0.3, 0.9])).tolist()
+    [0.5, 0.0, 0.5, 1.0]
+    """
     s = np.asarray(scores, np.float64)
     k = len(s)
     if k <= 1:

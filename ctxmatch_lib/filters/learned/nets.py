@@ -45,7 +45,8 @@ class OANetConfig:
     ``net_depth`` counts the layers of all blocks together (each of the ``iter_num + 1`` blocks gets
     ``net_depth // (iter_num + 1)``), ``clusters`` is the DiffPool size M, ``side_channels`` the side
     information channels after the 4 coordinates. The authors' release uses 128 channels, depth 12, 500
-    clusters, 1 iteration; the weights trained here use a smaller network (see ``weights/README``).
+    clusters, 1 iteration; the weights trained here use a smaller network
+    (:data:`~ctxmatch_lib.filters.learned.training.TRAINED_HERE_CONFIGS`).
     """
 
     net_channels: int = 128
