@@ -319,3 +319,16 @@ def test_cli_train_registered():
 
     args = build_parser().parse_args(["train", "oanet", "--steps", "5", "--seed", "3"])
     assert args.arch == "oanet" and args.steps == 5 and args.seed == 3 and callable(args.func)
+    assert build_parser().parse_args(["train", "acne"]).steps is None  # the shipped run's steps
+
+
+def test_cli_train_tiny_run(torch, tmp_path, capsys):
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.filters.learned import load_learned_model
+
+    out = tmp_path / "acne.pt"
+    assert main(["train", "acne", "--steps", "2", "--batch-size", "1", "--k-min", "32", "--k-max", "32",
+                 "--max-images", "2", "--output", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "trained here" in text and "precision" in text and str(out) in text
+    assert "trained here" in load_learned_model("acne", out).label

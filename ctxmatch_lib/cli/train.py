@@ -22,7 +22,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "reads CTXMATCH_DATA. Seeded; shows a progress bar.",
     )
     parser.add_argument("arch", choices=["oanet", "acne"])
-    parser.add_argument("--steps", type=int, default=1500, help="optimisation steps (default 1500)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="optimisation steps (default: as the shipped weights, 400 for oanet, 2000 for acne)")
     parser.add_argument("--batch-size", type=int, default=8, help="candidate sets per step (default 8)")
     parser.add_argument("--k-min", type=int, default=500, help="fewest candidates per set (default 500)")
     parser.add_argument("--k-max", type=int, default=1500, help="most candidates per set (default 1500)")
@@ -30,6 +31,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seed of data and initialisation (default 0)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: reproducible)")
     parser.add_argument("--output", help="weights file to write (default: the package's shipped weights)")
+    parser.add_argument("--max-images", type=int, default=None,
+                        help="use only the first embedded images as keypoint sources (tiny runs)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(func=_train)
     return parser
@@ -41,9 +44,10 @@ def _train(args) -> int:
     output = args.output or shipped_weights(args.arch)
     res = train_learned_filter(args.arch, steps=args.steps, batch_size=args.batch_size,
                                n_candidates=(args.k_min, args.k_max), lr=args.lr, seed=args.seed,
-                               output=output, num_threads=args.threads, progress=not args.no_progress)
+                               output=output, num_threads=args.threads, max_images=args.max_images,
+                               progress=not args.no_progress)
     v = res.validation
-    print(f"{args.arch} (trained here): {args.steps} steps in {res.seconds:.0f} s, final loss "
+    print(f"{args.arch} (trained here): {len(res.losses)} steps in {res.seconds:.0f} s, final loss "
           f"{sum(res.losses[-50:]) / len(res.losses[-50:]):.4f}; generated sets at {100 * v['inlier_ratio']:.0f} % "
           f"inliers: precision {v['precision']:.3f}, recall {v['recall']:.3f}")
     print(f"weights written to {res.path}")

@@ -29,7 +29,7 @@ __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model"
            "train_learned_filter", "TORCH_HINT"]
 
 
-def train_learned_filter(arch: str, *, steps: int = 1500, batch_size: int = 8, n_candidates=(500, 1500),
+def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500),
                          lr: float = 1e-3, seed: int = 0, config: dict | None = None, output=None,
                          max_images: int | None = None, num_threads: int = 1, progress: bool = True,
                          validate: bool = True):
@@ -43,8 +43,10 @@ def train_learned_filter(arch: str, *, steps: int = 1500, batch_size: int = 8, n
     Parameters
     ----------
     arch : {"oanet", "acne"}
-    steps : int, default 1500
-        Optimisation steps (Adam, cosine learning-rate decay).
+    steps : int, optional
+        Optimisation steps (Adam, cosine learning-rate decay). Default: those of the shipped weights, 400
+        for OANet and 2000 for ACNe (:data:`~.training.TRAINED_HERE_STEPS`); with the other defaults this
+        reproduces them (same torch version and CPU kind).
     batch_size : int, default 8
         Candidate sets per step.
     n_candidates : int or (int, int), default (500, 1500)

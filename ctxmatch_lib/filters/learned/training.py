@@ -26,7 +26,7 @@ from .checkpoints import save_model
 from .data import keypoint_pool, network_input, random_training_set
 from .nets import ACNe, build_network
 
-__all__ = ["TRAINED_HERE_CONFIGS", "TrainResult", "train", "evaluate_generated"]
+__all__ = ["TRAINED_HERE_CONFIGS", "TRAINED_HERE_STEPS", "TrainResult", "train", "evaluate_generated"]
 
 #: Network shapes of the weights trained here: smaller than the authors' (128 channels, depth 12, 500
 #: clusters) so that training fits in minutes on two CPU cores.
@@ -34,6 +34,9 @@ TRAINED_HERE_CONFIGS = {
     "oanet": {"net_channels": 48, "net_depth": 8, "clusters": 32, "iter_num": 1, "side_channels": 1},
     "acne": {"net_channels": 48, "net_depth": 6, "num_inner": 2, "groups": 8, "side_channels": 0},
 }
+
+#: Steps of the shipped runs (seed 0, batch 8, K in [500, 1500], one thread): what ``steps=None`` means.
+TRAINED_HERE_STEPS = {"oanet": 400, "acne": 2000}
 
 
 @dataclass
@@ -85,12 +88,13 @@ def evaluate_generated(net, pool, *, side: str, n_sets: int = 20, n_candidates: 
             "n_sets": n_sets, "n_candidates": n_candidates}
 
 
-def train(arch: str, *, steps: int = 1500, batch_size: int = 8, n_candidates=(500, 1500), lr: float = 1e-3,
+def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500), lr: float = 1e-3,
           seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
           num_threads: int = 1, progress: bool = True, validate: bool = True) -> TrainResult:
     """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`."""
     if arch not in TRAINED_HERE_CONFIGS:
         raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")
+    steps = TRAINED_HERE_STEPS[arch] if steps is None else steps
     for name, v in (("steps", steps), ("batch_size", batch_size), ("num_threads", num_threads)):
         if not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
