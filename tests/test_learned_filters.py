@@ -70,6 +70,8 @@ def test_registry_and_hint_without_torch():
         "import ctxmatch_lib\n"
         "from ctxmatch_lib.filters import FILTERS\n"
         "assert 'oanet' in list(FILTERS) and 'acne' in list(FILTERS)\n"
+        "from ctxmatch_lib.filters.learned import torch_available\n"
+        "assert not torch_available()\n"
         "import numpy as np\n"
         "f = FILTERS['oanet']\n"
         "try:\n"

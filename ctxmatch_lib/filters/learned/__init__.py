@@ -22,11 +22,21 @@ name                  what
 
 from __future__ import annotations
 
+import importlib.util
+
 from .filters import (TORCH_HINT, acne_filter, learned_logits, load_learned_model, oanet_filter, require_torch,
                       shipped_weights)
 
 __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "shipped_weights",
-           "train_learned_filter", "TORCH_HINT"]
+           "train_learned_filter", "torch_available", "LEARNED_FILTERS", "TORCH_HINT"]
+
+#: Registry names of the filters that need torch.
+LEARNED_FILTERS = ("oanet", "acne")
+
+
+def torch_available() -> bool:
+    """Whether torch can be imported (without importing it): callers listing "all" filters can skip ours."""
+    return importlib.util.find_spec("torch") is not None
 
 
 def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500),
