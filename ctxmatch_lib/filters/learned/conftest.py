@@ -1,0 +1,6 @@
+"""pytest: the doctest run over the package (``--doctest-modules ctxmatch_lib``) skips the modules that import
+torch when torch is absent (torch is optional; its own tests skip with a reason in tests/test_learned_filters.py)."""
+
+import importlib.util
+
+collect_ignore = [] if importlib.util.find_spec("torch") else ["nets.py", "checkpoints.py", "training.py"]

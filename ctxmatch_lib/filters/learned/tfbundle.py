@@ -1,0 +1,345 @@
+"""TensorFlow checkpoints (tensor bundles) read and written with numpy alone, for the ACNe weights.
+
+The ACNe authors publish TensorFlow 1 checkpoints written by ``tf.train.Saver``: a prefix ``P`` with the files
+``P.index`` and ``P.data-00000-of-00001`` (and a ``P.meta`` graph this module does not need). This module
+reads them without TensorFlow, and writes the same format (used by the tests to check the reader on files
+laid out as TensorFlow lays them out, and to export weights for TensorFlow users).
+
+Format, as documented by TensorFlow (``tensorflow/core/util/tensor_bundle``, ``core/lib/io/table``):
+
+* ``P.index`` is a LevelDB-style sorted table: data blocks of prefix-compressed entries (``shared``,
+  ``non_shared``, ``value_length`` varints, the key suffix, the value) ending in an array of ``uint32``
+  restart offsets and their count; each block is followed by a 5-byte trailer (compression type, masked
+  CRC32C); the file ends in a 48-byte footer (meta-index and index block handles, zero padding, the magic
+  number ``0xdb4775248b80fb57``). The index block maps a separator key to each data block's handle.
+* The entry of the empty key is a ``BundleHeaderProto``; every other key is a tensor name whose value is a
+  ``BundleEntryProto`` (dtype, shape, shard, byte offset and size in the data file, masked CRC32C).
+* ``P.data-0000k-of-0000n`` holds the raw little-endian tensor bytes.
+
+Only uncompressed tables, unpartitioned tensors and numeric dtypes are supported; anything else raises
+``ValueError`` naming what was found.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["read_tf_checkpoint", "write_tf_checkpoint", "resolve_tf_prefix"]
+
+_MAGIC = 0xDB4775248B80FB57
+_FOOTER = 48
+# tensorflow/core/framework/types.proto DataType -> numpy little-endian dtype.
+_DTYPES = {1: "<f4", 2: "<f8", 3: "<i4", 4: "u1", 5: "<i2", 6: "i1", 9: "<i8", 10: "?", 17: "<u2",
+           19: "<f2", 22: "<u4", 23: "<u8"}
+_DTYPE_CODES = {np.dtype(v): k for k, v in _DTYPES.items()}
+
+
+# ------------------------------------------------------------------------------------------ CRC32C
+def _crc_table() -> np.ndarray:
+    poly = 0x82F63B78  # Castagnoli, reflected
+    table = np.arange(256, dtype=np.uint64)
+    for _ in range(8):
+        table = np.where(table & 1, (table >> 1) ^ poly, table >> 1)
+    return table.astype(np.uint32)
+
+
+_CRC_TABLE = None
+
+
+def crc32c(data: bytes) -> int:
+    """CRC-32C (Castagnoli) of ``data``; pure Python, for the small blocks of an index file."""
+    global _CRC_TABLE
+    if _CRC_TABLE is None:
+        _CRC_TABLE = [int(v) for v in _crc_table()]
+    t = _CRC_TABLE
+    crc = 0xFFFFFFFF
+    for b in data:
+        crc = t[(crc ^ b) & 0xFF] ^ (crc >> 8)
+    return crc ^ 0xFFFFFFFF
+
+
+def _mask(crc: int) -> int:
+    return ((((crc >> 15) | (crc << 17)) & 0xFFFFFFFF) + 0xA282EAD8) & 0xFFFFFFFF
+
+
+# ------------------------------------------------------------------------------------ varints, protos
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    result = shift = 0
+    while True:
+        if pos >= len(buf):
+            raise ValueError("truncated varint in TensorFlow checkpoint index")
+        b = buf[pos]
+        pos += 1
+        result |= (b & 0x7F) << shift
+        if not b & 0x80:
+            return result, pos
+        shift += 7
+
+
+def _enc_varint(v: int) -> bytes:
+    out = bytearray()
+    while True:
+        b = v & 0x7F
+        v >>= 7
+        if v:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _proto_fields(buf: bytes) -> list[tuple[int, int, object]]:
+    """(field number, wire type, value) of a serialised protobuf message, in order."""
+    out, pos = [], 0
+    while pos < len(buf):
+        key, pos = _varint(buf, pos)
+        field, wire = key >> 3, key & 7
+        if wire == 0:
+            val, pos = _varint(buf, pos)
+        elif wire == 1:
+            val, pos = struct.unpack_from("<Q", buf, pos)[0], pos + 8
+        elif wire == 2:
+            n, pos = _varint(buf, pos)
+            val, pos = buf[pos: pos + n], pos + n
+        elif wire == 5:
+            val, pos = struct.unpack_from("<I", buf, pos)[0], pos + 4
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire} in TensorFlow checkpoint index")
+        out.append((field, wire, val))
+    return out
+
+
+def _enc_field(field: int, wire: int, val) -> bytes:
+    key = _enc_varint((field << 3) | wire)
+    if wire == 0:
+        return key + _enc_varint(int(val))
+    if wire == 2:
+        return key + _enc_varint(len(val)) + bytes(val)
+    if wire == 5:
+        return key + struct.pack("<I", int(val))
+    raise ValueError(wire)
+
+
+def _parse_entry(buf: bytes) -> dict:
+    entry = {"dtype": 0, "shape": [], "shard_id": 0, "offset": 0, "size": 0, "sliced": False}
+    for field, _, val in _proto_fields(buf):
+        if field == 1:
+            entry["dtype"] = val
+        elif field == 2:
+            for f2, _, dim in _proto_fields(val):
+                if f2 == 2:  # TensorShapeProto.dim
+                    size = next((v for f3, _, v in _proto_fields(dim) if f3 == 1), 0)
+                    entry["shape"].append(size - (1 << 64) if size >= 1 << 63 else size)
+                elif f2 == 3 and val:
+                    raise ValueError("TensorFlow checkpoint holds a tensor of unknown rank")
+        elif field == 3:
+            entry["shard_id"] = val
+        elif field == 4:
+            entry["offset"] = val
+        elif field == 5:
+            entry["size"] = val
+        elif field == 7:
+            entry["sliced"] = True
+    return entry
+
+
+# --------------------------------------------------------------------------------------------- table
+def _read_block(data: bytes, offset: int, size: int) -> list[tuple[bytes, bytes]]:
+    if offset + size + 5 > len(data):
+        raise ValueError("TensorFlow checkpoint index is truncated (block past the end of the file)")
+    if data[offset + size] != 0:
+        raise ValueError(f"compressed TensorFlow checkpoint index blocks (type {data[offset + size]}) are not "
+                         "supported")
+    block = data[offset: offset + size]
+    n_restarts = struct.unpack_from("<I", block, len(block) - 4)[0]
+    end = len(block) - 4 - 4 * n_restarts
+    entries, pos, key = [], 0, b""
+    while pos < end:
+        shared, pos = _varint(block, pos)
+        non_shared, pos = _varint(block, pos)
+        vlen, pos = _varint(block, pos)
+        key = key[:shared] + block[pos: pos + non_shared]
+        pos += non_shared
+        entries.append((key, block[pos: pos + vlen]))
+        pos += vlen
+    return entries
+
+
+def _table_entries(index: bytes) -> list[tuple[bytes, bytes]]:
+    if len(index) < _FOOTER or struct.unpack_from("<Q", index, len(index) - 8)[0] != _MAGIC:
+        raise ValueError("not a TensorFlow checkpoint index (bad magic number)")
+    footer = index[len(index) - _FOOTER:]
+    _, pos = _varint(footer, 0)  # meta-index offset
+    _, pos = _varint(footer, pos)  # meta-index size
+    idx_off, pos = _varint(footer, pos)
+    idx_size, pos = _varint(footer, pos)
+    out = []
+    for _, handle in _read_block(index, idx_off, idx_size):
+        off, p = _varint(handle, 0)
+        size, _ = _varint(handle, p)
+        out.extend(_read_block(index, off, size))
+    return out
+
+
+def _block(entries: list[tuple[bytes, bytes]]) -> bytes:
+    body = bytearray()
+    restarts = []
+    for key, value in entries:  # every entry a restart point: no prefix sharing, simplest valid layout
+        restarts.append(len(body))
+        body += _enc_varint(0) + _enc_varint(len(key)) + _enc_varint(len(value)) + key + value
+    if not restarts:
+        restarts = [0]
+    for r in restarts:
+        body += struct.pack("<I", r)
+    body += struct.pack("<I", len(restarts))
+    return bytes(body)
+
+
+def _with_trailer(block: bytes) -> bytes:
+    return block + b"\x00" + struct.pack("<I", _mask(crc32c(block + b"\x00")))
+
+
+# ----------------------------------------------------------------------------------------------- API
+def resolve_tf_prefix(path) -> Path:
+    """The checkpoint prefix ``P`` from ``P``, ``P.index``, ``P.data-…`` or a folder.
+
+    A folder is resolved through its ``checkpoint`` state file (``model_checkpoint_path: "…"``) when there is
+    one, else to its single ``*.index`` file.
+    """
+    path = Path(path)
+    if path.is_dir():
+        state = path / "checkpoint"
+        if state.is_file():
+            for line in state.read_text(encoding="utf-8").splitlines():
+                if line.startswith("model_checkpoint_path:"):
+                    name = line.split(":", 1)[1].strip().strip('"')
+                    p = Path(name)
+                    return p if p.is_absolute() else path / p
+        found = sorted(path.glob("*.index"))
+        if len(found) != 1:
+            raise ValueError(f"weights folder {path} must hold exactly one TensorFlow *.index file or a "
+                             f"'checkpoint' state file, found {len(found)} index files")
+        return found[0].with_suffix("")
+    name = path.name
+    if name.endswith(".index"):
+        return path.with_name(name[: -len(".index")])
+    if ".data-" in name:
+        return path.with_name(name.split(".data-")[0])
+    return path
+
+
+def read_tf_checkpoint(path) -> dict[str, np.ndarray]:
+    """Every tensor of a TensorFlow checkpoint as ``{variable name: ndarray}``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The checkpoint prefix, its ``.index`` file, a data shard, or a folder (see :func:`resolve_tf_prefix`).
+
+    Returns
+    -------
+    dict of str -> ndarray
+        Numeric tensors with their stored shapes; string tensors are skipped.
+
+    Raises
+    ------
+    FileNotFoundError
+        The index or a data shard is missing.
+    ValueError
+        The file is not a TensorFlow checkpoint, or uses a feature this reader does not support.
+    """
+    prefix = resolve_tf_prefix(path)
+    index_path = prefix.with_name(prefix.name + ".index")
+    if not index_path.is_file():
+        raise FileNotFoundError(f"TensorFlow checkpoint index not found: {index_path}")
+    entries = _table_entries(index_path.read_bytes())
+    num_shards = 1
+    tensors: dict[str, np.ndarray] = {}
+    shards: dict[int, bytes] = {}
+    for key, value in entries:
+        if key == b"":
+            for field, _, val in _proto_fields(value):
+                if field == 1:
+                    num_shards = val
+                elif field == 2 and val != 0:
+                    raise ValueError("big-endian TensorFlow checkpoints are not supported")
+            continue
+        e = _parse_entry(value)
+        if e["sliced"]:
+            raise ValueError(f"partitioned tensor {key.decode()!r} in TensorFlow checkpoint is not supported")
+        if e["dtype"] not in _DTYPES:
+            continue  # strings, resources: nothing a network weight needs
+        if e["shard_id"] not in shards:
+            data = prefix.with_name(f"{prefix.name}.data-{e['shard_id']:05d}-of-{num_shards:05d}")
+            if not data.is_file():
+                raise FileNotFoundError(f"TensorFlow checkpoint data shard not found: {data}")
+            shards[e["shard_id"]] = data.read_bytes()
+        raw = shards[e["shard_id"]][e["offset"]: e["offset"] + e["size"]]
+        dtype = np.dtype(_DTYPES[e["dtype"]])
+        n = int(np.prod(e["shape"], dtype=np.int64)) if e["shape"] else 1
+        if len(raw) != n * dtype.itemsize:
+            raise ValueError(f"tensor {key.decode()!r}: {len(raw)} bytes stored, shape {e['shape']} needs "
+                             f"{n * dtype.itemsize}")
+        tensors[key.decode()] = np.frombuffer(raw, dtype).reshape(e["shape"]).astype(dtype.newbyteorder("="))
+    return tensors
+
+
+def write_tf_checkpoint(prefix, tensors: dict[str, np.ndarray]) -> Path:
+    """Write ``tensors`` as a TensorFlow checkpoint ``prefix.index`` + ``prefix.data-00000-of-00001``.
+
+    Parameters
+    ----------
+    prefix : str or Path
+        Checkpoint prefix; its folder must exist.
+    tensors : dict of str -> array_like
+        Variable name -> numeric array (float32, float64, int32, int64, …).
+
+    Returns
+    -------
+    Path
+        The prefix, readable by :func:`read_tf_checkpoint` and by TensorFlow's ``tf.train.load_checkpoint``.
+    """
+    prefix = Path(prefix)
+    data = bytearray()
+    entries = []
+    for name in sorted(tensors):
+        arr = np.asarray(tensors[name])  # not ascontiguousarray: it turns scalars into shape (1,)
+        code = _DTYPE_CODES.get(arr.dtype.newbyteorder("<"))
+        if code is None:
+            raise ValueError(f"tensors[{name!r}] has unsupported dtype {arr.dtype}")
+        raw = arr.astype(np.dtype(_DTYPES[code])).tobytes(order="C")
+        shape = b"".join(_enc_field(2, 2, _enc_field(1, 0, d)) for d in arr.shape)
+        proto = (_enc_field(1, 0, code) + _enc_field(2, 2, shape) + _enc_field(4, 0, len(data))
+                 + _enc_field(5, 0, len(raw)) + _enc_field(6, 5, _mask(crc32c(raw))))
+        entries.append((name.encode(), proto))
+        data += raw
+    # Header: one shard, little endian, version {producer: 1}.
+    header = _enc_field(1, 0, 1) + _enc_field(3, 2, _enc_field(1, 0, 1))
+    out = bytearray()
+    data_block = _with_trailer(_block([(b"", header)] + entries))
+    out += data_block
+    meta_off = len(out)
+    meta_block = _with_trailer(_block([]))
+    out += meta_block
+    last_key = entries[-1][0] if entries else b""
+    handle = _enc_varint(0) + _enc_varint(len(data_block) - 5)
+    index_off = len(out)
+    index_block = _with_trailer(_block([(last_key, handle)]))
+    out += index_block
+    footer = (_enc_varint(meta_off) + _enc_varint(len(meta_block) - 5) + _enc_varint(index_off)
+              + _enc_varint(len(index_block) - 5))
+    out += footer + b"\x00" * (40 - len(footer)) + struct.pack("<Q", _MAGIC)
+    _write(prefix.with_name(prefix.name + ".data-00000-of-00001"), bytes(data))
+    _write(prefix.with_name(prefix.name + ".index"), bytes(out))
+    return prefix
+
+
+def _write(path: Path, payload: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(payload)
+    os.replace(tmp, path)
