@@ -490,3 +490,53 @@ def test_unique_rows_and_sort_helpers_match_numpy(seed):
     big = rng.integers(0, 2**40, 1000)
     for x in (keys, big, keys[:10]):
         np.testing.assert_array_equal(unique_ints(x), np.unique(x))
+
+
+# --- the rules taken from the author's port where the paper is silent --------------------------------
+
+def test_matches_on_one_vertex_do_not_support_each_other():
+    """Rule 1 (``A_v`` without ``v``): two matches whose image-1 keypoints collapse onto one vertex are not
+    neighbours in image 1, but their image-2 vertices are adjacent, so each lies in the other's symmetric
+    difference: the first pick discards the second and its own cluster (the intersection) is empty. Both are
+    removed; counting co-collapsed matches as neighbours would have kept both."""
+    k1 = np.array([[100.0, 100.0], [100.2, 99.9]])
+    k2 = np.array([[120.0, 110.0], [160.0, 170.0]])
+    res = _run(k1, k2, scores=np.array([0.1, 0.2]), trace=True)
+    it = res.trace.iterations[0]
+    np.testing.assert_array_equal(it.contraction, [0])
+    assert len(it.cluster_members) == 0
+    np.testing.assert_array_equal(res.keep, [False, False])
+
+
+def test_dtm2_boundary_triangles_use_the_neighbours_of_the_nearest_vertex():
+    """Rule 2 (DTM2 near the boundary): base matches v0 (moving by (100, 0)), v1 and v2 (not moving);
+    boundary square far away. Both candidates sit left of v0, in a triangle W with boundary vertices whose
+    nearest keypoint vertex is v0. The translations tried are those of v0's neighbours v1 and v2 (zero), not
+    v0's own: the candidate that moves like v0 lands right of v0, outside W, and fails; the one that does not
+    move stays in W and passes."""
+    from ctxmatch_lib.dtm.core import _transfer_test
+    from ctxmatch_lib.dtm.triangulation import triangulate
+
+    src = np.array([[300.0, 300.0], [340.0, 260.0], [340.0, 340.0]])
+    dst = src + [[100.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+    square = np.array([[100.0, 100.0], [500.0, 100.0], [500.0, 500.0], [100.0, 500.0]])
+    tri = triangulate(src, square)
+    q_src = np.array([[250.0, 301.0], [250.0, 301.0]])
+    q_dst = q_src + [[100.0, 0.0], [0.0, 0.0]]
+    w = tri.simplices[tri.find_simplex(q_src[:1])[0]]
+    assert 1 <= (w < 3).sum() <= 2 and 0 in w  # W touches the boundary, v0 is its nearest keypoint vertex
+    ok = _transfer_test(tri, q_src, q_dst, src, dst, np.arange(3))
+    np.testing.assert_array_equal(ok, [False, True])
+
+
+@pytest.mark.parametrize("k", [4, 5, 8, 12, 30])
+def test_small_sets_in_agreement_are_kept_with_the_keypoint_boundary(k):
+    """Sets related by one similarity (identical keypoints, or rotated and scaled about the centre) are kept
+    whole with the port's adaptive frame boundary; see the alpha-shape limit in :func:`dtm`'s Notes."""
+    rng = np.random.default_rng(k)
+    for trial in range(4):
+        p = rng.uniform([128, 96], [512, 384], (k, 2))
+        a, s = rng.uniform(-0.3, 0.3), rng.uniform(0.85, 1.15)
+        rot = s * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        q = p if trial == 0 else (p - [320, 240]) @ rot.T + [320, 240]
+        assert _run(p, q, boundary="keypoints").keep.all()
