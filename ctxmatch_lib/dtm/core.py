@@ -440,20 +440,20 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     matches that all collapse onto one vertex pair (nothing outside the vertex supports them).
 
     - ``boundary="keypoints"`` spaces its frame points by the mean vertex spacing, so small sets keep their
-      Delaunay edges: every set of 4 to 30 matches related by one similarity that the tests draw is kept
-      whole, as the port keeps them.
+      Delaunay edges: sets of 4 to 300 identical matches are always kept whole, as the port keeps them,
+      and sets related by a similarity or homography in at least 8 of 10 draws
+      (``benchmarks/bench_dtm_small_sets.py``).
     - The paper's alpha-shape boundary lies at ``s = min(width, height) / 10`` from the vertices whatever
       their number. When the vertices are further apart than about ``2 s`` (a few matches spread over the
       image), boundary points fall between them and cut their Delaunay edges: a vertex left with no
       adjacent keypoint vertex has no support, and DTM removes its match even when the whole set agrees
-      (4 identical matches spread over a 640 x 480 image: 9 of 10 draws lose some; 50 or more: none). Use
-      ``boundary="keypoints"`` for sets of a few tens of matches.
+      (4 identical matches spread over a 640 x 480 image: 9 of 10 draws lose some; 20: 1 of 10; 50 or more:
+      none). Use ``boundary="keypoints"`` for sets of a few tens of matches.
     - Under a general homography the Delaunay neighbourhoods of the two images differ near the hull;
       DTM1 removes such matches and DTM2 re-adds them when they fall in corresponding triangles, but a
       match outside the hull of the others is re-added only through the translation rule above, which
-      rotation defeats: with 300 matches under a random homography (rotation up to 30 degrees), 2 to 4 draws
-      in 9 lose one or a few hull matches, with either boundary (``benchmarks``-style check in the tests
-      of this module's history; the planted-outlier tests bound the effect on recall).
+      large rotations defeat (up to 0.5 rad in the benchmark: with either boundary, one or a few hull
+      matches of 12 to 300 are lost in up to 2 of 10 draws).
 
     When DTM1 empties the set, DTM2 has no triangle with keypoint vertices and adds nothing, so the output is
     empty (the paper's worst case).
