@@ -180,7 +180,7 @@ def _pr_table():
 
 def test_plot_pr_scatter(ax):
     t = _pr_table()
-    peval.plot_pr_scatter(ax, t, title="x")
+    peval.plot_pr_scatter(ax, t, title="x", fit_exclude=())
     scatters = [c for c in ax.collections if isinstance(c, PathCollection)]
     assert len(scatters) == 6
     assert np.allclose(scatters[0].get_offsets(), [[100, 20]])  # blob, no model: (recall, precision)
@@ -272,6 +272,9 @@ def test_pr_scatter_axes_fit_the_data_and_labels_do_not_overlap():
     r = fig.canvas.get_renderer()
     labels = [a for a in ax.texts if a.get_text()]
     assert len(labels) == 22  # every point labelled, the 1SAC ones too
+    # The unfiltered candidates, far below the filters, sit on the border with their true values in the label.
+    assert any(a.get_text() == "blob (P 30, R 100 %)" for a in labels)
+    assert ax.get_ylim()[0] > 50
     boxes = [Text.get_window_extent(a, r) for a in labels]  # the text alone, not its leader line
     overlaps = sum(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i))
     assert overlaps == 0
@@ -292,7 +295,7 @@ def test_blob_heatmap_scale_per_block():
         im = pblob.plot_blob_heatmap(ax, m)
         assert im.get_clim() == (base, base + 4.7)  # its own range, not a shared one
     assert [t.get_text() for t in a1.get_yticklabels()] == ["1∪", "Ω"]  # one label per f group
-    assert any(t.get_text() == "84.7" for t in a2.texts)  # the best cell is annotated
+    assert any(t.get_text() == "best 84.7" for t in a2.texts)  # the best cell is annotated
     plt.close(fig)
 
 
@@ -440,3 +443,20 @@ def test_committed_figures_small_vector_and_traceable(png):
     img = Image.open(png)
     width_in = img.size[0] / img.info["dpi"][0]  # matplotlib records its dpi in the pHYs chunk
     assert width_in == pytest.approx(3.5, abs=0.01) or width_in == pytest.approx(7.16, abs=0.01), width_in
+
+
+def test_png_palette_keeps_the_drawing_colours(tmp_path):
+    """A colour drawn on few pixels (a legend entry) survives the 256-colour palette of a photo figure."""
+    from PIL import Image
+
+    from ctxmatch_lib.plots import base
+
+    rng = np.random.default_rng(0)
+    fig, ax = plt.subplots(figsize=(3.5, 2.5))
+    ax.imshow(rng.random((200, 300, 3)), interpolation="nearest")  # a noisy photograph
+    ax.plot([10, 60], [10, 10], color=viz2d.MATCH_COLORS["correct_dropped"], lw=1.5)
+    path = base.save_figure(fig, "pal", tmp_path, dpi=100, formats=("png",), png_colors=64)
+    im = Image.open(path)
+    assert im.mode == "P" and "ctxmatch:provenance" in im.text
+    yellow = tuple(round(255 * v) for v in to_rgba(viz2d.MATCH_COLORS["correct_dropped"])[:3])
+    assert yellow in {c for _, c in im.convert("RGB").getcolors(1 << 16)}

@@ -162,9 +162,69 @@ def _in_notebook() -> bool:
     return shell is not None and hasattr(shell, "kernel")
 
 
+def _figure_colors(fig, limit: int = 96) -> list:
+    """The distinct opaque RGB colours (0-255) that the artists of ``fig`` are drawn with, most used first."""
+    from collections import Counter
+
+    from matplotlib.collections import Collection
+    from matplotlib.colors import to_rgba_array
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.text import Text
+
+    seen = Counter()
+
+    def add(colours):
+        try:
+            arr = to_rgba_array(colours)
+        except (TypeError, ValueError):
+            return
+        for r, g, b, a in arr:
+            if a > 0:
+                seen[(round(r * 255), round(g * 255), round(b * 255))] += 1
+
+    for art in fig.findobj():
+        if isinstance(art, Line2D):
+            add(art.get_color())
+            add(art.get_markerfacecolor())
+        elif isinstance(art, Collection):
+            add(art.get_edgecolor())
+            add(art.get_facecolor())
+        elif isinstance(art, Patch):
+            add(art.get_edgecolor())
+            add(art.get_facecolor())
+        elif isinstance(art, Text):
+            add(art.get_color())
+    return [c for c, _ in seen.most_common(limit)]
+
+
+def _quantize_png(path: Path, colors: int, meta: dict, keep=()) -> None:
+    """Rewrite the PNG ``path`` with a palette of ``colors`` colours: the colours ``keep`` (RGB 0-255, the
+    figure's own drawing colours, so that a rare legend colour is not merged into a frequent one) plus an
+    adaptive palette of the image for the rest; text chunks and dpi are kept."""
+    from PIL import Image, PngImagePlugin
+
+    if not 2 <= colors <= 256:
+        raise ValueError(f"png_colors must be in [2, 256], got {colors}")
+    with Image.open(path) as im:
+        dpi = im.info.get("dpi")
+        rgb = im.convert("RGB")
+    keep = list(dict.fromkeys(tuple(int(v) for v in c) for c in keep))[: colors // 2]
+    adaptive = rgb.quantize(colors=colors - len(keep), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    flat = adaptive.getpalette()[: 3 * (colors - len(keep))]
+    flat += [v for c in keep for v in c]
+    pal = Image.new("P", (1, 1))
+    pal.putpalette(flat + flat[:3] * (256 - len(flat) // 3))
+    out = rgb.quantize(palette=pal, dither=Image.Dither.NONE)
+    info = PngImagePlugin.PngInfo()
+    for key, value in meta.items():
+        info.add_text(key, value)
+    out.save(path, format="png", optimize=True, pnginfo=info, dpi=dpi)
+
+
 def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, dpi: int = 300,
                 formats=("png", "pdf"), provenance: dict | None = None, columns: int | None = None,
-                show: bool | None = None) -> Path:
+                show: bool | None = None, png_colors: int | None = None) -> Path:
     """Show ``fig`` (in a notebook), write it as ``<output_dir>/<name>.png`` and a vector ``.pdf`` beside
     it, then close it.
 
@@ -188,6 +248,9 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
         bounding box), so that it prints one or two IEEE columns wide with text of at least 7 pt.
     show : bool, optional
         Display the figure before saving it; default: when running in a Jupyter kernel.
+    png_colors : int, optional
+        Store the PNG with an adaptive palette of this many colours (at most 256, no dithering): figures made
+        of photographs shrink several times, and the PDF keeps the full colours.
 
     Returns
     -------
@@ -219,6 +282,8 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
             meta = None
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=dpi, bbox_inches=bbox, pad_inches=0.02, format=fmt, metadata=meta)
+            if fmt == "png" and png_colors:
+                _quantize_png(tmp, png_colors, meta, keep=_figure_colors(fig))
         paths.append(path)
     plt.close(fig)
     return paths[0]

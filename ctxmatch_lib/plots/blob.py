@@ -92,8 +92,10 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     if mark_best and np.isfinite(values).any():
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
         ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=1.2, clip_on=False))
-        ax.annotate(f"{values[r, c]:.1f}", (c, r), xytext=(0, 3 if r > 0 else -3), textcoords="offset points",
-                    ha="center", va="bottom" if r > 0 else "top", color="red", fontsize=7, fontweight="bold",
+        up = r >= len(rows) / 2  # write the value on the side with more room
+        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(0, 6 if up else -6), textcoords="offset points",
+                    ha="center", va="bottom" if up else "top", color="black", fontsize=7,
+                    bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="red", lw=0.6, alpha=0.9),
                     annotation_clip=False)
     ax.set_title(title)
     return im

@@ -182,8 +182,7 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     gone_colors = match_colors(labels[gone], np.zeros(len(gone), bool))
     as_dots = max_dropped_lines is not None and len(gone) > max_dropped_lines
     if as_dots:
-        ax.scatter(*src[gone].T, s=ps * 0.6, c=gone_colors, linewidths=0, alpha=min(1.0, 2 * dropped_alpha),
-                   zorder=2)
+        ax.scatter(*src[gone].T, s=max(ps, 3.0), c=gone_colors, linewidths=0, alpha=0.85, zorder=2)
     else:
         plot_flow(ax, src[gone], dst[gone], color=gone_colors, lw=dropped_lw, ps=ps * 0.5, alpha=dropped_alpha)
     plot_flow(ax, src[stay], dst[stay], color=match_colors(labels[stay]), lw=lw, ps=ps, zorder=3)

@@ -117,40 +117,52 @@ def place_labels(ax, xy, texts, colors, *, fontsize: float = 7.0,
                 obstacles.append((q[0] - r_mk, q[1] - r_mk, q[0] + r_mk, q[1] + r_mk))
     directions = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1),
                   (1, 0.5), (-1, 0.5), (1, -0.5), (-1, -0.5), (0.5, 1), (-0.5, 1), (0.5, -1), (-0.5, -1)]
-    placed, out = [], []
-    for (x, y), (dx, dy), text, colour in zip(pts, xy, texts, colors):
+    # Crowded points first: they have the fewest free places near them.
+    near = (np.linalg.norm(pts[:, None] - pts[None], axis=2) < 25 * px).sum(axis=1)
+    order = np.argsort(-near, kind="stable")
+    placed, out = [], [None] * len(pts)
+    for k in order:
+        (x, y), (dx, dy), text, colour = pts[k], xy[k], texts[k], colors[k]
         t = Text(0, 0, text, fontsize=fontsize)
         t.set_figure(fig)
         bb = t.get_window_extent(renderer)
         w, h = bb.width, bb.height
+        def cost_of(cx, cy):
+            box = (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+            inside = (box[0] >= frame.x0 + 1 and box[2] <= frame.x1 - 1 and box[1] >= frame.y0 + 1
+                      and box[3] <= frame.y1 - 1)
+            cost = sum(_boxes_overlap(box, b) for b in placed) * 10 + sum(
+                _boxes_overlap(box, b) for b in obstacles) + (0 if inside else 1e6)
+            return cost + np.hypot(cx - x, cy - y) * 1e-3, box  # nearer is better among equals
+
         best = None
         for r in radii:
             for ux, uy in directions:
                 ox, oy = ux * (r * px + (w / 2 if ux else 0)), uy * (r * px + (h / 2 if uy else 0))
-                cx, cy = x + ox, y + oy
-                box = (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
-                inside = (box[0] >= frame.x0 + 1 and box[2] <= frame.x1 - 1 and box[1] >= frame.y0 + 1
-                          and box[3] <= frame.y1 - 1)
-                cost = sum(_boxes_overlap(box, b) for b in placed) * 10 + sum(
-                    _boxes_overlap(box, b) for b in obstacles) + (0 if inside else 1e6)
-                cost += r * 1e-3  # nearer is better among equals
+                cost, box = cost_of(x + ox, y + oy)
                 if best is None or cost < best[0]:
                     best = (cost, box, (ox / px, oy / px), r)
             if best[0] < 1.0:
                 break
+        if best[0] >= 1.0:  # no free place around the point: any free place in the axes, nearest first
+            for cy in np.arange(frame.y0 + h / 2 + 1, frame.y1 - h / 2, h / 2):
+                for cx in np.arange(frame.x0 + w / 2 + 1, frame.x1 - w / 2, max(w / 4, 2.0)):
+                    cost, box = cost_of(cx, cy)
+                    if cost < best[0]:
+                        best = (cost, box, ((cx - x) / px, (cy - y) / px), np.hypot(cx - x, cy - y) / px)
         _, box, (ox, oy), r = best
         placed.append(box)
         arrow = dict(arrowstyle="-", color=colour, lw=0.4, alpha=0.7, shrinkA=0, shrinkB=2) if r > 8 else None
         ann = ax.annotate(text, (dx, dy), xytext=(ox, oy), textcoords="offset points", ha="center", va="center",
                           fontsize=fontsize, color=colour, zorder=5, arrowprops=arrow, annotation_clip=False)
         ann.set_in_layout(False)
-        out.append(ann)
+        out[k] = ann
     return out
 
 
 def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sac"), connect: bool = True,
                     annotate: bool = True, ms: float = 22, lim=None, label_models=("none", "1sac"),
-                    fontsize: float = 7.0) -> list:
+                    fit_exclude=("blob",), fontsize: float = 7.0) -> list:
     """Mean precision (y) against mean recall (x), one marker per method and one colour per model.
 
     Parameters
@@ -159,7 +171,7 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
         A :func:`ctxmatch_lib.report.method_table` restricted to one kind: index (model, method) (a
         (kind, model, method) index with a single kind also works).
     models : sequence of str
-        Models to draw (blue: none, red: 1SAC).
+        Models to draw (blue: none, vermillion: 1SAC).
     connect : bool
         A thin grey arrow from each method's no-model point to its 1SAC point (the effect of 1SAC).
     annotate : bool
@@ -168,42 +180,58 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
         ``annotate=False`` call :func:`place_labels` later yourself with the returned points.
     lim : (float, float) or None
         Limits of both axes; ``None``: each axis fitted to the data (:func:`fit_limits`).
+    fit_exclude : sequence of str
+        Methods left out of the fit (the unfiltered ``blob`` candidates, far below every filter, would squeeze
+        the filters into a corner); a point outside the fitted axes is drawn on the border, its label giving its
+        true precision / recall and an arrow pointing outwards.
 
     Returns
     -------
     list of (x, y, label, colour)
-        The points to label (those of ``label_models``), for :func:`place_labels`.
+        The points to label (those of ``label_models``, in display position), for :func:`place_labels`.
     """
     t = table.droplevel("kind") if "kind" in table.index.names else table
     methods = method_order(t.index.get_level_values("method"))
-    to_label, xs, ys = [], [], []
-    for model in models:
-        for m in methods:
-            if (model, m) not in t.index:
-                continue
-            r = t.loc[(model, m)]
-            x, y = float(r["recall (%)"]), float(r["precision (%)"])
-            xs.append(x)
-            ys.append(y)
-            line_marker = method_marker(m) in "x1234+|_"
-            ax.scatter(x, y, marker=method_marker(m), s=ms * (1.6 if m == "blob" else 1),
-                       c=MODEL_COLORS.get(model, "k"), linewidths=1.0 if line_marker else 0.3,
-                       edgecolors=None if line_marker else "white", zorder=3, alpha=0.9)
-            if model in label_models:
-                to_label.append((x, y, _label(m), MODEL_COLORS.get(model, "k")))
+    pts = [(model, m, float(t.loc[(model, m), "recall (%)"]), float(t.loc[(model, m), "precision (%)"]))
+           for model in models for m in methods if (model, m) in t.index]
+    if lim is None:
+        fit = [p for p in pts if p[1] not in fit_exclude] or pts
+        xlim, ylim = fit_limits([p[2] for p in fit]), fit_limits([p[3] for p in fit])
+        # Room above 100 % precision for the labels of the many points there; no tick beyond 100.
+        ylim = (ylim[0], max(ylim[1], min(104.0, ylim[1] + 0.06 * (ylim[1] - ylim[0]))))
+    else:
+        xlim = ylim = tuple(lim)
+    shown = {}
+    for model, m, x, y in pts:
+        cx, cy = min(max(x, xlim[0]), xlim[1]), min(max(y, ylim[0]), ylim[1])
+        shown[model, m] = (cx, cy, (cx, cy) != (x, y))
+    to_label = []
+    for model, m, x, y in pts:
+        cx, cy, clipped = shown[model, m]
+        colour = MODEL_COLORS.get(model, "k")
+        line_marker = method_marker(m) in "x1234+|_"
+        ax.scatter(cx, cy, marker=method_marker(m), s=ms * (1.6 if m == "blob" else 1), c=colour,
+                   linewidths=1.0 if line_marker else 0.3, edgecolors=None if line_marker else "white", zorder=3,
+                   alpha=0.9, clip_on=False)
+        label = _label(m)
+        if clipped:
+            dx, dy = np.sign(x - cx), np.sign(y - cy)
+            ax.annotate("", (cx + dx * 0.001, cy + dy * 0.001), xytext=(cx, cy),
+                        arrowprops=dict(arrowstyle="-|>", color=colour, lw=0.6, mutation_scale=6), zorder=4,
+                        annotation_clip=False)
+            label = f"{label} (P {y:.0f}, R {x:.0f} %)"
+        if model in label_models:
+            to_label.append((cx, cy, label, colour))
     if connect and {"none", "1sac"} <= set(models):
         for m in methods:
-            if ("none", m) in t.index and ("1sac", m) in t.index:
-                a, b = t.loc[("none", m)], t.loc[("1sac", m)]
-                ax.annotate("", xy=(b["recall (%)"], b["precision (%)"]), xytext=(a["recall (%)"], a["precision (%)"]),
+            if ("none", m) in shown and ("1sac", m) in shown:
+                (ax_, ay, _), (bx, by, _) = shown["none", m], shown["1sac", m]
+                ax.annotate("", xy=(bx, by), xytext=(ax_, ay),
                             arrowprops=dict(arrowstyle="-|>", color="0.6", lw=0.5, shrinkA=3, shrinkB=3,
                                             mutation_scale=6), zorder=2)
-    if lim is None:
-        ax.set_xlim(*fit_limits(xs))
-        ax.set_ylim(*fit_limits(ys))
-    else:
-        ax.set_xlim(*lim)
-        ax.set_ylim(*lim)
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_yticks([v for v in ax.get_yticks() if ylim[0] <= v <= 100])
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.set_xlabel("recall (%)")
     ax.set_ylabel("precision (%)")
@@ -275,6 +303,9 @@ def plot_inlier_bars(ax, table, *, metric: str = "precision (%)", model: str = "
                label=_label(m), edgecolor="none")
     present = set(t.index.get_level_values("bin"))
     n = [int(t.xs(b, level="bin")["n"].max()) if b in present else 0 for b in bins]
+    for xi, c in zip(x, n):
+        if c < min_n:  # say why the bin is blank
+            ax.text(xi, 50, "no pairs", rotation=90, ha="center", va="center", fontsize=fontsize, color="0.5")
     ax.set_xticks(x, [f"{b}\n(n={c})" for b, c in zip(bins, n)], fontsize=fontsize)
     ax.set_ylim(0, 100)
     ax.set_ylabel(metric)
@@ -290,14 +321,17 @@ def plot_pair_share(ax, table, *, color="0.45", title: str | None = None, drop_e
     ``bins`` fixes the bins (:func:`shared_bins`)."""
     share = table.groupby(level="bin", sort=False, observed=True)["share (%)"].first()
     share = share.reindex(list(bins) if bins is not None else _bins(table, drop_empty)).fillna(0.0)
+    n = table.groupby(level="bin", sort=False, observed=True)["n"].max().reindex(share.index).fillna(0)
     x = np.arange(len(share))
     ax.bar(x, share.to_numpy(), 0.6, color=color)
-    for xi, v in zip(x, share.to_numpy()):
-        ax.text(xi, v + 1, f"{v:.0f} %", ha="center", va="bottom", fontsize=fontsize)
-    ax.set_xticks(x, list(share.index), fontsize=fontsize)
-    ax.set_ylim(0, 100)
+    for xi, v, c in zip(x, share.to_numpy(), n.to_numpy()):
+        ax.text(xi, v + 1, f"{v:.0f} %\nn={c:.0f}", ha="center", va="bottom", fontsize=fontsize)
+    # Bin names without their unit, which the axis label carries, so that five fit in a column-wide panel.
+    ax.set_xticks(x, [str(b).replace(" %", "").replace("-", "–") for b in share.index], fontsize=fontsize)
+    ax.set_ylim(0, 118)
+    ax.set_yticks(range(0, 101, 20))
     ax.set_ylabel("share of pairs (%)")
-    ax.set_xlabel("inlier ratio of the blob candidates")
+    ax.set_xlabel("inlier ratio of the blob candidates (%)")
     ax.grid(True, axis="y", lw=0.4, alpha=0.5)
     if title:
         ax.set_title(title)
