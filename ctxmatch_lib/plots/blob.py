@@ -93,7 +93,7 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
         ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=1.2, clip_on=False))
         up = r >= len(rows) / 2  # write the value on the side with more room
-        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(0, 6 if up else -6), textcoords="offset points",
+        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(0, 8 if up else -8), textcoords="offset points",
                     ha="center", va="bottom" if up else "top", color="black", fontsize=7,
                     bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="red", lw=0.6, alpha=0.9),
                     annotation_clip=False)
