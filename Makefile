@@ -1,11 +1,13 @@
 # ctxmatch: two commands do all the set-up on a fresh machine.
 #   make figures   virtual environment + package + every figure on the embedded offline default dataset
+#                  (rewrites the tracked figures/)
 #   make test      same environment, the whole test suite including the notebooks under nbval
-PYTHON ?= python3.11
+# Any Python >= 3.11 builds the environment: make PYTHON=python3.12 (default: python3).
+PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.ctxmatch-installed
-# The shared real data sits beside the checkout on the project machines; elsewhere set CTXMATCH_DATA yourself.
+# Real data: CTXMATCH_DATA from the environment, else ../shared/data when that folder exists.
 export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
 export MPLBACKEND := Agg
 export PYTHONHASHSEED := 0
@@ -15,6 +17,7 @@ export PYTHONHASHSEED := 0
 env: $(STAMP)
 
 $(STAMP): environment.txt pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "ctxmatch needs Python >= 3.11 but $(PYTHON) is " + sys.version.split()[0] + "; choose one with make PYTHON=python3.11 (or newer)")'
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -r environment.txt

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
+import subprocess
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "cache_dir", "data_root", "repo_root", "write_parquet_atomic"]
+__all__ = ["atomic_path", "build_info", "cache_dir", "data_root", "repo_root", "write_parquet_atomic"]
 
 
 def repo_root() -> Path | None:
@@ -36,7 +38,7 @@ def cache_dir(sub: str | None = None) -> Path:
 
 
 def data_root(required: bool = False) -> Path | None:
-    """The real-data root from ``$CTXMATCH_DATA`` (see ``../shared/data/README.md``), or ``None``.
+    """The real-data root from ``$CTXMATCH_DATA`` (its README describes the layout), or ``None``.
 
     With ``required=True`` a missing root raises ``FileNotFoundError`` explaining how to set it.
     """
@@ -72,16 +74,44 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
-    """Write ``df`` to ``path`` (Parquet) atomically; ``metadata`` goes, as JSON, under the ``ctxmatch``
-    key of the schema metadata."""
+    """Write ``df`` to ``path`` (Parquet) atomically; ``metadata`` (dataset, feature preset, blob setup, ...)
+    goes, as JSON, under the ``ctxmatch`` key of the schema metadata, and :func:`build_info` (version, git
+    commit, date) under ``ctxmatch_provenance``."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pa.Table.from_pandas(df, preserve_index=False)
+    meta = dict(table.schema.metadata or {})
+    meta[b"ctxmatch_provenance"] = json.dumps(build_info(), sort_keys=True).encode()
     if metadata is not None:
-        meta = dict(table.schema.metadata or {})
         meta[b"ctxmatch"] = json.dumps(metadata, sort_keys=True, default=str).encode()
-        table = table.replace_schema_metadata(meta)
+    table = table.replace_schema_metadata(meta)
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
     return Path(path)
+
+
+@functools.lru_cache(maxsize=1)
+def _git_commit() -> str:
+    """Commit of the checkout (``-dirty`` when tracked files outside ``figures/`` differ from it), else ``""``."""
+    root = repo_root()
+    if root is None or not (root / ".git").exists():
+        return ""
+    try:
+        run = functools.partial(subprocess.run, cwd=root, capture_output=True, text=True, timeout=10)
+        head = run(["git", "rev-parse", "--short=12", "HEAD"]).stdout.strip()
+        dirty = run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)figures"]).stdout
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return f"{head}-dirty" if head and dirty.strip() else head
+
+
+def build_info() -> dict:
+    """Provenance of anything ctxmatch writes: ``version`` (of ``ctxmatch_lib``), ``git_commit`` (of the
+    checkout, ``""`` for a plain install) and ``date`` (UTC, ISO 8601, to the second)."""
+    from datetime import datetime, timezone
+
+    from . import __version__
+
+    return {"version": __version__, "git_commit": _git_commit(),
+            "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat()}

@@ -1,5 +1,8 @@
 """Tests for the plot helpers: ctxmatch_lib.plots.viz2d, .dtm and .eval (tiny synthetic inputs, Agg backend)."""
 
+import json
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -10,6 +13,7 @@ import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.collections import LineCollection, PathCollection  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
+from matplotlib.text import Text  # noqa: E402
 
 from ctxmatch_lib.dtm import dtm, dtm_boundary  # noqa: E402
 from ctxmatch_lib.plots import dtm as pdtm  # noqa: E402
@@ -176,7 +180,7 @@ def _pr_table():
 
 def test_plot_pr_scatter(ax):
     t = _pr_table()
-    peval.plot_pr_scatter(ax, t, title="x")
+    peval.plot_pr_scatter(ax, t, title="x", fit_exclude=())
     scatters = [c for c in ax.collections if isinstance(c, PathCollection)]
     assert len(scatters) == 6
     assert np.allclose(scatters[0].get_offsets(), [[100, 20]])  # blob, no model: (recall, precision)
@@ -223,3 +227,236 @@ def test_plot_inlier_bars_and_share(ax):
     peval.plot_pair_share(a2, t)
     assert [round(p.get_height()) for p in a2.patches] == [40, 60]
     plt.close(fig)
+
+
+def test_shared_bins_are_the_same_in_every_column():
+    a = _bin_table()  # bins 0-10 and 50-100 populated
+    b = a.copy()
+    b["n"] = np.array([0, 4, 0]).repeat(4)  # only the middle bin populated
+    common = peval.shared_bins([a, b])
+    assert common == ["0-10 %", "10-50 %", "50-100 %"]
+    fig, (a1, a2) = plt.subplots(1, 2)
+    peval.plot_inlier_bars(a1, a, bins=common)
+    peval.plot_inlier_bars(a2, b, bins=common)
+    ticks = [[t.get_text().split("\n")[0] for t in ax.get_xticklabels()] for ax in (a1, a2)]
+    assert ticks[0] == ticks[1] == common
+    peval.plot_pair_share(a2, b, bins=common)
+    plt.close(fig)
+    assert peval.shared_bins([a], drop_empty=True) == ["0-10 %", "50-100 %"]
+
+
+# ------------------------------------------------------------------------------------------- pr scatter layout
+
+
+def test_fit_limits():
+    assert peval.fit_limits([80, 95, 100]) == (78.4, 101.0)
+    lo, hi = peval.fit_limits([50.0, 50.0])
+    assert hi - lo >= 10 and lo < 50 < hi
+    assert peval.fit_limits([np.nan]) == (0.0, 100.0)
+    assert 100 < peval.fit_limits([99.5, 100])[1] <= 101.0  # room for the marker, never far beyond 100 %
+
+
+def test_pr_scatter_axes_fit_the_data_and_labels_do_not_overlap():
+    rng = np.random.default_rng(0)
+    methods = ["blob", "th", "dtm1", "dtm2", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam"]
+    idx = pd.MultiIndex.from_product([["none", "1sac"], methods], names=["model", "method"])
+    # A crowded top-right corner, as on real data.
+    prec = np.clip(np.r_[30, 88 + 6 * rng.random(10), 97 + 3 * rng.random(11)], 0, 100)
+    rec = np.clip(np.r_[100, 80 + 15 * rng.random(10), 60 + 30 * rng.random(11)], 0, 100)
+    t = pd.DataFrame({"precision (%)": prec, "recall (%)": rec}, index=idx)
+    fig, ax = plt.subplots(figsize=(2.4, 2.4))
+    pts = peval.plot_pr_scatter(ax, t)
+    assert len(pts) == 22 and {c for *_, c in pts} == set(peval.MODEL_COLORS[m] for m in ("none", "1sac"))
+    assert ax.get_xlim()[0] > 50 and ax.get_ylim()[0] > 20  # fitted, not 0-100
+    fig.draw_without_rendering()
+    r = fig.canvas.get_renderer()
+    labels = [a for a in ax.texts if a.get_text()]
+    assert len(labels) == 22  # every point labelled, the 1SAC ones too
+    # The unfiltered candidates, far below the filters, sit on the border with their true values in the label.
+    assert any(a.get_text() == "blob (P 30, R 100 %)" for a in labels)
+    assert ax.get_ylim()[0] > 50
+    boxes = [Text.get_window_extent(a, r) for a in labels]  # the text alone, not its leader line
+    overlaps = sum(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i))
+    assert overlaps == 0
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------- blob plots
+
+
+def test_blob_heatmap_scale_per_block():
+    from ctxmatch_lib.plots import blob as pblob
+
+    cols = pd.MultiIndex.from_product([["∞", "50%"], ["D≥", "D+"], ["a", "harmonic"]], names=["t_o", "D", "W"])
+    rows = pd.MultiIndex.from_product([["1∪", "Ω"], [1, 3, 5]], names=["f", "f'"])
+    fig, (a1, a2) = plt.subplots(2, 1)
+    for ax, base in ((a1, 20.0), (a2, 80.0)):
+        m = pd.DataFrame(base + np.arange(48.0).reshape(6, 8) / 10, index=rows, columns=cols)
+        im = pblob.plot_blob_heatmap(ax, m)
+        assert im.get_clim() == (base, base + 4.7)  # its own range, not a shared one
+    assert [t.get_text() for t in a1.get_yticklabels()] == ["1∪", "Ω"]  # one label per f group
+    assert any(t.get_text() == "best 84.7" for t in a2.texts)  # the best cell is annotated
+    plt.close(fig)
+
+
+def test_toy_matrix_axis_labels_and_contrast(ax):
+    from ctxmatch_lib.blob.toy import FIG1A_D
+    from ctxmatch_lib.plots.base import plot_toy_matrix
+
+    plot_toy_matrix(ax, FIG1A_D, [(2, 2)])
+    assert "image 1" in ax.get_ylabel() and "image 2" in ax.get_xlabel()
+    colours = {t.get_text(): t.get_color() for t in ax.texts}
+    assert colours["0.5"] == "white" and colours["6.1"] == "black"  # darkest and lightest cells
+
+
+# ------------------------------------------------------------------------------------------- palette
+
+
+def test_cvd_simulation_and_delta_e_reference_values():
+    from ctxmatch_lib.plots.palette import delta_e, simulate_cvd
+
+    # Machado et al. rows sum to 1: greys are unchanged; black-white is ΔE 100.
+    assert np.allclose(simulate_cvd(["#808080", "#ffffff", "#000000"]), [[128 / 255] * 3, [1] * 3, [0] * 3], atol=2e-3)
+    assert delta_e("black", "white") == pytest.approx(100.0, abs=1e-3)
+    assert delta_e("#22c02c", "#22c02c", cvd="deuteranopia") == 0.0
+    # The issue's measurement: the paper's green / red fall to ΔE ≈ 12 for a deuteranope.
+    assert delta_e("#22c02c", "#e8211d", cvd="deuteranopia") == pytest.approx(12.2, abs=0.1)
+    with pytest.raises(ValueError, match="kind"):
+        simulate_cvd("red", "achromatopsia")
+
+
+@pytest.mark.parametrize("cvd", ["deuteranopia", "protanopia", "tritanopia", None])
+def test_match_palette_is_colour_blind_safe(cvd):
+    from itertools import combinations
+
+    from ctxmatch_lib.plots.palette import delta_e
+
+    c = viz2d.MATCH_COLORS
+    assert delta_e(c["correct"], c["wrong"], cvd=cvd) > 60  # five times the ≈ 12 of green / red
+    assert min(delta_e(c[a], c[b], cvd=cvd) for a, b in combinations(c, 2)) > 20
+    assert delta_e(peval.MODEL_COLORS["none"], peval.MODEL_COLORS["1sac"], cvd=cvd) > 60
+
+
+# ------------------------------------------------------------------------------------------- save_figure
+
+
+def test_figsize_and_paper_check():
+    from ctxmatch_lib.plots import base
+
+    assert base.figsize(1, 2.0) == (3.5, 2.0) and base.figsize(2)[0] == 7.16
+    with pytest.raises(ValueError, match="columns"):
+        base.figsize(3)
+    with plt.rc_context(base.PAPER_RC):
+        fig, ax = plt.subplots(figsize=base.figsize(1))
+        ax.set_title("t")
+        ax.set_xlabel("x")
+        assert base.min_font_size(fig) >= base.MIN_FONT_PT
+        base.check_paper_figure(fig, 1)
+        ax.text(0, 0, "tiny", fontsize=5)
+        with pytest.raises(ValueError, match="under 7 pt"):
+            base.check_paper_figure(fig, 1)
+        plt.close(fig)
+        fig = plt.figure(figsize=(9, 3))
+        with pytest.raises(ValueError, match="wide"):
+            base.check_paper_figure(fig, 2)
+        plt.close(fig)
+
+
+def test_save_figure_png_pdf_with_provenance(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from ctxmatch_lib.plots import base
+
+    monkeypatch.setenv("CTXMATCH_FIGURES", str(tmp_path / "env"))
+    with plt.rc_context(base.PAPER_RC):
+        fig, ax = plt.subplots(figsize=base.figsize(1, 2.0))
+        ax.plot([0, 1], [0, 1])
+        path = base.save_figure(fig, "demo", tmp_path / "out", columns=1,
+                                provenance={"dataset": "embedded", "features": "sift-rootsift", "blob": ["a", "b"]})
+    assert path == tmp_path / "out" / "demo.png"  # an explicit folder beats the environment
+    assert not plt.fignum_exists(fig.number)
+    png = Image.open(path)
+    assert png.size == (1050, 600)  # exactly one column (3.5 in) at 300 dpi: no tight bounding box
+    record = json.loads(png.text["ctxmatch:provenance"])
+    assert record["dataset"] == "embedded" and record["blob"] == "a, b" and record["figure"] == "demo"
+    assert record["version"] and "date" in record and "git_commit" in record
+    pdf = (tmp_path / "out" / "demo.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF") and b"sift-rootsift" in pdf and b"/Subject" in pdf
+    assert b"/Type3" not in pdf  # TrueType fonts (pdf.fonttype 42), as publishers require
+
+
+def test_figure_folder_never_the_tracked_one(tmp_path, monkeypatch):
+    from ctxmatch_lib._paths import repo_root
+    from ctxmatch_lib.plots import base
+
+    monkeypatch.delenv("CTXMATCH_FIGURES", raising=False)
+    monkeypatch.chdir(tmp_path)  # the kernel's working directory does not matter
+    default = base.default_figure_dir()
+    if repo_root() is not None:
+        assert default == repo_root() / "build" / "figures"
+    assert default != (repo_root() or tmp_path) / "figures"
+    monkeypatch.setenv("CTXMATCH_FIGURES", str(tmp_path / "f"))
+    assert base.figure_path("x.png") == tmp_path / "f" / "x.png"
+    assert base.figure_path("x.png", tmp_path / "g") == tmp_path / "g" / "x.png"
+
+
+def test_save_figure_shows_before_closing(tmp_path, monkeypatch):
+    import IPython.display
+
+    from ctxmatch_lib.plots import base
+
+    shown = []
+    monkeypatch.setattr(IPython.display, "display", lambda obj: shown.append(obj))
+    fig, ax = plt.subplots()
+    ax.plot([0, 1])
+    base.save_figure(fig, "shown", tmp_path, formats=("png",), show=True)
+    assert len(shown) == 1 and shown[0].data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (tmp_path / "shown.pdf").exists()
+
+
+def test_parquet_carries_provenance(tmp_path):
+    import pyarrow.parquet as pq
+
+    from ctxmatch_lib._paths import write_parquet_atomic
+
+    path = write_parquet_atomic(pd.DataFrame({"a": [1, 2]}), tmp_path / "x.parquet", {"dataset": "embedded"})
+    meta = pq.read_schema(path).metadata
+    assert json.loads(meta[b"ctxmatch"]) == {"dataset": "embedded"}
+    prov = json.loads(meta[b"ctxmatch_provenance"])
+    assert set(prov) == {"version", "git_commit", "date"}
+    assert pd.read_parquet(path)["a"].tolist() == [1, 2]
+
+
+# ------------------------------------------------------------------------------------------- the gallery
+
+GALLERY = sorted((Path(__file__).resolve().parents[1] / "figures").glob("fig_*.png"))
+
+
+@pytest.mark.parametrize("png", GALLERY, ids=lambda p: p.stem)
+def test_committed_figures_small_vector_and_traceable(png):
+    from PIL import Image
+
+    assert png.stat().st_size < 2_000_000, f"{png.name} is {png.stat().st_size / 1e6:.1f} MB"
+    assert png.with_suffix(".pdf").exists(), f"no vector PDF beside {png.name}"
+    record = json.loads(Image.open(png).text["ctxmatch:provenance"])
+    assert {"version", "git_commit", "date", "dataset", "features", "blob"} <= set(record)
+    img = Image.open(png)
+    width_in = img.size[0] / img.info["dpi"][0]  # matplotlib records its dpi in the pHYs chunk
+    assert width_in == pytest.approx(3.5, abs=0.01) or width_in == pytest.approx(7.16, abs=0.01), width_in
+
+
+def test_png_palette_keeps_the_drawing_colours(tmp_path):
+    """A colour drawn on few pixels (a legend entry) survives the 256-colour palette of a photo figure."""
+    from PIL import Image
+
+    from ctxmatch_lib.plots import base
+
+    rng = np.random.default_rng(0)
+    fig, ax = plt.subplots(figsize=(3.5, 2.5))
+    ax.imshow(rng.random((200, 300, 3)), interpolation="nearest")  # a noisy photograph
+    ax.plot([10, 60], [10, 10], color=viz2d.MATCH_COLORS["correct_dropped"], lw=1.5)
+    path = base.save_figure(fig, "pal", tmp_path, dpi=100, formats=("png",), png_colors=64)
+    im = Image.open(path)
+    assert im.mode == "P" and "ctxmatch:provenance" in im.text
+    yellow = tuple(round(255 * v) for v in to_rgba(viz2d.MATCH_COLORS["correct_dropped"])[:3])
+    assert yellow in {c for _, c in im.convert("RGB").getcolors(1 << 16)}

@@ -10,8 +10,9 @@ from pathlib import Path
 
 def add_parser(sub) -> None:
     p = sub.add_parser("figures", help="regenerate the paper's figures and tables by running the notebooks",
-                       description="Execute notebooks/*.ipynb with papermill; figures go to figures/, the "
-                                   "executed notebooks to figures/executed/.")
+                       description="Execute notebooks/*.ipynb with papermill; figures (PNG + PDF) and tables go to "
+                                   "figures/ of the checkout, replacing the committed ones, the executed notebooks "
+                                   "to figures/executed/.")
     p.add_argument("--params", choices=["default", "paper"], default="default",
                    help="default: the embedded offline dataset (minutes); paper: notebooks/params/<stem>.yaml, "
                         "real data under CTXMATCH_DATA")
@@ -43,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         stems = [s for s in stems if s in wanted]
     failed = []
+    start = time.perf_counter()
     for stem in tqdm(stems, desc="notebooks", unit="nb"):
         params = {"output_dir": str(out_dir)}
         if args.params == "paper":
@@ -58,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
             tqdm.write(f"{stem}: FAILED ({type(exc).__name__}: {str(exc).splitlines()[0][:200]})")
         else:
             tqdm.write(f"{stem}: ok in {time.perf_counter() - t0:.1f} s")
+    print(f"{len(stems) - len(failed)} of {len(stems)} notebooks ran in {time.perf_counter() - start:.0f} s; "
+          f"figures and tables in {out_dir}")
     if failed:
         print(f"{len(failed)} notebook(s) failed: {', '.join(failed)}; see figures/executed/", file=sys.stderr)
         return 1

@@ -1,7 +1,10 @@
 """Plot helpers for the notebooks. Each takes an ``ax`` (or returns a figure) and never calls
-``plt.show()``; :func:`save_figure` writes with a tight bounding box. Topic modules: ``plots.base``
-(figure I/O, the toy example), and further modules per figure family, imported from their module."""
+``plt.show()``; :func:`save_figure` shows the figure in a notebook and writes a PNG and a vector PDF with
+their provenance. Topic modules: ``plots.base`` (figure I/O, the IEEE paper style and sizes, the toy
+example), ``plots.palette`` (colour-blind-safe colours and their check), and further modules per figure
+family, imported from their module."""
 
-from .base import figure_path, plot_toy_matrix, plot_toy_table, save_figure
+from .base import figsize, figure_path, paper_style, plot_toy_matrix, plot_toy_table, provenance, save_figure
 
-__all__ = ["figure_path", "plot_toy_matrix", "plot_toy_table", "save_figure"]
+__all__ = ["figsize", "figure_path", "paper_style", "plot_toy_matrix", "plot_toy_table", "provenance",
+           "save_figure"]

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .palette import OKABE_ITO
+
 __all__ = ["plot_blob_heatmap", "plot_blob_bands", "W_LABELS", "FEATURE_LABELS"]
 
 #: Figure titles of the feature presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS`. The paper's other
@@ -19,7 +21,7 @@ FEATURE_LABELS = {
 #: Short names of W(a, b) (Eq. 15) in the order of the grid.
 W_LABELS = {"a": "a", "b": "b", "min": "min", "max": "max", "harmonic": "2ab/(a+b)"}
 
-_D_COLOURS = {"D≥": "tab:blue", "D+≥": "tab:orange", "D+": "tab:green"}
+_D_COLOURS = {"D≥": OKABE_ITO["blue"], "D+≥": OKABE_ITO["orange"], "D+": OKABE_ITO["bluish_green"]}
 _W_MARKERS = {"a": "<", "b": ">", "min": "v", "max": "^", "harmonic": "o"}
 
 
@@ -45,9 +47,9 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
         (:func:`~ctxmatch_lib.sweep.heatmap_matrix`).
     title : str
     vmin, vmax : float, optional
-        Colour range shared by the blocks of one figure.
+        Colour range (default: this block's own range; one shared range washes out the better blocks).
     mark_best : bool
-        Outline the best cell in red.
+        Outline the best cell in red and write its mAP above it.
     row_labels, col_labels : bool
         Tick labels on the left (f, f') and at the bottom (t_o, with D sub-bands).
 
@@ -70,22 +72,32 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     for start, _, _ in _groups([r[0] for r in rows])[1:]:
         ax.axhline(start - 0.5, color="white", lw=1.2)
     if row_labels:
-        ax.set_yticks(range(len(rows)), [f"{f}, {fp}" for f, fp in rows], fontsize=6.5)
-        ax.set_ylabel("f, f'")
+        # One label per f group (rows f' = 1, 3, 5 inside it), readable at 7 pt in a column-wide block.
+        fg = _groups([r[0] for r in rows])
+        ax.set_yticks([(a + b - 1) / 2 for a, b, _ in fg], [lab for _, _, lab in fg])
+        ax.set_yticks(range(len(rows)), minor=True)
+        ax.tick_params(axis="y", which="minor", length=1.5)
+        fps = list(dict.fromkeys(str(r[1]) for r in rows))
+        ax.set_ylabel(f"f  (rows: f' = {', '.join(fps)})")
     else:
         ax.set_yticks([])
     if col_labels:
         tg = _groups([c[0] for c in cols])
-        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"$t_o$ = {lab}" for _, _, lab in tg], fontsize=8)
+        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"$t_o$ = {lab}" for _, _, lab in tg])
         ax.set_xticks([(a + b - 1) / 2 for a, b, _ in _groups([c[:2] for c in cols])], minor=True)
         ax.tick_params(axis="x", which="minor", length=2)
-        ax.set_xlabel("$t_o$ × D (sub-bands D≥, D+≥, D+) × W (a, b, min, max, 2ab/(a+b) in each)", fontsize=8)
+        ax.set_xlabel("$t_o$ × D (sub-bands D≥, D+≥, D+) × W (a, b, min, max, 2ab/(a+b) in each)")
     else:
         ax.set_xticks([])
     if mark_best and np.isfinite(values).any():
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
-        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=2, clip_on=False))
-    ax.set_title(title, fontsize=9)
+        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=1.2, clip_on=False))
+        up = r >= len(rows) / 2  # write the value on the side with more room
+        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(0, 8 if up else -8), textcoords="offset points",
+                    ha="center", va="bottom" if up else "top", color="black", fontsize=7,
+                    bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="red", lw=0.6, alpha=0.9),
+                    annotation_clip=False)
+    ax.set_title(title)
     return im
 
 
@@ -112,12 +124,12 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
         if k % 2 == 0:
             ax.axvspan(a - 0.5, b - 0.5, color="0.93", zorder=0)
         ax.text((a + b - 1) / 2, 1.005, f"$t_o$ = {lab}", transform=ax.get_xaxis_transform(), ha="center",
-                va="bottom", fontsize=8)
+                va="bottom", fontsize=7)
     for a, b, (_, d) in _groups([c[:2] for c in labels]):
         colour = _D_COLOURS.get(d, "k")
-        ax.plot(x[a:b], y[a:b], "-", color=colour, lw=1.2, zorder=2)
+        ax.plot(x[a:b], y[a:b], "-", color=colour, lw=0.9, zorder=2)
         for k in range(a, b):
-            ax.plot(x[k], y[k], _W_MARKERS.get(labels[k][2], "o"), color=colour, ms=4.5, zorder=3)
+            ax.plot(x[k], y[k], _W_MARKERS.get(labels[k][2], "o"), color=colour, ms=3, zorder=3)
     ax.set_xlim(-0.5, len(y) - 0.5)
     ax.set_xticks([(a + b - 1) / 2 for a, b, _ in _groups([c[:2] for c in labels])],
                   [d for _, _, (_, d) in _groups([c[:2] for c in labels])], fontsize=7)
@@ -131,4 +143,4 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
                      for w, mk in _W_MARKERS.items()]
         ax.legend(handles=d_handles + w_handles, loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7,
                   frameon=False)
-    ax.set_title(title, fontsize=9, pad=16)
+    ax.set_title(title, pad=12)

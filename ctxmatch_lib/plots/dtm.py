@@ -4,10 +4,12 @@ of Fig. 3. Each helper draws overlays on a given ``ax`` (draw the image first wi
 
 Points are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel.
 
-Colours follow the paper: Delaunay triangulation blue, edges joining two keypoint vertices green (the
-final meshes), convex hull red, alpha-shape edges solid orange, fattening ``B'`` dashed, contour and
-boundary set ``B`` purple; DTM1 contraction set orange and expansion clusters yellow; matches green /
-red (kept, correct / wrong) and yellow / light red (dropped or re-added, correct / wrong).
+Colours follow the paper in the boundary figure (Fig. 2): Delaunay triangulation blue, edges joining two
+keypoint vertices green (the final meshes), convex hull red, alpha-shape edges solid orange, fattening ``B'``
+dashed, contour and boundary set ``B`` purple. The DTM-step figure (Fig. 3) gives each colour one meaning:
+matches in the colour-blind-safe code of :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS` (kept correct / wrong,
+dropped correct / wrong), matches re-added by DTM2 dashed in the kept colours, triangulations grey, the DTM1
+contraction set white dots and the expansion clusters bluish green.
 """
 
 from __future__ import annotations
@@ -36,8 +38,9 @@ DTM_COLORS = {
     "hull": "#e02020",         # red
     "alpha": "#ff8c00",        # orange
     "boundary": "#9b30d0",     # purple
-    "contraction": "#ff8c00",  # orange
-    "expansion": "#ffd400",    # yellow
+    "contraction": "#ffffff",  # white (Fig. 3: orange, the colour of wrong matches here)
+    "expansion": "#009E73",    # bluish green (Fig. 3: yellow, the colour of dropped correct matches here)
+    "mesh": "#a0a0a0",         # triangulations of the DTM-step figure: grey, blue is taken by correct matches
     "vertex": "black",
 }
 
@@ -145,9 +148,9 @@ def plot_boundary_mesh(ax, boundary, *, ps: float = 6, lw: float = 0.7) -> None:
 
 def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw: float = 0.9,
                             ps: float = 4, tri_lw: float = 0.4, dropped_lw: float = 0.5,
-                            dropped_alpha: float = 0.35) -> None:
-    """Fig. 3 left column: triangulation ``T_1`` (blue) of iteration ``i`` and the flow vectors of its
-    input matches ``M^{i-1}``: kept in ``M^i`` green (correct) / red (wrong), removed yellow / light red.
+                            dropped_alpha: float = 0.35, max_dropped_lines: int | None = 300) -> bool:
+    """Fig. 3 left column: triangulation ``T_1`` (grey) of iteration ``i`` and the flow vectors of its
+    input matches ``M^{i-1}``: kept in ``M^i`` correct / wrong, removed correct / wrong (:data:`MATCH_COLORS`).
 
     Parameters
     ----------
@@ -161,26 +164,39 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
         Which image the overlay is for (its triangulation; flows start at its keypoints).
     dropped_lw, dropped_alpha : float
         Thinner, fainter lines for the removed matches, which are many and long in the first iterations.
+    max_dropped_lines : int or None
+        With more removed matches than this (thousands of long random lines in the first iteration hide
+        everything else) they are drawn as dots at their keypoints only; ``None``: always as lines.
+
+    Returns
+    -------
+    bool
+        Whether the removed matches were drawn as dots only (say so in the panel's title).
     """
     tri = iteration.tri1 if image == 1 else iteration.tri2
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
     active = iteration.active
     kept = np.isin(active, iteration.kept)
     src, dst = (p1, p2) if image == 1 else (p2, p1)
     gone, stay = active[~kept], active[kept]
-    plot_flow(ax, src[gone], dst[gone], color=match_colors(labels[gone], np.zeros(len(gone), bool)),
-              lw=dropped_lw, ps=ps * 0.5, alpha=dropped_alpha)
+    gone_colors = match_colors(labels[gone], np.zeros(len(gone), bool))
+    as_dots = max_dropped_lines is not None and len(gone) > max_dropped_lines
+    if as_dots:
+        ax.scatter(*src[gone].T, s=max(ps, 3.0), c=gone_colors, linewidths=0, alpha=0.85, zorder=2)
+    else:
+        plot_flow(ax, src[gone], dst[gone], color=gone_colors, lw=dropped_lw, ps=ps * 0.5, alpha=dropped_alpha)
     plot_flow(ax, src[stay], dst[stay], color=match_colors(labels[stay]), lw=lw, ps=ps, zorder=3)
+    return as_dots
 
 
 def plot_dtm_clusters(ax, iteration, p1, p2, *, image: int = 2, lw: float = 0.9, ps: float = 14,
                       tri_lw: float = 0.4) -> None:
-    """Fig. 3 right column: triangulation ``T_2`` (blue) of iteration ``i``, the contraction set ``T``
-    (orange dots) and each expansion cluster ``M_{A^1} ∩ M_{A^2}`` (yellow: segments from the contraction
-    match to its cluster members, members as yellow dots), drawn at the keypoints of image ``image``."""
+    """Fig. 3 right column: triangulation ``T_2`` (grey) of iteration ``i``, the contraction set ``T``
+    (white dots) and each expansion cluster ``M_{A^1} ∩ M_{A^2}`` (bluish green: segments from the contraction
+    match to its cluster members, members as dots), drawn at the keypoints of image ``image``."""
     tri = iteration.tri2 if image == 2 else iteration.tri1
     pts = p2 if image == 2 else p1
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
     ptr, members, t = iteration.cluster_ptr, iteration.cluster_members, iteration.contraction
     centre = np.repeat(t, np.diff(ptr))
     ax.add_collection(LineCollection(np.stack([pts[centre], pts[members]], axis=1),
@@ -191,9 +207,10 @@ def plot_dtm_clusters(ax, iteration, p1, p2, *, image: int = 2, lw: float = 0.9,
 
 def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1, lw: float = 0.9,
                    ps: float = 4, tri_lw: float = 0.4) -> None:
-    """Fig. 3e-f: the DTM1 output ``M^ī`` (``stage=1``: kept matches green / red, with the last DTM1
-    triangulation) or the DTM2 output (``stage=2``: DTM1 matches green / red, re-added ones yellow /
-    light red, with the triangulation of the last DTM2 level), as flow vectors on image ``image``.
+    """Fig. 3e-f: the DTM1 output ``M^ī`` (``stage=1``: kept matches in the correct / wrong colours, with the
+    last DTM1 triangulation) or the DTM2 output (``stage=2``: DTM1 matches solid, re-added ones dashed in the
+    same correct / wrong colours, with the triangulation of the last DTM2 level), as flow vectors on image
+    ``image``.
 
     ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
     """
@@ -204,20 +221,22 @@ def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1
     else:
         lev = tr.levels[-1]
         tri = lev.tri1 if image == 1 else lev.tri2
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["delaunay"], lw=tri_lw, alpha=0.7)
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
     dtm1 = np.flatnonzero(result.removed_at == 0)
     src, dst = (p1, p2) if image == 1 else (p2, p1)
     plot_flow(ax, src[dtm1], dst[dtm1], color=match_colors(labels[dtm1]), lw=lw, ps=ps)
     if stage == 2:
         added = np.flatnonzero(result.readded_at > 0)
-        plot_flow(ax, src[added], dst[added], color=match_colors(labels[added], np.zeros(len(added), bool)),
-                  lw=lw, ps=ps, zorder=3)
+        plot_flow(ax, src[added], dst[added], color=match_colors(labels[added]), lw=lw * 1.2, ps=ps, zorder=3,
+                  linestyle=(0, (2.5, 1.5)))
 
 
 #: Legend entries of the Fig. 3 panels.
 FLOW_LEGEND = {
     "kept, correct": MATCH_COLORS["correct"],
     "kept, wrong": MATCH_COLORS["wrong"],
-    "removed (DTM2: re-added), correct": MATCH_COLORS["correct_dropped"],
-    "removed (DTM2: re-added), wrong": MATCH_COLORS["wrong_dropped"],
+    "removed, correct": MATCH_COLORS["correct_dropped"],
+    "removed, wrong": MATCH_COLORS["wrong_dropped"],
+    "re-added by DTM2, correct": (MATCH_COLORS["correct"], "--"),
+    "re-added by DTM2, wrong": (MATCH_COLORS["wrong"], "--"),
 }

@@ -7,15 +7,19 @@ pair is drawn side by side in *one* axes (:func:`plot_image_pair`), so that matc
 segments and a grid of pairs is a plain grid of axes; image-2 points are drawn shifted by the returned
 offset.
 
-Match colours follow the paper's figures (Fig. 3, the appendix match grids): correct matches that are kept
-green, wrong ones kept red, correct ones dropped (by a DTM iteration, by 1SAC) yellow, wrong ones dropped
-light red (:data:`MATCH_COLORS`, :func:`match_colors`).
+Match colours keep the meaning of the paper's figures (Fig. 3, the appendix match grids) in a colour-blind-safe
+palette (Okabe–Ito, :mod:`ctxmatch_lib.plots.palette`): correct matches that are kept sky blue (the paper: green),
+wrong ones kept vermillion (red), correct ones dropped (by a DTM iteration, by 1SAC) yellow, wrong ones dropped
+reddish purple (light red) (:data:`MATCH_COLORS`, :func:`match_colors`). The paper's green / red are ΔE ≈ 12 apart
+for a deuteranope, sky blue / vermillion ΔE ≈ 100.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from matplotlib.collections import LineCollection
+
+from .palette import OKABE_ITO
 
 __all__ = [
     "MATCH_COLORS",
@@ -29,12 +33,12 @@ __all__ = [
     "color_legend",
 ]
 
-#: The four-colour code of the paper's match figures.
+#: The four-colour code of the paper's match figures, colour-blind safe (the paper's colour in comments).
 MATCH_COLORS = {
-    "correct": "#22c02c",          # kept, correct: green
-    "wrong": "#e8211d",            # kept, wrong: red
-    "correct_dropped": "#ffd400",  # dropped, correct: yellow
-    "wrong_dropped": "#ffa3a3",    # dropped, wrong: light red
+    "correct": OKABE_ITO["sky_blue"],                # kept, correct (green)
+    "wrong": OKABE_ITO["vermillion"],                # kept, wrong (red)
+    "correct_dropped": OKABE_ITO["yellow"],          # dropped, correct (yellow)
+    "wrong_dropped": OKABE_ITO["reddish_purple"],    # dropped, wrong (light red)
 }
 
 
@@ -121,11 +125,11 @@ def plot_keypoints(ax, kpts, *, color="lime", ps: float = 4, offset=(0.0, 0.0), 
 
 
 def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float = 0.0, alpha: float = 1.0,
-                 offset=(0.0, 0.0), zorder: float = 2) -> None:
+                 offset=(0.0, 0.0), zorder: float = 2, linestyle="solid") -> None:
     """Lines from ``kpts1[k]`` to ``kpts2[k] + offset`` (both ``(K, 2)`` (x, y) pixels).
 
     ``color`` is one colour or one per match (``(K, 4)``, e.g. :func:`match_colors`); ``ps`` > 0 also marks
-    the endpoints. Use with :func:`plot_image_pair` and its offset.
+    the endpoints; ``linestyle`` is any matplotlib line style. Use with :func:`plot_image_pair` and its offset.
     """
     p1 = np.asarray(kpts1, np.float64).reshape(-1, 2)
     p2 = np.asarray(kpts2, np.float64).reshape(-1, 2) + np.asarray(offset, np.float64)
@@ -133,7 +137,8 @@ def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float =
         raise ValueError(f"kpts1 and kpts2 must have the same length, got {len(p1)} and {len(p2)}")
     if len(p1) == 0:
         return
-    lines = LineCollection(np.stack([p1, p2], axis=1), colors=color, linewidths=lw, alpha=alpha, zorder=zorder)
+    lines = LineCollection(np.stack([p1, p2], axis=1), colors=color, linewidths=lw, alpha=alpha, zorder=zorder,
+                           linestyles=linestyle)
     ax.add_collection(lines)
     if ps > 0:
         ax.scatter(*p1.T, c=color, s=ps, linewidths=0, zorder=zorder, alpha=alpha)
@@ -141,11 +146,11 @@ def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float =
 
 
 def plot_flow(ax, kpts_from, kpts_to, *, color="lime", lw: float = 0.8, ps: float = 3.0, alpha: float = 1.0,
-              zorder: float = 2) -> None:
+              zorder: float = 2, linestyle="solid") -> None:
     """Motion-flow vectors drawn on one image: a segment from each keypoint ``kpts_from[k]`` of this
     image to the position ``kpts_to[k]`` of its match in the other image, with a dot at the keypoint
     (the paper's Fig. 3 style). Both are ``(K, 2)`` (x, y) pixels."""
-    plot_matches(ax, kpts_from, kpts_to, color=color, lw=lw, alpha=alpha, zorder=zorder)
+    plot_matches(ax, kpts_from, kpts_to, color=color, lw=lw, alpha=alpha, zorder=zorder, linestyle=linestyle)
     p = np.asarray(kpts_from, np.float64).reshape(-1, 2)
     if ps > 0 and len(p):
         ax.scatter(p[:, 0], p[:, 1], c=color, s=ps, linewidths=0, zorder=zorder, alpha=alpha)
@@ -158,8 +163,17 @@ def add_text(ax, text: str, *, pos=(0.01, 0.99), fs: float = 9, color="w", va="t
 
 
 def color_legend(ax_or_fig, labels: dict, **kwargs):
-    """A legend of coloured line handles, ``labels`` mapping text -> colour; ``kwargs`` go to ``legend``."""
+    """A legend of coloured line handles, ``labels`` mapping text -> colour, or -> ``(colour, style)`` where
+    style is a line style (``"--"``) or a marker (``"o"``); ``kwargs`` go to ``legend``."""
     from matplotlib.lines import Line2D
+    from matplotlib.markers import MarkerStyle
 
-    handles = [Line2D([], [], color=c, lw=2.5) for c in labels.values()]
+    handles = []
+    for value in labels.values():
+        colour, style = value if isinstance(value, tuple) and len(value) == 2 and isinstance(value[1], str) \
+            else (value, "-")
+        if style in MarkerStyle.markers and style not in ("", " ", "None"):
+            handles.append(Line2D([], [], color=colour, ls="", marker=style, ms=5, mec="black", mew=0.4))
+        else:
+            handles.append(Line2D([], [], color=colour, lw=1.8, ls=style))
     return ax_or_fig.legend(handles, list(labels), **kwargs)
