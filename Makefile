@@ -7,6 +7,10 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.ctxmatch-installed
+# The tests also cover the optional extras (learned filters, kornia interop, hloc export): the test
+# environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
+TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0
+TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
 # Real data: CTXMATCH_DATA from the environment, else ../shared/data when that folder exists.
 export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
 export MPLBACKEND := Agg
@@ -24,17 +28,21 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install -q --no-deps --no-build-isolation -e .
 	touch $@
 
+$(TEST_STAMP): $(STAMP) Makefile
+	$(BIN)/python -m pip install -q $(TEST_EXTRAS)
+	touch $@
+
 figures: $(STAMP)
 	$(BIN)/ctxmatch figures
 
 figures-paper: $(STAMP)
 	$(BIN)/ctxmatch figures --params paper
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	mkdir -p build
 	CTXMATCH_FIGURES=$(abspath build/figures) $(BIN)/python -m pytest tests notebooks --nbval-lax --doctest-modules ctxmatch_lib --junitxml=build/junit.xml
 
-test-fast: $(STAMP)
+test-fast: $(TEST_STAMP)
 	$(BIN)/python -m pytest tests -m "not slow" -x -q
 
 bench: $(STAMP)
