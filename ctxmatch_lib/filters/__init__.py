@@ -32,6 +32,8 @@ _BUILTIN: dict[str, str] = {
     "llt": "ctxmatch_lib.filters.llt:llt_filter",
     "adalam": "ctxmatch_lib.filters.adalam:adalam_filter",
     "rfm_scan": "ctxmatch_lib.filters.rfm_scan:rfm_scan_filter",
+    "pfm": "ctxmatch_lib.filters.pfm:pfm_filter",
+    "lmr": "ctxmatch_lib.filters.lmr:lmr_filter",
 }
 
 
