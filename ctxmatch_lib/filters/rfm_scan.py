@@ -76,25 +76,22 @@ class _MotionSpace:
             self._trees[key, level] = cKDTree(self.embed(members, level))
         return self._trees[key, level]
 
-    def ball(self, key, members: np.ndarray, queries: np.ndarray, radius: np.ndarray, *, count_only=False):
+    def ball(self, key, members: np.ndarray, queries: np.ndarray, radius: np.ndarray, chunk: int = 2048):
         """Members possibly within ``radius`` (true distance, per query) of each query, by radius level.
 
         Yields ``(sel, lens, j)``: the positions ``sel`` in ``queries``, the number of members found for
-        each and their indices ``j`` (concatenated); with ``count_only``, ``j`` is None.
+        each and their indices ``j`` (concatenated), ``chunk`` queries at a time.
         """
         r = np.asarray(radius, np.float64) * (1 + 1e-5) + 1e-6  # float32 rounding of the true distances
         # One tree per power-of-two level: c(level) holds for every radius up to the level.
         levels = np.exp2(np.ceil(np.log2(np.maximum(r, 1e-3))))
         for level in np.unique(levels):
-            sel = np.flatnonzero(levels == level)
             tree = self.tree(key, members, float(level))
-            pts = self.embed(queries[sel], float(level))
-            if count_only:
-                yield sel, tree.query_ball_point(pts, r[sel], return_length=True), None
-                continue
-            lists = tree.query_ball_point(pts, r[sel], return_sorted=False)
-            lens = np.fromiter(map(len, lists), np.int64, len(lists))
-            yield sel, lens, members[np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))]
+            for b in range(0, int((levels == level).sum()), chunk):
+                sel = np.flatnonzero(levels == level)[b : b + chunk]
+                lists = tree.query_ball_point(self.embed(queries[sel], float(level)), r[sel], return_sorted=False)
+                lens = np.fromiter(map(len, lists), np.int64, len(lists))
+                yield sel, lens, members[np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))]
 
 
 class _Round:
@@ -106,7 +103,7 @@ class _Round:
         self.groups = [(np.float32(s), np.flatnonzero(scale == s)) for s in np.unique(scale)]
 
     def upper(self) -> np.ndarray:
-        """An upper bound of every ``L_i``: the k-th smallest true distance among some tree neighbours.
+        """An upper bound of every ``L_i``: the largest true distance to k (approximately) nearest matches.
 
         The neighbours come from the least-scaled group alone when it has enough matches (a distance
         multiplied by 100 rarely helps and any k true distances give an upper bound).
@@ -115,18 +112,11 @@ class _Round:
         cand = []
         groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
         for s, g in groups:
-            m = min(self.k + self.k // 2, len(g))
-            _, nb = sp.tree(s, g, 0.0).query(sp.embed(everyone, 0.0), k=m)
+            m = min(self.k, len(g))
+            # Approximate neighbours (eps=1) suffice: any k true distances bound the k-th from above.
+            _, nb = sp.tree(s, g, 0.0).query(sp.embed(everyone, 0.0), k=m, eps=1.0)
             cand.append(sp.dist(everyone[:, None], g[nb.reshape(-1, m)]) * s)
         return np.partition(np.hstack(cand), self.k - 1, axis=1)[:, self.k - 1]
-
-    def ball_counts(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Matches in the search balls of ``radius`` around ``queries``: the cost of an exact ``L``."""
-        count = np.zeros(len(queries), np.int64)
-        for s, g in self.groups:
-            for sel, lens, _ in self.space.ball(s, g, queries, radius / s, count_only=True):
-                count[sel] += lens
-        return count
 
     def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
@@ -158,26 +148,19 @@ class _Round:
             out[b : b + step] = np.partition(d, self.k - 1, axis=1)[:, self.k - 1]
         return out
 
-    def core(self, mu: float, budget: int) -> tuple[np.float32, np.ndarray]:
-        """``eps = min L + mu (max L - min L)`` and the core mask ``L <= eps``, as the dense computation.
+    def clustered(self, mu: float) -> np.ndarray:
+        """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation.
 
-        ``L`` is computed exactly where the ball search (radius: the upper bound) is cheap. For the other
-        matches, far from everything, it is computed only where it can matter: below the smallest ``L``
-        found (a ball search of that small radius tells), as the largest ``L`` (whole rows, from the
-        largest upper bound down until no upper bound exceeds the largest ``L`` found), or below ``eps``
-        (a ball search of radius ``eps`` tells).
+        ``min L`` is found by a ball search of radius ``min upper`` (small), ``max L`` from whole rows of
+        distances, taken from the largest upper bound down until no upper bound exceeds the largest ``L``
+        found (a few rows). A match is core when at least ``MinPts`` matches lie within ``eps`` (scaled),
+        and clustered when it is core or within ``eps`` of a core match (searched in a k-d tree of the
+        core matches).
         """
         n = self.space.n
         everyone = np.arange(n)
         upper = self.upper()
-        near = self.ball_counts(everyone, upper) <= budget
-        if not near.any():
-            near[:] = True
-        kth = np.full(n, np.nan, np.float32)
-        kth[near] = self.ball_kth(everyone[near], upper[near])
-        far = np.flatnonzero(~near)
-        if len(far):  # min L
-            kth[far] = self.ball_kth(far, np.full(len(far), np.nanmin(kth), np.float64))
+        kth = self.ball_kth(everyone, np.full(n, upper.min(), np.float64))  # min L
         rest = np.flatnonzero(np.isnan(kth))
         rest = rest[np.argsort(-upper[rest], kind="stable")]
         for b in range(0, len(rest), 64):  # max L
@@ -188,32 +171,43 @@ class _Round:
             kth[batch] = self.dense_kth(batch)
         lo, hi = np.nanmin(kth), np.nanmax(kth)
         eps = lo + np.float32(mu) * (hi - lo)
-        core = kth <= eps  # False where unknown; those are settled next
-        rest = np.flatnonzero(np.isnan(kth))
-        if len(rest):
-            core[rest] = ~np.isnan(self.ball_kth(rest, np.full(len(rest), eps, np.float64)))
-        return eps, core
+        # Core: sure where the upper bound is within eps; impossible where fewer than k matches lie within
+        # eps even in the lower bound (a k-NN search capped at eps); a ball search of radius eps decides
+        # the rest.
+        core = upper <= eps
+        todo = np.flatnonzero(~core)
+        found = np.zeros(len(todo), np.int64)
+        for s, g in self.groups:
+            r = float(np.float64(eps) / s) * (1 + 1e-5) + 1e-6
+            level = float(np.exp2(np.ceil(np.log2(max(r, 1e-3)))))
+            m = min(self.k, len(g))
+            for b in range(0, len(todo), 4096):
+                q = todo[b : b + 4096]
+                dd, _ = self.space.tree(s, g, level).query(self.space.embed(q, level), k=m, distance_upper_bound=r)
+                found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
+        todo = todo[found >= self.k]
+        if len(todo):
+            core[todo] = ~np.isnan(self.ball_kth(todo, np.full(len(todo), eps, np.float64)))
+        # Reached: a non-core match with a core match within eps (distance scaled by its own scale).
+        reached = core.copy()
+        core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
+        if len(core_idx) == 0 or len(others) == 0:
+            return reached
+        for sel, lens, i in self.space.ball("core", core_idx, others, np.float64(eps) / self.scale[others]):
+            j = np.repeat(others[sel], lens)
+            hit = self.space.dist(i, j) * self.scale[j] <= eps
+            reached[j[hit]] = True
+        return reached
 
 
 def _clustered(space: _MotionSpace, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
     """Matches that DBSCAN puts in a cluster, with the adaptive eps of Sec. III-B.
 
-    ``col_scale`` multiplies the distances *to* each match (second round: 1 or 100). A non-core match
-    ``j`` is clustered when some core ``i`` has ``d_ij * col_scale[j] <= eps``, searched in a k-d tree of
-    the core matches.
+    ``col_scale`` multiplies the distances *to* each match (second round: 1 or 100); a non-core match ``j``
+    is clustered when some core ``i`` has ``d_ij * col_scale[j] <= eps``.
     """
-    n = space.n
-    scale = np.ones(n, np.float32) if col_scale is None else col_scale.astype(np.float32)
-    eps, core = _Round(space, scale, min_pts).core(mu, budget=4 * min_pts + 16)
-    reached = core.copy()
-    core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
-    if len(core_idx) == 0 or len(others) == 0:
-        return reached
-    for sel, lens, i in space.ball("core", core_idx, others, np.float64(eps) / scale[others]):
-        j = np.repeat(others[sel], lens)
-        hit = space.dist(i, j) * scale[j] <= eps
-        reached[j[hit]] = True
-    return reached
+    scale = np.ones(space.n, np.float32) if col_scale is None else col_scale.astype(np.float32)
+    return _Round(space, scale, min_pts).clustered(mu)
 
 
 def rfm_scan_filter(
