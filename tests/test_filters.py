@@ -1,4 +1,4 @@
-"""Tests of the peer spatial filters behind ``FILTERS`` (th, GMS, LPM, GLPM, VFC, LLT, AdaLAM, RFM-SCAN)."""
+"""Tests of the peer spatial filters behind ``FILTERS`` (th, GMS, LPM, GLPM, VFC, LLT, AdaLAM, RFM-SCAN, PFM, LMR)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
 
-PEERS = ["th", "gms", "lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan"]
+PEERS = ["th", "gms", "lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pfm", "lmr"]
 SPATIAL = [name for name in PEERS if name != "th"]
 SIZE = (640, 480)
 
@@ -151,7 +151,7 @@ def test_gms_rotation_kernels_find_a_rotated_cluster():
     assert rotated.mean() > 0.8 and rotated.sum() > upright.sum()
 
 
-@pytest.mark.parametrize("name", ["lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan"])
+@pytest.mark.parametrize("name", ["lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pfm", "lmr"])
 def test_translation_grid_exact(name):
     # A rigid translation preserves every neighbourhood, motion and local affinity; the lone match
     # sent to the corner is inconsistent with all of them.
@@ -260,3 +260,194 @@ def test_th_applies_the_nnr_threshold_on_the_scale_of_d_plus_scores():
     assert plain.tolist() == plus.tolist() == [True, True, False]
     with pytest.raises(ValueError, match="ratio"):
         FILTERS["th"](k, k, m, r, ratio="D", **common)
+
+
+# ----- RFM-SCAN: the tree search gives the dense computation's mask ---------------------------------------
+
+
+def _rfm_scan_dense(x, y, size, gamma=10.0, pct=0.05, mu=(0.1, 0.08), rng=0):
+    """RFM-SCAN with the full K x K distance matrix (the definition the k-d tree search must reproduce)."""
+    rng = np.random.default_rng(rng)
+    n = len(x)
+    n_noise = int(round(min(0.05 * n, 20)))
+    hi = np.asarray(size) - 0.5
+    x = np.vstack([x, rng.uniform(-0.5, hi, size=(n_noise, 2))])
+    y = np.vstack([y, rng.uniform(-0.5, hi, size=(n_noise, 2))])
+    f = np.hstack([x, y, y - x])
+    span = f.max(0) - f.min(0)
+    f = ((f - f.min(0)) / np.where(span > 0, span, 1.0)).astype(np.float32)
+    min_pts = int(min(max(round(len(f) * pct), 3), 30))
+
+    def pair(a):
+        dx = f[:, None, a] - f[None, :, a]
+        dy = f[:, None, a + 1] - f[None, :, a + 1]
+        return np.sqrt(dx * dx + dy * dy)
+
+    d1, d2, dv = pair(0), pair(2), pair(4)
+    D = d1 + d2 + (1.0 + np.float32(gamma) * np.exp(-np.minimum(d1, d2))) * dv
+
+    def clustered(Dm, m):
+        kth = np.partition(Dm, min_pts - 1, axis=1)[:, min_pts - 1]
+        eps = kth.min() + np.float32(m) * (kth.max() - kth.min())
+        core = kth <= eps
+        return core | (Dm[core] <= eps).any(0)
+
+    first = clustered(D, mu[0])
+    ci = np.zeros(len(f), bool)
+    ci[:n] = first[:n]
+    return clustered(D * np.where(ci, 1.0, 100.0).astype(np.float32)[None, :], mu[1])[:n]
+
+
+@pytest.mark.parametrize("n, ratio, seed", [(600, 0.4, 0), (1200, 0.1, 1), (900, 0.9, 2), (40, 0.5, 3)])
+def test_rfm_scan_equals_dense_definition(n, ratio, seed):
+    pm = planted_homography_matches(n, ratio, noise=0.5, image_size=SIZE, rng=seed)
+    keep = _run("rfm_scan", pm.kpts1, pm.kpts2, pm.matches, None)
+    np.testing.assert_array_equal(keep, _rfm_scan_dense(pm.kpts1, pm.kpts2, SIZE))
+
+
+# ----- PFM --------------------------------------------------------------------------------------------------
+
+
+def test_pfm_min_cut_is_the_exact_minimum():
+    # E(l) = sum u_i l_i - sum w_ij l_i l_j over 6 nodes: the cut's labels equal brute force over 2^6.
+    from itertools import product
+
+    from ctxmatch_lib.filters.pfm import _min_cut
+
+    u = np.array([1.5, 1.5, 1.5, -0.2, 2.0, 0.7])
+    e = np.array([[0, 1], [1, 2], [0, 2], [2, 3], [3, 4], [4, 5], [0, 5]])
+    w = np.array([1.0, 0.9, 0.8, 0.1, 0.3, 2.5, 0.05])
+    labels = _min_cut(6, u, e, w)
+
+    def energy(lab):
+        lab = np.asarray(lab, float)
+        return u @ lab - (w * lab[e[:, 0]] * lab[e[:, 1]]).sum()
+
+    best = min(product([0, 1], repeat=6), key=energy)
+    np.testing.assert_array_equal(labels, np.array(best, bool))
+    # The triangle 0-1-2 costs 4.5 and earns only 2.7; 3-4-5 cost 2.5 and earn 2.8 (0.3 + 2.5).
+    np.testing.assert_array_equal(labels, [False, False, False, True, True, True])
+
+
+def test_pfm_local_affines_from_shapes_and_fitted():
+    from ctxmatch_lib.filters.pfm import local_affines
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 200, size=(50, 2))
+    L = np.array([[1.2, -0.3], [0.4, 0.9]])
+    y = x @ L.T + (5.0, 7.0)
+    A1 = np.tile(np.diag([2.0, 3.0]), (50, 1, 1))
+    np.testing.assert_allclose(local_affines(x, y, A1, L @ A1), np.tile(L, (50, 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(local_affines(x, y), np.tile(L, (50, 1, 1)), atol=1e-9)
+
+
+def _planted_with_shapes(seed):
+    """Planted case with image-2 shapes from the homography's Jacobian at inliers, random at outliers."""
+    pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=seed)
+    n = len(pm.kpts1)
+    A1 = _similarity_shapes(n, 3.0, 0.0)
+    eps = 1e-3
+    J = np.stack([(apply_homography(pm.H, pm.kpts1 + d) - apply_homography(pm.H, pm.kpts1 - d)) / (2 * eps)
+                  for d in ([eps, 0.0], [0.0, eps])], -1)
+    A2 = J @ A1
+    rng = np.random.default_rng(seed)
+    out = ~pm.is_inlier
+    A2[out] = [_similarity_shapes(1, 3.0 * rng.uniform(0.5, 2), rng.uniform(-np.pi, np.pi))[0]
+               for _ in range(int(out.sum()))]
+    return pm, A1, A2
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pfm_planted_with_shapes(seed):
+    pm, A1, A2 = _planted_with_shapes(seed)
+    keep = _run("pfm", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
+    precision = (keep & pm.is_inlier).sum() / keep.sum()
+    recall = (keep & pm.is_inlier).sum() / pm.is_inlier.sum()
+    assert precision > 0.95 and recall > 0.8
+
+
+def test_pfm_needs_both_shapes():
+    x, y = _grid_translation()
+    with pytest.raises(ValueError, match="shapes1 and shapes2"):
+        _run("pfm", x, y, _identity(len(x)), None, shapes1=_similarity_shapes(len(x), 1.0, 0.0))
+
+
+def test_pfm_progressive_rounds_recover_from_empty_seeds():
+    # The best-scored tenth is pure outliers: the seed graph keeps nothing, the next rounds start afresh.
+    pm = planted_homography_matches(600, 0.5, noise=0.5, image_size=SIZE, rng=4)
+    scores = np.where(pm.is_inlier, 0.5, 0.6)
+    scores[np.flatnonzero(~pm.is_inlier)[:60]] = 0.0
+    keep = _run("pfm", pm.kpts1, pm.kpts2, pm.matches, scores)
+    assert (keep & pm.is_inlier).sum() / keep.sum() > 0.95 and keep[pm.is_inlier].mean() > 0.5
+
+
+# ----- LMR --------------------------------------------------------------------------------------------------
+
+
+def test_lmr_features_exact():
+    from ctxmatch_lib.filters.lmr import SCALES, lmr_features
+
+    # Five matches moved by one translation: every neighbour is shared and every motion agrees; at scale k
+    # only min(k, 4) neighbours exist, so both features are 4 / k. The sixth match's motion is opposite.
+    x = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0]])
+    f = lmr_features(x, x + (3.0, 4.0))
+    expected = np.repeat([min(k, 4) / k for k in SCALES], 2)
+    np.testing.assert_allclose(f, np.tile(expected, (5, 1)), rtol=0, atol=1e-15)
+    y = x + (3.0, 4.0)
+    y[4] = x[4] - (3.0, 4.0)  # same neighbours (the centre), motion reversed: similarity -1
+    f = lmr_features(x, y)
+    np.testing.assert_allclose(f[4, 0::2], [min(k, 4) / k for k in SCALES], atol=1e-15)
+    np.testing.assert_allclose(f[4, 1::2], [-min(k, 4) / k for k in SCALES], atol=1e-15)
+    assert f.shape == (5, 2 * len(SCALES))
+
+
+def test_lmr_exported_trees_predict_as_scikit_learn():
+    from ctxmatch_lib.filters import lmr
+
+    rng = np.random.default_rng(1)
+    x, y, inl = lmr.synthetic_pair(rng)
+    F = lmr.lmr_features(x, y)
+    clf = lmr._fit(F, inl, 0, 15, 3, 0.2)
+    np.testing.assert_allclose(lmr.LMRModel(lmr._export(clf, 1)).proba(1, F), clf.predict_proba(F)[:, 1],
+                               rtol=0, atol=1e-12)
+
+
+TINY_LMR = dict(n_pairs=4, max_samples_per_pair=150, n_estimators=8)
+
+
+def test_lmr_training_is_repeatable(tmp_path):
+    from ctxmatch_lib.filters.lmr import LMRModel, lmr_filter, train_lmr
+
+    a = train_lmr(seed=3, **TINY_LMR, path=tmp_path / "a.npz")
+    b = train_lmr(seed=3, **TINY_LMR)
+    assert a.arrays.keys() == b.arrays.keys()
+    for key in a.arrays:
+        np.testing.assert_array_equal(a.arrays[key], b.arrays[key], err_msg=key)
+    c = train_lmr(seed=4, **TINY_LMR)
+    assert any(a.arrays[k].shape != c.arrays[k].shape or not np.array_equal(a.arrays[k], c.arrays[k])
+               for k in a.arrays)
+    loaded = LMRModel.load(tmp_path / "a.npz")
+    x, y = _grid_translation()
+    np.testing.assert_array_equal(lmr_filter(x, y, _identity(len(x)), image_size1=SIZE, image_size2=SIZE, model=a),
+                                  lmr_filter(x, y, _identity(len(x)), image_size1=SIZE, image_size2=SIZE,
+                                             model=loaded))
+
+
+def test_lmr_shipped_model_is_installed():
+    from ctxmatch_lib.filters.lmr import MODEL_PATH, LMRModel
+
+    assert MODEL_PATH.is_file()
+    model = LMRModel.load()
+    assert {"1_offsets", "2_offsets", "1_threshold", "2_value"} <= set(model.arrays)
+
+
+@pytest.mark.slow
+def test_lmr_shipped_model_equals_default_training():
+    # The shipped model is train_lmr(**LMR_TRAIN_DEFAULTS) (about 10-30 s).
+    from ctxmatch_lib.filters.lmr import LMR_TRAIN_DEFAULTS, LMRModel, train_lmr
+
+    shipped = LMRModel.load()
+    fresh = train_lmr(**LMR_TRAIN_DEFAULTS)
+    assert shipped.arrays.keys() == fresh.arrays.keys()
+    for key in fresh.arrays:
+        np.testing.assert_array_equal(shipped.arrays[key], fresh.arrays[key], err_msg=key)

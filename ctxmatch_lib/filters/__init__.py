@@ -35,6 +35,8 @@ _BUILTIN: dict[str, str] = {
     "pgm": "ctxmatch_lib.filters.pgm:pgm_filter",
     "scv": "ctxmatch_lib.filters.scv:scv_filter",
     "bm": "ctxmatch_lib.filters.bm:bm_filter",
+    "pfm": "ctxmatch_lib.filters.pfm:pfm_filter",
+    "lmr": "ctxmatch_lib.filters.lmr:lmr_filter",
     # Learned filters (torch imported on the first call; default weights trained here, not the authors').
     "oanet": "ctxmatch_lib.filters.learned.filters:oanet_filter",
     "acne": "ctxmatch_lib.filters.learned.filters:acne_filter",

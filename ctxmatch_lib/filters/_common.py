@@ -7,6 +7,7 @@ arrays. Keypoints are (x, y) pixels with the origin at the centre of the top-lef
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = ["MatchSet", "prepare", "knn_without_self", "normalize_points", "check_positive"]
+__all__ = ["MatchSet", "prepare", "knn_without_self", "normalize_points", "check_positive", "serial_blas"]
 
 
 @dataclass(frozen=True)
@@ -101,3 +102,17 @@ def normalize_points(p: np.ndarray) -> np.ndarray:
     c = p - p.mean(axis=0)
     scale = np.sqrt((c**2).sum() / max(len(p), 1))
     return c / scale if scale > 1e-12 else c
+
+
+def serial_blas():
+    """Context manager running BLAS single-threaded (a no-op without ``threadpoolctl``).
+
+    The EM filters (VFC, LLT) multiply skinny ``(K, m)`` matrices hundreds of times; a multi-threaded
+    BLAS spends more time waking and synchronising its threads than computing (5x slower on a loaded
+    2-core machine), so those loops run serially. ``threadpoolctl`` comes with scikit-learn.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - scikit-learn depends on it
+        return nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ._common import check_positive, knn_without_self, normalize_points, prepare
+from ._common import check_positive, knn_without_self, normalize_points, prepare, serial_blas
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights"]
@@ -130,39 +130,40 @@ def llt_filter(
     n = len(ms)
     if n == 0:
         return np.zeros(0, bool)
-    x = normalize_points(ms.x)
-    y = normalize_points(ms.y)
-    target = y - x  # T(x) = x + U C, so the kernel part fits the motion
-    ctrl = control_points(x, n_control, rng)
-    U = gaussian_kernel(x, ctrl, beta)
-    B = sp.identity(n, format="csr") - lle_weights(x, n_neighbors)  # I - W
-    BU, BX = B @ U, B @ x
-    C = np.zeros((len(ctrl), 2))
-    field = np.zeros_like(target)
-    sigma2 = float((target**2).sum() / (2 * n))
-    if sigma2 <= 1e-8:
-        return np.ones(n, bool)
-    gamma = min(max(gamma, 0.05), 0.95)
-    energy, change = 1.0, 1.0
-    p = np.ones(n)
-    ridge = 1e-8 * np.eye(len(ctrl))
-    for _ in range(max_iter):
-        if change <= tol or sigma2 <= 1e-8:
-            break
-        r2 = ((target - field) ** 2).sum(1)
-        p = posterior(r2, sigma2, gamma, a)
-        local = ((BX + BU @ C) ** 2).sum(1)
-        # Eq. (8): expected complete-data energy with the local geometrical constraint.
-        old = energy
-        energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam * (p @ local)
-        change = abs((energy - old) / energy) if energy != 0 else 0.0
-        pw = np.maximum(p, min_p)
-        # M-step for C (Sec. III-C), multiplied through by sigma^2:
-        # (U' P U + 2 lam sigma^2 (BU)' P (BU)) C = U' P (y - x) - 2 lam sigma^2 (BU)' P (B x).
-        lhs = U.T @ (pw[:, None] * U) + 2 * lam * sigma2 * BU.T @ (pw[:, None] * BU) + ridge
-        rhs = U.T @ (pw[:, None] * target) - 2 * lam * sigma2 * BU.T @ (pw[:, None] * BX)
-        C = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-        field = U @ C
-        sigma2 = float(pw @ ((target - field) ** 2).sum(1) / (2 * pw.sum()))
-        gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
-    return p > tau
+    with serial_blas():  # skinny products in a loop: threads cost more than they give
+        x = normalize_points(ms.x)
+        y = normalize_points(ms.y)
+        target = y - x  # T(x) = x + U C, so the kernel part fits the motion
+        ctrl = control_points(x, n_control, rng)
+        U = gaussian_kernel(x, ctrl, beta)
+        B = sp.identity(n, format="csr") - lle_weights(x, n_neighbors)  # I - W
+        BU, BX = B @ U, B @ x
+        C = np.zeros((len(ctrl), 2))
+        field = np.zeros_like(target)
+        sigma2 = float((target**2).sum() / (2 * n))
+        if sigma2 <= 1e-8:
+            return np.ones(n, bool)
+        gamma = min(max(gamma, 0.05), 0.95)
+        energy, change = 1.0, 1.0
+        p = np.ones(n)
+        ridge = 1e-8 * np.eye(len(ctrl))
+        for _ in range(max_iter):
+            if change <= tol or sigma2 <= 1e-8:
+                break
+            r2 = ((target - field) ** 2).sum(1)
+            p = posterior(r2, sigma2, gamma, a)
+            local = ((BX + BU @ C) ** 2).sum(1)
+            # Eq. (8): expected complete-data energy with the local geometrical constraint.
+            old = energy
+            energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam * (p @ local)
+            change = abs((energy - old) / energy) if energy != 0 else 0.0
+            pw = np.maximum(p, min_p)
+            # M-step for C (Sec. III-C), multiplied through by sigma^2:
+            # (U' P U + 2 lam sigma^2 (BU)' P (BU)) C = U' P (y - x) - 2 lam sigma^2 (BU)' P (B x).
+            lhs = U.T @ (pw[:, None] * U) + 2 * lam * sigma2 * BU.T @ (pw[:, None] * BU) + ridge
+            rhs = U.T @ (pw[:, None] * target) - 2 * lam * sigma2 * BU.T @ (pw[:, None] * BX)
+            C = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+            field = U @ C
+            sigma2 = float(pw @ ((target - field) ** 2).sum(1) / (2 * pw.sum()))
+            gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
+        return p > tau

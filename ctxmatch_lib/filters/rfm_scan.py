@@ -18,77 +18,196 @@ As in the authors' demo, a few uniform random matches (``min(0.05 N, 20)``, seed
 clustering so that the adaptive ``eps`` stays meaningful when the input is almost outlier-free; they are
 never returned. Only the kept/rejected mask is needed, so DBSCAN's cluster labels are not built: a match is
 kept when it is a core point or is within ``eps`` of one, which is exactly the set DBSCAN assigns to some
-cluster. The O(K^2) distances are computed in row blocks, never stored whole.
+cluster.
+
+No K x K matrix is built and the result is the dense computation's, bit for bit: the distances that decide
+(``L_i``, ``eps``, core and reachability) are found with k-d trees under an embedding whose Euclidean
+distance never exceeds Eq. (3), and computed exactly in float32 with the dense formula; only the few
+matches far from everything (whose ``L_i`` can only matter as ``max L``) get whole rows of distances.
 """
 
 from __future__ import annotations
 
+from itertools import chain
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ._common import check_positive, prepare
 
 __all__ = ["rfm_scan_filter"]
 
 
-class _MotionDistance:
-    """Row blocks of the RFM-SCAN distance matrix (Eq. (3)) between normalised motion-space points.
+class _MotionSpace:
+    """Distances of Eq. (3) between normalised motion-space points, computed on demand, with k-d trees.
 
-    float32 is plenty for distances in [0, 20] and halves the memory traffic of the O(K^2) passes.
+    A match ``j`` within ``r`` of ``i`` has ``|dx| + |dy| <= r``, hence ``min(|dx|, |dy|) <= r / 2`` and a
+    motion weight of at least ``c(r) = 1 + gamma exp(-r / 2)``, so ``d_ij`` is at least the Euclidean
+    distance between the embeddings ``[x, y, c(r) v]`` (a sum of norms bounds the norm of the
+    concatenation): a ball of radius ``r`` there holds every match within ``r``. The true distances of the
+    matches found are computed in float32 with the operations of the dense row blocks they replace.
     """
 
-    def __init__(self, feats: np.ndarray, gamma: float, block_cells: float = 2e6) -> None:
-        f = feats.astype(np.float32)
-        self.cols = [f[:, j] for j in range(6)]
-        self.gamma = np.float32(gamma)
+    def __init__(self, feats: np.ndarray, gamma: float) -> None:
+        self.f = feats.astype(np.float32)
+        self.feats = feats
+        self.gamma = float(gamma)
         self.n = len(feats)
-        self.block = max(1, int(block_cells // max(self.n, 1)))
+        self._trees: dict = {}
 
-    def rows(self, idx: np.ndarray) -> np.ndarray:
+    def dist(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """float32 distances between the matches ``i`` and ``j`` (broadcast together), Eq. (3)."""
+        fi, fj = self.f[i], self.f[j]
+
         def pair_dist(a: int) -> np.ndarray:
-            dx = self.cols[a][idx, None] - self.cols[a][None, :]
-            dy = self.cols[a + 1][idx, None] - self.cols[a + 1][None, :]
+            dx = fi[..., a] - fj[..., a]
+            dy = fi[..., a + 1] - fj[..., a + 1]
             return np.sqrt(dx * dx + dy * dy)
 
         d1, d2, dv = pair_dist(0), pair_dist(2), pair_dist(4)
-        return d1 + d2 + (1.0 + self.gamma * np.exp(-np.minimum(d1, d2))) * dv
+        return d1 + d2 + (1.0 + np.float32(self.gamma) * np.exp(-np.minimum(d1, d2))) * dv
 
-    def blocks(self, idx: np.ndarray):
-        for b in range(0, len(idx), self.block):
-            sel = idx[b : b + self.block]
-            yield sel, self.rows(sel)
+    def embed(self, idx: np.ndarray, level: float) -> np.ndarray:
+        c = 1.0 + self.gamma * np.exp(-level / 2.0)
+        return self.feats[idx] * np.array([1.0, 1.0, 1.0, 1.0, c, c])
+
+    def tree(self, key, members: np.ndarray, level: float) -> cKDTree:
+        if (key, level) not in self._trees:
+            self._trees[key, level] = cKDTree(self.embed(members, level))
+        return self._trees[key, level]
+
+    def ball(self, key, members: np.ndarray, queries: np.ndarray, radius: np.ndarray, chunk: int = 2048):
+        """Members possibly within ``radius`` (true distance, per query) of each query, by radius level.
+
+        Yields ``(sel, lens, j)``: the positions ``sel`` in ``queries``, the number of members found for
+        each and their indices ``j`` (concatenated), ``chunk`` queries at a time.
+        """
+        r = np.asarray(radius, np.float64) * (1 + 1e-5) + 1e-6  # float32 rounding of the true distances
+        # One tree per power-of-two level: c(level) holds for every radius up to the level.
+        levels = np.exp2(np.ceil(np.log2(np.maximum(r, 1e-3))))
+        for level in np.unique(levels):
+            tree = self.tree(key, members, float(level))
+            for b in range(0, int((levels == level).sum()), chunk):
+                sel = np.flatnonzero(levels == level)[b : b + chunk]
+                lists = tree.query_ball_point(self.embed(queries[sel], float(level)), r[sel], return_sorted=False)
+                lens = np.fromiter(map(len, lists), np.int64, len(lists))
+                yield sel, lens, members[np.fromiter(chain.from_iterable(lists), np.int64, int(lens.sum()))]
 
 
-def _clustered(dist: _MotionDistance, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
+class _Round:
+    """One DBSCAN round: ``L_i`` is the ``MinPts``-th smallest ``d_ij * scale_j`` (itself included, at 0)."""
+
+    def __init__(self, space: _MotionSpace, scale: np.ndarray, k: int) -> None:
+        space._trees.clear()  # the trees are per round
+        self.space, self.scale, self.k = space, scale, k
+        self.groups = [(np.float32(s), np.flatnonzero(scale == s)) for s in np.unique(scale)]
+
+    def upper(self) -> np.ndarray:
+        """An upper bound of every ``L_i``: the largest true distance to k (approximately) nearest matches.
+
+        The neighbours come from the least-scaled group alone when it has enough matches (a distance
+        multiplied by 100 rarely helps and any k true distances give an upper bound).
+        """
+        sp, everyone = self.space, np.arange(self.space.n)
+        cand = []
+        groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
+        for s, g in groups:
+            m = min(self.k, len(g))
+            # Approximate neighbours (eps=1) suffice: any k true distances bound the k-th from above.
+            _, nb = sp.tree(s, g, 0.0).query(sp.embed(everyone, 0.0), k=m, eps=1.0)
+            cand.append(sp.dist(everyone[:, None], g[nb.reshape(-1, m)]) * s)
+        return np.partition(np.hstack(cand), self.k - 1, axis=1)[:, self.k - 1]
+
+    def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
+        rows, vals = [], []
+        for s, g in self.groups:
+            for sel, lens, j in self.space.ball(s, g, queries, radius / s):
+                rows.append(np.repeat(sel, lens))
+                vals.append(self.space.dist(queries[rows[-1]], j) * s)
+        out = np.full(len(queries), np.nan, np.float32)
+        rows, vals = np.concatenate(rows), np.concatenate(vals)
+        order = np.lexsort((vals, rows))
+        rows, vals = rows[order], vals[order]
+        pos = np.arange(len(queries))
+        start, end = np.searchsorted(rows, pos), np.searchsorted(rows, pos, side="right")
+        ok = np.flatnonzero(end - start >= self.k)
+        kth = vals[start[ok] + self.k - 1]
+        good = kth <= radius[ok]  # k matches within radius: the k-th of the ball is the k-th of all
+        out[ok[good]] = kth[good]
+        return out
+
+    def dense_kth(self, queries: np.ndarray) -> np.ndarray:
+        """Exact ``L`` of ``queries`` from whole rows of distances (for the few far matches)."""
+        out = np.empty(len(queries), np.float32)
+        step = max(1, int(2e6 // self.space.n))
+        cols = np.arange(self.space.n)
+        for b in range(0, len(queries), step):
+            q = queries[b : b + step]
+            d = self.space.dist(q[:, None], cols[None, :]) * self.scale[None, :]
+            out[b : b + step] = np.partition(d, self.k - 1, axis=1)[:, self.k - 1]
+        return out
+
+    def clustered(self, mu: float) -> np.ndarray:
+        """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation.
+
+        ``min L`` is found by a ball search of radius ``min upper`` (small), ``max L`` from whole rows of
+        distances, taken from the largest upper bound down until no upper bound exceeds the largest ``L``
+        found (a few rows). A match is core when at least ``MinPts`` matches lie within ``eps`` (scaled),
+        and clustered when it is core or within ``eps`` of a core match (searched in a k-d tree of the
+        core matches).
+        """
+        n = self.space.n
+        everyone = np.arange(n)
+        upper = self.upper()
+        kth = self.ball_kth(everyone, np.full(n, upper.min(), np.float64))  # min L
+        rest = np.flatnonzero(np.isnan(kth))
+        rest = rest[np.argsort(-upper[rest], kind="stable")]
+        for b in range(0, len(rest), 64):  # max L
+            batch = rest[b : b + 64]
+            batch = batch[upper[batch] >= np.nanmax(kth)]
+            if len(batch) == 0:
+                break
+            kth[batch] = self.dense_kth(batch)
+        lo, hi = np.nanmin(kth), np.nanmax(kth)
+        eps = lo + np.float32(mu) * (hi - lo)
+        # Core: sure where the upper bound is within eps; impossible where fewer than k matches lie within
+        # eps even in the lower bound (a k-NN search capped at eps); a ball search of radius eps decides
+        # the rest.
+        core = upper <= eps
+        todo = np.flatnonzero(~core)
+        found = np.zeros(len(todo), np.int64)
+        for s, g in self.groups:
+            r = float(np.float64(eps) / s) * (1 + 1e-5) + 1e-6
+            level = float(np.exp2(np.ceil(np.log2(max(r, 1e-3)))))
+            m = min(self.k, len(g))
+            for b in range(0, len(todo), 4096):
+                q = todo[b : b + 4096]
+                dd, _ = self.space.tree(s, g, level).query(self.space.embed(q, level), k=m, distance_upper_bound=r)
+                found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
+        todo = todo[found >= self.k]
+        if len(todo):
+            core[todo] = ~np.isnan(self.ball_kth(todo, np.full(len(todo), eps, np.float64)))
+        # Reached: a non-core match with a core match within eps (distance scaled by its own scale).
+        reached = core.copy()
+        core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
+        if len(core_idx) == 0 or len(others) == 0:
+            return reached
+        for sel, lens, i in self.space.ball("core", core_idx, others, np.float64(eps) / self.scale[others]):
+            j = np.repeat(others[sel], lens)
+            hit = self.space.dist(i, j) * self.scale[j] <= eps
+            reached[j[hit]] = True
+        return reached
+
+
+def _clustered(space: _MotionSpace, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
     """Matches that DBSCAN puts in a cluster, with the adaptive eps of Sec. III-B.
 
-    ``col_scale`` multiplies the distances *to* each match (second round); ``None`` keeps the matrix
-    symmetric, and then a non-core match can only be reached from a core match among its ``min_pts``
-    nearest (else it would be core itself), so no second pass over the core rows is needed.
+    ``col_scale`` multiplies the distances *to* each match (second round: 1 or 100); a non-core match ``j``
+    is clustered when some core ``i`` has ``d_ij * col_scale[j] <= eps``.
     """
-    n = dist.n
-    kth = np.empty(n, np.float32)
-    symmetric = col_scale is None
-    if symmetric:
-        near = np.empty((n, min_pts), np.int64)
-        near_d = np.empty((n, min_pts), np.float32)
-    for sel, d in dist.blocks(np.arange(n)):
-        if symmetric:
-            nb = np.argpartition(d, min_pts - 1, axis=1)[:, :min_pts]
-            near[sel], near_d[sel] = nb, np.take_along_axis(d, nb, axis=1)
-            kth[sel] = near_d[sel].max(1)
-        else:
-            d *= col_scale[None, :]
-            kth[sel] = np.partition(d, min_pts - 1, axis=1)[:, min_pts - 1]
-    lo, hi = kth.min(), kth.max()
-    eps = lo + np.float32(mu) * (hi - lo)
-    core = kth <= eps
-    if col_scale is None:
-        return core | (core[near] & (near_d <= eps)).any(1)
-    reached = core.copy()
-    for _, d in dist.blocks(np.flatnonzero(core)):
-        d *= col_scale[None, :]
-        reached |= (d <= eps).any(axis=0)
-    return reached
+    scale = np.ones(space.n, np.float32) if col_scale is None else col_scale.astype(np.float32)
+    return _Round(space, scale, min_pts).clustered(mu)
 
 
 def rfm_scan_filter(
@@ -183,9 +302,9 @@ def rfm_scan_filter(
     min_pts = int(min(max(round(n_all * pct), lo_pts), hi_pts))
     if n_all < min_pts:
         return np.zeros(n, bool)
-    dist = _MotionDistance(feats, gamma)
-    first = _clustered(dist, min_pts, mu[0], None)
+    space = _MotionSpace(feats, gamma)
+    first = _clustered(space, min_pts, mu[0], None)
     # Second round: only first-round clustered real matches stay near (Sec. III-C).
     ci = np.zeros(n_all, bool)
     ci[:n] = first[:n]
-    return _clustered(dist, min_pts, mu[1], np.where(ci, 1.0, 100.0).astype(np.float32))[:n]
+    return _clustered(space, min_pts, mu[1], np.where(ci, 1.0, 100.0).astype(np.float32))[:n]

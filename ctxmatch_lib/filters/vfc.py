@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, normalize_points, prepare
+from ._common import check_positive, normalize_points, prepare, serial_blas
 
 __all__ = ["vfc_filter"]
 
@@ -128,33 +128,34 @@ def vfc_filter(
     n = len(ms)
     if n == 0:
         return np.zeros(0, bool)
-    x = normalize_points(ms.x)
-    motion = normalize_points(ms.y) - x
-    ctrl = control_points(x, n_control, rng)
-    U = gaussian_kernel(x, ctrl, beta)  # (K, M)
-    G = gaussian_kernel(ctrl, ctrl, beta)  # (M, M)
-    C = np.zeros((len(ctrl), 2))
-    field = np.zeros_like(motion)
-    sigma2 = float((motion**2).sum() / (2 * n))
-    if sigma2 <= 1e-8:
-        return np.ones(n, bool)  # every motion vector is the same: a perfectly consistent field
-    gamma = min(max(gamma, 0.05), 0.95)
-    energy, change = 1.0, 1.0
-    p = np.ones(n)
-    for _ in range(max_iter):
-        if change <= tol or sigma2 <= 1e-8:
-            break
-        r2 = ((motion - field) ** 2).sum(1)
-        p = posterior(r2, sigma2, gamma, a)
-        # Eq. (12): the expected complete-data energy, plus the regulariser.
-        old = energy
-        energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * np.trace(C.T @ G @ C)
-        change = abs((energy - old) / energy) if energy != 0 else 0.0
-        pw = np.maximum(p, min_p)
-        # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
-        lhs = U.T @ (pw[:, None] * U) + lam * sigma2 * G
-        C = np.linalg.lstsq(lhs, U.T @ (pw[:, None] * motion), rcond=None)[0]
-        field = U @ C
-        sigma2 = float(pw @ ((motion - field) ** 2).sum(1) / (2 * pw.sum()))
-        gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
-    return p > tau
+    with serial_blas():  # skinny products in a loop: threads cost more than they give
+        x = normalize_points(ms.x)
+        motion = normalize_points(ms.y) - x
+        ctrl = control_points(x, n_control, rng)
+        U = gaussian_kernel(x, ctrl, beta)  # (K, M)
+        G = gaussian_kernel(ctrl, ctrl, beta)  # (M, M)
+        C = np.zeros((len(ctrl), 2))
+        field = np.zeros_like(motion)
+        sigma2 = float((motion**2).sum() / (2 * n))
+        if sigma2 <= 1e-8:
+            return np.ones(n, bool)  # every motion vector is the same: a perfectly consistent field
+        gamma = min(max(gamma, 0.05), 0.95)
+        energy, change = 1.0, 1.0
+        p = np.ones(n)
+        for _ in range(max_iter):
+            if change <= tol or sigma2 <= 1e-8:
+                break
+            r2 = ((motion - field) ** 2).sum(1)
+            p = posterior(r2, sigma2, gamma, a)
+            # Eq. (12): the expected complete-data energy, plus the regulariser.
+            old = energy
+            energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * np.trace(C.T @ G @ C)
+            change = abs((energy - old) / energy) if energy != 0 else 0.0
+            pw = np.maximum(p, min_p)
+            # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
+            lhs = U.T @ (pw[:, None] * U) + lam * sigma2 * G
+            C = np.linalg.lstsq(lhs, U.T @ (pw[:, None] * motion), rcond=None)[0]
+            field = U @ C
+            sigma2 = float(pw @ ((motion - field) ** 2).sum(1) / (2 * pw.sum()))
+            gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
+        return p > tau
