@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
-from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations
+from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
 from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
@@ -189,9 +189,12 @@ class _Setup:
 
     def triangulations(self, v1: np.ndarray, v2: np.ndarray):
         """Boundaries ``B_1``, ``B_2`` of the vertex sets and the triangulations of ``V ∪ B``."""
-        others = None if self.others1 is None else [self.others1, self.others2]
+        if self.boundary == "keypoints":
+            b1 = keypoint_boundary(v1, self.size1, self.others1, collapsed=True)
+            b2 = keypoint_boundary(v2, self.size2, self.others2, collapsed=True)
+            return b1, b2, triangulate(v1, b1.points), triangulate(v2, b2.points)
         (b1, s1), (b2, s2) = boundaries_and_triangulations([v1, v2], [self.size1, self.size2], self.boundary,
-                                                           shrink=self.shrink, keypoints_list=others)
+                                                           shrink=self.shrink)
         return b1, b2, triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
 
 
