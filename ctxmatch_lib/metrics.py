@@ -13,9 +13,14 @@ the correct matches over all the configurations tested on the pair (Appendix, Ta
 
 Conventions for degenerate cases (documented so that averages over pairs are well defined):
 
-* empty output: precision 0, recall 0 (when the reference is not empty), failure ``True``, AP 0;
+* empty output (no match at all): ``empty_output`` is ``True`` and ``failure`` ``False``; precision 0, recall 0
+  (when the reference is not empty), AP 0. Means over pairs therefore count an empty output as 0 %
+  precision and 0 % recall, as the paper's averages do; tables report the number of empty outputs in
+  their own column so that a method that gives up is told apart from one that is wrong;
+* wrong output (matches, none of them correct): ``failure`` is ``True``. The paper's "failure" (no correct
+  match in the output) is ``failure or empty_output``;
 * empty reference (no correct candidate at all): recall, recall* and AP are NaN (undefined; pandas' mean
-  skips them), precision and failure as above.
+  skips them), precision, failure and empty_output as above.
 
 ``matches`` are ``(K, 2)`` int64 indices into the keypoints of images 1 and 2.
 """
@@ -231,7 +236,9 @@ class MatchMetrics:
     output : int
         Output matches.
     failure : bool
-        No correct match in the output.
+        A wrong output: matches, none of them correct.
+    empty_output : bool
+        No match in the output (not a failure; the paper's failure is ``failure or empty``).
     n_gt, n_gt_star : int
         Normalised size of the recall and recall* references.
     time_s : float
@@ -249,6 +256,7 @@ class MatchMetrics:
     n_gt: int
     n_gt_star: int
     time_s: float = float("nan")
+    empty_output: bool = False
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -302,7 +310,8 @@ def evaluate_matches(
         correct=correct,
         correct_norm=normalised_count(m[lab]),
         output=len(m),
-        failure=correct == 0,
+        failure=len(m) > 0 and correct == 0,
+        empty_output=len(m) == 0,
         n_gt=normalised_count(reference),
         n_gt_star=normalised_count(ref_star),
         time_s=float(time_s),
