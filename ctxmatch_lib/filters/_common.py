@@ -80,20 +80,50 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
 
     ``candidates`` and ``queries`` (default: every point) are index arrays into ``points``; the answer has
     shape ``(len(queries), k')`` with ``k' = min(k, len(candidates) - 1)``, nearest first. A query that is
-    itself a candidate is not its own neighbour. Ties are broken by the k-d tree, deterministically.
+    itself a candidate is not its own neighbour.
+
+    Ties (equal distances, frequent with many-to-many matches, which repeat a keypoint) are broken by the
+    smaller index, not by the k-d tree's traversal order: that order is an implementation detail that
+    changed the LPM and GLPM results between machines. The distances are recomputed here in one fixed
+    arithmetic, and a row whose k-th distance may tie with points beyond those returned is completed
+    with every candidate within that distance.
     """
     queries = np.arange(len(points)) if queries is None else np.asarray(queries)
+    cand = np.asarray(candidates)
     n = len(queries)
-    kk = min(k, len(candidates) - 1)
+    kk = min(k, len(cand) - 1)
     if kk <= 0 or n == 0:
         return np.empty((n, 0), np.int64)
-    tree = cKDTree(points[candidates])
-    _, idx = tree.query(points[queries], k=kk + 1)
-    idx = np.asarray(candidates)[idx.reshape(n, kk + 1)]
-    # Drop the query itself where it came back; otherwise drop the farthest extra neighbour.
-    is_self = idx == queries[:, None]
-    order = np.argsort(is_self, axis=1, kind="stable")
-    return np.take_along_axis(idx, order, axis=1)[:, :kk]
+    pts = np.asarray(points, np.float64)
+    tree = cKDTree(pts[cand])
+    m = min(kk + 1 + 4, len(cand))  # a few spare neighbours to see ties at the k-th place
+    _, j = tree.query(pts[queries], k=m)
+    j = j.reshape(n, m)
+
+    def ranked(rows, jj):
+        """Candidates ``cand[jj]`` of the queries ``queries[rows]`` sorted by (self last, distance, index),
+        with their squared distances (``inf`` for the query itself)."""
+        idx = cand[jj]
+        q = queries[rows]
+        d2 = ((pts[idx] - pts[q][:, None, :]) ** 2).sum(-1)
+        d2[idx == q[:, None]] = np.inf
+        row = np.repeat(np.arange(len(rows)), idx.shape[1])
+        key = np.lexsort((idx.ravel(), d2.ravel(), row)).reshape(idx.shape)
+        key -= (np.arange(len(rows)) * idx.shape[1])[:, None]
+        return np.take_along_axis(idx, key, axis=1), np.take_along_axis(d2, key, axis=1)
+
+    out, d2 = ranked(np.arange(n), j)
+    out = out[:, :kk]
+    if m < len(cand):
+        # The k-th neighbour may tie with candidates the tree did not return: take every candidate within
+        # its distance for those rows (few in practice) and rank them the same way.
+        far = np.where(np.isfinite(d2), d2, -np.inf).max(axis=1)
+        for r in np.flatnonzero(d2[:, kk - 1] >= far * (1 - 1e-12)):
+            radius = np.sqrt(d2[r, kk - 1]) * (1 + 1e-9) + 1e-12
+            near = np.asarray(tree.query_ball_point(pts[queries[r]], radius), np.int64)
+            if len(near) > m:
+                out[r] = ranked(np.array([r]), near[None, :])[0][0, :kk]
+    return out
 
 
 def normalize_points(p: np.ndarray) -> np.ndarray:
