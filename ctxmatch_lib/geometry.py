@@ -111,8 +111,12 @@ def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
-    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D."""
-    _, s, vt = np.linalg.svd(A)
+    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D.
+
+    The thin SVD of the ``(M, n)`` design matrix costs ``O(M n^2)`` time and ``O(M n)`` memory; the full
+    SVD would also build the ``(M, M)`` left factor (12.8 GB for 20 000 correspondences).
+    """
+    _, s, vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])
     n = A.shape[1]
     # Fewer rows than unknowns pads the spectrum with zeros.
     s = np.r_[s, np.zeros(max(0, n - len(s)))]
