@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._validation import as_matches, as_points, as_scores
+from ._validation import as_matches, as_points, as_scores, cumulative_distinct
 
 __all__ = [
     "MODEL_STEPS",
@@ -335,18 +335,10 @@ def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
         return np.empty(0, np.int64)
     order = np.argsort(scores, kind="stable")
     ranked = matches[order]
-    count = np.minimum(_cumulative_distinct(ranked[:, 0]), _cumulative_distinct(ranked[:, 1]))
+    count = np.minimum(cumulative_distinct(ranked[:, 0]), cumulative_distinct(ranked[:, 1]))
     reached = np.flatnonzero(count >= size)
     stop = reached[0] + 1 if len(reached) else len(order)
     return order[:stop].astype(np.int64)
-
-
-def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
-    """``out[k]`` = number of distinct values among ``values[:k + 1]``."""
-    first = np.zeros(len(values), bool)
-    _, idx = np.unique(values, return_index=True)
-    first[idx] = True
-    return np.cumsum(first)
 
 
 # ---------------------------------------------------------------------------------------- model steps

@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ._validation import as_matches, as_scores
+from ._validation import as_matches, as_scores, cumulative_distinct
 
 __all__ = [
     "MatchMetrics",
@@ -70,12 +70,6 @@ def normalised_count(matches) -> int:
     return int(min(len(np.unique(m[:, 0])), len(np.unique(m[:, 1]))))
 
 
-def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
-    first = np.zeros(len(values), bool)
-    first[np.unique(values, return_index=True)[1]] = True
-    return np.cumsum(first)
-
-
 def cumulative_normalised_count(matches) -> np.ndarray:
     """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (for ranked lists).
 
@@ -86,7 +80,7 @@ def cumulative_normalised_count(matches) -> np.ndarray:
     m = as_matches(matches)
     if len(m) == 0:
         return np.empty(0, np.int64)
-    return np.minimum(_cumulative_distinct(m[:, 0]), _cumulative_distinct(m[:, 1])).astype(np.int64)
+    return np.minimum(cumulative_distinct(m[:, 0]), cumulative_distinct(m[:, 1])).astype(np.int64)
 
 
 def _labels(is_correct, k: int) -> np.ndarray:

@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ._paths import atomic_path, write_parquet_atomic
+from ._validation import cumulative_distinct
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, blob_grid, combine_ratios, rank_candidates
 from .blob.overlap import ellipse_overlap_error
 from .datasets import load_dataset
@@ -407,13 +408,6 @@ class _SweepContext(BlobContext):
 # ------------------------------------------------------------------------------------ average precision
 
 
-def _cumulative_distinct(values: np.ndarray, size: int) -> np.ndarray:
-    k = len(values)
-    first = np.full(size, k, np.int64)
-    np.minimum.at(first, values, np.arange(k))
-    return np.cumsum(first[values] == np.arange(k))
-
-
 def _ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
     """:func:`~ctxmatch_lib.metrics.average_precision` with a precomputed reference size, in O(K log K).
 
@@ -431,7 +425,7 @@ def _ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
     cnt = np.zeros(k, np.int64)
     if lab.any():
         r, c = rows[order][lab], cols[order][lab]
-        cnt[lab] = np.minimum(_cumulative_distinct(r, n), _cumulative_distinct(c, m)).astype(np.int64)
+        cnt[lab] = np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64)
         cnt = np.maximum.accumulate(cnt)
     dn = np.diff(np.r_[0, cnt])
     return float((prec * dn).sum() / den)
