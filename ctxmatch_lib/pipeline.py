@@ -45,6 +45,7 @@ __all__ = [
     "resolve_blobs",
     "register_dtm_stages",
     "check_filters",
+    "check_pair_keypoints",
     "check_models",
     "pair_features",
     "blob_candidates",
@@ -153,6 +154,18 @@ def check_models(models: Iterable[str]) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"models are repeated: {names}")
     return names
+
+
+def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
+    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
+
+    Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
+    (:func:`ctxmatch_lib._validation.check_inside`); a size given as (height, width) is the usual cause.
+    """
+    from ._validation import check_inside
+
+    check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
+    check_inside(f2.kpts, pair.image_size2, f"keypoints of image2 of pair {pair.pair_id!r}")
 
 
 def pair_seed(seed: int, pair_id: str) -> int:
@@ -398,6 +411,7 @@ def evaluate_pair(
     filter_params = dict(filter_params or {})
     f1, f2 = precomputed_features if precomputed_features is not None else pair_features(
         pair, features, cache_dir=cache_dir)
+    check_pair_keypoints(pair, f1, f2)
     rng_seed = pair_seed(seed, pair.pair_id)
     stages = {}
     for bname, cfg in blob_cfgs.items():

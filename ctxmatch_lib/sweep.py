@@ -518,6 +518,12 @@ def _unit_features(unit: SweepUnit, feature_cache_dir):
         if len(feats) == 0:
             raise PairError(f"{which} {image}: 0 keypoints")
         out.append(feats)
+    from .pipeline import check_pair_keypoints
+
+    try:
+        check_pair_keypoints(unit.pair, *out)
+    except ValueError as exc:
+        raise PairError(str(exc)) from exc
     return out
 
 

@@ -424,3 +424,29 @@ def test_cli_eval_resumes_after_sigkill(tmp_path):
     assert not resumed.duplicated(keys).any() and len(resumed) == 4 * 2 * 2
     drop = ["time_s", "model_time_s"]
     pd.testing.assert_frame_equal(resumed.drop(columns=drop), fresh.drop(columns=drop))
+
+
+def test_keypoints_outside_the_image_size_are_rejected(tiny_dataset, tmp_path):
+    from ctxmatch_lib._validation import check_inside
+
+    pair, feats = _planted_pair()
+    swapped = Pair(pair.pair_id, pair.image1, pair.image2, (480, 640), pair.image_size2, "planar", pair.gt)
+    with pytest.raises(ValueError, match=r"\(width, height\) = \(480, 640\).*\(height, width\)"):
+        evaluate_pair(swapped, filters=[], precomputed_features=feats)
+    # Pixel centres: x in [-0.5, w - 0.5] is inside, beyond is not.
+    assert len(check_inside([[-0.5, -0.5], [639.5, 479.5]], (640, 480))) == 2
+    with pytest.raises(ValueError, match="kpts outside"):
+        check_inside([[639.6, 0.0]], (640, 480), "kpts outside")
+    assert check_inside(np.empty((0, 2)), (640, 480)).shape == (0, 2)
+    # In a dataset run the pair is reported (the convention in the message) and the run goes on.
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+
+    good = load_dataset(str(tiny_dataset)).pairs[0]
+    bad = Pair("swapped", good.image1, good.image2, good.image_size1[::-1], good.image_size2, good.kind, good.gt,
+               dataset=good.dataset)
+    with pytest.warns(RuntimeWarning, match="swapped"):
+        df = evaluate_dataset([good, bad], progress=False, results_dir=tmp_path / "res", filters=[],
+                              models=["none"], features=FeatureConfig(max_keypoints=300))
+    assert (df.loc[df.pair_id == good.pair_id, "error"] == "").all()
+    assert df.loc[df.pair_id == "swapped", "error"].str.contains(r"\(width, height\) = \(240, 320\)").all()
