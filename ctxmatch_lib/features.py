@@ -8,8 +8,8 @@ points along the keypoint orientation.
 
 Extraction is cached per (OpenCV version, image content, extractor configuration) under
 ``ctxmatch_lib._paths.cache_dir("features")`` (``$CTXMATCH_CACHE/features``, else
-``$XDG_CACHE_HOME/ctxmatch/features`` or ``~/.cache/ctxmatch/features``); every entry is written to a temporary file and renamed into
-place, so an interrupted run never leaves a corrupt entry.
+``$XDG_CACHE_HOME/ctxmatch/features`` or ``~/.cache/ctxmatch/features``); every entry is written to a
+temporary file and renamed into place, so an interrupted run never leaves a corrupt entry.
 """
 
 from __future__ import annotations

@@ -9,6 +9,11 @@ method-D labels) is one row: ``ap`` against the setup's own correct candidates, 
 correct candidates of all setups of the sweep on the pair (the recall* reference). The mean of ``ap_star``
 over pairs is the mAP of the heat map of Fig. 5 (:func:`blob_map`).
 
+This is the one evaluation engine of the package: ``ctxmatch sweep`` (:func:`run_sweep`), ``ctxmatch eval``
+and :func:`ctxmatch_lib.pipeline.evaluate_dataset`, and the report notebooks
+(:func:`ctxmatch_lib.evalcache.evaluate_cached`) all plan units (:func:`plan_sweep`, :func:`plan_units`)
+and run them with :func:`run_units`.
+
 Work is split into **units**, one per (dataset, pair, feature configuration), each holding every blob
 setup, filter and model of the sweep for that pair. A unit's rows are written as one Parquet *part file*
 (temporary name, then ``os.replace``) named by the hash of everything the rows depend on, so
@@ -17,7 +22,11 @@ setup, filter and model of the sweep for that pair. A unit's rows are written as
   units whose part exists: no lost and no duplicated rows;
 * two sweeps sharing units (the two blob notebooks, the CLI and the benchmark) share their results;
 * the final table is the concatenation of the parts in the sweep's own order, whatever order the units
-  finished in, so serial, joblib and Dask runs give identical tables.
+  finished in, so serial, joblib and Dask runs give identical tables;
+* nothing is lost to one bad pair: an unreadable image, an image without keypoints, keypoints outside the
+  pair's (width, height), or a filter or model step that raises gives that pair (or that method) rows
+  with NaN metrics and an ``error`` naming the image and the reason, a ``RuntimeWarning``, and the run
+  goes on; such a unit's part is not written, so the next run tries it again.
 
 Cache layout under ``ctxmatch_lib._paths.cache_dir("sweep")`` (features are cached by
 :mod:`ctxmatch_lib.features` in its own folder)::
@@ -720,8 +729,8 @@ def _check_settings(*, features, blobs, filters, models, gt_method, gt_threshold
             raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    if max_keypoints is not None and (isinstance(max_keypoints, bool) or not isinstance(max_keypoints, (int, np.integer))
-                                      or max_keypoints < 0):
+    if max_keypoints is not None and (isinstance(max_keypoints, bool) or max_keypoints < 0
+                                      or not isinstance(max_keypoints, (int, np.integer))):
         raise ValueError(f"max_keypoints must be a non-negative integer, got {max_keypoints!r}")
     feats = resolve_features(features)
     if max_keypoints is not None:

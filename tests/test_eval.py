@@ -125,7 +125,8 @@ def test_summary_table_means_and_order():
     t = summary_table(df)
     assert list(t.index.get_level_values("method")) == ["blob", "dtm"]
     assert list(t.columns) == ["pairs", "precision_pct", "recall_pct", "recall_star_pct", "mAP_pct", "correct",
-                               "correct_norm", "output", "failures", "empty_outputs", "time_s", "model_time_s", "errors"]
+                               "correct_norm", "output", "failures", "empty_outputs", "time_s", "model_time_s",
+                               "errors"]
     assert t.loc[("planar", "dtm", "none"), "failures"] == 0
     assert t.loc[("planar", "dtm", "none"), "empty_outputs"] == 1
     assert t.loc[("planar", "blob", "none"), "precision_pct"] == pytest.approx(40.0)
