@@ -75,6 +75,10 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
     return int(value) if integer else float(value)
 
 
+# Neighbours queried beyond the k needed, to see distance ties at the k-th place without a second query.
+_SPARE = 6
+
+
 def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries: np.ndarray | None = None):
     """Indices (into ``points``) of the ``k`` nearest ``candidates`` of every query, the query excluded.
 
@@ -96,33 +100,38 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
         return np.empty((n, 0), np.int64)
     pts = np.asarray(points, np.float64)
     tree = cKDTree(pts[cand])
-    m = min(kk + 1 + 4, len(cand))  # a few spare neighbours to see ties at the k-th place
+    m = min(kk + 1 + _SPARE, len(cand))  # spare neighbours to see ties at the k-th place
     _, j = tree.query(pts[queries], k=m)
     j = j.reshape(n, m)
 
-    def ranked(rows, jj):
-        """Candidates ``cand[jj]`` of the queries ``queries[rows]`` sorted by (self last, distance, index),
-        with their squared distances (``inf`` for the query itself)."""
+    def ranked(rows, jj, valid=None):
+        """Candidates ``cand[jj]`` of the queries ``queries[rows]`` sorted by (distance, index), the query
+        itself and entries not ``valid`` last (squared distance ``inf``), with their squared distances."""
         idx = cand[jj]
         q = queries[rows]
         d2 = ((pts[idx] - pts[q][:, None, :]) ** 2).sum(-1)
         d2[idx == q[:, None]] = np.inf
-        row = np.repeat(np.arange(len(rows)), idx.shape[1])
-        key = np.lexsort((idx.ravel(), d2.ravel(), row)).reshape(idx.shape)
-        key -= (np.arange(len(rows)) * idx.shape[1])[:, None]
+        if valid is not None:
+            d2[~valid] = np.inf
+        key = np.lexsort((idx, d2), axis=1)
         return np.take_along_axis(idx, key, axis=1), np.take_along_axis(d2, key, axis=1)
 
     out, d2 = ranked(np.arange(n), j)
     out = out[:, :kk]
     if m < len(cand):
-        # The k-th neighbour may tie with candidates the tree did not return: take every candidate within
-        # its distance for those rows (few in practice) and rank them the same way.
+        # The k-th neighbour may tie with candidates the tree did not return: for those rows, take every
+        # candidate within the k-th distance (one vectorised ball query) and rank them the same way.
         far = np.where(np.isfinite(d2), d2, -np.inf).max(axis=1)
-        for r in np.flatnonzero(d2[:, kk - 1] >= far * (1 - 1e-12)):
-            radius = np.sqrt(d2[r, kk - 1]) * (1 + 1e-9) + 1e-12
-            near = np.asarray(tree.query_ball_point(pts[queries[r]], radius), np.int64)
-            if len(near) > m:
-                out[r] = ranked(np.array([r]), near[None, :])[0][0, :kk]
+        unsure = np.flatnonzero(d2[:, kk - 1] >= far * (1 - 1e-12))
+        if len(unsure):
+            radius = np.sqrt(d2[unsure, kk - 1]) * (1 + 1e-9) + 1e-12
+            near = tree.query_ball_point(pts[queries[unsure]], radius)
+            lens = np.array([len(x) for x in near])
+            width = max(int(lens.max()), kk)
+            jj = np.zeros((len(unsure), width), np.int64)
+            valid = np.arange(width)[None, :] < lens[:, None]
+            jj[valid] = np.concatenate([np.asarray(x, np.int64) for x in near])
+            out[unsure] = ranked(unsure, jj, valid)[0][:, :kk]
     return out
 
 
