@@ -472,7 +472,8 @@ class SweepUnit:
     salt: str = ""
 
     def label(self) -> str:
-        return f"{self.dataset}/{self.pair.pair_id} [{self.features_name}]"
+        where = self.dataset or self.pair.dataset
+        return f"{where + '/' if where else ''}{self.pair.pair_id} [{self.features_name}]"
 
 
 def _unit_key(u: SweepUnit, pair_digest: str) -> str:

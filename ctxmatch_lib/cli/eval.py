@@ -167,7 +167,7 @@ def run(args) -> int:
         print("means per pair; *_pct in % (the Parquet file holds fractions); correct_norm: normalised count "
               "(Sec. 5.1); failures: outputs without a correct match; empty_outputs: empty outputs (0 % precision and "
               "recall in the means); errors: pairs not evaluated; time_s: the method, model_time_s: the model step")
-        print(table.to_string())
+        print(table.to_string(formatters={c: "{:.4f}".format for c in ("time_s", "model_time_s")}))
     if n_failed:
         print(f"\n{n_failed} of {len(pairs)} pairs could not be fully evaluated (rows kept, 'error' column):",
               file=sys.stderr)
