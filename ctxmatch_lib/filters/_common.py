@@ -75,10 +75,6 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
     return int(value) if integer else float(value)
 
 
-# Neighbours queried beyond the k needed, to see distance ties at the k-th place without a second query.
-_SPARE = 6
-
-
 def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries: np.ndarray | None = None):
     """Indices (into ``points``) of the ``k`` nearest ``candidates`` of every query, the query excluded.
 
@@ -86,11 +82,12 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     shape ``(len(queries), k')`` with ``k' = min(k, len(candidates) - 1)``, nearest first. A query that is
     itself a candidate is not its own neighbour.
 
-    Ties (equal distances, frequent with many-to-many matches, which repeat a keypoint) are broken by the
-    smaller index, not by the k-d tree's traversal order: that order is an implementation detail that
-    changed the LPM and GLPM results between machines. The distances are recomputed here in one fixed
-    arithmetic, and a row whose k-th distance may tie with points beyond those returned is completed
-    with every candidate within that distance.
+    Ties (equal distances) are broken by the smaller index, not by the k-d tree's traversal order: that
+    order is an implementation detail of the scipy build, and it changed the LPM and GLPM results between
+    machines. Ties are frequent because many-to-many matches repeat a keypoint: the tree is built on the
+    distinct locations, each standing for all the candidates there (smallest indices first); a row whose
+    k-th neighbour may tie with a location the tree did not return is completed with every candidate
+    within that distance. Distances are recomputed here in one fixed arithmetic.
     """
     queries = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
@@ -99,40 +96,54 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     if kk <= 0 or n == 0:
         return np.empty((n, 0), np.int64)
     pts = np.asarray(points, np.float64)
-    tree = cKDTree(pts[cand])
-    m = min(kk + 1 + _SPARE, len(cand))  # spare neighbours to see ties at the k-th place
-    _, j = tree.query(pts[queries], k=m)
-    j = j.reshape(n, m)
+    # Work per distinct query location (duplicated queries share their neighbours, all but themselves):
+    # the kk + 1 nearest candidates of each location by (distance, index), then each query drops itself
+    # (or, when it is not among them, the last one).
+    qlocs, qinv = np.unique(pts[queries], axis=0, return_inverse=True)
+    qinv = qinv.reshape(-1)
+    kq = kk + 1
 
-    def ranked(rows, jj, valid=None):
-        """Candidates ``cand[jj]`` of the queries ``queries[rows]`` sorted by (distance, index), the query
-        itself and entries not ``valid`` last (squared distance ``inf``), with their squared distances."""
+    def ranked(rows, jj, valid):
+        """Candidates ``cand[jj]`` of the query locations ``qlocs[rows]`` sorted by (distance, index), the
+        entries not ``valid`` last (squared distance ``inf``), with their squared distances."""
         idx = cand[jj]
-        q = queries[rows]
-        d2 = ((pts[idx] - pts[q][:, None, :]) ** 2).sum(-1)
-        d2[idx == q[:, None]] = np.inf
-        if valid is not None:
-            d2[~valid] = np.inf
+        d2 = ((pts[idx] - qlocs[rows][:, None, :]) ** 2).sum(-1)
+        d2[~valid] = np.inf
         key = np.lexsort((idx, d2), axis=1)
         return np.take_along_axis(idx, key, axis=1), np.take_along_axis(d2, key, axis=1)
 
-    out, d2 = ranked(np.arange(n), j)
-    out = out[:, :kk]
-    if m < len(cand):
-        # The k-th neighbour may tie with candidates the tree did not return: for those rows, take every
-        # candidate within the k-th distance (one vectorised ball query) and rank them the same way.
+    # Distinct candidate locations; the members of each, by index (``order[start[u]:start[u] + cnt[u]]``).
+    locs, inv, cnt = np.unique(pts[cand], axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    order = np.lexsort((cand, inv))
+    start = np.r_[0, np.cumsum(cnt)[:-1]]
+    # kq locations hold kq candidates at least; one more shows a tie at the last place.
+    mu = min(kq + 1, len(locs))
+    cap = int(min(kq, cnt.max()))  # members of one location that can matter
+    nq = len(qlocs)
+    _, L = cKDTree(locs).query(qlocs, k=mu)
+    L = L.reshape(nq, mu)
+    slot = np.arange(cap)
+    valid = (slot[None, None, :] < cnt[L][:, :, None]).reshape(nq, mu * cap)
+    jj = order[np.minimum(start[L][:, :, None] + slot, len(order) - 1)].reshape(nq, mu * cap)
+    near_idx, d2 = ranked(np.arange(nq), jj, valid)
+    near_idx = near_idx[:, :kq]
+    if mu < len(locs):
         far = np.where(np.isfinite(d2), d2, -np.inf).max(axis=1)
-        unsure = np.flatnonzero(d2[:, kk - 1] >= far * (1 - 1e-12))
+        unsure = np.flatnonzero(d2[:, kq - 1] >= far * (1 - 1e-12))
         if len(unsure):
-            radius = np.sqrt(d2[unsure, kk - 1]) * (1 + 1e-9) + 1e-12
-            near = tree.query_ball_point(pts[queries[unsure]], radius)
-            lens = np.array([len(x) for x in near])
-            width = max(int(lens.max()), kk)
+            radius = np.sqrt(d2[unsure, kq - 1]) * (1 + 1e-9) + 1e-12
+            balls = cKDTree(pts[cand]).query_ball_point(qlocs[unsure], radius)
+            lens = np.array([len(b) for b in balls])
+            width = max(int(lens.max()), kq)
             jj = np.zeros((len(unsure), width), np.int64)
-            valid = np.arange(width)[None, :] < lens[:, None]
-            jj[valid] = np.concatenate([np.asarray(x, np.int64) for x in near])
-            out[unsure] = ranked(unsure, jj, valid)[0][:, :kk]
-    return out
+            ok = np.arange(width)[None, :] < lens[:, None]
+            jj[ok] = np.concatenate([np.asarray(b, np.int64) for b in balls])
+            near_idx[unsure] = ranked(unsure, jj, ok)[0][:, :kq]
+    lists = near_idx[qinv]
+    is_self = lists == queries[:, None]
+    drop = np.argsort(is_self, axis=1, kind="stable")
+    return np.take_along_axis(lists, drop, axis=1)[:, :kk]
 
 
 def normalize_points(p: np.ndarray) -> np.ndarray:
