@@ -32,6 +32,16 @@ def test_knn_breaks_ties_by_index(seed):
     for k in (1, 4, 8):
         got = knn_without_self(points, candidates, k)
         np.testing.assert_array_equal(got, _brute_knn(points, candidates, k, np.arange(len(points))))
+    # Sub-pixel keypoints repeated by many-to-many matching (the usual case: ties only between copies).
+    real = np.repeat(rng.uniform(0, 50, size=(60, 2)), rng.integers(1, 8, size=60), axis=0)
+    cand_real = np.sort(rng.choice(len(real), size=len(real) * 3 // 4, replace=False))
+    for k in (1, 6, 8):
+        np.testing.assert_array_equal(knn_without_self(real, cand_real, k),
+                                      _brute_knn(real, cand_real, k, np.arange(len(real))))
+    # Queries that are not candidates (GLPM searches among the guide matches only).
+    queries = rng.choice(len(real), size=40, replace=False)
+    np.testing.assert_array_equal(knn_without_self(real, cand_real, 5, queries),
+                                  _brute_knn(real, cand_real, 5, queries))
     # The answer does not depend on the order the candidates are given in.
     shuffled = rng.permutation(candidates)
     np.testing.assert_array_equal(knn_without_self(points, shuffled, 6), knn_without_self(points, candidates, 6))

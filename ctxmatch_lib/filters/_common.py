@@ -85,9 +85,11 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     Ties (equal distances) are broken by the smaller index, not by the k-d tree's traversal order: that
     order is an implementation detail of the scipy build, and it changed the LPM and GLPM results between
     machines. Ties are frequent because many-to-many matches repeat a keypoint: the tree is built on the
-    distinct locations, each standing for all the candidates there (smallest indices first); a row whose
-    k-th neighbour may tie with a location the tree did not return is completed with every candidate
-    within that distance. Distances are recomputed here in one fixed arithmetic.
+    distinct locations, each standing for all the candidates there (smallest indices first), and each
+    distinct query location is answered once; a row where two of the locations it needs lie at the same
+    distance, or where more may lie at the k-th distance, takes every candidate within that distance and
+    sorts them. Distances are recomputed here in one fixed arithmetic. Tested against a brute-force
+    (distance, index) sort; on a 4040-candidate embedded pair it takes 2x the plain tree query.
     """
     queries = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
@@ -117,29 +119,37 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     inv = inv.reshape(-1)
     order = np.lexsort((cand, inv))
     start = np.r_[0, np.cumsum(cnt)[:-1]]
-    # kq locations hold kq candidates at least; one more shows a tie at the last place.
-    mu = min(kq + 1, len(locs))
-    cap = int(min(kq, cnt.max()))  # members of one location that can matter
+    # kq locations hold kq candidates at least; one more shows whether the last one needed is tied.
     nq = len(qlocs)
+    mu = min(kq + 1, len(locs))
     _, L = cKDTree(locs).query(qlocs, k=mu)
     L = L.reshape(nq, mu)
-    slot = np.arange(cap)
-    valid = (slot[None, None, :] < cnt[L][:, :, None]).reshape(nq, mu * cap)
-    jj = order[np.minimum(start[L][:, :, None] + slot, len(order) - 1)].reshape(nq, mu * cap)
-    near_idx, d2 = ranked(np.arange(nq), jj, valid)
-    near_idx = near_idx[:, :kq]
-    if mu < len(locs):
-        far = np.where(np.isfinite(d2), d2, -np.inf).max(axis=1)
-        unsure = np.flatnonzero(d2[:, kq - 1] >= far * (1 - 1e-12))
-        if len(unsure):
-            radius = np.sqrt(d2[unsure, kq - 1]) * (1 + 1e-9) + 1e-12
-            balls = cKDTree(pts[cand]).query_ball_point(qlocs[unsure], radius)
-            lens = np.array([len(b) for b in balls])
-            width = max(int(lens.max()), kq)
-            jj = np.zeros((len(unsure), width), np.int64)
-            ok = np.arange(width)[None, :] < lens[:, None]
-            jj[ok] = np.concatenate([np.asarray(b, np.int64) for b in balls])
-            near_idx[unsure] = ranked(unsure, jj, ok)[0][:, :kq]
+    # Where the returned locations are strictly increasing in distance (recomputed here), the ranking by
+    # (distance, index) is the members of each location in turn, by index: element t of a row lies in
+    # location rank r[t].
+    dl = ((locs[L] - qlocs[:, None, :]) ** 2).sum(-1)
+    cum = np.cumsum(cnt[L], axis=1)
+    t = np.arange(kq)
+    r = (cum[:, :, None] <= t[None, None, :]).sum(axis=1)
+    prev = np.where(r > 0, np.take_along_axis(cum, np.maximum(r - 1, 0), axis=1), 0)
+    near_idx = cand[order[start[np.take_along_axis(L, r, axis=1)] + t[None, :] - prev]]
+    # Exact unless two of the locations up to the one after the last needed tie (or the last needed one is
+    # the last returned and more may lie at its distance): those rows take every candidate within the
+    # distance of their kq-th neighbour and rank them by (distance, index).
+    last = r[:, -1]
+    tie = np.diff(dl, axis=1) <= dl[:, 1:] * 1e-12
+    first_tie = np.where(tie.any(axis=1), tie.argmax(axis=1), mu) if mu > 1 else np.full(nq, mu)
+    unsure = np.flatnonzero((first_tie <= last) | ((last == mu - 1) & (mu < len(locs))))
+    if len(unsure):
+        d_k = dl[unsure, last[unsure]]
+        radius = np.sqrt(d_k) * (1 + 1e-9) + 1e-12
+        balls = cKDTree(pts[cand]).query_ball_point(qlocs[unsure], radius)
+        lens = np.array([len(b) for b in balls])
+        width = max(int(lens.max()), kq)
+        jj = np.zeros((len(unsure), width), np.int64)
+        ok = np.arange(width)[None, :] < lens[:, None]
+        jj[ok] = np.concatenate([np.asarray(b, np.int64) for b in balls])
+        near_idx[unsure] = ranked(unsure, jj, ok)[0][:, :kq]
     lists = near_idx[qinv]
     is_self = lists == queries[:, None]
     drop = np.argsort(is_self, axis=1, kind="stable")
