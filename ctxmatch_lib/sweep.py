@@ -452,7 +452,7 @@ class SweepUnit:
     the setup's label (``ctxmatch eval`` and the report notebooks show preset names); it is applied when
     the rows are read, so it is not part of the key and parts are shared whatever the names. ``salt``
     joins the key (``ctxmatch eval`` and the notebooks put :func:`source_digest` there, so that editing
-    the library invalidates their rows).
+    the library invalidates their rows) and the keys of the cached candidate sets and filter masks.
     """
 
     dataset: str
@@ -484,10 +484,10 @@ def _unit_key(u: SweepUnit, pair_digest: str) -> str:
     )
 
 
-def _candidate_sets(ctx_factory, keys, cache: Path | None, digest: str):
+def _candidate_sets(ctx_factory, keys, cache: Path | None, digest: str, salt: str = ""):
     """G per candidate key, with the seconds it took (descriptor distances + the set), from the cache or
     from the context (then cached)."""
-    path = cache / "candidates" / f"{_sha1(_SWEEP_FORMAT, digest)}.npz" if cache is not None else None
+    path = cache / "candidates" / f"{_sha1(_SWEEP_FORMAT, digest, salt)}.npz" if cache is not None else None
     stored = (_load_npz(path) if path is not None else None) or {}
     out, added = {}, False
     for key in keys:
@@ -603,7 +603,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                                      shapes2=f2.shapes, depth=depth, overlap_tables=tables)
         return state["ctx"], time.perf_counter() - t0
 
-    cands = _candidate_sets(ctx, cand_keys, cache, digest)
+    cands = _candidate_sets(ctx, cand_keys, cache, digest, unit.salt)
 
     # Labels depend on the match only: label the union of all candidate sets once.
     union = np.unique(np.concatenate([c[0] for c in cands.values()] + [np.empty((0, 2), np.int64)]), axis=0)
@@ -627,7 +627,9 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     fast = not unit.filters and unit.models == ("none",)
     masks, masks_added, mask_path = {}, False, None
     if unit.filters and cache is not None:
-        mask_path = cache / "filters" / f"{_sha1(_SWEEP_FORMAT, digest, unit.filters, unit.filter_params)}.npz"
+        # The salt (the library source digest for eval and the notebooks) keeps masks of edited filters out.
+        mask_key = _sha1(_SWEEP_FORMAT, digest, unit.filters, unit.filter_params, unit.salt)
+        mask_path = cache / "filters" / f"{mask_key}.npz"
         masks = _load_npz(mask_path) or {}
     rng_seed = pair_seed(unit.seed, pair.pair_id)
     base_row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
