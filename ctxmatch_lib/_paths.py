@@ -21,17 +21,21 @@ def repo_root() -> Path | None:
 
 
 def cache_dir(sub: str | None = None) -> Path:
-    """The cache folder: ``$CTXMATCH_CACHE``, else ``data/cache`` of the checkout, else ``~/.cache/ctxmatch``.
+    """The cache folder: ``$CTXMATCH_CACHE`` if set, else the user's cache directory,
+    ``$XDG_CACHE_HOME/ctxmatch`` (``~/.cache/ctxmatch`` when ``XDG_CACHE_HOME`` is unset).
 
-    ``sub`` names a sub-folder (created on demand).
+    Never the checkout unless ``CTXMATCH_CACHE`` says so. ``sub`` names a sub-folder (created on demand):
+    ``features`` (extracted keypoints and descriptors), ``sweep`` (the evaluation cache of ``ctxmatch
+    eval``, ``ctxmatch sweep`` and the report notebooks: result parts and intermediates).
     """
     env = os.environ.get("CTXMATCH_CACHE")
     if env:
-        base = Path(env)
-    elif repo_root() is not None:
-        base = repo_root() / "data" / "cache"
+        base = Path(env).expanduser()
     else:
-        base = Path.home() / ".cache" / "ctxmatch"
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        # The XDG spec: a relative XDG_CACHE_HOME is invalid and ignored.
+        root = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+        base = root / "ctxmatch"
     path = base / sub if sub else base
     path.mkdir(parents=True, exist_ok=True)
     return path
@@ -53,13 +57,28 @@ def data_root(required: bool = False) -> Path | None:
     return None
 
 
+def _umask() -> int:
+    """The process umask (read without changing it where /proc allows, else set and restored at once)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path`` in one ``os.replace``.
 
     Readers never see a half-written file, and an interrupted write leaves nothing behind. The temporary
     name is hidden and ends in ``.tmp``, so globs for the real suffix never pick it up; writers that infer
-    the format from the suffix must be told it.
+    the format from the suffix must be told it. The file gets the mode a plain ``open(path, "w")`` would
+    give (``0o666`` less the umask), not the ``0o600`` of a temporary file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -67,6 +86,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

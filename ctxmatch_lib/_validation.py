@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix"]
+__all__ = ["as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix", "check_inside",
+           "cumulative_distinct"]
 
 
 def as_finite_matrix(x, name: str, *, ndim: int = 2, dtype=None) -> np.ndarray:
@@ -108,3 +109,70 @@ def as_image_size(size, name: str) -> tuple[int, int]:
     if w <= 0 or h <= 0:
         raise ValueError(f"{name} must be positive, got {(w, h)}")
     return w, h
+
+
+def check_inside(kpts, image_size, name: str = "kpts", *, tol: float = 0.5) -> np.ndarray:
+    """Raise ``ValueError`` unless every keypoint lies inside its image; returns ``kpts`` as ``(N, 2)``.
+
+    Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel, so the pixels of a
+    ``(width, height)`` image cover ``x`` in ``[-0.5, width - 0.5]`` and ``y`` in ``[-0.5, height - 0.5]``;
+    ``tol`` (default 0.5, that half pixel) is how far outside the pixel centres ``[0, width - 1]`` a
+    keypoint may lie. The usual cause of an error is an image size given as (height, width).
+
+    Parameters
+    ----------
+    kpts : array_like of shape (N, 2)
+    image_size : (int, int)
+        ``(width, height)``.
+    name : str
+        The argument's name, for the message.
+    tol : float
+        Allowance in pixels beyond the outer pixel centres.
+
+    Examples
+    --------
+    >>> check_inside([[639.4, 10.0]], (640, 480)).shape
+    (1, 2)
+    >>> check_inside([[10.0, 639.0]], (640, 480), "kpts1")
+    Traceback (most recent call last):
+    ...
+    ValueError: kpts1 has keypoints outside the image of size (width, height) = (640, 480): ...
+    """
+    pts = as_points(kpts, name)
+    w, h = as_image_size(image_size, f"image size of {name}")
+    if len(pts) == 0:
+        return pts
+    lo = -tol
+    bad = (pts[:, 0] < lo) | (pts[:, 1] < lo) | (pts[:, 0] > w - 1 + tol) | (pts[:, 1] > h - 1 + tol)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        hint = ""
+        if (pts[:, 0].max() <= h - 1 + tol) and (pts[:, 1].max() <= w - 1 + tol):
+            hint = "; they would fit (height, width): was the size given as (height, width)?"
+        raise ValueError(
+            f"{name} has keypoints outside the image of size (width, height) = ({w}, {h}): "
+            f"{int(bad.sum())} of {len(pts)}, e.g. row {i} at (x, y) = ({pts[i, 0]:g}, {pts[i, 1]:g}); keypoints "
+            f"are (x, y) pixels with the origin at the centre of the top-left pixel, so x must lie in "
+            f"[{lo:g}, {w - 1 + tol:g}] and y in [{lo:g}, {h - 1 + tol:g}]{hint}"
+        )
+    return pts
+
+
+def cumulative_distinct(values) -> np.ndarray:
+    """``out[k]`` = number of distinct values among ``values[:k + 1]`` (non-negative ints), in O(K + max).
+
+    The one implementation behind the normalised counts of ranked lists (``metrics``, ``geometry``'s
+    1SAC sample, the sweep's AP).
+
+    Examples
+    --------
+    >>> cumulative_distinct([3, 1, 3, 0, 1])
+    array([1, 2, 2, 3, 3])
+    """
+    v = np.asarray(values, np.int64).reshape(-1)
+    k = len(v)
+    if k == 0:
+        return np.zeros(0, np.int64)
+    first = np.full(int(v.max()) + 1, k, np.int64)
+    np.minimum.at(first, v, np.arange(k))
+    return np.cumsum(first[v] == np.arange(k))

@@ -6,9 +6,10 @@ the top-left pixel. Each keypoint also carries its elliptical patch as a 2×2 af
 ``{kpt + A @ u : |u| <= 1}``; for SIFT it is a disc of radius ``patch_radius * scale`` whose first axis
 points along the keypoint orientation.
 
-Extraction is cached per (image content, extractor configuration) under
-``ctxmatch_lib._paths.cache_dir("features")``; every entry is written to a temporary file and renamed into
-place, so an interrupted run never leaves a corrupt entry.
+Extraction is cached per (OpenCV version, image content, extractor configuration) under
+``ctxmatch_lib._paths.cache_dir("features")`` (``$CTXMATCH_CACHE/features``, else
+``$XDG_CACHE_HOME/ctxmatch/features`` or ``~/.cache/ctxmatch/features``); every entry is written to a
+temporary file and renamed into place, so an interrupted run never leaves a corrupt entry.
 """
 
 from __future__ import annotations
@@ -319,7 +320,14 @@ def _entry_path(digest: str, config: FeatureConfig, cache_dir) -> Path:
         base = default_cache_dir("features")
     else:
         base = Path(cache_dir)
-    return base / config.key() / digest[:2] / f"{digest}.npz"
+    # SIFT's keypoints and descriptors change between OpenCV releases: the version is part of the key.
+    return base / f"opencv-{_opencv_version()}" / config.key() / digest[:2] / f"{digest}.npz"
+
+
+def _opencv_version() -> str:
+    import cv2
+
+    return cv2.__version__
 
 
 def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> Features:
@@ -334,7 +342,7 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
         Extractor settings; part of the cache key.
     cache_dir : str, Path, None or False
         Cache folder: ``None`` for ``ctxmatch_lib._paths.cache_dir("features")``, ``False`` to disable the
-        cache. Entries are keyed by the hash of the gray pixels and by ``config.key()``.
+        cache. Entries are keyed by the OpenCV version, the hash of the gray pixels and ``config.key()``.
 
     Returns
     -------

@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._validation import as_matches, as_points, as_scores
+from ._validation import as_matches, as_points, as_scores, cumulative_distinct
 
 __all__ = [
     "MODEL_STEPS",
@@ -100,7 +100,14 @@ def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
     T : ndarray of shape (3, 3)
         The similarity that normalises.
     """
-    pts = as_points(pts, "pts")
+    return _normalise(as_points(pts, "pts"))
+
+
+# Public functions validate their arguments once; the private ``_name`` versions they call (and that call
+# each other inside 1SAC, RANSAC and the pipeline) take clean float64 arrays and skip the checks.
+
+
+def _normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(pts) == 0:
         return pts.copy(), np.eye(3)
     c = pts.mean(axis=0)
@@ -111,8 +118,12 @@ def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
-    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D."""
-    _, s, vt = np.linalg.svd(A)
+    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D.
+
+    The thin SVD of the ``(M, n)`` design matrix costs ``O(M n^2)`` time and ``O(M n)`` memory; the full
+    SVD would also build the ``(M, M)`` left factor (12.8 GB for 20 000 correspondences).
+    """
+    _, s, vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])
     n = A.shape[1]
     # Fewer rows than unknowns pads the spectrum with zeros.
     s = np.r_[s, np.zeros(max(0, n - len(s)))]
@@ -146,11 +157,14 @@ def fit_homography(pts1, pts2) -> np.ndarray | None:
            [0., 0., 1.]])
     """
     pts1 = as_points(pts1, "pts1")
-    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    return _fit_homography(pts1, as_points(pts2, "pts2", n=len(pts1)))
+
+
+def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
     if len(pts1) < 4:
         return None
-    n1, T1 = normalise_points(pts1)
-    n2, T2 = normalise_points(pts2)
+    n1, T1 = _normalise(pts1)
+    n2, T2 = _normalise(pts2)
     x, y = n1[:, 0], n1[:, 1]
     u, v = n2[:, 0], n2[:, 1]
     z, o = np.zeros_like(x), np.ones_like(x)
@@ -185,11 +199,14 @@ def fit_fundamental(pts1, pts2) -> np.ndarray | None:
         degenerate configuration.
     """
     pts1 = as_points(pts1, "pts1")
-    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    return _fit_fundamental(pts1, as_points(pts2, "pts2", n=len(pts1)))
+
+
+def _fit_fundamental(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
     if len(pts1) < 8:
         return None
-    n1, T1 = normalise_points(pts1)
-    n2, T2 = normalise_points(pts2)
+    n1, T1 = _normalise(pts1)
+    n2, T2 = _normalise(pts2)
     x, y = n1[:, 0], n1[:, 1]
     u, v = n2[:, 0], n2[:, 1]
     A = np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], axis=1)
@@ -234,9 +251,11 @@ def homography_transfer_errors(H, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
     backward : ndarray of shape (N,)
         ``||H^-1 x2 - x1||`` in image-1 pixels (``inf`` everywhere when ``H`` is singular).
     """
-    H = np.asarray(H, dtype=np.float64)
     pts1 = as_points(pts1, "pts1")
-    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    return _transfer_errors(np.asarray(H, dtype=np.float64), pts1, as_points(pts2, "pts2", n=len(pts1)))
+
+
+def _transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     fwd = np.linalg.norm(apply_homography(H, pts1) - pts2, axis=1)
     try:
         Hinv = np.linalg.inv(H)
@@ -264,9 +283,11 @@ def epipolar_distances(F, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
         Distance in image 1 of ``x1`` from the epipolar line ``F^T x2``.
         A degenerate line (``x`` at an epipole) gives ``inf``.
     """
-    F = np.asarray(F, dtype=np.float64)
     pts1 = as_points(pts1, "pts1")
-    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    return _epipolar(np.asarray(F, dtype=np.float64), pts1, as_points(pts2, "pts2", n=len(pts1)))
+
+
+def _epipolar(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     h1 = np.c_[pts1, np.ones(len(pts1))]
     h2 = np.c_[pts2, np.ones(len(pts2))]
     l2 = h1 @ F.T  # lines in image 2
@@ -286,12 +307,13 @@ def model_errors(model, kind: ModelKind, pts1, pts2) -> np.ndarray:
     For ``kind="H"`` the larger of the forward and backward reprojection errors, for ``kind="F"`` the larger
     of the two point-to-epipolar-line distances, in pixels.
     """
-    if kind == "H":
-        a, b = homography_transfer_errors(model, pts1, pts2)
-    elif kind == "F":
-        a, b = epipolar_distances(model, pts1, pts2)
-    else:
-        raise ValueError(f"kind must be 'H' or 'F', got {kind!r}")
+    kind = _check_kind(kind)
+    pts1 = as_points(pts1, "pts1")
+    return _model_errors(np.asarray(model, np.float64), kind, pts1, as_points(pts2, "pts2", n=len(pts1)))
+
+
+def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray:
+    a, b = _transfer_errors(model, pts1, pts2) if kind == "H" else _epipolar(model, pts1, pts2)
     return np.maximum(a, b)
 
 
@@ -326,30 +348,25 @@ def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
     array([0, 1, 2])
     """
     matches = as_matches(matches)
-    scores = as_scores(scores, len(matches))
+    return _top_ranked_sample(matches, as_scores(scores, len(matches)), size)
+
+
+def _top_ranked_sample(matches: np.ndarray, scores: np.ndarray, size: int) -> np.ndarray:
     if len(matches) == 0 or size <= 0:
         return np.empty(0, np.int64)
     order = np.argsort(scores, kind="stable")
     ranked = matches[order]
-    count = np.minimum(_cumulative_distinct(ranked[:, 0]), _cumulative_distinct(ranked[:, 1]))
+    count = np.minimum(cumulative_distinct(ranked[:, 0]), cumulative_distinct(ranked[:, 1]))
     reached = np.flatnonzero(count >= size)
     stop = reached[0] + 1 if len(reached) else len(order)
     return order[:stop].astype(np.int64)
-
-
-def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
-    """``out[k]`` = number of distinct values among ``values[:k + 1]``."""
-    first = np.zeros(len(values), bool)
-    _, idx = np.unique(values, return_index=True)
-    first[idx] = True
-    return np.cumsum(first)
 
 
 # ---------------------------------------------------------------------------------------- model steps
 
 
 def _fit(kind: ModelKind, p1: np.ndarray, p2: np.ndarray) -> np.ndarray | None:
-    return fit_homography(p1, p2) if kind == "H" else fit_fundamental(p1, p2)
+    return _fit_homography(p1, p2) if kind == "H" else _fit_fundamental(p1, p2)
 
 
 def _check_kind(kind) -> ModelKind:
@@ -410,16 +427,26 @@ def one_sac(
     >>> int(fit.keep.sum()), len(fit.sample)
     (20, 12)
     """
+    kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
+    return _one_sac(kpts1, kpts2, matches, scores, kind, threshold, sample_factor)
+
+
+def _check_step(kind, kpts1, kpts2, matches, scores, threshold):
+    """The arguments of a model step, validated once."""
     kind = _check_kind(kind)
     kpts1 = as_points(kpts1, "kpts1")
     kpts2 = as_points(kpts2, "kpts2")
     matches = as_matches(matches, len(kpts1), len(kpts2))
     scores = as_scores(scores, len(matches))
-    if threshold <= 0:
-        raise ValueError(f"threshold must be positive, got {threshold}")
+    if not (np.isscalar(threshold) and np.isfinite(threshold) and threshold > 0):
+        raise ValueError(f"threshold must be a positive number of pixels, got {threshold!r}")
+    return kind, kpts1, kpts2, matches, scores
+
+
+def _one_sac(kpts1, kpts2, matches, scores, kind, threshold, sample_factor=3) -> ModelFit:
     q = MIN_SAMPLE[kind]
     k = len(matches)
-    sample = top_ranked_sample(matches, scores, size=sample_factor * q)
+    sample = _top_ranked_sample(matches, scores, sample_factor * q)
     if len(sample) == 0:
         return _failed(k, kind)
     s = matches[sample]
@@ -428,7 +455,7 @@ def one_sac(
     model = _fit(kind, kpts1[s[:, 0]], kpts2[s[:, 1]])
     if model is None:
         return _failed(k, kind, sample)
-    err = model_errors(model, kind, kpts1[matches[:, 0]], kpts2[matches[:, 1]])
+    err = _model_errors(model, kind, kpts1[matches[:, 0]], kpts2[matches[:, 1]])
     return ModelFit(err <= threshold, model, kind, sample, err)
 
 
@@ -476,15 +503,17 @@ def ransac(
     ModelFit
         ``sample`` holds the inliers reported by USAC.
     """
-    import cv2
-
-    kind = _check_kind(kind)
-    kpts1 = as_points(kpts1, "kpts1")
-    kpts2 = as_points(kpts2, "kpts2")
-    matches = as_matches(matches, len(kpts1), len(kpts2))
-    scores = as_scores(scores, len(matches))
+    kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if sampler not in ("uniform", "prosac"):
         raise ValueError(f"sampler must be 'uniform' or 'prosac', got {sampler!r}")
+    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, magsac_threshold=magsac_threshold,
+                   confidence=confidence, max_iters=max_iters, sampler=sampler, rng=rng)
+
+
+def _ransac(kpts1, kpts2, matches, scores, kind, threshold, *, magsac_threshold=3.0, confidence=0.999,
+            max_iters=100_000, sampler="uniform", rng=None) -> ModelFit:
+    import cv2
+
     k = len(matches)
     q = MIN_SAMPLE[kind]
     if k == 0 or min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < q:
@@ -516,7 +545,7 @@ def ransac(
     model = np.asarray(model, np.float64)
     inl = np.flatnonzero(np.asarray(mask).reshape(-1) > 0) if mask is not None else np.empty(0, np.int64)
     err = np.empty(k)
-    err[order] = model_errors(model, kind, p1, p2)
+    err[order] = _model_errors(model, kind, p1, p2)
     return ModelFit(err <= threshold, model, kind, np.sort(order[inl]).astype(np.int64), err)
 
 
@@ -545,13 +574,13 @@ def apply_model_step(
     ``"none"`` keeps every match (``model`` is ``None``); ``"1sac"`` calls :func:`one_sac`; ``"ransac"`` and
     ``"prosac"`` call :func:`ransac` with ``rng`` and the uniform or PROSAC sampler.
     """
+    if name not in MODEL_STEPS:
+        raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")
     if name == "none":
         k = len(as_matches(matches))
         return ModelFit(np.ones(k, bool), None, _check_kind(kind), np.arange(k, dtype=np.int64), np.zeros(k))
+    kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if name == "1sac":
-        return one_sac(kpts1, kpts2, matches, scores, kind=kind, threshold=threshold)
-    if name == "ransac":
-        return ransac(kpts1, kpts2, matches, scores, kind=kind, threshold=threshold, rng=rng)
-    if name == "prosac":
-        return ransac(kpts1, kpts2, matches, scores, kind=kind, threshold=threshold, rng=rng, sampler="prosac")
-    raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")
+        return _one_sac(kpts1, kpts2, matches, scores, kind, threshold)
+    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, rng=rng,
+                   sampler="prosac" if name == "prosac" else "uniform")

@@ -30,7 +30,7 @@ import numpy as np
 
 from ._validation import as_matches, as_points
 from .datasets.base import EpipolarGT, FlowGT, HomographyGT
-from .geometry import epipolar_distances, homography_transfer_errors
+from .geometry import _epipolar, _transfer_errors
 
 __all__ = [
     "GT_THRESHOLD_PX",
@@ -90,7 +90,7 @@ def label_homography(kpts1, kpts2, matches, H, *, threshold: float = GT_THRESHOL
     array([ True, False, False])
     """
     p1, p2 = _match_points(kpts1, kpts2, matches)
-    fwd, bwd = homography_transfer_errors(H, p1, p2)
+    fwd, bwd = _transfer_errors(np.asarray(H, np.float64), p1, p2)  # p1, p2 validated above
     return (fwd <= threshold) & (bwd <= threshold)
 
 
@@ -130,7 +130,7 @@ def label_epipolar(
     ndarray of shape (K,), bool
     """
     p1, p2 = _match_points(kpts1, kpts2, matches)
-    d2, d1 = epipolar_distances(F, p1, p2)
+    d2, d1 = _epipolar(np.asarray(F, np.float64), p1, p2)  # p1, p2 validated above
     ok = np.maximum(d1, d2) <= threshold
     if localise:
         if hand_pts1 is None or hand_pts2 is None:

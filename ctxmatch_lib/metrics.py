@@ -13,9 +13,14 @@ the correct matches over all the configurations tested on the pair (Appendix, Ta
 
 Conventions for degenerate cases (documented so that averages over pairs are well defined):
 
-* empty output: precision 0, recall 0 (when the reference is not empty), failure ``True``, AP 0;
+* empty output (no match at all): ``empty_output`` is ``True`` and ``failure`` ``False``; precision 0, recall 0
+  (when the reference is not empty), AP 0. Means over pairs therefore count an empty output as 0 %
+  precision and 0 % recall, as the paper's averages do; tables report the number of empty outputs in
+  their own column so that a method that gives up is told apart from one that is wrong;
+* wrong output (matches, none of them correct): ``failure`` is ``True``. The paper's "failure" (no correct
+  match in the output) is ``failure or empty_output``;
 * empty reference (no correct candidate at all): recall, recall* and AP are NaN (undefined; pandas' mean
-  skips them), precision and failure as above.
+  skips them), precision, failure and empty_output as above.
 
 ``matches`` are ``(K, 2)`` int64 indices into the keypoints of images 1 and 2.
 """
@@ -26,7 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ._validation import as_matches, as_scores
+from ._validation import as_matches, as_scores, cumulative_distinct
 
 __all__ = [
     "MatchMetrics",
@@ -65,12 +70,6 @@ def normalised_count(matches) -> int:
     return int(min(len(np.unique(m[:, 0])), len(np.unique(m[:, 1]))))
 
 
-def _cumulative_distinct(values: np.ndarray) -> np.ndarray:
-    first = np.zeros(len(values), bool)
-    first[np.unique(values, return_index=True)[1]] = True
-    return np.cumsum(first)
-
-
 def cumulative_normalised_count(matches) -> np.ndarray:
     """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (for ranked lists).
 
@@ -81,7 +80,7 @@ def cumulative_normalised_count(matches) -> np.ndarray:
     m = as_matches(matches)
     if len(m) == 0:
         return np.empty(0, np.int64)
-    return np.minimum(_cumulative_distinct(m[:, 0]), _cumulative_distinct(m[:, 1])).astype(np.int64)
+    return np.minimum(cumulative_distinct(m[:, 0]), cumulative_distinct(m[:, 1])).astype(np.int64)
 
 
 def _labels(is_correct, k: int) -> np.ndarray:
@@ -231,7 +230,9 @@ class MatchMetrics:
     output : int
         Output matches.
     failure : bool
-        No correct match in the output.
+        A wrong output: matches, none of them correct.
+    empty_output : bool
+        No match in the output (not a failure; the paper's failure is ``failure or empty``).
     n_gt, n_gt_star : int
         Normalised size of the recall and recall* references.
     time_s : float
@@ -249,6 +250,7 @@ class MatchMetrics:
     n_gt: int
     n_gt_star: int
     time_s: float = float("nan")
+    empty_output: bool = False
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -302,7 +304,8 @@ def evaluate_matches(
         correct=correct,
         correct_norm=normalised_count(m[lab]),
         output=len(m),
-        failure=correct == 0,
+        failure=len(m) > 0 and correct == 0,
+        empty_output=len(m) == 0,
         n_gt=normalised_count(reference),
         n_gt_star=normalised_count(ref_star),
         time_s=float(time_s),

@@ -4,7 +4,8 @@ Each step is a function that can be called on its own (:func:`pair_features`, :f
 :func:`run_filter`, :func:`run_model`, :func:`label_candidates`, :func:`metrics_rows`);
 :func:`evaluate_pair` chains them for one pair and keeps every intermediate result in a
 :class:`PairEvaluation`, and :func:`evaluate_dataset` runs a whole dataset into a ``pandas.DataFrame`` with
-one row per (pair, blob setup, method, model).
+one row per (pair, blob setup, method, model), on the evaluation engine of :mod:`ctxmatch_lib.sweep`
+(per-pair result parts in the cache, resumable; tested to give the same rows as :func:`evaluate_pair`).
 
 How the pieces fit:
 
@@ -43,7 +44,9 @@ __all__ = [
     "BlobStage",
     "PairEvaluation",
     "resolve_blobs",
+    "register_dtm_stages",
     "check_filters",
+    "check_pair_keypoints",
     "check_models",
     "pair_features",
     "blob_candidates",
@@ -62,9 +65,14 @@ BLOB_METHOD = "blob"
 #: Columns of a result row, in order.
 ROW_COLUMNS = (
     "dataset", "pair_id", "kind", "blob", "method", "model",
-    "precision", "recall", "recall_star", "ap", "correct", "correct_norm", "output", "failure",
-    "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method",
+    "precision", "recall", "recall_star", "ap", "correct", "correct_norm", "output", "failure", "empty_output",
+    "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method", "error",
 )
+"""Units: ``precision``, ``recall``, ``recall_star`` and ``ap`` are fractions in [0, 1] (NaN when
+undefined); ``correct`` is a plain count, ``correct_norm`` the normalised count of Sec. 5.1; ``failure`` a
+non-empty output without a correct match, ``empty_output`` an output with no match at all; ``time_s`` (the method)
+and ``model_time_s`` (the model step) in seconds; ``error`` is empty, or says why the row could not be
+evaluated (its metrics are then NaN). :func:`summary_table` prints percentages under ``*_pct`` names."""
 
 
 # ------------------------------------------------------------------------------------------ arguments
@@ -97,10 +105,32 @@ def resolve_blobs(blobs) -> dict:
     return out
 
 
+def register_dtm_stages() -> None:
+    """Register ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as
+    ``dtm``) in :data:`~ctxmatch_lib.filters.FILTERS`, so that Tables 1-3 can list both as the paper does.
+
+    Called by :func:`check_filters` and :func:`run_filter`, so the names work everywhere, worker
+    processes included.
+    """
+    import functools
+
+    from .filters import FILTERS, register_filter
+
+    for name, stages in (("dtm1", 1), ("dtm2", 2)):
+        if name not in FILTERS._loaded:
+            from .dtm import dtm_filter
+
+            register_filter(name, functools.partial(dtm_filter, stages=stages))
+
+
 def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
-    """Validate filter names against the registry; raises ``ValueError`` listing the known ones."""
+    """Validate filter names against the registry (``dtm1`` and ``dtm2`` included); raises ``ValueError``
+    listing the known ones."""
     from .filters import FILTERS
 
+    register_dtm_stages()
+    if isinstance(filters, str):
+        filters = [filters]
     names = tuple(filters)
     for name in names:
         if name == BLOB_METHOD:
@@ -125,6 +155,18 @@ def check_models(models: Iterable[str]) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"models are repeated: {names}")
     return names
+
+
+def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
+    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
+
+    Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
+    (:func:`ctxmatch_lib._validation.check_inside`); a size given as (height, width) is the usual cause.
+    """
+    from ._validation import check_inside
+
+    check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
+    check_inside(f2.kpts, pair.image_size2, f"keypoints of image2 of pair {pair.pair_id!r}")
 
 
 def pair_seed(seed: int, pair_id: str) -> int:
@@ -186,6 +228,8 @@ def run_filter(
     """
     from .filters import FILTERS
 
+    if name in ("dtm1", "dtm2"):
+        register_dtm_stages()
     func: Callable = FILTERS[name]
     if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
         params.setdefault("ratio", blob_ratio)
@@ -307,9 +351,10 @@ def metrics_rows(evaluation: PairEvaluation, *, reference_star=None) -> list[dic
                     "method": method, "model": model,
                     "precision": mm.precision, "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
                     "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
-                    "failure": mm.failure, "time_s": mm.time_s, "model_time_s": stage.model_times[(method, model)],
+                    "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
+                    "model_time_s": stage.model_times[(method, model)],
                     "n_kpts1": len(f1), "n_kpts2": len(f2), "n_candidates": len(stage.matches),
-                    "n_gt": mm.n_gt, "n_gt_star": mm.n_gt_star, "gt_method": evaluation.gt_method,
+                    "n_gt": mm.n_gt, "n_gt_star": mm.n_gt_star, "gt_method": evaluation.gt_method, "error": "",
                 })
     return rows
 
@@ -367,6 +412,7 @@ def evaluate_pair(
     filter_params = dict(filter_params or {})
     f1, f2 = precomputed_features if precomputed_features is not None else pair_features(
         pair, features, cache_dir=cache_dir)
+    check_pair_keypoints(pair, f1, f2)
     rng_seed = pair_seed(seed, pair.pair_id)
     stages = {}
     for bname, cfg in blob_cfgs.items():
@@ -398,63 +444,110 @@ def evaluate_dataset(
     dataset: Dataset | Iterable[Pair],
     *,
     progress: bool = True,
-    on_pair: Callable[[PairEvaluation], None] | None = None,
+    results_dir=None,
+    recompute: bool = False,
+    n_jobs: int = 1,
     **kwargs,
 ):
-    """Run :func:`evaluate_pair` on every pair; returns a ``pandas.DataFrame`` of all rows.
+    """Evaluate every pair of ``dataset``; returns a ``pandas.DataFrame`` of all rows.
 
-    ``kwargs`` go to :func:`evaluate_pair` (validated once up front, so a bad filter name fails before any
-    work). ``on_pair`` receives each :class:`PairEvaluation` (to keep intermediate results; by default they
-    are dropped as soon as the rows are taken). ``progress`` shows a tqdm bar on stderr.
+    Runs on the one evaluation engine of :func:`ctxmatch_lib.sweep.run_units` (shared with ``ctxmatch
+    sweep`` and the report notebooks): each pair is a work unit whose rows are kept as a Parquet part in
+    the evaluation cache, so an interrupted run resumes with no lost and no duplicated rows and a rerun
+    only reads. A pair that cannot be evaluated (unreadable image, 0 keypoints, a filter that raised) is
+    reported with a ``RuntimeWarning`` naming it, the image and the reason, and gets rows with NaN metrics
+    and a non-empty ``error``; the run goes on.
+
+    Parameters
+    ----------
+    dataset : Dataset or iterable of Pair
+    progress : bool
+        A tqdm bar on stderr naming the pair in progress.
+    results_dir : path, None or False
+        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``False`` keeps
+        nothing on disk (and cannot resume).
+    recompute : bool
+        Ignore the cached rows of these pairs and settings.
+    n_jobs : int
+        Local worker processes (``-1``: all cores).
+    **kwargs
+        As :func:`evaluate_pair`: ``features``, ``blobs``, ``filters``, ``models``, ``gt_method``,
+        ``gt_threshold``, ``model_threshold``, ``filter_params``, ``seed``, and ``cache_dir`` (the
+        feature cache). All are validated before any work.
+
+    Returns
+    -------
+    pandas.DataFrame
+        :data:`ctxmatch_lib.sweep.SWEEP_COLUMNS` (which include :data:`ROW_COLUMNS`), one row per (pair,
+        blob setup, method, model), in dataset order.
     """
-    import pandas as pd
-    from tqdm.auto import tqdm
+    from .sweep import plan_units, run_units, source_digest
 
-    check_filters(kwargs.get("filters", ("dtm",)))
-    check_models(kwargs.get("models", ("none", "1sac")))
-    resolve_blobs(kwargs.get("blobs", "paper-best"))
-    pairs = list(dataset)
-    rows: list[dict] = []
-    bar = tqdm(pairs, desc="ctxmatch eval", unit="pair", disable=not progress, dynamic_ncols=True)
-    for pair in bar:
-        bar.set_postfix_str(pair.pair_id, refresh=False)
-        ev = evaluate_pair(pair, **kwargs)
-        rows.extend(ev.rows)
-        if on_pair is not None:
-            on_pair(ev)
-    df = pd.DataFrame(rows, columns=list(ROW_COLUMNS))
-    return df.astype({"correct": "int64", "correct_norm": "int64", "output": "int64", "failure": "bool",
-                      "n_kpts1": "int64", "n_kpts2": "int64", "n_candidates": "int64", "n_gt": "int64",
-                      "n_gt_star": "int64"})
+    known = {"features", "blobs", "filters", "models", "gt_method", "gt_threshold", "model_threshold",
+             "filter_params", "seed", "cache_dir"}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise TypeError(f"evaluate_dataset got unexpected arguments {unknown}; known: {sorted(known)}")
+    feature_cache = kwargs.pop("cache_dir", None)
+    kwargs.setdefault("features", FeatureConfig())
+    kwargs.setdefault("filters", ("dtm",))
+    kwargs.setdefault("models", ("none", "1sac"))
+    kwargs["blobs"] = resolve_blobs(kwargs.get("blobs", "paper-best"))
+    units = plan_units(list(dataset), salt=source_digest(), **kwargs)
+    return run_units(units, cache_dir=results_dir, feature_cache_dir=feature_cache, n_jobs=n_jobs,
+                     progress=progress, recompute=recompute, desc="ctxmatch eval")
 
 
 def summary_table(df):
     """Per-kind, per-method (and model) means, as the Appendix tables: one row per group.
 
-    Columns: ``pairs``, mean ``precision``/``recall``/``recall_star`` (in %), mean ``mAP`` (%), mean
-    ``correct`` and ``output`` counts, ``failures`` (number of pairs with no correct match) and mean
-    ``time_s``. Grouped by ``blob`` too when several blob setups are present. Means skip NaN (pairs
-    without any correct candidate have no recall).
+    Columns (units in the names; the rows themselves hold fractions):
+
+    * ``pairs``: pairs evaluated in the group (rows with an ``error`` excluded);
+    * ``precision_pct``, ``recall_pct``, ``recall_star_pct``, ``mAP_pct``: means over those pairs, in %.
+      An empty output counts as 0 % precision and 0 % recall (the paper's convention); recall, recall*
+      and AP are NaN, and skipped, on a pair without any correct candidate;
+    * ``correct``, ``correct_norm`` (the normalised count of Sec. 5.1), ``output``: mean match counts;
+    * ``failures``: pairs whose output is not empty but holds no correct match; ``empty_outputs``: pairs with
+      an empty output (the paper's failures are ``failures + empty_outputs``); ``errors``: pairs that could not be
+      evaluated (see the ``error`` column);
+    * ``time_s``: mean seconds of the method itself; ``model_time_s``: of the model step alone.
+
+    Grouped by ``blob`` too when several blob setups are present, and by ``features`` when several feature
+    setups are.
     """
     import pandas as pd
 
     if df.empty:
         return pd.DataFrame()
-    keys = ["kind"] + (["blob"] if df["blob"].nunique() > 1 else []) + ["method", "model"]
+    keys = (["kind"] + [k for k in ("features", "blob") if k in df.columns and df[k].nunique() > 1]
+            + ["method", "model"])
     d = df.copy()
     # Keep the order of appearance (blob first, filters as given, models as given) rather than sorting.
     for k in keys:
         d[k] = pd.Categorical(d[k], categories=list(dict.fromkeys(d[k])), ordered=True)
-    g = d.groupby(keys, observed=True, sort=True)
+    err = d["error"].astype(str) != "" if "error" in d.columns else pd.Series(False, index=d.index)
+    empty = d["empty_output"] if "empty_output" in d.columns else d["output"] == 0
+    d = d.assign(_err=err, _empty=empty & ~err, _failure=d["failure"] & ~err)
+    ok = d[~err]
+    g = ok.groupby(keys, observed=True, sort=True)
+    ge = d.groupby(keys, observed=True, sort=True)
     out = pd.DataFrame({
         "pairs": g["pair_id"].nunique(),
-        "precision": 100 * g["precision"].mean(),
-        "recall": 100 * g["recall"].mean(),
-        "recall_star": 100 * g["recall_star"].mean(),
-        "mAP": 100 * g["ap"].mean(),
+        "precision_pct": 100 * g["precision"].mean(),
+        "recall_pct": 100 * g["recall"].mean(),
+        "recall_star_pct": 100 * g["recall_star"].mean(),
+        "mAP_pct": 100 * g["ap"].mean(),
         "correct": g["correct"].mean(),
+        "correct_norm": g["correct_norm"].mean(),
         "output": g["output"].mean(),
-        "failures": g["failure"].sum().astype(int),
+        "failures": g["_failure"].sum(),
+        "empty_outputs": g["_empty"].sum(),
         "time_s": g["time_s"].mean(),
+        "model_time_s": g["model_time_s"].mean(),
     })
+    out = out.reindex(ge.size().index)
+    out["errors"] = ge["_err"].sum().astype(int)
+    for c in ("pairs", "failures", "empty_outputs"):
+        out[c] = out[c].fillna(0).astype(int)
     return out

@@ -66,7 +66,8 @@ SETUP_TITLES = {
             "(the paper's best uses HarrisZ+SOSNet)",
 }
 #: Columns of :func:`method_table`, as in the paper's tables.
-TABLE_COLUMNS = ("precision (%)", "recall (%)", "recall* (%)", "correct", "output", "failures", "time (s)")
+TABLE_COLUMNS = ("precision (%)", "recall (%)", "recall* (%)", "correct", "output", "failures", "empty",
+                 "time (s)")
 
 
 def method_label(name: str) -> str:
@@ -115,9 +116,12 @@ def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
     """The analogue of the paper's Tables 1-3 for the given rows.
 
     Means over the rows of each (kind, model, method) group: precision, recall and recall* in %, correct
-    and output match counts; ``failures`` is the number of pairs with no correct match in the output,
-    divided by the number of (feature, blob) setups pooled in the group (so it is the plain count for one
-    setup, and the mean count per setup for the global setting); ``time (s)`` is the mean running time of
+    and output match counts. An empty output enters the means as 0 % precision and 0 % recall (the
+    paper's convention). ``failures`` is the number of pairs whose output is not empty but holds no correct
+    match and ``empty`` the number of pairs with an empty output (the paper's failures are their sum),
+    each divided by the number of (feature, blob) setups pooled in the group (so it is the plain count for
+    one setup, and the mean count per setup for the global setting). Rows with an ``error`` (pairs that
+    could not be evaluated) are left out; ``time (s)`` is the mean running time of
     the method itself, shown on the "no model" rows only (the paper's "--" on the 1SAC rows). ``pairs`` is
     the number of distinct pairs. Recall means skip NaN (pairs without any correct candidate).
 
@@ -146,6 +150,10 @@ def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
     models = [m for m in ("none", "1sac", "ransac") if m in set(df["model"])] if models is None else list(models)
     methods = method_order(df["method"])
     d = df[df["kind"].isin(kinds) & df["model"].isin(models)]
+    if "error" in d.columns:
+        d = d[d["error"].fillna("").astype(str) == ""]
+    empty = d["empty_output"] if "empty_output" in d.columns else d["output"] == 0
+    d = d.assign(_empty=empty, _failure=d["failure"] & ~empty)
     cfg = _config_keys(d)
     g = d.groupby(["kind", "model", "method"], sort=False)
     n_cfg = g[cfg].apply(lambda x: len(x.drop_duplicates())) if cfg else g.size() * 0 + 1
@@ -155,7 +163,8 @@ def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
         "recall* (%)": 100 * g["recall_star"].mean(),
         "correct": g["correct"].mean(),
         "output": g["output"].mean(),
-        "failures": g["failure"].sum() / n_cfg,
+        "failures": g["_failure"].sum() / n_cfg,
+        "empty": g["_empty"].sum() / n_cfg,
         "time (s)": g["time_s"].mean(),
         "pairs": g["pair_id"].nunique(),
     })
@@ -186,7 +195,7 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True) ->
     kind/model cells are left blank, as in the paper's tables.
     """
     fmts = {"precision (%)": ".2f", "recall (%)": ".2f", "recall* (%)": ".2f", "correct": ".0f", "output": ".0f",
-            "failures": ".3g", "time (s)": ".3f", "pairs": ".0f", "n": ".0f"}
+            "failures": ".3g", "empty": ".3g", "time (s)": ".3f", "pairs": ".0f", "n": ".0f"}
     fmts.update(formats or {})
     names = list(table.index.names)
     head = names + list(table.columns)
@@ -221,10 +230,13 @@ def paper_table(setup: str | None = None) -> pd.DataFrame:
     """The paper's Tables 1-3 (Appendix "DTM evaluation"), transcribed: ``setup`` is ``"global"`` (Table 1),
     ``"baseline"`` (Table 2, SIFT+RootSIFT) or ``"best"`` (Table 3, HarrisZ+SOSNet); ``None`` gives all three
     with a ``setup`` column. Same layout as :func:`method_table` (kinds ``planar`` / ``nonplanar``, models
-    ``none`` / ``1sac``, the paper's 18 methods); ``time (s)`` is NaN where the paper prints "--"."""
+    ``none`` / ``1sac``, the paper's 18 methods); ``time (s)`` is NaN where the paper prints "--". The paper
+    does not count empty outputs apart: its ``failures`` are pairs without a correct match, empty outputs
+    included, and ``empty`` is NaN."""
     t = pd.read_csv(io.StringIO(_PAPER_TABLES_CSV))
     t = t.rename(columns={"precision": "precision (%)", "recall": "recall (%)", "recall_star": "recall* (%)",
                           "time_s": "time (s)"})
+    t.insert(list(t.columns).index("failures") + 1, "empty", np.nan)
     if setup is not None:
         if setup not in PAPER_GT_COUNTS:
             raise ValueError(f"setup must be one of {list(PAPER_GT_COUNTS)}, got {setup!r}")

@@ -9,6 +9,11 @@ method-D labels) is one row: ``ap`` against the setup's own correct candidates, 
 correct candidates of all setups of the sweep on the pair (the recall* reference). The mean of ``ap_star``
 over pairs is the mAP of the heat map of Fig. 5 (:func:`blob_map`).
 
+This is the one evaluation engine of the package: ``ctxmatch sweep`` (:func:`run_sweep`), ``ctxmatch eval``
+and :func:`ctxmatch_lib.pipeline.evaluate_dataset`, and the report notebooks
+(:func:`ctxmatch_lib.evalcache.evaluate_cached`) all plan units (:func:`plan_sweep`, :func:`plan_units`)
+and run them with :func:`run_units`.
+
 Work is split into **units**, one per (dataset, pair, feature configuration), each holding every blob
 setup, filter and model of the sweep for that pair. A unit's rows are written as one Parquet *part file*
 (temporary name, then ``os.replace``) named by the hash of everything the rows depend on, so
@@ -17,7 +22,11 @@ setup, filter and model of the sweep for that pair. A unit's rows are written as
   units whose part exists: no lost and no duplicated rows;
 * two sweeps sharing units (the two blob notebooks, the CLI and the benchmark) share their results;
 * the final table is the concatenation of the parts in the sweep's own order, whatever order the units
-  finished in, so serial, joblib and Dask runs give identical tables.
+  finished in, so serial, joblib and Dask runs give identical tables;
+* nothing is lost to one bad pair: an unreadable image, an image without keypoints, keypoints outside the
+  pair's (width, height), or a filter or model step that raises gives that pair (or that method) rows
+  with NaN metrics and an ``error`` naming the image and the reason, a ``RuntimeWarning``, and the run
+  goes on; such a unit's part is not written, so the next run tries it again.
 
 Cache layout under ``ctxmatch_lib._paths.cache_dir("sweep")`` (features are cached by
 :mod:`ctxmatch_lib.features` in its own folder)::
@@ -33,6 +42,7 @@ Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -44,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ._paths import atomic_path, write_parquet_atomic
+from ._validation import cumulative_distinct
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, blob_grid, combine_ratios, rank_candidates
 from .blob.overlap import ellipse_overlap_error
 from .datasets import load_dataset
@@ -58,23 +69,26 @@ __all__ = [
     "resolve_features",
     "resolve_blob_configs",
     "select_pairs",
+    "plan_units",
     "plan_sweep",
     "run_unit",
+    "run_units",
     "run_sweep",
+    "source_digest",
     "blob_map",
     "heatmap_matrix",
     "write_parquet_atomic",
 ]
 
 # Bump when the rows or the cached intermediates change meaning: old parts and caches are then ignored.
-_SWEEP_FORMAT = 2
+_SWEEP_FORMAT = 3
 
 #: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
 SWEEP_COLUMNS = (
     "dataset", "pair_id", "kind", "features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind",
     "combine", "method", "model", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
-    "correct_norm", "output", "failure", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star",
-    "gt_method",
+    "correct_norm", "output", "failure", "empty_output", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates",
+    "n_gt", "n_gt_star", "gt_method", "error",
 )
 
 _INT_COLUMNS = ("f_prime", "correct", "correct_norm", "output", "n_kpts1", "n_kpts2", "n_candidates", "n_gt",
@@ -91,7 +105,7 @@ def resolve_features(features) -> dict[str, FeatureConfig]:
     Returns
     -------
     dict of str -> FeatureConfig
-        In the given order; a bare config is named by its ``key()``.
+        In the given order; a bare config is named by the preset it equals, else by its ``key()``.
     """
     if isinstance(features, (str, FeatureConfig)):
         features = [features]
@@ -104,6 +118,8 @@ def resolve_features(features) -> dict[str, FeatureConfig]:
             name, f = name or f, FEATURE_PRESETS[f]
         elif not isinstance(f, FeatureConfig):
             raise ValueError(f"features must hold preset names or FeatureConfig, got {type(f).__name__}")
+        else:
+            name = name or next((k for k, v in FEATURE_PRESETS.items() if v == f), None)
         out[name or f.key()] = f
     if not out:
         raise ValueError("features must name at least one feature configuration")
@@ -140,38 +156,83 @@ def resolve_blob_configs(blobs) -> list[BlobConfig]:
     return out
 
 
-def select_pairs(pairs: Sequence[Pair], select=None, *, kinds=None) -> list[Pair]:
-    """A reproducible subset of ``pairs``.
+def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: Sequence[str] | None = None) \
+        -> list[Pair]:
+    """A reproducible subset of the pairs of ``dataset`` (the one pair selector of ``ctxmatch eval``,
+    ``ctxmatch sweep`` and the report notebooks).
 
     Parameters
     ----------
-    pairs : sequence of Pair
+    dataset : Dataset, sequence of Pair, str or list of str
+        Pairs, or a registered dataset name / custom folder (:func:`~ctxmatch_lib.datasets.load_dataset`),
+        or a list of names (their pairs concatenated, e.g. ``["planar", "nonplanar"]``).
     select : None, int or sequence of str
         ``None``: all; an int ``N``: ``N`` pairs evenly spread over the list (so every kind and sequence
-        of a dataset is represented), in list order; strings: those pair ids, in list order.
-    kinds : iterable of str, optional
+        of a dataset is represented), in list order; strings: those pair ids, in the given order.
+    step : int
+        Keep every ``step``-th pair of each kind (in dataset order; the first pair of each kind is kept).
+    kinds : str or iterable of str, optional
         Keep only these kinds (``"planar"``, ``"nonplanar"``, ``"depth"``) first.
+    pair_ids : sequence of str, optional
+        Same as strings in ``select``.
+
+    Returns
+    -------
+    list of Pair
+
+    Raises
+    ------
+    ValueError
+        Unknown pair ids, ``select`` < 1 or ``step`` < 1.
+
+    Examples
+    --------
+    >>> [p.pair_id for p in select_pairs("embedded", step=5, kinds=["planar"])]
+    ['planar/poster/1-2', 'planar/lab/1-2', 'planar/hubble/1-2']
     """
-    pairs = list(pairs)
+    import os
+
+    if isinstance(dataset, (str, os.PathLike)):
+        pairs = list(load_dataset(dataset))
+    else:
+        items = list(dataset)
+        if items and all(isinstance(d, (str, os.PathLike)) for d in items):
+            pairs = [p for d in items for p in load_dataset(d)]
+        else:
+            pairs = items
+    if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
+        raise ValueError(f"step must be >= 1, got {step!r}")
+    if pair_ids is not None:
+        if select is not None:
+            raise ValueError("give either select or pair_ids, not both")
+        select = list(pair_ids)
     if kinds is not None:
         kinds = {kinds} if isinstance(kinds, str) else set(kinds)
         pairs = [p for p in pairs if p.kind in kinds]
+    if isinstance(select, str) or (select is not None and not isinstance(select, (int, np.integer))):
+        wanted = [select] if isinstance(select, str) else list(select)
+        by_id = {p.pair_id: p for p in pairs}
+        unknown = [w for w in wanted if w not in by_id]
+        if unknown:
+            raise ValueError(f"unknown pair ids (pair_ids): {', '.join(map(str, unknown[:5]))}; "
+                             f"known: {', '.join(sorted(by_id)[:10])} ...")
+        return [by_id[w] for w in wanted]
+    if step > 1:
+        out, seen = [], {}
+        for p in pairs:
+            k = seen.get(p.kind, 0)
+            seen[p.kind] = k + 1
+            if k % step == 0:
+                out.append(p)
+        pairs = out
     if select is None:
         return pairs
-    if isinstance(select, (int, np.integer)) and not isinstance(select, bool):
-        if select < 1:
-            raise ValueError(f"pairs must be a positive number of pairs, got {select}")
-        if select >= len(pairs):
-            return pairs
-        idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(select))).astype(int))
-        return [pairs[i] for i in idx]
-    wanted = [select] if isinstance(select, str) else list(select)
-    known = {p.pair_id for p in pairs}
-    unknown = [w for w in wanted if w not in known]
-    if unknown:
-        raise ValueError(f"unknown pair ids: {', '.join(map(str, unknown[:5]))}")
-    wanted_set = set(wanted)
-    return [p for p in pairs if p.pair_id in wanted_set]
+    if isinstance(select, bool) or select < 1:
+        raise ValueError(f"pairs must be a positive number of pairs, got {select}")
+    if select >= len(pairs):
+        return pairs
+    idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(select))).astype(int))
+    return [pairs[i] for i in idx]
 
 
 def _check_names(filters, models) -> tuple[tuple, tuple]:
@@ -215,6 +276,22 @@ def _blob_record(cfg: BlobConfig) -> dict:
     return {"blob": cfg.label, "f": str(cfg.f), "prefilter": cfg.prefilter, "f_prime": cfg.f_prime,
             "ratio": cfg.ratio, "t_o": np.nan if cfg.t_o is None else float(cfg.t_o), "t_o_kind": cfg.t_o_kind,
             "combine": cfg.combine}
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-1 of the library source files that produce evaluation numbers (all of ``ctxmatch_lib`` but
+    ``plots/``, ``cli/``, ``report.py`` and ``evalcache.py``)."""
+    root = Path(__file__).resolve().parent
+    skip = {root / "report.py", root / "evalcache.py"}
+    h = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if path in skip or rel.parts[0] in ("plots", "cli"):
+            continue
+        h.update(str(rel).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 # ------------------------------------------------------------------------------------------ disk I/O
@@ -340,13 +417,6 @@ class _SweepContext(BlobContext):
 # ------------------------------------------------------------------------------------ average precision
 
 
-def _cumulative_distinct(values: np.ndarray, size: int) -> np.ndarray:
-    k = len(values)
-    first = np.full(size, k, np.int64)
-    np.minimum.at(first, values, np.arange(k))
-    return np.cumsum(first[values] == np.arange(k))
-
-
 def _ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
     """:func:`~ctxmatch_lib.metrics.average_precision` with a precomputed reference size, in O(K log K).
 
@@ -364,7 +434,7 @@ def _ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
     cnt = np.zeros(k, np.int64)
     if lab.any():
         r, c = rows[order][lab], cols[order][lab]
-        cnt[lab] = np.minimum(_cumulative_distinct(r, n), _cumulative_distinct(c, m)).astype(np.int64)
+        cnt[lab] = np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64)
         cnt = np.maximum.accumulate(cnt)
     dn = np.diff(np.r_[0, cnt])
     return float((prec * dn).sum() / den)
@@ -378,7 +448,11 @@ class SweepUnit:
     """One work unit: every blob setup, filter and model of a sweep on one pair with one feature config.
 
     ``key`` names its part file; it hashes the pair's images and ground truth and every setting the rows
-    depend on.
+    depend on. ``blob_names`` (optional, one per blob setup) is what the ``blob`` column shows instead of
+    the setup's label (``ctxmatch eval`` and the report notebooks show preset names); it is applied when
+    the rows are read, so it is not part of the key and parts are shared whatever the names. ``salt``
+    joins the key (``ctxmatch eval`` and the notebooks put :func:`source_digest` there, so that editing
+    the library invalidates their rows) and the keys of the cached candidate sets and filter masks.
     """
 
     dataset: str
@@ -394,37 +468,96 @@ class SweepUnit:
     model_threshold: float = 15.0
     seed: int = 0
     key: str = field(default="", compare=False)
+    blob_names: tuple = field(default=(), compare=False)
+    salt: str = ""
 
     def label(self) -> str:
-        return f"{self.dataset}/{self.pair.pair_id} [{self.features_name}]"
+        where = self.dataset or self.pair.dataset
+        return f"{where + '/' if where else ''}{self.pair.pair_id} [{self.features_name}]"
 
 
 def _unit_key(u: SweepUnit, pair_digest: str) -> str:
     return _sha1(
         _SWEEP_FORMAT, u.dataset, u.pair.dataset, u.pair.pair_id, pair_digest, u.features_name, u.features.key(),
         [c.kwargs() for c in u.blobs], u.filters, u.models, u.filter_params, u.gt_method, float(u.gt_threshold),
-        float(u.model_threshold), int(u.seed),
+        float(u.model_threshold), int(u.seed), u.salt,
     )
 
 
-def _candidate_sets(ctx_factory, keys, cache: Path | None, digest: str):
-    """G per candidate key, from the cache or from the context (then cached)."""
-    path = cache / "candidates" / f"{_sha1(_SWEEP_FORMAT, digest)}.npz" if cache is not None else None
+def _candidate_sets(ctx_factory, keys, cache: Path | None, digest: str, salt: str = ""):
+    """G per candidate key, with the seconds it took (descriptor distances + the set), from the cache or
+    from the context (then cached)."""
+    path = cache / "candidates" / f"{_sha1(_SWEEP_FORMAT, digest, salt)}.npz" if cache is not None else None
     stored = (_load_npz(path) if path is not None else None) or {}
     out, added = {}, False
     for key in keys:
         name = "{}_{}_{}".format(*key)
         if f"m_{name}" in stored:
-            out[key] = (stored[f"m_{name}"].astype(np.int64), stored[f"d_{name}"])
+            out[key] = (stored[f"m_{name}"].astype(np.int64), stored[f"d_{name}"], float(stored[f"t_{name}"]))
             continue
-        matches, dist = ctx_factory().candidates(*key)
-        out[key] = (matches, dist)
+        t0 = time.perf_counter()
+        ctx, t_ctx = ctx_factory()
+        matches, dist = ctx.candidates(*key)
+        # The context (all descriptor distances) serves every key; each key's time includes building it,
+        # as a standalone blob_matching call would.
+        t = time.perf_counter() - t0 + (t_ctx if t_ctx is not None else 0.0)
+        out[key] = (matches, dist, t)
         stored[f"m_{name}"] = matches.astype(np.int32)
         stored[f"d_{name}"] = dist
+        stored[f"t_{name}"] = np.float64(t)
         added = True
     if added and path is not None:
         _save_npz(path, stored)
     return out
+
+
+class PairError(RuntimeError):
+    """A pair that cannot be evaluated (unreadable image, no keypoints); the message names the image."""
+
+
+def _unit_features(unit: SweepUnit, feature_cache_dir):
+    """Features of both images, or :class:`PairError` naming the image that failed and why."""
+    from .features import extract_features
+
+    out = []
+    for which, image in (("image1", unit.pair.image1), ("image2", unit.pair.image2)):
+        try:
+            feats = extract_features(image, unit.features, cache_dir=feature_cache_dir)
+        except Exception as exc:  # any decoder or extractor failure is this pair's, not the run's
+            raise PairError(f"{which} {image}: cannot be read ({type(exc).__name__}: {exc})") from exc
+        if len(feats) == 0:
+            raise PairError(f"{which} {image}: 0 keypoints")
+        out.append(feats)
+    from .pipeline import check_pair_keypoints
+
+    try:
+        check_pair_keypoints(unit.pair, *out)
+    except ValueError as exc:
+        raise PairError(str(exc)) from exc
+    return out
+
+
+def _error_rows(unit: SweepUnit, message: str, n: int = 0, m: int = 0) -> list[dict]:
+    """Rows of a unit that could not be evaluated: NaN metrics, zero counts, ``error`` set."""
+    rows = []
+    for cfg in unit.blobs:
+        for method in ("blob", *unit.filters):
+            for model in unit.models:
+                rows.append(_error_row(unit, cfg, method, model, message, n, m))
+    return rows
+
+
+def _error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
+    pair = unit.pair
+    nan = float("nan")
+    row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
+           "features": unit.features_name, **_blob_record(cfg), "method": method, "model": model,
+           "precision": nan, "recall": nan, "recall_star": nan, "ap": nan, "ap_star": nan, "correct": 0,
+           "correct_norm": 0, "output": 0, "failure": False, "empty_output": False, "time_s": nan, "model_time_s": nan,
+           "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0, "n_gt_star": 0, "gt_method": unit.gt_method,
+           "error": message}
+    row.update(known)
+    return row
 
 
 def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
@@ -435,15 +568,22 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     blob score; the recall reference is the setup's correct candidates, recall* the union of the correct
     candidates of all setups of the unit.
 
+    Nothing raises for one pair's sake: an unreadable image or an image with 0 keypoints gives rows with
+    NaN metrics whose ``error`` names the image and the reason; a filter or model step that raises gives
+    such rows for that method (or method + model) only, and the other methods are evaluated as usual.
+
     ``cache_dir``: the sweep cache (``None``: the default; ``False``: no cache).
     """
     import pandas as pd
 
-    from .pipeline import label_candidates, pair_features, pair_seed, run_filter, run_model
+    from .pipeline import label_candidates, pair_seed, run_filter, run_model
 
     cache = None if cache_dir is False else _sweep_cache(cache_dir)
     pair = unit.pair
-    f1, f2 = pair_features(pair, unit.features, cache_dir=feature_cache_dir)
+    try:
+        f1, f2 = _unit_features(unit, feature_cache_dir)
+    except PairError as exc:
+        return _frame(pd, _error_rows(unit, str(exc)))
     n, m = len(f1), len(f2)
     digest = _features_digest(f1, f2)
     blobs = list(unit.blobs)
@@ -454,22 +594,22 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     state = {}
 
     def ctx():
-        if "ctx" not in state:
-            tables = (_overlap_table(f1, cache), _overlap_table(f2, cache)) if needs_overlap else None
-            state["ctx"] = _SweepContext(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes,
-                                         shapes2=f2.shapes, depth=depth, overlap_tables=tables)
-        return state["ctx"]
+        """The blob context and the seconds it took to build now (``None`` when it already existed)."""
+        if "ctx" in state:
+            return state["ctx"], None
+        t0 = time.perf_counter()
+        tables = (_overlap_table(f1, cache), _overlap_table(f2, cache)) if needs_overlap else None
+        state["ctx"] = _SweepContext(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes,
+                                     shapes2=f2.shapes, depth=depth, overlap_tables=tables)
+        return state["ctx"], time.perf_counter() - t0
 
-    if n == 0 or m == 0:
-        cands = {k: (np.empty((0, 2), np.int64), np.empty(0)) for k in cand_keys}
-    else:
-        cands = _candidate_sets(ctx, cand_keys, cache, digest)
+    cands = _candidate_sets(ctx, cand_keys, cache, digest, unit.salt)
 
     # Labels depend on the match only: label the union of all candidate sets once.
     union = np.unique(np.concatenate([c[0] for c in cands.values()] + [np.empty((0, 2), np.int64)]), axis=0)
     union_lab = label_candidates(pair, f1, f2, union, method=unit.gt_method, threshold=unit.gt_threshold)
     sets = {}
-    for key, (matches, dist) in cands.items():
+    for key, (matches, dist, t_cand) in cands.items():
         # Candidates ordered by (row, column): a stable sort by score then reproduces blob_matching's
         # order (score, row, column), hence the same tie-break in the AP and for the filters.
         base = np.lexsort((matches[:, 1], matches[:, 0]))
@@ -479,7 +619,7 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
             lab = union_lab[pos]
         else:
             lab = np.zeros(0, bool)
-        sets[key] = (mt, dt, lab, normalised_count(mt[lab]))
+        sets[key] = (mt, dt, lab, normalised_count(mt[lab]), t_cand)
     ref_star = union[union_lab]
     n_gt_star = normalised_count(ref_star)
 
@@ -487,21 +627,29 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     fast = not unit.filters and unit.models == ("none",)
     masks, masks_added, mask_path = {}, False, None
     if unit.filters and cache is not None:
-        mask_path = cache / "filters" / f"{_sha1(_SWEEP_FORMAT, digest, unit.filters, unit.filter_params)}.npz"
+        # The salt (the library source digest for eval and the notebooks) keeps masks of edited filters out.
+        mask_key = _sha1(_SWEEP_FORMAT, digest, unit.filters, unit.filter_params, unit.salt)
+        mask_path = cache / "filters" / f"{mask_key}.npz"
         masks = _load_npz(mask_path) or {}
     rng_seed = pair_seed(unit.seed, pair.pair_id)
     base_row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
-                "features": unit.features_name, "n_kpts1": n, "n_kpts2": m, "gt_method": unit.gt_method}
+                "features": unit.features_name, "n_kpts1": n, "n_kpts2": m, "gt_method": unit.gt_method,
+                "error": ""}
 
     ranks: dict = {}
     rows = []
     for cfg in blobs:
-        mt, dt, lab, n_gt = sets[cfg.candidate_key]
+        mt, dt, lab, n_gt, t_cand = sets[cfg.candidate_key]
         rk = (cfg.candidate_key, cfg.ratio, cfg.t_o, cfg.t_o_kind)
         if rk not in ranks:
-            ranks[rk] = (rank_candidates(ctx(), mt, dt, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
-                         if len(mt) else (np.empty(0), np.empty(0)))
-        scores = combine_ratios(*ranks[rk], cfg.combine)
+            t0 = time.perf_counter()
+            ab = (rank_candidates(ctx()[0], mt, dt, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
+                  if len(mt) else (np.empty(0), np.empty(0)))
+            ranks[rk] = (ab, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        scores = combine_ratios(*ranks[rk][0], cfg.combine)
+        # The blob method's time: candidates, ratios and scores of this setup (Sec. 5.3's blob row).
+        t_blob = t_cand + ranks[rk][1] + time.perf_counter() - t0
         common = {**base_row, **_blob_record(cfg), "n_candidates": len(mt), "n_gt": n_gt, "n_gt_star": n_gt_star}
         if fast:
             correct = int(lab.sum())
@@ -511,13 +659,14 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                          "recall_star": n_gt / n_gt_star if n_gt_star else float("nan"),
                          "ap": _ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt, n, m),
                          "ap_star": _ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt_star, n, m),
-                         "correct": correct, "correct_norm": n_gt, "output": len(mt), "failure": correct == 0,
-                         "time_s": float("nan"), "model_time_s": float("nan")})
+                         "correct": correct, "correct_norm": n_gt, "output": len(mt),
+                         "failure": len(mt) > 0 and correct == 0, "empty_output": len(mt) == 0,
+                         "time_s": t_blob, "model_time_s": 0.0})
             continue
         order = np.argsort(scores, kind="stable")
         sm, ss, sl = mt[order], scores[order], lab[order]
         ref = sm[sl]
-        keeps = {"blob": (np.ones(len(sm), bool), float("nan"))}
+        keeps = {"blob": (np.ones(len(sm), bool), t_blob)}
         for name in unit.filters:
             mkey = f"{name}__{_sha1(cfg.kwargs())}"
             if mkey in masks:
@@ -527,14 +676,26 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                 keep, t = run_filter(name, f1, f2, sm, ss, image_size1=pair.image_size1,
                                      image_size2=pair.image_size2, blob_ratio=cfg.ratio,
                                      **filter_params.get(name, {}))
-            except Exception as exc:
-                raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
+            except Exception as exc:  # one filter failing on one pair is recorded, not fatal
+                keeps[name] = (f"filter {name!r} raised {type(exc).__name__}: {exc}", float("nan"))
+                continue
             keeps[name] = (keep, t)
             masks[mkey], masks[f"t_{mkey}"], masks_added = keep, np.float64(t), True
         for method, (keep, t_method) in keeps.items():
             for model in unit.models:
-                fit, t_model = run_model(model, f1, f2, sm[keep], ss[keep], pair_kind=pair.kind,
-                                         threshold=unit.model_threshold, rng=rng_seed)
+                if isinstance(keep, str):
+                    rows.append(_error_row(unit, cfg, method, model, keep, n, m, n_candidates=len(mt),
+                                           n_gt=n_gt, n_gt_star=n_gt_star))
+                    continue
+                try:
+                    fit, t_model = run_model(model, f1, f2, sm[keep], ss[keep], pair_kind=pair.kind,
+                                             threshold=unit.model_threshold, rng=rng_seed)
+                except Exception as exc:
+                    rows.append(_error_row(unit, cfg, method, model,
+                                           f"model {model!r} raised {type(exc).__name__}: {exc}", n, m,
+                                           n_candidates=len(mt), n_gt=n_gt, n_gt_star=n_gt_star,
+                                           time_s=t_method))
+                    continue
                 final = keep.copy()
                 final[np.flatnonzero(keep)] = fit.keep
                 mm = evaluate_matches(sm[final], sl[final], reference=ref, reference_star=ref_star,
@@ -543,7 +704,8 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
                              "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
                              "ap_star": average_precision(sm[final], sl[final], ss[final], ref_star),
                              "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
-                             "failure": mm.failure, "time_s": mm.time_s, "model_time_s": t_model})
+                             "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
+                             "model_time_s": t_model})
     if masks_added and mask_path is not None:
         _save_npz(mask_path, masks)
     return _frame(pd, rows)
@@ -551,13 +713,76 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
 
 def _frame(pd, rows):
     df = pd.DataFrame(rows, columns=list(SWEEP_COLUMNS))
-    return df.astype({**{c: "int64" for c in _INT_COLUMNS}, "failure": "bool", "t_o": "float64",
+    return df.astype({**{c: "int64" for c in _INT_COLUMNS}, "failure": "bool", "empty_output": "bool", "t_o": "float64",
                       "precision": "float64", "recall": "float64", "recall_star": "float64", "ap": "float64",
-                      "ap_star": "float64",
-                      "time_s": "float64", "model_time_s": "float64"})
+                      "ap_star": "float64", "time_s": "float64", "model_time_s": "float64", "error": "str"})
 
 
 # ----------------------------------------------------------------------------------------- the sweep
+
+
+def _check_settings(*, features, blobs, filters, models, gt_method, gt_threshold, model_threshold,
+                    filter_params, seed, max_keypoints) -> dict:
+    """Validate every setting of an evaluation before any work; returns them resolved."""
+    if gt_method not in GT_METHODS:
+        raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
+    for name, value in (("gt_threshold", gt_threshold), ("model_threshold", model_threshold)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float, np.number)) and math.isfinite(value)
+                                           and value > 0):
+            raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if max_keypoints is not None and (isinstance(max_keypoints, bool) or max_keypoints < 0
+                                      or not isinstance(max_keypoints, (int, np.integer))):
+        raise ValueError(f"max_keypoints must be a non-negative integer, got {max_keypoints!r}")
+    feats = resolve_features(features)
+    if max_keypoints is not None:
+        from dataclasses import replace
+
+        feats = {k: replace(v, max_keypoints=int(max_keypoints)) for k, v in feats.items()}
+    if isinstance(blobs, Mapping):
+        names, blob_cfgs = tuple(blobs), tuple(blobs.values())
+        for b in blob_cfgs:
+            if not isinstance(b, BlobConfig):
+                raise ValueError(f"blobs must map names to BlobConfig, got {type(b).__name__}")
+    else:
+        blob_cfgs, names = tuple(resolve_blob_configs(blobs)), ()
+    filters, models = _check_names(tuple(filters), tuple(models))
+    params = dict(filter_params or {})
+    unknown = sorted(set(params) - set(filters))
+    if unknown:
+        raise ValueError(f"filter_params names filters not in the sweep: {', '.join(unknown)}")
+    fparams = tuple((k, json.dumps(params[k], sort_keys=True)) for k in filters if k in params)
+    return dict(feats=feats, blobs=blob_cfgs, blob_names=names, filters=filters, models=models, fparams=fparams,
+                gt_method=gt_method, gt_threshold=float(gt_threshold), model_threshold=float(model_threshold),
+                seed=int(seed))
+
+
+def _units(dataset_name, pairs, st, salt: str = "") -> list[SweepUnit]:
+    return [SweepUnit(str(dataset_name), pair, fname, fcfg, st["blobs"], st["filters"], st["models"], st["fparams"],
+                      st["gt_method"], st["gt_threshold"], st["model_threshold"], st["seed"],
+                      blob_names=st["blob_names"], salt=salt)
+            for fname, fcfg in st["feats"].items() for pair in pairs]
+
+
+def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(), models=("none",),
+               gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX, model_threshold: float = 15.0,
+               filter_params: Mapping[str, dict] | None = None, seed: int = 0,
+               max_keypoints: int | None = None, salt: str = "") -> list[SweepUnit]:
+    """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
+
+    The arguments are those of :func:`run_sweep`; ``blobs`` may also be a dict name -> ``BlobConfig``
+    (:func:`ctxmatch_lib.pipeline.resolve_blobs`), whose names then fill the ``blob`` column; ``salt``
+    joins the units' keys (see :class:`SweepUnit`). Every argument is validated here, before any work.
+    """
+    st = _check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
+                         gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
+                         seed=seed, max_keypoints=max_keypoints)
+    pairs = list(pairs)
+    for p in pairs:
+        if not isinstance(p, Pair):
+            raise ValueError(f"pairs must hold Pair objects, got {type(p).__name__}")
+    return _units("", pairs, st, salt)
 
 
 def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
@@ -568,23 +793,9 @@ def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", f
 
     Every argument is validated here, before any work; see :func:`run_sweep` for their meaning.
     """
-    if gt_method not in GT_METHODS:
-        raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
-    for name, value in (("gt_threshold", gt_threshold), ("model_threshold", model_threshold)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
-    feats = resolve_features(features)
-    if max_keypoints is not None:
-        from dataclasses import replace
-
-        feats = {k: replace(v, max_keypoints=max_keypoints) for k, v in feats.items()}
-    blob_cfgs = tuple(resolve_blob_configs(blobs))
-    filters, models = _check_names(tuple(filters), tuple(models))
-    params = dict(filter_params or {})
-    unknown = sorted(set(params) - set(filters))
-    if unknown:
-        raise ValueError(f"filter_params names filters not in the sweep: {', '.join(unknown)}")
-    fparams = tuple((k, json.dumps(params[k], sort_keys=True)) for k in filters if k in params)
+    st = _check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
+                         gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
+                         seed=seed, max_keypoints=max_keypoints)
     if isinstance(datasets, str):
         datasets = [d.strip() for d in datasets.split(",") if d.strip()]
     datasets = list(datasets)
@@ -596,11 +807,7 @@ def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", f
         chosen = select_pairs(ds.pairs, pairs, kinds=kinds)
         if not chosen:
             raise ValueError(f"no pairs of dataset {ds_name!r} left after selecting pairs={pairs!r}, kinds={kinds!r}")
-        for fname, fcfg in feats.items():
-            for pair in chosen:
-                u = SweepUnit(str(ds_name), pair, fname, fcfg, blob_cfgs, filters, models, fparams, gt_method,
-                              float(gt_threshold), float(model_threshold), int(seed))
-                units.append(u)
+        units.extend(_units(ds_name, chosen, st))
     return units
 
 
@@ -612,7 +819,11 @@ def _keyed(units: list[SweepUnit]) -> list[SweepUnit]:
     for u in units:
         pid = (u.pair.image1, u.pair.image2, u.pair.pair_id, u.pair.dataset)
         if pid not in digests:
-            digests[pid] = _pair_digest(u.pair)
+            try:
+                digests[pid] = _pair_digest(u.pair)
+            except OSError as exc:
+                # A missing or unreadable file: the unit runs (and reports it), its part is never written.
+                digests[pid] = f"unreadable:{exc}"
         out.append(replace(u, key=_unit_key(u, digests[pid])))
     return out
 
@@ -639,6 +850,126 @@ def _connect_dask(dask):
         return Client(dask, timeout="20s"), True
     except OSError as exc:
         raise ConnectionError(f"cannot reach the Dask scheduler at {dask}: {exc}") from exc
+
+
+def _check_runner(n_jobs, dask):
+    if isinstance(n_jobs, bool) or not isinstance(n_jobs, (int, np.integer)) or n_jobs == 0 or n_jobs < -1:
+        raise ValueError(f"n_jobs must be a positive int or -1, got {n_jobs!r}")
+    if dask is not None and n_jobs != 1:
+        raise ValueError("give either n_jobs (local processes) or dask (a cluster), not both")
+
+
+def _named(df, unit: SweepUnit):
+    """The unit's rows with its ``blob_names`` in the ``blob`` column."""
+    if unit.blob_names:
+        labels = {c.label: name for c, name in zip(unit.blobs, unit.blob_names)}
+        df = df.assign(blob=df["blob"].map(labels).fillna(df["blob"]))
+    return df
+
+
+def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=None, n_jobs: int = 1, dask=None,
+              progress: bool = True, recompute: bool = False, desc: str = "ctxmatch sweep"):
+    """Run (or resume) work units and return their rows, in the units' order (:data:`SWEEP_COLUMNS`).
+
+    The one evaluation engine behind :func:`run_sweep`, ``ctxmatch eval``
+    (:func:`ctxmatch_lib.pipeline.evaluate_dataset`) and the report notebooks
+    (:func:`ctxmatch_lib.evalcache.evaluate_cached`).
+
+    Each finished unit is written as one Parquet part under ``<cache_dir>/results`` (atomically), so a
+    run killed at any moment resumes with no lost and no duplicated rows. A unit whose rows carry an
+    ``error`` (unreadable image, 0 keypoints, a filter or model step that raised) is reported with a
+    ``RuntimeWarning`` naming the pair, the image and the reason; its rows are returned but its part is
+    not written, so the next run tries it again. The other units go on.
+
+    Parameters
+    ----------
+    units : sequence of SweepUnit
+        From :func:`plan_sweep` or :func:`plan_units`.
+    cache_dir : path, None or False
+        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``False``: no cache at
+        all (nothing read, nothing written).
+    feature_cache_dir : path, optional
+        The feature cache (default: that of :mod:`ctxmatch_lib.features`).
+    n_jobs, dask, progress, recompute
+        As in :func:`run_sweep`; ``desc`` is the progress bar's title.
+    """
+    import warnings
+
+    import pandas as pd
+    from tqdm.auto import tqdm
+
+    _check_runner(n_jobs, dask)
+    units = _keyed(list(units))
+    if not units:
+        return _frame(pd, [])
+    use_cache = cache_dir is not False
+    if use_cache:
+        cache = _sweep_cache(cache_dir)
+        parts_dir = cache / "results"
+        parts_dir.mkdir(parents=True, exist_ok=True)
+        part = {u.key: parts_dir / f"{u.key}.parquet" for u in units}
+        todo = list({u.key: u for u in units if recompute or not part[u.key].is_file()}.values())
+        cache_arg = cache if cache_dir is not None else None
+    else:
+        part, cache_arg = {}, False
+        todo = list({u.key: u for u in units}.values())
+    n_total = len({u.key for u in units})
+    in_memory: dict = {}
+    failed: list[str] = []
+
+    bar = tqdm(total=n_total, initial=n_total - len(todo), desc=desc, unit="pair", disable=not progress,
+               dynamic_ncols=True, smoothing=0.1)
+
+    def done(key, df):
+        errors = [e for e in dict.fromkeys(df["error"]) if e]
+        if errors or not use_cache:
+            in_memory[key] = df
+        else:
+            # One part per unit, written atomically: a kill leaves whole parts only.
+            write_parquet_atomic(df, part[key])
+        if errors:
+            pid = f"{df['dataset'].iloc[0]}/{df['pair_id'].iloc[0]}" if len(df) else key
+            for e in errors:
+                failed.append(f"{pid}: {e}")
+                msg = f"pair {pid}: {e}"
+                if progress:
+                    bar.write(f"warning: {msg}")
+                warnings.warn(msg, RuntimeWarning, stacklevel=3)
+        bar.update(1)
+
+    try:
+        if todo and dask is not None:
+            client, own = _connect_dask(dask)
+            try:
+                from distributed import as_completed
+
+                bar.set_postfix_str(f"{len(todo)} pairs on the cluster", refresh=True)
+                futures = [client.submit(_unit_task, u, cache_arg, feature_cache_dir, pure=False) for u in todo]
+                for fut in as_completed(futures):
+                    key, df, _ = fut.result()
+                    done(key, df)
+            finally:
+                if own:
+                    client.close()
+        elif todo and n_jobs != 1 and len(todo) > 1:
+            from joblib import Parallel, delayed
+
+            bar.set_postfix_str(f"{len(todo)} pairs on {n_jobs if n_jobs > 0 else 'all'} workers", refresh=True)
+            par = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
+            for key, df, _ in par(delayed(_unit_task)(u, cache_arg, feature_cache_dir) for u in todo):
+                done(key, df)
+        else:
+            for u in todo:
+                # Named before it runs: the bar shows the pair in progress.
+                bar.set_postfix_str(u.label(), refresh=True)
+                key, df, _ = _unit_task(u, cache_arg, feature_cache_dir)
+                done(key, df)
+    finally:
+        bar.set_postfix_str("", refresh=False)
+        bar.close()
+
+    frames = [_named(in_memory[u.key] if u.key in in_memory else pd.read_parquet(part[u.key]), u) for u in units]
+    return pd.concat(frames, ignore_index=True)
 
 
 def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
@@ -679,7 +1010,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     out : path, optional
         Also write the table to this Parquet file (atomically), with the sweep settings as metadata.
     progress : bool
-        A tqdm bar over the units, with ETA, on stderr.
+        A tqdm bar over the units, with ETA, on stderr; it names the pair in progress.
     recompute : bool
         Ignore (and overwrite) the existing result parts of this sweep.
 
@@ -687,65 +1018,19 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     -------
     pandas.DataFrame
         One row per (pair, features, blob setup, method, model), in the sweep's order whatever the order
-        in which units finished: identical for serial, joblib and Dask runs, and for a resumed run.
+        in which units finished: identical for serial, joblib and Dask runs, and for a resumed run. A pair
+        that could not be evaluated has rows with NaN metrics and a non-empty ``error`` (see
+        :func:`run_units`).
     """
-    import pandas as pd
-    from tqdm import tqdm
-
-    if isinstance(n_jobs, bool) or not isinstance(n_jobs, (int, np.integer)) or n_jobs == 0 or n_jobs < -1:
-        raise ValueError(f"n_jobs must be a positive int or -1, got {n_jobs!r}")
-    if dask is not None and n_jobs != 1:
-        raise ValueError("give either n_jobs (local processes) or dask (a cluster), not both")
+    _check_runner(n_jobs, dask)
     if out is not None and Path(out).suffix.lower() != ".parquet":
         raise ValueError(f"out must be a .parquet file, got {out}")
-    units = _keyed(plan_sweep(datasets, features=features, blobs=blobs, filters=filters, models=models,
-                              pairs=pairs, kinds=kinds, gt_method=gt_method, gt_threshold=gt_threshold,
-                              model_threshold=model_threshold, filter_params=filter_params, seed=seed,
-                              max_keypoints=max_keypoints, data_root=data_root))
-    cache = _sweep_cache(cache_dir)
-    parts_dir = cache / "results"
-    parts_dir.mkdir(parents=True, exist_ok=True)
-    part = {u.key: parts_dir / f"{u.key}.parquet" for u in units}
-    todo = list({u.key: u for u in units if recompute or not part[u.key].is_file()}.values())
-    cache_arg = cache if cache_dir is not None else None
-
-    bar = tqdm(total=len(part), initial=len(part) - len(todo), desc="ctxmatch sweep", unit="pair",
-               disable=not progress, dynamic_ncols=True, smoothing=0.1)
-
-    def done(key, df):
-        # One part per unit, written atomically: a kill leaves whole parts only.
-        write_parquet_atomic(df, part[key])
-        bar.update(1)
-
-    try:
-        if todo and dask is not None:
-            client, own = _connect_dask(dask)
-            try:
-                from distributed import as_completed
-
-                futures = [client.submit(_unit_task, u, cache_arg, feature_cache_dir, pure=False) for u in todo]
-                for fut in as_completed(futures):
-                    key, df, _ = fut.result()
-                    done(key, df)
-            finally:
-                if own:
-                    client.close()
-        elif todo and n_jobs != 1 and len(todo) > 1:
-            from joblib import Parallel, delayed
-
-            par = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
-            for key, df, _ in par(delayed(_unit_task)(u, cache_arg, feature_cache_dir) for u in todo):
-                done(key, df)
-        else:
-            for u in todo:
-                bar.set_postfix_str(u.label(), refresh=False)
-                key, df, _ = _unit_task(u, cache_arg, feature_cache_dir)
-                done(key, df)
-    finally:
-        bar.close()
-
-    frames = [pd.read_parquet(part[u.key]) for u in units]
-    df = pd.concat(frames, ignore_index=True) if frames else _frame(pd, [])
+    units = plan_sweep(datasets, features=features, blobs=blobs, filters=filters, models=models,
+                       pairs=pairs, kinds=kinds, gt_method=gt_method, gt_threshold=gt_threshold,
+                       model_threshold=model_threshold, filter_params=filter_params, seed=seed,
+                       max_keypoints=max_keypoints, data_root=data_root)
+    df = run_units(units, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, n_jobs=n_jobs, dask=dask,
+                   progress=progress, recompute=recompute, desc="ctxmatch sweep")
     if out is not None:
         meta = {"datasets": datasets, "features": {u.features_name: u.features.key() for u in units},
                 "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),

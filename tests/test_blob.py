@@ -106,8 +106,8 @@ def _poly(c, A, k=256):
     return shapely.Polygon(c + np.stack([np.cos(t), np.sin(t)], 1) @ A.T)
 
 
-def ref_overlap_error(c1, A1, c2, A2):
-    p, q = _poly(c1, A1), _poly(c2, A2)
+def ref_overlap_error(c1, A1, c2, A2, k=256):
+    p, q = _poly(c1, A1, k), _poly(c2, A2, k)
     return 1 - p.intersection(q).area / p.union(q).area
 
 
@@ -414,8 +414,10 @@ def test_overlap_error_against_polygons():
     c2 = c1 + rng.normal(0, 6, (P, 2))
     A1, A2 = rng.normal(0, 4, (P, 2, 2)), rng.normal(0, 4, (P, 2, 2))
     err = ellipse_overlap_error(c1, A1, c2, A2)
-    ref = np.array([ref_overlap_error(c1[k], A1[k], c2[k], A2[k]) for k in range(P)])
-    assert np.max(np.abs(err - ref)) < 0.01
+    ref = np.array([ref_overlap_error(c1[k], A1[k], c2[k], A2[k], k=2048) for k in range(P)])
+    # The documented bound is 0.01; the equal-area 32-gons do far better.
+    assert np.max(np.abs(err - ref)) < 1e-3
+    assert (err[np.abs(err - 1) > 1e-12] < 1).all() and (err >= 0).all()
     same = ellipse_overlap_error(c1, A1, c1, A1)
     assert np.allclose(same, 0, atol=1e-9)
 

@@ -14,7 +14,7 @@ from scipy.ndimage import map_coordinates
 from ctxmatch_lib.datasets import (
     Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, list_datasets, load_dataset, write_custom_dataset,
 )
-from ctxmatch_lib.datasets._io import fit_fundamental
+from ctxmatch_lib.datasets._io import fundamental_from_hand_points
 from ctxmatch_lib.datasets.download import download_dataset
 from ctxmatch_lib.features import load_image
 
@@ -324,7 +324,7 @@ def test_real_loader_without_data(monkeypatch, tmp_path):
 @pytest.mark.parametrize("n", [7, 8, 12])
 def test_fit_fundamental_exact(n):
     p1, p2, F_true = camera_pair(n, np.random.default_rng(n))
-    F = fit_fundamental(p1, p2)
+    F = fundamental_from_hand_points(p1, p2)
     assert epipolar_distance(F, p1, p2).max() < 1e-6
     # Also right on points it was not fitted to (for n = 7 the root choice must be the true one).
     q1, q2, _ = camera_pair(50, np.random.default_rng(100 + n))
@@ -334,12 +334,12 @@ def test_fit_fundamental_exact(n):
 def test_fit_fundamental_noisy_and_bad_input():
     rng = np.random.default_rng(5)
     p1, p2, _ = camera_pair(14, rng)
-    F = fit_fundamental(p1 + rng.normal(0, 0.5, p1.shape), p2 + rng.normal(0, 0.5, p2.shape))
+    F = fundamental_from_hand_points(p1 + rng.normal(0, 0.5, p1.shape), p2 + rng.normal(0, 0.5, p2.shape))
     assert np.median(epipolar_distance(F, p1, p2)) < 1.5
     with pytest.raises(ValueError, match="at least 7"):
-        fit_fundamental(p1[:6], p2[:6])
+        fundamental_from_hand_points(p1[:6], p2[:6])
     with pytest.raises(ValueError, match="same length"):
-        fit_fundamental(p1, p2[:9])
+        fundamental_from_hand_points(p1, p2[:9])
 
 
 # ---------------------------------------------------------------------------------------- real data

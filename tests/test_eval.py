@@ -96,7 +96,8 @@ def test_evaluate_pair_without_correct_candidates_and_without_keypoints():
     empty = (Features.empty(), Features.empty())
     df = pd.DataFrame(evaluate_pair(pair, filters=["test-first-half"], models=["none", "1sac"],
                                     precomputed_features=empty).rows)
-    assert len(df) == 4 and (df.output == 0).all() and df.failure.all()
+    # No keypoints: every output is empty, which is reported as empty, not as a failure.
+    assert len(df) == 4 and (df.output == 0).all() and df.empty_output.all() and not df.failure.any()
 
 
 def test_pipeline_rejects_bad_names():
@@ -117,13 +118,26 @@ def test_summary_table_means_and_order():
         "method": ["blob", "dtm", "blob", "dtm"], "model": "none",
         "precision": [0.5, 1.0, 0.3, float("nan")], "recall": [1.0, 0.5, 1.0, 0.0], "recall_star": 1.0,
         "ap": [0.5, 0.4, 0.7, 0.0], "correct": [10, 5, 6, 0], "output": [20, 5, 20, 0],
-        "failure": [False, False, False, True], "time_s": [0.1, 0.2, 0.1, 0.2],
+        "correct_norm": [9, 5, 6, 0], "failure": [False, False, False, False],
+        "empty_output": [False, False, False, True], "time_s": [0.1, 0.2, 0.1, 0.2],
+        "model_time_s": [0.01, 0.02, 0.03, 0.04], "error": "",
     })
     t = summary_table(df)
     assert list(t.index.get_level_values("method")) == ["blob", "dtm"]
-    assert t.loc[("planar", "dtm", "none"), "failures"] == 1
-    assert t.loc[("planar", "blob", "none"), "precision"] == pytest.approx(40.0)
-    assert t.loc[("planar", "dtm", "none"), "recall"] == pytest.approx(25.0)
+    assert list(t.columns) == ["pairs", "precision_pct", "recall_pct", "recall_star_pct", "mAP_pct", "correct",
+                               "correct_norm", "output", "failures", "empty_outputs", "time_s", "model_time_s",
+                               "errors"]
+    assert t.loc[("planar", "dtm", "none"), "failures"] == 0
+    assert t.loc[("planar", "dtm", "none"), "empty_outputs"] == 1
+    assert t.loc[("planar", "blob", "none"), "precision_pct"] == pytest.approx(40.0)
+    assert t.loc[("planar", "dtm", "none"), "recall_pct"] == pytest.approx(25.0)
+    assert t.loc[("planar", "blob", "none"), "correct_norm"] == pytest.approx(7.5)
+    assert t.loc[("planar", "blob", "none"), "model_time_s"] == pytest.approx(0.02)
+    # A row that could not be evaluated is counted under errors and left out of the means.
+    bad = pd.concat([df, df.iloc[[0]].assign(pair_id="c", precision=float("nan"), error="image1 x.png: 0 keypoints")])
+    tb = summary_table(bad)
+    assert tb.loc[("planar", "blob", "none"), "errors"] == 1 and tb.loc[("planar", "blob", "none"), "pairs"] == 2
+    assert tb.loc[("planar", "blob", "none"), "precision_pct"] == pytest.approx(40.0)
     assert summary_table(df.iloc[:0]).empty
 
 
@@ -240,3 +254,204 @@ def test_evaluate_dataset_with_dtm_on_tiny_dataset(tiny_dataset, tmp_path, monke
     dtm = df[(df.method == "dtm") & (df.model == "none")]
     blob = df[(df.method == "blob") & (df.model == "none")]
     assert len(dtm) == 2 and (dtm.precision.values >= blob.precision.values).all()
+
+
+# ------------------------------------------------------------------------------ nothing lost, one engine
+
+
+@register_filter("test-raises")
+def _raises(kpts1, kpts2, matches, scores, *, image_size1, image_size2, shapes1=None, shapes2=None):
+    """A filter that fails on every pair whose first keypoint lies in the left half (the plumbing test)."""
+    raise RuntimeError("deliberate failure")
+
+
+@pytest.fixture
+def broken_dataset(tiny_dataset, tmp_path):
+    """The tiny dataset plus a pair with a truncated PNG and a pair whose image has no keypoints."""
+    import shutil
+
+    import cv2
+
+    root = tmp_path / "broken"
+    shutil.copytree(tiny_dataset, root)
+    data = (root / "p2.png").read_bytes()
+    (root / "cut.png").write_bytes(data[: len(data) // 2])
+    cv2.imwrite(str(root / "flat.png"), np.full((240, 320), 128, np.uint8))
+    with open(root / "pairs.csv", "a") as fh:
+        fh.write("truncated,p1.png,cut.png,planar,H.txt,\nflat,flat.png,p2.png,planar,H.txt,\n")
+    return root
+
+
+def test_cli_eval_keeps_going_past_broken_pairs(broken_dataset, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r.parquet"
+    rc = _cli(["--dataset", str(broken_dataset), "--filters", "th,test-raises", "--model", "none,1sac",
+               "--max-keypoints", "600", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    df = pd.read_parquet(out)
+    # Every pair is in the output; the good ones are evaluated, the broken ones say why.
+    assert set(df.pair_id) == {"warp", "layers", "truncated", "flat"}
+    good = df[df.pair_id.isin(["warp", "layers"]) & (df.method != "test-raises")]
+    assert (good.error == "").all() and good.precision.notna().all()
+    raised = df[(df.method == "test-raises") & df.pair_id.isin(["warp", "layers"])]
+    assert raised.error.str.contains("filter 'test-raises' raised RuntimeError: deliberate failure").all()
+    assert raised.precision.isna().all()
+    cut = df[df.pair_id == "truncated"].error.unique()
+    assert len(cut) == 1 and "image2" in cut[0] and "cut.png" in cut[0] and "cannot be read" in cut[0]
+    flat = df[df.pair_id == "flat"].error.unique()
+    assert len(flat) == 1 and "image1" in flat[0] and "flat.png" in flat[0] and "0 keypoints" in flat[0]
+    err = capsys.readouterr().err
+    assert "truncated" in err and "cut.png" in err and "flat.png: 0 keypoints" in err
+    # Finished pairs are kept as parts; failed ones are not, so the next run tries them again.
+    parts = list((tmp_path / "cache" / "sweep" / "results").glob("*.parquet"))
+    assert len(parts) == 0  # both good pairs carry the test-raises error rows
+
+
+def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+
+    with pytest.warns(RuntimeWarning, match=r"flat: image1 .*flat\.png: 0 keypoints"):
+        df = evaluate_dataset(load_dataset(str(broken_dataset)), progress=False, results_dir=tmp_path / "res",
+                              cache_dir=tmp_path / "feat", features=FeatureConfig(max_keypoints=600),
+                              filters=["th"], models=["none"])
+    assert set(ROW_COLUMNS) <= set(df.columns)
+    assert (df.loc[df.pair_id.isin(["warp", "layers"]), "error"] == "").all()
+    assert len(list((tmp_path / "res" / "results").glob("*.parquet"))) == 2  # the two good pairs
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--gt-threshold", "-1"], "--gt-threshold must be a positive number"),
+    (["--model-threshold", "0"], "--model-threshold must be a positive number"),
+    (["--gt-threshold", "nan"], "--gt-threshold"),
+    (["--max-keypoints", "-5"], "--max-keypoints"),
+    (["--seed", "-1"], "--seed"),
+    (["--limit", "0"], "--limit"),
+])
+def test_cli_eval_validates_before_any_work(tiny_dataset, tmp_path, monkeypatch, capsys, argv, message):
+    import ctxmatch_lib.features as features
+
+    monkeypatch.setattr(features, "_extract", lambda *a, **k: pytest.fail("features computed for bad arguments"))
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    assert _cli(["--dataset", str(tiny_dataset), "--out", str(tmp_path / "r.parquet"), "--no-progress", *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "r.parquet").exists()
+
+
+def test_cli_eval_accepts_dtm_stages_and_prints_units(tiny_dataset, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r.parquet"
+    assert _cli(["--dataset", str(tiny_dataset), "--filters", "dtm1,dtm2", "--model", "none", "--limit", "1",
+                 "--max-keypoints", "600", "--out", str(out), "--no-progress"]) == 0
+    df = pd.read_parquet(out)
+    assert set(df.method) == {"blob", "dtm1", "dtm2"} and (df.error == "").all()
+    assert df.precision.between(0, 1).all()  # fractions in the file
+    text = capsys.readouterr().out
+    for col in ("precision_pct", "recall_pct", "correct_norm", "model_time_s", "failures", "empty_outputs"):
+        assert col in text
+
+
+def test_output_files_honour_the_umask(tiny_dataset, tmp_path, monkeypatch):
+    import os
+    import stat
+
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r.parquet"
+    old = os.umask(0o022)
+    try:
+        assert _cli(["--dataset", str(tiny_dataset), "--filters", "th", "--model", "none", "--limit", "1",
+                     "--max-keypoints", "600", "--out", str(out), "--no-progress"]) == 0
+        os.umask(0o027)
+        out2 = tmp_path / "r2.parquet"
+        assert _cli(["--dataset", str(tiny_dataset), "--filters", "th", "--model", "none", "--limit", "1",
+                     "--max-keypoints", "600", "--out", str(out2), "--no-progress"]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644
+    assert stat.S_IMODE(out2.stat().st_mode) == 0o640
+    parts = list((tmp_path / "cache").rglob("*.parquet")) + list((tmp_path / "cache").rglob("*.npz"))
+    assert parts and all(stat.S_IMODE(p.stat().st_mode) == 0o644 for p in parts)
+
+
+def test_progress_bar_names_the_pair_in_progress(tiny_dataset, tmp_path, monkeypatch):
+    from ctxmatch_lib import sweep
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+
+    shown, seen = [], []
+    orig_set = __import__("tqdm").std.tqdm.set_postfix_str
+    monkeypatch.setattr(__import__("tqdm").std.tqdm, "set_postfix_str",
+                        lambda self, s="", refresh=True: shown.append(s) or orig_set(self, s, refresh))
+    orig = sweep.run_unit
+    monkeypatch.setattr(sweep, "run_unit", lambda unit, **kw: seen.append(shown[-1]) or orig(unit, **kw))
+    evaluate_dataset(load_dataset(str(tiny_dataset)), progress=True, results_dir=tmp_path,
+                     features=FeatureConfig(max_keypoints=300), filters=[], models=["none"])
+    # While each pair runs, the bar shows that pair (not the one before it).
+    assert [s.split("/")[-1].split(" ")[0] for s in seen] == ["warp", "layers"]
+
+
+def test_cli_eval_resumes_after_sigkill(tiny_dataset, tmp_path, monkeypatch):
+    """A real kill -9 of `ctxmatch eval` mid-run; the rerun completes it with no lost or duplicated row."""
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = tmp_path / "four"
+    shutil.copytree(tiny_dataset, root)
+    with open(root / "pairs.csv", "a") as fh:
+        fh.write("warp2,p2.png,p1.png,planar,H.txt,\nwarp3,p1.png,p2.png,planar,H.txt,\n"
+                 "layers2,p1.png,s2.png,nonplanar,hand.txt,F.txt\n")
+    argv = ["--dataset", str(root), "--filters", "th", "--model", "none,1sac", "--max-keypoints", "300",
+            "--no-progress"]
+    env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "killed"), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "ctxmatch_lib.cli", "eval", *argv, "--out",
+                             str(tmp_path / "a.parquet")], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    parts = tmp_path / "killed" / "sweep" / "results"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if parts.is_dir() and len(list(parts.glob("*.parquet"))) >= 1:
+            break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    n_parts = len(list(parts.glob("*.parquet")))
+    assert 1 <= n_parts <= 5
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "killed"))
+    assert _cli([*argv, "--out", str(tmp_path / "a.parquet")]) == 0
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "fresh"))
+    assert _cli([*argv, "--out", str(tmp_path / "b.parquet")]) == 0
+    resumed, fresh = pd.read_parquet(tmp_path / "a.parquet"), pd.read_parquet(tmp_path / "b.parquet")
+    keys = ["pair_id", "blob", "method", "model"]
+    assert not resumed.duplicated(keys).any() and len(resumed) == 5 * 2 * 2
+    drop = ["time_s", "model_time_s"]
+    pd.testing.assert_frame_equal(resumed.drop(columns=drop), fresh.drop(columns=drop))
+
+
+def test_keypoints_outside_the_image_size_are_rejected(tiny_dataset, tmp_path):
+    from ctxmatch_lib._validation import check_inside
+
+    pair, feats = _planted_pair()
+    swapped = Pair(pair.pair_id, pair.image1, pair.image2, (480, 640), pair.image_size2, "planar", pair.gt)
+    with pytest.raises(ValueError, match=r"\(width, height\) = \(480, 640\).*\(height, width\)"):
+        evaluate_pair(swapped, filters=[], precomputed_features=feats)
+    # Pixel centres: x in [-0.5, w - 0.5] is inside, beyond is not.
+    assert len(check_inside([[-0.5, -0.5], [639.5, 479.5]], (640, 480))) == 2
+    with pytest.raises(ValueError, match="kpts outside"):
+        check_inside([[639.6, 0.0]], (640, 480), "kpts outside")
+    assert check_inside(np.empty((0, 2)), (640, 480)).shape == (0, 2)
+    # In a dataset run the pair is reported (the convention in the message) and the run goes on.
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+
+    good = load_dataset(str(tiny_dataset)).pairs[0]
+    bad = Pair("swapped", good.image1, good.image2, good.image_size1[::-1], good.image_size2, good.kind, good.gt,
+               dataset=good.dataset)
+    with pytest.warns(RuntimeWarning, match="swapped"):
+        df = evaluate_dataset([good, bad], progress=False, results_dir=tmp_path / "res", filters=[],
+                              models=["none"], features=FeatureConfig(max_keypoints=300))
+    assert (df.loc[df.pair_id == good.pair_id, "error"] == "").all()
+    assert df.loc[df.pair_id == "swapped", "error"].str.contains(r"\(width, height\) = \(240, 320\)").all()

@@ -248,3 +248,40 @@ def test_default_cache_location(tmp_path, gray, monkeypatch):
 def test_features_empty_constructor():
     f = Features.empty()
     assert len(f) == 0 and f.desc.dtype == np.float32
+
+
+def test_cache_key_includes_the_opencv_version(gray, tmp_path, monkeypatch):
+    import ctxmatch_lib.features as features
+    from ctxmatch_lib.features import feature_cache_path
+
+    cfg = FeatureConfig(max_keypoints=20)
+    here = feature_cache_path(gray, cfg, cache_dir=tmp_path)
+    extract_features(gray, cfg, cache_dir=tmp_path)
+    import cv2
+
+    assert here.is_file() and f"opencv-{cv2.__version__}" in here.parts
+    # Another OpenCV is another entry: the stored features are not served to it.
+    monkeypatch.setattr(features, "_opencv_version", lambda: "0.0.0-other")
+    other = feature_cache_path(gray, cfg, cache_dir=tmp_path)
+    assert other != here and not other.exists()
+
+
+def test_default_cache_is_the_users_cache_dir(tmp_path, monkeypatch):
+    from ctxmatch_lib._paths import cache_dir
+
+    monkeypatch.delenv("CTXMATCH_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir("features") == tmp_path / "xdg" / "ctxmatch" / "features"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert cache_dir() == tmp_path / "home" / ".cache" / "ctxmatch"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/path")  # invalid per the XDG spec: ignored
+    assert cache_dir() == tmp_path / "home" / ".cache" / "ctxmatch"
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "mine"))
+    assert cache_dir("sweep") == tmp_path / "mine" / "sweep" and (tmp_path / "mine" / "sweep").is_dir()
+    # Never the checkout by surprise.
+    from ctxmatch_lib._paths import repo_root
+
+    monkeypatch.delenv("CTXMATCH_CACHE")
+    if repo_root() is not None:
+        assert repo_root() not in cache_dir().parents

@@ -83,19 +83,21 @@ def test_average_precision_duplicates_add_no_area():
 
 def test_edge_cases_empty_output_and_no_ground_truth():
     mm = evaluate_matches(EMPTY, np.empty(0, bool), reference=FIG4_Z)
-    assert (mm.precision, mm.recall, mm.ap, mm.correct, mm.output, mm.failure) == (0.0, 0.0, 0.0, 0, 0, True)
+    # An empty output is reported as empty, not as a failure; it counts 0 in the precision and recall.
+    assert (mm.precision, mm.recall, mm.ap, mm.correct, mm.output, mm.failure, mm.empty_output) == \
+        (0.0, 0.0, 0.0, 0, 0, False, True)
     mm = evaluate_matches([[0, 0], [1, 1]], [False, False], reference=EMPTY)
-    assert mm.precision == 0.0 and mm.failure and mm.n_gt == 0
+    assert mm.precision == 0.0 and mm.failure and not mm.empty_output and mm.n_gt == 0
     assert math.isnan(mm.recall) and math.isnan(mm.recall_star) and math.isnan(mm.ap)
     mm = evaluate_matches(EMPTY, np.empty(0, bool), reference=EMPTY)
-    assert mm.output == 0 and mm.failure and math.isnan(mm.recall)
+    assert mm.output == 0 and mm.empty_output and not mm.failure and math.isnan(mm.recall)
 
 
 def test_evaluate_matches_recall_star_and_counts():
     union = ground_truth_union(FIG4_Z, np.array([[7, 7], [8, 8], [9, 9], [10, 10]]))
     out = np.array([[0, 0], [0, 1], [1, 1], [5, 6]])
     mm = evaluate_matches(out, [True, True, True, False], reference=FIG4_Z, reference_star=union, time_s=0.5)
-    assert mm.correct == 3 and mm.correct_norm == 2 and mm.output == 4 and not mm.failure
+    assert mm.correct == 3 and mm.correct_norm == 2 and mm.output == 4 and not mm.failure and not mm.empty_output
     assert mm.precision == 0.75 and mm.recall == 0.5 and mm.recall_star == 2 / 8
     assert mm.n_gt == 4 and mm.n_gt_star == 8 and mm.time_s == 0.5
     assert set(mm.as_dict()) >= {"precision", "recall", "recall_star", "correct", "output", "failure", "ap"}

@@ -77,6 +77,7 @@ def test_method_table_exact_values(frame):
     # p1 fails under both blob setups: 2 failures over 2 setups = 1 per setup.
     assert t.loc[("planar", "none", "dtm1"), "failures"] == pytest.approx(1.0)
     assert t.loc[("nonplanar", "none", "dtm1"), "failures"] == 0
+    assert (t["empty"] == 0).all()
     # Time only on the no-model rows, as the paper's "--".
     assert t.xs("1sac", level="model")["time (s)"].isna().all()
     assert t.xs("none", level="model")["time (s)"].notna().all()
@@ -86,6 +87,21 @@ def test_method_table_single_setup_counts_failures_plainly(frame):
     t = report.method_table(report.setup_rows(frame, "best"))
     assert t.loc[("planar", "1sac", "dtm1"), "failures"] == 1
     assert t.loc[("planar", "none", "blob"), "precision (%)"] == pytest.approx(15.0)
+
+
+def test_method_table_counts_empty_outputs_apart_and_skips_errors(frame):
+    # p2's dtm2 output is empty under both setups; n1 could not be evaluated for dtm1 under paper-best.
+    empty = (frame.pair_id == "p2") & (frame.method == "dtm2")
+    frame.loc[empty, ["output", "correct", "precision", "recall"]] = [0, 0, 0.0, 0.0]
+    frame["empty_output"] = empty
+    frame["error"] = ""
+    bad = (frame.pair_id == "n1") & (frame.method == "dtm1") & (frame.blob == "paper-best")
+    frame.loc[bad, ["error", "precision"]] = ["image1 n1.png: 0 keypoints", np.nan]
+    t = report.method_table(frame)
+    row = t.loc[("planar", "none", "dtm2")]
+    assert row["empty"] == 1 and row["failures"] == 0  # one per setup, not a failure
+    assert row["precision (%)"] == pytest.approx(40.0)  # (0.8 + 0) / 2: empty counts as 0 %
+    assert t.loc[("nonplanar", "none", "dtm1"), "precision (%)"] == pytest.approx(82.0)  # the error row is skipped
 
 
 def test_method_table_restrict_and_empty(frame):
@@ -202,19 +218,20 @@ def test_select_pairs():
 
 
 def test_evaluate_cached_reads_back(tmp_path, monkeypatch):
-    import ctxmatch_lib.pipeline as pipeline
+    from ctxmatch_lib import sweep
 
     pairs = select_pairs("embedded", pair_ids=["planar/poster/1-2"])
     kw = dict(blobs=["baseline"], filters=["th"], models=["none"], cache_dir=tmp_path)
     first = evaluate_cached(pairs, **kw)
-    assert set(first.columns) == {*ROW_COLUMNS, "features"}
+    assert list(first.columns) == list(sweep.SWEEP_COLUMNS) and set(ROW_COLUMNS) <= set(first.columns)
     assert set(first.method) == {"blob", "th"} and (first.features == "sift-rootsift").all()
-    assert len(list(tmp_path.glob("*.parquet"))) == 1
+    assert set(first.blob) == {"baseline"}  # preset names, as the report's SETUPS select them
+    assert len(list((tmp_path / "results").glob("*.parquet"))) == 1
 
     def boom(*args, **kwargs):
-        raise AssertionError("evaluate_pair called despite a cache hit")
+        raise AssertionError("run_unit called despite a cache hit")
 
-    monkeypatch.setattr(pipeline, "evaluate_pair", boom)
+    monkeypatch.setattr(sweep, "run_unit", boom)
     again = evaluate_cached(pairs, **kw)
     pd.testing.assert_frame_equal(first, again)
     # Another setting is another key; cache=False never reads.

@@ -236,6 +236,10 @@ def test_cli_errors_and_run(tmp_path, capsys):
     assert main(["sweep", "--jobs", "0", "--cache-dir", str(tmp_path)]) == 2
     assert "n_jobs" in capsys.readouterr().err
     assert main(["sweep", "--out", "x.csv"]) == 2
+    assert main(["sweep", "--gt-threshold", "-1", "--cache-dir", str(tmp_path)]) == 2
+    assert "--gt-threshold must be a positive number" in capsys.readouterr().err
+    assert main(["sweep", "--model-threshold", "0", "--cache-dir", str(tmp_path)]) == 2
+    assert "--model-threshold must be a positive number" in capsys.readouterr().err
     out = tmp_path / "s.parquet"
     assert main(["sweep", "--blob", "paper-best,baseline", "--pairs", "2", "--max-keypoints", str(KPTS),
                  "--cache-dir", str(tmp_path), "--out", str(out), "--no-progress"]) == 0

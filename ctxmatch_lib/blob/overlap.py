@@ -44,23 +44,25 @@ def as_shapes(shapes, n: int, name: str) -> np.ndarray:
     return arr
 
 
-def _unit_disk_samples(n: int = 400) -> np.ndarray:
-    """Deterministic, evenly spread points in the unit disk (sunflower pattern), equal-area cells."""
-    k = np.arange(n) + 0.5
-    r = np.sqrt(k / n)
-    theta = k * np.pi * (3.0 - np.sqrt(5.0))
-    return np.stack([r * np.cos(theta), r * np.sin(theta)], axis=1)
+def _unit_polygon(k: int = 32) -> np.ndarray:
+    """Vertices of a regular ``k``-gon with the area of the unit disk (radius scaled up from 1)."""
+    t = np.linspace(0.0, 2.0 * np.pi, k, endpoint=False)
+    scale = np.sqrt(2.0 * np.pi / (k * np.sin(2.0 * np.pi / k)))
+    return scale * np.stack([np.cos(t), np.sin(t)], axis=1)
 
 
-_SAMPLES = _unit_disk_samples()
+_POLYGON = _unit_polygon()
 
 
-def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 4096) -> np.ndarray:
+def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
     """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of elliptical patches, element-wise.
 
-    Ellipse ``E = {c + A u : |u| <= 1}``. The intersection area is a quadrature over 400 evenly spread
-    points of each ellipse (the mean of the two one-sided estimates); the absolute error of the result is
-    within 0.01 (tested against 2048-gon polygons). Pairs whose bounding circles are disjoint get exactly 1.
+    Ellipse ``E = {c + A u : |u| <= 1}``. Each ellipse is the image of a 32-gon of the unit disk's area
+    (so the polygon's area is the ellipse's exactly); the intersection area of the two polygons comes
+    from shapely (GEOS, vectorised), the union area is ``|E1| + |E2| - |E1 ∩ E2|`` with the exact ellipse
+    areas ``pi |det A|``. The absolute error of the result is about 1e-4 against 2048-gon polygons
+    (9.9e-5 at most on 5000 random pairs, ``benchmarks/bench_overlap.py``; tested below 1e-3, well within
+    the 0.01 that FGINN by overlap needs). Pairs whose bounding circles are disjoint get exactly 1.
 
     Parameters
     ----------
@@ -73,7 +75,17 @@ def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 4096) -> np.ndarray:
     -------
     ndarray of shape (P,)
         Overlap errors in [0, 1].
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A = np.eye(2)[None] * 2.0
+    >>> err = ellipse_overlap_error([[0.0, 0.0], [0, 0]], np.r_[A, A], [[0.0, 0.0], [10, 0]], np.r_[A, A])
+    >>> np.round(err, 6) + 0.0
+    array([0., 1.])
     """
+    import shapely
+
     c1, c2 = np.asarray(c1, float).reshape(-1, 2), np.asarray(c2, float).reshape(-1, 2)
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)
     out = np.ones(len(c1))
@@ -83,19 +95,10 @@ def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 4096) -> np.ndarray:
     near = np.flatnonzero(np.sum((c1 - c2) ** 2, axis=1) < (r1 + r2) ** 2)
     for s in range(0, len(near), chunk):
         idx = near[s : s + chunk]
-        a1 = np.abs(np.linalg.det(A1[idx]))
-        a2 = np.abs(np.linalg.det(A2[idx]))
-        f12 = _fraction_inside(c1[idx], A1[idx], c2[idx], A2[idx])  # share of E1 inside E2
-        f21 = _fraction_inside(c2[idx], A2[idx], c1[idx], A1[idx])
-        inter = 0.5 * (f12 * a1 + f21 * a2)  # areas up to the common factor pi
-        union = a1 + a2 - inter
-        out[idx] = 1.0 - inter / union
+        p = shapely.polygons(c1[idx, None, :] + np.einsum("pij,sj->psi", A1[idx], _POLYGON))
+        q = shapely.polygons(c2[idx, None, :] + np.einsum("pij,sj->psi", A2[idx], _POLYGON))
+        inter = shapely.area(shapely.intersection(p, q))
+        a1 = np.pi * np.abs(np.linalg.det(A1[idx]))
+        a2 = np.pi * np.abs(np.linalg.det(A2[idx]))
+        out[idx] = 1.0 - inter / (a1 + a2 - inter)
     return np.clip(out, 0.0, 1.0)
-
-
-def _fraction_inside(ca, Aa, cb, Ab) -> np.ndarray:
-    """Share of the quadrature points of ellipse a that fall inside ellipse b."""
-    pts = ca[:, None, :] + np.einsum("pij,sj->psi", Aa, _SAMPLES)  # (P, S, 2)
-    inv_b = np.linalg.inv(Ab)
-    u = np.einsum("pij,psj->psi", inv_b, pts - cb[:, None, :])
-    return np.mean(np.sum(u * u, axis=2) <= 1.0, axis=1)

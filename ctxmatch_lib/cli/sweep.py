@@ -83,6 +83,16 @@ def run(args) -> int:
     from ..features import FEATURE_PRESETS
     from ..sweep import blob_map, run_sweep
 
+    import math
+
+    # Every argument is checked before any work, with the flag's name in the message.
+    for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
+        if not (math.isfinite(value) and value > 0):
+            return _error(f"{flag} must be a positive number of pixels, got {value:g}")
+    if args.seed < 0:
+        return _error(f"--seed must be >= 0, got {args.seed}")
+    if args.top < 1:
+        return _error(f"--top must be positive, got {args.top}")
     filters = [] if args.filters.strip().lower() in ("", "none") else _csv(args.filters)
     features = _csv(args.features)
     unknown = [f for f in features if f not in FEATURE_PRESETS]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_matrix", "read_vpts", "image_size", "fit_fundamental", "find_image"]
+__all__ = ["read_matrix", "read_vpts", "image_size", "fundamental_from_hand_points", "find_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 
@@ -94,13 +94,6 @@ def find_image(folder: Path, stem: str) -> Path:
     raise FileNotFoundError(f"image file not found: {folder / stem}.* (tried {', '.join(IMAGE_SUFFIXES)})")
 
 
-def _normalise(pts):
-    c = pts.mean(0)
-    d = np.sqrt(((pts - c) ** 2).sum(1)).mean()
-    s = np.sqrt(2) / d if d > 0 else 1.0
-    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1.0]])
-
-
 def _oriented_ok(F, pts1, pts2) -> bool:
     """Oriented epipolar constraint (Chum, Werner, Matas 2004): one sign of e2 x x2 . F x1 for all points."""
     _, _, vt = np.linalg.svd(F.T)
@@ -147,8 +140,11 @@ def _refine(F0, x1, x2):
     return F if np.abs(_line_residuals(F, x1, x2)).mean() <= before else F0
 
 
-def fit_fundamental(pts1, pts2) -> np.ndarray:
-    """Fundamental matrix with ``x2^T F x1 = 0`` from hand-taken correspondences.
+def fundamental_from_hand_points(pts1, pts2) -> np.ndarray:
+    """Ground-truth fundamental matrix with ``x2^T F x1 = 0`` from a few hand-taken correspondences.
+
+    Not :func:`ctxmatch_lib.geometry.fit_fundamental` (the linear 8-point fit used inside RANSAC): this
+    one also accepts 7 points and refines the fit non-linearly, for ground truth.
 
     Normalised 8-point algorithm (Hartley 1997) with rank-2 enforcement for N >= 8, refined by
     minimising the point-to-epipolar-line distances in both images over rank-2 matrices (orthonormal
@@ -171,7 +167,9 @@ def fit_fundamental(pts1, pts2) -> np.ndarray:
         raise ValueError(f"pts1 and pts2 must have the same length, got {len(pts1)} and {len(pts2)}")
     if len(pts1) < 7:
         raise ValueError(f"fitting F needs at least 7 correspondences, got {len(pts1)}")
-    T1, T2 = _normalise(pts1), _normalise(pts2)
+    from ..geometry import normalise_points
+
+    T1, T2 = normalise_points(pts1)[1], normalise_points(pts2)[1]
     x1 = np.c_[pts1, np.ones(len(pts1))] @ T1.T
     x2 = np.c_[pts2, np.ones(len(pts2))] @ T2.T
     A = np.einsum("ni,nj->nij", x2, x1).reshape(-1, 9)  # row: vec(x2 x1^T) so that A @ vec(F) = x2^T F x1

@@ -31,7 +31,7 @@ import numpy as np
 
 from .._paths import atomic_path
 
-from ._io import fit_fundamental, image_size, read_matrix
+from ._io import fundamental_from_hand_points, image_size, read_matrix
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair
 
 __all__ = ["read_custom_dataset", "write_custom_dataset", "read_flow", "write_flow", "REQUIRED_COLUMNS"]
@@ -95,7 +95,7 @@ def _gt_for(folder: Path, row: dict, csv_path: Path, line: int):
         else:
             if len(pts) < 7:
                 raise ValueError(f"{gt_path}: fitting F needs at least 7 correspondences, got {len(pts)}")
-            F = fit_fundamental(pts[:, :2], pts[:, 2:])
+            F = fundamental_from_hand_points(pts[:, :2], pts[:, 2:])
         return kind, EpipolarGT(F / np.linalg.norm(F), pts[:, :2].copy(), pts[:, 2:].copy())
     raise ValueError(f"{csv_path}, line {line}: kind 'depth' needs a dense .npz ground truth, got {gt_name!r}")
 

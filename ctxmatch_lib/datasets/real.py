@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._paths import data_root
-from ._io import fit_fundamental, image_size, read_matrix, read_vpts
+from ._io import fundamental_from_hand_points, image_size, read_matrix, read_vpts
 from .base import EpipolarGT, HomographyGT, Pair
 
 __all__ = ["load_hpatches", "load_oxford", "load_homogr", "load_kusvod2", "REAL_LOADERS"]
@@ -164,14 +164,14 @@ def load_kusvod2(root=None) -> list[Pair]:
 
     The distributed F satisfies ``xA^T F xB = 0``, so the pair's F (``x2^T F x1 = 0``) is its transpose.
     When it is absent or all zeros (8 of the 24 pairs), F is fitted to the hand-taken points with
-    :func:`ctxmatch_lib.datasets._io.fit_fundamental`.
+    :func:`ctxmatch_lib.datasets._io.fundamental_from_hand_points`.
     """
     folder = _resolve(root, "nonplanar/kusvod2", lambda d: any(d.glob("*_vpts.mat")))
     pairs = []
     for name, a, b, vpts in _ab_pairs(folder):
         ptsA, ptsB, mat_model = read_vpts(vpts)
         model = _model_file(folder, name, mat_model)
-        F = model.T if model is not None else fit_fundamental(ptsA, ptsB)
+        F = model.T if model is not None else fundamental_from_hand_points(ptsA, ptsB)
         pairs.append(Pair(
             pair_id=f"kusvod2/{name}", image1=a, image2=b, image_size1=image_size(a), image_size2=image_size(b),
             kind="nonplanar", gt=EpipolarGT(F / np.linalg.norm(F), ptsA, ptsB), dataset="kusvod2",
