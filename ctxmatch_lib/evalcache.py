@@ -37,8 +37,8 @@ def resolve_filters(filters="all") -> tuple[str, ...]:
     """Filter names to evaluate.
 
     ``"all"`` is every registered filter, with ``dtm`` replaced by its two stages ``dtm1`` and ``dtm2``, in
-    the order of the paper's tables (:data:`PAPER_FILTER_ORDER`), then any others alphabetically. A list is
-    validated and returned as given.
+    the order of the paper's tables (:data:`PAPER_FILTER_ORDER`), then any others alphabetically; the learned
+    filters (``oanet``, ``acne``) only when torch is installed. A list is validated and returned as given.
 
     Examples
     --------
@@ -50,7 +50,10 @@ def resolve_filters(filters="all") -> tuple[str, ...]:
 
     register_dtm_stages()
     if isinstance(filters, str) and filters == "all":
-        names = [n for n in FILTERS if n != "dtm"]
+        from .filters.learned import LEARNED_FILTERS, torch_available
+
+        # The learned filters need the optional torch; without it "all" means every filter that can run.
+        names = [n for n in FILTERS if n != "dtm" and (torch_available() or n not in LEARNED_FILTERS)]
         rank = {n: i for i, n in enumerate(PAPER_FILTER_ORDER)}
         return tuple(sorted(names, key=lambda n: (rank.get(n, len(rank)), n)))
     return check_filters(filters)

@@ -280,12 +280,14 @@ def _blob_record(cfg: BlobConfig) -> dict:
 
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
-    """SHA-1 of the library source files that produce evaluation numbers (all of ``ctxmatch_lib`` but
-    ``plots/``, ``cli/``, ``report.py`` and ``evalcache.py``)."""
+    """SHA-1 of the library source files and shipped models that produce evaluation numbers (all of
+    ``ctxmatch_lib`` but ``plots/``, ``cli/``, ``report.py`` and ``evalcache.py``)."""
     root = Path(__file__).resolve().parent
     skip = {root / "report.py", root / "evalcache.py"}
     h = hashlib.sha1()
-    for path in sorted(root.rglob("*.py")):
+    # Shipped models (LMR's trees, the learned filters' weights) produce numbers too.
+    files = [*root.rglob("*.py"), *root.rglob("*.npz"), *root.rglob("*.pt")]
+    for path in sorted(files):
         rel = path.relative_to(root)
         if path in skip or rel.parts[0] in ("plots", "cli"):
             continue

@@ -243,7 +243,7 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
                       tri1=t1, tri2=t2, consistency=consistency, rank=active[rank],
                       contraction=active[picked], cluster_ptr=cptr, cluster_members=active[co[corder]],
                       kept=active[kept_local])
-    return active[kept_local], b1.points, b2.points, record
+    return active[kept_local], b1.points, b2.points, (t1, t2), record
 
 
 def _strictly_inside(xy, a, b, c, orientation) -> np.ndarray:
@@ -316,13 +316,16 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
     return ok
 
 
-def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored):
+def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored, tris=None):
     """One DTM2 level: triangulate ``E`` with its boundaries in both images, two-way test the candidates.
 
-    ``stored`` is ``(B_1^i, B_2^i)`` from DTM1, or ``None`` to build the boundaries around ``E``."""
+    ``stored`` is ``(B_1^i, B_2^i)`` from DTM1, or ``None`` to build the boundaries around ``E``; ``tris``
+    are the triangulations of ``E`` with its own boundaries when already known."""
     v1, vl = collapse_vertices(kp1[base])
     v2, vr = collapse_vertices(kp2[base])
-    if stored is None:
+    if tris is not None:
+        t1, t2 = tris
+    elif stored is None:
         _, _, t1, t2 = setup.triangulations(v1, v2)
     else:
         t1, t2 = triangulate(v1, stored[0]), triangulate(v2, stored[1])
@@ -513,7 +516,8 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     i = 0
     while True:
         i += 1
-        kept, bnd1, bnd2, record = _dtm1_iteration(i, active, p1, p2, score[active], canon[active], setup, trace)
+        kept, bnd1, bnd2, tris, record = _dtm1_iteration(i, active, p1, p2, score[active], canon[active], setup,
+                                                         trace)
         boundaries[i] = (bnd1, bnd2)
         if trace:
             records.append(DTM1Iteration(**record))
@@ -529,10 +533,14 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     levels = []
     if stages == 2:
         base = active
+        tris = tris if len(active) and dtm2_boundary == "current" else None
         for level in range(last - 1, 0, -1):
             cand = np.flatnonzero(removed_at == level)
             stored = boundaries[level] if dtm2_boundary == "stored" else None
-            added, t1, t2 = _dtm2_level(base, cand, p1, p2, setup, stored)
+            # With boundaries built around E, a level that adds nothing leaves the next one E's triangulations,
+            # and the first level's E is M^ī, which the last DTM1 iteration triangulated.
+            added, t1, t2 = _dtm2_level(base, cand, p1, p2, setup, stored, tris)
+            tris = (t1, t2) if stored is None and len(added) == 0 else None
             readded_at[added] = level
             if trace:
                 levels.append(DTM2Level(level, base, t1, t2, cand, added))
