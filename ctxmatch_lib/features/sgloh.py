@@ -178,8 +178,9 @@ def sgloh_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *,
     pad = int(np.ceil(3 * smooth)) if smooth > 0 else 0
     size = side + 2 * pad
     patches = extract_patches(gray, kpts, shapes, size, radius=_PATCH_RADIUS, support=support)
-    if smooth > 0 and len(patches):
-        patches = gaussian_filter(patches, sigma=(0, smooth, smooth), mode="nearest", truncate=3.0)
+    if smooth > 0:
+        if len(patches):
+            patches = gaussian_filter(patches, sigma=(0, smooth, smooth), mode="nearest", truncate=3.0)
         patches = patches[:, pad : pad + side, pad : pad + side]
     return sgloh_from_patches(patches, root=root)
 
