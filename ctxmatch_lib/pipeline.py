@@ -200,7 +200,7 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
     if len(f1) == 0 or len(f2) == 0:
         return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
     bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
-                       **config.kwargs())
+                       distance=f1.distance(), **config.kwargs())
     return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
 
 

@@ -269,7 +269,9 @@ def _pair_digest(pair: Pair) -> str:
 
 
 def _features_digest(*feats: Features) -> str:
-    return _sha1(*[a for f in feats for a in (f.kpts, f.shapes, f.desc)])
+    # The metric enters only when it is not L2, so the L2 digests (and cached candidate sets) are unchanged.
+    extra = [f.metric for f in feats if f.metric != "l2"]
+    return _sha1(*[a for f in feats for a in (f.kpts, f.shapes, f.desc)], *extra)
 
 
 def _blob_record(cfg: BlobConfig) -> dict:
@@ -602,7 +604,8 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
         t0 = time.perf_counter()
         tables = (_overlap_table(f1, cache), _overlap_table(f2, cache)) if needs_overlap else None
         state["ctx"] = _SweepContext(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes,
-                                     shapes2=f2.shapes, depth=depth, overlap_tables=tables)
+                                     shapes2=f2.shapes, depth=depth, overlap_tables=tables,
+                                     distance=f1.distance())
         return state["ctx"], time.perf_counter() - t0
 
     cands = _candidate_sets(ctx, cand_keys, cache, digest, unit.salt)

@@ -285,3 +285,42 @@ def test_default_cache_is_the_users_cache_dir(tmp_path, monkeypatch):
     monkeypatch.delenv("CTXMATCH_CACHE")
     if repo_root() is not None:
         assert repo_root() not in cache_dir().parents
+
+
+def test_new_fields_keep_the_old_keys_and_validate():
+    # The SIFT keys (and so their cache entries) do not change with the fields added for the other presets.
+    assert FeatureConfig().key() == "sift-rootsift-k8000-v1-441d0e9b"
+    assert FeatureConfig(orientation="none").key() != FeatureConfig().key()
+    assert FeatureConfig(detector="harrisz").resolved_orientation() == "dominant"
+    assert FeatureConfig(descriptor="rootsgloh2").resolved_orientation() == "none"
+    assert FeatureConfig(upright=True).resolved_orientation() == "none"
+    with pytest.raises(ValueError, match="orientation"):
+        FeatureConfig(detector="harrisz", orientation="sift")
+    with pytest.raises(ValueError, match="RootsGLOH2"):
+        FeatureConfig(descriptor="rootsgloh2", orientation="dominant")
+    with pytest.raises(ValueError, match="weights"):
+        FeatureConfig(weights="x.pth")
+    with pytest.raises(ValueError, match="detector"):
+        FeatureConfig(detector="orb")
+
+
+def test_cli_features_option(tmp_path, capsys):
+    from ctxmatch_lib.cli import main
+
+    assert main(["eval", "--features", "nope", "--out", str(tmp_path / "x.parquet")]) == 2
+    assert "unknown feature preset" in capsys.readouterr().err
+    assert main(["eval", "--features", "harrisz-rootsift", "--upright", "--out", str(tmp_path / "x.parquet")]) == 2
+    assert main(["sweep", "--features", "sift-rootsift,nope", "--out", str(tmp_path / "y.parquet")]) == 2
+    assert "harrisz-rootsgloh2" in capsys.readouterr().err  # the known presets are listed
+
+
+@pytest.mark.parametrize("name", ["sift-rootsgloh2", "harrisz-rootsift"])
+def test_handcrafted_patch_presets(gray, name):
+    f = extract_features(gray, F.FEATURE_PRESETS[name], cache_dir=False)
+    assert len(f) > 100 and f.shapes.shape == (len(f), 2, 2)
+    assert np.allclose(np.linalg.norm(f.desc, axis=1), 1, atol=1e-4)
+    if name == "harrisz-rootsift":
+        # Oriented by the dominant gradient: the first axis of each shape is turned by the angle.
+        base = f.shapes @ np.stack([np.stack([np.cos(f.angles), np.sin(f.angles)], -1),
+                                    np.stack([-np.sin(f.angles), np.cos(f.angles)], -1)], -2)
+        assert np.allclose(base, np.swapaxes(base, 1, 2), atol=1e-9)  # HarrisZ shapes are symmetric

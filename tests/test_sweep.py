@@ -208,7 +208,7 @@ def test_dask_local_cluster_equals_serial(serial, tmp_path):
     (dict(n_jobs=2, dask="tcp://localhost:8786"), "not both"),
     (dict(dask="localhost"), "scheduler address"),
     (dict(blobs="best"), "unknown blob setup 'best'"),
-    (dict(features="harrisz-sosnet"), "unknown feature preset"),
+    (dict(features="no-such-preset"), "unknown feature preset"),
     (dict(filters=("nope",)), "unknown filter 'nope'"),
     (dict(models=("7pt",)), "unknown model '7pt'"),
     (dict(pairs=0), "pairs must be a positive"),

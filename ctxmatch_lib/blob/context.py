@@ -101,6 +101,12 @@ class BlobContext:
         float32 (float64 if a descriptor array is float64), in row blocks.
     distances : ndarray of shape (n, m), optional
         A precomputed distance matrix instead of descriptors.
+    distance : callable, optional
+        The descriptors' own distance instead of L2: ``distance(desc1[r0:r1], desc2)`` returns the
+        ``(r1 - r0, m)`` block of non-negative distances (e.g. the sGLOH2 rotation-min distance,
+        :class:`ctxmatch_lib.features.sgloh.SGLOH2Distance`). It is called on row blocks of about
+        ``block_bytes`` and on a few rows or columns (``distance(desc1, desc2[cols])``), so D is never held
+        whole unless ``keep_dense``; the hook itself should need O(block) memory.
     kpts1, kpts2 : ndarray of shape (n, 2) and (m, 2), optional
         Keypoints (x, y) in pixels, origin at the centre of the top-left pixel; needed by FGINN.
     shapes1, shapes2 : ndarray of shape (n, 2, 2) and (m, 2, 2), optional
@@ -122,10 +128,11 @@ class BlobContext:
 
     def __init__(self, desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
                  shapes2=None, depth: int = 10, keep_dense: bool | None = None,
-                 max_dense_bytes: int = 1024 * _MiB, block_bytes: int = 64 * _MiB):
+                 max_dense_bytes: int = 1024 * _MiB, block_bytes: int = 64 * _MiB, distance=None):
         self.kpts = (kpts1, kpts2)
         self.shapes = (shapes1, shapes2)
         self.max_dense_bytes = int(max_dense_bytes)
+        self._metric = None
         if distances is not None:
             D = np.asarray(distances)
             if D.dtype not in (np.float32, np.float64):
@@ -133,7 +140,23 @@ class BlobContext:
             self.n, self.m = D.shape
             self._squared = False
             self._A = self._B = None
+            self._dtype = D.dtype
             self._dense = D
+        elif distance is not None:
+            if not callable(distance):
+                raise ValueError(f"distance must be callable, got {type(distance).__name__}")
+            self._metric = distance
+            self._dtype = np.dtype(np.result_type(desc1.dtype, desc2.dtype, np.float32))
+            self._A = np.asarray(desc1, self._dtype)
+            self._B = np.asarray(desc2, self._dtype)
+            self.n, self.m = len(self._A), len(self._B)
+            self._squared = False
+            self._dense = None
+            dense_bytes = self.n * self.m * self._dtype.itemsize
+            if keep_dense is None:
+                keep_dense = dense_bytes <= 256 * _MiB
+            if keep_dense:
+                self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
         else:
             dtype = np.result_type(desc1.dtype, desc2.dtype, np.float32)
             a = np.asarray(desc1, dtype)
@@ -143,6 +166,7 @@ class BlobContext:
             # Augmented vectors: A @ B.T = |a|^2 + |b|^2 - 2 a.b = squared L2, straight out of one GEMM.
             self._A = np.hstack([a, np.einsum("ij,ij->i", a, a)[:, None], np.ones((self.n, 1), dtype)])
             self._B = np.hstack([-2 * b, np.ones((self.m, 1), dtype), np.einsum("ij,ij->i", b, b)[:, None]])
+            self._dtype = np.dtype(dtype)
             self._dense = None
             dense_bytes = self.n * self.m * np.dtype(dtype).itemsize
             if keep_dense is None:
@@ -156,18 +180,30 @@ class BlobContext:
     def _block(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
         if self._dense is not None:
             return self._dense[r0:r1]
+        if self._metric is not None:
+            blk = self._hook(self._A[r0:r1], self._B)
+            if out is None:
+                return blk
+            out[...] = blk
+            return out
         return np.matmul(self._A[r0:r1], self._B.T, out=out)
+
+    def _hook(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        blk = np.asarray(self._metric(a, b))
+        if blk.shape != (len(a), len(b)):
+            raise ValueError(f"distance returned shape {blk.shape}, expected {(len(a), len(b))}")
+        return blk.astype(self._dtype, copy=False)
 
     def _scan(self, keep_dense: bool, block_bytes: int) -> None:
         n, m = self.n, self.m
         Tr = min(m, self.depth + self.margin)
         Tc = min(n, self.depth + self.margin)
         Gr, Gc = _group_size(m, Tr), _group_size(n, Tc)
-        itemsize = 8 if self._dense is None and self._A.dtype == np.float64 else 4
+        itemsize = self._dtype.itemsize
         rows_per_block = max(Gc, (block_bytes // max(1, m * itemsize)) // Gc * Gc)
         dense = None
         if keep_dense and self._dense is None:
-            dense = np.empty((n, m), self._A.dtype)
+            dense = np.empty((n, m), self._dtype)
         r_g, r_o, r_v, col_min = [], [], [], []
         for r0 in range(0, n, rows_per_block):
             r1 = min(n, r0 + rows_per_block)
@@ -209,14 +245,24 @@ class BlobContext:
 
     def _ensure_dense(self) -> np.ndarray:
         if self._dense is None:
-            self._check_dense(self.n * self.m * self._A.dtype.itemsize, "f='omega'")
-            self._dense = self._A @ self._B.T
+            self._check_dense(self.n * self.m * self._dtype.itemsize, "f='omega'")
+            if self._metric is not None:
+                dense = np.empty((self.n, self.m), self._dtype)
+                step = max(1, (64 * _MiB) // max(1, self.m * self._dtype.itemsize))
+                for r0 in range(0, self.n, step):
+                    dense[r0 : r0 + step] = self._hook(self._A[r0 : r0 + step], self._B)
+                self._dense = dense
+            else:
+                self._dense = self._A @ self._B.T
         return self._dense
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Whole rows (side 0) or columns (side 1) of D as float64 distances."""
         if self._dense is not None:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
+        elif self._metric is not None:
+            # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
+            raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
         else:
             raw = self._A[which] @ self._B.T if side == 0 else self._B[which] @ self._A.T
         raw = np.asarray(raw, np.float64)

@@ -93,7 +93,7 @@ def _sorted(matches: np.ndarray, scores: np.ndarray) -> BlobMatches:
 
 def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
                   shapes2=None, f=10, prefilter="cup", f_prime=5, ratio="D+", t_o=10.0, t_o_kind="px",
-                  combine="harmonic", max_dense_bytes: int = 1 << 30) -> BlobMatches:
+                  combine="harmonic", max_dense_bytes: int = 1 << 30, distance=None) -> BlobMatches:
     """Blob matching (Sec. 3): pre-filter, greedy many-to-many selection, NNR-like ratio, combination.
 
     1. Pre-filter D to the entries among the ``f`` best of their row and column (F∩, Eq. 10) or of their
@@ -107,8 +107,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     Parameters
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (the Hellinger distance on RootSIFT). Give these or
-        ``distances``.
+        Descriptors; D is their L2 distance (the Hellinger distance on RootSIFT), or ``distance``. Give
+        these or ``distances``.
     distances : ndarray of shape (n, m), optional
         Precomputed non-negative distance matrix.
     kpts1, kpts2 : ndarray of shape (n, 2) and (m, 2), optional
@@ -136,6 +136,10 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
         W(a, b) of Eq. (15).
     max_dense_bytes : int
         f = Ω needs the whole D; above this size it raises ``MemoryError`` stating the memory needed.
+    distance : callable, optional
+        The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)`` non-negative array
+        (e.g. RootsGLOH2's rotation-min distance, ``Features.distance()``); default L2. Evaluated in row
+        blocks like L2, with the same memory bound.
 
     Returns
     -------
@@ -170,6 +174,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     if distances is not None:
         if desc1 is not None or desc2 is not None:
             raise ValueError("give either desc1/desc2 or distances, not both")
+        if distance is not None:
+            raise ValueError("distance applies to desc1/desc2, not to precomputed distances")
         D = as_finite_matrix(distances, "distances")
         if D.size and D.min() < 0:
             raise ValueError("distances must be non-negative")
@@ -201,7 +207,7 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
     ctx = BlobContext(desc1, desc2, distances=D if distances is not None else None, kpts1=kpts1, kpts2=kpts2,
                       shapes1=shapes1, shapes2=shapes2, depth=depth, keep_dense=True if dense else None,
-                      max_dense_bytes=max_dense_bytes)
+                      max_dense_bytes=max_dense_bytes, distance=distance)
     return match_context(ctx, cfg)
 
 

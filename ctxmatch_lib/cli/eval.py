@@ -59,8 +59,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
     p.add_argument("--model-threshold", type=float, default=15.0,
                    help="1SAC/RANSAC consistency threshold in px (default: 15)")
+    p.add_argument("--features", default=None,
+                   help="feature preset: " + ", ".join(_feature_presets()) + " (default: sift-rootsift, or "
+                        "SIFT with --descriptor/--upright); the deep presets need the kornia extra and use "
+                        "stand-in weights")
     p.add_argument("--max-keypoints", type=int, default=8000, help="keypoints per image (default: 8000)")
-    p.add_argument("--descriptor", default="rootsift", choices=["rootsift", "sift"])
+    p.add_argument("--descriptor", default=None, choices=["rootsift", "sift"],
+                   help="SIFT descriptor when --features is not given (default: rootsift)")
     p.add_argument("--upright", action="store_true", help="upright SIFT (no dominant orientation)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
     p.add_argument("--limit", type=int, default=None, help="evaluate only the first N pairs")
@@ -72,6 +77,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
     return p
+
+
+def _feature_presets() -> list[str]:
+    from ..features import FEATURE_PRESETS
+
+    return list(FEATURE_PRESETS)
 
 
 def _error(msg: str) -> int:
@@ -103,7 +114,9 @@ def run(args) -> int:
     import pandas as pd
 
     from ..datasets import load_dataset
-    from ..features import FeatureConfig
+    from dataclasses import replace
+
+    from ..features import FEATURE_PRESETS, FeatureConfig
     from ..pipeline import check_filters, check_models, resolve_blobs, summary_table
     from ..sweep import SWEEP_COLUMNS, plan_units, run_units, source_digest
 
@@ -124,7 +137,19 @@ def run(args) -> int:
         blobs = resolve_blobs(_csv(args.blob))
     except ValueError as exc:
         return _error(f"--blob: {exc}")
-    features = FeatureConfig(max_keypoints=args.max_keypoints, descriptor=args.descriptor, upright=args.upright)
+    try:
+        if args.features is not None:
+            if args.descriptor is not None or args.upright:
+                raise ValueError("--features replaces --descriptor/--upright: give one or the other")
+            if args.features not in FEATURE_PRESETS:
+                raise ValueError(f"unknown feature preset {args.features!r}; known: {', '.join(FEATURE_PRESETS)}")
+            features = replace(FEATURE_PRESETS[args.features], max_keypoints=args.max_keypoints)
+            features.key()  # a deep preset fails here, before any work, if its weights are missing
+        else:
+            features = FeatureConfig(max_keypoints=args.max_keypoints, descriptor=args.descriptor or "rootsift",
+                                     upright=args.upright)
+    except (ValueError, FileNotFoundError) as exc:
+        return _error(f"--features: {exc}")
     out = Path(args.out)
     try:
         dataset = load_dataset(args.dataset, root=args.data_root)
@@ -153,7 +178,8 @@ def run(args) -> int:
     meta = {
         "dataset": args.dataset, "blobs": {k: v.kwargs() for k, v in blobs.items()}, "filters": filters,
         "models": models, "gt_method": args.gt, "gt_threshold": args.gt_threshold,
-        "model_threshold": args.model_threshold, "features": features.key(), "seed": args.seed,
+        "model_threshold": args.model_threshold, "features": features.key(),
+        "features_preset": args.features, "seed": args.seed,
         "pairs": len(pairs), "units": "precision, recall, recall_star, ap, ap_star: fractions in [0, 1]",
     }
     from .._paths import write_parquet_atomic

@@ -42,8 +42,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="comma-separated registered datasets or custom folders (default: embedded)")
     p.add_argument("--data-root", default=None, help="root of the real data (default: $CTXMATCH_DATA)")
     p.add_argument("--features", default="sift-rootsift",
-                   help="comma-separated feature presets: sift-rootsift, sift-rootsift-upright, sift "
-                        "(default: sift-rootsift)")
+                   help="comma-separated feature presets: " + ", ".join(_feature_presets())
+                        + " (default: sift-rootsift); the deep presets need the kornia extra and use stand-in "
+                          "weights")
     p.add_argument("--max-keypoints", type=int, default=None,
                    help="override the keypoint cap of every feature preset (presets: 8000)")
     p.add_argument("--blob", default="grid",
@@ -70,6 +71,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
     return p
+
+
+def _feature_presets() -> list[str]:
+    from ..features import FEATURE_PRESETS
+
+    return list(FEATURE_PRESETS)
 
 
 def _error(msg: str) -> int:
