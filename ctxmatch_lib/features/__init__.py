@@ -32,7 +32,7 @@ from .._paths import atomic_path
 
 __all__ = [
     "FeatureConfig", "Features", "extract_features", "load_image", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
-    "descriptor_distance", "feature_cache_path",
+    "descriptor_distance", "feature_cache_path", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
 ]
 
 # Bump when the stored arrays or their meaning change: old cache entries are then ignored.
@@ -205,6 +205,44 @@ FEATURE_DESCRIPTIONS = {
     "harrisz-sosnet": "HarrisZ + SOSNet stand-in (TFeat architecture, weights tfeat-liberty.params; "
                       "orientation: OriNet stand-in, OriNet.pth)",
 }
+
+
+#: The eight detector + descriptor blocks of the paper's heat map (Fig. 5), handcrafted ones first.
+PAPER_FEATURE_BLOCKS = ("sift-rootsift", "sift-rootsgloh2", "harrisz-rootsift", "harrisz-rootsgloh2",
+                        "sift-hardnet2", "sift-sosnet", "harrisz-hardnet2", "harrisz-sosnet")
+
+
+def paper_feature_blocks(deep: bool | None = None) -> list[str]:
+    """The paper's detector + descriptor blocks that can run here.
+
+    Parameters
+    ----------
+    deep : bool, optional
+        Include the HardNet2 / SOSNet blocks (stand-in weights). ``None``: when kornia imports and their
+        weights are found; ``True``: always (an error later if they cannot run); ``False``: never.
+
+    Returns
+    -------
+    list of str
+        Keys of :data:`FEATURE_PRESETS`, in the order of :data:`PAPER_FEATURE_BLOCKS`.
+
+    Examples
+    --------
+    >>> paper_feature_blocks(deep=False)
+    ['sift-rootsift', 'sift-rootsgloh2', 'harrisz-rootsift', 'harrisz-rootsgloh2']
+    """
+    handcrafted = [k for k in PAPER_FEATURE_BLOCKS if FEATURE_PRESETS[k].descriptor not in _DEEP]
+    if deep is False:
+        return handcrafted
+    if deep is None:
+        try:
+            import kornia  # noqa: F401
+
+            for k in PAPER_FEATURE_BLOCKS:
+                FEATURE_PRESETS[k].key()  # resolves (and hashes) the weights: FileNotFoundError when missing
+        except (ImportError, FileNotFoundError, ValueError):
+            return handcrafted
+    return list(PAPER_FEATURE_BLOCKS)
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,12 +10,19 @@ from .palette import OKABE_ITO
 
 __all__ = ["plot_blob_heatmap", "plot_blob_bands", "W_LABELS", "FEATURE_LABELS"]
 
-#: Figure titles of the feature presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS`. The paper's other
-#: detectors and descriptors (HarrisZ, HardNet2, SOSNet, RootsGLOH2) are not available here.
+#: Figure titles of the feature presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS`. The paper's learned
+#: orientation and its HardNet2/SOSNet weights are not obtainable here: the blocks that use stand-ins say so.
 FEATURE_LABELS = {
     "sift-rootsift": "SIFT + RootSIFT",
     "sift-rootsift-upright": "upright SIFT + RootSIFT",
     "sift": "SIFT + SIFT (plain L2)",
+    "sift-rootsgloh2": "SIFT + RootsGLOH2",
+    "harrisz-rootsift": "HarrisZ + RootSIFT (orientation: dominant-gradient stand-in)",
+    "harrisz-rootsgloh2": "HarrisZ + RootsGLOH2",
+    "sift-hardnet2": "SIFT + HardNet2 stand-in (HardTFeat weights, OriNet orientation)",
+    "sift-sosnet": "SIFT + SOSNet stand-in (TFeat liberty weights, OriNet orientation)",
+    "harrisz-hardnet2": "HarrisZ + HardNet2 stand-in (HardTFeat weights, OriNet orientation)",
+    "harrisz-sosnet": "HarrisZ + SOSNet stand-in (TFeat liberty weights, OriNet orientation)",
 }
 
 #: Short names of W(a, b) (Eq. 15) in the order of the grid.
