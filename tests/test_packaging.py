@@ -68,7 +68,6 @@ def test_import_does_not_need_torch_or_h5py():
 
 # Public functions whose docstrings live in modules owned elsewhere and still lack a Parameters section. Strict:
 # the test fails as soon as one is fixed, so that it is removed from here.
-_KNOWN_MISSING = {"ctxmatch_lib.register_filter", "ctxmatch_lib.evaluate_dataset"}
 
 
 def _public_functions():
@@ -80,10 +79,7 @@ def _public_functions():
                 params = [p for p in inspect.signature(obj).parameters.values()
                           if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
                 if len(params) >= 2:
-                    qual = f"{modname}.{name}"
-                    marks = [pytest.mark.xfail(strict=True, reason="docstring owned by another module's maintainer")] \
-                        if qual in _KNOWN_MISSING else []
-                    yield pytest.param(obj, id=qual, marks=marks)
+                    yield pytest.param(obj, id=f"{modname}.{name}")
 
 
 @pytest.mark.parametrize("func", list(_public_functions()))

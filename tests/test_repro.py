@@ -60,7 +60,7 @@ H = np.array([[0.9, -0.1, 30.0], [0.08, 1.05, -12.0], [1e-4, -6e-5, 1.0]])
 n_in, n_out = 150, 150
 k1 = rng.uniform([20, 20], [620, 460], (n_in + n_out, 2)).round(0)  # integer pixels: many distance ties
 k2 = rng.uniform([0, 0], [639, 479], (n_in + n_out, 2)).round(0)
-k2[:n_in] = apply_homography(H, k1[:n_in])
+k2[:n_in] = np.clip(apply_homography(H, k1[:n_in]), 0, [639, 479])  # keypoints stay on the image
 idx = np.arange(n_in + n_out)
 # Many-to-many: a third of the keypoints get a second, wrong match (repeated keypoints, tied distances).
 extra = rng.choice(n_in + n_out, size=(n_in + n_out) // 3, replace=False)
