@@ -117,7 +117,7 @@ def main(argv=None) -> int:
     parser.add_argument("--presets", nargs="+", default=list(PRESETS), choices=list(BLOB_PRESETS))
     parser.add_argument("--limit", type=int, default=None, help="at most this many pairs per dataset")
     parser.add_argument("--boundaries", nargs="+", default=["alpha", "keypoints"],
-                        help="boundary methods of ours, optionally with the DTM2 boundary: alpha/current")
+                        help="boundary methods of ours, optionally with the DTM2 boundary: alpha/stored")
     parser.add_argument("--json", type=Path, help="also write the per-pair numbers here")
     args = parser.parse_args(argv)
     if not os.environ.get("CTXMATCH_DATA"):
@@ -141,8 +141,8 @@ def main(argv=None) -> int:
                 for b in args.boundaries:
                     method, _, dtm2 = b.partition("/")
                     t0 = time.process_time()
-                    keep = dtm(f1.kpts, f2.kpts, matches, scores, boundary=method, dtm2_boundary=dtm2 or None,
-                               **sizes).keep
+                    extra = {"dtm2_boundary": dtm2} if dtm2 else {}
+                    keep = dtm(f1.kpts, f2.kpts, matches, scores, boundary=method, **extra, **sizes).keep
                     rec[b] = dict(keep=keep, time=time.process_time() - t0, pr=_pr(keep, labels))
                 if args.port:
                     keep, t = _run_port(args.port, args.port_python, args.work, pair, f1, f2, matches, scores)
