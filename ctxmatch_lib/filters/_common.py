@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = ["MatchSet", "prepare", "knn_without_self", "normalize_points", "check_positive", "serial_blas"]
+__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive", "serial_blas"]
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,7 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     return np.take_along_axis(lists, drop, axis=1)[:, :kk]
 
 
-def normalize_points(p: np.ndarray) -> np.ndarray:
+def zero_mean_unit_rms(p: np.ndarray) -> np.ndarray:
     """Zero mean and unit root-mean-square norm, the normalisation used by VFC and LLT (scale 1 if flat)."""
     c = p - p.mean(axis=0)
     scale = np.sqrt((c**2).sum() / max(len(p), 1))

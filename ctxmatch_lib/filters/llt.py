@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ._common import check_positive, knn_without_self, normalize_points, prepare, serial_blas
+from ._common import check_positive, knn_without_self, zero_mean_unit_rms, prepare, serial_blas
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights"]
@@ -131,8 +131,8 @@ def llt_filter(
     if n == 0:
         return np.zeros(0, bool)
     with serial_blas():  # skinny products in a loop: threads cost more than they give
-        x = normalize_points(ms.x)
-        y = normalize_points(ms.y)
+        x = zero_mean_unit_rms(ms.x)
+        y = zero_mean_unit_rms(ms.y)
         target = y - x  # T(x) = x + U C, so the kernel part fits the motion
         ctrl = control_points(x, n_control, rng)
         U = gaussian_kernel(x, ctrl, beta)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, normalize_points, prepare, serial_blas
+from ._common import check_positive, zero_mean_unit_rms, prepare, serial_blas
 
 __all__ = ["vfc_filter"]
 
@@ -129,8 +129,8 @@ def vfc_filter(
     if n == 0:
         return np.zeros(0, bool)
     with serial_blas():  # skinny products in a loop: threads cost more than they give
-        x = normalize_points(ms.x)
-        motion = normalize_points(ms.y) - x
+        x = zero_mean_unit_rms(ms.x)
+        motion = zero_mean_unit_rms(ms.y) - x
         ctrl = control_points(x, n_control, rng)
         U = gaussian_kernel(x, ctrl, beta)  # (K, M)
         G = gaussian_kernel(ctrl, ctrl, beta)  # (M, M)

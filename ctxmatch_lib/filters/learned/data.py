@@ -33,6 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ...geometry import _normalise as _hartley
 from ...geometry import apply_homography
 from ...groundtruth import GT_THRESHOLD_PX
 
@@ -85,11 +86,7 @@ def normalise_coordinates(pts: np.ndarray, image_size, mode: str = "image") -> n
         w, h = image_size
         return (pts + 0.5 - np.array([w, h]) / 2.0) / (max(w, h) / 2.0)
     if mode == "hartley":
-        if len(pts) == 0:
-            return pts.copy()
-        c = pts - pts.mean(axis=0)
-        d = np.sqrt((c**2).sum(axis=1)).mean()
-        return c * (np.sqrt(2.0) / d) if d > 1e-12 else c
+        return _hartley(pts.reshape(-1, 2))[0]
     raise ValueError(f"normalization must be 'image' or 'hartley', got {mode!r}")
 
 
