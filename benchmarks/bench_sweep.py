@@ -7,7 +7,7 @@ overlap table and AP is computed; features come from the regular feature cache a
 timed) first. Prints the wall time against the 30-minute target, then the time of a rerun that finds every
 result cached, and the headline mAPs.
 
-Run: `CTXMATCH_DATA=../shared/data .venv/bin/python benchmarks/bench_sweep.py [--pairs N] [--jobs 2]`.
+Run: `CTXMATCH_DATA=/path/to/data .venv/bin/python benchmarks/bench_sweep.py [--pairs N] [--jobs 2]`.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     from ctxmatch_lib.sweep import blob_map, plan_sweep, run_sweep
 
     if data_root() is None and "embedded" not in args.dataset:
-        print("bench_sweep: set CTXMATCH_DATA to the real data (../shared/data here)", file=sys.stderr)
+        print("bench_sweep: set CTXMATCH_DATA to the folder holding planar/ and nonplanar/", file=sys.stderr)
         return 2
     kw = dict(features={"sift-rootsift": FeatureConfig(max_keypoints=args.max_keypoints)}, blobs="grid",
               pairs=args.pairs)

@@ -25,7 +25,7 @@ image, 0 keypoints, a filter that raised) is reported by name and recorded, and 
 EXAMPLE = """\
 example:
   ctxmatch eval --dataset embedded --blob paper-best --filters dtm --model none,1sac --out results.parquet
-  CTXMATCH_DATA=../shared/data ctxmatch eval --dataset kusvod2 --filters dtm,th --model none,1sac,ransac
+  CTXMATCH_DATA=/path/to/data ctxmatch eval --dataset kusvod2 --filters dtm,th --model none,1sac,ransac
 """
 
 

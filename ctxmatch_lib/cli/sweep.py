@@ -21,7 +21,7 @@ examples:
   ctxmatch sweep                                   # embedded dataset, full grid, SIFT+RootSIFT
   ctxmatch sweep --features sift-rootsift,sift --pairs 6 --jobs 2 --out sweep.parquet
   ctxmatch sweep --blob paper-best,baseline --filters dtm,th --model none,1sac
-  CTXMATCH_DATA=../shared/data ctxmatch sweep --dataset planar,nonplanar --jobs 2
+  CTXMATCH_DATA=/path/to/data ctxmatch sweep --dataset planar,nonplanar --jobs 2
   ctxmatch sweep --dask tcp://scheduler:8786       # scale out on a Dask cluster
 """
 
