@@ -9,17 +9,14 @@ floor, and precision / recall. Run: ``.venv/bin/python benchmarks/bench_dtm.py``
 
 from __future__ import annotations
 
-import importlib
 import sys
 import time
 
 import numpy as np
 
+from ctxmatch_lib.dtm import boundary as _boundary
 from ctxmatch_lib.dtm import dtm
-
-# ``ctxmatch_lib.dtm`` is also the re-exported function, so ``import ctxmatch_lib.dtm.boundary as x`` fails.
-_boundary = importlib.import_module("ctxmatch_lib.dtm.boundary")
-_triangulation = importlib.import_module("ctxmatch_lib.dtm.triangulation")
+from ctxmatch_lib.dtm import triangulation as _triangulation
 from ctxmatch_lib.synthetic import planted_homography_matches
 
 PORT_SECONDS = {1500: 0.52, 5000: 2.77}  # author's Python port, measured on the project machine

@@ -216,7 +216,7 @@ def test_duplicates_and_many_to_many():
 def test_keypoints_outside_the_image_are_an_error(which):
     k = np.array([[10.0, 10.0], [300.0, 200.0], [600.0, 470.0]])
     m = np.stack([np.arange(3)] * 2, axis=1)
-    with pytest.raises(ValueError, match=rf"{which} has points outside.*\(width, height\)"):
+    with pytest.raises(ValueError, match=rf"{which} has keypoints outside.*\(width, height\)"):
         dtm(k, k, m, image_size1=(480, 640) if which == "kpts1" else SIZE,
             image_size2=(480, 640) if which == "kpts2" else SIZE)
     # half a pixel of slack: pixel centres span [0, w - 1], the pixels themselves [-0.5, w - 0.5]

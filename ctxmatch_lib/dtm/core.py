@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_image_size, as_matches, as_points, as_scores
+from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
 from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
@@ -337,20 +337,6 @@ def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored, tris=None):
     return cand[ok], t1, t2
 
 
-def _check_inside(points: np.ndarray, size: tuple, name: str, size_name: str) -> None:
-    """Keypoints must lie on the image: pixel centres are integers, so x in [-0.5, width - 0.5]."""
-    if len(points) == 0:
-        return
-    w, h = size
-    lo = points.min(axis=0)
-    hi = points.max(axis=0)
-    if lo[0] < -0.5 or lo[1] < -0.5 or hi[0] > w - 0.5 or hi[1] > h - 0.5:
-        raise ValueError(
-            f"{name} has points outside the image {size_name}={size} (width, height): x spans "
-            f"[{lo[0]:.1f}, {hi[0]:.1f}], y spans [{lo[1]:.1f}, {hi[1]:.1f}], pixel centres must lie in "
-            f"[0, width - 1] x [0, height - 1] (half a pixel of slack); was (height, width) passed?")
-
-
 def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages: int = 2,
         boundary: str = "alpha", shrink: float = 0.5, dtm2_boundary: str = "current",
         trace: bool = False) -> DTMResult:
@@ -503,8 +489,8 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
     if dtm2_boundary not in ("stored", "current"):
         raise ValueError(f"dtm2_boundary must be 'stored' or 'current', got {dtm2_boundary!r}")
-    _check_inside(kp1, size1, "kpts1", "image_size1")
-    _check_inside(kp2, size2, "kpts2", "image_size2")
+    check_inside(kp1, size1, "kpts1")
+    check_inside(kp2, size2, "kpts2")
     removed_at = np.zeros(k, np.int64)
     readded_at = np.zeros(k, np.int64)
     if k == 0:
