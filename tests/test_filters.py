@@ -7,34 +7,18 @@ import pytest
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
+from filter_cases import SIZE, grid_translation, identity_matches, run_filter
 
 PEERS = ["th", "gms", "lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pfm", "lmr"]
 SPATIAL = [name for name in PEERS if name != "th"]
-SIZE = (640, 480)
+# PGM, BM and SCV have their own, stricter cases in test_filters_graph.py; the checks that are the same for
+# every filter run here for them too.
+GRAPH = ["pgm", "bm", "scv"]
 
 # th only sees the scores: with the planted informative scores (inliers in [0, 0.7], outliers in
 # [0.3, 1]) its precision is 0.4 / (0.4 + 0.6 * 5 / 7) ~ 0.48 by construction.
 MIN_PRECISION = {"th": 0.45}
 DEFAULT_MIN_PRECISION = 0.8
-
-
-def _run(name, kpts1, kpts2, matches, scores=None, size1=SIZE, size2=SIZE, **kw):
-    keep = FILTERS[name](kpts1, kpts2, matches, scores, image_size1=size1, image_size2=size2, **kw)
-    assert isinstance(keep, np.ndarray) and keep.dtype == bool and keep.shape == (len(matches),)
-    return keep
-
-
-def _identity(n):
-    return np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1)
-
-
-def _grid_translation(n_side=8, step=20.0, offset=(40.0, 30.0), shift=(7.0, -3.0)):
-    """A regular grid moved by a translation, with match 0 replaced by a far-away outlier."""
-    g = np.stack(np.meshgrid(np.arange(n_side) * step, np.arange(n_side) * step), -1).reshape(-1, 2)
-    x = g + offset
-    y = x + shift
-    y[0] = (600.0, 450.0)
-    return x, y
 
 
 def test_registry_lists_every_peer():
@@ -47,7 +31,7 @@ def test_registry_lists_every_peer():
 @pytest.mark.parametrize("seed", [0, 1])
 def test_planted_homography_precision(name, seed):
     pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=seed)
-    keep = _run(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
     tp = int((keep & pm.is_inlier).sum())
     precision = tp / max(int(keep.sum()), 1)
     recall = tp / int(pm.is_inlier.sum())
@@ -60,7 +44,7 @@ def test_planted_homography_precision(name, seed):
 def test_planted_without_scores(name):
     # Spatial filters must work on geometry alone (scores=None: all equal).
     pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, rng=3)
-    keep = _run(name, pm.kpts1, pm.kpts2, pm.matches, None)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, None)
     precision = (keep & pm.is_inlier).sum() / max(keep.sum(), 1)
     assert precision >= DEFAULT_MIN_PRECISION
 
@@ -70,13 +54,13 @@ def test_planted_without_scores(name):
 def test_tiny_inputs_return_a_mask(name, k):
     rng = np.random.default_rng(k)
     kpts = rng.uniform(0, 100, size=(k, 2))
-    _run(name, kpts, kpts + 1.0, _identity(k), rng.uniform(size=k))
-    _run(name, kpts, kpts + 1.0, np.empty((0, 2), np.int64) if k == 0 else _identity(k), None)
+    run_filter(name, kpts, kpts + 1.0, identity_matches(k), rng.uniform(size=k))
+    run_filter(name, kpts, kpts + 1.0, np.empty((0, 2), np.int64) if k == 0 else identity_matches(k), None)
 
 
-@pytest.mark.parametrize("name", PEERS)
+@pytest.mark.parametrize("name", PEERS + GRAPH)
 def test_empty_keypoints(name):
-    keep = _run(name, np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.int64), None)
+    keep = run_filter(name, np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.int64), None)
     assert keep.shape == (0,)
 
 
@@ -85,20 +69,20 @@ def test_collinear_keypoints(name):
     t = np.linspace(0, 500, 60)
     kpts1 = np.c_[t, 0.5 * t + 10]
     kpts2 = kpts1 + (5.0, 2.0)
-    _run(name, kpts1, kpts2, _identity(60), np.linspace(0, 1, 60))
+    run_filter(name, kpts1, kpts2, identity_matches(60), np.linspace(0, 1, 60))
 
 
 @pytest.mark.parametrize("name", PEERS)
 def test_duplicate_keypoints(name):
     kpts = np.tile([[100.0, 100.0]], (20, 1))
-    _run(name, kpts, kpts, _identity(20), None)
+    run_filter(name, kpts, kpts, identity_matches(20), None)
 
 
 @pytest.mark.parametrize("name", SPATIAL)
 def test_identical_images_keep_most(name):
     rng = np.random.default_rng(5)
     kpts = rng.uniform([0, 0], [639, 479], size=(400, 2))
-    keep = _run(name, kpts, kpts.copy(), _identity(400), rng.uniform(size=400) * 0.5)
+    keep = run_filter(name, kpts, kpts.copy(), identity_matches(400), rng.uniform(size=400) * 0.5)
     if name != "gms":  # 400 matches over a 20 x 20 grid are below GMS's statistical threshold
         assert keep.mean() > 0.9
 
@@ -112,7 +96,7 @@ def test_many_to_many_input(name):
     matches = np.vstack([pm.matches, wrong])
     truth = np.r_[np.ones(800, bool), wrong[:, 0] == wrong[:, 1]]
     scores = np.r_[rng.uniform(0, 0.6, 800), rng.uniform(0.3, 1.0, 800)]
-    keep = _run(name, pm.kpts1, pm.kpts2, matches, scores)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, matches, scores)
     assert (keep & truth).sum() / max(keep.sum(), 1) > (0.55 if name == "th" else 0.9)
 
 
@@ -121,10 +105,10 @@ def test_many_to_many_input(name):
 
 def test_th_exact():
     k = np.zeros((4, 2))
-    keep = _run("th", k, k, _identity(4), [0.1, 0.8, 0.81, 1.0])
+    keep = run_filter("th", k, k, identity_matches(4), [0.1, 0.8, 0.81, 1.0])
     np.testing.assert_array_equal(keep, [True, True, False, False])
-    np.testing.assert_array_equal(_run("th", k, k, _identity(4), None), [True] * 4)
-    np.testing.assert_array_equal(_run("th", k, k, _identity(4), [0.1, 0.3, 0.5, 0.7], threshold=0.4),
+    np.testing.assert_array_equal(run_filter("th", k, k, identity_matches(4), None), [True] * 4)
+    np.testing.assert_array_equal(run_filter("th", k, k, identity_matches(4), [0.1, 0.3, 0.5, 0.7], threshold=0.4),
                                   [True, True, False, False])
 
 
@@ -136,7 +120,7 @@ def test_gms_exact_dense_cluster():
     y = x + (96.0, 48.0)
     x = np.vstack([x, [250.0, 180.0]])
     y = np.vstack([y, [30.0, 400.0]])
-    keep = _run("gms", x, y, _identity(301))
+    keep = run_filter("gms", x, y, identity_matches(301))
     assert keep[:300].all() and not keep[300]
 
 
@@ -146,8 +130,8 @@ def test_gms_rotation_kernels_find_a_rotated_cluster():
     c = np.array([320.0, 240.0])
     R = np.array([[0.0, -1.0], [1.0, 0.0]])  # 90 degrees
     y = (x - c) @ R.T + c
-    upright = _run("gms", x, y, _identity(2000))
-    rotated = _run("gms", x, y, _identity(2000), with_rotation=True)
+    upright = run_filter("gms", x, y, identity_matches(2000))
+    rotated = run_filter("gms", x, y, identity_matches(2000), with_rotation=True)
     assert rotated.mean() > 0.8 and rotated.sum() > upright.sum()
 
 
@@ -155,8 +139,8 @@ def test_gms_rotation_kernels_find_a_rotated_cluster():
 def test_translation_grid_exact(name):
     # A rigid translation preserves every neighbourhood, motion and local affinity; the lone match
     # sent to the corner is inconsistent with all of them.
-    x, y = _grid_translation()
-    keep = _run(name, x, y, _identity(len(x)), np.full(len(x), 0.1))
+    x, y = grid_translation()
+    keep = run_filter(name, x, y, identity_matches(len(x)), np.full(len(x), 0.1))
     assert not keep[0]
     assert keep[1:].all()
 
@@ -164,8 +148,8 @@ def test_translation_grid_exact(name):
 def test_glpm_uses_scores_for_the_guide():
     # Only the confident matches guide: with every score above the strict ratio, GLPM falls back to the
     # whole set and still finds the translation.
-    x, y = _grid_translation()
-    keep = _run("glpm", x, y, _identity(len(x)), np.full(len(x), 0.9))
+    x, y = grid_translation()
+    keep = run_filter("glpm", x, y, identity_matches(len(x)), np.full(len(x), 0.9))
     assert not keep[0] and keep[1:].all()
 
 
@@ -177,18 +161,18 @@ def _similarity_shapes(n, scale, angle):
 def test_adalam_shapes_reject_inconsistent_orientation():
     # Same geometry, but the image-2 shapes of half the grid are rotated by 90 degrees: those matches
     # leave the neighbourhoods of the consistent seeds, and the consistent half survives.
-    x, y = _grid_translation(n_side=10, step=15.0)
+    x, y = grid_translation(n_side=10, step=15.0)
     n = len(x)
     A1 = _similarity_shapes(n, 2.0, 0.0)
     A2 = _similarity_shapes(n, 2.0, 0.0)
     flipped = np.arange(n) % 2 == 1
     A2[flipped] = _similarity_shapes(int(flipped.sum()), 2.0, np.pi / 2)
     scores = np.where(flipped, 0.5, 0.1)
-    keep = _run("adalam", x, y, _identity(n), scores, shapes1=A1, shapes2=A2)
+    keep = run_filter("adalam", x, y, identity_matches(n), scores, shapes1=A1, shapes2=A2)
     assert keep[~flipped][1:].all()
     assert not keep[flipped].any()
     # Without shapes the geometry alone accepts them all.
-    keep = _run("adalam", x, y, _identity(n), scores)
+    keep = run_filter("adalam", x, y, identity_matches(n), scores)
     assert keep[1:].all()
 
 
@@ -205,7 +189,7 @@ def test_adalam_planted_with_shapes():
     out = ~pm.is_inlier
     A2[out] = [_similarity_shapes(1, 3.0 * rng.uniform(0.5, 2), rng.uniform(-np.pi, np.pi))[0]
                for _ in range(int(out.sum()))]
-    keep = _run("adalam", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
+    keep = run_filter("adalam", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
     precision = (keep & pm.is_inlier).sum() / keep.sum()
     recall = (keep & pm.is_inlier).sum() / pm.is_inlier.sum()
     assert precision > 0.95 and recall > 0.8
@@ -214,26 +198,26 @@ def test_adalam_planted_with_shapes():
 # ----- determinism and argument checks --------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", PEERS)
+@pytest.mark.parametrize("name", PEERS + GRAPH)
 def test_deterministic(name):
     pm = planted_homography_matches(600, 0.4, noise=0.5, image_size=SIZE, rng=11)
-    a = _run(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
-    b = _run(name, pm.kpts1.copy(), pm.kpts2.copy(), pm.matches.copy(), pm.scores.copy())
+    a = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
+    b = run_filter(name, pm.kpts1.copy(), pm.kpts2.copy(), pm.matches.copy(), pm.scores.copy())
     np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("name", ["vfc", "llt", "adalam", "rfm_scan"])
 def test_seeded_filters_accept_rng(name):
     pm = planted_homography_matches(600, 0.4, noise=0.5, image_size=SIZE, rng=12)
-    a = _run(name, pm.kpts1, pm.kpts2, pm.matches, None, rng=3)
-    b = _run(name, pm.kpts1, pm.kpts2, pm.matches, None, rng=np.random.default_rng(3))
+    a = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, None, rng=3)
+    b = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, None, rng=np.random.default_rng(3))
     np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("name", PEERS)
+@pytest.mark.parametrize("name", PEERS + GRAPH)
 def test_bad_arguments_name_the_argument(name):
     k = np.zeros((3, 2))
-    m = _identity(3)
+    m = identity_matches(3)
     f = FILTERS[name]
     with pytest.raises(ValueError, match="matches"):
         f(k, k, [[0, 5]], None, image_size1=SIZE, image_size2=SIZE)
@@ -301,7 +285,7 @@ def _rfm_scan_dense(x, y, size, gamma=10.0, pct=0.05, mu=(0.1, 0.08), rng=0):
 @pytest.mark.parametrize("n, ratio, seed", [(600, 0.4, 0), (1200, 0.1, 1), (900, 0.9, 2), (40, 0.5, 3)])
 def test_rfm_scan_equals_dense_definition(n, ratio, seed):
     pm = planted_homography_matches(n, ratio, noise=0.5, image_size=SIZE, rng=seed)
-    keep = _run("rfm_scan", pm.kpts1, pm.kpts2, pm.matches, None)
+    keep = run_filter("rfm_scan", pm.kpts1, pm.kpts2, pm.matches, None)
     np.testing.assert_array_equal(keep, _rfm_scan_dense(pm.kpts1, pm.kpts2, SIZE))
 
 
@@ -360,16 +344,16 @@ def _planted_with_shapes(seed):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_pfm_planted_with_shapes(seed):
     pm, A1, A2 = _planted_with_shapes(seed)
-    keep = _run("pfm", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
+    keep = run_filter("pfm", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
     precision = (keep & pm.is_inlier).sum() / keep.sum()
     recall = (keep & pm.is_inlier).sum() / pm.is_inlier.sum()
     assert precision > 0.95 and recall > 0.8
 
 
 def test_pfm_needs_both_shapes():
-    x, y = _grid_translation()
+    x, y = grid_translation()
     with pytest.raises(ValueError, match="shapes1 and shapes2"):
-        _run("pfm", x, y, _identity(len(x)), None, shapes1=_similarity_shapes(len(x), 1.0, 0.0))
+        run_filter("pfm", x, y, identity_matches(len(x)), None, shapes1=_similarity_shapes(len(x), 1.0, 0.0))
 
 
 def test_pfm_progressive_rounds_recover_from_empty_seeds():
@@ -377,7 +361,7 @@ def test_pfm_progressive_rounds_recover_from_empty_seeds():
     pm = planted_homography_matches(600, 0.5, noise=0.5, image_size=SIZE, rng=4)
     scores = np.where(pm.is_inlier, 0.5, 0.6)
     scores[np.flatnonzero(~pm.is_inlier)[:60]] = 0.0
-    keep = _run("pfm", pm.kpts1, pm.kpts2, pm.matches, scores)
+    keep = run_filter("pfm", pm.kpts1, pm.kpts2, pm.matches, scores)
     assert (keep & pm.is_inlier).sum() / keep.sum() > 0.95 and keep[pm.is_inlier].mean() > 0.5
 
 
@@ -427,9 +411,9 @@ def test_lmr_training_is_repeatable(tmp_path):
     assert any(a.arrays[k].shape != c.arrays[k].shape or not np.array_equal(a.arrays[k], c.arrays[k])
                for k in a.arrays)
     loaded = LMRModel.load(tmp_path / "a.npz")
-    x, y = _grid_translation()
-    np.testing.assert_array_equal(lmr_filter(x, y, _identity(len(x)), image_size1=SIZE, image_size2=SIZE, model=a),
-                                  lmr_filter(x, y, _identity(len(x)), image_size1=SIZE, image_size2=SIZE,
+    x, y = grid_translation()
+    np.testing.assert_array_equal(lmr_filter(x, y, identity_matches(len(x)), image_size1=SIZE, image_size2=SIZE, model=a),
+                                  lmr_filter(x, y, identity_matches(len(x)), image_size1=SIZE, image_size2=SIZE,
                                              model=loaded))
 
 

@@ -9,28 +9,9 @@ import scipy.sparse as sp
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters.pgm import _affinity, greedy_assignment, rrwm
 from ctxmatch_lib.synthetic import planted_homography_matches
+from filter_cases import SIZE, grid_translation, identity_matches, run_filter
 
 NAMES = ["pgm", "bm", "scv"]
-SIZE = (640, 480)
-
-
-def _run(name, kpts1, kpts2, matches, scores=None, size1=SIZE, size2=SIZE, **kw):
-    keep = FILTERS[name](kpts1, kpts2, matches, scores, image_size1=size1, image_size2=size2, **kw)
-    assert isinstance(keep, np.ndarray) and keep.dtype == bool and keep.shape == (len(matches),)
-    return keep
-
-
-def _identity(n):
-    return np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1)
-
-
-def _grid_translation(n_side=8, step=20.0, offset=(40.0, 30.0), shift=(7.0, -3.0)):
-    """A regular grid moved by a translation, with match 0 replaced by a far-away outlier."""
-    g = np.stack(np.meshgrid(np.arange(n_side) * step, np.arange(n_side) * step), -1).reshape(-1, 2)
-    x = g + offset
-    y = x + shift
-    y[0] = (600.0, 450.0)
-    return x, y
 
 
 def _precision_recall(keep, truth):
@@ -66,17 +47,17 @@ def test_rrwm_and_greedy_exact():
 def test_pgm_exact_with_shapes():
     # With affine shapes the affinity is the mutual projection error: zero inside a translated grid, and
     # hundreds of pixels between the grid and the match sent to the corner, which is left without support.
-    x, y = _grid_translation()
+    x, y = grid_translation()
     S = np.tile(np.eye(2) * 3.0, (len(x), 1, 1))
-    keep = _run("pgm", x, y, _identity(len(x)), shapes1=S, shapes2=S)
+    keep = run_filter("pgm", x, y, identity_matches(len(x)), shapes1=S, shapes2=S)
     assert not keep[0] and keep[1:].all()
     # A rotated image-2 shape on one match breaks its local transformation: on a 60-pixel grid its
     # projections miss its neighbours by 85 pixels, a mutual error of 42 of the 50 allowed, and the
     # little affinity left (0.15 per neighbour) is below the support of two.
-    x, y = _grid_translation(step=60.0)
+    x, y = grid_translation(step=60.0)
     S2 = S.copy()
     S2[10] = 3.0 * np.array([[0.0, -1.0], [1.0, 0.0]])
-    keep = _run("pgm", x, y, _identity(len(x)), shapes1=S, shapes2=S2)
+    keep = run_filter("pgm", x, y, identity_matches(len(x)), shapes1=S, shapes2=S2)
     assert not keep[0] and not keep[10]
     assert keep[1:10].all() and keep[11:].all()
 
@@ -100,24 +81,24 @@ def test_bm_exact_two_motions():
     y = g + np.where(left[:, None], [60.0, 0.0], [-60.0, 0.0])
     x = np.vstack([g, [[150.0, 150.0]]])
     y = np.vstack([y, [[150.0, 150.0]]])
-    keep = _run("bm", x, y, _identity(len(x)))
+    keep = run_filter("bm", x, y, identity_matches(len(x)))
     assert keep[:-1].all() and not keep[-1]
 
 
 def test_scv_exact():
-    x, y = _grid_translation()
-    keep = _run("scv", x, y, _identity(len(x)))
+    x, y = grid_translation()
+    keep = run_filter("scv", x, y, identity_matches(len(x)))
     assert not keep[0] and keep[1:].all()
     # Five matches: every region is capped at the 4 others, whose chance level 4 / 4 reaches p1, so the
     # only step is uninformative and nothing is accepted.
-    keep = _run("scv", x[1:6], y[1:6], _identity(5))
+    keep = run_filter("scv", x[1:6], y[1:6], identity_matches(5))
     assert not keep.any()
 
 
 @pytest.mark.parametrize("name", ["bm", "scv"])
 def test_translation_grid_exact(name):
-    x, y = _grid_translation()
-    keep = _run(name, x, y, _identity(len(x)), np.full(len(x), 0.1))
+    x, y = grid_translation()
+    keep = run_filter(name, x, y, identity_matches(len(x)), np.full(len(x), 0.1))
     assert not keep[0]
     assert keep[1:].all()
 
@@ -129,7 +110,7 @@ def test_translation_grid_exact(name):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_planted_homography_precision(name, seed):
     pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=seed)
-    keep = _run(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
     precision, recall = _precision_recall(keep, pm.is_inlier)
     print(f"{name}: precision {precision:.3f} recall {recall:.3f} kept {int(keep.sum())}")
     assert precision >= 0.8
@@ -139,7 +120,7 @@ def test_planted_homography_precision(name, seed):
 @pytest.mark.parametrize("name", NAMES)
 def test_planted_without_scores(name):
     pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, rng=3)
-    keep = _run(name, pm.kpts1, pm.kpts2, pm.matches, None)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, pm.matches, None)
     precision, recall = _precision_recall(keep, pm.is_inlier)
     assert precision >= 0.8 and recall >= 0.8
 
@@ -148,7 +129,7 @@ def test_planted_without_scores(name):
 def test_identical_images_keep_most(name):
     rng = np.random.default_rng(5)
     kpts = rng.uniform([0, 0], [639, 479], size=(400, 2))
-    keep = _run(name, kpts, kpts.copy(), _identity(400))
+    keep = run_filter(name, kpts, kpts.copy(), identity_matches(400))
     assert keep.mean() > 0.9
 
 
@@ -160,16 +141,10 @@ def test_identical_images_keep_most(name):
 def test_tiny_inputs(name, k):
     rng = np.random.default_rng(k)
     kpts = rng.uniform(0, 100, size=(k, 2))
-    keep = _run(name, kpts, kpts + 1.0, _identity(k), rng.uniform(size=k))
+    keep = run_filter(name, kpts, kpts + 1.0, identity_matches(k), rng.uniform(size=k))
     if k <= 2:  # a match needs the support of at least two others: with two or fewer, nothing is kept
         assert not keep.any()
-    _run(name, kpts, kpts + 1.0, _identity(k), None)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_empty_keypoints(name):
-    keep = _run(name, np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.int64), None)
-    assert keep.shape == (0,)
+    run_filter(name, kpts, kpts + 1.0, identity_matches(k), None)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -178,7 +153,7 @@ def test_collinear_keypoints(name):
     t = np.linspace(0, 500, 60)
     kpts1 = np.c_[t, 0.5 * t + 10]
     kpts2 = kpts1 + (5.0, 2.0)
-    keep = _run(name, kpts1, kpts2, _identity(60), np.linspace(0, 1, 60))
+    keep = run_filter(name, kpts1, kpts2, identity_matches(60), np.linspace(0, 1, 60))
     assert keep.mean() > 0.8
 
 
@@ -186,11 +161,11 @@ def test_collinear_keypoints(name):
 def test_duplicate_keypoints(name):
     # Twenty matches between the same two points: no geometry to contradict them, nothing to crash on.
     kpts = np.tile([[100.0, 100.0]], (20, 1))
-    _run(name, kpts, kpts, _identity(20), None)
+    run_filter(name, kpts, kpts, identity_matches(20), None)
     # Duplicated matches inside a consistent grid do not disturb the others.
-    x, y = _grid_translation()
-    m = np.vstack([_identity(len(x)), _identity(len(x))[5:15]])
-    keep = _run(name, x, y, m)
+    x, y = grid_translation()
+    m = np.vstack([identity_matches(len(x)), identity_matches(len(x))[5:15]])
+    keep = run_filter(name, x, y, m)
     assert keep[1:len(x)].mean() > 0.9 and not keep[0]
 
 
@@ -203,7 +178,7 @@ def test_many_to_many_input(name):
     matches = np.vstack([pm.matches, wrong])
     truth = np.r_[np.ones(800, bool), wrong[:, 0] == wrong[:, 1]]
     scores = np.r_[rng.uniform(0, 0.6, 800), rng.uniform(0.3, 1.0, 800)]
-    keep = _run(name, pm.kpts1, pm.kpts2, matches, scores)
+    keep = run_filter(name, pm.kpts1, pm.kpts2, matches, scores)
     precision, recall = _precision_recall(keep, truth)
     assert precision > 0.9 and recall > 0.8
 
@@ -212,37 +187,11 @@ def test_pgm_output_is_one_to_one():
     pm = planted_homography_matches(600, 1.0, noise=0.3, image_size=SIZE, rng=8)
     rng = np.random.default_rng(8)
     matches = np.vstack([pm.matches, np.c_[np.arange(600), rng.permutation(600)]])
-    kept = matches[_run("pgm", pm.kpts1, pm.kpts2, matches)]
+    kept = matches[run_filter("pgm", pm.kpts1, pm.kpts2, matches)]
     assert len(np.unique(kept[:, 0])) == len(kept) == len(np.unique(kept[:, 1]))
 
 
 # ----- determinism and arguments ----------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_deterministic(name):
-    pm = planted_homography_matches(600, 0.4, noise=0.5, image_size=SIZE, rng=11)
-    a = _run(name, pm.kpts1, pm.kpts2, pm.matches, pm.scores)
-    b = _run(name, pm.kpts1.copy(), pm.kpts2.copy(), pm.matches.copy(), pm.scores.copy())
-    np.testing.assert_array_equal(a, b)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_bad_arguments_name_the_argument(name):
-    k = np.zeros((3, 2))
-    m = _identity(3)
-    f = FILTERS[name]
-    with pytest.raises(ValueError, match="matches"):
-        f(k, k, [[0, 5]], None, image_size1=SIZE, image_size2=SIZE)
-    with pytest.raises(ValueError, match="scores"):
-        f(k, k, m, [0.1, 0.2], image_size1=SIZE, image_size2=SIZE)
-    with pytest.raises(ValueError, match="image_size2"):
-        f(k, k, m, None, image_size1=SIZE, image_size2=(0, 10))
-    with pytest.raises(ValueError, match="kpts1"):
-        f(np.zeros((3, 3, 1)), k, m, None, image_size1=SIZE, image_size2=SIZE)
-    with pytest.raises(ValueError, match="shapes1"):
-        f(k, k, m, None, image_size1=SIZE, image_size2=SIZE, shapes1=np.zeros((3, 2)),
-          shapes2=np.zeros((3, 2, 2)))
 
 
 @pytest.mark.parametrize(
@@ -259,6 +208,6 @@ def test_bad_arguments_name_the_argument(name):
     ],
 )
 def test_bad_parameters_name_the_parameter(name, params, argname):
-    x, y = _grid_translation()
+    x, y = grid_translation()
     with pytest.raises(ValueError, match=argname):
-        _run(name, x, y, _identity(len(x)), **params)
+        run_filter(name, x, y, identity_matches(len(x)), **params)
