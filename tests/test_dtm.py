@@ -373,12 +373,21 @@ def test_find_simplex_locates_every_point():
         assert not hit.any()
 
 
+@pytest.mark.parametrize("walk", ["merge-walk", "spanning-forest"])
 @pytest.mark.parametrize("seed", range(6))
-def test_matlab_alpha_matches_definition(seed):
+def test_matlab_alpha_matches_definition(seed, walk, monkeypatch):
     """The alpha radius equals the one computed literally from its definition: count the regions (edge-
     connected sets of triangles with circumradius <= a) at every spectrum value a, take the first value at
-    or above the one enclosing every point that gives a single region, then MATLAB's index into the rest."""
+    or above the one enclosing every point that gives a single region, then MATLAB's index into the rest.
+    Both ways of finding that value agree with it: the union-find walk and, when the walk is cut short,
+    the region counts from the minimum spanning forest."""
+    import functools
     import math
+
+    from ctxmatch_lib.dtm import boundary
+
+    if walk == "spanning-forest":
+        monkeypatch.setattr(boundary, "_merge_walk", functools.partial(boundary._merge_walk, max_steps=0))
 
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
 from .triangulation import (DelaunayMesh, IncrementalDelaunay, _triangle_neighbors, delaunay_or_none, round_half_away,
-                            unique_rows)
+                            unique_ints, unique_rows)
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -201,15 +201,12 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
     """
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
-    return _matlab_alpha(radii, simplices, *_adjacent_pairs(neighbors), n_points, shrink)
-
-
-def _matlab_alpha(radii, simplices, t, u, n_points, shrink) -> float:
-    """:func:`matlab_boundary_alpha` with the adjacent triangle pairs ``(t, u)`` (``t`` non-decreasing)."""
     if len(radii) == 0:
         return math.inf
     gid = np.zeros(len(radii), np.int64)
-    return float(_matlab_alphas(radii, gid, simplices, t, u, np.array([0, n_points]), shrink)[0])
+    neighbors = np.asarray(neighbors, np.int64)
+    return float(_matlab_alphas(radii, gid, simplices, neighbors, *_adjacent_pairs(neighbors), np.array([0, n_points]),
+                                shrink)[0])
 
 
 def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | None = None) -> AlphaShape | None:
@@ -262,7 +259,7 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
     gid = np.repeat(np.arange(n_groups), np.diff(t_off))
     radii = _circumradii(points, simplices)
     t, u = _adjacent_pairs(neighbors)
-    alphas = _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink)
+    alphas = _matlab_alphas(radii, gid, simplices, neighbors, t, u, p_off, shrink)
     inside = radii <= alphas[gid]
     if not inside.all():
         # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior of
@@ -289,13 +286,13 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
     return shapes, neighbors_list
 
 
-def _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink) -> np.ndarray:
-    """:func:`_matlab_alpha` of each mesh of a disjoint union (triangles grouped by ``gid``, non-decreasing;
+def _matlab_alphas(radii, gid, simplices, neighbors, t, u, p_off, shrink) -> np.ndarray:
+    """:func:`matlab_boundary_alpha` of each mesh of a disjoint union (triangles grouped by ``gid``, non-decreasing;
     points of mesh ``g`` are rows ``p_off[g]:p_off[g + 1]``; every mesh has triangles)."""
     n_groups = len(p_off) - 1
     # Spectrum ascending within each mesh, meshes in turn (equal radii share a rank, their order is irrelevant).
     t_off = np.searchsorted(gid, np.arange(n_groups + 1))
-    order = np.concatenate([np.argsort(radii[lo:hi], kind="stable") + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
+    order = np.concatenate([np.argsort(radii[lo:hi]) + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
     srt, sgid = radii[order], gid[order]
     new = np.ones(len(srt), bool)
     new[1:] = (srt[1:] != srt[:-1]) | (sgid[1:] != sgid[:-1])
@@ -307,26 +304,95 @@ def _matlab_alphas(radii, gid, simplices, t, u, p_off, shrink) -> np.ndarray:
     # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
     first = np.full(p_off[-1], n_spec, np.int64)
     np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
-    # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph; the forest of a
-    # disjoint union is the union of the forests, and ranks of later meshes come after, so the running count
-    # minus its value at the end of the previous mesh is the count of this mesh.
-    n_regions = np.cumsum(np.bincount(rank, minlength=n_spec))
-    if len(t):
-        w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
-        forest = minimum_spanning_tree(_graph(t, u, w, len(radii))).data.astype(np.int64) - 1
-        n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=n_spec))
+    fmax = np.where(first < n_spec, first, -1)
+    all_points = np.array([fmax[p_off[g] : p_off[g + 1]].max() for g in range(n_groups)], np.int64)
+    # The critical alpha is the first spectrum value from all_points[g] on at which mesh g is one region.
+    # The regions at all_points[g] come from one connected-components pass; then triangles are added in rank
+    # order, merging regions through a union-find, until one region is left (usually within a few dozen
+    # spectrum values). A long walk falls back to the region count at every spectrum value (minimum
+    # spanning forest). Both give the same, exact, answer.
+    inside = rank <= all_points[gid]
+    both = inside[t] & inside[u]
+    n_comp, label = connected_components(_graph(t[both], u[both], np.ones(int(both.sum())), len(radii)),
+                                         directed=False)
+    critical = np.empty(n_groups, np.int64)
+    walk_failed = []
+    for g in range(n_groups):
+        tri_lo, tri_hi = t_off[g], t_off[g + 1]
+        regions = len(unique_ints(label[tri_lo:tri_hi][inside[tri_lo:tri_hi]]))
+        found = _merge_walk(regions, all_points[g], s_off[g + 1], order[tri_lo:tri_hi], rank, inside, label,
+                            n_comp, neighbors) if regions > 1 else int(all_points[g])
+        if found is None:
+            walk_failed.append(g)
+        else:
+            critical[g] = found
+    if walk_failed:
+        # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph; the forest
+        # of a disjoint union is the union of the forests, and ranks of later meshes come after, so the
+        # running count minus its value at the end of the previous mesh is the count of this mesh.
+        n_regions = np.cumsum(np.bincount(rank, minlength=n_spec))
+        if len(t):
+            w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
+            forest = minimum_spanning_tree(_graph(t, u, w, len(radii))).data.astype(np.int64) - 1
+            n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=n_spec))
+        for g in walk_failed:
+            lo, hi = s_off[g], s_off[g + 1]
+            before = n_regions[lo - 1] if lo > 0 else 0
+            ok = np.flatnonzero(n_regions[all_points[g]:hi] - before == 1)
+            critical[g] = all_points[g] + int(ok[0]) if len(ok) else hi - 1
     alphas = np.empty(n_groups)
     for g in range(n_groups):
-        lo, hi = s_off[g], s_off[g + 1]
-        f = first[p_off[g] : p_off[g + 1]]
-        all_points = int(f[f < n_spec].max())
-        before = n_regions[lo - 1] if lo > 0 else 0
-        ok = np.flatnonzero(n_regions[all_points:hi] - before == 1)
-        critical = all_points + int(ok[0]) if len(ok) else hi - 1
-        n = hi - critical
+        n = s_off[g + 1] - critical[g]
         k = max(math.ceil((1.0 - shrink) * n), 1)
-        alphas[g] = spectrum[critical + k - 1]
+        alphas[g] = spectrum[critical[g] + k - 1]
     return alphas
+
+
+def _merge_walk(regions, start, stop, tri_order, rank, inside, label, n_comp, neighbors, max_steps=2048):
+    """First spectrum index ``>= start`` (and ``< stop``) at which the triangles of rank ``<=`` it form one
+    region, by adding the triangles of rank ``> start`` in rank order (``tri_order``: the mesh's triangles by
+    rank) to the ``regions`` regions that ``label`` gives at ``start``; ``None`` after ``max_steps``
+    triangles (see :func:`_matlab_alphas`), ``stop - 1`` when the mesh never becomes one region."""
+    ranks = rank[tri_order]
+    pos = int(np.searchsorted(ranks, start, side="right"))
+    todo = tri_order[pos : pos + max_steps + 1].tolist()
+    todo_rank = ranks[pos : pos + max_steps + 1].tolist()
+    nbrs = neighbors[tri_order[pos : pos + max_steps + 1]].tolist()
+    parent = {}  # union-find over region ids: labels of the start regions, n_comp + k for added triangles
+    comp = {}
+
+    def find(x):
+        root = x
+        while root in parent:
+            root = parent[root]
+        while x != root:
+            parent[x], x = root, parent[x]
+        return root
+
+    added = set()
+    for k, (tri, r, nb) in enumerate(zip(todo, todo_rank, nbrs)):
+        if k == max_steps:
+            return None
+        me = n_comp + k
+        comp[tri] = me
+        added.add(tri)
+        regions += 1
+        for v in nb:
+            if v < 0:
+                continue
+            if v in added:
+                other = find(comp[v])
+            elif inside[v]:
+                other = find(int(label[v]))
+            else:
+                continue
+            root = find(me)
+            if other != root:
+                parent[other] = root
+                regions -= 1
+        if regions == 1 and (k + 1 == len(todo) or todo_rank[k + 1] != r):
+            return int(r)
+    return stop - 1
 
 
 def _to_float32(points: np.ndarray) -> np.ndarray:
@@ -580,6 +646,12 @@ def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *, s
         return Boundary(pts, method, s, vertices, contour=[border], **empty), None
     if len(vertices) == 0:
         return Boundary(_EMPTY2, method, s, vertices, contour=[], **empty), None
+    return _shape_boundary(vertices, method, shrink, s, empty)
+
+
+def _shape_boundary(vertices, method, shrink, s, empty) -> tuple[Boundary, np.ndarray]:
+    """``"alpha"``/``"convex"`` boundary of non-empty ``vertices`` at distance ``s``, and the triangles of
+    ``V ∪ B``."""
     inc = IncrementalDelaunay(vertices, pad=2.0 * s)  # B lies within s of V's bounding box
     tri = inc.mesh()
     first = alpha_shape(vertices, 0.0 if method == "convex" else shrink, tri=tri)
@@ -646,6 +718,7 @@ def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alp
         contour = _rings_from_edges(both, second.edges)
         pts = _outside_shape(_keep_clear(_sample_rings(contour, s), v, s), v, first.edges)
         inc.add(pts)
+        simplices = inc.simplices()
         out.append((Boundary(pts, method, s, v, first.simplices, hull_edges, first.alpha, first.edges, fat, contour,
-                             second.alpha), inc.simplices()))
+                             second.alpha), simplices))
     return out

@@ -73,9 +73,19 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one lexsort
-    (several times faster than numpy's generic row path)."""
-    order = np.lexsort((points[:, 1], points[:, 0]))
+    """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one sort (several
+    times faster than numpy's generic row path): of one int64 key per row when the points are integers (the
+    collapsed vertices), else a lexsort."""
+    order = None
+    if len(points) > 1 and points.dtype == np.float64:
+        lo, hi = points.min(), points.max()
+        if -2.0**30 < lo and hi < 2.0**30:
+            xy = points.astype(np.int64)
+            if np.array_equal(xy, points):
+                # Equal rows are interchangeable here, so an unstable (SIMD) sort of the keys serves.
+                order = np.argsort((xy[:, 0] << 31) + xy[:, 1])
+    if order is None:
+        order = np.lexsort((points[:, 1], points[:, 0]))
     srt = points[order]
     new = np.ones(len(srt), bool)
     new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
@@ -150,7 +160,7 @@ def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
     a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
     b = simplices[:, [2, 0, 1]].reshape(-1)
     key = np.minimum(a, b) * n_points + np.maximum(a, b)
-    order = np.argsort(key, kind="stable")  # timsort: faster than quicksort on these partly ordered keys
+    order = np.argsort(key)  # a key occurs at most twice and both copies are paired alike: no need for stability
     ks = key[order]
     same = np.flatnonzero(ks[1:] == ks[:-1])
     out = np.full(len(key), -1, np.int64)
