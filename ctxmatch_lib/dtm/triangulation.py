@@ -157,6 +157,8 @@ class DelaunayMesh:
 
 def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
     """``neighbors`` of :class:`DelaunayMesh`: triangles sharing each edge, matched through sorted keys."""
+    if n_points < 46000:  # keys below 2**31: int32 sorts faster
+        simplices = simplices.astype(np.int32)
     a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
     b = simplices[:, [2, 0, 1]].reshape(-1)
     key = np.minimum(a, b) * n_points + np.maximum(a, b)
