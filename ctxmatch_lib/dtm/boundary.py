@@ -359,7 +359,7 @@ def _merge_walk(regions, start, stop, tri_order, rank, inside, label, n_comp, ne
     todo_rank = ranks[pos : pos + max_steps + 1].tolist()
     nbrs = neighbors[tri_order[pos : pos + max_steps + 1]].tolist()
     parent = {}  # union-find over region ids: labels of the start regions, n_comp + k for added triangles
-    comp = {}
+    comp = {}  # added triangle -> its region id
 
     def find(x):
         root = x
@@ -369,18 +369,16 @@ def _merge_walk(regions, start, stop, tri_order, rank, inside, label, n_comp, ne
             parent[x], x = root, parent[x]
         return root
 
-    added = set()
     for k, (tri, r, nb) in enumerate(zip(todo, todo_rank, nbrs)):
         if k == max_steps:
             return None
         me = n_comp + k
         comp[tri] = me
-        added.add(tri)
         regions += 1
         for v in nb:
             if v < 0:
                 continue
-            if v in added:
+            if v in comp:
                 other = find(comp[v])
             elif inside[v]:
                 other = find(int(label[v]))
