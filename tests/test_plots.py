@@ -429,10 +429,12 @@ def test_parquet_carries_provenance(tmp_path):
 
 # ------------------------------------------------------------------------------------------- the gallery
 
-GALLERY = sorted((Path(__file__).resolve().parents[1] / "figures").glob("fig_*.png"))
+_FIGURES = Path(__file__).resolve().parents[1] / "figures"
+# The embedded-default gallery (make figures) and the paper-scale figures on the real data (figures/paper).
+GALLERY = sorted(_FIGURES.glob("fig_*.png")) + sorted((_FIGURES / "paper").glob("fig_*.png"))
 
 
-@pytest.mark.parametrize("png", GALLERY, ids=lambda p: p.stem)
+@pytest.mark.parametrize("png", GALLERY, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_committed_figures_small_vector_and_traceable(png):
     from PIL import Image
 
