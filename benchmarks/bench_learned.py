@@ -12,24 +12,13 @@ shared machine are noisy: compare the ratios to DTM, measured in the same run.
 from __future__ import annotations
 
 import argparse
-import time
 
-import numpy as np
+from bench_filters import _time  # best of `repeat` after one warm-up call (here: loading the weights)
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.synthetic import planted_homography_matches
 
 LEARNED = ["oanet", "acne"]
-
-
-def _time(f, args, kwargs, repeat: int) -> tuple[float, np.ndarray]:
-    keep = f(*args, **kwargs)  # warm-up: loads the weights
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        keep = f(*args, **kwargs)
-        best = min(best, time.perf_counter() - t0)
-    return best, np.asarray(keep, bool)
 
 
 def main(argv=None) -> int:

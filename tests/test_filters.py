@@ -176,19 +176,24 @@ def test_adalam_shapes_reject_inconsistent_orientation():
     assert keep[1:].all()
 
 
-def test_adalam_planted_with_shapes():
-    pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=2)
+def _planted_with_shapes(seed):
+    """Planted case with image-2 shapes from the homography's Jacobian at inliers, random at outliers."""
+    pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=seed)
     n = len(pm.kpts1)
     A1 = _similarity_shapes(n, 3.0, 0.0)
-    # Image-2 shapes: the homography's local Jacobian at inliers, random similarities elsewhere.
     eps = 1e-3
     J = np.stack([(apply_homography(pm.H, pm.kpts1 + d) - apply_homography(pm.H, pm.kpts1 - d)) / (2 * eps)
                   for d in ([eps, 0.0], [0.0, eps])], -1)
     A2 = J @ A1
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed)
     out = ~pm.is_inlier
     A2[out] = [_similarity_shapes(1, 3.0 * rng.uniform(0.5, 2), rng.uniform(-np.pi, np.pi))[0]
                for _ in range(int(out.sum()))]
+    return pm, A1, A2
+
+
+def test_adalam_planted_with_shapes():
+    pm, A1, A2 = _planted_with_shapes(2)
     keep = run_filter("adalam", pm.kpts1, pm.kpts2, pm.matches, pm.scores, shapes1=A1, shapes2=A2)
     precision = (keep & pm.is_inlier).sum() / keep.sum()
     recall = (keep & pm.is_inlier).sum() / pm.is_inlier.sum()
@@ -323,22 +328,6 @@ def test_pfm_local_affines_from_shapes_and_fitted():
     A1 = np.tile(np.diag([2.0, 3.0]), (50, 1, 1))
     np.testing.assert_allclose(local_affines(x, y, A1, L @ A1), np.tile(L, (50, 1, 1)), atol=1e-12)
     np.testing.assert_allclose(local_affines(x, y), np.tile(L, (50, 1, 1)), atol=1e-9)
-
-
-def _planted_with_shapes(seed):
-    """Planted case with image-2 shapes from the homography's Jacobian at inliers, random at outliers."""
-    pm = planted_homography_matches(1500, 0.4, noise=0.5, image_size=SIZE, informative_scores=True, rng=seed)
-    n = len(pm.kpts1)
-    A1 = _similarity_shapes(n, 3.0, 0.0)
-    eps = 1e-3
-    J = np.stack([(apply_homography(pm.H, pm.kpts1 + d) - apply_homography(pm.H, pm.kpts1 - d)) / (2 * eps)
-                  for d in ([eps, 0.0], [0.0, eps])], -1)
-    A2 = J @ A1
-    rng = np.random.default_rng(seed)
-    out = ~pm.is_inlier
-    A2[out] = [_similarity_shapes(1, 3.0 * rng.uniform(0.5, 2), rng.uniform(-np.pi, np.pi))[0]
-               for _ in range(int(out.sum()))]
-    return pm, A1, A2
 
 
 @pytest.mark.parametrize("seed", [0, 1])
