@@ -483,9 +483,27 @@ def test_subdiv2d_duplicates_fall_back_to_qhull():
     assert len(delaunay_simplices(pts)) == 2
 
 
+def test_circumradii_match_the_circumcircle():
+    """Circumradii equal the distance from each triangle's circumcentre (solved directly) to its vertices;
+    a degenerate triangle gets inf."""
+    from ctxmatch_lib.dtm.boundary import _circumradii
+
+    rng = np.random.default_rng(0)
+    pts = np.vstack([np.round(rng.random((60, 2)) * 500), [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]])
+    tri = np.vstack([rng.choice(60, size=(40, 3), replace=True), [[60, 61, 62], [3, 3, 4]]])
+    r = _circumradii(pts, tri)
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    ok = np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])) > 0
+    assert np.isinf(r[~ok]).all() and (~ok[-2:]).all()
+    for k in np.flatnonzero(ok):
+        m = 2 * np.array([b[k] - a[k], c[k] - a[k]])
+        centre = np.linalg.solve(m, [b[k] @ b[k] - a[k] @ a[k], c[k] @ c[k] - a[k] @ a[k]])
+        np.testing.assert_allclose(r[k], np.linalg.norm(pts[tri[k]] - centre, axis=1), rtol=1e-9)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_unique_rows_and_sort_helpers_match_numpy(seed):
-    """unique_rows equals np.unique on integer, quarter-pixel, -0.0 and non-float32 rows; the int16 radix
+    """unique_rows equals np.unique on integer, quarter-pixel, -0.0, float32 and non-float32 rows; the int16 radix
     argsort equals the stable argsort; the int32 path of unique_ints equals np.unique."""
     from ctxmatch_lib.dtm.triangulation import stable_argsort_small, unique_ints, unique_rows
 
@@ -494,7 +512,10 @@ def test_unique_rows_and_sort_helpers_match_numpy(seed):
     halves = rng.integers(-200, 200, (400, 2)) / 4.0
     with_nz = ints.copy()
     with_nz[:3] = -0.0
-    for pts in (ints, halves, np.vstack([ints, halves]), with_nz, ints + 0.1, ints[:1]):
+    f32 = (rng.standard_normal((300, 2)) * 100).astype(np.float32).astype(np.float64)  # boundary-like points
+    f32 = np.vstack([f32, f32[:50], [[-0.0, 1.5], [0.0, 1.5], [-1e-30, 0.0]]])
+    f32 = f32.astype(np.float32).astype(np.float64)  # -1e-30: a tiny negative float32 next to -0.0 and 0.0
+    for pts in (ints, halves, np.vstack([ints, halves]), with_nz, f32, ints + 0.1, ints[:1]):
         u, inv = unique_rows(pts)
         ref_u, ref_inv = np.unique(pts, axis=0, return_inverse=True)
         np.testing.assert_array_equal(u, ref_u)

@@ -74,21 +74,32 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one sort (several
-    times faster than numpy's generic row path): of one int64 key per row when the points are integers (the
-    collapsed vertices), else a lexsort."""
-    order = None
+    times faster than numpy's generic row path): of one 64-bit key per row when the points are integers (the
+    collapsed vertices) or float32 values (the constructed boundary points), else a lexsort."""
+    key = None
     if len(points) > 1 and points.dtype == np.float64:
         lo, hi = points.min(), points.max()
         if -2.0**30 < lo and hi < 2.0**30:
             xy = points.astype(np.int64)
             if np.array_equal(xy, points):
-                # Equal rows are interchangeable here, so an unstable (SIMD) sort of the keys serves.
-                order = np.argsort((xy[:, 0] << 31) + xy[:, 1])
-    if order is None:
+                key = (xy[:, 0] << 31) + xy[:, 1]
+            else:
+                p32 = points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0
+                if np.array_equal(p32, points):
+                    # float32 bit patterns made monotone (negatives: all bits flipped; others: sign bit set)
+                    bits = p32.view(np.uint32).astype(np.uint64)
+                    mono = np.where(bits >> np.uint64(31), ~bits & np.uint64(0xFFFFFFFF), bits | np.uint64(1 << 31))
+                    key = (mono[:, 0] << np.uint64(32)) | mono[:, 1]
+    new = np.ones(len(points), bool)
+    if key is not None:
+        order = np.argsort(key)  # equal rows are interchangeable here, so an unstable (SIMD) sort serves
+        ks = key[order]
+        new[1:] = ks[1:] != ks[:-1]
+    else:
         order = np.lexsort((points[:, 1], points[:, 0]))
     srt = points[order]
-    new = np.ones(len(srt), bool)
-    new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
+    if key is None:
+        new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
     inverse = np.empty(len(points), np.int64)
     inverse[order] = np.cumsum(new) - 1
     return srt[new], inverse
@@ -407,7 +418,7 @@ class Triangulation:
         if self.delaunay is None or len(xy) == 0 or len(self.simplices) == 0:
             return out
         simplices, p, nbr = self.simplices, self.points, self.delaunay.neighbors
-        _, nearest = cKDTree(p).query(xy)
+        _, nearest = cKDTree(p, balanced_tree=False, compact_nodes=False).query(xy)
         ptr, tri_of = _vertex_triangles(simplices, len(p))
         has = ptr[nearest + 1] > ptr[nearest]
         cur = np.where(has, tri_of[np.minimum(ptr[nearest], len(tri_of) - 1)], 0)
