@@ -448,11 +448,12 @@ def _sample_rings(rings: list, s: float) -> np.ndarray:
     return np.vstack(out) if out else _EMPTY2
 
 
-def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
+def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
     """Push boundary samples closer than ``s`` to ``V`` radially out to distance ``s`` from their nearest
-    vertex; drop the ones still closer than ``s / 2`` after that (see :func:`dtm_boundary`)."""
+    vertex; drop the ones still closer than ``s / 2`` after that (see :func:`dtm_boundary`). Returns the
+    distinct samples (rounded to float32) and each one's distance to its nearest vertex before rounding."""
     if len(b) == 0 or len(vertices) == 0:
-        return _to_float32(b)
+        return _to_float32(b), np.full(len(b), np.inf)
     tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)  # unbalanced: faster to build
     d, j = tree.query(b)
     close = d < s * (1 - 1e-9)
@@ -460,17 +461,32 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> np.ndarray:
         b = b.copy()
         movable = close & (d > 1e-9 * s)
         b[movable] = vertices[j[movable]] + (b[movable] - vertices[j[movable]]) * (s / d[movable, None])
-        d2, _ = tree.query(b)
-        b = b[d2 >= 0.5 * s]
-    return unique_rows(_to_float32(b))[0]
+        d, _ = tree.query(b)
+        far = d >= 0.5 * s
+        b, d = b[far], d[far]
+    pts, inverse = unique_rows(_to_float32(b))
+    dist = np.empty(len(pts))
+    dist[inverse] = d
+    return pts, dist
 
 
-def _outside_shape(b: np.ndarray, vertices: np.ndarray, shape_edges: np.ndarray) -> np.ndarray:
-    """Drop the boundary samples that fall inside the first alpha shape of ``V`` (see :func:`dtm_boundary`)."""
-    if len(b) == 0 or len(shape_edges) == 0:
+def _outside_shape(b: np.ndarray, dist: np.ndarray, vertices: np.ndarray, shape: AlphaShape) -> np.ndarray:
+    """Drop the boundary samples that fall inside the first alpha shape of ``V`` (see :func:`dtm_boundary`).
+
+    ``dist`` is each sample's distance to its nearest vertex. Every point of a triangle lies within its
+    circumradius of one of the triangle's vertices, so a sample farther than the largest circumradius of the
+    shape's triangles (holes filled included) from every vertex is outside it; only the others are tested
+    against the shape's polygons (on dense sets, none)."""
+    if len(b) == 0 or len(shape.edges) == 0:
         return b
-    region = shapely.union_all([shapely.Polygon(r) for r in _rings_from_edges(vertices, shape_edges)])
-    return b[~shapely.contains_xy(region, b[:, 0], b[:, 1])]
+    reach = float(shape.radii[shape.inside].max())
+    near = np.flatnonzero(dist <= reach * (1 + 1e-9) + 1e-3)  # 1e-3 px: covers the float32 rounding of b
+    if len(near) == 0:
+        return b
+    region = shapely.union_all([shapely.Polygon(r) for r in _rings_from_edges(vertices, shape.edges)])
+    inside = np.zeros(len(b), bool)
+    inside[near] = shapely.contains_xy(region, b[near, 0], b[near, 1])
+    return b[~inside]
 
 
 def _degenerate_boundary(vertices: np.ndarray, s: float) -> tuple[list, np.ndarray]:
@@ -670,7 +686,7 @@ def _shape_boundary(vertices, method, shrink, s, empty) -> tuple[Boundary, np.nd
     first = alpha_shape(vertices, 0.0 if method == "convex" else shrink, tri=tri)
     if first is None:
         contour, pts = _degenerate_boundary(vertices, s)
-        pts = _keep_clear(pts, vertices, s)
+        pts = _keep_clear(pts, vertices, s)[0]
         inc.add(pts)
         return Boundary(pts, method, s, vertices, contour=contour, **empty), inc.simplices()
     hull_edges = tri.convex_hull.astype(np.int64)
@@ -678,7 +694,7 @@ def _shape_boundary(vertices, method, shrink, s, empty) -> tuple[Boundary, np.nd
     both = unique_rows(np.vstack([vertices, fattened]))[0]
     second = alpha_shape(both, 0.0 if method == "convex" else shrink)
     contour = _rings_from_edges(both, second.edges)
-    pts = _outside_shape(_keep_clear(_sample_rings(contour, s), vertices, s), vertices, first.edges)
+    pts = _outside_shape(*_keep_clear(_sample_rings(contour, s), vertices, s), vertices, first)
     inc.add(pts)
     return (Boundary(pts, method, s, vertices, first.simplices, hull_edges, first.alpha, first.edges, fattened,
                      contour, second.alpha), inc.simplices())
@@ -729,7 +745,7 @@ def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alp
         hull_edges = np.stack([first.simplices[hull_t, (hull_k + 1) % 3], first.simplices[hull_t, (hull_k + 2) % 3]],
                               axis=1)
         contour = _rings_from_edges(both, second.edges)
-        pts = _outside_shape(_keep_clear(_sample_rings(contour, s), v, s), v, first.edges)
+        pts = _outside_shape(*_keep_clear(_sample_rings(contour, s), v, s), v, first)
         inc.add(pts)
         simplices = inc.simplices()
         out.append((Boundary(pts, method, s, v, first.simplices, hull_edges, first.alpha, first.edges, fat, contour,
