@@ -455,8 +455,8 @@ def test_incremental_delaunay_insertion_equals_from_scratch():
 @pytest.mark.parametrize("n", [1, 5, 300, 5000])
 def test_key_index_matches_binary_search(n):
     """The hashed point-key index returns exactly the rows a binary search over all keys gives, finds keys
-    that lost their hash slot, rejects absent keys (also as a membership test) and flags duplicates."""
-    from ctxmatch_lib.dtm.triangulation import _KeyIndex
+    that lost their hash slot, rejects absent keys (also the membership set, _KeySet) and flags duplicates."""
+    from ctxmatch_lib.dtm.triangulation import _KeyIndex, _KeySet
 
     rng = np.random.default_rng(n)
     keys = rng.choice(2**62, size=n, replace=False).astype(np.int64)
@@ -470,7 +470,10 @@ def test_key_index_matches_binary_search(n):
     absent = np.setdiff1d(rng.integers(0, 2**62, 50), keys)
     assert index.lookup(np.r_[q, absent[:1]]) is None
     mixed = np.r_[q, absent, keys + 1]
-    np.testing.assert_array_equal(index.contains(mixed), np.isin(mixed, keys))
+    np.testing.assert_array_equal(_KeySet(keys).contains(mixed), np.isin(mixed, keys))
+    marker = np.iinfo(np.int64).min  # the key set's empty-slot marker, as a query and as a key
+    assert not _KeySet(keys).contains(np.r_[marker]).any()
+    assert _KeySet(np.r_[keys, marker]).contains(np.r_[marker, keys[:1]]).all()
     assert _KeyIndex(np.r_[keys, keys[:1]]).has_duplicates
     assert _KeyIndex(np.r_[keys[:1], keys, keys[:1]]).has_duplicates
 

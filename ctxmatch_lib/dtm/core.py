@@ -14,7 +14,7 @@ import numpy as np
 from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
 from ..geometry import _dlt_design, _normalise, _transfer_errors
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
-from .triangulation import Triangulation, _KeyIndex, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
+from .triangulation import Triangulation, _KeySet, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -177,7 +177,7 @@ def _has_edge(tri: Triangulation, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if len(tri.indices) == 0:
         return np.zeros(len(a), bool)
     keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(tri.indptr)) * n + tri.indices
-    return _KeyIndex(keys).contains(a * n + b) & (a != b)
+    return _KeySet(keys).contains(a * n + b) & (a != b)
 
 
 @dataclass(frozen=True)
