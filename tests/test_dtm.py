@@ -672,3 +672,25 @@ def test_whole_set_tolerance_is_in_pixels():
     assert _one_homography(p, q, 1.0)
     assert not _one_homography(p, q, 0.01)
     assert _one_homography(p, p, 0.0 + 1e-6)
+
+
+def test_whole_set_rule_with_a_shared_keypoint():
+    """Many-to-many: a keypoint matched twice. Partners within ``2 tol`` of each other leave the rule
+    possible (here it fires); partners further apart rule it out before any fit, as the triangle inequality
+    says, and DTM alone decides."""
+    from ctxmatch_lib.dtm.core import _shared_keypoint_spread
+
+    k = np.random.default_rng(0).random((5, 2)) * 400 + 50
+    m = np.c_[np.r_[np.arange(5), 0], np.arange(6)]
+    size = dict(image_size1=(500, 500), image_size2=(500, 500))
+    near = np.vstack([k, k[0] + [0.3, 0.0]])
+    res = dtm(k, near, m, None, **size)
+    assert res.whole_set and res.keep.all()
+    far = np.vstack([k, k[0] + [30.0, 0.0]])
+    res = dtm(k, far, m, None, **size)
+    np.testing.assert_array_equal(res.keep, dtm(k, far, m, None, whole_set_tol=None, **size).keep)
+    assert not res.whole_set and not res.keep.all()
+    canon = np.array([0, 2, 3, 4, 5, 1])  # matches sharing image-1 keypoint 0 are consecutive
+    p1, p2 = k[m[:, 0]], far[m[:, 1]]
+    assert _shared_keypoint_spread(p1, p2, canon, 1.0) and not _shared_keypoint_spread(p1, p2, canon, 15.0)
+    assert not _shared_keypoint_spread(p1, near[m[:, 1]], canon, 1.0)

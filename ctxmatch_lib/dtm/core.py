@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
-from ..geometry import _dlt_design, _normalise, _transfer_errors
+from ..geometry import _dlt_normal_matrix, _normalise, _transfer_errors
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
 from .triangulation import Triangulation, _KeySet, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
@@ -250,6 +250,21 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
     return active[kept_local], b1.points, b2.points, (t1, t2), record
 
 
+def _shared_keypoint_spread(p1: np.ndarray, p2: np.ndarray, canon: np.ndarray, tol: float) -> bool:
+    """Whether two matches share an image-1 keypoint but have image-2 keypoints more than ``2 tol`` apart.
+
+    Then no map sends that keypoint within ``tol`` of both (triangle inequality), so the whole-set rule
+    cannot apply and its fit is skipped (many-to-many candidate sets nearly always have such a pair).
+    ``canon`` ranks the matches by image-1 keypoint first, so matches sharing one are consecutive.
+    """
+    order = np.empty(len(canon), np.int64)
+    order[canon] = np.arange(len(canon))
+    a, b = p1[order], p2[order]
+    same = (a[1:] == a[:-1]).all(axis=1)
+    d = b[1:][same] - b[:-1][same]
+    return bool((np.hypot(d[:, 0], d[:, 1]) > 2.0 * tol).any())
+
+
 def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     """Whether one proper homography maps every ``p1`` onto its ``p2`` within ``tol`` pixels, and back.
 
@@ -263,8 +278,7 @@ def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
         return False
     n1, t1 = _normalise(p1)
     n2, t2 = _normalise(p2)
-    a = _dlt_design(n1, n2)
-    evals, evecs = np.linalg.eigh(np.einsum("ki,kj->ij", a, a))
+    evals, evecs = np.linalg.eigh(_dlt_normal_matrix(n1, n2))
     if not evals[-1] > 0 or evals[1] <= 1e-12 * evals[-1]:
         return False  # no unique homography
     h = np.linalg.solve(t2, evecs[:, 0].reshape(3, 3) @ t1)
@@ -589,7 +603,9 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
 
     keep = (removed_at == 0) | (readded_at > 0)
     tr = DTMTrace(tuple(records), tuple(levels), size1, size2) if trace else None
-    whole = (whole_set_tol is not None and not keep.all() and _one_homography(p1, p2, float(whole_set_tol))
+    whole = (whole_set_tol is not None and not keep.all()
+             and not _shared_keypoint_spread(p1, p2, canon, float(whole_set_tol))
+             and _one_homography(p1, p2, float(whole_set_tol))
              and min(len(collapse_vertices(p1)[0]), len(collapse_vertices(p2)[0])) >= 4)
     if whole:
         keep = np.ones(k, bool)
