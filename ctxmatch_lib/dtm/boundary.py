@@ -166,10 +166,8 @@ def _graph(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, n: int) -> csr_
 
 def _adjacent_pairs(neighbors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each pair of edge-adjacent triangles once, as two index arrays."""
-    t = np.repeat(np.arange(len(neighbors)), 3)
-    u = neighbors.reshape(-1)
-    keep = u > t  # drops the hull (-1) and the reversed duplicates
-    return t[keep], u[keep]
+    pos = np.flatnonzero(neighbors > np.arange(len(neighbors))[:, None])  # drops the hull (-1) and reversed pairs
+    return pos // 3, neighbors.reshape(-1)[pos]
 
 
 def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: np.ndarray,
@@ -272,13 +270,15 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
         # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior of
         # their mesh (node n_tri + g; these edges go last so that the rows stay sorted).
         both_out = ~inside[t] & ~inside[u]
-        hull_out = np.flatnonzero(~inside & (neighbors < 0).any(axis=1))
+        hull_tri = np.flatnonzero(neighbors.reshape(-1) < 0) // 3  # triangles with a hull edge, increasing
+        hull_tri = hull_tri[np.diff(hull_tri, prepend=-1) != 0]  # once each
+        hull_out = hull_tri[~inside[hull_tri]]
         rows = np.concatenate([t[both_out], n_tri + gid[hull_out]])
         cols = np.concatenate([u[both_out], hull_out])
         graph = _graph(rows, cols, np.ones(len(rows)), n_tri + n_groups)
         _, label = connected_components(graph, directed=False)
         inside = inside | (label[:n_tri] != label[n_tri + gid])
-    nb_inside = np.where(neighbors >= 0, inside[np.maximum(neighbors, 0)], False)
+    nb_inside = np.append(inside, False)[neighbors]  # -1 (no neighbour) reads the appended False
     border = inside[:, None] & ~nb_inside  # edge k of triangle t (opposite vertex k) is on the boundary
     tt, kk = np.nonzero(border)
     edges = np.stack([simplices[tt, (kk + 1) % 3], simplices[tt, (kk + 2) % 3]], axis=1)
