@@ -471,7 +471,7 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
       rule re-adds gross outliers. Measured on the 55 real pairs with the alpha boundary
       (``benchmarks/bench_dtm_real.py``; precision / recall, %, port in brackets):
       paper-best planar ``"stored"`` 68.2 / 64.5, ``"current"`` 73.7 / 62.9 (70.4 / 63.0); paper-best
-      kusvod2 69.6 / 45.9 and 78.0 / 44.7 (75.3 / 44.2); baseline planar 76.1 / 75.1 and 80.8 / 72.4
+      kusvod2 69.5 / 45.9 and 78.0 / 44.7 (75.3 / 44.2); baseline planar 76.1 / 75.1 and 80.8 / 72.4
       (79.7 / 72.9). The paper's reading trades 4-8 points of precision for 1-3 of recall, so the default
       follows the port and ``"stored"`` stays as the paper's option.
 
