@@ -9,7 +9,8 @@ with its own interpreter (``--port-python``, an environment with numpy, scipy, p
 opencv-python-headless, torch and kornia, which the port imports); the port is never imported here, never a dependency, and never run in CI.
 
 Printed per dataset group and preset: mean precision / recall of the DTM2 outputs (over pairs, in percent,
-against the correct candidates of the pair), the mean Jaccard index of our keep mask with the port's, and the
+against the correct candidates of the pair) and of our DTM1 outputs, the matches our DTM2 re-added (and how
+many of them are wrong), the mean Jaccard index of our keep mask with the port's, and the
 summed CPU times (process time, one thread, so that a loaded machine does not skew the ratio) with
 their ratio. Port outputs are cached in ``--work`` (keyed by the candidates), so a
 second run only times ours.
@@ -128,7 +129,8 @@ def main(argv=None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
 
     rows = []
-    header = f"{'preset':<11} {'data':<8} {'pairs':>5} {'boundary':<10} {'ours P / R':>13} "
+    header = (f"{'preset':<11} {'data':<8} {'pairs':>5} {'boundary':<10} {'ours P / R':>13} {'DTM1 P / R':>13} "
+              f"{'re-added (wrong)':>16} ")
     if args.port:
         header += f"{'port P / R':>13} {'Jaccard':>7} {'ours s':>7} {'port s':>7} {'speed-up':>8}"
     print(header)
@@ -142,15 +144,22 @@ def main(argv=None) -> int:
                     method, _, dtm2 = b.partition("/")
                     t0 = time.process_time()
                     extra = {"dtm2_boundary": dtm2} if dtm2 else {}
-                    keep = dtm(f1.kpts, f2.kpts, matches, scores, boundary=method, **extra, **sizes).keep
-                    rec[b] = dict(keep=keep, time=time.process_time() - t0, pr=_pr(keep, labels))
+                    res = dtm(f1.kpts, f2.kpts, matches, scores, boundary=method, **extra, **sizes)
+                    elapsed = time.process_time() - t0
+                    added = res.readded_at > 0
+                    rec[b] = dict(keep=res.keep, time=elapsed, pr=_pr(res.keep, labels),
+                                  pr1=_pr(res.removed_at == 0, labels), added=int(added.sum()),
+                                  added_wrong=int((added & ~labels).sum()))
                 if args.port:
                     keep, t = _run_port(args.port, args.port_python, args.work, pair, f1, f2, matches, scores)
                     rec["port"] = dict(keep=keep, time=t, pr=_pr(keep, labels))
                 per.append(rec)
             for b in args.boundaries:
                 p, r = np.mean([x[b]["pr"] for x in per], axis=0)
-                line = f"{preset:<11} {group:<8} {len(per):>5} {b:<10} {p:>6.1f} / {r:<5.1f}"
+                p1, r1 = np.mean([x[b]["pr1"] for x in per], axis=0)
+                added = f"{sum(x[b]['added'] for x in per)} ({sum(x[b]['added_wrong'] for x in per)})"
+                line = (f"{preset:<11} {group:<8} {len(per):>5} {b:<10} {p:>6.1f} / {r:<5.1f} {p1:>6.1f} / {r1:<5.1f} "
+                        f"{added:>16}")
                 if args.port:
                     pp, pr_ = np.mean([x["port"]["pr"] for x in per], axis=0)
                     jac = np.mean([_jaccard(x[b]["keep"], x["port"]["keep"]) for x in per])
@@ -160,7 +169,9 @@ def main(argv=None) -> int:
                              f"{t_port / t_ours:>7.1f}x")
                 print(line, flush=True)
             rows.extend(dict(preset=preset, group=group, **{
-                k: (v if not isinstance(v, dict) else {"P": v["pr"][0], "R": v["pr"][1], "time": v["time"]})
+                k: (v if not isinstance(v, dict) else {"P": v["pr"][0], "R": v["pr"][1], "time": v["time"],
+                                                       **({"P1": v["pr1"][0], "R1": v["pr1"][1], "added": v["added"],
+                                                           "added_wrong": v["added_wrong"]} if "pr1" in v else {})})
                 for k, v in rec.items()}) for rec in per)
     if args.port and rows:
         t_port = sum(x["port"]["time"] for x in rows)
@@ -171,7 +182,9 @@ def main(argv=None) -> int:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     print("P / R: mean over pairs of the DTM2 output's precision and recall (percent) against the pair's correct "
-          "candidates; Jaccard: mean over pairs of |ours ∩ port| / |ours ∪ port|; CPU seconds summed over pairs")
+          "candidates; DTM1 P / R: the same for the DTM1 output; re-added (wrong): matches DTM2 re-added, summed "
+          "over pairs (of them wrong); Jaccard: mean over pairs of |ours ∩ port| / |ours ∪ port|; CPU seconds "
+          "summed over pairs")
     return 0
 
 
