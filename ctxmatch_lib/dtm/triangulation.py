@@ -290,12 +290,16 @@ class IncrementalDelaunay:
 _FIBONACCI = np.uint64(0x9E3779B97F4A7C15)
 
 
+def _fibonacci_slot(keys: np.ndarray, shift: np.uint64) -> np.ndarray:
+    """Hash-table slot of each int64 key: the top ``64 - shift`` bits of its Fibonacci hash."""
+    return (keys.view(np.uint64) * _FIBONACCI) >> shift
+
+
 class _KeyIndex:
     """Row of each of a set of int64 keys, for fast exact look-ups (the point coordinates' bit patterns).
 
     A Fibonacci-hashed table with 8 slots per key holds, in each slot, the last key hashed there; the keys
-    that lost their slot (a few percent) are kept sorted for a binary search, and their slots are flagged.
-    Every table answer is verified, so a look-up finds a key's row exactly, as a binary search over all keys
+    that lost their slot (a few percent) are kept sorted for a binary search. Every table answer is verified, so a look-up finds a key's row exactly, as a binary search over all keys
     would, without sorting them. Membership tests go through :class:`_KeySet`.
     """
 
@@ -310,8 +314,6 @@ class _KeyIndex:
         winner = self._table[slot]
         lost = np.flatnonzero(winner != rows)
         lost_keys = keys[lost]
-        self._shared = np.zeros(len(self._table), bool)
-        self._shared[slot[lost]] = True
         order = np.argsort(lost_keys)
         self._lost_keys, self._lost_rows = lost_keys[order], lost[order]
         # A duplicate either lost to an equal key or lost, like its copy, to a different one.
@@ -319,7 +321,7 @@ class _KeyIndex:
                                    or np.any(self._lost_keys[1:] == self._lost_keys[:-1]))
 
     def _slot(self, keys: np.ndarray) -> np.ndarray:
-        return (keys.view(np.uint64) * _FIBONACCI) >> self._shift
+        return _fibonacci_slot(keys, self._shift)
 
     def lookup(self, queries: np.ndarray) -> np.ndarray | None:
         """Rows of the keys equal to ``queries`` (int64), ``None`` if one is not a key."""
@@ -359,7 +361,7 @@ class _KeySet:
         self._lost_keys = np.sort(keys[lost])
 
     def _slot(self, keys: np.ndarray) -> np.ndarray:
-        return (keys.view(np.uint64) * _FIBONACCI) >> self._shift
+        return _fibonacci_slot(keys, self._shift)
 
     def contains(self, queries: np.ndarray) -> np.ndarray:
         """Whether each of ``queries`` (int64) is a key."""
