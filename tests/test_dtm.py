@@ -376,21 +376,14 @@ def test_find_simplex_locates_every_point():
         assert not hit.any()
 
 
-@pytest.mark.parametrize("walk", ["merge-walk", "spanning-forest"])
-@pytest.mark.parametrize("seed", range(6))
-def test_matlab_alpha_matches_definition(seed, walk, monkeypatch):
+@pytest.mark.parametrize("seed", range(9))
+def test_matlab_alpha_matches_definition(seed):
     """The alpha radius equals the one computed literally from its definition: count the regions (edge-
     connected sets of triangles with circumradius <= a) at every spectrum value a, take the first value at
     or above the one enclosing every point that gives a single region, then MATLAB's index into the rest.
-    Both ways of finding that value agree with it: the union-find walk and, when the walk is cut short,
-    the region counts from the minimum spanning forest."""
-    import functools
+    Clusters make the first enclosing shape split into several regions, so the union-find walk of the
+    kernel has regions to merge."""
     import math
-
-    from ctxmatch_lib.dtm import boundary
-
-    if walk == "spanning-forest":
-        monkeypatch.setattr(boundary, "_merge_walk", functools.partial(boundary._merge_walk, max_steps=0))
 
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -694,3 +687,60 @@ def test_whole_set_rule_with_a_shared_keypoint():
     p1, p2 = k[m[:, 0]], far[m[:, 1]]
     assert _shared_keypoint_spread(p1, p2, canon, 1.0) and not _shared_keypoint_spread(p1, p2, canon, 15.0)
     assert not _shared_keypoint_spread(p1, near[m[:, 1]], canon, 1.0)
+
+
+@pytest.mark.parametrize("grid", [False, True])
+def test_triangle_neighbors_match_qhull(grid):
+    """The compiled triangle adjacency equals Qhull's ``neighbors`` (the triangle across the edge opposite
+    each vertex, -1 on the hull), on random points and on a grid full of cocircular ties."""
+    from scipy.spatial import Delaunay
+
+    from ctxmatch_lib.dtm._kernels import triangle_neighbors_kernel
+
+    rng = np.random.default_rng(3)
+    xy = (np.stack(np.meshgrid(np.arange(15.0), np.arange(11.0)), -1).reshape(-1, 2) if grid
+          else rng.random((400, 2)) * 100)
+    tri = Delaunay(xy)
+    np.testing.assert_array_equal(triangle_neighbors_kernel(tri.simplices.astype(np.int64), len(xy)), tri.neighbors)
+
+
+def test_point_location_walk_hands_long_walks_to_the_exhaustive_test():
+    """With a step budget of one triangle, the walk resolves exactly the queries inside their start
+    triangle and flags the others as still walking; the exhaustive test then finds them all."""
+    from ctxmatch_lib.dtm._kernels import locate_kernel
+    from ctxmatch_lib.dtm.triangulation import points_in_triangles, triangulate
+
+    rng = np.random.default_rng(4)
+    tri = triangulate(np.round(rng.random((200, 2)) * 400), np.array([[-50.0, -50], [450, -50], [450, 450], [-50, 450]]))
+    q = rng.random((300, 2)) * 400
+    p, s = tri.points, tri.simplices.astype(np.int64)
+    nearest = np.argmin(((q[:, None] - p[None]) ** 2).sum(-1), axis=1)
+    out, unresolved = locate_kernel(p, s, tri.delaunay.neighbors, q, nearest, 1)
+    start = np.array([np.flatnonzero((s == v).any(axis=1))[0] for v in nearest])
+    in_start = points_in_triangles(q, p[s[start, 0]], p[s[start, 1]], p[s[start, 2]])
+    np.testing.assert_array_equal(out >= 0, in_start)
+    np.testing.assert_array_equal(out[in_start], start[in_start])
+    assert unresolved[~in_start].all() and not unresolved[in_start].any()
+    full = tri.find_simplex(q)
+    assert (full >= 0).all()
+    assert points_in_triangles(q, p[s[full, 0]], p[s[full, 1]], p[s[full, 2]]).all()
+
+
+def test_compiled_kernels_cache_in_the_user_cache_directory(tmp_path):
+    """Compiled DTM kernels are cached under ``$CTXMATCH_CACHE/numba``, not next to the package."""
+    import os
+    import subprocess
+    import sys
+
+    import ctxmatch_lib
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["CTXMATCH_CACHE"] = str(tmp_path)
+    code = ("import numpy as np; from ctxmatch_lib.dtm._kernels import circumradii_kernel; "
+            "print(circumradii_kernel(np.array([[0.0, 0], [2, 0], [0, 2]]), np.array([[0, 1, 2]]))[0])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert float(out.stdout) == pytest.approx(np.sqrt(2))
+    cached = list((tmp_path / "numba").rglob("*circumradii_kernel*"))
+    assert any(f.suffix == ".nbi" for f in cached)
+    package = os.path.dirname(ctxmatch_lib.__file__)
+    assert not [f for _, _, files in os.walk(package) for f in files if f.endswith((".nbi", ".nbc"))]

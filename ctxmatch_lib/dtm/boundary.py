@@ -29,13 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from .triangulation import (DelaunayMesh, IncrementalDelaunay, _triangle_neighbors, delaunay_or_none, round_half_away,
-                            unique_ints, unique_rows)
+from ._kernels import alpha_shapes_kernel, circumradii_kernel, triangle_neighbors_kernel
+from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, round_half_away, unique_rows
 
 __all__ = [
     "BOUNDARY_METHODS",
@@ -139,35 +137,9 @@ def boundary_step(image_size) -> float:
 
 
 def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Circumradius ``abc / (4 area)`` of each triangle, ``inf`` for a degenerate one.
-
-    Computed as ``sqrt(a² b² c²) / (2 |cross|)``: one square root per triangle instead of three ``hypot``
-    calls, which took most of the time."""
-    x, y = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
-    t = simplices.T
-    (ax, bx, cx), (ay, by, cy) = x[t], y[t]  # contiguous (T,) rows: faster ufuncs
-    ux, uy, vx, vy, wx, wy = bx - cx, by - cy, cx - ax, cy - ay, ax - bx, ay - by
-    abc2 = ux * ux + uy * uy
-    abc2 *= vx * vx + vy * vy
-    abc2 *= wx * wx + wy * wy
-    area2 = np.abs(vy * wx - vx * wy)  # |(b - a) x (c - a)|
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.sqrt(abc2) / (2.0 * area2)
-    r[area2 == 0] = np.inf
-    return r
-
-
-def _graph(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, n: int) -> csr_matrix:
-    """CSR matrix straight from edges whose ``rows`` are non-decreasing (no COO sort)."""
-    indptr = np.zeros(n + 1, np.int32)
-    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
-    return csr_matrix((data, cols.astype(np.int32), indptr), shape=(n, n))
-
-
-def _adjacent_pairs(neighbors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each pair of edge-adjacent triangles once, as two index arrays."""
-    pos = np.flatnonzero(neighbors > np.arange(len(neighbors))[:, None])  # drops the hull (-1) and reversed pairs
-    return pos // 3, neighbors.reshape(-1)[pos]
+    """Circumradius ``abc / (4 area)`` of each triangle, ``inf`` for a degenerate one, computed as
+    ``sqrt(a² b² c²) / (2 |cross|)`` (one square root per triangle)."""
+    return circumradii_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(simplices, np.int64))
 
 
 def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: np.ndarray,
@@ -183,10 +155,10 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
 
     Here a triangle belongs to the shape when its circumradius is ``<= alpha``; regions are sets of
     triangles connected through shared edges; a point is enclosed when one of its triangles is in the shape
-    (points that Qhull leaves out of every triangle are ignored). ``a_c`` is found exactly, in one pass,
-    from a minimum spanning forest of the triangle adjacency graph weighted by the larger circumradius
-    rank of each adjacent pair: at threshold ``alpha`` the number of regions is the number of shape
-    triangles minus the number of forest edges of weight ``<= alpha`` (Kruskal).
+    (points that Qhull leaves out of every triangle are ignored). ``a_c`` is found exactly with a union-find
+    over the triangles: the regions of the shape that first encloses every point, then the remaining
+    triangles added in increasing circumradius until one region is left (compiled,
+    :func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel`).
 
     Parameters
     ----------
@@ -208,10 +180,11 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
     if len(radii) == 0:
         return math.inf
-    gid = np.zeros(len(radii), np.int64)
-    neighbors = np.asarray(neighbors, np.int64)
-    return float(_matlab_alphas(radii, gid, simplices, neighbors, *_adjacent_pairs(neighbors), np.array([0, n_points]),
-                                shrink)[0])
+    radii = np.ascontiguousarray(radii, np.float64)
+    alphas = alpha_shapes_kernel(np.ascontiguousarray(simplices, np.int64), np.ascontiguousarray(neighbors, np.int64),
+                                 radii, np.argsort(radii), np.array([0, len(radii)]), np.array([0, n_points]),
+                                 float(shrink))[0]
+    return float(alphas[0])
 
 
 def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | None = None) -> AlphaShape | None:
@@ -243,11 +216,11 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
 
 def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
                   neighbors: np.ndarray | None = None) -> tuple[list, list]:
-    """:func:`alpha_shape` of several triangulated point sets (each with triangles) in one vectorised pass.
+    """:func:`alpha_shape` of several triangulated point sets (each with triangles) in one compiled pass.
 
-    The meshes are concatenated into one disjoint mesh (vertex and triangle indices offset); every step of
-    :func:`alpha_shape` then runs once for all of them, with the alpha spectrum ranked per mesh, so each shape
-    is exactly the one :func:`alpha_shape` gives alone while the fixed cost of the graph passes is paid once.
+    The meshes are concatenated into one disjoint mesh (vertex and triangle indices offset) and
+    :func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel` runs once for all of them, with the alpha spectrum
+    ranked per mesh, so each shape is exactly the one :func:`alpha_shape` gives alone.
     ``neighbors`` is the concatenated triangle adjacency when already known. Returns the shapes and the
     triangle adjacency of each mesh.
     """
@@ -259,30 +232,12 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
     points = np.vstack(points_list) if n_groups > 1 else points_list[0]
     simplices = np.vstack([np.asarray(s, np.int64) + o for s, o in zip(simplices_list, p_off)])
     if neighbors is None:
-        neighbors = _triangle_neighbors(simplices, len(points))
-    n_tri = len(simplices)
-    gid = np.repeat(np.arange(n_groups), np.diff(t_off))
-    radii = _circumradii(points, simplices)
-    t, u = _adjacent_pairs(neighbors)
-    alphas = _matlab_alphas(radii, gid, simplices, neighbors, t, u, p_off, shrink)
-    inside = radii <= alphas[gid]
-    if not inside.all():
-        # Fill holes: outside triangles not connected (through outside triangles) to the hull exterior of
-        # their mesh (node n_tri + g; these edges go last so that the rows stay sorted).
-        both_out = ~inside[t] & ~inside[u]
-        hull_tri = np.flatnonzero(neighbors.reshape(-1) < 0) // 3  # triangles with a hull edge, increasing
-        hull_tri = hull_tri[np.diff(hull_tri, prepend=-1) != 0]  # once each
-        hull_out = hull_tri[~inside[hull_tri]]
-        rows = np.concatenate([t[both_out], n_tri + gid[hull_out]])
-        cols = np.concatenate([u[both_out], hull_out])
-        graph = _graph(rows, cols, np.ones(len(rows)), n_tri + n_groups)
-        _, label = connected_components(graph, directed=False)
-        inside = inside | (label[:n_tri] != label[n_tri + gid])
-    nb_inside = np.append(inside, False)[neighbors]  # -1 (no neighbour) reads the appended False
-    border = inside[:, None] & ~nb_inside  # edge k of triangle t (opposite vertex k) is on the boundary
-    tt, kk = np.nonzero(border)
-    edges = np.stack([simplices[tt, (kk + 1) % 3], simplices[tt, (kk + 2) % 3]], axis=1)
-    e_off = np.searchsorted(tt, t_off)
+        neighbors = triangle_neighbors_kernel(simplices, len(points))
+    neighbors = np.ascontiguousarray(neighbors, np.int64)
+    radii = circumradii_kernel(np.ascontiguousarray(points, np.float64), simplices)
+    # numpy's sort is several times faster than numba's
+    order = np.concatenate([np.argsort(radii[lo:hi]) + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
+    alphas, inside, edges, e_off = alpha_shapes_kernel(simplices, neighbors, radii, order, t_off, p_off, float(shrink))
     shapes, neighbors_list = [], []
     for g in range(n_groups):
         ts = slice(t_off[g], t_off[g + 1])
@@ -291,121 +246,6 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
         shapes.append(AlphaShape(points_list[g], simplices[ts] - p_off[g], radii[ts], float(alphas[g]),
                                  inside[ts], edges[e_off[g] : e_off[g + 1]] - p_off[g]))
     return shapes, neighbors_list
-
-
-def _matlab_alphas(radii, gid, simplices, neighbors, t, u, p_off, shrink) -> np.ndarray:
-    """:func:`matlab_boundary_alpha` of each mesh of a disjoint union (triangles grouped by ``gid``, non-decreasing;
-    points of mesh ``g`` are rows ``p_off[g]:p_off[g + 1]``; every mesh has triangles)."""
-    n_groups = len(p_off) - 1
-    # Spectrum ascending within each mesh, meshes in turn (equal radii share a rank, their order is irrelevant).
-    t_off = np.searchsorted(gid, np.arange(n_groups + 1))
-    order = np.concatenate([np.argsort(radii[lo:hi]) + lo for lo, hi in zip(t_off[:-1], t_off[1:])])
-    srt, sgid = radii[order], gid[order]
-    new = np.ones(len(srt), bool)
-    new[1:] = (srt[1:] != srt[:-1]) | (sgid[1:] != sgid[:-1])
-    spectrum = srt[new]
-    n_spec = len(spectrum)
-    s_off = np.searchsorted(sgid[new], np.arange(n_groups + 1))
-    rank = np.empty(len(srt), np.int64)
-    rank[order] = np.cumsum(new) - 1
-    # Alpha at which every triangulated point is enclosed: max over points of their smallest triangle.
-    first = np.full(p_off[-1], n_spec, np.int64)
-    np.minimum.at(first, simplices.reshape(-1), np.repeat(rank, 3))
-    fmax = np.where(first < n_spec, first, -1)
-    all_points = np.array([fmax[p_off[g] : p_off[g + 1]].max() for g in range(n_groups)], np.int64)
-    # The critical alpha is the first spectrum value from all_points[g] on at which mesh g is one region.
-    # The regions at all_points[g] come from one connected-components pass; then triangles are added in rank
-    # order, merging regions through a union-find, until one region is left (usually within a few dozen
-    # spectrum values). A long walk falls back to the region count at every spectrum value (minimum
-    # spanning forest). Both give the same, exact, answer.
-    inside = rank <= all_points[gid]
-    both = inside[t] & inside[u]
-    n_comp, label = connected_components(_graph(t[both], u[both], np.ones(int(both.sum())), len(radii)),
-                                         directed=False)
-    critical = np.empty(n_groups, np.int64)
-    walk_failed = []
-    for g in range(n_groups):
-        tri_lo, tri_hi = t_off[g], t_off[g + 1]
-        regions = len(unique_ints(label[tri_lo:tri_hi][inside[tri_lo:tri_hi]]))
-        found = _merge_walk(regions, all_points[g], s_off[g + 1], order[tri_lo:tri_hi], rank, inside, label,
-                            n_comp, neighbors) if regions > 1 else int(all_points[g])
-        if found is None:
-            walk_failed.append(g)
-        else:
-            critical[g] = found
-    if walk_failed:
-        # Regions at each spectrum value, via the minimum spanning forest of the adjacency graph; the forest
-        # of a disjoint union is the union of the forests, and ranks of later meshes come after, so the
-        # running count minus its value at the end of the previous mesh is the count of this mesh.
-        n_regions = np.cumsum(np.bincount(rank, minlength=n_spec))
-        if len(t):
-            w = np.maximum(rank[t], rank[u]) + 1.0  # +1: scipy drops zero-weight edges
-            forest = minimum_spanning_tree(_graph(t, u, w, len(radii))).data.astype(np.int64) - 1
-            n_regions = n_regions - np.cumsum(np.bincount(forest, minlength=n_spec))
-        for g in walk_failed:
-            lo, hi = s_off[g], s_off[g + 1]
-            before = n_regions[lo - 1] if lo > 0 else 0
-            ok = np.flatnonzero(n_regions[all_points[g]:hi] - before == 1)
-            critical[g] = all_points[g] + int(ok[0]) if len(ok) else hi - 1
-    alphas = np.empty(n_groups)
-    for g in range(n_groups):
-        n = s_off[g + 1] - critical[g]
-        k = max(math.ceil((1.0 - shrink) * n), 1)
-        alphas[g] = spectrum[critical[g] + k - 1]
-    return alphas
-
-
-def _merge_walk(regions, start, stop, tri_order, rank, inside, label, n_comp, neighbors, max_steps=2048):
-    """First spectrum index ``>= start`` (and ``< stop``) at which the triangles of rank ``<=`` it form one
-    region, by adding the triangles of rank ``> start`` in rank order (``tri_order``: the mesh's triangles by
-    rank) to the ``regions`` regions that ``label`` gives at ``start``; ``None`` after ``max_steps``
-    triangles (see :func:`_matlab_alphas`), ``stop - 1`` when the mesh never becomes one region."""
-    ranks = rank[tri_order]
-    pos = int(np.searchsorted(ranks, start, side="right"))
-    end = min(pos + max_steps + 1, len(tri_order))  # the triangles the walk may add, and one to look ahead
-    todo, todo_rank, nbrs = [], [], []
-    parent = {}  # union-find over region ids: labels of the start regions, n_comp + k for added triangles
-    comp = {}  # added triangle -> its region id
-
-    def find(x):
-        root = x
-        while root in parent:
-            root = parent[root]
-        while x != root:
-            parent[x], x = root, parent[x]
-        return root
-
-    k = 0
-    while pos + k < end:
-        if k + 1 >= len(todo) and pos + len(todo) < end:
-            # Convert the next chunk to Python lists (walks are usually a few dozen triangles long).
-            lo, hi = pos + len(todo), min(pos + 2 * len(todo) + 64, end)
-            todo += tri_order[lo:hi].tolist()
-            todo_rank += ranks[lo:hi].tolist()
-            nbrs += neighbors[tri_order[lo:hi]].tolist()
-        if k == max_steps:
-            return None
-        tri, r = todo[k], todo_rank[k]
-        me = n_comp + k
-        comp[tri] = me
-        regions += 1
-        for v in nbrs[k]:
-            if v < 0:
-                continue
-            if v in comp:
-                other = find(comp[v])
-            elif inside[v]:
-                other = find(int(label[v]))
-            else:
-                continue
-            root = find(me)
-            if other != root:
-                parent[other] = root
-                regions -= 1
-        k += 1
-        if regions == 1 and (k == len(todo) or todo_rank[k] != r):
-            return int(r)
-    return stop - 1
 
 
 def _to_float32(points: np.ndarray) -> np.ndarray:

@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from ._kernels import locate_kernel, triangle_neighbors_kernel
+
 __all__ = [
     "DelaunayMesh",
     "IncrementalDelaunay",
@@ -145,7 +147,7 @@ class DelaunayMesh:
 
     @cached_property
     def neighbors(self) -> np.ndarray:
-        return _triangle_neighbors(self.simplices, len(self.points))
+        return triangle_neighbors_kernel(np.ascontiguousarray(self.simplices, np.int64), len(self.points))
 
     @property
     def convex_hull(self) -> np.ndarray:
@@ -164,23 +166,6 @@ class DelaunayMesh:
         indptr = np.zeros(n + 1, np.int64)
         np.cumsum(np.bincount(key // n, minlength=n), out=indptr[1:])
         return indptr, key % n
-
-
-def _triangle_neighbors(simplices: np.ndarray, n_points: int) -> np.ndarray:
-    """``neighbors`` of :class:`DelaunayMesh`: triangles sharing each edge, matched through sorted keys."""
-    if n_points < 46000:  # keys below 2**31: int32 sorts faster
-        simplices = simplices.astype(np.int32)
-    a = simplices[:, [1, 2, 0]].reshape(-1)  # edge k of triangle t (opposite vertex k) at row 3 t + k
-    b = simplices[:, [2, 0, 1]].reshape(-1)
-    key = np.minimum(a, b) * n_points + np.maximum(a, b)
-    order = np.argsort(key)  # a key occurs at most twice and both copies are paired alike: no need for stability
-    ks = key[order]
-    same = np.flatnonzero(ks[1:] == ks[:-1])
-    out = np.full(len(key), -1, np.int64)
-    i, j = order[same], order[same + 1]
-    out[i] = j // 3
-    out[j] = i // 3
-    return out.reshape(-1, 3)
 
 
 def _float32_exact(points: np.ndarray) -> bool:
@@ -440,42 +425,25 @@ class Triangulation:
     def find_simplex(self, xy: np.ndarray) -> np.ndarray:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
-        A visibility walk, vectorised over the queries: each starts in a triangle around its nearest vertex
-        (usually the one holding it) and crosses, while the point lies outside the current triangle, the edge
-        that separates them most; on a Delaunay triangulation this terminates, in a few steps from there.
+        A visibility walk (compiled, :func:`~ctxmatch_lib.dtm._kernels.locate_kernel`): each query starts in a
+        triangle around its nearest vertex (usually the one holding it) and crosses, while the point lies
+        outside the current triangle, the edge that separates them most; on a Delaunay triangulation this
+        terminates, in a few steps from there.
         Points on an edge count as inside (either triangle may be returned). Queries still walking after
         many steps (only possible on near-degenerate slivers) are tested against every triangle.
         """
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
         out = np.full(len(xy), -1, np.int64)
         if self.delaunay is None or len(xy) == 0 or len(self.simplices) == 0:
             return out
-        simplices, p, nbr = self.simplices, self.points, self.delaunay.neighbors
+        simplices, p = self.simplices, np.ascontiguousarray(self.points, np.float64)
         _, nearest = cKDTree(p, balanced_tree=False, compact_nodes=False).query(xy)
-        ptr, tri_of = _vertex_triangles(simplices, len(p))
-        has = ptr[nearest + 1] > ptr[nearest]
-        cur = np.where(has, tri_of[np.minimum(ptr[nearest], len(tri_of) - 1)], 0)
-        active = np.arange(len(xy))
+        out, unresolved = locate_kernel(p, np.ascontiguousarray(simplices, np.int64), self.delaunay.neighbors, xy,
+                                        nearest.astype(np.int64), max(64, int(math.isqrt(len(simplices))) * 4))
+        active = np.flatnonzero(unresolved)
+        if len(active) == 0:
+            return out
         corners = p[simplices]  # (T, 3, 2)
-        area = _cross(corners[:, 0], corners[:, 1], corners[:, 2])
-        sgn, tol = np.sign(area), 1e-12 * np.abs(area)
-        for _ in range(max(64, int(math.isqrt(len(simplices))) * 4)):
-            t = cur[active]
-            q = xy[active]
-            c = corners[t]
-            # signed distance-like value of q to the edge opposite each vertex k, positive inside
-            d = np.stack([_cross(c[:, 1], c[:, 2], q), _cross(c[:, 2], c[:, 0], q), _cross(c[:, 0], c[:, 1], q)], 1)
-            d *= sgn[t, None]
-            bad = (d < -tol[t, None]) | (area[t, None] == 0)
-            inside = ~bad.any(axis=1)
-            out[active[inside]] = t[inside]
-            k = np.argmin(np.where(bad, d, np.inf), axis=1)
-            nxt = nbr[t, k]
-            go = ~inside & (nxt >= 0)
-            cur[active[go]] = nxt[go]
-            active = active[go]
-            if len(active) == 0:
-                return out
         a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
         n_tri = len(simplices)
         chunk = max(1, 65536 // n_tri)
@@ -486,20 +454,6 @@ class Triangulation:
             found = inside.any(axis=1)
             out[q[found]] = inside[found].argmax(axis=1)
         return out
-
-
-def _cross(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """z of ``(q - p) x (r - p)`` for rows of (x, y) points."""
-    return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
-
-
-def _vertex_triangles(simplices: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
-    """CSR map vertex -> incident triangles (increasing)."""
-    flat = simplices.reshape(-1)
-    order = stable_argsort_small(flat, n_points)
-    ptr = np.zeros(n_points + 1, np.int64)
-    np.cumsum(np.bincount(flat, minlength=n_points), out=ptr[1:])
-    return ptr, order // 3
 
 
 def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,

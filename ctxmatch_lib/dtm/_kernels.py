@@ -1,0 +1,301 @@
+"""Compiled (numba) loops of DTM's hot paths.
+
+The alpha-shape passes are graph walks over the triangles (neighbours, union-find, flood fill) that NumPy
+can only express as several sorts and sparse-graph calls per shape; here each is one linear loop. Every
+kernel computes exactly what the NumPy formulation it replaced did (same floating-point operations in the
+same order, no ``fastmath``), so DTM's keep masks do not depend on it.
+
+Compiled code is cached on disk in the user's cache directory (``$CTXMATCH_CACHE/numba``, see
+:func:`ctxmatch_lib._paths.cache_dir`) unless ``NUMBA_CACHE_DIR`` says otherwise, so only the first call on
+a machine pays the compilation (a few seconds).
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from functools import partial
+
+import numba
+import numpy as np
+
+from .._paths import cache_dir
+
+__all__ = ["alpha_shapes_kernel", "circumradii_kernel", "locate_kernel", "triangle_neighbors_kernel"]
+
+
+@contextmanager
+def _user_cache():
+    """Point numba's on-disk cache at the ctxmatch cache directory while the kernels are decorated (numba
+    picks a function's cache location then), unless the user set ``NUMBA_CACHE_DIR``. Yields whether to
+    cache at all: not when the cache directory cannot be created (numba would fall back to the package's
+    own folder)."""
+    previous = numba.config.CACHE_DIR
+    if previous:
+        yield True
+        return
+    try:
+        numba.config.CACHE_DIR = str(cache_dir("numba"))
+    except OSError:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        numba.config.CACHE_DIR = previous
+
+
+with _user_cache() as _cache:
+    _jit = partial(numba.njit, cache=_cache, nogil=True)
+
+    @_jit
+    def triangle_neighbors_kernel(simplices, n_points):
+        """``neighbors[t, k]``: the triangle across edge ``k`` of ``t`` (the edge opposite vertex ``k``),
+        ``-1`` on the hull. Each edge is listed under its smaller vertex; the two triangles of an edge are the
+        two entries of that list with the same other vertex."""
+        n_tri = simplices.shape[0]
+        start = np.zeros(n_points + 1, np.int64)
+        for t in range(n_tri):
+            for k in range(3):
+                a, b = simplices[t, (k + 1) % 3], simplices[t, (k + 2) % 3]
+                start[min(a, b) + 1] += 1
+        for v in range(n_points):
+            start[v + 1] += start[v]
+        fill = start[:-1].copy()
+        other = np.empty(3 * n_tri, np.int64)
+        slot = np.empty(3 * n_tri, np.int64)
+        for t in range(n_tri):
+            for k in range(3):
+                a, b = simplices[t, (k + 1) % 3], simplices[t, (k + 2) % 3]
+                lo = min(a, b)
+                other[fill[lo]] = max(a, b)
+                slot[fill[lo]] = 3 * t + k
+                fill[lo] += 1
+        out = np.full(3 * n_tri, -1, np.int64)
+        for v in range(n_points):
+            for i in range(start[v], start[v + 1]):
+                if out[slot[i]] >= 0:
+                    continue
+                for j in range(i + 1, start[v + 1]):
+                    if other[j] == other[i]:
+                        out[slot[i]] = slot[j] // 3
+                        out[slot[j]] = slot[i] // 3
+                        break
+        return out.reshape(n_tri, 3)
+
+    @_jit(inline="always")
+    def _find(parent, x):
+        """Root of ``x``'s set, compressing the path."""
+        root = x
+        while parent[root] != root:
+            root = parent[root]
+        while parent[x] != root:
+            up = parent[x]
+            parent[x] = root
+            x = up
+        return root
+
+    @_jit(inline="always")
+    def _union(parent, size, a, b):
+        """Merge the sets of ``a`` and ``b`` (by size); 1 if they were apart, else 0."""
+        a = _find(parent, a)
+        b = _find(parent, b)
+        if a == b:
+            return 0
+        if size[a] < size[b]:
+            a, b = b, a
+        parent[b] = a
+        size[a] += size[b]
+        return 1
+
+    @_jit
+    def circumradii_kernel(points, simplices):
+        """Circumradius ``sqrt(a² b² c²) / (2 |cross|)`` of each triangle, ``inf`` when degenerate (the
+        operations of :func:`ctxmatch_lib.dtm.boundary._circumradii`, in its order)."""
+        n_tri = simplices.shape[0]
+        radii = np.empty(n_tri)
+        for t in range(n_tri):
+            i, j, m = simplices[t, 0], simplices[t, 1], simplices[t, 2]
+            ax, ay, bx, by, cx, cy = points[i, 0], points[i, 1], points[j, 0], points[j, 1], points[m, 0], points[m, 1]
+            ux, uy, vx, vy, wx, wy = bx - cx, by - cy, cx - ax, cy - ay, ax - bx, ay - by
+            abc2 = ux * ux + uy * uy
+            abc2 = abc2 * (vx * vx + vy * vy)
+            abc2 = abc2 * (wx * wx + wy * wy)
+            area2 = abs(vy * wx - vx * wy)
+            radii[t] = math.inf if area2 == 0 else math.sqrt(abc2) / (2.0 * area2)
+        return radii
+
+    @_jit
+    def alpha_shapes_kernel(simplices, neighbors, radii, order, t_off, p_off, shrink):
+        """Holes-filled alpha shapes (MATLAB ``boundary`` alpha) of the meshes of a disjoint union.
+
+        Mesh ``g`` holds triangles ``t_off[g]:t_off[g + 1]`` and points ``p_off[g]:p_off[g + 1]``
+        (``simplices`` index the concatenated points); every mesh has triangles. ``order[t_off[g]:t_off[g + 1]]``
+        lists mesh ``g``'s triangles by increasing circumradius (ties in any order). Returns each mesh's alpha,
+        the inside flags and the boundary edges (in ``(t, k)`` order: edge ``k`` of an inside triangle ``t``
+        whose neighbour across it is outside or missing) with their offsets per mesh. See
+        :func:`ctxmatch_lib.dtm.boundary.matlab_boundary_alpha` for the rule.
+        """
+        n_tri = simplices.shape[0]
+        n_groups = t_off.shape[0] - 1
+        alphas = np.empty(n_groups)
+        rank = np.empty(n_tri, np.int64)
+        parent = np.arange(n_tri)
+        size = np.ones(n_tri, np.int64)
+        spectrum = np.empty(n_tri)
+        first = np.empty(p_off[n_groups], np.int64)
+        for g in range(n_groups):
+            lo, hi = t_off[g], t_off[g + 1]
+            # The alpha spectrum: distinct radii, ascending; rank[t] is the index of radii[t] in it.
+            n_spec = 0
+            for i in range(lo, hi):
+                r = radii[order[i]]
+                if n_spec == 0 or r != spectrum[n_spec - 1]:
+                    spectrum[n_spec] = r
+                    n_spec += 1
+                rank[order[i]] = n_spec - 1
+            # Smallest spectrum index at which every triangulated point is enclosed.
+            for v in range(p_off[g], p_off[g + 1]):
+                first[v] = n_spec
+            for t in range(lo, hi):
+                for k in range(3):
+                    v = simplices[t, k]
+                    if rank[t] < first[v]:
+                        first[v] = rank[t]
+            all_points = -1
+            for v in range(p_off[g], p_off[g + 1]):
+                if first[v] < n_spec and first[v] > all_points:
+                    all_points = first[v]
+            # Regions (triangles connected through shared edges, union-find) of the shape at all_points, then
+            # the triangles of higher rank added in rank order until one region is left: the critical alpha
+            # is the first spectrum value >= all_points at which the shape is one region.
+            regions = 0
+            for t in range(lo, hi):
+                if rank[t] <= all_points:
+                    regions += 1
+                    for k in range(3):
+                        u = neighbors[t, k]
+                        if u >= 0 and u < t and rank[u] <= all_points:
+                            if _union(parent, size, t, u):
+                                regions -= 1
+            critical = all_points if regions == 1 else n_spec - 1
+            i = lo
+            while i < hi and rank[order[i]] <= all_points:
+                i += 1
+            while regions > 1 and i < hi:
+                r = rank[order[i]]
+                while i < hi and rank[order[i]] == r:  # a tie joins through either of its triangles
+                    t = order[i]
+                    regions += 1
+                    for k in range(3):
+                        u = neighbors[t, k]
+                        if u >= 0 and rank[u] <= r:
+                            if _union(parent, size, t, u):
+                                regions -= 1
+                    i += 1
+                if regions == 1:
+                    critical = r
+            n = n_spec - critical
+            alphas[g] = spectrum[critical + max(math.ceil((1.0 - shrink) * n), 1) - 1]
+        inside = np.empty(n_tri, np.bool_)
+        for g in range(n_groups):
+            for t in range(t_off[g], t_off[g + 1]):
+                inside[t] = radii[t] <= alphas[g]
+        # Fill holes: outside triangles not reachable, through outside triangles, from an outside triangle
+        # on the hull.
+        exterior = np.zeros(n_tri, np.bool_)
+        stack = np.empty(n_tri, np.int64)
+        top = 0
+        for t in range(n_tri):
+            if not inside[t] and (neighbors[t, 0] < 0 or neighbors[t, 1] < 0 or neighbors[t, 2] < 0):
+                exterior[t] = True
+                stack[top] = t
+                top += 1
+        while top > 0:
+            top -= 1
+            t = stack[top]
+            for k in range(3):
+                u = neighbors[t, k]
+                if u >= 0 and not inside[u] and not exterior[u]:
+                    exterior[u] = True
+                    stack[top] = u
+                    top += 1
+        n_edges = 0
+        for t in range(n_tri):
+            inside[t] = not exterior[t]
+        for t in range(n_tri):
+            if inside[t]:
+                for k in range(3):
+                    u = neighbors[t, k]
+                    if u < 0 or not inside[u]:
+                        n_edges += 1
+        edges = np.empty((n_edges, 2), np.int64)
+        e_off = np.zeros(n_groups + 1, np.int64)
+        e = 0
+        for g in range(n_groups):
+            for t in range(t_off[g], t_off[g + 1]):
+                if inside[t]:
+                    for k in range(3):
+                        u = neighbors[t, k]
+                        if u < 0 or not inside[u]:
+                            edges[e, 0] = simplices[t, (k + 1) % 3]
+                            edges[e, 1] = simplices[t, (k + 2) % 3]
+                            e += 1
+            e_off[g + 1] = e
+        return alphas, inside, edges, e_off
+
+    @_jit(inline="always")
+    def _cross(px, py, qx, qy, rx, ry):
+        return (qx - px) * (ry - py) - (qy - py) * (rx - px)
+
+    @_jit
+    def locate_kernel(points, simplices, neighbors, xy, nearest, max_steps):
+        """Visibility walk of :meth:`ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex`.
+
+        Query ``q`` starts in the lowest-indexed triangle around its nearest vertex ``nearest[q]`` (triangle
+        0 if that vertex has none) and, while it lies outside the current triangle (some edge value
+        ``d_k < -1e-12 |area|``, or a zero area), crosses the edge with the smallest ``d_k`` (the first on
+        ties); it stops inside (found) or at the hull (``-1``). Returns the triangles and whether each query
+        was still walking after ``max_steps`` steps (those are left ``-1`` for the caller's exhaustive test).
+        """
+        n_tri = simplices.shape[0]
+        first = np.full(points.shape[0], -1, np.int64)
+        for t in range(n_tri - 1, -1, -1):
+            for k in range(3):
+                first[simplices[t, k]] = t
+        n = xy.shape[0]
+        out = np.full(n, -1, np.int64)
+        unresolved = np.zeros(n, np.bool_)
+        d = np.empty(3)
+        for j in range(n):
+            qx, qy = xy[j, 0], xy[j, 1]
+            t = first[nearest[j]]
+            if t < 0:
+                t = 0
+            steps = 0
+            while True:
+                if steps == max_steps:
+                    unresolved[j] = True
+                    break
+                steps += 1
+                i0, i1, i2 = simplices[t, 0], simplices[t, 1], simplices[t, 2]
+                ax, ay, bx, by, cx, cy = points[i0, 0], points[i0, 1], points[i1, 0], points[i1, 1], points[i2, 0], points[i2, 1]
+                area = _cross(ax, ay, bx, by, cx, cy)
+                sgn = 1.0 if area > 0 else (-1.0 if area < 0 else 0.0)
+                tol = 1e-12 * abs(area)
+                d[0] = _cross(bx, by, cx, cy, qx, qy) * sgn
+                d[1] = _cross(cx, cy, ax, ay, qx, qy) * sgn
+                d[2] = _cross(ax, ay, bx, by, qx, qy) * sgn
+                k_best = -1
+                for k in range(3):
+                    if d[k] < -tol or area == 0:
+                        if k_best < 0 or d[k] < d[k_best]:
+                            k_best = k
+                if k_best < 0:
+                    out[j] = t
+                    break
+                nxt = neighbors[t, k_best]
+                if nxt < 0:
+                    break
+                t = nxt
+        return out, unresolved
