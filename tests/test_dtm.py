@@ -448,8 +448,8 @@ def test_incremental_delaunay_insertion_equals_from_scratch():
 @pytest.mark.parametrize("n", [1, 5, 300, 5000])
 def test_key_index_matches_binary_search(n):
     """The hashed point-key index returns exactly the rows a binary search over all keys gives, finds keys
-    that lost their hash slot, rejects absent keys (also the membership set, _KeySet) and flags duplicates."""
-    from ctxmatch_lib.dtm.triangulation import _KeyIndex, _KeySet
+    that lost their hash slot, rejects absent keys and flags duplicates."""
+    from ctxmatch_lib.dtm.triangulation import _KeyIndex
 
     rng = np.random.default_rng(n)
     keys = rng.choice(2**62, size=n, replace=False).astype(np.int64)
@@ -462,11 +462,6 @@ def test_key_index_matches_binary_search(n):
     np.testing.assert_array_equal(keys[index.lookup(q)], q)
     absent = np.setdiff1d(rng.integers(0, 2**62, 50), keys)
     assert index.lookup(np.r_[q, absent[:1]]) is None
-    mixed = np.r_[q, absent, keys + 1]
-    np.testing.assert_array_equal(_KeySet(keys).contains(mixed), np.isin(mixed, keys))
-    marker = np.iinfo(np.int64).min  # the key set's empty-slot marker, as a query and as a key
-    assert not _KeySet(keys).contains(np.r_[marker]).any()
-    assert _KeySet(np.r_[keys, marker]).contains(np.r_[marker, keys[:1]]).all()
     assert _KeyIndex(np.r_[keys, keys[:1]]).has_duplicates
     assert _KeyIndex(np.r_[keys[:1], keys, keys[:1]]).has_duplicates
 
@@ -744,3 +739,27 @@ def test_compiled_kernels_cache_in_the_user_cache_directory(tmp_path):
     assert any(f.suffix == ".nbi" for f in cached)
     package = os.path.dirname(ctxmatch_lib.__file__)
     assert not [f for _, _, files in os.walk(package) for f in files if f.endswith((".nbi", ".nbc"))]
+
+
+def test_neighbourhood_pairs_match_their_definition():
+    """DTM1 step 3 from the compiled kernel equals the pairs listed literally: for each match m (in order),
+    each vertex adjacent to m's vertex in image 1 (not the vertex itself, in neighbour order), each match
+    on it (increasing); flagged when the two matches' image-2 vertices are distinct and adjacent."""
+    from ctxmatch_lib.dtm.core import _neighbourhood_pairs
+    from ctxmatch_lib.dtm.triangulation import collapse_vertices, triangulate
+
+    rng = np.random.default_rng(5)
+    k1 = np.round(rng.random((80, 2)) * 60)  # coarse: many matches share a vertex
+    k2 = np.where(rng.random((80, 1)) < 0.7, k1 + 3, np.round(rng.random((80, 2)) * 60))
+    v1, vl = collapse_vertices(k1)
+    v2, vr = collapse_vertices(k2)
+    t1, t2 = triangulate(v1, np.array([[-20.0, -20], [80, -20], [80, 80], [-20, 80]])), triangulate(v2, None)
+    rows, others, both = _neighbourhood_pairs(t1, t2, vl, vr)
+
+    def adjacent(t, v):
+        return [int(u) for u in t.indices[t.indptr[v] : t.indptr[v + 1]] if u != v]
+
+    expected = [(m, o, vr[m] != vr[o] and int(vr[o]) in adjacent(t2, vr[m]))
+                for m in range(len(k1)) for u in adjacent(t1, vl[m]) for o in np.flatnonzero(vl == u)]
+    assert len(expected) > 200
+    assert list(zip(rows.tolist(), others.tolist(), both.tolist())) == [(m, int(o), bool(b)) for m, o, b in expected]

@@ -21,7 +21,8 @@ import numpy as np
 
 from .._paths import cache_dir
 
-__all__ = ["alpha_shapes_kernel", "circumradii_kernel", "locate_kernel", "triangle_neighbors_kernel"]
+__all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
+           "triangle_neighbors_kernel"]
 
 
 @contextmanager
@@ -299,3 +300,72 @@ with _user_cache() as _cache:
                     break
                 t = nxt
         return out, unresolved
+
+    @_jit
+    def contraction_kernel(rank, conflicts_a, ptr_a, conflicts_b, ptr_b):
+        """DTM1 step 5: walk the matches in ``rank`` order; each one still alive is picked and kills its
+        conflicts ``conflicts_a[ptr_a[m]:ptr_a[m + 1]]`` and ``conflicts_b[ptr_b[m]:ptr_b[m + 1]]``.
+        Returns the picked matches in pick order."""
+        n = rank.shape[0]
+        alive = np.ones(n, np.bool_)
+        picked = np.empty(n, np.int64)
+        n_picked = 0
+        for i in range(n):
+            m = rank[i]
+            if alive[m]:
+                picked[n_picked] = m
+                n_picked += 1
+                for j in range(ptr_a[m], ptr_a[m + 1]):
+                    alive[conflicts_a[j]] = False
+                for j in range(ptr_b[m], ptr_b[m + 1]):
+                    alive[conflicts_b[j]] = False
+        return picked[:n_picked].copy()
+
+    @_jit
+    def neighbourhood_kernel(indptr1, indices1, vertex1, indptr2, indices2, vertex2):
+        """DTM1 step 3 seen from image 1: every pair ``(m, o)`` with the image-1 vertex of ``o`` adjacent to
+        that of ``m`` (``vertex1``; ``indices1[indptr1[v]:indptr1[v + 1]]`` are the neighbours of ``v``,
+        ``v`` itself skipped), by increasing ``m``, then neighbour order, then increasing ``o``; and whether
+        the image-2 vertices of ``m`` and ``o`` are adjacent too (distinct and an edge of image 2)."""
+        n = vertex1.shape[0]
+        n_v = indptr1.shape[0] - 1
+        start = np.zeros(n_v + 1, np.int64)
+        for m in range(n):
+            start[vertex1[m] + 1] += 1
+        for v in range(n_v):
+            start[v + 1] += start[v]
+        fill = start[:-1].copy()
+        at = np.empty(n, np.int64)  # matches grouped by image-1 vertex, increasing inside each group
+        for m in range(n):
+            at[fill[vertex1[m]]] = m
+            fill[vertex1[m]] += 1
+        total = 0
+        for m in range(n):
+            v = vertex1[m]
+            for j in range(indptr1[v], indptr1[v + 1]):
+                u = indices1[j]
+                if u != v:
+                    total += start[u + 1] - start[u]
+        rows = np.empty(total, np.int64)
+        others = np.empty(total, np.int64)
+        both = np.zeros(total, np.bool_)
+        k = 0
+        for m in range(n):
+            v = vertex1[m]
+            a = vertex2[m]
+            for j in range(indptr1[v], indptr1[v + 1]):
+                u = indices1[j]
+                if u == v:
+                    continue
+                for i in range(start[u], start[u + 1]):
+                    o = at[i]
+                    rows[k] = m
+                    others[k] = o
+                    b = vertex2[o]
+                    if a != b:
+                        for e in range(indptr2[a], indptr2[a + 1]):
+                            if indices2[e] == b:
+                                both[k] = True
+                                break
+                    k += 1
+        return rows, others, both

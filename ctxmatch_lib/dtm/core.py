@@ -13,8 +13,9 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
 from ..geometry import _dlt_normal_matrix, _normalise, _transfer_errors
+from ._kernels import contraction_kernel, neighbourhood_kernel
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
-from .triangulation import Triangulation, _KeySet, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
+from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -156,28 +157,17 @@ def _csr_by(keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
     return ptr, order
 
 
-def _neighbourhood_pairs(tri: Triangulation, vertex: np.ndarray, by_vertex: tuple) -> tuple:
-    """All pairs ``(m, m')`` with the vertex of ``m'`` adjacent to the vertex ``v`` of ``m`` (DTM1 step 3).
+def _neighbourhood_pairs(tri: Triangulation, other: Triangulation, vertex: np.ndarray, other_vertex: np.ndarray):
+    """All pairs ``(m, m')`` with the vertex of ``m'`` adjacent to the vertex ``v`` of ``m`` in ``tri`` (DTM1
+    step 3), grouped by ``m`` (increasing), and whether their vertices in the other image are adjacent too.
 
     Only *adjacent* vertices count: ``v`` itself is left out, so neither ``m`` nor the other matches
-    collapsed onto ``v`` are neighbours of ``m`` (see :func:`dtm`, Notes)."""
-    ptr, order = by_vertex
-    rows, pos = expand_ranges(tri.indptr[vertex], np.diff(tri.indptr)[vertex])
-    nb = tri.indices[pos]  # vertices u in A_v, one row per (m, u)
-    adjacent = nb != vertex[rows]
-    rows, nb = rows[adjacent], nb[adjacent]
-    rows2, pos2 = expand_ranges(ptr[nb], np.diff(ptr)[nb])
-    return rows[rows2], order[pos2]
-
-
-def _has_edge(tri: Triangulation, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether vertices ``a`` and ``b`` are adjacent (an edge of ``tri``; ``a == b`` is not), vectorised
-    through a hash index of the edge keys ``a * |V| + b``."""
-    n = tri.n_vertices
-    if len(tri.indices) == 0:
-        return np.zeros(len(a), bool)
-    keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(tri.indptr)) * n + tri.indices
-    return _KeySet(keys).contains(a * n + b) & (a != b)
+    collapsed onto ``v`` are neighbours of ``m`` (see :func:`dtm`, Notes); likewise two matches on one vertex
+    of the other image are not adjacent there. Compiled
+    (:func:`~ctxmatch_lib.dtm._kernels.neighbourhood_kernel`)."""
+    return neighbourhood_kernel(tri.indptr.astype(np.int64), tri.indices.astype(np.int64), vertex.astype(np.int64),
+                                other.indptr.astype(np.int64), other.indices.astype(np.int64),
+                                other_vertex.astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -210,28 +200,19 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
     v2, vr = collapse_vertices(kp2[active])
     b1, b2, t1, t2 = setup.triangulations(v1, v2)
     # Step 3: pairs (m, m') with m' in M_{A1(vl(m))}, flagged when also in M_{A2(vr(m))}; and vice versa.
-    m_a, o_a = _neighbourhood_pairs(t1, vl, _csr_by(vl, len(v1)))
-    in_both = _has_edge(t2, vr[m_a], vr[o_a])
-    m_b, o_b = _neighbourhood_pairs(t2, vr, _csr_by(vr, len(v2)))
-    only2 = ~_has_edge(t1, vl[m_b], vl[o_b])
+    m_a, o_a, in_both = _neighbourhood_pairs(t1, t2, vl, vr)
+    m_b, o_b, in_1 = _neighbourhood_pairs(t2, t1, vr, vl)
+    only2 = ~in_1
     # Step 4: rank by score ascending, then |M_A1 ∩ M_A2| descending, then the canonical key.
     consistency = np.bincount(m_a[in_both], minlength=n)
     rank = np.lexsort((canon, -consistency, score))
     # Step 5: contraction. Each pick removes (M_A1 ∪ M_A2) \ (M_A1 ∩ M_A2): the pairs of M_A1 not in M_A2
-    # and those of M_A2 not in M_A1, both already grouped by match (rows of m_a and m_b never decrease). The
-    # sequential loop reads ``alive`` as a bytearray and clears conflicts through a numpy view of it.
-    conf_a, conf_b = o_a[~in_both], o_b[only2]
-    ptr_a = np.searchsorted(m_a[~in_both], np.arange(n + 1)).tolist()
-    ptr_b = np.searchsorted(m_b[only2], np.arange(n + 1)).tolist()
-    alive = bytearray(b"\x01") * n
-    dead = np.frombuffer(alive, np.uint8)
-    picked = []
-    for m in rank.tolist():
-        if alive[m]:
-            picked.append(m)
-            dead[conf_a[ptr_a[m] : ptr_a[m + 1]]] = 0
-            dead[conf_b[ptr_b[m] : ptr_b[m + 1]]] = 0
-    picked = np.asarray(picked, np.int64)
+    # and those of M_A2 not in M_A1, both already grouped by match (rows of m_a and m_b never decrease); the
+    # sequential greedy loop is compiled.
+    ptr_a = np.searchsorted(m_a[~in_both], np.arange(n + 1))
+    ptr_b = np.searchsorted(m_b[only2], np.arange(n + 1))
+    picked = contraction_kernel(rank.astype(np.int64), o_a[~in_both].astype(np.int64), ptr_a,
+                                o_b[only2].astype(np.int64), ptr_b)
     # Step 6: expansion, the union of the picked matches' intersections.
     is_picked = np.zeros(n, bool)
     is_picked[picked] = True
