@@ -10,9 +10,11 @@ opencv-python-headless, torch and kornia, which the port imports); the port is n
 
 Printed per dataset group and preset: mean precision / recall of the DTM2 outputs (over pairs, in percent,
 against the correct candidates of the pair) and of our DTM1 outputs, the matches our DTM2 re-added (and how
-many of them are wrong), the mean Jaccard index of our keep mask with the port's, and the
+many of them are wrong), the mean Jaccard index of our keep mask with the port's, the
 summed CPU times (process time, one thread, so that a loaded machine does not skew the ratio) with
-their ratio. Port outputs are cached in ``--work`` (keyed by the candidates), so a
+their ratio, the matches only the port keeps that lie farther than ``s`` from our DTM1 survivors
+(beyond the reach of an alpha boundary; how many of them are wrong), and both precision / recall
+without every match that far. Port outputs are cached in ``--work`` (keyed by the candidates), so a
 second run only times ours.
 
 Run::
@@ -34,10 +36,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ctxmatch_lib import BLOB_PRESETS
 from ctxmatch_lib.datasets import load_dataset
 from ctxmatch_lib.dtm import dtm
+from ctxmatch_lib.dtm.boundary import boundary_step
 from ctxmatch_lib.pipeline import blob_candidates, label_candidates, pair_features
 
 GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "kusvod2": ("kusvod2",)}
@@ -103,6 +107,14 @@ def _pr(keep: np.ndarray, labels: np.ndarray) -> tuple[float, float]:
     return 100 * precision, 100 * recall
 
 
+def _far_from(xy: np.ndarray, survivors: np.ndarray, s: float) -> np.ndarray:
+    """Whether each candidate's image-1 keypoint lies farther than ``s`` from every DTM1 survivor's: beyond
+    the alpha boundary drawn at distance ``s`` around them, where DTM2 cannot re-add it."""
+    if not survivors.any():
+        return np.ones(len(xy), bool)
+    return cKDTree(xy[survivors]).query(xy)[0] > s
+
+
 def _jaccard(a: np.ndarray, b: np.ndarray) -> float:
     union = (a | b).sum()
     return float((a & b).sum() / union) if union else 1.0
@@ -132,7 +144,8 @@ def main(argv=None) -> int:
     header = (f"{'preset':<11} {'data':<8} {'pairs':>5} {'boundary':<10} {'ours P / R':>13} {'DTM1 P / R':>13} "
               f"{'re-added (wrong)':>16} ")
     if args.port:
-        header += f"{'port P / R':>13} {'Jaccard':>7} {'ours s':>7} {'port s':>7} {'speed-up':>8}"
+        header += (f"{'port P / R':>13} {'Jaccard':>7} {'ours s':>7} {'port s':>7} {'speed-up':>8} "
+                   f"{'port-only >s (wrong)':>20} {'<=s: ours P / R':>15} {'port P / R':>13}")
     print(header)
     for preset in args.presets:
         for group in args.groups:
@@ -149,10 +162,17 @@ def main(argv=None) -> int:
                     added = res.readded_at > 0
                     rec[b] = dict(keep=res.keep, time=elapsed, pr=_pr(res.keep, labels),
                                   pr1=_pr(res.removed_at == 0, labels), added=int(added.sum()),
-                                  added_wrong=int((added & ~labels).sum()))
+                                  added_wrong=int((added & ~labels).sum()),
+                                  far=_far_from(f1.kpts[matches[:, 0], :2], res.removed_at == 0,
+                                                boundary_step(pair.image_size1)))
                 if args.port:
                     keep, t = _run_port(args.port, args.port_python, args.work, pair, f1, f2, matches, scores)
                     rec["port"] = dict(keep=keep, time=t, pr=_pr(keep, labels))
+                    for b in args.boundaries:
+                        only = keep & ~rec[b]["keep"] & rec[b]["far"]
+                        rec[b]["port_far"] = (int(only.sum()), int((only & ~labels).sum()))
+                        rec[b]["port_near_pr"] = _pr(keep & ~rec[b]["far"], labels)
+                        rec[b]["near_pr"] = _pr(rec[b]["keep"] & ~rec[b]["far"], labels)
                 per.append(rec)
             for b in args.boundaries:
                 p, r = np.mean([x[b]["pr"] for x in per], axis=0)
@@ -165,11 +185,15 @@ def main(argv=None) -> int:
                     jac = np.mean([_jaccard(x[b]["keep"], x["port"]["keep"]) for x in per])
                     t_ours = sum(x[b]["time"] for x in per)
                     t_port = sum(x["port"]["time"] for x in per)
+                    far = f"{sum(x[b]['port_far'][0] for x in per)} ({sum(x[b]['port_far'][1] for x in per)})"
+                    pn, rn = np.mean([x[b]["port_near_pr"] for x in per], axis=0)
+                    on, orn = np.mean([x[b]["near_pr"] for x in per], axis=0)
                     line += (f" {pp:>6.1f} / {pr_:<5.1f} {jac:>7.3f} {t_ours:>7.1f} {t_port:>7.1f} "
-                             f"{t_port / t_ours:>7.1f}x")
+                             f"{t_port / t_ours:>7.1f}x {far:>20} {on:>8.1f} / {orn:<5.1f} {pn:>6.1f} / {rn:<5.1f}")
                 print(line, flush=True)
             rows.extend(dict(preset=preset, group=group, **{
                 k: (v if not isinstance(v, dict) else {"P": v["pr"][0], "R": v["pr"][1], "time": v["time"],
+                                                       **({"port_far": v["port_far"]} if "port_far" in v else {}),
                                                        **({"P1": v["pr1"][0], "R1": v["pr1"][1], "added": v["added"],
                                                            "added_wrong": v["added_wrong"]} if "pr1" in v else {})})
                 for k, v in rec.items()}) for rec in per)
@@ -184,7 +208,9 @@ def main(argv=None) -> int:
     print("P / R: mean over pairs of the DTM2 output's precision and recall (percent) against the pair's correct "
           "candidates; DTM1 P / R: the same for the DTM1 output; re-added (wrong): matches DTM2 re-added, summed "
           "over pairs (of them wrong); Jaccard: mean over pairs of |ours ∩ port| / |ours ∪ port|; CPU seconds "
-          "summed over pairs")
+          "summed over pairs; port-only >s (wrong): matches the port keeps and ours does not whose image-1 keypoint "
+          "lies farther than s = min(w, h) / 10 from every DTM1 survivor of ours (where an alpha boundary stops "
+          "DTM2), summed over pairs (of them wrong); <=s: ours P / R, port P / R: both outputs without the matches that far")
     return 0
 
 
