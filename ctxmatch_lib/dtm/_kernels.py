@@ -1,9 +1,16 @@
 """Compiled (numba) loops of DTM's hot paths.
 
-The alpha-shape passes are graph walks over the triangles (neighbours, union-find, flood fill) that NumPy
-can only express as several sorts and sparse-graph calls per shape; here each is one linear loop. Every
-kernel computes exactly what the NumPy formulation it replaced did (same floating-point operations in the
-same order, no ``fastmath``), so DTM's keep masks do not depend on it.
+- :func:`triangle_neighbors_kernel`, :func:`circumradii_kernel`, :func:`alpha_shapes_kernel`: the triangle
+  adjacency and the MATLAB-``boundary`` alpha shapes (:mod:`ctxmatch_lib.dtm.boundary`);
+- :func:`locate_kernel`: the visibility walk of
+  :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex` (DTM2's point location);
+- :func:`neighbourhood_kernel`, :func:`contraction_kernel`: DTM1 steps 3 and 5 (:mod:`ctxmatch_lib.dtm.core`).
+
+These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
+can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
+Their floating-point operations are those of the NumPy code they replaced, in the same order and without
+``fastmath`` (so no reassociation and no fused multiply-add): the results, and DTM's keep masks, are the
+same bit for bit, on any machine.
 
 Compiled code is cached on disk in the user's cache directory (``$CTXMATCH_CACHE/numba``, see
 :func:`ctxmatch_lib._paths.cache_dir`) unless ``NUMBA_CACHE_DIR`` says otherwise, so only the first call on
@@ -111,8 +118,8 @@ with _user_cache() as _cache:
 
     @_jit
     def circumradii_kernel(points, simplices):
-        """Circumradius ``sqrt(a² b² c²) / (2 |cross|)`` of each triangle, ``inf`` when degenerate (the
-        operations of :func:`ctxmatch_lib.dtm.boundary._circumradii`, in its order)."""
+        """Circumradius ``abc / (4 area) = sqrt(a² b² c²) / (2 |cross|)`` of each triangle (one square root per
+        triangle), ``inf`` when degenerate."""
         n_tri = simplices.shape[0]
         radii = np.empty(n_tri)
         for t in range(n_tri):
@@ -247,6 +254,7 @@ with _user_cache() as _cache:
 
     @_jit(inline="always")
     def _cross(px, py, qx, qy, rx, ry):
+        """z of ``(q - p) x (r - p)``."""
         return (qx - px) * (ry - py) - (qy - py) * (rx - px)
 
     @_jit
