@@ -387,9 +387,9 @@ class Triangulation:
         A visibility walk (compiled, :func:`~ctxmatch_lib.dtm._kernels.locate_kernel`): each query starts in a
         triangle around its nearest vertex (usually the one holding it) and crosses, while the point lies
         outside the current triangle, the edge that separates them most; on a Delaunay triangulation this
-        terminates, in a few steps from there.
-        Points on an edge count as inside (either triangle may be returned). Queries still walking after
-        many steps (only possible on near-degenerate slivers) are tested against every triangle.
+        terminates, in a few steps from there. Points on an edge count as inside (either triangle may be
+        returned). Queries still walking after many steps (only possible on near-degenerate slivers) are
+        tested against every triangle.
         """
         xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
         out = np.full(len(xy), -1, np.int64)
