@@ -162,13 +162,13 @@ def main(argv=None) -> int:
                     added = res.readded_at > 0
                     rec[b] = dict(keep=res.keep, time=elapsed, pr=_pr(res.keep, labels),
                                   pr1=_pr(res.removed_at == 0, labels), added=int(added.sum()),
-                                  added_wrong=int((added & ~labels).sum()),
-                                  far=_far_from(f1.kpts[matches[:, 0], :2], res.removed_at == 0,
-                                                boundary_step(pair.image_size1)))
+                                  added_wrong=int((added & ~labels).sum()), survivors=res.removed_at == 0)
                 if args.port:
                     keep, t = _run_port(args.port, args.port_python, args.work, pair, f1, f2, matches, scores)
                     rec["port"] = dict(keep=keep, time=t, pr=_pr(keep, labels))
                     for b in args.boundaries:
+                        rec[b]["far"] = _far_from(f1.kpts[matches[:, 0], :2], rec[b]["survivors"],
+                                                  boundary_step(pair.image_size1))
                         only = keep & ~rec[b]["keep"] & rec[b]["far"]
                         rec[b]["port_far"] = (int(only.sum()), int((only & ~labels).sum()))
                         rec[b]["port_near_pr"] = _pr(keep & ~rec[b]["far"], labels)

@@ -57,37 +57,43 @@ with _user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
     @_jit
+    def _group_by(keys, n_keys):
+        """Counting sort: ``(start, order)`` with group ``k`` at ``order[start[k]:start[k + 1]]``, the
+        positions of ``keys == k`` in increasing order."""
+        start = np.zeros(n_keys + 1, np.int64)
+        for i in range(keys.shape[0]):
+            start[keys[i] + 1] += 1
+        for k in range(n_keys):
+            start[k + 1] += start[k]
+        fill = start[:-1].copy()
+        order = np.empty(keys.shape[0], np.int64)
+        for i in range(keys.shape[0]):
+            order[fill[keys[i]]] = i
+            fill[keys[i]] += 1
+        return start, order
+
+    @_jit
     def triangle_neighbors_kernel(simplices, n_points):
         """``neighbors[t, k]``: the triangle across edge ``k`` of ``t`` (the edge opposite vertex ``k``),
-        ``-1`` on the hull. Each edge is listed under its smaller vertex; the two triangles of an edge are the
-        two entries of that list with the same other vertex."""
+        ``-1`` on the hull. Each edge (row ``3 t + k``) is listed under its smaller vertex; the two triangles
+        of an edge are the two entries of that list with the same larger vertex."""
         n_tri = simplices.shape[0]
-        start = np.zeros(n_points + 1, np.int64)
+        lo = np.empty(3 * n_tri, np.int64)
+        hi = np.empty(3 * n_tri, np.int64)
         for t in range(n_tri):
             for k in range(3):
                 a, b = simplices[t, (k + 1) % 3], simplices[t, (k + 2) % 3]
-                start[min(a, b) + 1] += 1
-        for v in range(n_points):
-            start[v + 1] += start[v]
-        fill = start[:-1].copy()
-        other = np.empty(3 * n_tri, np.int64)
-        slot = np.empty(3 * n_tri, np.int64)
-        for t in range(n_tri):
-            for k in range(3):
-                a, b = simplices[t, (k + 1) % 3], simplices[t, (k + 2) % 3]
-                lo = min(a, b)
-                other[fill[lo]] = max(a, b)
-                slot[fill[lo]] = 3 * t + k
-                fill[lo] += 1
+                lo[3 * t + k], hi[3 * t + k] = min(a, b), max(a, b)
+        start, edge = _group_by(lo, n_points)
         out = np.full(3 * n_tri, -1, np.int64)
         for v in range(n_points):
             for i in range(start[v], start[v + 1]):
-                if out[slot[i]] >= 0:
+                if out[edge[i]] >= 0:
                     continue
                 for j in range(i + 1, start[v + 1]):
-                    if other[j] == other[i]:
-                        out[slot[i]] = slot[j] // 3
-                        out[slot[j]] = slot[i] // 3
+                    if hi[edge[j]] == hi[edge[i]]:
+                        out[edge[i]] = edge[j] // 3
+                        out[edge[j]] = edge[i] // 3
                         break
         return out.reshape(n_tri, 3)
 
@@ -336,17 +342,7 @@ with _user_cache() as _cache:
         ``v`` itself skipped), by increasing ``m``, then neighbour order, then increasing ``o``; and whether
         the image-2 vertices of ``m`` and ``o`` are adjacent too (distinct and an edge of image 2)."""
         n = vertex1.shape[0]
-        n_v = indptr1.shape[0] - 1
-        start = np.zeros(n_v + 1, np.int64)
-        for m in range(n):
-            start[vertex1[m] + 1] += 1
-        for v in range(n_v):
-            start[v + 1] += start[v]
-        fill = start[:-1].copy()
-        at = np.empty(n, np.int64)  # matches grouped by image-1 vertex, increasing inside each group
-        for m in range(n):
-            at[fill[vertex1[m]]] = m
-            fill[vertex1[m]] += 1
+        start, at = _group_by(vertex1, indptr1.shape[0] - 1)  # matches on each image-1 vertex, increasing
         total = 0
         for m in range(n):
             v = vertex1[m]

@@ -211,7 +211,7 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
         return None
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
-    return _alpha_shapes([points], [tri.simplices], shrink, tri.neighbors.astype(np.int64))[0][0]
+    return _alpha_shapes([points], [tri.simplices], shrink, tri.neighbors)[0][0]
 
 
 def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,

@@ -165,9 +165,8 @@ def _neighbourhood_pairs(tri: Triangulation, other: Triangulation, vertex: np.nd
     collapsed onto ``v`` are neighbours of ``m`` (see :func:`dtm`, Notes); likewise two matches on one vertex
     of the other image are not adjacent there. Compiled
     (:func:`~ctxmatch_lib.dtm._kernels.neighbourhood_kernel`)."""
-    return neighbourhood_kernel(tri.indptr.astype(np.int64), tri.indices.astype(np.int64), vertex.astype(np.int64),
-                                other.indptr.astype(np.int64), other.indices.astype(np.int64),
-                                other_vertex.astype(np.int64))
+    return neighbourhood_kernel(*(np.asarray(a, np.int64) for a in (tri.indptr, tri.indices, vertex, other.indptr,
+                                                                     other.indices, other_vertex)))
 
 
 @dataclass(frozen=True)
@@ -202,17 +201,15 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
     # Step 3: pairs (m, m') with m' in M_{A1(vl(m))}, flagged when also in M_{A2(vr(m))}; and vice versa.
     m_a, o_a, in_both = _neighbourhood_pairs(t1, t2, vl, vr)
     m_b, o_b, in_1 = _neighbourhood_pairs(t2, t1, vr, vl)
-    only2 = ~in_1
     # Step 4: rank by score ascending, then |M_A1 ∩ M_A2| descending, then the canonical key.
     consistency = np.bincount(m_a[in_both], minlength=n)
     rank = np.lexsort((canon, -consistency, score))
     # Step 5: contraction. Each pick removes (M_A1 ∪ M_A2) \ (M_A1 ∩ M_A2): the pairs of M_A1 not in M_A2
     # and those of M_A2 not in M_A1, both already grouped by match (rows of m_a and m_b never decrease); the
     # sequential greedy loop is compiled.
-    ptr_a = np.searchsorted(m_a[~in_both], np.arange(n + 1))
-    ptr_b = np.searchsorted(m_b[only2], np.arange(n + 1))
-    picked = contraction_kernel(rank.astype(np.int64), o_a[~in_both].astype(np.int64), ptr_a,
-                                o_b[only2].astype(np.int64), ptr_b)
+    only1, only2 = ~in_both, ~in_1
+    picked = contraction_kernel(rank, o_a[only1], np.searchsorted(m_a[only1], np.arange(n + 1)),
+                                o_b[only2], np.searchsorted(m_b[only2], np.arange(n + 1)))
     # Step 6: expansion, the union of the picked matches' intersections.
     is_picked = np.zeros(n, bool)
     is_picked[picked] = True
