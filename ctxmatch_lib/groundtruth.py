@@ -341,6 +341,8 @@ def label_matches(
     method: str = "D",
     threshold: float = GT_THRESHOLD_PX,
     ratio: float = LOCALISATION_RATIO,
+    shapes1=None,
+    shapes2=None,
 ) -> np.ndarray:
     """Correct/incorrect label of each match under the pair's ground truth.
 
@@ -360,6 +362,9 @@ def label_matches(
         Pixels (15 in the paper).
     ratio : float
         Localisation radius ratio (:func:`localisation_check`).
+    shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2), optional
+        Affine shapes of the keypoints' support regions (the patch of keypoint k is
+        ``{kpts[k] + A[k] u : |u| <= 1}``); the region-overlap methods need them, methods A and D ignore them.
 
     Returns
     -------

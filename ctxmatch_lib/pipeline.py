@@ -272,7 +272,8 @@ def label_candidates(
     threshold: float = GT_THRESHOLD_PX,
 ) -> np.ndarray:
     """Ground-truth labels of ``matches`` under ``pair.gt`` (:func:`~ctxmatch_lib.groundtruth.label_matches`)."""
-    return label_matches(f1.kpts, f2.kpts, matches, pair.gt, method=method, threshold=threshold)
+    return label_matches(f1.kpts, f2.kpts, matches, pair.gt, method=method, threshold=threshold,
+                         shapes1=f1.shapes, shapes2=f2.shapes)
 
 
 # -------------------------------------------------------------------------------------- per-pair state
