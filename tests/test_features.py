@@ -248,6 +248,43 @@ def test_default_cache_location(tmp_path, gray, monkeypatch):
 def test_features_empty_constructor():
     f = Features.empty()
     assert len(f) == 0 and f.desc.dtype == np.float32
+    assert f.image_size is None and Features.empty(image_size=(5, 7)).image_size == (5, 7)
+    with pytest.raises(ValueError, match="image_size"):
+        Features.empty(image_size=(640,))
+    with pytest.raises(ValueError, match="image_size"):
+        Features.empty(image_size=(640.5, 480))
+
+
+@pytest.mark.parametrize("config", [
+    FeatureConfig(max_keypoints=30),                                        # OpenCV SIFT path
+    FeatureConfig(max_keypoints=30, upright=True),                          # SIFT, merged orientations
+    FeatureConfig(descriptor="rootsgloh2", max_keypoints=30),               # patch path, SIFT detector
+    FeatureConfig(detector="harrisz", max_keypoints=30),                    # patch path, HarrisZ
+], ids=["sift", "upright", "sgloh2", "harrisz"])
+def test_features_carry_the_image_size(gray, config, tmp_path):
+    # (width, height) as Pair.image_size1, on every detector path, for empty results too, and from the cache.
+    h, w = gray.shape
+    assert extract_features(gray, config, cache_dir=False).image_size == (w, h)
+    assert extract_features(np.zeros((40, 70), np.uint8), config, cache_dir=False).image_size == (70, 40)
+    assert extract_features(np.zeros((5, 6), np.uint8), config, cache_dir=False).image_size == (6, 5)
+    first = extract_features(gray, config, cache_dir=tmp_path)
+    again = extract_features(gray, config, cache_dir=tmp_path)
+    assert first.image_size == again.image_size == (w, h)
+
+
+def test_cache_entries_without_the_image_size_are_ignored(tmp_path, gray):
+    # An entry of the previous layout (no image_size) at the current path is a miss, recomputed and rewritten.
+    cfg = FeatureConfig(max_keypoints=25)
+    target = F.feature_cache_path(gray, cfg, cache_dir=tmp_path)
+    target.parent.mkdir(parents=True)
+    fake = Features.empty()
+    np.savez(target, **{n: getattr(fake, n) for n in F._FIELDS}, metric=np.array("l2"))
+    f = extract_features(gray, cfg, cache_dir=tmp_path)
+    assert len(f) == 25 and f.image_size == gray.shape[::-1]
+    with np.load(target) as z:
+        assert tuple(z["image_size"]) == gray.shape[::-1]
+    # The layout version is in the entry's file name: older entries are not even opened.
+    assert target.name.endswith(f".e{F._ENTRY_FORMAT}.npz")
 
 
 def test_cache_key_includes_the_opencv_version(gray, tmp_path, monkeypatch):

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +35,13 @@ __all__ = [
     "descriptor_distance", "feature_cache_path", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
 ]
 
-# Bump when the stored arrays or their meaning change: old cache entries are then ignored.
+# Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
+# every cache keyed on it (features, sweep units) is then recomputed.
 _CACHE_FORMAT = 1
+# Bump when only the layout of a stored feature entry changes (the features are the same): part of the entry's
+# file name, so old entries are ignored while the keys of the caches built on the features stay.
+# 2: entries carry the image size.
+_ENTRY_FORMAT = 2
 
 _DETECTORS = ("sift", "harrisz")
 _DESCRIPTORS = ("rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet")
@@ -268,6 +273,10 @@ class Features:
     metric : {"l2", "sgloh2"}
         How descriptors compare: Euclidean, or the sGLOH2 rotation-min distance (see
         :func:`descriptor_distance`).
+    image_size : tuple of int (width, height), optional
+        Size of the image the features come from, as :class:`ctxmatch_lib.datasets.Pair` stores it, ready
+        for the filters' ``image_size1`` / ``image_size2``. :func:`extract_features` always fills it;
+        ``None`` only for features built by hand without it.
     """
 
     kpts: np.ndarray
@@ -277,6 +286,15 @@ class Features:
     angles: np.ndarray
     responses: np.ndarray
     metric: str = "l2"
+    image_size: tuple[int, int] | None = None
+
+    def __post_init__(self):
+        if self.image_size is not None:
+            size = tuple(self.image_size)
+            if (len(size) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                                          for v in size) or min(size) < 0):
+                raise ValueError(f"image_size must be (width, height) non-negative integers, got {self.image_size!r}")
+            object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
 
     def __len__(self) -> int:
         return len(self.kpts)
@@ -286,11 +304,11 @@ class Features:
         return descriptor_distance(self.metric)
 
     @classmethod
-    def empty(cls, dim: int = 128, metric: str = "l2") -> "Features":
-        """No keypoints, with the right shapes and dtypes."""
+    def empty(cls, dim: int = 128, metric: str = "l2", image_size: tuple[int, int] | None = None) -> "Features":
+        """No keypoints, with the right shapes and dtypes (and the image size, when given)."""
         return cls(
             np.empty((0, 2)), np.empty((0, 2, 2)), np.empty((0, dim), np.float32),
-            np.empty(0), np.empty(0), np.empty(0), metric,
+            np.empty(0), np.empty(0), np.empty(0), metric, image_size,
         )
 
 
@@ -438,15 +456,22 @@ def _normalise(desc: np.ndarray, root: bool) -> np.ndarray:
     return desc / np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
 
 
+def _image_size(gray: np.ndarray) -> tuple[int, int]:
+    return int(gray.shape[1]), int(gray.shape[0])  # (width, height), as Pair.image_size1
+
+
 def _extract(gray: np.ndarray, config: FeatureConfig) -> Features:
     ori = config.resolved_orientation()
     metric = "sgloh2" if config.descriptor == "rootsgloh2" else "l2"
     dim = 256 if metric == "sgloh2" else 128
     if gray.size == 0 or min(gray.shape) < 8:
-        return Features.empty(dim, metric)
-    if config.detector == "sift" and config.descriptor in ("rootsift", "sift") and ori in ("sift", "none"):
-        return _extract_sift(gray, config, upright=ori == "none")
-    return _extract_patches(gray, config, ori, metric, dim)
+        feats = Features.empty(dim, metric)
+    elif config.detector == "sift" and config.descriptor in ("rootsift", "sift") and ori in ("sift", "none"):
+        feats = _extract_sift(gray, config, upright=ori == "none")
+    else:
+        feats = _extract_patches(gray, config, ori, metric, dim)
+    # Every detector path ends here: the size is set once, for empty results too.
+    return replace(feats, image_size=_image_size(gray))
 
 
 def _extract_sift(gray: np.ndarray, config: FeatureConfig, *, upright: bool) -> Features:
@@ -539,22 +564,24 @@ def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: 
 _FIELDS = ("kpts", "shapes", "desc", "scales", "angles", "responses")
 
 
-def _load_entry(path: Path) -> Features | None:
+def _load_entry(path: Path, image_size: tuple[int, int]) -> Features | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             metric = str(z["metric"]) if "metric" in z.files else "l2"
-            feats = Features(**{name: z[name] for name in _FIELDS}, metric=metric)
-    except Exception:  # a partial or foreign file: treat as a miss and overwrite it
+            size = tuple(int(v) for v in z["image_size"])
+            feats = Features(**{name: z[name] for name in _FIELDS}, metric=metric, image_size=size)
+    except Exception:  # a partial, foreign or older-format file: treat as a miss and overwrite it
         return None
     n = len(feats.kpts)
-    if any(len(getattr(feats, f)) != n for f in _FIELDS):
+    if any(len(getattr(feats, f)) != n for f in _FIELDS) or feats.image_size != image_size:
         return None
     return feats
 
 
 def _save_entry(path: Path, feats: Features) -> None:
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(f, **{name: getattr(feats, name) for name in _FIELDS}, metric=np.array(feats.metric))
+        np.savez(f, **{name: getattr(feats, name) for name in _FIELDS}, metric=np.array(feats.metric),
+                 image_size=np.array(feats.image_size, np.int64))
 
 
 def feature_cache_path(image, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> Path:
@@ -571,7 +598,7 @@ def _entry_path(digest: str, config: FeatureConfig, cache_dir) -> Path:
     else:
         base = Path(cache_dir)
     # SIFT's keypoints and descriptors change between OpenCV releases: the version is part of the key.
-    return base / f"opencv-{_opencv_version()}" / config.key() / digest[:2] / f"{digest}.npz"
+    return base / f"opencv-{_opencv_version()}" / config.key() / digest[:2] / f"{digest}.e{_ENTRY_FORMAT}.npz"
 
 
 def _opencv_version() -> str:
@@ -598,15 +625,15 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
     -------
     Features
         Keypoints sorted by decreasing response, at most ``config.max_keypoints``; empty (N = 0) when the
-        image is blank or tiny.
+        image is blank or tiny. ``image_size`` is the image's (width, height).
 
     Examples
     --------
     >>> import numpy as np
     >>> from skimage.data import camera
     >>> f = extract_features(camera(), FeatureConfig(max_keypoints=100), cache_dir=False)
-    >>> f.kpts.shape, f.desc.shape, f.shapes.shape
-    ((100, 2), (100, 128), (100, 2, 2))
+    >>> f.kpts.shape, f.desc.shape, f.shapes.shape, f.image_size
+    ((100, 2), (100, 128), (100, 2, 2), (512, 512))
     >>> bool(np.allclose(np.linalg.norm(f.desc, axis=1), 1, atol=1e-5))
     True
     """
@@ -617,7 +644,7 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
         return _extract(gray, config)
     path = _entry_path(_image_hash(gray), config, cache_dir)
     if path.is_file():
-        feats = _load_entry(path)
+        feats = _load_entry(path, _image_size(gray))
         if feats is not None:
             return feats
     feats = _extract(gray, config)
