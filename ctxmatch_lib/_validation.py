@@ -8,8 +8,43 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix", "check_inside",
+__all__ = ["Presets", "as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix", "check_inside",
            "cumulative_distinct"]
+
+
+class Presets(dict):
+    """A dict of named presets whose missing-key error lists the known names.
+
+    A plain ``dict`` in every other respect (``in``, ``get``, iteration, ``dict(presets)``), so presets stay
+    hloc-style ``confs`` dicts; only ``presets["typo"]`` says what exists.
+
+    Parameters
+    ----------
+    what : str
+        What a key names, for the error message (``"blob preset"``).
+    *args, **kwargs
+        As ``dict``.
+
+    Examples
+    --------
+    >>> p = Presets("colour", {"red": 1, "green": 2})
+    >>> p["blue"]
+    Traceback (most recent call last):
+    ...
+    KeyError: "unknown colour 'blue'; known: red, green"
+    >>> p.get("blue") is None, isinstance(p, dict)
+    (True, True)
+    """
+
+    def __init__(self, what: str, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.what = what
+
+    def __missing__(self, key):
+        raise KeyError(f"unknown {self.what} {key!r}; known: {', '.join(map(str, self))}")
+
+    def __reduce__(self):
+        return (type(self), (self.what, dict(self)))
 
 
 def as_finite_matrix(x, name: str, *, ndim: int = 2, dtype=None) -> np.ndarray:

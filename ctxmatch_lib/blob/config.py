@@ -6,6 +6,8 @@ import math
 from dataclasses import asdict, dataclass
 from itertools import product
 
+from .._validation import Presets
+
 __all__ = ["BlobConfig", "BLOB_PRESETS", "blob_grid", "RATIOS", "COMBINES", "PREFILTERS", "T_O_KINDS"]
 
 RATIOS = ("D>=", "D+>=", "D+")
@@ -116,7 +118,7 @@ class BlobConfig:
         return f"f={self.f_label} f'={self.f_prime} t_o={self.t_o_label} {self.ratio} W={self.combine}"
 
 
-BLOB_PRESETS: dict[str, BlobConfig] = {
+BLOB_PRESETS: dict[str, BlobConfig] = Presets("blob preset", {
     # Best setup of Sec. 5.2: f = 10∪, f' = 5, D+ with t_o = 10 px, harmonic W.
     "paper-best": BlobConfig(f=10, prefilter="cup", f_prime=5, ratio="D+", t_o=10.0, t_o_kind="px",
                              combine="harmonic"),
@@ -126,7 +128,7 @@ BLOB_PRESETS: dict[str, BlobConfig] = {
     # One-to-one greedy NN ranked by plain NNR: the paper's baseline configuration (Sec. 5.3).
     "baseline": BlobConfig(f="omega", prefilter="cup", f_prime=1, ratio="D>=", t_o=None,
                            combine="a"),
-}
+})
 
 # The values of Sec. 5.2, in the order of the heat map of Fig. 5.
 GRID_F = ((1, "cup"), (1, "cap"), (3, "cup"), (3, "cap"), (5, "cup"), (5, "cap"), (10, "cup"), (10, "cap"),

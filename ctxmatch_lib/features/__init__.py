@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .._paths import atomic_path
+from .._validation import Presets
 
 __all__ = [
     "FeatureConfig", "Features", "extract_features", "load_image", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
@@ -180,7 +181,7 @@ class FeatureConfig:
 _HARDNET2_STANDIN = dict(weights="HardTFeat.pth", net="hardtfeat", orinet_weights="OriNet.pth")
 _SOSNET_STANDIN = dict(weights="tfeat-liberty.params", net="tfeat", orinet_weights="OriNet.pth")
 
-FEATURE_PRESETS = {
+FEATURE_PRESETS = Presets("feature preset", {
     "sift-rootsift": FeatureConfig(),
     "sift-rootsift-upright": FeatureConfig(upright=True),
     "sift": FeatureConfig(descriptor="sift"),
@@ -191,7 +192,7 @@ FEATURE_PRESETS = {
     "sift-sosnet": FeatureConfig(descriptor="sosnet", **_SOSNET_STANDIN),
     "harrisz-hardnet2": FeatureConfig(detector="harrisz", descriptor="hardnet2", **_HARDNET2_STANDIN),
     "harrisz-sosnet": FeatureConfig(detector="harrisz", descriptor="sosnet", **_SOSNET_STANDIN),
-}
+})
 
 #: One line per preset for tables and figure captions; every stand-in says so and names its weights.
 FEATURE_DESCRIPTIONS = {
