@@ -11,7 +11,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "build_info", "cache_dir", "data_root", "repo_root", "write_parquet_atomic"]
+__all__ = ["atomic_path", "build_info", "cache_dir", "check_writable", "data_root", "repo_root",
+           "write_parquet_atomic"]
 
 
 def repo_root() -> Path | None:
@@ -55,6 +56,72 @@ def data_root(required: bool = False) -> Path | None:
             f"(currently {env!r})"
         )
     return None
+
+
+def check_writable(path, name: str, *, folder: bool = False) -> Path:
+    """Check, before any work and without creating anything, that ``path`` can be written.
+
+    A file (``folder=False``) must not be a folder, and either be a writable file or be creatable: its
+    nearest existing ancestor must be a writable folder (not a file). A folder (``folder=True``) must be a
+    writable folder or be creatable the same way. Commands call this on every output path first, so a bad
+    path fails at once instead of after the computation.
+
+    Parameters
+    ----------
+    path : str or Path
+        The output path.
+    name : str
+        The argument or flag it came from (``"--out"``, ``"database_path"``): every message starts with it.
+    folder : bool
+        Whether ``path`` is an output folder rather than a file.
+
+    Returns
+    -------
+    Path
+        ``path`` with ``~`` expanded.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` and the reason: a folder where a file is wanted (or the reverse), a file in the way of
+        a folder to create, or no write permission.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> (d / "file").write_text("")
+    0
+    >>> check_writable(d / "out" / "x.npz", "--out") == d / "out" / "x.npz"
+    True
+    >>> check_writable(d / "file" / "x.npz", "--out")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: --out: cannot create .../file/x.npz: .../file is a file, not a folder
+    """
+    path = Path(path).expanduser()
+    kind = "folder" if folder else "file"
+    if str(path) == "":
+        raise ValueError(f"{name}: the output {kind} name is empty")
+    if os.path.lexists(path):
+        if folder and not path.is_dir():
+            raise ValueError(f"{name}: {path} exists and is not a folder")
+        if not folder and path.is_dir():
+            raise ValueError(f"{name}: {path} is a folder, not a file")
+        if not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
+            raise ValueError(f"{name}: {path} is not writable")
+        if not folder and not os.access(path.parent, os.W_OK | os.X_OK):
+            # Files are written beside their target and renamed into place (atomic_path).
+            raise ValueError(f"{name}: cannot write {path}: its folder {path.parent} is not writable")
+        return path
+    ancestor = path.parent
+    while not os.path.lexists(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ValueError(f"{name}: cannot create {path}: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ValueError(f"{name}: cannot create {path}: {ancestor} is not writable")
+    return path
 
 
 def _umask() -> int:

@@ -38,6 +38,7 @@ __all__ = [
     "write_colmap",
     "read_colmap",
     "colmap_pair_id",
+    "check_export_paths",
     "export_results",
 ]
 
@@ -75,6 +76,65 @@ def _check_pair(kpts1, kpts2, matches, scores):
     m = as_matches(matches, len(k1), len(k2))
     s = as_scores(scores, len(m))
     return k1, k2, m, s
+
+
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def _check_colmap_path(path, name: str) -> Path:
+    """A COLMAP database path that can be written: a new file, an empty one or an SQLite database."""
+    from ._paths import check_writable
+
+    path = check_writable(path, name)
+    if path.is_file() and path.stat().st_size:
+        with open(path, "rb") as fh:
+            head = fh.read(len(_SQLITE_MAGIC))
+        if head != _SQLITE_MAGIC:
+            raise ValueError(f"{name}: {path} exists and is not an SQLite database (COLMAP's format); "
+                             "give a new file name or a COLMAP database")
+    return path
+
+
+def _check_h5_path(path, name: str) -> Path:
+    """An hloc HDF5 path that can be written: a new file or an HDF5 file."""
+    from ._paths import check_writable
+
+    path = check_writable(path, name)
+    if path.is_file() and path.stat().st_size:
+        import h5py
+
+        if not h5py.is_hdf5(str(path)):
+            raise ValueError(f"{name}: {path} exists and is not an HDF5 file (hloc's format)")
+    return path
+
+
+def check_export_paths(h5_dir=None, colmap_db=None, *, h5_name: str = "h5_dir",
+                       colmap_name: str = "colmap_db") -> None:
+    """Check the targets of :func:`export_results` before any work; nothing is created.
+
+    Parameters
+    ----------
+    h5_dir : str or Path, optional
+        Folder for hloc's ``features.h5`` and ``matches.h5``: a folder (or creatable), whose two files, where
+        they exist, are HDF5 files.
+    colmap_db : str or Path, optional
+        COLMAP database: a new or empty file, or an SQLite database.
+    h5_name, colmap_name : str
+        The argument or flag names the messages start with (``"--export-h5"`` from the command line).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument and what is wrong with the path.
+    """
+    if h5_dir is not None:
+        from ._paths import check_writable
+
+        folder = check_writable(h5_dir, h5_name, folder=True)
+        for file in ("features.h5", "matches.h5"):
+            _check_h5_path(folder / file, h5_name)
+    if colmap_db is not None:
+        _check_colmap_path(colmap_db, colmap_name)
 
 
 def _reduce_one_per_row(m: np.ndarray, s: np.ndarray):
@@ -144,6 +204,8 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
         m, s = _reduce_one_per_row(m, s)
     size1 = None if image_size1 is None else as_image_size(image_size1, "image_size1")
     size2 = None if image_size2 is None else as_image_size(image_size2, "image_size2")
+    _check_h5_path(features_path, "features_path")
+    _check_h5_path(matches_path, "matches_path")
     matches0 = np.full(len(k1), -1, np.int16)
     matches0[m[:, 0]] = m[:, 1]
     scores0 = np.zeros(len(k1), np.float16)
@@ -304,11 +366,17 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
     -------
     (int, int)
         The COLMAP image ids of ``name1`` and ``name2``.
+
+    Raises
+    ------
+    ValueError
+        Bad arrays or names; or a ``database_path`` that cannot be written (a folder, under a file, not
+        writable, an existing file that is not an SQLite database, a locked database), named in the message.
     """
     k1, k2, m, _ = _check_pair(kpts1, kpts2, matches, None)
     if name1 == name2:
         raise ValueError(f"name1 and name2 must differ, got {name1!r} twice")
-    path = Path(database_path)
+    path = _check_colmap_path(database_path, "database_path")
     path.parent.mkdir(parents=True, exist_ok=True)
     con = sqlite3.connect(str(path))
     try:
@@ -320,6 +388,8 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
             data = np.ascontiguousarray(mm, np.uint32)
             con.execute("INSERT OR REPLACE INTO matches (pair_id, rows, cols, data) VALUES (?, ?, ?, ?)",
                         (colmap_pair_id(id1, id2), data.shape[0], 2, data.tobytes()))
+    except sqlite3.DatabaseError as exc:  # locked, read-only or corrupt past its header; nothing was committed
+        raise ValueError(f"database_path: cannot write the COLMAP database {path}: {exc}") from exc
     finally:
         con.close()
     return id1, id2
@@ -387,6 +457,7 @@ def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates:
     """
     from .match import load_result
 
+    check_export_paths(h5_dir, colmap_db)
     lines = []
     n_in = n_h5 = 0
     for (name1, name2), path in results.items():

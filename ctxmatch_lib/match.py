@@ -177,7 +177,7 @@ def resolve_blob(blob="paper-best"):
 
 
 def _as_filter_list(filters) -> tuple[str, ...]:
-    from .pipeline import check_filters
+    from .evaluation.steps import check_filters
 
     if filters is None:
         return ()
@@ -273,7 +273,7 @@ def match_images(
     """
     from .features import extract_features
     from .geometry import MODEL_STEPS, apply_model_step
-    from .pipeline import blob_candidates, run_filter
+    from .evaluation.steps import blob_candidates, run_filter
 
     cfg_feat = resolve_features(features, max_keypoints=max_keypoints)
     cfg_blob = resolve_blob(blob)
@@ -464,9 +464,24 @@ def read_pairs(path) -> list[tuple[str, str]]:
     -------
     list of (str, str)
         Image names relative to the image folder, in file order, duplicates removed.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist (or is not a file).
+    ValueError
+        A line that is not two names, or a file that is not text.
     """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"pairs file not found: {path}" if not path.exists()
+                                else f"pairs file {path} is not a file")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"pairs file {path} is not a text file ({exc.reason} at byte {exc.start})") from None
     pairs, seen = [], set()
-    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+    for n, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
@@ -544,6 +559,12 @@ def match_pairs(
     if len(set(files.values())) != len(files):
         raise ValueError("two different pairs map to the same output file name (names that differ only by '/' "
                          "and '-'); rename the images")
+    from ._paths import check_writable
+
+    check_writable(out_dir, "out_dir", folder=True)
+    taken = [f for f in files.values() if f.is_dir()]
+    if taken:
+        raise ValueError(f"out_dir: {taken[0]} is a folder where a pair's result file goes")
     missing = sorted({n for p in pairs for n in p if not (image_dir / n).is_file()})
     if missing:
         raise FileNotFoundError(f"{len(missing)} image(s) of the pairs file not found under {image_dir}: "

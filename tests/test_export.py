@@ -132,3 +132,55 @@ def test_cli_exports(tmp_path):
     # hloc keeps the best-scored match of each image-1 keypoint: a subset with every image-1 keypoint present.
     assert set(map(tuple, hm.tolist())) <= set(map(tuple, d["matches"].tolist()))
     assert set(hm[:, 0].tolist()) == set(d["matches"][:, 0].tolist())
+
+
+# ---------------------------------------------------------------- bad output paths (issue 23, case 4)
+@pytest.mark.parametrize("where, reason", [
+    ("file/db.db", "is a file, not a folder"),        # the corpus' case: a regular file in the path
+    ("file/sub/db.db", "is a file, not a folder"),
+    ("folder", "is a folder, not a file"),
+    ("file", "is not an SQLite database"),            # an existing file of another kind: left untouched
+])
+def test_write_colmap_bad_database_path_names_the_argument(tmp_path, pair, where, reason):
+    k1, k2, m, _ = pair
+    (tmp_path / "file").write_text("a regular file")
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(ValueError, match=f"^database_path: .*{reason}"):
+        write_colmap(tmp_path / where, "a.jpg", "b.jpg", k1, k2, m, image_size1=(640, 480),
+                     image_size2=(640, 480))
+    assert (tmp_path / "file").read_text() == "a regular file"
+
+
+def test_write_colmap_read_only_database_names_the_argument(tmp_path, pair, monkeypatch):
+    import os
+
+    import ctxmatch_lib._paths as paths
+
+    k1, k2, m, _ = pair
+    db = tmp_path / "db.db"
+    write_colmap(db, "a.jpg", "b.jpg", k1, k2, m, image_size1=(640, 480), image_size2=(640, 480))
+    # Permissions as a non-root user would see them (tests may run as root, who may write anything).
+    monkeypatch.setattr(paths.os, "access", lambda p, mode: os.fspath(p) != os.fspath(db))
+    with pytest.raises(ValueError, match="^database_path: .*db.db is not writable"):
+        write_colmap(db, "a.jpg", "c.jpg", k1, k2, m, image_size1=(640, 480), image_size2=(640, 480))
+    monkeypatch.undo()
+    assert read_colmap(db, "a.jpg", "b.jpg")[2].shape == m.shape
+
+
+def test_write_colmap_empty_file_is_a_new_database(tmp_path, pair):
+    # SQLite treats an empty file as a new database: touch-then-write keeps working.
+    k1, k2, m, _ = pair
+    db = tmp_path / "db.db"
+    db.touch()
+    write_colmap(db, "a.jpg", "b.jpg", k1, k2, m, image_size1=(640, 480), image_size2=(640, 480))
+    assert len(read_colmap(db, "a.jpg", "b.jpg")[2]) == len(m)
+
+
+def test_write_hloc_bad_paths_name_the_argument(tmp_path, pair):
+    pytest.importorskip("h5py", reason="h5py not installed (pip install 'ctxmatch[export]')")
+    k1, k2, m, s = pair
+    (tmp_path / "file").write_text("a regular file")
+    with pytest.raises(ValueError, match="^features_path: .*is a file, not a folder"):
+        write_hloc(tmp_path / "file" / "f.h5", tmp_path / "m.h5", "a", "b", k1, k2, m, s)
+    with pytest.raises(ValueError, match="^matches_path: .*is not an HDF5 file"):
+        write_hloc(tmp_path / "f.h5", tmp_path / "file", "a", "b", k1, k2, m, s)

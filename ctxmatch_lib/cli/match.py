@@ -73,6 +73,48 @@ def _error(msg: str) -> int:
     return 2
 
 
+def _check_plot_suffix(path) -> None:
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if not suffix:
+        return  # written as PNG
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    known = FigureCanvasBase.get_supported_filetypes()
+    if suffix not in known:
+        raise ValueError(f"--plot: unknown picture format {'.' + suffix!r}; use one of "
+                         f"{', '.join('.' + k for k in sorted(known))}")
+
+
+def _check_inputs_and_outputs(args, folder: bool) -> None:
+    """Every input and output path, before any work: a bad one fails at once, naming its flag."""
+    from .._paths import check_writable
+    from ..export import check_export_paths
+
+    if folder:
+        pairs = Path(args.pairs)
+        if not pairs.exists():
+            raise ValueError(f"--pairs: file not found: {pairs}")
+        if not pairs.is_file():
+            raise ValueError(f"--pairs: {pairs} is not a file")
+        if not Path(args.images).is_dir():
+            raise ValueError(f"--images: folder not found: {args.images}")
+        out = Path(args.out or "matches")
+        if out.suffix.lower() == ".npz":
+            raise ValueError(f"--out: in folder mode --out is a folder, got {out}")
+        check_writable(out, "--out", folder=True)
+        if args.plot:
+            check_writable(args.plot, "--plot", folder=True)
+    else:
+        out = Path(args.out or "matches.npz")
+        if out.suffix.lower() != ".npz":
+            raise ValueError(f"--out must end with .npz, got {out}")
+        check_writable(out, "--out")
+        if args.plot:
+            _check_plot_suffix(args.plot)
+            check_writable(args.plot, "--plot")
+    check_export_paths(args.export_h5, args.export_colmap, h5_name="--export-h5", colmap_name="--export-colmap")
+
+
 def _filters(values) -> list[str]:
     if values is None:
         return ["dtm"]
@@ -109,6 +151,10 @@ def run(args) -> int:
             import h5py  # noqa: F401
         except ImportError:
             return _error("--export-h5 needs h5py: pip install 'ctxmatch[export]'")
+    try:
+        _check_inputs_and_outputs(args, folder)
+    except ValueError as exc:
+        return _error(str(exc))
 
     if not folder:
         img1, img2 = (Path(a) for a in args.images_pair)
@@ -117,8 +163,6 @@ def run(args) -> int:
         except (FileNotFoundError, ValueError) as exc:
             return _error(str(exc))
         out = Path(args.out or "matches.npz")
-        if out.suffix.lower() != ".npz":
-            return _error(f"--out must end with .npz, got {out}")
         save_result(res, out)
         print(f"{len(res.kpts1)} + {len(res.kpts2)} keypoints, {len(res.candidates)} blob candidates, "
               f"{len(res.matches)} matches kept -> {out}")
@@ -131,12 +175,10 @@ def run(args) -> int:
         try:
             pairs = read_pairs(args.pairs)
         except (OSError, ValueError) as exc:
-            return _error(str(exc))
+            return _error(f"--pairs: {exc}")
         if not pairs:
-            return _error(f"pairs file {args.pairs} lists no pair")
+            return _error(f"--pairs: {args.pairs} lists no pair")
         out_dir = Path(args.out or "matches")
-        if out_dir.suffix.lower() == ".npz":
-            return _error(f"in folder mode --out is a folder, got {out_dir}")
         plot_dir = Path(args.plot) if args.plot else None
 
         import numpy as np
