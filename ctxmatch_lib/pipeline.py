@@ -1,11 +1,13 @@
 """The per-pair evaluation of Sec. 5.1: features -> blob -> filters -> model -> ground truth -> metrics.
 
 Each step is a function that can be called on its own (:func:`pair_features`, :func:`blob_candidates`,
-:func:`run_filter`, :func:`run_model`, :func:`label_candidates`, :func:`metrics_rows`);
+:func:`run_filter`, :func:`run_model`, :func:`label_candidates`: they live in
+:mod:`ctxmatch_lib.evaluation.steps` and are re-exported here; :func:`metrics_rows`);
 :func:`evaluate_pair` chains them for one pair and keeps every intermediate result in a
 :class:`PairEvaluation`, and :func:`evaluate_dataset` runs a whole dataset into a ``pandas.DataFrame`` with
-one row per (pair, blob setup, method, model), on the evaluation engine of :mod:`ctxmatch_lib.sweep`
+one row per (pair, blob setup, method, model), on the evaluation engine of :mod:`ctxmatch_lib.evaluation`
 (per-pair result parts in the cache, resumable; tested to give the same rows as :func:`evaluate_pair`).
+This module sits on the engine: the steps below it never import it.
 
 How the pieces fit:
 
@@ -25,17 +27,20 @@ Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of 
 
 from __future__ import annotations
 
-import time
-import zlib
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .datasets.base import Dataset, Pair
-from .features import FeatureConfig, Features, extract_features
-from .geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ModelFit, apply_model_step, model_kind_for
-from .groundtruth import GT_METHODS, GT_THRESHOLD_PX, label_matches
+from .evaluation.plan import plan_units
+from .evaluation.run import run_units
+from .evaluation.steps import (BLOB_METHOD, blob_candidates, check_filters, check_models, check_pair_keypoints,
+                               label_candidates, pair_features, pair_seed, register_dtm_stages, resolve_blobs,
+                               run_filter, run_model)
+from .features import FeatureConfig
+from .geometry import CONSISTENCY_THRESHOLD_PX
+from .groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .metrics import evaluate_matches, ground_truth_union
 
 __all__ = [
@@ -57,10 +62,8 @@ __all__ = [
     "evaluate_pair",
     "evaluate_dataset",
     "summary_table",
+    "pair_seed",
 ]
-
-#: Method name of the unfiltered blob candidates.
-BLOB_METHOD = "blob"
 
 #: Columns of a result row, in order.
 ROW_COLUMNS = (
@@ -73,207 +76,6 @@ undefined); ``correct`` is a plain count, ``correct_norm`` the normalised count 
 non-empty output without a correct match, ``empty_output`` an output with no match at all; ``time_s`` (the method)
 and ``model_time_s`` (the model step) in seconds; ``error`` is empty, or says why the row could not be
 evaluated (its metrics are then NaN). :func:`summary_table` prints percentages under ``*_pct`` names."""
-
-
-# ------------------------------------------------------------------------------------------ arguments
-
-
-def resolve_blobs(blobs) -> dict:
-    """Named blob setups: ``"paper-best"``, ``["paper-best", "baseline"]``, a ``BlobConfig`` or a dict.
-
-    Returns
-    -------
-    dict of str -> BlobConfig
-        In the given order; a bare ``BlobConfig`` is named by its ``label``.
-    """
-    from .blob import BLOB_PRESETS, BlobConfig
-
-    if isinstance(blobs, (str, BlobConfig)):
-        blobs = [blobs]
-    items = blobs.items() if isinstance(blobs, Mapping) else [(None, b) for b in blobs]
-    out = {}
-    for name, b in items:
-        if isinstance(b, str):
-            if b not in BLOB_PRESETS:
-                raise ValueError(f"unknown blob preset {b!r}; known presets: {', '.join(BLOB_PRESETS)}")
-            name, b = name or b, BLOB_PRESETS[b]
-        elif not isinstance(b, BlobConfig):
-            raise ValueError(f"blobs must hold preset names or BlobConfig, got {type(b).__name__}")
-        out[name or b.label] = b
-    if not out:
-        raise ValueError("blobs must name at least one blob setup")
-    return out
-
-
-def register_dtm_stages() -> None:
-    """Register ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as
-    ``dtm``) in :data:`~ctxmatch_lib.filters.FILTERS`, so that Tables 1-3 can list both as the paper does.
-
-    Called by :func:`check_filters` and :func:`run_filter`, so the names work everywhere, worker
-    processes included.
-    """
-    import functools
-
-    from .filters import FILTERS, register_filter
-
-    for name, stages in (("dtm1", 1), ("dtm2", 2)):
-        if name not in FILTERS._loaded:
-            from .dtm import dtm_filter
-
-            register_filter(name, functools.partial(dtm_filter, stages=stages))
-
-
-def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
-    """Validate filter names against the registry (``dtm1`` and ``dtm2`` included); raises ``ValueError``
-    listing the known ones."""
-    from .filters import FILTERS
-
-    register_dtm_stages()
-    if isinstance(filters, str):
-        filters = [filters]
-    names = tuple(filters)
-    for name in names:
-        if name == BLOB_METHOD:
-            raise ValueError(f"{BLOB_METHOD!r} is always evaluated (the unfiltered candidates); not a filter name")
-        try:
-            FILTERS[name]
-        except KeyError:
-            raise ValueError(f"unknown filter {name!r}; known filters: {', '.join(sorted(FILTERS))}") from None
-    if len(set(names)) != len(names):
-        raise ValueError(f"filters are repeated: {names}")
-    return names
-
-
-def check_models(models: Iterable[str]) -> tuple[str, ...]:
-    """Validate model-step names (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`)."""
-    names = tuple(models)
-    for name in names:
-        if name not in MODEL_STEPS:
-            raise ValueError(f"unknown model {name!r}; known models: {', '.join(MODEL_STEPS)}")
-    if not names:
-        raise ValueError(f"models must name at least one of {', '.join(MODEL_STEPS)}")
-    if len(set(names)) != len(names):
-        raise ValueError(f"models are repeated: {names}")
-    return names
-
-
-def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
-    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
-
-    Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
-    (:func:`ctxmatch_lib._validation.check_inside`); a size given as (height, width) is the usual cause.
-    """
-    from ._validation import check_inside
-
-    check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
-    check_inside(f2.kpts, pair.image_size2, f"keypoints of image2 of pair {pair.pair_id!r}")
-
-
-def pair_seed(seed: int, pair_id: str) -> int:
-    """Per-pair seed independent of the order pairs are run in (so sweeps can cache per pair)."""
-    return int(np.random.SeedSequence([int(seed), zlib.crc32(pair_id.encode())]).generate_state(1)[0])
-
-
-# ------------------------------------------------------------------------------------------------ steps
-
-
-def pair_features(pair: Pair, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> tuple[Features, Features]:
-    """Features of both images of ``pair`` (disk-cached by :func:`~ctxmatch_lib.features.extract_features`)."""
-    return (
-        extract_features(pair.image1, config, cache_dir=cache_dir),
-        extract_features(pair.image2, config, cache_dir=cache_dir),
-    )
-
-
-def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.ndarray, float]:
-    """Blob matching of two feature sets.
-
-    Returns
-    -------
-    matches : ndarray of shape (K, 2), int64
-    scores : ndarray of shape (K,), lower is better, sorted
-    time_s : float
-    """
-    from .blob import blob_matching
-
-    t0 = time.perf_counter()
-    if len(f1) == 0 or len(f2) == 0:
-        return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
-    bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
-                       distance=f1.distance(), **config.kwargs())
-    return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
-
-
-def run_filter(
-    name: str,
-    f1: Features,
-    f2: Features,
-    matches: np.ndarray,
-    scores: np.ndarray,
-    *,
-    image_size1,
-    image_size2,
-    blob_ratio: str | None = None,
-    **params,
-) -> tuple[np.ndarray, float]:
-    """Run the registered filter ``name`` on candidate matches.
-
-    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
-    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
-
-    Returns
-    -------
-    keep : ndarray of shape (K,), bool
-    time_s : float
-    """
-    from .filters import FILTERS
-
-    if name in ("dtm1", "dtm2"):
-        register_dtm_stages()
-    func: Callable = FILTERS[name]
-    if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
-        params.setdefault("ratio", blob_ratio)
-    k = len(matches)
-    t0 = time.perf_counter()
-    if k == 0:
-        return np.zeros(0, bool), 0.0
-    out = func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
-               shapes1=f1.shapes, shapes2=f2.shapes, **params)
-    elapsed = time.perf_counter() - t0
-    keep = np.asarray(getattr(out, "keep", out))
-    if keep.shape != (k,) or keep.dtype != bool:
-        raise ValueError(f"filter {name!r} must return a ({k},) bool mask, got {keep.dtype} {keep.shape}")
-    return keep, elapsed
-
-
-def run_model(
-    name: str,
-    f1: Features,
-    f2: Features,
-    matches: np.ndarray,
-    scores: np.ndarray,
-    *,
-    pair_kind: str,
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    rng=None,
-) -> tuple[ModelFit, float]:
-    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set.
-
-    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`).
-    """
-    t0 = time.perf_counter()
-    fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
-                           threshold=threshold, rng=rng)
-    return fit, time.perf_counter() - t0
-
-
-def label_candidates(
-    pair: Pair, f1: Features, f2: Features, matches: np.ndarray, *, method: str = "D",
-    threshold: float = GT_THRESHOLD_PX,
-) -> np.ndarray:
-    """Ground-truth labels of ``matches`` under ``pair.gt`` (:func:`~ctxmatch_lib.groundtruth.label_matches`)."""
-    return label_matches(f1.kpts, f2.kpts, matches, pair.gt, method=method, threshold=threshold,
-                         shapes1=f1.shapes, shapes2=f2.shapes)
 
 
 # -------------------------------------------------------------------------------------- per-pair state
@@ -452,9 +254,9 @@ def evaluate_dataset(
 ):
     """Evaluate every pair of ``dataset``; returns a ``pandas.DataFrame`` of all rows.
 
-    Runs on the one evaluation engine of :func:`ctxmatch_lib.sweep.run_units` (shared with ``ctxmatch
-    sweep`` and the report notebooks): each pair is a work unit whose rows are kept as a Parquet part in
-    the evaluation cache, so an interrupted run resumes with no lost and no duplicated rows and a rerun
+    Runs on the one evaluation engine of :func:`ctxmatch_lib.evaluation.run_units` (shared with
+    ``ctxmatch eval``, ``ctxmatch sweep`` and the report notebooks): each pair is a work unit whose rows
+    are kept as a Parquet part in the evaluation cache, so an interrupted run resumes with no lost and no duplicated rows and a rerun
     only reads. A pair that cannot be evaluated (unreadable image, 0 keypoints, a filter that raised) is
     reported with a ``RuntimeWarning`` naming it, the image and the reason, and gets rows with NaN metrics
     and a non-empty ``error``; the run goes on.
@@ -479,11 +281,9 @@ def evaluate_dataset(
     Returns
     -------
     pandas.DataFrame
-        :data:`ctxmatch_lib.sweep.SWEEP_COLUMNS` (which include :data:`ROW_COLUMNS`), one row per (pair,
+        :data:`ctxmatch_lib.evaluation.SWEEP_COLUMNS` (which include :data:`ROW_COLUMNS`), one row per (pair,
         blob setup, method, model), in dataset order.
     """
-    from .sweep import plan_units, run_units, source_digest
-
     known = {"features", "blobs", "filters", "models", "gt_method", "gt_threshold", "model_threshold",
              "filter_params", "seed", "cache_dir"}
     unknown = sorted(set(kwargs) - known)
@@ -494,7 +294,7 @@ def evaluate_dataset(
     kwargs.setdefault("filters", ("dtm",))
     kwargs.setdefault("models", ("none", "1sac"))
     kwargs["blobs"] = resolve_blobs(kwargs.get("blobs", "paper-best"))
-    units = plan_units(list(dataset), salt=source_digest(), **kwargs)
+    units = plan_units(list(dataset), **kwargs)
     return run_units(units, cache_dir=results_dir, feature_cache_dir=feature_cache, n_jobs=n_jobs,
                      progress=progress, recompute=recompute, desc="ctxmatch eval")
 

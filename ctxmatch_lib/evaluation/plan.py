@@ -1,0 +1,322 @@
+"""Planning the engine's work: settings checked once, pairs selected, work units keyed.
+
+Work is split into **units**, one per (dataset, pair, feature configuration), each holding every blob
+setup, filter and model of the evaluation for that pair. A unit's ``key`` hashes the pair's images and
+ground truth and every setting its rows depend on (not the names shown in the ``features`` and ``blob``
+columns, which are applied when the rows are read), so ``ctxmatch eval``, ``ctxmatch sweep`` and the report
+notebooks asking for the same numbers share one cached part.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..blob import BLOB_PRESETS, BlobConfig, blob_grid
+from ..datasets import load_dataset
+from ..datasets.base import Pair
+from ..features import FEATURE_PRESETS, FeatureConfig
+from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
+from .cache import FORMAT, digest, pair_digest, source_digest
+from .steps import check_models, resolve_filters
+
+__all__ = ["SweepUnit", "resolve_features", "resolve_blob_configs", "select_pairs", "check_settings",
+           "plan_units", "plan_sweep", "keyed"]
+
+
+def resolve_features(features) -> dict[str, FeatureConfig]:
+    """Named feature configurations: a preset name (``"sift-rootsift"``, ``"sift-rootsift-upright"``,
+    ``"sift"``), a :class:`FeatureConfig`, a list of them, or a dict name -> config.
+
+    Returns
+    -------
+    dict of str -> FeatureConfig
+        In the given order; a bare config is named by the preset it equals, else by its ``key()``.
+    """
+    if isinstance(features, (str, FeatureConfig)):
+        features = [features]
+    items = features.items() if isinstance(features, Mapping) else [(None, f) for f in features]
+    out: dict[str, FeatureConfig] = {}
+    for name, f in items:
+        if isinstance(f, str):
+            if f not in FEATURE_PRESETS:
+                raise ValueError(f"unknown feature preset {f!r}; known presets: {', '.join(FEATURE_PRESETS)}")
+            name, f = name or f, FEATURE_PRESETS[f]
+        elif not isinstance(f, FeatureConfig):
+            raise ValueError(f"features must hold preset names or FeatureConfig, got {type(f).__name__}")
+        else:
+            name = name or next((k for k, v in FEATURE_PRESETS.items() if v == f), None)
+        out[name or f.key()] = f
+    if not out:
+        raise ValueError("features must name at least one feature configuration")
+    return out
+
+
+def resolve_blob_configs(blobs) -> list[BlobConfig]:
+    """Blob setups of a sweep: ``"grid"`` (the 2430 of Sec. 5.2), preset names, ``BlobConfig`` objects,
+    or a list mixing them. Duplicates are dropped (first occurrence kept).
+
+    Examples
+    --------
+    >>> len(resolve_blob_configs("grid")), len(resolve_blob_configs(["paper-best", "baseline"]))
+    (2430, 2)
+    """
+    if isinstance(blobs, (str, BlobConfig)):
+        blobs = [blobs]
+    out: list[BlobConfig] = []
+    for b in blobs:
+        if isinstance(b, str):
+            if b == "grid":
+                out.extend(blob_grid())
+            elif b in BLOB_PRESETS:
+                out.append(BLOB_PRESETS[b])
+            else:
+                raise ValueError(f"unknown blob setup {b!r}; use 'grid' or a preset: {', '.join(BLOB_PRESETS)}")
+        elif isinstance(b, BlobConfig):
+            out.append(b)
+        else:
+            raise ValueError(f"blobs must hold 'grid', preset names or BlobConfig, got {type(b).__name__}")
+    out = list(dict.fromkeys(out))
+    if not out:
+        raise ValueError("blobs must name at least one blob setup")
+    return out
+
+
+def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: Sequence[str] | None = None) \
+        -> list[Pair]:
+    """A reproducible subset of the pairs of ``dataset`` (the one pair selector of ``ctxmatch eval``,
+    ``ctxmatch sweep`` and the report notebooks).
+
+    Parameters
+    ----------
+    dataset : Dataset, sequence of Pair, str or list of str
+        Pairs, or a registered dataset name / custom folder (:func:`~ctxmatch_lib.datasets.load_dataset`),
+        or a list of names (their pairs concatenated, e.g. ``["planar", "nonplanar"]``).
+    select : None, int or sequence of str
+        ``None``: all; an int ``N``: ``N`` pairs evenly spread over the list (so every kind and sequence
+        of a dataset is represented), in list order; strings: those pair ids, in the given order.
+    step : int
+        Keep every ``step``-th pair of each kind (in dataset order; the first pair of each kind is kept).
+    kinds : str or iterable of str, optional
+        Keep only these kinds (``"planar"``, ``"nonplanar"``, ``"depth"``) first.
+    pair_ids : sequence of str, optional
+        Same as strings in ``select``.
+
+    Returns
+    -------
+    list of Pair
+
+    Raises
+    ------
+    ValueError
+        Unknown pair ids, ``select`` < 1 or ``step`` < 1.
+
+    Examples
+    --------
+    >>> [p.pair_id for p in select_pairs("embedded", step=5, kinds=["planar"])]
+    ['planar/poster/1-2', 'planar/lab/1-2', 'planar/hubble/1-2']
+    """
+    import os
+
+    if isinstance(dataset, (str, os.PathLike)):
+        pairs = list(load_dataset(dataset))
+    else:
+        items = list(dataset)
+        if items and all(isinstance(d, (str, os.PathLike)) for d in items):
+            pairs = [p for d in items for p in load_dataset(d)]
+        else:
+            pairs = items
+    if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
+        raise ValueError(f"step must be >= 1, got {step!r}")
+    if pair_ids is not None:
+        if select is not None:
+            raise ValueError("give either select or pair_ids, not both")
+        select = list(pair_ids)
+    if kinds is not None:
+        kinds = {kinds} if isinstance(kinds, str) else set(kinds)
+        pairs = [p for p in pairs if p.kind in kinds]
+    if isinstance(select, str) or (select is not None and not isinstance(select, (int, np.integer))):
+        wanted = [select] if isinstance(select, str) else list(select)
+        by_id = {p.pair_id: p for p in pairs}
+        unknown = [w for w in wanted if w not in by_id]
+        if unknown:
+            raise ValueError(f"unknown pair ids (pair_ids): {', '.join(map(str, unknown[:5]))}; "
+                             f"known: {', '.join(sorted(by_id)[:10])} ...")
+        return [by_id[w] for w in wanted]
+    if step > 1:
+        out, seen = [], {}
+        for p in pairs:
+            k = seen.get(p.kind, 0)
+            seen[p.kind] = k + 1
+            if k % step == 0:
+                out.append(p)
+        pairs = out
+    if select is None:
+        return pairs
+    if isinstance(select, bool) or select < 1:
+        raise ValueError(f"pairs must be a positive number of pairs, got {select}")
+    if select >= len(pairs):
+        return pairs
+    idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(select))).astype(int))
+    return [pairs[i] for i in idx]
+
+
+@dataclass(frozen=True)
+class SweepUnit:
+    """One work unit: every blob setup, filter and model of a sweep on one pair with one feature config.
+
+    ``key`` names its part file; it hashes the pair's images and ground truth and every setting the rows
+    depend on. ``features_name`` and ``blob_names`` (optional, one per blob setup) are what the
+    ``features`` and ``blob`` columns show (``ctxmatch eval`` and the report notebooks show preset names);
+    they are applied when the rows are read, so they are not part of the key and parts are shared whatever
+    the names. ``salt`` joins the key and the keys of the cached candidate sets and filter masks: the
+    planners put :func:`~ctxmatch_lib.evaluation.cache.source_digest` there, so that editing the library
+    invalidates the rows it computed.
+    """
+
+    dataset: str
+    pair: Pair
+    features_name: str
+    features: FeatureConfig
+    blobs: tuple
+    filters: tuple = ()
+    models: tuple = ("none",)
+    filter_params: tuple = ()  # ((name, json-of-params), ...)
+    gt_method: str = "D"
+    gt_threshold: float = GT_THRESHOLD_PX
+    model_threshold: float = 15.0
+    seed: int = 0
+    key: str = field(default="", compare=False)
+    blob_names: tuple = field(default=(), compare=False)
+    salt: str = ""
+
+    def label(self) -> str:
+        where = self.dataset or self.pair.dataset
+        return f"{where + '/' if where else ''}{self.pair.pair_id} [{self.features_name}]"
+
+
+def unit_key(u: SweepUnit, pair_hash: str) -> str:
+    """The name of the unit's part file: a hash of everything its rows depend on (names aside)."""
+    # The dataset as the rows show it: a pair planned from a dataset name or from a list of its pairs
+    # (pair.dataset set) gives the same key.
+    return digest(
+        FORMAT, u.pair.dataset or u.dataset, u.pair.pair_id, pair_hash, u.features.key(),
+        [c.kwargs() for c in u.blobs], u.filters, u.models, u.filter_params, u.gt_method, float(u.gt_threshold),
+        float(u.model_threshold), int(u.seed), u.salt,
+    )
+
+
+def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold, model_threshold,
+                    filter_params, seed, max_keypoints) -> dict:
+    """Validate every setting of an evaluation before any work; returns them resolved."""
+    if gt_method not in GT_METHODS:
+        raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
+    for name, value in (("gt_threshold", gt_threshold), ("model_threshold", model_threshold)):
+        if isinstance(value, bool) or not (isinstance(value, (int, float, np.number)) and math.isfinite(value)
+                                           and value > 0):
+            raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if max_keypoints is not None and (isinstance(max_keypoints, bool) or max_keypoints < 0
+                                      or not isinstance(max_keypoints, (int, np.integer))):
+        raise ValueError(f"max_keypoints must be a non-negative integer, got {max_keypoints!r}")
+    feats = resolve_features(features)
+    if max_keypoints is not None:
+        feats = {k: replace(v, max_keypoints=int(max_keypoints)) for k, v in feats.items()}
+    if isinstance(blobs, Mapping):
+        names, blob_cfgs = tuple(blobs), tuple(blobs.values())
+        for b in blob_cfgs:
+            if not isinstance(b, BlobConfig):
+                raise ValueError(f"blobs must map names to BlobConfig, got {type(b).__name__}")
+    else:
+        blob_cfgs, names = tuple(resolve_blob_configs(blobs)), ()
+    # "all" is every filter that can run here (resolve_filters); a list is checked as given.
+    filters = resolve_filters(filters if isinstance(filters, str) else tuple(filters))
+    models = check_models((models,) if isinstance(models, str) else tuple(models))
+    params = dict(filter_params or {})
+    unknown = sorted(set(params) - set(filters))
+    if unknown:
+        raise ValueError(f"filter_params names filters not in the sweep: {', '.join(unknown)}")
+    fparams = tuple((k, json.dumps(params[k], sort_keys=True)) for k in filters if k in params)
+    return dict(feats=feats, blobs=blob_cfgs, blob_names=names, filters=filters, models=models, fparams=fparams,
+                gt_method=gt_method, gt_threshold=float(gt_threshold), model_threshold=float(model_threshold),
+                seed=int(seed))
+
+
+def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
+    salt = source_digest() if salt is None else salt
+    return [SweepUnit(str(dataset_name), pair, fname, fcfg, st["blobs"], st["filters"], st["models"], st["fparams"],
+                      st["gt_method"], st["gt_threshold"], st["model_threshold"], st["seed"],
+                      blob_names=st["blob_names"], salt=salt)
+            for fname, fcfg in st["feats"].items() for pair in pairs]
+
+
+def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(), models=("none",),
+               gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX, model_threshold: float = 15.0,
+               filter_params: Mapping[str, dict] | None = None, seed: int = 0,
+               max_keypoints: int | None = None, salt: str | None = None) -> list[SweepUnit]:
+    """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
+
+    The arguments are those of :func:`run_sweep`; ``blobs`` may also be a dict name -> ``BlobConfig``
+    (:func:`ctxmatch_lib.pipeline.resolve_blobs`), whose names then fill the ``blob`` column; ``salt``
+    joins the units' keys (default: :func:`~ctxmatch_lib.evaluation.cache.source_digest`; see
+    :class:`SweepUnit`). Every argument is validated here, before any work.
+    """
+    st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
+                         gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
+                         seed=seed, max_keypoints=max_keypoints)
+    pairs = list(pairs)
+    for p in pairs:
+        if not isinstance(p, Pair):
+            raise ValueError(f"pairs must hold Pair objects, got {type(p).__name__}")
+    return _units("", pairs, st, salt)
+
+
+def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
+               pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
+               model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
+               max_keypoints: int | None = None, data_root=None, salt: str | None = None) -> list[SweepUnit]:
+    """The work units of a sweep, in the order of its result table (dataset, features, pair).
+
+    Every argument is validated here, before any work; see :func:`run_sweep` for their meaning and
+    :func:`plan_units` for ``blobs`` given as a dict and for ``salt``. ``ctxmatch eval`` and ``ctxmatch
+    sweep`` both plan here, so the same settings give the same units (and keys).
+    """
+    st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
+                         gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
+                         seed=seed, max_keypoints=max_keypoints)
+    if isinstance(datasets, str):
+        datasets = [d.strip() for d in datasets.split(",") if d.strip()]
+    datasets = list(datasets)
+    if not datasets:
+        raise ValueError("datasets must name at least one dataset")
+    units = []
+    for ds_name in datasets:
+        ds = load_dataset(ds_name, root=data_root)
+        chosen = select_pairs(ds.pairs, pairs, kinds=kinds)
+        if not chosen:
+            raise ValueError(f"no pairs of dataset {ds_name!r} left after selecting pairs={pairs!r}, kinds={kinds!r}")
+        units.extend(_units(ds_name, chosen, st, salt))
+    return units
+
+
+def keyed(units: list[SweepUnit]) -> list[SweepUnit]:
+    """The units with their ``key`` set (the pair's files are read and hashed once per pair)."""
+    digests: dict = {}
+    out = []
+    for u in units:
+        pid = (u.pair.image1, u.pair.image2, u.pair.pair_id, u.pair.dataset)
+        if pid not in digests:
+            try:
+                digests[pid] = pair_digest(u.pair)
+            except OSError as exc:
+                # A missing or unreadable file: the unit runs (and reports it), its part is never written.
+                digests[pid] = f"unreadable:{exc}"
+        out.append(replace(u, key=unit_key(u, digests[pid])))
+    return out

@@ -1,0 +1,89 @@
+"""Result rows of the engine: the columns, the typed frame, error rows, and the fast ranked AP.
+
+Units: ``precision``, ``recall``, ``recall_star``, ``ap`` and ``ap_star`` are fractions in [0, 1] (NaN
+when undefined); ``time_s`` (the method) and ``model_time_s`` (the model step) in seconds; ``error`` is
+empty, or says why the row could not be evaluated (its metrics are then NaN).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import cumulative_distinct
+from ..blob import BlobConfig
+
+__all__ = ["SWEEP_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame", "ranked_ap"]
+
+#: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
+SWEEP_COLUMNS = (
+    "dataset", "pair_id", "kind", "features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind",
+    "combine", "method", "model", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
+    "correct_norm", "output", "failure", "empty_output", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates",
+    "n_gt", "n_gt_star", "gt_method", "error",
+)
+
+
+INT_COLUMNS = ("f_prime", "correct", "correct_norm", "output", "n_kpts1", "n_kpts2", "n_candidates", "n_gt",
+                "n_gt_star")
+
+
+def blob_record(cfg: BlobConfig) -> dict:
+    return {"blob": cfg.label, "f": str(cfg.f), "prefilter": cfg.prefilter, "f_prime": cfg.f_prime,
+            "ratio": cfg.ratio, "t_o": np.nan if cfg.t_o is None else float(cfg.t_o), "t_o_kind": cfg.t_o_kind,
+            "combine": cfg.combine}
+
+
+def error_rows(unit, message: str, n: int = 0, m: int = 0) -> list[dict]:
+    """Rows of a unit that could not be evaluated: NaN metrics, zero counts, ``error`` set."""
+    rows = []
+    for cfg in unit.blobs:
+        for method in ("blob", *unit.filters):
+            for model in unit.models:
+                rows.append(error_row(unit, cfg, method, model, message, n, m))
+    return rows
+
+
+def error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
+    pair = unit.pair
+    nan = float("nan")
+    row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
+           "features": unit.features_name, **blob_record(cfg), "method": method, "model": model,
+           "precision": nan, "recall": nan, "recall_star": nan, "ap": nan, "ap_star": nan, "correct": 0,
+           "correct_norm": 0, "output": 0, "failure": False, "empty_output": False, "time_s": nan, "model_time_s": nan,
+           "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0, "n_gt_star": 0, "gt_method": unit.gt_method,
+           "error": message}
+    row.update(known)
+    return row
+
+
+def frame(rows):
+    """The rows as a ``pandas.DataFrame`` with :data:`SWEEP_COLUMNS` and their dtypes."""
+    import pandas as pd
+
+    df = pd.DataFrame(rows, columns=list(SWEEP_COLUMNS))
+    return df.astype({**{c: "int64" for c in INT_COLUMNS}, "failure": "bool", "empty_output": "bool", "t_o": "float64",
+                      "precision": "float64", "recall": "float64", "recall_star": "float64", "ap": "float64",
+                      "ap_star": "float64", "time_s": "float64", "model_time_s": "float64", "error": "str"})
+
+
+def ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
+    """:func:`~ctxmatch_lib.metrics.average_precision` with a precomputed reference size, in O(K log K).
+
+    The same arithmetic in the same order, so the value is bit-identical (tested); ties in ``scores`` keep
+    the given order, as there.
+    """
+    if den == 0:
+        return float("nan")
+    k = len(lab)
+    if k == 0:
+        return 0.0
+    order = np.argsort(scores, kind="stable")
+    lab = lab[order]
+    prec = np.cumsum(lab) / np.arange(1, k + 1)
+    cnt = np.zeros(k, np.int64)
+    if lab.any():
+        r, c = rows[order][lab], cols[order][lab]
+        cnt[lab] = np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64)
+        cnt = np.maximum.accumulate(cnt)
+    dn = np.diff(np.r_[0, cnt])
+    return float((prec * dn).sum() / den)

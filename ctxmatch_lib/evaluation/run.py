@@ -1,0 +1,192 @@
+"""Running the engine's units: in this process, on local workers (joblib) or on a Dask cluster.
+
+A unit's rows are written as one Parquet *part file* (temporary name, then ``os.replace``) named by its
+key (:func:`~ctxmatch_lib.evaluation.plan.unit_key`), so
+
+* a run killed at any moment loses at most the units in flight, and rerunning skips the units whose part
+  exists: no lost and no duplicated rows;
+* evaluations sharing units (``ctxmatch eval``, ``ctxmatch sweep``, the report notebooks, the benchmarks)
+  share their results;
+* the final table is the concatenation of the parts in the units' own order, whatever order they
+  finished in, so serial, joblib and Dask runs give identical tables;
+* nothing is lost to one bad pair: an unreadable image, an image without keypoints, keypoints outside the
+  pair's (width, height), or a filter or model step that raises gives that pair (or that method) rows
+  with NaN metrics and an ``error`` naming the image and the reason, a ``RuntimeWarning``, and the run
+  goes on; such a unit's part is not written, so the next run tries it again.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from .._paths import write_parquet_atomic
+from .cache import engine_cache
+from .plan import SweepUnit, keyed
+from .rows import frame
+from .unit import run_unit
+
+__all__ = ["check_runner", "run_units"]
+
+
+def _unit_task(unit, cache_dir, feature_cache_dir):
+    """What a worker runs: the rows of one unit (the driver writes the part file)."""
+    t0 = time.perf_counter()
+    df = run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir)
+    return unit.key, df, time.perf_counter() - t0
+
+
+def _connect_dask(dask):
+    try:
+        from distributed import Client
+    except ImportError as exc:  # optional dependency
+        raise ImportError("--dask needs the optional 'distributed' package: pip install 'dask[distributed]'") \
+            from exc
+    if isinstance(dask, Client):
+        return dask, False
+    if not isinstance(dask, str) or "://" not in dask:
+        raise ValueError(f"dask must be a scheduler address like 'tcp://host:8786' or a distributed.Client, "
+                         f"got {dask!r}")
+    try:
+        return Client(dask, timeout="20s"), True
+    except OSError as exc:
+        raise ConnectionError(f"cannot reach the Dask scheduler at {dask}: {exc}") from exc
+
+
+def check_runner(n_jobs, dask):
+    if isinstance(n_jobs, bool) or not isinstance(n_jobs, (int, np.integer)) or n_jobs == 0 or n_jobs < -1:
+        raise ValueError(f"n_jobs must be a positive int or -1, got {n_jobs!r}")
+    if dask is not None and n_jobs != 1:
+        raise ValueError("give either n_jobs (local processes) or dask (a cluster), not both")
+
+
+def _named(df, unit: SweepUnit):
+    """The unit's rows with its names: ``features_name`` in the ``features`` column, ``blob_names`` in
+    the ``blob`` column (names are not part of the key: the part may come from a unit named otherwise)."""
+    if len(df) and (df["features"] != unit.features_name).any():
+        df = df.assign(features=unit.features_name)
+    if unit.blob_names:
+        labels = {c.label: name for c, name in zip(unit.blobs, unit.blob_names)}
+        df = df.assign(blob=df["blob"].map(labels).fillna(df["blob"]))
+    return df
+
+
+def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> None:
+    """Run the units ``todo`` on Dask, on joblib workers or here, calling ``done(key, rows)`` for each."""
+    if todo and dask is not None:
+        client, own = _connect_dask(dask)
+        try:
+            from distributed import as_completed
+
+            bar.set_postfix_str(f"{len(todo)} pairs on the cluster", refresh=True)
+            futures = [client.submit(_unit_task, u, cache_arg, feature_cache_dir, pure=False) for u in todo]
+            for fut in as_completed(futures):
+                key, df, _ = fut.result()
+                done(key, df)
+        finally:
+            if own:
+                client.close()
+    elif todo and n_jobs != 1 and len(todo) > 1:
+        from joblib import Parallel, delayed
+
+        bar.set_postfix_str(f"{len(todo)} pairs on {n_jobs if n_jobs > 0 else 'all'} workers", refresh=True)
+        par = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
+        for key, df, _ in par(delayed(_unit_task)(u, cache_arg, feature_cache_dir) for u in todo):
+            done(key, df)
+    else:
+        for u in todo:
+            # Named before it runs: the bar shows the pair in progress.
+            bar.set_postfix_str(u.label(), refresh=True)
+            key, df, _ = _unit_task(u, cache_arg, feature_cache_dir)
+            done(key, df)
+
+
+def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=None, n_jobs: int = 1, dask=None,
+              progress: bool = True, recompute: bool = False, desc: str = "ctxmatch sweep"):
+    """Run (or resume) work units and return their rows, in the units' order.
+
+    The one evaluation engine behind ``ctxmatch eval`` and ``ctxmatch sweep``
+    (:func:`~ctxmatch_lib.evaluation.frontends.run_sweep`), :func:`ctxmatch_lib.pipeline.evaluate_dataset`
+    and the report notebooks (:func:`~ctxmatch_lib.evaluation.frontends.evaluate_cached`).
+
+    Each finished unit is written as one Parquet part under ``<cache_dir>/results`` (atomically), so a
+    run killed at any moment resumes with no lost and no duplicated rows. A unit whose rows carry an
+    ``error`` (unreadable image, 0 keypoints, a filter or model step that raised) is reported with a
+    ``RuntimeWarning`` naming the pair, the image and the reason; its rows are returned but its part is
+    not written, so the next run tries it again. The other units go on.
+
+    Parameters
+    ----------
+    units : sequence of SweepUnit
+        From :func:`~ctxmatch_lib.evaluation.plan.plan_sweep` or
+        :func:`~ctxmatch_lib.evaluation.plan.plan_units`.
+    cache_dir : path, None or False
+        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``False``: no cache at
+        all (nothing read, nothing written).
+    feature_cache_dir : path, optional
+        The feature cache (default: that of :mod:`ctxmatch_lib.features`).
+    n_jobs, dask, progress, recompute
+        As in :func:`~ctxmatch_lib.evaluation.frontends.run_sweep`; ``desc`` is the progress bar's title.
+
+    Returns
+    -------
+    pandas.DataFrame
+        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``attrs["units"]`` counts the distinct units
+        and ``attrs["units_computed"]`` those this call computed (the others were read from the cache).
+    """
+    import pandas as pd
+    from tqdm.auto import tqdm
+
+    check_runner(n_jobs, dask)
+    units = keyed(list(units))
+    if not units:
+        return frame([])
+    use_cache = cache_dir is not False
+    if use_cache:
+        cache = engine_cache(cache_dir)
+        parts_dir = cache / "results"
+        parts_dir.mkdir(parents=True, exist_ok=True)
+        part = {u.key: parts_dir / f"{u.key}.parquet" for u in units}
+        todo = list({u.key: u for u in units if recompute or not part[u.key].is_file()}.values())
+        cache_arg = cache if cache_dir is not None else None
+    else:
+        part, cache_arg = {}, False
+        todo = list({u.key: u for u in units}.values())
+    n_total = len({u.key for u in units})
+    in_memory: dict = {}
+    failed: list[str] = []
+
+    bar = tqdm(total=n_total, initial=n_total - len(todo), desc=desc, unit="pair", disable=not progress,
+               dynamic_ncols=True, smoothing=0.1)
+
+    def done(key, df):
+        errors = [e for e in dict.fromkeys(df["error"]) if e]
+        if errors or not use_cache:
+            in_memory[key] = df
+        else:
+            # One part per unit, written atomically: a kill leaves whole parts only.
+            write_parquet_atomic(df, part[key])
+        if errors:
+            pid = f"{df['dataset'].iloc[0]}/{df['pair_id'].iloc[0]}" if len(df) else key
+            for e in errors:
+                failed.append(f"{pid}: {e}")
+                msg = f"pair {pid}: {e}"
+                if progress:
+                    bar.write(f"warning: {msg}")
+                warnings.warn(msg, RuntimeWarning, stacklevel=4)
+        bar.update(1)
+
+    try:
+        _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done)
+    finally:
+        bar.set_postfix_str("", refresh=False)
+        bar.close()
+
+    frames = [_named(in_memory[u.key] if u.key in in_memory else pd.read_parquet(part[u.key]), u) for u in units]
+    out = pd.concat(frames, ignore_index=True)
+    # What this run computed (the others were read from the cache): for progress reports and tests.
+    out.attrs.update(units=n_total, units_computed=len(todo))
+    return out

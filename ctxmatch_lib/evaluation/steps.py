@@ -1,0 +1,271 @@
+"""The per-pair steps of the evaluation of Sec. 5.1: features -> blob -> filters -> model -> ground truth.
+
+Each step is a function that can be called on its own (:func:`pair_features`, :func:`blob_candidates`,
+:func:`run_filter`, :func:`run_model`, :func:`label_candidates`), with the argument checks the engine and
+the command line share (:func:`check_filters`, :func:`check_models`, :func:`check_pair_keypoints`,
+:func:`resolve_blobs`, :func:`resolve_filters`). This is the bottom layer of the evaluation: it imports the
+method modules (features, blob, dtm, filters, geometry, groundtruth) and nothing above them.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Callable, Iterable, Mapping
+
+import numpy as np
+
+from ..datasets.base import Pair
+from ..features import FeatureConfig, Features, extract_features
+from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ModelFit, apply_model_step, model_kind_for
+from ..groundtruth import GT_THRESHOLD_PX, label_matches
+
+__all__ = [
+    "BLOB_METHOD",
+    "PAPER_FILTER_ORDER",
+    "resolve_blobs",
+    "resolve_filters",
+    "register_dtm_stages",
+    "check_filters",
+    "check_models",
+    "check_pair_keypoints",
+    "pair_seed",
+    "pair_features",
+    "blob_candidates",
+    "run_filter",
+    "run_model",
+    "label_candidates",
+]
+
+#: Method name of the unfiltered blob candidates.
+BLOB_METHOD = "blob"
+
+#: Filters in the row order of the paper's Tables 1-3 (those not implemented here are skipped).
+PAPER_FILTER_ORDER = ("th", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam",
+                      "oanet", "acne", "pfm", "pgm", "scv", "bm")
+
+
+# ------------------------------------------------------------------------------------------ arguments
+
+
+def resolve_blobs(blobs) -> dict:
+    """Named blob setups: ``"paper-best"``, ``["paper-best", "baseline"]``, a ``BlobConfig`` or a dict.
+
+    Returns
+    -------
+    dict of str -> BlobConfig
+        In the given order; a bare ``BlobConfig`` is named by its ``label``.
+    """
+    from ..blob import BLOB_PRESETS, BlobConfig
+
+    if isinstance(blobs, (str, BlobConfig)):
+        blobs = [blobs]
+    items = blobs.items() if isinstance(blobs, Mapping) else [(None, b) for b in blobs]
+    out = {}
+    for name, b in items:
+        if isinstance(b, str):
+            if b not in BLOB_PRESETS:
+                raise ValueError(f"unknown blob preset {b!r}; known presets: {', '.join(BLOB_PRESETS)}")
+            name, b = name or b, BLOB_PRESETS[b]
+        elif not isinstance(b, BlobConfig):
+            raise ValueError(f"blobs must hold preset names or BlobConfig, got {type(b).__name__}")
+        out[name or b.label] = b
+    if not out:
+        raise ValueError("blobs must name at least one blob setup")
+    return out
+
+
+def register_dtm_stages() -> None:
+    """Register ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as
+    ``dtm``) in :data:`~ctxmatch_lib.filters.FILTERS`, so that Tables 1-3 can list both as the paper does.
+
+    Called by :func:`check_filters` and :func:`run_filter`, so the names work everywhere, worker
+    processes included.
+    """
+    import functools
+
+    from ..filters import FILTERS, register_filter
+
+    for name, stages in (("dtm1", 1), ("dtm2", 2)):
+        if name not in FILTERS._loaded:
+            from ..dtm import dtm_filter
+
+            register_filter(name, functools.partial(dtm_filter, stages=stages))
+
+
+def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
+    """Validate filter names against the registry (``dtm1`` and ``dtm2`` included); raises ``ValueError``
+    listing the known ones."""
+    from ..filters import FILTERS
+
+    register_dtm_stages()
+    if isinstance(filters, str):
+        filters = [filters]
+    names = tuple(filters)
+    for name in names:
+        if name == BLOB_METHOD:
+            raise ValueError(f"{BLOB_METHOD!r} is always evaluated (the unfiltered candidates); not a filter name")
+        try:
+            FILTERS[name]
+        except KeyError:
+            raise ValueError(f"unknown filter {name!r}; known filters: {', '.join(sorted(FILTERS))}") from None
+    if len(set(names)) != len(names):
+        raise ValueError(f"filters are repeated: {names}")
+    return names
+
+
+def check_models(models: Iterable[str]) -> tuple[str, ...]:
+    """Validate model-step names (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`)."""
+    names = tuple(models)
+    for name in names:
+        if name not in MODEL_STEPS:
+            raise ValueError(f"unknown model {name!r}; known models: {', '.join(MODEL_STEPS)}")
+    if not names:
+        raise ValueError(f"models must name at least one of {', '.join(MODEL_STEPS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"models are repeated: {names}")
+    return names
+
+
+def resolve_filters(filters="all") -> tuple[str, ...]:
+    """Filter names to evaluate.
+
+    ``"all"`` is every registered filter, with ``dtm`` replaced by its two stages ``dtm1`` and ``dtm2``, in
+    the order of the paper's tables (:data:`PAPER_FILTER_ORDER`), then any others alphabetically (the learned
+    filters ``oanet`` and ``acne`` included: they run without torch). A list is validated and returned as given.
+
+    Examples
+    --------
+    >>> resolve_filters(["th", "dtm2"])
+    ('th', 'dtm2')
+    """
+    from ..filters import FILTERS
+
+    register_dtm_stages()
+    if isinstance(filters, str) and filters == "all":
+        # The learned filters run in numpy (no torch needed): "all" is every registered filter.
+        names = [n for n in FILTERS if n != "dtm"]
+        rank = {n: i for i, n in enumerate(PAPER_FILTER_ORDER)}
+        return tuple(sorted(names, key=lambda n: (rank.get(n, len(rank)), n)))
+    return check_filters(filters)
+
+
+def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
+    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
+
+    Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
+    (:func:`ctxmatch_lib._validation.check_inside`); a size given as (height, width) is the usual cause.
+    """
+    from .._validation import check_inside
+
+    check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
+    check_inside(f2.kpts, pair.image_size2, f"keypoints of image2 of pair {pair.pair_id!r}")
+
+
+def pair_seed(seed: int, pair_id: str) -> int:
+    """Per-pair seed independent of the order pairs are run in (so sweeps can cache per pair)."""
+    return int(np.random.SeedSequence([int(seed), zlib.crc32(pair_id.encode())]).generate_state(1)[0])
+
+
+# ------------------------------------------------------------------------------------------------ steps
+
+
+def pair_features(pair: Pair, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> tuple[Features, Features]:
+    """Features of both images of ``pair`` (disk-cached by :func:`~ctxmatch_lib.features.extract_features`)."""
+    return (
+        extract_features(pair.image1, config, cache_dir=cache_dir),
+        extract_features(pair.image2, config, cache_dir=cache_dir),
+    )
+
+
+def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.ndarray, float]:
+    """Blob matching of two feature sets.
+
+    Returns
+    -------
+    matches : ndarray of shape (K, 2), int64
+    scores : ndarray of shape (K,), lower is better, sorted
+    time_s : float
+    """
+    from ..blob import blob_matching
+
+    t0 = time.perf_counter()
+    if len(f1) == 0 or len(f2) == 0:
+        return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
+    bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
+                       distance=f1.distance(), **config.kwargs())
+    return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
+
+
+def run_filter(
+    name: str,
+    f1: Features,
+    f2: Features,
+    matches: np.ndarray,
+    scores: np.ndarray,
+    *,
+    image_size1,
+    image_size2,
+    blob_ratio: str | None = None,
+    **params,
+) -> tuple[np.ndarray, float]:
+    """Run the registered filter ``name`` on candidate matches.
+
+    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
+    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
+
+    Returns
+    -------
+    keep : ndarray of shape (K,), bool
+    time_s : float
+    """
+    from ..filters import FILTERS
+
+    if name in ("dtm1", "dtm2"):
+        register_dtm_stages()
+    func: Callable = FILTERS[name]
+    if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
+        params.setdefault("ratio", blob_ratio)
+    k = len(matches)
+    t0 = time.perf_counter()
+    if k == 0:
+        return np.zeros(0, bool), 0.0
+    out = func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
+               shapes1=f1.shapes, shapes2=f2.shapes, **params)
+    elapsed = time.perf_counter() - t0
+    keep = np.asarray(getattr(out, "keep", out))
+    if keep.shape != (k,) or keep.dtype != bool:
+        raise ValueError(f"filter {name!r} must return a ({k},) bool mask, got {keep.dtype} {keep.shape}")
+    return keep, elapsed
+
+
+def run_model(
+    name: str,
+    f1: Features,
+    f2: Features,
+    matches: np.ndarray,
+    scores: np.ndarray,
+    *,
+    pair_kind: str,
+    threshold: float = CONSISTENCY_THRESHOLD_PX,
+    rng=None,
+) -> tuple[ModelFit, float]:
+    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set.
+
+    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`).
+    """
+    t0 = time.perf_counter()
+    fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
+                           threshold=threshold, rng=rng)
+    return fit, time.perf_counter() - t0
+
+
+def label_candidates(
+    pair: Pair, f1: Features, f2: Features, matches: np.ndarray, *, method: str = "D",
+    threshold: float = GT_THRESHOLD_PX,
+) -> np.ndarray:
+    """Ground-truth labels of ``matches`` under ``pair.gt`` (:func:`~ctxmatch_lib.groundtruth.label_matches`)."""
+    return label_matches(f1.kpts, f2.kpts, matches, pair.gt, method=method, threshold=threshold,
+                         shapes1=f1.shapes, shapes2=f2.shapes)

@@ -1,0 +1,253 @@
+"""One work unit: every blob setup, filter and model of an evaluation on one pair (Sec. 5.1, 5.2).
+
+The blob-matching grid of Sec. 5.2 (:func:`~ctxmatch_lib.blob.blob_grid`, 2430 setups) is evaluated by
+exploiting its structure: on each image pair one :class:`~ctxmatch_lib.blob.BlobContext` serves every
+setup, the candidate set G is built once per (f, ∩/∪, f') (27 sets), the NNR-like ratios (a, b) once per
+(t_o, D) on each set, and the five combinations W(a, b) reuse them. Each setup's candidates are ranked by
+their score and the ranking's average precision (:func:`~ctxmatch_lib.metrics.average_precision`, with
+the unit's ground-truth labels) is one row: ``ap`` against the setup's own correct candidates, ``ap_star``
+against the correct candidates of all setups of the unit (the recall* reference).
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..blob import combine_ratios, rank_candidates
+from ..metrics import average_precision, evaluate_matches, normalised_count
+from .cache import FORMAT, candidate_sets, digest, engine_cache, features_digest, load_npz, save_npz
+from .overlap import TabulatedContext, overlap_table
+from .plan import SweepUnit
+from .rows import blob_record, error_row, error_rows, frame, ranked_ap
+from .steps import check_pair_keypoints, label_candidates, pair_seed, run_filter, run_model
+
+__all__ = ["PairError", "unit_features", "run_unit"]
+
+
+class PairError(RuntimeError):
+    """A pair that cannot be evaluated (unreadable image, no keypoints); the message names the image."""
+
+
+def unit_features(unit: SweepUnit, feature_cache_dir):
+    """Features of both images, or :class:`PairError` naming the image that failed and why."""
+    from ..features import extract_features
+
+    out = []
+    for which, image in (("image1", unit.pair.image1), ("image2", unit.pair.image2)):
+        try:
+            feats = extract_features(image, unit.features, cache_dir=feature_cache_dir)
+        except Exception as exc:  # any decoder or extractor failure is this pair's, not the run's
+            raise PairError(f"{which} {image}: cannot be read ({type(exc).__name__}: {exc})") from exc
+        if len(feats) == 0:
+            raise PairError(f"{which} {image}: 0 keypoints")
+        out.append(feats)
+    try:
+        check_pair_keypoints(unit.pair, *out)
+    except ValueError as exc:
+        raise PairError(str(exc)) from exc
+    return out
+
+
+@dataclass
+class _PairData:
+    """What every blob setup of a unit shares: the features, the recall* reference, the fixed row fields."""
+
+    unit: SweepUnit
+    f1: object
+    f2: object
+    ref_star: np.ndarray
+    n_gt_star: int
+    base_row: dict
+    filter_params: dict
+    rng_seed: int
+
+
+def _context_factory(unit: SweepUnit, f1, f2, cache):
+    """A function building the blob context once, on first call (with tabulated overlaps when needed)."""
+    blobs = list(unit.blobs)
+    cand_keys = list(dict.fromkeys(c.candidate_key for c in blobs))
+    needs_overlap = any(c.t_o is not None and c.t_o_kind == "overlap" for c in blobs)
+    depth = max([k[0] for k in cand_keys if k[0] != "omega"] + [k[2] for k in cand_keys] + [1])
+    state = {}
+
+    def ctx():
+        """The blob context and the seconds it took to build now (``None`` when it already existed)."""
+        if "ctx" in state:
+            return state["ctx"], None
+        t0 = time.perf_counter()
+        tables = (overlap_table(f1, cache), overlap_table(f2, cache)) if needs_overlap else None
+        state["ctx"] = TabulatedContext(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes,
+                                        shapes2=f2.shapes, depth=depth, overlap_tables=tables,
+                                        distance=f1.distance())
+        return state["ctx"], time.perf_counter() - t0
+
+    return ctx, cand_keys
+
+
+def _labelled_sets(unit: SweepUnit, f1, f2, cands: dict):
+    """Each candidate set ordered by (row, column) with its labels; the recall* reference and its size."""
+    m = len(f2)
+    # Labels depend on the match only: label the union of all candidate sets once.
+    union = np.unique(np.concatenate([c[0] for c in cands.values()] + [np.empty((0, 2), np.int64)]), axis=0)
+    union_lab = label_candidates(unit.pair, f1, f2, union, method=unit.gt_method, threshold=unit.gt_threshold)
+    sets = {}
+    for key, (matches, dist, t_cand) in cands.items():
+        # Candidates ordered by (row, column): a stable sort by score then reproduces blob_matching's
+        # order (score, row, column), hence the same tie-break in the AP and for the filters.
+        base = np.lexsort((matches[:, 1], matches[:, 0]))
+        mt, dt = matches[base], dist[base]
+        if len(mt):
+            pos = np.searchsorted(union[:, 0] * max(m, 1) + union[:, 1], mt[:, 0] * max(m, 1) + mt[:, 1])
+            lab = union_lab[pos]
+        else:
+            lab = np.zeros(0, bool)
+        sets[key] = (mt, dt, lab, normalised_count(mt[lab]), t_cand)
+    ref_star = union[union_lab]
+    return sets, ref_star, normalised_count(ref_star)
+
+
+def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: float) -> dict:
+    """The blob row of a setup when the unit has no filter and no model (the grid's case), via
+    :func:`~ctxmatch_lib.evaluation.rows.ranked_ap`."""
+    n, m = len(d.f1), len(d.f2)
+    correct = int(lab.sum())
+    return {**common, "method": "blob", "model": "none",
+            "precision": correct / len(mt) if len(mt) else 0.0,
+            "recall": 1.0 if n_gt else float("nan"),
+            "recall_star": n_gt / d.n_gt_star if d.n_gt_star else float("nan"),
+            "ap": ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt, n, m),
+            "ap_star": ranked_ap(mt[:, 0], mt[:, 1], lab, scores, d.n_gt_star, n, m),
+            "correct": correct, "correct_norm": n_gt, "output": len(mt),
+            "failure": len(mt) > 0 and correct == 0, "empty_output": len(mt) == 0,
+            "time_s": t_blob, "model_time_s": 0.0}
+
+
+def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tuple[dict, bool]:
+    """Each method's mask over the setup's sorted candidates and its time (from ``masks`` when cached);
+    a filter that raised gets its message instead of a mask. Returns the keeps and whether ``masks`` grew."""
+    pair, added = d.unit.pair, False
+    keeps = {"blob": (np.ones(len(sm), bool), t_blob)}
+    for name in d.unit.filters:
+        mkey = f"{name}__{digest(cfg.kwargs())}"
+        if mkey in masks:
+            keeps[name] = (masks[mkey].astype(bool), float(masks[f"t_{mkey}"]))
+            continue
+        try:
+            keep, t = run_filter(name, d.f1, d.f2, sm, ss, image_size1=pair.image_size1,
+                                 image_size2=pair.image_size2, blob_ratio=cfg.ratio,
+                                 **d.filter_params.get(name, {}))
+        except Exception as exc:  # one filter failing on one pair is recorded, not fatal
+            keeps[name] = (f"filter {name!r} raised {type(exc).__name__}: {exc}", float("nan"))
+            continue
+        keeps[name] = (keep, t)
+        masks[mkey], masks[f"t_{mkey}"], added = keep, np.float64(t), True
+    return keeps, added
+
+
+def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> list[dict]:
+    """The rows of every (method, model) of one setup; a step that raised gives an error row."""
+    unit, n, m = d.unit, len(d.f1), len(d.f2)
+    known = {"n_candidates": common["n_candidates"], "n_gt": common["n_gt"], "n_gt_star": d.n_gt_star}
+    ref = sm[sl]
+    rows = []
+    for method, (keep, t_method) in keeps.items():
+        for model in unit.models:
+            if isinstance(keep, str):
+                rows.append(error_row(unit, cfg, method, model, keep, n, m, **known))
+                continue
+            try:
+                fit, t_model = run_model(model, d.f1, d.f2, sm[keep], ss[keep], pair_kind=unit.pair.kind,
+                                         threshold=unit.model_threshold, rng=d.rng_seed)
+            except Exception as exc:
+                rows.append(error_row(unit, cfg, method, model,
+                                      f"model {model!r} raised {type(exc).__name__}: {exc}", n, m,
+                                      **known, time_s=t_method))
+                continue
+            final = keep.copy()
+            final[np.flatnonzero(keep)] = fit.keep
+            mm = evaluate_matches(sm[final], sl[final], reference=ref, reference_star=d.ref_star,
+                                  scores=ss[final], time_s=t_method)
+            rows.append({**common, "method": method, "model": model, "precision": mm.precision,
+                         "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
+                         "ap_star": average_precision(sm[final], sl[final], ss[final], d.ref_star),
+                         "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
+                         "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
+                         "model_time_s": t_model})
+    return rows
+
+
+def _mask_store(unit: SweepUnit, feats_digest: str, cache):
+    """The cached filter masks of the unit's pair and filters, and the file they live in."""
+    if not unit.filters or cache is None:
+        return {}, None
+    # The salt (the library source digest) keeps masks of edited filters out.
+    mask_key = digest(FORMAT, feats_digest, unit.filters, unit.filter_params, unit.salt)
+    path = cache / "filters" / f"{mask_key}.npz"
+    return load_npz(path) or {}, path
+
+
+def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
+    """Evaluate one :class:`~ctxmatch_lib.evaluation.plan.SweepUnit`; returns a ``pandas.DataFrame``
+    with :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`.
+
+    Rows come in the unit's blob order; for each setup, the unfiltered candidates (method ``"blob"``) and
+    then each filter, each with the unit's models. The AP of a row is that of its output ranked by the
+    blob score; the recall reference is the setup's correct candidates, recall* the union of the correct
+    candidates of all setups of the unit.
+
+    Nothing raises for one pair's sake: an unreadable image or an image with 0 keypoints gives rows with
+    NaN metrics whose ``error`` names the image and the reason; a filter or model step that raises gives
+    such rows for that method (or method + model) only, and the other methods are evaluated as usual.
+
+    ``cache_dir``: the evaluation cache (``None``: the default; ``False``: no cache).
+    """
+    cache = None if cache_dir is False else engine_cache(cache_dir)
+    pair = unit.pair
+    try:
+        f1, f2 = unit_features(unit, feature_cache_dir)
+    except PairError as exc:
+        return frame(error_rows(unit, str(exc)))
+    feats_digest = features_digest(f1, f2)
+    ctx, cand_keys = _context_factory(unit, f1, f2, cache)
+    sets, ref_star, n_gt_star = _labelled_sets(unit, f1, f2, candidate_sets(ctx, cand_keys, cache, feats_digest,
+                                                                             unit.salt))
+    base_row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
+                "features": unit.features_name, "n_kpts1": len(f1), "n_kpts2": len(f2),
+                "gt_method": unit.gt_method, "error": ""}
+    d = _PairData(unit, f1, f2, ref_star, n_gt_star, base_row,
+                  {name: json.loads(p) for name, p in unit.filter_params}, pair_seed(unit.seed, pair.pair_id))
+    fast = not unit.filters and unit.models == ("none",)
+    masks, mask_path = _mask_store(unit, feats_digest, cache)
+    masks_added = False
+    ranks: dict = {}
+    rows = []
+    for cfg in unit.blobs:
+        mt, dt, lab, n_gt, t_cand = sets[cfg.candidate_key]
+        rk = (cfg.candidate_key, cfg.ratio, cfg.t_o, cfg.t_o_kind)
+        if rk not in ranks:
+            t0 = time.perf_counter()
+            ab = (rank_candidates(ctx()[0], mt, dt, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
+                  if len(mt) else (np.empty(0), np.empty(0)))
+            ranks[rk] = (ab, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        scores = combine_ratios(*ranks[rk][0], cfg.combine)
+        # The blob method's time: candidates, ratios and scores of this setup (Sec. 5.3's blob row).
+        t_blob = t_cand + ranks[rk][1] + time.perf_counter() - t0
+        common = {**base_row, **blob_record(cfg), "n_candidates": len(mt), "n_gt": n_gt, "n_gt_star": n_gt_star}
+        if fast:
+            rows.append(_fast_row(d, common, mt, lab, scores, n_gt, t_blob))
+            continue
+        order = np.argsort(scores, kind="stable")
+        sm, ss, sl = mt[order], scores[order], lab[order]
+        keeps, added = _filter_keeps(d, cfg, sm, ss, t_blob, masks)
+        masks_added |= added
+        rows.extend(_method_rows(d, cfg, common, keeps, sm, ss, sl))
+    if masks_added and mask_path is not None:
+        save_npz(mask_path, masks)
+    return frame(rows)
