@@ -139,3 +139,61 @@ def test_folder_mode_resumes_after_sigkill(tmp_path, monkeypatch, capsys):
     assert "0 matched, 6 already done" in capsys.readouterr().out
     assert main(cmd[3:] + ["--filter", "none"]) == 0
     assert "6 matched, 0 already done" in capsys.readouterr().out
+
+
+def _six_pairs(tmp_path):
+    imgs = tmp_path / "images"
+    _write_pair(imgs, "a.png", "b.png")
+    _write_pair(imgs, "c.png", "d.png", crop=6)
+    names = ["a.png", "b.png", "c.png", "d.png"]
+    pairs = [(x, y) for i, x in enumerate(names) for y in names[i + 1:]]
+    (tmp_path / "pairs.txt").write_text("".join(f"{x} {y}\n" for x, y in pairs))
+    return ["match", "--pairs", str(tmp_path / "pairs.txt"), "--images", str(imgs), "--out", str(tmp_path / "out"),
+            "--max-keypoints", "300", "--no-progress"]
+
+
+def test_ctrl_c_prints_one_line_and_the_rerun_resumes(tmp_path, monkeypatch, capsys):
+    # Ctrl-C in the third pair: status 130, one line instead of a traceback; the rerun does only the rest.
+    import ctxmatch_lib.match as match
+
+    args = _six_pairs(tmp_path)
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    real, calls = match.match_images, []
+
+    def interrupted_third(*a, **k):
+        calls.append(a)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(match, "match_images", interrupted_third)
+    assert main(args) == 130
+    err = capsys.readouterr().err.strip()
+    assert err == ("ctxmatch match: interrupted; rerun the same command to resume (finished work is kept, "
+                   "nothing half-written)")
+    out = tmp_path / "out"
+    before = {p.name: p.read_bytes() for p in out.glob("*.npz")}
+    assert len(before) == 2 and not list(out.glob(".*"))  # no temporary file left
+    monkeypatch.setattr(match, "match_images", real)
+    assert main(args) == 0
+    assert "4 matched, 2 already done" in capsys.readouterr().out
+    assert len(list(out.glob("*.npz"))) == 6
+    assert all((out / name).read_bytes() == data for name, data in before.items())
+
+
+def test_sigint_in_a_real_process_has_no_traceback(tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "ctxmatch_lib.cli"] + _six_pairs(tmp_path)
+    env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not list(out.glob("*.npz")):
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    n = len(list(out.glob("*.npz")))
+    assert 0 < n < 6, "the signal must land after the first pair and before the last"
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and err.strip().splitlines() == [
+        "ctxmatch match: interrupted; rerun the same command to resume (finished work is kept, nothing "
+        "half-written)"]

@@ -28,9 +28,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+EXIT_INTERRUPTED = 130
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``ctxmatch`` command; returns its exit status.
+
+    Ctrl-C stops the command with one line on stderr and status 130 instead of a traceback. Nothing is lost
+    by it: every result file and cache entry is written to a temporary file and renamed into place, so a
+    rerun of the same command reuses what was finished and redoes only the rest.
+    """
     args = build_parser().parse_args(argv)
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"\nctxmatch {args.command}: interrupted; rerun the same command to resume (finished "
+                         "work is kept, nothing half-written)\n")
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":
