@@ -3,11 +3,13 @@
 The paper compares DTM with OANet and ACNe (Sec. 5, Tables 1-3, Fig. 9). Their authors' weights are not
 obtainable on the project machines, so the default weights are **trained here** by
 :func:`train_learned_filter` (``ctxmatch train oanet|acne``) on correspondences generated from the embedded
-images (:mod:`.data`), and shipped in ``weights/{oanet,acne}_trained_here.pt``. They are smaller networks
+images (:mod:`.data`), and shipped in ``weights/{oanet,acne}_trained_here.npz``. They are smaller networks
 than the authors' and every label says "trained here". The authors' checkpoints load with ``weights=``.
 
-PyTorch is optional: this package imports without it, and the filters raise ``ImportError`` with the install
-hint (``pip install torch==2.13.0``, or the ``torch`` extra) when called without it.
+The filters run in numpy (:mod:`.npnets`): they need no torch and give the same numbers with or without it.
+PyTorch is needed only to train (:func:`train_learned_filter`, ``ctxmatch train``), to read torch checkpoints
+(``.pt``/``.pth``; :func:`~.checkpoints.convert_to_npz` converts them once) and for ``backend="torch"``; those
+raise ``ImportError`` with the install hint (``pip install torch==2.13.0``, or the ``torch`` extra).
 
 ====================  ======================================================================================
 name                  what
@@ -24,19 +26,23 @@ from __future__ import annotations
 
 import importlib.util
 
-from .filters import (TORCH_HINT, acne_filter, learned_logits, load_learned_model, oanet_filter, require_torch,
-                      shipped_weights)
+from .filters import (TORCH_HINT, acne_filter, learned_logits, load_learned_model, load_numpy_model_cached,
+                      oanet_filter, require_torch, shipped_weights)
 
-__all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "shipped_weights",
+__all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
+           "shipped_weights",
            "train_learned_filter", "torch_available", "LEARNED_FILTERS", "TORCH_HINT"]
 
-#: Registry names of the filters that need torch.
+#: Registry names of the learned filters (numpy inference: always available).
 LEARNED_FILTERS = ("oanet", "acne")
 
 
 def torch_available() -> bool:
-    """Whether torch can be imported (without importing it): callers listing "all" filters can skip ours."""
-    return importlib.util.find_spec("torch") is not None
+    """Whether torch can be imported (without importing it): training and the torch backend need it."""
+    try:
+        return importlib.util.find_spec("torch") is not None
+    except ValueError:  # sys.modules["torch"] is None: import blocked
+        return False
 
 
 def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500),

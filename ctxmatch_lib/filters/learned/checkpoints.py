@@ -1,10 +1,15 @@
 """Loading and saving the learned filters' weights (imports torch: reach it through the lazy public face).
 
-Three formats are read by :func:`load_model`:
+The filters run in numpy (:mod:`.npnets`); this module is the torch side: training output, the torch
+checkpoints, and their conversion to the ``.npz`` format read without torch (:func:`convert_to_npz`, also
+``python -m ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz``). Four formats are read by
+:func:`load_model`:
 
-* **ctxmatch** (the weights trained here, ``weights/{oanet,acne}_trained_here.pt``): a ``torch.save`` dict
-  ``{"format": "ctxmatch-learned-filter", "version": 1, "arch", "config", "state_dict", "input",
-  "label", "training"}``; ``input`` says how coordinates are normalised and which side channels follow.
+* **ctxmatch .npz** (the weights trained here, shipped as ``weights/{oanet,acne}_trained_here.npz``): the
+  ``state_dict`` arrays and a JSON ``__meta__`` (:func:`.npnets.save_npz`).
+* **ctxmatch .pt**: a ``torch.save`` dict ``{"format": "ctxmatch-learned-filter", "version": 1, "arch",
+  "config", "state_dict", "input", "label", "training"}``; ``input`` says how coordinates are normalised and
+  which side channels follow.
 * **OANet release** (zjhthu/OANet, PyTorch): ``torch.save({"epoch", "state_dict", "best_acc",
   "optimizer"})`` of ``OANet`` (``model_best.pth``), or a bare ``state_dict``; the network shape (channels,
   depth, clusters, iterations, side channels) is read off the parameter shapes. Their demo normalises each
@@ -19,17 +24,19 @@ Three formats are read by :func:`load_model`:
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .nets import ACNe, ACNeConfig, OANet, OANetConfig, build_network
+from .configs import ACNeConfig, OANetConfig  # noqa: F401  (re-exported)
+from .nets import ACNe, OANet, build_network
+from .npnets import (acne_params_from_tf_tensors, is_tf_checkpoint, oanet_config_from_state_dict, save_npz,
+                     tf_name_map)
 from .tfbundle import read_tf_checkpoint, write_tf_checkpoint
 
-__all__ = ["LoadedModel", "load_model", "save_model", "oanet_config_from_state_dict", "acne_from_tf_tensors",
+__all__ = ["LoadedModel", "load_model", "save_model", "convert_to_npz", "oanet_config_from_state_dict", "acne_from_tf_tensors",
            "acne_to_tf_tensors", "FORMAT"]
 
 FORMAT = "ctxmatch-learned-filter"
@@ -51,73 +58,21 @@ def _strip_module(sd: dict) -> dict:
     return {k[len("module."):] if k.startswith("module.") else k: v for k, v in sd.items()}
 
 
-def oanet_config_from_state_dict(sd: dict) -> OANetConfig:
-    """The :class:`~.nets.OANetConfig` of an OANet ``state_dict`` (authors' or ours), from its shapes."""
-    try:
-        w = sd["weights_init.conv1.weight"]
-        clusters = sd["weights_init.down1.conv.3.weight"].shape[0]
-    except KeyError as e:
-        raise ValueError(f"weights are not an OANet state_dict (missing {e.args[0]!r})") from None
-    half = len({k.split(".")[2] for k in sd if k.startswith("weights_init.l1_1.")})
-    iters = len({k.split(".")[1] for k in sd if k.startswith("weights_iter.")})
-    return OANetConfig(net_channels=int(w.shape[0]), net_depth=2 * half * (iters + 1), clusters=int(clusters),
-                       iter_num=iters, side_channels=int(w.shape[1]) - 4)
-
-
 def _as_tensor_sd(sd: dict) -> dict:
     return {k: torch.as_tensor(v) for k, v in sd.items()}
 
 
 # ------------------------------------------------------------------------------------------- ACNe / TF
-def _tf_name_map(config: ACNeConfig) -> dict[str, tuple[str, str]]:
-    """TF variable -> (torch parameter, kind) where kind is 'conv' or 'vec'."""
-    m = {
-        "Matchnet/hidden-input/self-conv/weights": ("input.weight", "conv"),
-        "Matchnet/hidden-input/self-conv/biases": ("input.bias", "vec"),
-        "Matchnet/logit_softmax/self-conv/weights": ("logit_softmax.weight", "conv"),
-        "Matchnet/logit_softmax/self-conv/biases": ("logit_softmax.bias", "vec"),
-        "Matchnet/output/self-conv/weights": ("output.weight", "conv"),
-        "Matchnet/output/self-conv/biases": ("output.bias", "vec"),
-    }
-    for i in range(config.net_depth):
-        for j in range(config.num_inner):
-            tf = f"Matchnet/hidden-{i}/conv-branch/conv{j + 1}"
-            pt = f"blocks.{i}.layers.{j}"
-            m[f"{tf}/self-conv/weights"] = (f"{pt}.conv.weight", "conv")
-            m[f"{tf}/self-conv/biases"] = (f"{pt}.conv.bias", "vec")
-            m[f"{tf}/reweight/weights"] = (f"{pt}.acn.attn.weight", "conv")
-            m[f"{tf}/reweight/biases"] = (f"{pt}.acn.attn.bias", "vec")
-            m[f"{tf}/gn_norm/gamma"] = (f"{pt}.norm.weight", "vec")
-            m[f"{tf}/gn_norm/beta"] = (f"{pt}.norm.bias", "vec")
-    return m
-
-
 def acne_from_tf_tensors(tensors: dict[str, np.ndarray], *, groups: int = 32) -> ACNe:
     """An :class:`~.nets.ACNe` holding the variables of an ACNe TensorFlow checkpoint."""
-    try:
-        w_in = tensors["Matchnet/hidden-input/self-conv/weights"]
-    except KeyError:
-        raise ValueError("weights are not an ACNe TensorFlow checkpoint (no Matchnet/hidden-input/self-conv/"
-                         "weights variable)") from None
-    if any(re.search(r"/(bn|bn_norm)/", k) for k in tensors) or any("Matchnet/nonlinearity/" in k for k in tensors):
-        raise ValueError("ACNe checkpoint uses batch normalisation or the output non-linearity; only the released "
-                         "configuration (bn_opt=gn, nonlinearity_output=False) is supported")
-    depth = len({m.group(1) for k in tensors if (m := re.match(r"Matchnet/hidden-(\d+)/", k))})
-    inner = len({m.group(1) for k in tensors if (m := re.match(r"Matchnet/hidden-0/conv-branch/conv(\d+)/", k))})
-    config = ACNeConfig(net_channels=int(w_in.shape[3]), net_depth=depth, num_inner=inner, groups=groups,
-                        side_channels=int(w_in.shape[2]) - 4)
+    config, params = acne_params_from_tf_tensors(tensors, groups=groups)
     net = ACNe(config)
     sd = net.state_dict()
     new = {}
-    for tf_name, (pt_name, kind) in _tf_name_map(config).items():
-        if tf_name not in tensors:
-            raise ValueError(f"ACNe TensorFlow checkpoint lacks variable {tf_name!r}")
-        arr = np.asarray(tensors[tf_name], np.float32)
-        if kind == "conv":  # [1, 1, in, out] -> (out, in, 1)
-            arr = arr.reshape(arr.shape[-2], arr.shape[-1]).T[:, :, None]
-        if tuple(arr.shape) != tuple(sd[pt_name].shape):
-            raise ValueError(f"ACNe variable {tf_name!r} has shape {arr.shape}, expected {tuple(sd[pt_name].shape)}")
-        new[pt_name] = torch.from_numpy(np.ascontiguousarray(arr))
+    for name, arr in params.items():
+        if tuple(arr.shape) != tuple(sd[name].shape):
+            raise ValueError(f"ACNe parameter {name!r} has shape {arr.shape}, expected {tuple(sd[name].shape)}")
+        new[name] = torch.from_numpy(arr)
     net.load_state_dict(new, strict=True)
     return net
 
@@ -126,7 +81,7 @@ def acne_to_tf_tensors(net: ACNe) -> dict[str, np.ndarray]:
     """The variables of an ACNe TensorFlow checkpoint holding ``net``'s weights (inverse of the above)."""
     sd = {k: v.detach().cpu().numpy() for k, v in net.state_dict().items()}
     out = {}
-    for tf_name, (pt_name, kind) in _tf_name_map(net.config).items():
+    for tf_name, (pt_name, kind) in tf_name_map(net.config).items():
         arr = sd[pt_name].astype(np.float32)
         if kind == "conv":
             arr = arr[:, :, 0].T[None, None]
@@ -137,22 +92,31 @@ def acne_to_tf_tensors(net: ACNe) -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------------------------- API
 def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None = None,
                normalization: str = "image", side: str | None = None) -> Path:
-    """Save ``net`` in the ctxmatch format (labelled "trained here"); returns the path."""
+    """Save ``net`` labelled "trained here"; returns the path.
+
+    A path ending in ``.npz`` gets the numpy format that the filters read without torch
+    (:func:`.npnets.save_npz`); any other path a ``torch.save`` checkpoint in the ctxmatch format.
+    """
     from ..._paths import atomic_path
 
     if side is None:
         side = "score_rank" if getattr(net.config, "side_channels", 0) == 1 else "none"
+    label = f"{'OANet' if arch == 'oanet' else 'ACNe'} (trained here)"
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    path = Path(path)
+    if path.suffix == ".npz":
+        return save_npz(path, arch, net.config.to_dict(), {k: v.numpy() for k, v in state.items()},
+                        normalization=normalization, side=side, label=label, training=training)
     payload = {
         "format": FORMAT,
         "version": 1,
         "arch": arch,
         "config": net.config.to_dict(),
-        "state_dict": {k: v.detach().cpu().clone() for k, v in net.state_dict().items()},
+        "state_dict": state,
         "input": {"normalization": normalization, "side": side},
-        "label": f"{'OANet' if arch == 'oanet' else 'ACNe'} (trained here)",
+        "label": label,
         "training": training or {},
     }
-    path = Path(path)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
         # The temporary file is created private (0600); give the result the permissions the umask allows.
@@ -162,10 +126,22 @@ def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None =
     return path
 
 
-def _is_tf_checkpoint(path: Path) -> bool:
-    if path.is_dir():
-        return any(path.glob("*.index"))
-    return path.name.endswith(".index") or ".data-" in path.name or path.with_name(path.name + ".index").is_file()
+def convert_to_npz(arch: str, weights, output) -> Path:
+    """Convert a torch checkpoint that :func:`load_model` reads (ours, the OANet authors') to the ``.npz`` format
+    the filters read without torch; metadata (label, input convention, training record) is kept.
+
+    Examples
+    --------
+    ``python -m ctxmatch_lib.filters.learned.checkpoints oanet model_best.pth oanet.npz``
+    """
+    m = load_model(arch, weights)
+    training = {}
+    if Path(weights).suffix not in (".npz",) and not is_tf_checkpoint(Path(weights)):
+        ckpt = torch.load(weights, map_location="cpu", weights_only=True)
+        training = ckpt.get("training", {}) if isinstance(ckpt, dict) else {}
+    sd = {k: v.detach().cpu().numpy() for k, v in m.net.state_dict().items()}
+    return save_npz(output, arch, m.net.config.to_dict(), sd, normalization=m.normalization, side=m.side,
+                    label=m.label, training=training)
 
 
 def load_model(arch: str, weights) -> LoadedModel:
@@ -181,7 +157,7 @@ def load_model(arch: str, weights) -> LoadedModel:
     if arch not in ("oanet", "acne"):
         raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")
     path = Path(weights)
-    if arch == "acne" and _is_tf_checkpoint(path):
+    if arch == "acne" and is_tf_checkpoint(path):
         net = acne_from_tf_tensors(read_tf_checkpoint(path))
         net.eval()
         return LoadedModel("acne", net, "hartley", "none", "ACNe (authors' weights)", str(path))
@@ -189,6 +165,15 @@ def load_model(arch: str, weights) -> LoadedModel:
         raise FileNotFoundError(f"weights not found: {path}")
     if path.is_dir():
         raise ValueError(f"weights must be a checkpoint file, got the folder {path}")
+    if path.suffix == ".npz":
+        from .npnets import load_npz
+
+        nm = load_npz(arch, path)
+        net = build_network(arch, nm.config)
+        net.load_state_dict({**net.state_dict(), **{k: torch.from_numpy(v) for k, v in nm.params.items()}},
+                            strict=True)
+        net.eval()
+        return LoadedModel(arch, net, nm.normalization, nm.side, nm.label, nm.source)
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # a pickle that is not a torch checkpoint, a truncated file, …
@@ -227,3 +212,11 @@ def load_model(arch: str, weights) -> LoadedModel:
 def export_acne_tf(path, net: ACNe) -> Path:
     """Write ``net`` as an ACNe TensorFlow checkpoint at prefix ``path`` (for TensorFlow users and tests)."""
     return write_tf_checkpoint(path, acne_to_tf_tensors(net))
+
+
+if __name__ == "__main__":  # python -m ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUTPUT.npz
+    import sys
+
+    if len(sys.argv) != 4 or not sys.argv[3].endswith(".npz"):
+        sys.exit("usage: python -m ctxmatch_lib.filters.learned.checkpoints {oanet,acne} WEIGHTS OUTPUT.npz")
+    print(convert_to_npz(sys.argv[1], sys.argv[2], sys.argv[3]))

@@ -1,5 +1,6 @@
 """pytest: the doctest run over the package (``--doctest-modules ctxmatch_lib``) skips the modules that import
-torch when torch is absent (torch is optional; its own tests skip with a reason in tests/test_learned_filters.py)."""
+torch when torch is absent: training and the torch modules (the filters' numpy inference, ``npnets.py``, needs
+no torch; torch's own tests skip with a reason in tests/test_learned_filters.py)."""
 
 import importlib.util
 

@@ -1,4 +1,4 @@
-"""The ``oanet`` and ``acne`` entries of the filter registry (torch imported on the first call only).
+"""The ``oanet`` and ``acne`` entries of the filter registry (numpy inference: torch is not needed).
 
 Both filters score every candidate with a permutation-equivariant network and keep those whose inlier logit
 is above ``threshold`` (default 0, i.e. an inlier probability above 1/2; the OANet and ACNe authors' test
@@ -6,7 +6,12 @@ threshold). Without ``weights`` they use the weights **trained here** (shipped i
 ``ctxmatch_lib/filters/learned/weights/``, trained by :func:`~ctxmatch_lib.filters.learned.train_learned_filter`
 on correspondences generated from the embedded images; not the authors' weights, which are not obtainable
 here). ``weights=`` accepts the authors' released checkpoints in their own formats (see
-:mod:`.checkpoints`).
+:mod:`.checkpoints`; the OANet authors' torch checkpoint needs torch to be read, or a one-time conversion to
+``.npz``).
+
+The networks run in numpy (:mod:`.npnets`), so the figures and tables need no torch and give the same
+numbers with or without it; ``backend="torch"`` runs the torch modules of :mod:`.nets` instead (the training
+code's, for checking the two agree).
 """
 
 from __future__ import annotations
@@ -19,11 +24,12 @@ import numpy as np
 
 from .._common import prepare
 
-__all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "shipped_weights",
-           "require_torch", "TORCH_HINT"]
+__all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
+           "shipped_weights", "require_torch", "TORCH_HINT"]
 
-TORCH_HINT = ("the learned filters need PyTorch: pip install torch==2.13.0 "
+TORCH_HINT = ("training the learned filters (and their torch backend) needs PyTorch: pip install torch==2.13.0 "
               "(or install ctxmatch with the 'torch' extra: pip install 'ctxmatch[torch]')")
+_BACKENDS = ("numpy", "torch")
 _WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 _CACHE: dict = {}
 _LOCK = threading.Lock()
@@ -42,17 +48,13 @@ def shipped_weights(arch: str) -> Path:
     """Path of the weights trained here for ``arch`` ("oanet" or "acne")."""
     if arch not in ("oanet", "acne"):
         raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")
-    return _WEIGHTS_DIR / f"{arch}_trained_here.pt"
+    return _WEIGHTS_DIR / f"{arch}_trained_here.npz"
 
 
-def load_learned_model(arch: str, weights=None):
-    """The :class:`~.checkpoints.LoadedModel` for ``arch`` from ``weights`` (default: trained here), cached.
-
-    The cache key is the resolved path and its modification time, so a retrained file is reloaded.
-    """
-    require_torch()
-    from .checkpoints import load_model
-
+def _cached(kind, loader, arch, weights):
+    # The cache key is the resolved path and its modification time, so a retrained file is reloaded.
+    if arch not in ("oanet", "acne"):
+        raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")
     path = Path(weights) if weights is not None else shipped_weights(arch)
     if weights is None and not path.is_file():
         raise FileNotFoundError(f"the weights trained here are missing: {path}; run 'ctxmatch train {arch}'")
@@ -60,11 +62,29 @@ def load_learned_model(arch: str, weights=None):
         stamp = path.stat().st_mtime_ns
     except OSError:
         stamp = None
-    key = (arch, str(path.resolve()), stamp)
+    key = (kind, arch, str(path.resolve()), stamp)
     with _LOCK:
         if key not in _CACHE:
-            _CACHE[key] = load_model(arch, path)
+            _CACHE[key] = loader(arch, path)
         return _CACHE[key]
+
+
+def load_numpy_model_cached(arch: str, weights=None):
+    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached."""
+    from .npnets import load_numpy_model
+
+    return _cached("numpy", load_numpy_model, arch, weights)
+
+
+def load_learned_model(arch: str, weights=None):
+    """The torch :class:`~.checkpoints.LoadedModel` for ``arch`` from ``weights`` (default: trained here), cached.
+
+    Needs torch; the filters themselves use :func:`load_numpy_model_cached`.
+    """
+    require_torch()
+    from .checkpoints import load_model
+
+    return _cached("torch", load_model, arch, weights)
 
 
 @contextmanager
@@ -80,25 +100,33 @@ def _one_thread(torch):
 
 
 def learned_logits(arch: str, kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, weights=None,
-                   normalization: str | None = None) -> np.ndarray:
+                   normalization: str | None = None, backend: str = "numpy") -> np.ndarray:
     """Inlier logits of the candidates, shape ``(K,)``, from the network ``arch`` ("oanet" or "acne").
 
-    Parameters are those of :func:`oanet_filter`. Returns float64 logits; ``logit > 0`` means inlier
-    probability above 1/2.
+    Parameters are those of :func:`oanet_filter`, and ``backend``: ``"numpy"`` (default, no torch needed) or
+    ``"torch"`` (the torch modules the networks are trained with; torch's instance normalisation refuses
+    K = 1, so a single candidate is always scored by numpy). Returns float64 logits; ``logit > 0`` means
+    inlier probability above 1/2.
     """
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
     ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2)
     if len(ms) == 0:
         return np.empty(0)
-    torch = require_torch()
     from .data import network_input
 
-    model = load_learned_model(arch, weights)
+    if backend == "torch" and len(ms) > 1:
+        torch = require_torch()
+        model = load_learned_model(arch, weights)
+    else:
+        model = load_numpy_model_cached(arch, weights)
     norm = model.normalization if normalization is None else normalization
     x = network_input(ms.x, ms.y, ms.scores if scores is not None else None, ms.size1, ms.size2,
                       normalization=norm, side=model.side)
-    with _one_thread(torch), torch.no_grad():
-        logits = model.net(torch.from_numpy(x)[None])[-1][0]
-    return logits.double().numpy()
+    if backend == "torch" and len(ms) > 1:
+        with _one_thread(torch), torch.no_grad():
+            return model.net(torch.from_numpy(x)[None])[-1][0].double().numpy()
+    return model.logits(x).astype(np.float64)
 
 
 def _filter(arch, kpts1, kpts2, matches, scores, image_size1, image_size2, weights, threshold, normalization):
@@ -132,8 +160,9 @@ def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
         Unused.
     weights : str or Path, optional
-        A checkpoint: ours (``ctxmatch train oanet``) or the authors' ``model_best.pth``. Default: the
-        weights trained here, ``weights/oanet_trained_here.pt``.
+        A checkpoint: ours (``ctxmatch train oanet``, ``.npz`` or ``.pt``) or the authors' ``model_best.pth``
+        (reading a ``.pt``/``.pth`` needs torch). Default: the weights trained here,
+        ``weights/oanet_trained_here.npz``.
     threshold : float, default 0
         Keep ``logit > threshold`` (0: inlier probability above 1/2, the authors' test threshold).
     normalization : {"image", "hartley"}, optional
@@ -147,7 +176,7 @@ def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2
     Raises
     ------
     ImportError
-        PyTorch is not installed (``pip install torch==2.13.0`` or the ``torch`` extra).
+        ``weights`` is a torch checkpoint (``.pt``/``.pth``) and PyTorch is not installed.
 
     References
     ----------
@@ -171,7 +200,8 @@ def acne_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
         As in :func:`oanet_filter`.
     weights : str or Path, optional
         A checkpoint: ours (``ctxmatch train acne``) or the authors' TensorFlow checkpoint (prefix, ``.index``
-        file or folder). Default: the weights trained here, ``weights/acne_trained_here.pt``.
+        file or folder; read without TensorFlow or torch). Default: the weights trained here,
+        ``weights/acne_trained_here.npz``.
     threshold : float, default 0
         Keep ``logit > threshold`` (sigmoid above 1/2, as the authors' inlier test).
     normalization : {"image", "hartley"}, optional
