@@ -1,4 +1,4 @@
-"""Ground-truth labels: is each match correct? (Sec. 5.1 and Appendix "Ground truth estimation methods").
+"""Ground-truth methods A and D: centre distances only (Sec. 5.1 and Appendix "Ground truth estimation methods").
 
 Method D of the paper, per ground-truth type (all distances in pixels, threshold ``t = 15`` inclusive):
 
@@ -28,15 +28,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_matches, as_points
-from .datasets.base import EpipolarGT, FlowGT, HomographyGT
-from .geometry import _epipolar, _transfer_errors
+from .._validation import as_matches, as_points
+from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
+from ..geometry import _epipolar, _transfer_errors
 
 __all__ = [
     "GT_THRESHOLD_PX",
-    "GT_METHODS",
     "LOCALISATION_RATIO",
-    "label_matches",
     "label_homography",
     "label_epipolar",
     "label_flow",
@@ -47,9 +45,6 @@ __all__ = [
 
 #: Method-D distance threshold in pixels (Sec. 5.1).
 GT_THRESHOLD_PX = 15.0
-
-#: Ground-truth methods implemented: "D" (the paper's choice) and "A" (epipolar distance only).
-GT_METHODS = ("D", "A")
 
 #: Radius of the localisation check as a fraction of the longest edge of the hand-point triangle.
 LOCALISATION_RATIO = 0.5
@@ -330,64 +325,3 @@ def label_flow(kpts1, kpts2, matches, flow12, flow21=None, *, threshold: float =
         if flow21 is not None:
             ok |= np.linalg.norm(p2 + sample_flow(flow21, p2) - p1, axis=1) <= threshold
     return ok
-
-
-def label_matches(
-    kpts1,
-    kpts2,
-    matches,
-    gt,
-    *,
-    method: str = "D",
-    threshold: float = GT_THRESHOLD_PX,
-    ratio: float = LOCALISATION_RATIO,
-    shapes1=None,
-    shapes2=None,
-) -> np.ndarray:
-    """Correct/incorrect label of each match under the pair's ground truth.
-
-    Dispatches on the ground-truth type (see the module docstring for the rules).
-
-    Parameters
-    ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2`` (many-to-many allowed).
-    gt : HomographyGT, EpipolarGT or FlowGT
-        The pair's ground truth.
-    method : {"D", "A"}
-        Method D (the paper's) or A (epipolar distance only, for ``EpipolarGT``).
-    threshold : float
-        Pixels (15 in the paper).
-    ratio : float
-        Localisation radius ratio (:func:`localisation_check`).
-    shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2), optional
-        Affine shapes of the keypoints' support regions (the patch of keypoint k is
-        ``{kpts[k] + A[k] u : |u| <= 1}``); the region-overlap methods need them, methods A and D ignore them.
-
-    Returns
-    -------
-    ndarray of shape (K,), bool
-    """
-    if method not in GT_METHODS:
-        raise ValueError(f"method must be one of {GT_METHODS}, got {method!r}")
-    if threshold <= 0:
-        raise ValueError(f"threshold must be positive, got {threshold}")
-    if isinstance(gt, HomographyGT):
-        return label_homography(kpts1, kpts2, matches, gt.H, threshold=threshold)
-    if isinstance(gt, EpipolarGT):
-        return label_epipolar(
-            kpts1,
-            kpts2,
-            matches,
-            gt.F,
-            hand_pts1=gt.pts1,
-            hand_pts2=gt.pts2,
-            threshold=threshold,
-            localise=method == "D",
-            ratio=ratio,
-        )
-    if isinstance(gt, FlowGT):
-        return label_flow(kpts1, kpts2, matches, gt.flow12, gt.flow21, threshold=threshold)
-    raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")

@@ -1,0 +1,326 @@
+"""Ground-truth methods B and C: overlap of the keypoints' support regions (Sec. 5.1 and Appendix
+"Ground truth estimation methods").
+
+Method B is the protocol of Bellavia & Colombo (IJCV 2020) as the paper describes it: a match is correct
+when the **overlap error** ``1 - |E1' ∩ E2| / |E1' ∪ E2|`` of the two support regions is at most 50 %,
+where ``E1'`` is the region of the keypoint in image 1 carried into image 2 by the pair's ground truth.
+Method C adds the centre-distance constraint of the pair's kind, at most 30 px. The regions are the
+keypoints' affine shapes (the patch of keypoint ``k`` is ``{kpts[k] + A[k] u : |u| <= 1}``) with their size
+**doubled** (``shape_scale = 2``), as the caption of the Appendix figure ``setup_imgs`` states.
+
+How ``E1`` is carried into image 2, per ground-truth type:
+
+* :class:`~ctxmatch_lib.datasets.HomographyGT` (planar): exactly. A homography maps an ellipse onto a conic;
+  the conic is pulled through ``H`` in homogeneous coordinates and read back as an ellipse (the "true
+  overlap" of the paper). A region whose image is not bounded (it crosses the vanishing line) counts as
+  overlap error 1.
+* :class:`~ctxmatch_lib.datasets.EpipolarGT` (non-planar): approximately, through the local affine map of
+  the piecewise-affine map of the hand-taken correspondences
+  (:class:`~ctxmatch_lib.groundtruth.PiecewiseAffineMap`, the triangle holding the keypoint, as method D's
+  localisation check uses it). Our choice where the paper is silent: the carried centre is the
+  piecewise-affine image of the keypoint **moved onto its epipolar line** in image 2 (its closest point),
+  because the true position lies on that line and the coarse map is only used along it. With fewer than
+  three (or collinear) hand points no map exists and every match gets overlap error 1.
+* :class:`~ctxmatch_lib.datasets.FlowGT` (depth, synthetic): through the dense displacement field, its
+  Jacobian giving the local affine map (central differences on the pixel grid at the keypoint's nearest
+  pixel, one-sided at the border). As method D does on these pairs, either direction may pass: with
+  ``flow21`` the overlap error is the smaller of ``E1 -> image 2`` and ``E2 -> image 1``. Unknown flow
+  (NaN) gives overlap error 1 for that direction.
+
+Centre constraint of method C (threshold 30 px, inclusive): the larger of the two reprojection errors
+(planar), the larger of the two epipolar distances (non-planar, no localisation check: the overlap already
+localises the match), the flow transfer in either direction (depth), i.e. the centre rule of method D with
+30 px in place of 15 px (and without D's localisation check). Hence ``C = B ∩ centre`` by construction.
+
+Overlap areas are computed in closed form per ray, not with polygons: the problem is mapped affinely so
+that ``E1'`` is the unit disk (the overlap error is affine-invariant), a point ``p`` inside both regions is
+found (the minimiser of the sum of the two ellipses' quadratic forms), and the area of the convex
+intersection is ``1/2 ∫ min(r1(θ), r2(θ))² dθ`` with ``r_i`` the exact distance from ``p`` to each boundary
+along the ray of angle ``θ``, integrated by the trapezoid rule on :data:`N_ANGLES` angles (spectrally
+accurate except at the two to four boundary crossings: absolute error below 2e-3 against shapely polygons
+within 0.2 of the 50 % threshold, below 5e-3 everywhere on well-conditioned shapes,
+``tests/test_groundtruth_regions.py``). Pairs whose bounding circles are disjoint get exactly 1; the rare
+pairs where that interior point misses the intersection fall back to
+:func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error` (32-gon polygons and shapely, about 1e-4, but
+about 20x slower, too slow for the 3x-method-D budget). The loops are compiled (numba,
+:mod:`~ctxmatch_lib.groundtruth._kernels`), one pass, O(K) memory; ``benchmarks/bench_groundtruth.py``
+measures B and C against D.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import as_matches, as_points
+from ..blob.overlap import as_shapes, ellipse_overlap_error
+from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
+from ..geometry import _epipolar, _transfer_errors
+from ._kernels import homography_ellipse_kernel, overlap_kernel
+from .core import PiecewiseAffineMap
+
+__all__ = [
+    "OVERLAP_MAX",
+    "CENTRE_THRESHOLD_PX",
+    "SHAPE_SCALE",
+    "N_ANGLES",
+    "RegionErrors",
+    "region_overlap_error",
+    "homography_ellipses",
+    "region_errors",
+    "label_regions",
+]
+
+#: Method B/C: largest overlap error of a correct match (Sec. 5.1).
+OVERLAP_MAX = 0.5
+#: Method C: centre-distance threshold in pixels (Sec. 5.1).
+CENTRE_THRESHOLD_PX = 30.0
+#: Linear factor applied to the keypoints' shapes before the overlap (caption of the Appendix figure).
+SHAPE_SCALE = 2.0
+#: Angles of the ray integration of the intersection area.
+N_ANGLES = 64
+
+_COS = np.cos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False))
+_SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False))
+
+
+def region_overlap_error(c1, A1, c2, A2) -> np.ndarray:
+    """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of ellipses, element-wise (compiled loop).
+
+    Ellipse ``E = {c + A u : |u| <= 1}``; see the module docstring for the ray integration. Same contract
+    as :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error`, several times faster.
+
+    Parameters
+    ----------
+    c1, c2 : array_like of shape (P, 2)
+        Centres, (x, y) pixels.
+    A1, A2 : array_like of shape (P, 2, 2)
+        Affine shapes (non-singular).
+
+    Returns
+    -------
+    ndarray of shape (P,)
+        Overlap errors in [0, 1]; 1 where a shape is not finite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A = np.eye(2)[None]
+    >>> err = region_overlap_error([[0.0, 0], [0, 0]], np.r_[A, A], [[0.0, 0], [5, 0]], np.r_[A * 2, A])
+    >>> np.round(err, 3) + 0.0  # the unit disk inside the radius-2 disk: 1 - 1/4
+    array([0.75, 1.  ])
+    """
+    c1 = np.ascontiguousarray(c1, dtype=np.float64).reshape(-1, 2)
+    c2 = np.ascontiguousarray(c2, dtype=np.float64).reshape(-1, 2)
+    A1 = np.ascontiguousarray(A1, dtype=np.float64).reshape(-1, 2, 2)
+    A2 = np.ascontiguousarray(A2, dtype=np.float64).reshape(-1, 2, 2)
+    if not len(c1) == len(c2) == len(A1) == len(A2):
+        raise ValueError(f"c1, A1, c2, A2 must have the same length, got {len(c1)}, {len(A1)}, {len(c2)}, {len(A2)}")
+    out = overlap_kernel(c1, A1, c2, A2, _COS, _SIN)
+    todo = np.flatnonzero(np.isnan(out))
+    if len(todo):
+        out[todo] = ellipse_overlap_error(c1[todo], A1[todo], c2[todo], A2[todo])
+    return out
+
+
+def homography_ellipses(H, centres, shapes) -> tuple[np.ndarray, np.ndarray]:
+    """Exact images of ellipses ``{c + A u : |u| <= 1}`` under a homography.
+
+    Parameters
+    ----------
+    H : array_like of shape (3, 3)
+    centres : array_like of shape (P, 2)
+        (x, y) pixels, origin at the centre of the top-left pixel.
+    shapes : array_like of shape (P, 2, 2)
+
+    Returns
+    -------
+    centres, shapes : ndarray of shape (P, 2), (P, 2, 2)
+        The image ellipses (its shape is the lower Cholesky factor, one of the equivalent shapes). NaN where
+        the image is unbounded (the ellipse meets the vanishing line) or ``H`` is singular.
+    """
+    H = np.asarray(H, dtype=np.float64)
+    if H.shape != (3, 3):
+        raise ValueError(f"H must have shape (3, 3), got {H.shape}")
+    c = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 2)
+    A = np.ascontiguousarray(shapes, dtype=np.float64).reshape(-1, 2, 2)
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full_like(c, np.nan), np.full_like(A, np.nan)
+    return homography_ellipse_kernel(Hinv, c, A)
+
+
+@dataclass(frozen=True)
+class RegionErrors:
+    """Per-match quantities of methods B and C.
+
+    Attributes
+    ----------
+    overlap : ndarray of shape (K,)
+        Overlap error in [0, 1] of the (scaled) support regions, 1 where it cannot be computed.
+    centre : ndarray of shape (K,)
+        Centre distance of method C in pixels (reprojection, epipolar or flow transfer), inf if unknown.
+    centres2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
+        The region of the image-1 keypoint carried into image 2 (scaled; NaN where unknown), the dashed
+        ellipse of the Appendix figure.
+    """
+
+    overlap: np.ndarray
+    centre: np.ndarray
+    centres2: np.ndarray
+    shapes2: np.ndarray
+
+
+def _flow_jacobian(flow, pts):
+    """Displacement and Jacobian of ``x -> x + flow(x)`` at the points' nearest pixels (NaN if unknown)."""
+    h, w = flow.shape[:2]
+    col = np.rint(pts[:, 0]).astype(np.int64)
+    row = np.rint(pts[:, 1]).astype(np.int64)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    col, row = np.clip(col, 0, w - 1), np.clip(row, 0, h - 1)
+    cl, cr = np.maximum(col - 1, 0), np.minimum(col + 1, w - 1)
+    ru, rd = np.maximum(row - 1, 0), np.minimum(row + 1, h - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dx = (flow[row, cr] - flow[row, cl]) / (cr - cl)[:, None]  # d(flow)/dx, (P, 2)
+        dy = (flow[rd, col] - flow[ru, col]) / (rd - ru)[:, None]
+    J = np.stack([dx, dy], axis=2) + np.eye(2)  # J[:, i, j] = d(x_i + flow_i)/d x_j
+    disp = np.where(inside[:, None], flow[row, col], np.nan)
+    J[~inside] = np.nan
+    return disp, J
+
+
+def _flow_transfer(flow, c, A):
+    disp, J = _flow_jacobian(flow, c)
+    return c + disp, J @ A
+
+
+def _as_flow(flow, name):
+    flow = np.asarray(flow, dtype=np.float64)
+    if flow.ndim != 3 or flow.shape[2] != 2:
+        raise ValueError(f"{name} must have shape (H, W, 2), got {flow.shape}")
+    return flow
+
+
+def _as_shapes(shapes, n, name):
+    """``(N, 2, 2)`` shapes as float64 (radii converted); non-finite or singular shapes are not rejected
+    here, they get overlap error 1 (validating every shape would cost more than method D itself)."""
+    arr = np.asarray(shapes, dtype=np.float64)
+    if arr.ndim == 3:
+        if arr.shape != (n, 2, 2):
+            raise ValueError(f"{name} must have shape ({n}, 2, 2) (affine shapes) or ({n},) (radii), got {arr.shape}")
+        return arr
+    return as_shapes(arr, n, name)
+
+
+def region_errors(
+    kpts1, kpts2, matches, gt, shapes1, shapes2, *, shape_scale: float = SHAPE_SCALE
+) -> RegionErrors:
+    """Overlap error and centre distance of each match (methods B and C; see the module docstring).
+
+    Parameters
+    ----------
+    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
+        (x, y) pixels, origin at the centre of the top-left pixel.
+    matches : array_like of shape (K, 2), int
+        Indices into ``kpts1``/``kpts2``.
+    gt : HomographyGT, EpipolarGT or FlowGT
+    shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2)
+        Affine shapes of the support regions (or ``(N,)`` radii).
+    shape_scale : float
+        Linear factor on the shapes (2 in the paper).
+
+    Returns
+    -------
+    RegionErrors
+    """
+    if shapes1 is None or shapes2 is None:
+        raise ValueError("shapes1 and shapes2 (the keypoints' affine shapes) are required by methods B and C")
+    if not shape_scale > 0:
+        raise ValueError(f"shape_scale must be positive, got {shape_scale}")
+    kpts1 = as_points(kpts1, "kpts1")
+    kpts2 = as_points(kpts2, "kpts2")
+    S1 = _as_shapes(shapes1, len(kpts1), "shapes1")
+    S2 = _as_shapes(shapes2, len(kpts2), "shapes2")
+    matches = as_matches(matches, len(kpts1), len(kpts2))
+    if not isinstance(gt, (HomographyGT, EpipolarGT, FlowGT)):
+        raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
+    p1, p2 = kpts1[matches[:, 0]], kpts2[matches[:, 1]]
+    A1, A2 = S1[matches[:, 0]] * shape_scale, S2[matches[:, 1]] * shape_scale
+    K = len(matches)
+    if isinstance(gt, HomographyGT):
+        H = np.asarray(gt.H, float)
+        q, B = homography_ellipses(H, p1, A1)
+        overlap = region_overlap_error(q, B, p2, A2)
+        fwd, bwd = _transfer_errors(H, p1, p2)
+        centre = np.maximum(fwd, bwd)
+    elif isinstance(gt, EpipolarGT):
+        F = np.asarray(gt.F, float)
+        d2, d1 = _epipolar(F, p1, p2)
+        centre = np.maximum(d1, d2)
+        q, B = np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan)
+        try:
+            pam = PiecewiseAffineMap(gt.pts1, gt.pts2)
+        except ValueError:
+            pam = None
+        if pam is not None and K:
+            simplex, _ = pam.locate(p1)
+            aff = pam.affine[simplex]  # (K, 2, 3)
+            q = np.einsum("kij,kj->ki", aff[:, :, :2], p1) + aff[:, :, 2]
+            B = aff[:, :, :2] @ A1
+            line = np.c_[p1, np.ones(K)] @ F.T  # epipolar lines in image 2
+            nrm2 = (line[:, :2] ** 2).sum(1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t = ((np.c_[q, np.ones(K)] * line).sum(1) / nrm2)[:, None]
+            onto = q - t * line[:, :2]
+            q = np.where(np.isfinite(onto).all(1, keepdims=True), onto, q)
+        overlap = region_overlap_error(q, B, p2, A2)
+    else:
+        with np.errstate(invalid="ignore"):
+            q, B = _flow_transfer(_as_flow(gt.flow12, "gt.flow12"), p1, A1)
+            overlap = region_overlap_error(q, B, p2, A2)
+            centre = np.linalg.norm(q - p2, axis=1)
+            if gt.flow21 is not None:
+                r, C = _flow_transfer(_as_flow(gt.flow21, "gt.flow21"), p2, A2)
+                overlap = np.minimum(overlap, region_overlap_error(r, C, p1, A1))
+                centre = np.fmin(centre, np.linalg.norm(r - p1, axis=1))
+        centre = np.where(np.isnan(centre), np.inf, centre)
+    return RegionErrors(overlap=overlap, centre=centre, centres2=q, shapes2=B)
+
+
+def label_regions(
+    kpts1,
+    kpts2,
+    matches,
+    gt,
+    shapes1,
+    shapes2,
+    *,
+    method: str = "C",
+    overlap: float = OVERLAP_MAX,
+    centre_threshold: float = CENTRE_THRESHOLD_PX,
+    shape_scale: float = SHAPE_SCALE,
+) -> np.ndarray:
+    """Method B (overlap error at most ``overlap``) or C (B and centre distance at most ``centre_threshold``).
+
+    Parameters are those of :func:`region_errors`, plus ``method`` ("B" or "C"), ``overlap`` (0.5 in the
+    paper) and ``centre_threshold`` (30 px in the paper, inclusive).
+
+    Returns
+    -------
+    ndarray of shape (K,), bool
+    """
+    if method not in ("B", "C"):
+        raise ValueError(f"method must be 'B' or 'C', got {method!r}")
+    if not 0 <= overlap <= 1:
+        raise ValueError(f"overlap must be in [0, 1], got {overlap}")
+    if not centre_threshold > 0:
+        raise ValueError(f"centre_threshold must be positive, got {centre_threshold}")
+    err = region_errors(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale=shape_scale)
+    ok = err.overlap <= overlap
+    if method == "C":
+        ok &= err.centre <= centre_threshold
+    return ok
