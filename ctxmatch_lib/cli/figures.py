@@ -1,36 +1,152 @@
-"""``ctxmatch figures``: run the figure notebooks through papermill."""
+"""``ctxmatch figures``: run the figure notebooks through papermill.
+
+The run is quiet (the kernels' start-up and shut-down log lines are dropped; a failing cell is reported with
+its error and the executed notebook) and its progress moves: one status line names the notebook in progress, its
+running time, and the time left, estimated from the previous run's durations (``executed/durations.json`` of
+the figure folder, untracked) or, on a first run, from the notebooks done so far.
+
+A rerun that computes the same numbers writes byte-identical figures and tables: their provenance names the
+source commit and library version (:func:`ctxmatch_lib.plots.base.provenance`), never the clock, and running
+times go to the untracked ``executed/`` folder.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import threading
 import time
 from pathlib import Path
+
+#: Arguments of the kernels: their log (the "running over TCP without encryption" warning at start, the
+#: "KeyboardInterrupt caught in kernel" that a shut-down can provoke) is not the user's business; a cell's
+#: error still reaches papermill, which raises it, and the executed notebook keeps it.
+KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL"]
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("figures", help="regenerate the paper's figures and tables by running the notebooks",
                        description="Execute notebooks/*.ipynb with papermill; figures (PNG + PDF) and tables go to "
                                    "figures/ of the checkout, replacing the committed ones, the executed notebooks "
-                                   "to figures/executed/.")
+                                   "and the running times to figures/executed/ (untracked). A rerun that computes "
+                                   "the same numbers writes the same bytes.")
     p.add_argument("--params", choices=["default", "paper"], default="default",
                    help="default: the embedded offline dataset (minutes); paper: notebooks/params/<stem>.yaml, "
                         "real data under CTXMATCH_DATA")
     p.add_argument("--only", default="", help="comma-separated notebook stems (default: all)")
     p.add_argument("--output", type=Path, default=None, help="figure folder (default: figures/ of the checkout)")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a notebook parameter (VALUE is read as YAML: 2, [a, b], null), after --params; "
+                        "repeatable, given to every notebook run that has the parameter")
+    p.add_argument("--no-progress", action="store_true", help="no status line, only one line per notebook")
     p.set_defaults(func=run)
+
+
+def _parse_params(items) -> dict:
+    import yaml
+
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip().isidentifier():
+            raise ValueError(f"--param must be KEY=VALUE with KEY a parameter name, got {item!r}")
+        out[key.strip()] = yaml.safe_load(value) if value.strip() else ""
+    return out
+
+
+def _fmt(seconds: float) -> str:
+    seconds = max(0, int(round(seconds)))
+    return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
+
+
+class _Status:
+    """One status line, refreshed every second (every 15 s when stderr is not a terminal): the notebook in
+    progress, its running time and the estimated time left."""
+
+    def __init__(self, stems, expected: dict, enabled: bool):
+        self.stems, self.expected, self.done = list(stems), dict(expected), {}
+        self.current, self.t0, self.start = None, 0.0, time.perf_counter()
+        self.tty = sys.stderr.isatty()
+        self.enabled = enabled
+        self._stop = threading.Event()
+        self._thread = None
+        self._width = 0
+
+    def _left(self, now: float) -> float | None:
+        todo = [s for s in self.stems if s not in self.done]
+        if not todo:
+            return 0.0
+        mean = sum(self.done.values()) / len(self.done) if self.done else None
+        est = {s: self.expected.get(s, mean) for s in todo}
+        if any(v is None for v in est.values()):
+            return None
+        running = now - self.t0 if self.current else 0.0
+        return sum(est.values()) - (min(running, est[self.current]) if self.current in est else 0.0)
+
+    def line(self) -> str:
+        now = time.perf_counter()
+        k = len(self.done) + (1 if self.current else 0)
+        left = self._left(now)
+        parts = [f"[{k}/{len(self.stems)}] {self.current or ''}"]
+        if self.current:
+            parts.append(f"{_fmt(now - self.t0)}" + (f" (last run {_fmt(self.expected[self.current])})"
+                                                      if self.current in self.expected else ""))
+        parts.append(f"total {_fmt(now - self.start)}" + (f", about {_fmt(left)} left" if left is not None else ""))
+        return " | ".join(parts)
+
+    def _show(self) -> None:
+        text = self.line()
+        if self.tty:
+            pad = max(0, self._width - len(text))
+            sys.stderr.write("\r" + text + " " * pad)
+            self._width = len(text)
+        else:
+            sys.stderr.write(text + "\n")
+        sys.stderr.flush()
+
+    def _loop(self) -> None:
+        period = 1.0 if self.tty else 15.0
+        while not self._stop.wait(period):
+            self._show()
+
+    def begin(self, stem: str) -> None:
+        self.current, self.t0 = stem, time.perf_counter()
+        if self.enabled:
+            self._show()
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, daemon=True)
+                self._thread.start()
+
+    def end(self, stem: str, message: str) -> float:
+        took = time.perf_counter() - self.t0
+        self.done[stem], self.current = took, None
+        if self.enabled and self.tty:
+            sys.stderr.write("\r" + " " * self._width + "\r")
+            self._width = 0
+        print(message.format(took=took), flush=True)
+        return took
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
 
 
 def run(args: argparse.Namespace) -> int:
     import papermill as pm
     import yaml
-    from tqdm.auto import tqdm
 
     from .._paths import repo_root
 
     root = repo_root()
     if root is None or not (root / "notebooks").is_dir():
         print("ctxmatch figures needs the repository checkout (notebooks/ not found)", file=sys.stderr)
+        return 2
+    try:
+        overrides = _parse_params(args.param)
+    except ValueError as exc:
+        print(f"ctxmatch figures: {exc}", file=sys.stderr)
         return 2
     nb_dir = root / "notebooks"
     out_dir = (args.output or root / "figures").resolve()
@@ -43,26 +159,44 @@ def run(args: argparse.Namespace) -> int:
             print(f"unknown notebook(s): {', '.join(unknown)}; known: {', '.join(stems)}", file=sys.stderr)
             return 2
         stems = [s for s in stems if s in wanted]
+    durations_file = out_dir / "executed" / "durations.json"
+    try:
+        durations = json.loads(durations_file.read_text())
+        expected = {s: float(durations[args.params][s]) for s in stems if s in durations.get(args.params, {})}
+    except (OSError, ValueError, TypeError, AttributeError):
+        durations, expected = {}, {}
+    status = _Status(stems, expected, enabled=not args.no_progress)
     failed = []
-    start = time.perf_counter()
-    for stem in tqdm(stems, desc="notebooks", unit="nb"):
-        params = {"output_dir": str(out_dir)}
-        if args.params == "paper":
-            yml = nb_dir / "params" / f"{stem}.yaml"
-            if yml.exists():
-                params.update(yaml.safe_load(yml.read_text()) or {})
-        t0 = time.perf_counter()
-        try:
-            pm.execute_notebook(str(nb_dir / f"{stem}.ipynb"), str(out_dir / "executed" / f"{stem}.ipynb"),
-                                parameters=params, cwd=str(nb_dir), progress_bar=False, kernel_name="python3")
-        except Exception as exc:  # keep going: one broken notebook should not hide the others
-            failed.append(stem)
-            tqdm.write(f"{stem}: FAILED ({type(exc).__name__}: {str(exc).splitlines()[0][:200]})")
-        else:
-            tqdm.write(f"{stem}: ok in {time.perf_counter() - t0:.1f} s")
-    print(f"{len(stems) - len(failed)} of {len(stems)} notebooks ran in {time.perf_counter() - start:.0f} s; "
-          f"figures and tables in {out_dir}")
+    try:
+        for stem in stems:
+            src = nb_dir / f"{stem}.ipynb"
+            params = {"output_dir": str(out_dir)}
+            if args.params == "paper":
+                yml = nb_dir / "params" / f"{stem}.yaml"
+                if yml.exists():
+                    params.update(yaml.safe_load(yml.read_text()) or {})
+            if overrides:
+                known = pm.inspect_notebook(str(src))
+                params.update({k: v for k, v in overrides.items() if k in known})
+            status.begin(stem)
+            try:
+                pm.execute_notebook(str(src), str(out_dir / "executed" / f"{stem}.ipynb"), parameters=params,
+                                    cwd=str(nb_dir), progress_bar=False, kernel_name="python3",
+                                    extra_arguments=KERNEL_ARGUMENTS)
+            except Exception as exc:  # keep going: one broken notebook should not hide the others
+                failed.append(stem)
+                first = (str(exc).strip().splitlines() or [""])[-1][:200]
+                status.end(stem, f"{stem}: FAILED after {{took:.1f}} s ({type(exc).__name__}: {first})")
+            else:
+                took = status.end(stem, f"{stem}: ok in {{took:.1f}} s")
+                durations.setdefault(args.params, {})[stem] = round(took, 1)
+    finally:
+        status.close()
+    durations_file.write_text(json.dumps(durations, indent=1, sort_keys=True) + "\n")
+    total = time.perf_counter() - status.start
+    print(f"{len(stems) - len(failed)} of {len(stems)} notebooks ran in {_fmt(total)}; figures and tables in "
+          f"{out_dir}, executed notebooks and running times in {out_dir / 'executed'}")
     if failed:
-        print(f"{len(failed)} notebook(s) failed: {', '.join(failed)}; see figures/executed/", file=sys.stderr)
+        print(f"{len(failed)} notebook(s) failed: {', '.join(failed)}; see {out_dir / 'executed'}", file=sys.stderr)
         return 1
     return 0

@@ -4,15 +4,17 @@ figure) and never call ``plt.show``; :func:`save_figure` shows the figure once i
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
+import subprocess
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .._paths import atomic_path, build_info, repo_root
+from .._paths import atomic_path, repo_root
 
 __all__ = [
     "COLUMN_WIDTHS",
@@ -22,6 +24,8 @@ __all__ = [
     "figsize",
     "min_font_size",
     "check_paper_figure",
+    "SOURCE_PATHS",
+    "source_commit",
     "provenance",
     "default_figure_dir",
     "figure_path",
@@ -111,18 +115,48 @@ def check_paper_figure(fig, columns: int) -> None:
         raise ValueError(f"texts under {MIN_FONT_PT:g} pt at the printed size: {small[:5]}")
 
 
+#: The paths whose content makes the figures: a commit that changes none of them (one that only commits
+#: regenerated figures, or edits the README) leaves the provenance, and so the figure files, unchanged.
+SOURCE_PATHS = ("ctxmatch_lib", "notebooks", "pyproject.toml", "environment.txt")
+
+
+@functools.lru_cache(maxsize=1)
+def source_commit() -> str:
+    """The last commit that changed the figures' sources (:data:`SOURCE_PATHS`), 12 hex digits, with
+    ``-dirty`` when tracked files among them differ from it; ``""`` outside a git checkout.
+
+    Not ``HEAD``: committing the regenerated figures makes a new ``HEAD``, and a provenance that named it would
+    change every figure file on the next run although no number changed.
+    """
+    root = repo_root()
+    if root is None or not (root / ".git").exists():
+        return ""
+    run = functools.partial(subprocess.run, cwd=root, capture_output=True, text=True, timeout=10)
+    try:
+        head = run(["git", "log", "-1", "--format=%H", "--", *SOURCE_PATHS]).stdout.strip()[:12]
+        dirty = run(["git", "status", "--porcelain", "--untracked-files=no", "--", *SOURCE_PATHS]).stdout
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return f"{head}-dirty" if head and dirty.strip() else head
+
+
 def provenance(**fields) -> dict:
-    """What produced a figure or table: library version, git commit, date (:func:`ctxmatch_lib._paths.build_info`)
-    plus ``fields`` (dataset, feature preset, blob setup, ...; lists are joined with ", ").
+    """What produced a figure or table, from its source and never from the clock: ``version`` (of
+    ``ctxmatch_lib``), ``git_commit`` (:func:`source_commit`, the last commit that changed the sources) plus
+    ``fields`` (dataset, feature preset, blob setup, ...; lists are joined with ", ").
+
+    A rerun that computes the same numbers therefore writes the same record (no date, no running time).
 
     Examples
     --------
     >>> sorted(provenance(dataset="embedded", blob=["paper-best", "baseline"]))
-    ['blob', 'dataset', 'date', 'git_commit', 'version']
+    ['blob', 'dataset', 'git_commit', 'version']
     >>> provenance(blob=["paper-best", "baseline"])["blob"]
     'paper-best, baseline'
     """
-    out = dict(build_info())
+    from .. import __version__
+
+    out = {"version": __version__, "git_commit": source_commit()}
     for key, value in fields.items():
         if isinstance(value, (list, tuple)):
             value = ", ".join(map(str, value))
@@ -277,7 +311,9 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
         if fmt == "png":
             meta = {"Title": path.stem, "Software": creator, "ctxmatch:provenance": text}
         elif fmt == "pdf":
-            meta = {"Title": path.stem, "Creator": creator, "Subject": text, "Keywords": "ctxmatch provenance"}
+            # No CreationDate: matplotlib would write the clock (and honours SOURCE_DATE_EPOCH only).
+            meta = {"Title": path.stem, "Creator": creator, "Subject": text, "Keywords": "ctxmatch provenance",
+                    "CreationDate": None}
         else:
             meta = None
         with atomic_path(path) as tmp:
