@@ -145,3 +145,112 @@ def test_read_pairs_and_match_pairs_name_their_arguments(images, tmp_path):
     (tmp_path / "out" / "a.png__b.png.npz").mkdir(parents=True)
     with pytest.raises(ValueError, match="out_dir: .*a.png__b.png.npz is a folder"):
         match_pairs([("a.png", "b.png")], images, tmp_path / "out", progress=False)
+
+
+# ------------------------------------------------------------- degenerate ground truth (cases 6 and 7)
+def _custom_folder(tmp_path, gt_text, *, kind="planar", f_text=None):
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(tmp_path / "a.png"), np.random.default_rng(0).integers(0, 255, (48, 64), np.uint8))
+    (tmp_path / "gt.txt").write_text(gt_text)
+    header, f_col = "pair_id,image1,image2,kind,gt", ""
+    if f_text is not None:
+        (tmp_path / "F.txt").write_text(f_text)
+        header, f_col = header + ",F", ",F.txt"
+    (tmp_path / "pairs.csv").write_text(f"{header}\nmine,a.png,a.png,{kind},gt.txt{f_col}\n")
+    return tmp_path
+
+
+@pytest.mark.parametrize("h_text, reason", [
+    ("0 0 0\n0 0 0\n0 0 0\n", "all zeros"),                                 # case 6
+    ("1 2 3\n2 4 6\n3 6 9\n", "rank 1"),                                    # case 7
+    ("1 0 5\n0 1 7\n0 0 0\n", "rank 2"),
+    ("1 0 nan\n0 1 0\n0 0 1\n", "NaN or infinite"),
+    ("1 0 inf\n0 1 0\n0 0 1\n", "NaN or infinite"),
+])
+def test_custom_degenerate_homography_fails_naming_file_and_pair(tmp_path, h_text, reason):
+    from ctxmatch_lib.datasets import load_dataset
+
+    folder = _custom_folder(tmp_path, h_text)
+    with pytest.raises(ValueError, match=reason) as info:
+        load_dataset(folder)
+    assert "gt.txt" in str(info.value) and "'mine'" in str(info.value)
+
+
+def test_degenerate_homography_fails_the_eval_command_before_any_work(tmp_path, capsys):
+    # The corpus ran `ctxmatch eval --dataset DIR`: rc 0 and a "failed" pair. Now an error naming the file.
+    from ctxmatch_lib.cli import main
+
+    folder = _custom_folder(tmp_path, "0 0 0\n0 0 0\n0 0 0\n")
+    rc = main(["eval", "--dataset", str(folder), "--out", str(tmp_path / "r.parquet")])
+    err = capsys.readouterr().err
+    assert rc != 0 and "gt.txt" in err and "all zeros" in err and "Traceback" not in err
+    assert not (tmp_path / "r.parquet").exists()
+
+
+@pytest.mark.parametrize("f_text, reason", [
+    ("0 0 0\n0 0 0\n0 0 0\n", "all zeros"),
+    ("1 2 3\n2 4 6\n3 6 9\n", "rank 1"),
+    ("0 0 0\n0 0 -1\n0 inf 0\n", "NaN or infinite"),
+])
+def test_custom_degenerate_fundamental_file_fails_naming_it(tmp_path, f_text, reason):
+    import numpy as np
+
+    from ctxmatch_lib.datasets import load_dataset
+
+    pts = np.random.default_rng(1).uniform(0, 60, (8, 4))
+    folder = _custom_folder(tmp_path, "\n".join(" ".join(map(str, r)) for r in pts), kind="nonplanar",
+                            f_text=f_text)
+    with pytest.raises(ValueError, match=reason) as info:
+        load_dataset(folder)
+    assert "F.txt" in str(info.value) and "'mine'" in str(info.value)
+
+
+def test_custom_coincident_hand_points_fail_naming_the_file(tmp_path):
+    from ctxmatch_lib.datasets import load_dataset
+
+    folder = _custom_folder(tmp_path, "5 5 6 6\n" * 8, kind="nonplanar")
+    with pytest.raises(ValueError, match="gt.txt: cannot fit F.*degenerate") as info:
+        load_dataset(folder)
+    assert "'mine'" in str(info.value)
+
+
+def test_custom_flow_without_any_known_pixel_fails(tmp_path):
+    import numpy as np
+
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.datasets.custom import read_flow
+
+    folder = _custom_folder(tmp_path, "")
+    np.savez(folder / "flow.npz", flow12=np.full((48, 64, 2), np.nan))
+    (folder / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\nmine,a.png,a.png,depth,flow.npz\n")
+    with pytest.raises(ValueError, match="flow.npz.*no known pixel"):
+        load_dataset(folder)
+    np.savez(folder / "inf.npz", flow12=np.full((48, 64, 2), np.inf))
+    with pytest.raises(ValueError, match="inf.npz.*infinite"):
+        read_flow(folder / "inf.npz")
+
+
+@pytest.mark.parametrize("make", [
+    lambda np, gt: gt.HomographyGT(np.zeros((3, 3))),
+    lambda np, gt: gt.HomographyGT(np.outer([1, 2, 3], [1, 1, 1.0])),
+    lambda np, gt: gt.HomographyGT(np.eye(3), np.zeros((2, 2))),                    # pts2 missing
+    lambda np, gt: gt.EpipolarGT(np.zeros((3, 3)), np.zeros((1, 2)), np.zeros((1, 2))),
+    lambda np, gt: gt.EpipolarGT(np.outer([1, 2, 3], [1, 0, 0.0]), np.zeros((1, 2)), np.zeros((1, 2))),
+    lambda np, gt: gt.EpipolarGT(np.diag([1.0, 1, 0]), np.zeros((2, 2)), np.zeros((3, 2))),
+    lambda np, gt: gt.FlowGT(np.full((4, 4, 2), np.nan)),
+    lambda np, gt: gt.FlowGT(np.zeros((4, 4))),
+], ids=["H-zeros", "H-rank1", "H-half-points", "F-zeros", "F-rank1", "F-points-length", "flow-all-nan",
+        "flow-shape"])
+def test_ground_truth_objects_refuse_degenerate_input(make):
+    # Whatever builds them (a loader, user code), a ground truth that cannot label anything is an error.
+    import numpy as np
+
+    from ctxmatch_lib.datasets import base as gt
+
+    with pytest.raises(ValueError):
+        make(np, gt)
+    # The valid ones still build.
+    gt.HomographyGT(np.eye(3)), gt.EpipolarGT(np.diag([1.0, 1, 0]), np.zeros((2, 2)), np.zeros((2, 2)))
+    gt.FlowGT(np.zeros((4, 4, 2)))

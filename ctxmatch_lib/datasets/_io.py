@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_matrix", "read_vpts", "image_size", "fundamental_from_hand_points", "find_image"]
+__all__ = ["read_matrix", "read_vpts", "image_size", "fundamental_from_hand_points", "find_image",
+           "homography_gt", "epipolar_gt", "fitted_epipolar_gt", "flow_gt"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 
@@ -28,6 +29,67 @@ def read_matrix(path, shape=(3, 3), *, what: str = "matrix") -> np.ndarray:
     if not np.isfinite(arr).all():
         raise ValueError(f"{what} file {path} contains NaN or infinite values")
     return arr
+
+
+def homography_gt(H, source, pts1=None, pts2=None):
+    """A :class:`~.base.HomographyGT` scaled to ``H[2, 2] = 1``, or a ValueError naming ``source``.
+
+    Parameters
+    ----------
+    H : ndarray of shape (3, 3)
+        Image 1 → image 2; must be finite and invertible (all zeros or rank 1-2 is an error, not a pair
+        whose every match is then labelled wrong).
+    source : str or Path
+        The file (and pair) it came from, first in every message.
+    pts1, pts2 : ndarray of shape (N, 2), optional
+        Hand-taken points, finite.
+    """
+    from .base import HomographyGT, _check_matrix
+
+    try:
+        _check_matrix(H, "H", "homography", min_rank=3)
+        H = np.asarray(H, np.float64)
+        return HomographyGT(H / H[2, 2] if H[2, 2] != 0 else H / np.linalg.norm(H), pts1, pts2)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def epipolar_gt(F, source, pts1, pts2):
+    """An :class:`~.base.EpipolarGT` scaled to unit Frobenius norm, or a ValueError naming ``source``.
+
+    ``F`` must be finite and of rank 2 (all zeros or rank 1 is an error); ``pts1``, ``pts2`` (N, 2) finite.
+    """
+    from .base import EpipolarGT, _check_matrix
+
+    try:
+        _check_matrix(F, "F", "fundamental matrix", min_rank=2)
+        F = np.asarray(F, np.float64)
+        return EpipolarGT(F / np.linalg.norm(F), np.asarray(pts1, np.float64).copy(),
+                          np.asarray(pts2, np.float64).copy())
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+
+
+def fitted_epipolar_gt(pts1, pts2, source):
+    """An :class:`~.base.EpipolarGT` with F fitted to hand points (:func:`fundamental_from_hand_points`),
+    or a ValueError naming ``source`` when the points are degenerate (coincident, collinear, too few)."""
+    why = "degenerate hand points (coincident or collinear?)"
+    try:
+        with np.errstate(all="ignore"):
+            F = fundamental_from_hand_points(pts1, pts2)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise ValueError(f"{source}: cannot fit F to its hand points, {why}: {exc}") from None
+    return epipolar_gt(F, f"{source} (F fitted to its hand points: {why})", pts1, pts2)
+
+
+def flow_gt(flow12, flow21, source):
+    """A :class:`~.base.FlowGT`, or a ValueError naming ``source`` (wrong shape, infinities, nothing known)."""
+    from .base import FlowGT
+
+    try:
+        return FlowGT(flow12, flow21)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
 
 
 def read_vpts(path):
@@ -55,8 +117,11 @@ def read_vpts(path):
         raise ValueError(f"cannot read hand-taken points from {path}: {exc}") from None
     if pts.ndim != 2 or pts.shape[0] != 6:
         raise ValueError(f"{path}: validation.pts must be 6xN, got {pts.shape}")
-    ptsA = (pts[0:2] / pts[2]).T
-    ptsB = (pts[3:5] / pts[5]).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ptsA = (pts[0:2] / pts[2]).T
+        ptsB = (pts[3:5] / pts[5]).T
+    if not (np.isfinite(ptsA).all() and np.isfinite(ptsB).all()):
+        raise ValueError(f"{path}: validation.pts has points at infinity or NaN (homogeneous w = 0?)")
     model = getattr(val, "model", None)
     if model is not None:
         model = np.asarray(model, dtype=np.float64)

@@ -17,6 +17,43 @@ __all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "GroundTruth", "Pair", "PairK
 PairKind = Literal["planar", "nonplanar", "depth"]
 PAIR_KINDS = ("planar", "nonplanar", "depth")
 
+# Relative size of the smallest singular value below which a 3x3 ground-truth matrix counts as losing a
+# rank: far beneath the conditioning of any real homography (about 1e-5 for a 1000 px translation) and far
+# above the rounding of a matrix that is exactly singular.
+_RANK_TOL = 1e-12
+
+
+def _matrix_rank(M: np.ndarray) -> int:
+    s = np.linalg.svd(M, compute_uv=False)
+    return int(np.sum(s > _RANK_TOL * s[0])) if s[0] > 0 else 0
+
+
+def _check_matrix(M, name: str, what: str, *, min_rank: int) -> None:
+    """A finite 3x3 ground-truth matrix of at least ``min_rank``, else a ValueError naming it."""
+    M = np.asarray(M)
+    if M.shape != (3, 3):
+        raise ValueError(f"{what} {name} must be a 3x3 matrix, got shape {M.shape}")
+    if not np.issubdtype(M.dtype, np.number) or not np.isfinite(M).all():
+        raise ValueError(f"{what} {name} must hold finite numbers, got {M.tolist()}")
+    rank = _matrix_rank(M.astype(np.float64))
+    if rank == 0:
+        raise ValueError(f"{what} {name} is all zeros: no ground truth")
+    if rank < min_rank:
+        raise ValueError(f"{what} {name} has rank {rank}, it must have rank {min_rank}"
+                         f"{' (invertible)' if min_rank == 3 else ''}: degenerate ground truth")
+
+
+def _check_points(pts, name: str, n: int | None = None) -> None:
+    if pts is None:
+        return
+    pts = np.asarray(pts)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2), got {pts.shape}")
+    if n is not None and len(pts) != n:
+        raise ValueError(f"pts1 and pts2 must have the same length, got {n} and {len(pts)}")
+    if not np.isfinite(pts).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+
 
 @dataclass(frozen=True, eq=False)
 class HomographyGT:
@@ -29,6 +66,15 @@ class HomographyGT:
     H: np.ndarray
     pts1: np.ndarray | None = None
     pts2: np.ndarray | None = None
+
+    def __post_init__(self):
+        # A zero or rank-deficient H maps the image to a point or a line: every match would be labelled
+        # wrong and the pair silently counted as a failure. Loaders prefix the file the matrix came from.
+        _check_matrix(self.H, "H", "homography", min_rank=3)
+        if (self.pts1 is None) != (self.pts2 is None):
+            raise ValueError("pts1 and pts2 must both be given or both be None")
+        _check_points(self.pts1, "pts1")
+        _check_points(self.pts2, "pts2", None if self.pts1 is None else len(self.pts1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +90,12 @@ class EpipolarGT:
     pts1: np.ndarray
     pts2: np.ndarray
 
+    def __post_init__(self):
+        # Rank 2 is what a fundamental matrix has; rank 1 or 0 gives no usable epipolar lines.
+        _check_matrix(self.F, "F", "fundamental matrix", min_rank=2)
+        _check_points(self.pts1, "pts1")
+        _check_points(self.pts2, "pts2", len(np.asarray(self.pts1)))
+
 
 @dataclass(frozen=True, eq=False)
 class FlowGT:
@@ -56,6 +108,18 @@ class FlowGT:
 
     flow12: np.ndarray
     flow21: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name, flow in (("flow12", self.flow12), ("flow21", self.flow21)):
+            if flow is None:
+                continue
+            flow = np.asarray(flow)
+            if flow.ndim != 3 or flow.shape[2] != 2:
+                raise ValueError(f"{name} must have shape (H, W, 2), got {flow.shape}")
+            if np.isinf(flow).any():
+                raise ValueError(f"{name} contains infinite values (NaN marks unknown or occluded pixels)")
+        if self.flow12.size == 0 or np.isnan(self.flow12).all():
+            raise ValueError("flow12 has no known pixel (all NaN or empty): no ground truth")
 
 
 GroundTruth = Union[HomographyGT, EpipolarGT, FlowGT]

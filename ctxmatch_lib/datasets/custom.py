@@ -31,7 +31,7 @@ import numpy as np
 
 from .._paths import atomic_path
 
-from ._io import fundamental_from_hand_points, image_size, read_matrix
+from ._io import epipolar_gt, fitted_epipolar_gt, flow_gt, homography_gt, image_size, read_matrix
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair
 
 __all__ = ["read_custom_dataset", "write_custom_dataset", "read_flow", "write_flow", "REQUIRED_COLUMNS"]
@@ -50,10 +50,7 @@ def read_flow(path) -> FlowGT:
             flow21 = np.asarray(z["flow21"], np.float64) if "flow21" in z.files else None
     except Exception as exc:
         raise ValueError(f"cannot read dense ground truth (flow12[, flow21]) from {path}: {exc}") from None
-    for name, flow in (("flow12", flow12), ("flow21", flow21)):
-        if flow is not None and (flow.ndim != 3 or flow.shape[2] != 2):
-            raise ValueError(f"{path}: {name} must have shape (H, W, 2), got {flow.shape}")
-    return FlowGT(flow12, flow21)
+    return flow_gt(flow12, flow21, path)
 
 
 def write_flow(path, gt: FlowGT) -> None:
@@ -75,29 +72,36 @@ def _read_points(path) -> np.ndarray:
 
 
 def _gt_for(folder: Path, row: dict, csv_path: Path, line: int):
+    try:
+        return _read_gt(folder, row, csv_path, line)
+    except ValueError as exc:
+        # Name the pair too: the message already names the file.
+        pair_id = (row.get("pair_id") or "").strip()
+        raise ValueError(f"{csv_path}, line {line}, pair {pair_id!r}: {exc}") from None
+
+
+def _read_gt(folder: Path, row: dict, csv_path: Path, line: int):
     kind = row["kind"].strip().lower()
     if kind not in PAIR_KINDS:
-        raise ValueError(f"{csv_path}, line {line}: kind must be one of {PAIR_KINDS}, got {row['kind']!r}")
+        raise ValueError(f"kind must be one of {PAIR_KINDS}, got {row['kind']!r}")
     gt_name = (row.get("gt") or "").strip()
     if not gt_name:
-        raise ValueError(f"{csv_path}, line {line}: the gt column is empty")
+        raise ValueError("the gt column is empty")
     gt_path = folder / gt_name
     if gt_path.suffix.lower() == ".npz":
         return kind, read_flow(gt_path)
     if kind == "planar":
-        H = read_matrix(gt_path, what="homography")
-        return kind, HomographyGT(H / H[2, 2] if H[2, 2] != 0 else H)
+        return kind, homography_gt(read_matrix(gt_path, what="homography"), gt_path)
     if kind == "nonplanar":
         pts = _read_points(gt_path)
         f_name = (row.get("F") or "").strip()
         if f_name:
             F = read_matrix(folder / f_name, what="fundamental matrix")
-        else:
-            if len(pts) < 7:
-                raise ValueError(f"{gt_path}: fitting F needs at least 7 correspondences, got {len(pts)}")
-            F = fundamental_from_hand_points(pts[:, :2], pts[:, 2:])
-        return kind, EpipolarGT(F / np.linalg.norm(F), pts[:, :2].copy(), pts[:, 2:].copy())
-    raise ValueError(f"{csv_path}, line {line}: kind 'depth' needs a dense .npz ground truth, got {gt_name!r}")
+            return kind, epipolar_gt(F, folder / f_name, pts[:, :2], pts[:, 2:])
+        if len(pts) < 7:
+            raise ValueError(f"{gt_path}: fitting F needs at least 7 correspondences, got {len(pts)}")
+        return kind, fitted_epipolar_gt(pts[:, :2], pts[:, 2:], gt_path)
+    raise ValueError(f"kind 'depth' needs a dense .npz ground truth, got {gt_name!r}")
 
 
 def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:

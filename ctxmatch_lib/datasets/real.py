@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .._paths import data_root
-from ._io import fundamental_from_hand_points, image_size, read_matrix, read_vpts
-from .base import EpipolarGT, HomographyGT, Pair
+from ._io import epipolar_gt, fitted_epipolar_gt, homography_gt, image_size, read_matrix, read_vpts
+from .base import Pair, _check_matrix
 
 __all__ = ["load_hpatches", "load_oxford", "load_homogr", "load_kusvod2", "REAL_LOADERS"]
 
@@ -68,7 +68,8 @@ def _sequence_pairs(seq: Path, images: dict[str, Path], gt_name, dataset: str) -
         H = read_matrix(seq / gt_name(k), what="homography")
         pairs.append(Pair(
             pair_id=f"{dataset}/{seq.name}/1-{k}", image1=ref, image2=images[k], image_size1=size1,
-            image_size2=image_size(images[k]), kind="planar", gt=HomographyGT(H / H[2, 2]), dataset=dataset,
+            image_size2=image_size(images[k]), kind="planar", gt=homography_gt(H, seq / gt_name(k)),
+            dataset=dataset,
         ))
     return pairs
 
@@ -124,12 +125,12 @@ def _ab_pairs(folder: Path):
 
 
 def _model_file(folder: Path, name: str, mat_model):
-    """The 3x3 model from ``<name>_model.txt`` or the .mat, ``None`` when absent or all zeros."""
+    """The 3x3 model from ``<name>_model.txt`` or the .mat, ``None`` when absent or all zeros, and its file."""
     txt = folder / f"{name}_model.txt"
     if txt.is_file():
         M = read_matrix(txt, what="model")
-        return M if np.any(M) else None
-    return mat_model
+        return (M if np.any(M) else None), txt
+    return mat_model, folder / f"{name}_vpts.mat"
 
 
 def load_homogr(root=None) -> list[Pair]:
@@ -145,16 +146,23 @@ def load_homogr(root=None) -> list[Pair]:
     pairs = []
     for name, a, b, vpts in _ab_pairs(folder):
         ptsA, ptsB, mat_model = read_vpts(vpts)
-        model = _model_file(folder, name, mat_model)
+        model, source = _model_file(folder, name, mat_model)
         if model is not None:
+            try:  # inverted below: a singular model must fail here, naming its file
+                _check_matrix(model, "model", "homography", min_rank=3)
+            except ValueError as exc:
+                raise ValueError(f"{source}: {exc}") from None
             H = np.linalg.inv(model)
         else:
             if len(ptsA) < 4:
                 raise ValueError(f"{vpts}: no model and fewer than 4 hand points to fit a homography")
             H, _ = cv2.findHomography(ptsA, ptsB, 0)
+            source = f"{vpts} (H fitted to its hand points)"
+            if H is None:
+                raise ValueError(f"{source}: the hand points are degenerate (collinear or coincident)")
         pairs.append(Pair(
             pair_id=f"homogr/{name}", image1=a, image2=b, image_size1=image_size(a), image_size2=image_size(b),
-            kind="planar", gt=HomographyGT(H / H[2, 2], ptsA, ptsB), dataset="homogr",
+            kind="planar", gt=homography_gt(H, source, ptsA, ptsB), dataset="homogr",
         ))
     return pairs
 
@@ -170,11 +178,11 @@ def load_kusvod2(root=None) -> list[Pair]:
     pairs = []
     for name, a, b, vpts in _ab_pairs(folder):
         ptsA, ptsB, mat_model = read_vpts(vpts)
-        model = _model_file(folder, name, mat_model)
-        F = model.T if model is not None else fundamental_from_hand_points(ptsA, ptsB)
+        model, source = _model_file(folder, name, mat_model)
+        gt = epipolar_gt(model.T, source, ptsA, ptsB) if model is not None else fitted_epipolar_gt(ptsA, ptsB, vpts)
         pairs.append(Pair(
             pair_id=f"kusvod2/{name}", image1=a, image2=b, image_size1=image_size(a), image_size2=image_size(b),
-            kind="nonplanar", gt=EpipolarGT(F / np.linalg.norm(F), ptsA, ptsB), dataset="kusvod2",
+            kind="nonplanar", gt=gt, dataset="kusvod2",
         ))
     return pairs
 
