@@ -254,3 +254,86 @@ def test_ground_truth_objects_refuse_degenerate_input(make):
     # The valid ones still build.
     gt.HomographyGT(np.eye(3)), gt.EpipolarGT(np.diag([1.0, 1, 0]), np.zeros((2, 2)), np.zeros((2, 2)))
     gt.FlowGT(np.zeros((4, 4, 2)))
+
+
+# ----------------------------------------------------------------------------------- ctxmatch train
+def _fake_training(monkeypatch):
+    """Replace the training by a recorder: the CLI's own checks and paths are what is tested here."""
+    import types
+
+    import ctxmatch_lib.filters.learned as learned
+
+    calls = []
+
+    def fake(arch, **kwargs):
+        calls.append(kwargs)
+        return types.SimpleNamespace(losses=[0.5], seconds=0.0, path=kwargs["output"],
+                                     validation={"inlier_ratio": 0.4, "precision": 1.0, "recall": 1.0})
+
+    monkeypatch.setattr(learned, "train_learned_filter", fake)
+    monkeypatch.setattr(learned, "torch_available", lambda: True)
+    return calls
+
+
+def test_train_default_output_is_the_cache_not_the_shipped_weights(tmp_path, monkeypatch, capsys):
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.filters.learned import shipped_weights
+
+    calls = _fake_training(monkeypatch)
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    assert main(["train", "oanet", "--no-progress"]) == 0
+    assert main(["train", "acne", "--seed", "3", "--steps", "10", "--no-progress"]) == 0
+    outputs = [c["output"] for c in calls]
+    assert outputs == [tmp_path / "cache" / "weights" / "oanet_trained_here_seed0.npz",
+                       tmp_path / "cache" / "weights" / "acne_trained_here_seed3_steps10.npz"]
+    assert all(o != shipped_weights(a) for o, a in zip(outputs, ("oanet", "acne")))
+    out = capsys.readouterr().out
+    assert "weights=" in out and str(outputs[1]) in out
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--steps", "0"], "--steps"), (["--batch-size", "0"], "--batch-size"), (["--k-min", "0"], "--k-min"),
+    (["--k-min", "900", "--k-max", "800"], "--k-min must be <= --k-max"), (["--lr", "0"], "--lr"),
+    (["--lr", "nan"], "--lr"), (["--threads", "0"], "--threads"), (["--max-images", "0"], "--max-images"),
+    (["--output", "file/w.npz"], "--output"), (["--output", "."], "--output"),
+])
+def test_train_bad_flags_fail_before_training(tmp_path, monkeypatch, capsys, flags, named):
+    from ctxmatch_lib.cli import main
+
+    calls = _fake_training(monkeypatch)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file").write_text("a regular file")
+    assert main(["train", "acne", *flags]) == 2
+    assert calls == [] and named in capsys.readouterr().err
+
+
+def test_train_without_torch_says_what_to_install(monkeypatch, capsys, tmp_path):
+    import ctxmatch_lib.filters.learned as learned
+    from ctxmatch_lib.cli import main
+
+    _fake_training(monkeypatch)
+    monkeypatch.setattr(learned, "torch_available", lambda: False)
+    assert main(["train", "acne", "--output", str(tmp_path / "w.npz")]) == 2
+    assert "pip install" in capsys.readouterr().err
+
+
+def test_train_tiny_run_writes_the_cache_and_loads_with_weights(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch", reason="training needs torch (pip install 'ctxmatch[torch]')")
+    import numpy as np
+
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.filters import FILTERS
+    from ctxmatch_lib.filters.learned import shipped_weights
+
+    shipped = shipped_weights("acne").read_bytes()
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    assert main(["train", "acne", "--steps", "2", "--batch-size", "1", "--k-min", "32", "--k-max", "32",
+                 "--max-images", "2", "--no-progress"]) == 0
+    path = tmp_path / "cache" / "weights" / "acne_trained_here_seed0_steps2.npz"
+    assert path.is_file() and shipped_weights("acne").read_bytes() == shipped
+    rng = np.random.default_rng(0)
+    k = rng.uniform(0, 60, (40, 2))
+    m = np.c_[np.arange(40), np.arange(40)]
+    keep = FILTERS["acne"](k, k + 1, m, np.linspace(0, 1, 40), image_size1=(64, 64), image_size2=(64, 64),
+                           weights=path)
+    assert keep.shape == (40,) and keep.dtype == bool
