@@ -27,7 +27,8 @@ def cache_dir(sub: str | None = None) -> Path:
 
     Never the checkout unless ``CTXMATCH_CACHE`` says so. ``sub`` names a sub-folder (created on demand):
     ``features`` (extracted keypoints and descriptors), ``sweep`` (the evaluation cache of ``ctxmatch
-    eval``, ``ctxmatch sweep`` and the report notebooks: result parts and intermediates).
+    eval``, ``ctxmatch sweep`` and the report notebooks: result parts and intermediates), ``weights`` (what
+    ``ctxmatch train`` writes without ``--output``).
     """
     env = os.environ.get("CTXMATCH_CACHE")
     if env:
