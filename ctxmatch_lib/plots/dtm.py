@@ -30,6 +30,7 @@ __all__ = [
     "plot_dtm_iteration_flow",
     "plot_dtm_clusters",
     "plot_dtm_final",
+    "plot_dtm_mesh",
 ]
 
 DTM_COLORS = {
@@ -229,6 +230,33 @@ def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1
         added = np.flatnonzero(result.readded_at > 0)
         plot_flow(ax, src[added], dst[added], color=match_colors(labels[added]), lw=lw * 1.2, ps=ps, zorder=3,
                   linestyle=(0, (2.5, 1.5)))
+
+
+def plot_dtm_mesh(ax, result, *, image: int = 1, color="white", lw: float = 0.35, alpha: float = 0.55,
+                  zorder: float = 1.5) -> int:
+    """The triangulation of DTM's output on image ``image``: the edges joining two keypoint vertices of the
+    last DTM1 iteration (the mesh over the DTM1 output ``M^ī``; edges to the boundary points ``B`` left out),
+    so that a match can be seen to sit inside the mesh or on its border (Sec. 4).
+
+    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
+
+    Returns
+    -------
+    int
+        The number of edges drawn.
+    """
+    if result.trace is None:
+        raise ValueError("result has no trace: compute it with dtm(..., trace=True)")
+    if not result.trace.iterations:
+        return 0
+    last = result.trace.iterations[-1]
+    tri = last.tri1 if image == 1 else last.tri2
+    edges = triangulation_edges(tri.simplices)
+    edges = edges[(edges < tri.n_vertices).all(axis=1)]
+    if len(edges):
+        ax.add_collection(LineCollection(np.asarray(tri.points, np.float64)[edges], colors=color, linewidths=lw,
+                                         alpha=alpha, zorder=zorder))
+    return len(edges)
 
 
 #: Legend entries of the Fig. 3 panels.
