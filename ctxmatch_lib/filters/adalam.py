@@ -183,30 +183,73 @@ def adalam_filter(
     keep = np.zeros(n, bool)
     if n < 3:
         return keep
-    x, y, s = ms.x, ms.y, ms.scores
     R1 = np.sqrt(ms.size1[0] * ms.size1[1] / (np.pi * area_ratio))
     R2 = np.sqrt(ms.size2[0] * ms.size2[1] / (np.pi * area_ratio))
 
     # 1. Seeds: best score within R1 in image 1. Ties are broken in a random (seeded) order: breaking
     # them by index would let one match suppress a whole chain of equal-scored matches on a regular layout.
     rank = np.empty(n, np.int64)
-    rank[np.lexsort((rng.permutation(n), s))] = np.arange(n)
-    tree1 = cKDTree(x)
+    rank[np.lexsort((rng.permutation(n), ms.scores))] = np.arange(n)
+    tree1 = cKDTree(ms.x)
+    seeds = _seeds(tree1, rank, ms.scores, R1, seed_threshold)
+    if len(seeds) == 0:
+        return keep
+
+    # 2. Neighbourhoods, with the orientation and scale agreement of the seed when shapes are known.
+    hood = _neighbourhoods(ms, tree1, seeds, rank, lam * R1, lam * R2, min_inliers, orientation_threshold,
+                           scale_rate_threshold)
+    if hood is None:
+        return keep
+    seeds, sid, mid, sizes, pos = hood
+    u = (ms.x[mid] - ms.x[seeds[sid]]) / (lam * R1)
+    v = (ms.y[mid] - ms.y[seeds[sid]]) / (lam * R2)
+
+    # 3. Local affine RANSACs, a block of seeds at a time to bound memory.
+    couples = _couples(iters)
+    m_max = max(int(sizes.max()), int(couples.max()) + 1)  # room for every couple index
+    U = np.zeros((len(seeds), m_max, 2))
+    V = np.zeros((len(seeds), m_max, 2))
+    U[sid, pos], V[sid, pos] = u, v
+    present = np.zeros((len(seeds), m_max), bool)
+    present[sid, pos] = True
+    accepted = np.zeros((len(seeds), m_max), bool)
+    block = max(1, int(2e6 // (iters * m_max)))
+    for b0 in range(0, len(seeds), block):
+        sl = slice(b0, b0 + block)
+        accepted[sl] = _local_ransac(U[sl], V[sl], present[sl], sizes[sl], couples, min_conf, min_inliers,
+                                     det_thr, refit)
+
+    # 4. Union of the accepted inliers of every neighbourhood.
+    keep[mid[accepted[sid, pos]]] = True
+    return keep
+
+
+def _seeds(tree1, rank, s, R1: float, seed_threshold: float) -> np.ndarray:
+    """Matches whose score beats every other within ``R1`` in image 1 and passes ``seed_threshold``."""
+    n = len(rank)
     pairs = tree1.query_pairs(R1, output_type="ndarray")
     beaten = np.zeros(n, bool)
     if len(pairs):
         a, b = pairs[:, 0], pairs[:, 1]
         beaten[np.where(rank[a] > rank[b], a, b)] = True
-    seeds = np.flatnonzero(~beaten & (s < seed_threshold))
-    if len(seeds) == 0:
-        return keep
+    return np.flatnonzero(~beaten & (s < seed_threshold))
 
-    # 2. Neighbourhoods, with the orientation and scale agreement of the seed when shapes are known.
-    lists = tree1.query_ball_point(x[seeds], lam * R1)
+
+def _neighbourhoods(ms, tree1, seeds, rank, r1: float, r2: float, min_inliers, orientation_threshold,
+                    scale_rate_threshold):
+    """The matches of each seed's neighbourhood (Sec. 3.2): within ``r1`` of the seed in image 1 and ``r2``
+    in image 2, agreeing in orientation and scale when shapes are known; seeds with fewer than
+    ``max(min_inliers, 3)`` are dropped.
+
+    Returns ``None`` when no seed is left, else ``(seeds, sid, mid, sizes, pos)``: for each member, its
+    seed's index in ``seeds``, its match index and its position in its group (seed last, best first).
+    """
+    x, y = ms.x, ms.y
+    lists = tree1.query_ball_point(x[seeds], r1)
     lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
     sid = np.repeat(np.arange(len(seeds)), lens)
     mid = np.concatenate([np.asarray(v, np.int64) for v in lists])
-    ok = ((y[mid] - y[seeds[sid]]) ** 2).sum(1) < (lam * R2) ** 2
+    ok = ((y[mid] - y[seeds[sid]]) ** 2).sum(1) < r2 ** 2
     if ms.A1 is not None:
         angle, scale = _relative_similarity(ms.A1, ms.A2)
         if orientation_threshold is not None:
@@ -223,7 +266,7 @@ def adalam_filter(
     sid, mid = sid_map[sid[take]], mid[take]
     seeds = seeds[valid]
     if len(seeds) == 0:
-        return keep
+        return None
     # Seed last in its group so that the sampled couples never contain it (it is the local origin),
     # then best scores first (PROSAC-like ordering of the reference implementation).
     order = np.lexsort((rank[mid], mid == seeds[sid], sid))
@@ -231,57 +274,46 @@ def adalam_filter(
     sizes = np.bincount(sid, minlength=len(seeds))
     starts = np.r_[0, np.cumsum(sizes)[:-1]]
     pos = np.arange(len(sid)) - starts[sid]
-    u = (x[mid] - x[seeds[sid]]) / (lam * R1)
-    v = (y[mid] - y[seeds[sid]]) / (lam * R2)
+    return seeds, sid, mid, sizes, pos
 
-    # 3. Local affine RANSACs, a block of seeds at a time to bound memory.
-    couples = _couples(iters)
-    m_max = max(int(sizes.max()), int(couples.max()) + 1)  # room for every couple index
-    U = np.zeros((len(seeds), m_max, 2))
-    V = np.zeros((len(seeds), m_max, 2))
-    U[sid, pos], V[sid, pos] = u, v
-    present = np.zeros((len(seeds), m_max), bool)
-    present[sid, pos] = True
-    accepted = np.zeros((len(seeds), m_max), bool)
-    block = max(1, int(2e6 // (iters * m_max)))
-    for b0 in range(0, len(seeds), block):
-        sl = slice(b0, b0 + block)
-        Ub, Vb, Pb, nb = U[sl], V[sl], present[sl], sizes[sl]
-        # Minimal fits: v = A u through the seed (origin) and a couple; A = [v_i v_j][u_i u_j]^-1.
-        ui, uj = Ub[:, couples[:, 0]], Ub[:, couples[:, 1]]  # (B, T, 2)
-        vi, vj = Vb[:, couples[:, 0]], Vb[:, couples[:, 1]]
-        det = ui[..., 0] * uj[..., 1] - ui[..., 1] * uj[..., 0]
-        usable = (np.abs(det) > 1e-9) & (couples[:, 1][None, :] < (nb - 1)[:, None])
-        d = np.where(usable, det, 1.0)
-        inv = np.stack([np.stack([uj[..., 1], -uj[..., 0]], -1), np.stack([-ui[..., 1], ui[..., 0]], -1)], -2)
-        inv = inv / d[..., None, None]  # rows of [u_i u_j]^-1
-        A = np.stack([vi, vj], -1) @ inv  # (B, T, 2, 2)
-        res = _residuals(A, Ub, Vb)
-        res = np.where(Pb[:, None, :] & usable[..., None], res, np.inf)
-        count, thr, conf = _adaptive_inliers(res, nb[:, None], min_conf)
-        best = count.argmax(1)
-        rows = np.arange(len(nb))
-        thr_best, conf_best = thr[rows, best], conf[rows, best]
-        count_best = count[rows, best]
-        inl = res[rows, best] <= thr_best[:, None]
-        if refit:
-            w = inl.astype(np.float64)
-            UtU = np.einsum("bm,bmi,bmj->bij", w, Ub, Ub)
-            VtU = np.einsum("bm,bmi,bmj->bij", w, Vb, Ub)
-            det_u = np.linalg.det(UtU)
-            fine = np.abs(det_u) > 1e-12
-            A_ref = VtU @ np.linalg.inv(np.where(fine[:, None, None], UtU, np.eye(2)))
-            sv = np.linalg.svd(A_ref, compute_uv=False)
-            fine &= (sv[:, 0] <= det_thr) & (sv[:, 1] >= 1.0 / det_thr) & (count_best > 0)
-            res_ref = _residuals(A_ref[:, None], Ub, Vb)[:, 0]
-            res_ref = np.where(Pb & fine[:, None], res_ref, np.inf)
-            count_best, thr_best, conf_best = _adaptive_inliers(res_ref, nb, min_conf)
-            inl = res_ref <= thr_best[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            strong = count_best * (1.0 - 1.0 / conf_best)
-        good = (conf_best >= min_conf) & (strong >= min_inliers)
-        accepted[sl] = inl & good[:, None] & Pb
 
-    # 4. Union of the accepted inliers of every neighbourhood.
-    keep[mid[accepted[sid, pos]]] = True
-    return keep
+def _local_ransac(Ub, Vb, Pb, nb, couples, min_conf: float, min_inliers, det_thr: float, refit: bool):
+    """Local affine RANSAC of a block of neighbourhoods (Sec. 3.3); the accepted inliers, ``(B, M)`` bool.
+
+    ``Ub``, ``Vb``: normalised offsets to the seed in each image, ``(B, M, 2)``; ``Pb`` marks the members
+    present; ``nb`` the group sizes.
+    """
+    # Minimal fits: v = A u through the seed (origin) and a couple; A = [v_i v_j][u_i u_j]^-1.
+    ui, uj = Ub[:, couples[:, 0]], Ub[:, couples[:, 1]]  # (B, T, 2)
+    vi, vj = Vb[:, couples[:, 0]], Vb[:, couples[:, 1]]
+    det = ui[..., 0] * uj[..., 1] - ui[..., 1] * uj[..., 0]
+    usable = (np.abs(det) > 1e-9) & (couples[:, 1][None, :] < (nb - 1)[:, None])
+    d = np.where(usable, det, 1.0)
+    inv = np.stack([np.stack([uj[..., 1], -uj[..., 0]], -1), np.stack([-ui[..., 1], ui[..., 0]], -1)], -2)
+    inv = inv / d[..., None, None]  # rows of [u_i u_j]^-1
+    A = np.stack([vi, vj], -1) @ inv  # (B, T, 2, 2)
+    res = _residuals(A, Ub, Vb)
+    res = np.where(Pb[:, None, :] & usable[..., None], res, np.inf)
+    count, thr, conf = _adaptive_inliers(res, nb[:, None], min_conf)
+    best = count.argmax(1)
+    rows = np.arange(len(nb))
+    thr_best, conf_best = thr[rows, best], conf[rows, best]
+    count_best = count[rows, best]
+    inl = res[rows, best] <= thr_best[:, None]
+    if refit:
+        w = inl.astype(np.float64)
+        UtU = np.einsum("bm,bmi,bmj->bij", w, Ub, Ub)
+        VtU = np.einsum("bm,bmi,bmj->bij", w, Vb, Ub)
+        det_u = np.linalg.det(UtU)
+        fine = np.abs(det_u) > 1e-12
+        A_ref = VtU @ np.linalg.inv(np.where(fine[:, None, None], UtU, np.eye(2)))
+        sv = np.linalg.svd(A_ref, compute_uv=False)
+        fine &= (sv[:, 0] <= det_thr) & (sv[:, 1] >= 1.0 / det_thr) & (count_best > 0)
+        res_ref = _residuals(A_ref[:, None], Ub, Vb)[:, 0]
+        res_ref = np.where(Pb & fine[:, None], res_ref, np.inf)
+        count_best, thr_best, conf_best = _adaptive_inliers(res_ref, nb, min_conf)
+        inl = res_ref <= thr_best[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        strong = count_best * (1.0 - 1.0 / conf_best)
+    good = (conf_best >= min_conf) & (strong >= min_inliers)
+    return inl & good[:, None] & Pb
