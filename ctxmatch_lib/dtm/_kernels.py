@@ -139,6 +139,117 @@ with _user_cache() as _cache:
             radii[t] = math.inf if area2 == 0 else math.sqrt(abc2) / (2.0 * area2)
         return radii
 
+    @_jit(inline="always")
+    def _mesh_alpha(g, simplices, neighbors, radii, order, t_off, p_off, shrink, rank, parent, size, spectrum,
+                    first):
+        """The alpha of mesh ``g`` (see :func:`alpha_shapes_kernel`); fills ``rank`` for its triangles and uses
+        ``parent``/``size`` (union-find), ``spectrum`` and ``first`` as scratch."""
+        lo, hi = t_off[g], t_off[g + 1]
+        # The alpha spectrum: distinct radii, ascending; rank[t] is the index of radii[t] in it.
+        n_spec = 0
+        for i in range(lo, hi):
+            r = radii[order[i]]
+            if n_spec == 0 or r != spectrum[n_spec - 1]:
+                spectrum[n_spec] = r
+                n_spec += 1
+            rank[order[i]] = n_spec - 1
+        # Smallest spectrum index at which every triangulated point is enclosed.
+        for v in range(p_off[g], p_off[g + 1]):
+            first[v] = n_spec
+        for t in range(lo, hi):
+            for k in range(3):
+                v = simplices[t, k]
+                if rank[t] < first[v]:
+                    first[v] = rank[t]
+        all_points = -1
+        for v in range(p_off[g], p_off[g + 1]):
+            if first[v] < n_spec and first[v] > all_points:
+                all_points = first[v]
+        # Regions (triangles connected through shared edges, union-find) of the shape at all_points, then
+        # the triangles of higher rank added in rank order until one region is left: the critical alpha
+        # is the first spectrum value >= all_points at which the shape is one region.
+        regions = 0
+        for t in range(lo, hi):
+            if rank[t] <= all_points:
+                regions += 1
+                for k in range(3):
+                    u = neighbors[t, k]
+                    if u >= 0 and u < t and rank[u] <= all_points:
+                        if _union(parent, size, t, u):
+                            regions -= 1
+        critical = all_points if regions == 1 else n_spec - 1
+        i = lo
+        while i < hi and rank[order[i]] <= all_points:
+            i += 1
+        while regions > 1 and i < hi:
+            r = rank[order[i]]
+            while i < hi and rank[order[i]] == r:  # a tie joins through either of its triangles
+                t = order[i]
+                regions += 1
+                for k in range(3):
+                    u = neighbors[t, k]
+                    if u >= 0 and rank[u] <= r:
+                        if _union(parent, size, t, u):
+                            regions -= 1
+                i += 1
+            if regions == 1:
+                critical = r
+        n = n_spec - critical
+        return spectrum[critical + max(math.ceil((1.0 - shrink) * n), 1) - 1]
+
+    @_jit(inline="always")
+    def _fill_holes(inside, neighbors):
+        """Outside triangles not reachable, through outside triangles, from an outside triangle on the hull
+        become inside (in place)."""
+        n_tri = inside.shape[0]
+        exterior = np.zeros(n_tri, np.bool_)
+        stack = np.empty(n_tri, np.int64)
+        top = 0
+        for t in range(n_tri):
+            if not inside[t] and (neighbors[t, 0] < 0 or neighbors[t, 1] < 0 or neighbors[t, 2] < 0):
+                exterior[t] = True
+                stack[top] = t
+                top += 1
+        while top > 0:
+            top -= 1
+            t = stack[top]
+            for k in range(3):
+                u = neighbors[t, k]
+                if u >= 0 and not inside[u] and not exterior[u]:
+                    exterior[u] = True
+                    stack[top] = u
+                    top += 1
+        for t in range(n_tri):
+            inside[t] = not exterior[t]
+
+    @_jit(inline="always")
+    def _boundary_edges(simplices, neighbors, inside, t_off):
+        """Edge ``k`` of each inside triangle ``t`` whose neighbour across it is outside or missing, in
+        ``(t, k)`` order, with the offsets per mesh."""
+        n_tri = inside.shape[0]
+        n_groups = t_off.shape[0] - 1
+        n_edges = 0
+        for t in range(n_tri):
+            if inside[t]:
+                for k in range(3):
+                    u = neighbors[t, k]
+                    if u < 0 or not inside[u]:
+                        n_edges += 1
+        edges = np.empty((n_edges, 2), np.int64)
+        e_off = np.zeros(n_groups + 1, np.int64)
+        e = 0
+        for g in range(n_groups):
+            for t in range(t_off[g], t_off[g + 1]):
+                if inside[t]:
+                    for k in range(3):
+                        u = neighbors[t, k]
+                        if u < 0 or not inside[u]:
+                            edges[e, 0] = simplices[t, (k + 1) % 3]
+                            edges[e, 1] = simplices[t, (k + 2) % 3]
+                            e += 1
+            e_off[g + 1] = e
+        return edges, e_off
+
     @_jit
     def alpha_shapes_kernel(simplices, neighbors, radii, order, t_off, p_off, shrink):
         """Holes-filled alpha shapes (MATLAB ``boundary`` alpha) of the meshes of a disjoint union.
@@ -159,103 +270,16 @@ with _user_cache() as _cache:
         spectrum = np.empty(n_tri)
         first = np.empty(p_off[n_groups], np.int64)
         for g in range(n_groups):
-            lo, hi = t_off[g], t_off[g + 1]
-            # The alpha spectrum: distinct radii, ascending; rank[t] is the index of radii[t] in it.
-            n_spec = 0
-            for i in range(lo, hi):
-                r = radii[order[i]]
-                if n_spec == 0 or r != spectrum[n_spec - 1]:
-                    spectrum[n_spec] = r
-                    n_spec += 1
-                rank[order[i]] = n_spec - 1
-            # Smallest spectrum index at which every triangulated point is enclosed.
-            for v in range(p_off[g], p_off[g + 1]):
-                first[v] = n_spec
-            for t in range(lo, hi):
-                for k in range(3):
-                    v = simplices[t, k]
-                    if rank[t] < first[v]:
-                        first[v] = rank[t]
-            all_points = -1
-            for v in range(p_off[g], p_off[g + 1]):
-                if first[v] < n_spec and first[v] > all_points:
-                    all_points = first[v]
-            # Regions (triangles connected through shared edges, union-find) of the shape at all_points, then
-            # the triangles of higher rank added in rank order until one region is left: the critical alpha
-            # is the first spectrum value >= all_points at which the shape is one region.
-            regions = 0
-            for t in range(lo, hi):
-                if rank[t] <= all_points:
-                    regions += 1
-                    for k in range(3):
-                        u = neighbors[t, k]
-                        if u >= 0 and u < t and rank[u] <= all_points:
-                            if _union(parent, size, t, u):
-                                regions -= 1
-            critical = all_points if regions == 1 else n_spec - 1
-            i = lo
-            while i < hi and rank[order[i]] <= all_points:
-                i += 1
-            while regions > 1 and i < hi:
-                r = rank[order[i]]
-                while i < hi and rank[order[i]] == r:  # a tie joins through either of its triangles
-                    t = order[i]
-                    regions += 1
-                    for k in range(3):
-                        u = neighbors[t, k]
-                        if u >= 0 and rank[u] <= r:
-                            if _union(parent, size, t, u):
-                                regions -= 1
-                    i += 1
-                if regions == 1:
-                    critical = r
-            n = n_spec - critical
-            alphas[g] = spectrum[critical + max(math.ceil((1.0 - shrink) * n), 1) - 1]
+            alphas[g] = _mesh_alpha(g, simplices, neighbors, radii, order, t_off, p_off, shrink, rank, parent, size,
+                                    spectrum, first)
         inside = np.empty(n_tri, np.bool_)
         for g in range(n_groups):
             for t in range(t_off[g], t_off[g + 1]):
                 inside[t] = radii[t] <= alphas[g]
         # Fill holes: outside triangles not reachable, through outside triangles, from an outside triangle
         # on the hull.
-        exterior = np.zeros(n_tri, np.bool_)
-        stack = np.empty(n_tri, np.int64)
-        top = 0
-        for t in range(n_tri):
-            if not inside[t] and (neighbors[t, 0] < 0 or neighbors[t, 1] < 0 or neighbors[t, 2] < 0):
-                exterior[t] = True
-                stack[top] = t
-                top += 1
-        while top > 0:
-            top -= 1
-            t = stack[top]
-            for k in range(3):
-                u = neighbors[t, k]
-                if u >= 0 and not inside[u] and not exterior[u]:
-                    exterior[u] = True
-                    stack[top] = u
-                    top += 1
-        n_edges = 0
-        for t in range(n_tri):
-            inside[t] = not exterior[t]
-        for t in range(n_tri):
-            if inside[t]:
-                for k in range(3):
-                    u = neighbors[t, k]
-                    if u < 0 or not inside[u]:
-                        n_edges += 1
-        edges = np.empty((n_edges, 2), np.int64)
-        e_off = np.zeros(n_groups + 1, np.int64)
-        e = 0
-        for g in range(n_groups):
-            for t in range(t_off[g], t_off[g + 1]):
-                if inside[t]:
-                    for k in range(3):
-                        u = neighbors[t, k]
-                        if u < 0 or not inside[u]:
-                            edges[e, 0] = simplices[t, (k + 1) % 3]
-                            edges[e, 1] = simplices[t, (k + 2) % 3]
-                            e += 1
-            e_off[g + 1] = e
+        _fill_holes(inside, neighbors)
+        edges, e_off = _boundary_edges(simplices, neighbors, inside, t_off)
         return alphas, inside, edges, e_off
 
     @_jit(inline="always")
