@@ -109,7 +109,7 @@ def test_pipeline_rejects_bad_names():
     with pytest.raises(ValueError, match="unknown blob preset 'best'"):
         evaluate_pair(pair, blobs="best", filters=[], precomputed_features=feats)
     with pytest.raises(ValueError, match="gt_method"):
-        evaluate_pair(pair, filters=[], gt_method="C", precomputed_features=feats)
+        evaluate_pair(pair, filters=[], gt_method="Z", precomputed_features=feats)
 
 
 def test_summary_table_means_and_order():
@@ -327,12 +327,23 @@ def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
     (["--max-keypoints", "-5"], "--max-keypoints"),
     (["--seed", "-1"], "--seed"),
     (["--limit", "0"], "--limit"),
+    (["--model-threshold", "-1"], "--model-threshold must be a positive number"),
+    (["--jobs", "0"], "--jobs must be a positive number"),
+    (["--jobs", "2", "--dask", "tcp://localhost:8786"], "--dask"),
+    (["--filters", "all,nope"], "--filters: 'all' and 'none' stand alone"),
+    (["--pairs", "no-such-pair"], "--pairs: unknown pair ids"),
+    (["--gt", "Z"], None),
 ])
 def test_cli_eval_validates_before_any_work(tiny_dataset, tmp_path, monkeypatch, capsys, argv, message):
     import ctxmatch_lib.features as features
 
     monkeypatch.setattr(features, "_extract", lambda *a, **k: pytest.fail("features computed for bad arguments"))
     monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    if message is None:  # a choice argparse refuses (exit status 2, its own message naming the flag)
+        with pytest.raises(SystemExit) as exc:
+            _cli(["--dataset", str(tiny_dataset), "--out", str(tmp_path / "r.parquet"), "--no-progress", *argv])
+        assert exc.value.code == 2 and "--gt" in capsys.readouterr().err
+        return
     assert _cli(["--dataset", str(tiny_dataset), "--out", str(tmp_path / "r.parquet"), "--no-progress", *argv]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "r.parquet").exists()
@@ -374,7 +385,6 @@ def test_output_files_honour_the_umask(tiny_dataset, tmp_path, monkeypatch):
 
 
 def test_progress_bar_names_the_pair_in_progress(tiny_dataset, tmp_path, monkeypatch):
-    from ctxmatch_lib import sweep
     from ctxmatch_lib.datasets import load_dataset
     from ctxmatch_lib.features import FeatureConfig
 
@@ -382,8 +392,10 @@ def test_progress_bar_names_the_pair_in_progress(tiny_dataset, tmp_path, monkeyp
     orig_set = __import__("tqdm").std.tqdm.set_postfix_str
     monkeypatch.setattr(__import__("tqdm").std.tqdm, "set_postfix_str",
                         lambda self, s="", refresh=True: shown.append(s) or orig_set(self, s, refresh))
-    orig = sweep.run_unit
-    monkeypatch.setattr(sweep, "run_unit", lambda unit, **kw: seen.append(shown[-1]) or orig(unit, **kw))
+    from ctxmatch_lib.evaluation import run as ev_run
+
+    orig = ev_run.run_unit
+    monkeypatch.setattr(ev_run, "run_unit", lambda unit, **kw: seen.append(shown[-1]) or orig(unit, **kw))
     evaluate_dataset(load_dataset(str(tiny_dataset)), progress=True, results_dir=tmp_path,
                      features=FeatureConfig(max_keypoints=300), filters=[], models=["none"])
     # While each pair runs, the bar shows that pair (not the one before it).
@@ -455,3 +467,96 @@ def test_keypoints_outside_the_image_size_are_rejected(tiny_dataset, tmp_path):
                               models=["none"], features=FeatureConfig(max_keypoints=300))
     assert (df.loc[df.pair_id == good.pair_id, "error"] == "").all()
     assert df.loc[df.pair_id == "swapped", "error"].str.contains(r"\(width, height\) = \(240, 320\)").all()
+
+
+# ------------------------------------------------------------------ one command surface, one cache (issue 24)
+
+
+@pytest.mark.parametrize("command", ["eval", "sweep"])
+def test_cli_out_is_checked_before_any_work(command, tmp_path, monkeypatch, capsys):
+    """`--out DIR/x.parquet` with DIR a regular file fails at once, naming --out (no traceback after the run)."""
+    import ctxmatch_lib.features as features
+    from ctxmatch_lib.cli import main
+
+    monkeypatch.setattr(features, "_extract", lambda *a, **k: pytest.fail("features computed for a bad --out"))
+    (tmp_path / "DIR").write_text("a file, not a folder")
+    argv = [command, "--pairs", "1", "--blob", "paper-best", "--cache-dir", str(tmp_path / "c"), "--no-progress"]
+    assert main([*argv, "--out", str(tmp_path / "DIR" / "x.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "DIR" in err and "Traceback" not in err
+    assert main([*argv, "--out", str(tmp_path)]) == 2  # a folder where the file goes
+    assert "--out" in capsys.readouterr().err
+    assert not (tmp_path / "c" / "results").exists()
+
+
+def test_eval_and_sweep_share_flags_and_units(tmp_path, monkeypatch, capsys):
+    """`ctxmatch sweep`, then `ctxmatch eval` with the same settings: eval computes nothing, same numbers."""
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.evaluation import run as ev_run
+
+    same = ["--dataset", "embedded", "--pairs", "2", "--blob", "paper-best", "--filters", "th",
+            "--model", "none,1sac", "--max-keypoints", "300", "--cache-dir", str(tmp_path / "cache"), "--no-progress"]
+    assert main(["sweep", *same, "--out", str(tmp_path / "s.parquet")]) == 0
+    monkeypatch.setattr(ev_run, "run_unit", lambda *a, **k: pytest.fail("eval recomputed a unit sweep computed"))
+    assert main(["eval", *same, "--out", str(tmp_path / "e.parquet")]) == 0
+    capsys.readouterr()
+    s, e = pd.read_parquet(tmp_path / "s.parquet"), pd.read_parquet(tmp_path / "e.parquet")
+    assert len(e) == 2 * 2 * 2
+    pd.testing.assert_frame_equal(s[list(e.columns)], e)
+    # And the reverse: after eval, a sweep over the same units reads them (the returned count says so).
+    monkeypatch.undo()
+    from ctxmatch_lib.evaluation import run_sweep
+
+    again = run_sweep("embedded", blobs=["paper-best"], filters=["th"], models=["none", "1sac"], pairs=2,
+                      max_keypoints=300, cache_dir=tmp_path / "cache", progress=False)
+    assert again.attrs["units_computed"] == 0 and again.attrs["units"] == 2
+
+
+def test_eval_accepts_all_filters_and_several_datasets(tmp_path):
+    """--filters all and several --dataset values plan as in ctxmatch sweep (no work done here)."""
+    from ctxmatch_lib.cli import main  # noqa: F401  (the parser is built the way main builds it)
+    from ctxmatch_lib.cli import eval as eval_cli
+    from ctxmatch_lib.cli._engine_args import plan, resolve_args
+    from ctxmatch_lib.evaluation import resolve_filters
+
+    parser = argparse.ArgumentParser(prog="ctxmatch")
+    eval_cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["eval", "--dataset", "embedded,embedded", "--filters", "all", "--pairs", "1",
+                              "--out", str(tmp_path / "r.parquet")])
+    settings, msg = resolve_args(args)
+    assert msg is None and settings["filters"] == resolve_filters("all")
+    units, msg = plan(args, settings)
+    assert msg is None and len(units) == 2 and units[0].filters == resolve_filters("all")
+
+
+def test_engine_rows_identical_to_before_the_refactor():
+    """The rows of the engine, recomputed now, against those computed before the issue-24 refactor.
+
+    tests/data/engine_rows_before.csv was written by the engine as it was before (commit 4315919): the eval
+    path (2 embedded pairs, paper-best + baseline, filters dtm/th/adalam, models none/1sac, 400 keypoints)
+    and the sweep path (39 grid setups with every t_o kind, 1 pair, 300 keypoints). Every column but the
+    running times is compared as text written with 17 significant digits, i.e. bit for bit.
+    """
+    import io
+
+    from ctxmatch_lib.blob import blob_grid
+    from ctxmatch_lib.evaluation import run_sweep, select_pairs
+    from ctxmatch_lib.features import FeatureConfig
+
+    pairs = select_pairs("embedded")
+    pp = [pairs[0], pairs[16]]
+    df1 = evaluate_dataset(pp, features=FeatureConfig(max_keypoints=400), blobs=["paper-best", "baseline"],
+                           filters=("dtm", "th", "adalam"), models=("none", "1sac"), results_dir=False,
+                           progress=False)
+    grid = [c for c in blob_grid() if c.candidate_key in {(1, "cup", 1), (10, "cup", 5), (3, "cap", 3)}][::7]
+    df2 = run_sweep("embedded", blobs=grid, pairs=[pp[1].pair_id], max_keypoints=300, cache_dir=False,
+                    progress=False)
+    df1["source"], df2["source"] = "eval", "sweep"
+    df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s"])
+    buf = io.StringIO()
+    df.to_csv(buf, index=False, float_format="%.17g")
+    before = (Path(__file__).parent / "data" / "engine_rows_before.csv").read_text()
+    got, ref = buf.getvalue().splitlines(), before.splitlines()
+    assert got[0] == ref[0] and len(got) == len(ref) == 1 + 32 + 39
+    diff = [(i, a, b) for i, (a, b) in enumerate(zip(got, ref)) if a != b]
+    assert not diff, diff[:3]

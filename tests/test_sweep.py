@@ -1,4 +1,5 @@
-"""ctxmatch_lib.sweep: exactness against the pipeline, caches, resume after a kill, joblib/Dask == serial."""
+"""The evaluation engine (ctxmatch_lib.evaluation, ctxmatch sweep): exactness against the pipeline, caches, resume
+after a kill, joblib/Dask == serial, one surface with ctxmatch eval."""
 
 import os
 import pickle
@@ -11,7 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ctxmatch_lib import sweep
+from ctxmatch_lib import sweep  # the compatibility face: its names must keep working
+from ctxmatch_lib.evaluation import overlap as ev_overlap
+from ctxmatch_lib.evaluation import rows as ev_rows
+from ctxmatch_lib.evaluation import run as ev_run
+from ctxmatch_lib.evaluation import unit as ev_unit
 from ctxmatch_lib.blob import BlobContext, blob_grid, rank_candidates
 from ctxmatch_lib.blob.config import GRID_T_O, RATIOS
 from ctxmatch_lib.metrics import average_precision, normalised_count
@@ -48,7 +53,7 @@ def test_ranked_ap_is_bit_identical_to_metrics(seed):
     ref = m[lab]
     den = normalised_count(ref)
     expected = average_precision(m, lab, scores, ref)
-    got = sweep._ranked_ap(m[:, 0], m[:, 1], lab, scores, den, 12, 12)
+    got = ev_rows.ranked_ap(m[:, 0], m[:, 1], lab, scores, den, 12, 12)
     assert (np.isnan(expected) and np.isnan(got)) or got == expected
 
 
@@ -60,8 +65,8 @@ def test_tabulated_overlap_context_matches_plain_context():
     f1, f2 = pair_features(pair, FeatureConfig(max_keypoints=KPTS))
     kw = dict(kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes, depth=10)
     plain = BlobContext(f1.desc, f2.desc, **kw)
-    tables = (sweep._overlap_table(f1, None), sweep._overlap_table(f2, None))
-    ctx = sweep._SweepContext(f1.desc, f2.desc, overlap_tables=tables, **kw)
+    tables = (ev_overlap.overlap_table(f1, None), ev_overlap.overlap_table(f2, None))
+    ctx = ev_overlap.TabulatedContext(f1.desc, f2.desc, overlap_tables=tables, **kw)
     for key in [(10, "cup", 5), (1, "cap", 1)]:
         m, d = plain.candidates(*key)
         for t_o, kind in GRID_T_O:
@@ -117,7 +122,7 @@ def test_cache_hits(serial, tmp_path, monkeypatch):
     for sub in ("results", "candidates", "overlap"):
         assert any((cache / sub).iterdir()), sub
     # Rerun: every unit is a cached part, nothing is recomputed.
-    monkeypatch.setattr(sweep, "run_unit", lambda *a, **k: pytest.fail("a cached unit was recomputed"))
+    monkeypatch.setattr(ev_run, "run_unit", lambda *a, **k: pytest.fail("a cached unit was recomputed"))
     again = sweep.run_sweep("embedded", cache_dir=cache, out=tmp_path / "s.parquet", **KW)
     pd.testing.assert_frame_equal(again, ref)
     pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "s.parquet"), ref)
@@ -127,9 +132,9 @@ def test_cache_hits(serial, tmp_path, monkeypatch):
     for p in (cache / "results").iterdir():
         p.unlink()
     calls = []
-    orig = sweep._SweepContext.candidates
-    monkeypatch.setattr(sweep._SweepContext, "candidates", lambda self, *a: calls.append(a) or orig(self, *a))
-    monkeypatch.setattr(sweep, "ellipse_overlap_error", lambda *a, **k: pytest.fail("overlap recomputed"))
+    orig = ev_overlap.TabulatedContext.candidates
+    monkeypatch.setattr(ev_overlap.TabulatedContext, "candidates", lambda self, *a: calls.append(a) or orig(self, *a))
+    monkeypatch.setattr(ev_overlap, "ellipse_overlap_error", lambda *a, **k: pytest.fail("overlap recomputed"))
     rebuilt = sweep.run_sweep("embedded", cache_dir=cache, **KW)
     assert calls == []
     pd.testing.assert_frame_equal(_numbers(rebuilt), _numbers(ref))
@@ -139,7 +144,7 @@ def test_filter_masks_are_cached(tmp_path, monkeypatch):
     kw = dict(blobs=["paper-best", "baseline"], pairs=2, max_keypoints=KPTS, filters=("th",), progress=False)
     first = sweep.run_sweep("embedded", cache_dir=tmp_path, **kw)
     assert any((tmp_path / "filters").iterdir())
-    monkeypatch.setattr("ctxmatch_lib.pipeline.run_filter", lambda *a, **k: pytest.fail("filter recomputed"))
+    monkeypatch.setattr(ev_unit, "run_filter", lambda *a, **k: pytest.fail("filter recomputed"))
     again = sweep.run_sweep("embedded", cache_dir=tmp_path, recompute=True, **kw)
     pd.testing.assert_frame_equal(_numbers(again), _numbers(first))
 
@@ -147,7 +152,7 @@ def test_filter_masks_are_cached(tmp_path, monkeypatch):
 def test_resume_after_interrupt_in_process(serial, tmp_path, monkeypatch):
     _, ref = serial
     done = []
-    orig = sweep.write_parquet_atomic
+    orig = ev_run.write_parquet_atomic
 
     def stop_after_two(df, path, metadata=None):
         if len(done) == 2:
@@ -155,7 +160,7 @@ def test_resume_after_interrupt_in_process(serial, tmp_path, monkeypatch):
         done.append(path)
         return orig(df, path, metadata)
 
-    monkeypatch.setattr(sweep, "write_parquet_atomic", stop_after_two)
+    monkeypatch.setattr(ev_run, "write_parquet_atomic", stop_after_two)
     with pytest.raises(KeyboardInterrupt):
         sweep.run_sweep("embedded", cache_dir=tmp_path, **KW)
     monkeypatch.undo()
@@ -213,7 +218,7 @@ def test_dask_local_cluster_equals_serial(serial, tmp_path):
     (dict(models=("7pt",)), "unknown model '7pt'"),
     (dict(pairs=0), "pairs must be a positive"),
     (dict(pairs=["no/such-pair"]), "unknown pair ids"),
-    (dict(gt_method="B"), "gt_method"),
+    (dict(gt_method="Z"), "gt_method"),
     (dict(gt_threshold=-1.0), "gt_threshold"),
     (dict(filter_params={"dtm": {}}), "filter_params"),
     (dict(out="x.csv"), "parquet"),
@@ -234,7 +239,7 @@ def test_cli_errors_and_run(tmp_path, capsys):
     assert main(["sweep", "--features", "sosnet", "--cache-dir", str(tmp_path)]) == 2
     assert "unknown feature preset" in capsys.readouterr().err
     assert main(["sweep", "--jobs", "0", "--cache-dir", str(tmp_path)]) == 2
-    assert "n_jobs" in capsys.readouterr().err
+    assert "--jobs must be a positive number" in capsys.readouterr().err
     assert main(["sweep", "--out", "x.csv"]) == 2
     assert main(["sweep", "--gt-threshold", "-1", "--cache-dir", str(tmp_path)]) == 2
     assert "--gt-threshold must be a positive number" in capsys.readouterr().err
@@ -244,5 +249,6 @@ def test_cli_errors_and_run(tmp_path, capsys):
     assert main(["sweep", "--blob", "paper-best,baseline", "--pairs", "2", "--max-keypoints", str(KPTS),
                  "--cache-dir", str(tmp_path), "--out", str(out), "--no-progress"]) == 0
     printed = capsys.readouterr().out
-    assert "2 pairs, 4 rows" in printed and "f=10∪ f'=5 t_o=10px D+ W=harmonic" in printed
+    # Named presets keep their names in the blob column, as in ctxmatch eval.
+    assert "2 pairs, 4 rows" in printed and "paper-best" in printed and "baseline" in printed
     assert len(pd.read_parquet(out)) == 4

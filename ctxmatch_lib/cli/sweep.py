@@ -1,17 +1,21 @@
 """``ctxmatch sweep``: run (or resume) a grid of dataset × features × blob setup × filter × model and write
-one Parquet row per (pair, features, blob setup, method, model); print the best setups by mAP."""
+one Parquet row per (pair, features, blob setup, method, model); print the best setups by mAP.
+
+The evaluation engine on a grid: the same flags, checks, planner and unit keys as ``ctxmatch eval``
+(:mod:`ctxmatch_lib.cli._engine_args`), so either command reuses what the other computed."""
 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
+
+from ._engine_args import add_engine_arguments, error, plan, resolve_args
 
 DESCRIPTION = """\
 Sweep blob-matching setups (default: the 2430 of Sec. 5.2) and optionally filters and model steps over a
 dataset. Each (pair, features) is one work unit whose rows are cached as an atomic Parquet part under the
 sweep cache, so an interrupted run resumes where it stopped (no lost, no duplicated rows) and a rerun is
-instant. Intermediates (features, candidate sets, FGINN overlap tables, filter masks) are cached too.
+instant; the cache is shared with 'ctxmatch eval' (same flags, same keys). Intermediates (features,
+candidate sets, FGINN overlap tables, filter masks) are cached too.
 The AP of a row ranks the setup's candidates by its score, with method-D labels: 'ap' against the setup's own
 correct candidates, 'ap_star' against the correct candidates of all setups of the sweep on the pair; the mAP
 printed (and drawn in the heat map of Fig. 5) is the mean of ap_star over pairs."""
@@ -26,10 +30,6 @@ examples:
 """
 
 
-def _csv(text: str) -> list[str]:
-    return [t.strip() for t in text.split(",") if t.strip()]
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "sweep",
@@ -38,91 +38,43 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         epilog=EXAMPLE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--dataset", default="embedded",
-                   help="comma-separated registered datasets or custom folders (default: embedded)")
-    p.add_argument("--data-root", default=None, help="root of the real data (default: $CTXMATCH_DATA)")
-    p.add_argument("--features", default="sift-rootsift",
-                   help="comma-separated feature presets: " + ", ".join(_feature_presets())
-                        + " (default: sift-rootsift); the deep presets need the kornia extra and use stand-in "
-                          "weights")
-    p.add_argument("--max-keypoints", type=int, default=None,
-                   help="override the keypoint cap of every feature preset (presets: 8000)")
-    p.add_argument("--blob", default="grid",
-                   help="'grid' (2430 setups) or comma-separated blob presets (default: grid)")
-    p.add_argument("--filters", default="none",
-                   help="comma-separated registered filters, or 'none' for the blob candidates only (default)")
-    p.add_argument("--model", default="none", help="comma-separated model steps: none, 1sac, ransac, prosac "
-                                                   "(default: none)")
-    p.add_argument("--pairs", default=None,
-                   help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
-    p.add_argument("--kind", default=None, help="comma-separated pair kinds to keep: planar, nonplanar, depth")
-    p.add_argument("--gt", default="D", choices=["D", "A"], help="ground-truth method (default: D)")
-    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
-    p.add_argument("--model-threshold", type=float, default=15.0,
-                   help="1SAC/RANSAC consistency threshold in px (default: 15)")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
-    p.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib); -1: all cores (default: 1)")
-    p.add_argument("--dask", default=None, metavar="ADDRESS",
-                   help="run on a Dask cluster at this scheduler address, e.g. tcp://host:8786")
-    p.add_argument("--cache-dir", default=None, help="sweep cache folder (default: the ctxmatch cache, 'sweep')")
-    p.add_argument("--recompute", action="store_true", help="ignore the cached result parts of this sweep")
-    p.add_argument("--out", default="sweep.parquet", help="output Parquet file (default: sweep.parquet)")
+    add_engine_arguments(p, blob="grid", filters="none", model="none", out="sweep.parquet")
     p.add_argument("--top", type=int, default=10, help="print the N best setups by mAP (default: 10)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
     return p
-
-
-def _feature_presets() -> list[str]:
-    from ..features import FEATURE_PRESETS
-
-    return list(FEATURE_PRESETS)
-
-
-def _error(msg: str) -> int:
-    print(f"ctxmatch sweep: error: {msg}", file=sys.stderr)
-    return 2
 
 
 def run(args) -> int:
     import pandas as pd
 
-    from ..features import FEATURE_PRESETS
-    from ..sweep import blob_map, run_sweep
+    from .._paths import write_parquet_atomic
+    from ..evaluation.cache import FORMAT
+    from ..evaluation.run import run_units
+    from ..report_blob import blob_map
 
-    import math
-
-    # Every argument is checked before any work, with the flag's name in the message.
-    for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
-        if not (math.isfinite(value) and value > 0):
-            return _error(f"{flag} must be a positive number of pixels, got {value:g}")
-    if args.seed < 0:
-        return _error(f"--seed must be >= 0, got {args.seed}")
+    # Every argument (the output path included) is checked before any work, with the flag's name.
     if args.top < 1:
-        return _error(f"--top must be positive, got {args.top}")
-    filters = [] if args.filters.strip().lower() in ("", "none") else _csv(args.filters)
-    features = _csv(args.features)
-    unknown = [f for f in features if f not in FEATURE_PRESETS]
-    if unknown:
-        return _error(f"unknown feature preset(s) {', '.join(unknown)}; known: {', '.join(FEATURE_PRESETS)}")
-    if args.max_keypoints is not None and args.max_keypoints < 0:
-        return _error(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
-    pairs = None
-    if args.pairs is not None:
-        pairs = int(args.pairs) if args.pairs.strip().isdigit() else _csv(args.pairs)
-    blobs = "grid" if args.blob.strip() == "grid" else _csv(args.blob)
-    kinds = _csv(args.kind) if args.kind else None
-    out = Path(args.out)
-    if out.suffix.lower() != ".parquet":
-        return _error(f"--out must end with .parquet, got {out}")
+        return error("sweep", f"--top must be positive, got {args.top}")
+    settings, msg = resolve_args(args)
+    if msg:
+        return error("sweep", msg)
+    units, msg = plan(args, settings)
+    if msg:
+        return error("sweep", msg)
     try:
-        df = run_sweep(_csv(args.dataset), features=features, blobs=blobs, filters=filters,
-                       models=_csv(args.model), max_keypoints=args.max_keypoints, pairs=pairs, kinds=kinds,
-                       gt_method=args.gt, gt_threshold=args.gt_threshold, model_threshold=args.model_threshold, seed=args.seed,
-                       n_jobs=args.jobs, dask=args.dask, cache_dir=args.cache_dir, out=out,
-                       progress=not args.no_progress, data_root=args.data_root, recompute=args.recompute)
-    except (ValueError, FileNotFoundError, ConnectionError, ImportError, MemoryError) as exc:
-        return _error(str(exc))
+        df = run_units(units, cache_dir=args.cache_dir, n_jobs=args.jobs, dask=args.dask,
+                       progress=not args.no_progress, recompute=args.recompute, desc="ctxmatch sweep")
+    except (ConnectionError, ImportError) as exc:
+        return error("sweep", f"--dask: {exc}")
+    except MemoryError as exc:
+        return error("sweep", f"out of memory: {exc}")
+    meta = {"datasets": args.dataset, "features": {u.features_name: u.features.key() for u in units},
+            "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
+            "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": args.gt,
+            "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold, "seed": args.seed,
+            "format": FORMAT}
+    out = settings["out"]
+    write_parquet_atomic(df, out, meta)
     maps = blob_map(df)
     n_pairs = df.groupby(["dataset", "pair_id"]).ngroups
     print(f"{n_pairs} pairs, {len(df)} rows -> {out}")

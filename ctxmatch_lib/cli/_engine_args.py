@@ -1,0 +1,165 @@
+"""The flags ``ctxmatch eval`` and ``ctxmatch sweep`` share, their checks, and the plan they lead to.
+
+Both commands are the evaluation engine (:mod:`ctxmatch_lib.evaluation`) with different defaults: eval on
+named presets (paper-best blob setup, the DTM filter, none and 1SAC), sweep on a grid (the 2430 blob
+setups of Sec. 5.2). The same flag means the same thing in both, every flag is checked before any work
+with its name in the message, and both plan with :func:`~ctxmatch_lib.evaluation.plan.plan_sweep`, so the
+same settings give the same unit keys and either command reuses what the other computed.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from ..evaluation.frontends import check_output
+
+
+def csv(text: str) -> list[str]:
+    """Comma-separated values, stripped, empty ones dropped."""
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) -> None:
+    """Add the shared flags to the sub-parser ``p``, with the command's defaults."""
+    from ..features import FEATURE_PRESETS
+    from ..groundtruth import GT_METHODS
+
+    p.add_argument("--dataset", default="embedded",
+                   help="comma-separated registered datasets (embedded, planar, kusvod2, ...) or folders with "
+                        "pairs.csv (default: embedded)")
+    p.add_argument("--data-root", default=None, help="root of the real data (default: $CTXMATCH_DATA)")
+    p.add_argument("--features", default=None,
+                   help="comma-separated feature presets: " + ", ".join(FEATURE_PRESETS) + " (default: "
+                        "sift-rootsift); the deep presets need the kornia extra and use stand-in weights")
+    p.add_argument("--max-keypoints", type=int, default=None,
+                   help="override the keypoint cap of every feature preset (presets: 8000; 0: no cap)")
+    p.add_argument("--blob", default=blob,
+                   help=f"'grid' (the 2430 setups of Sec. 5.2) or comma-separated blob presets (default: {blob}); "
+                        "recall_star uses the union of their correct candidates")
+    p.add_argument("--filters", default=filters,
+                   help="comma-separated registered filters (dtm, dtm1, dtm2, th, lpm, ...), 'all' (every filter "
+                        f"that can run here, in the paper's order) or 'none' (the blob candidates only) "
+                        f"(default: {filters})")
+    p.add_argument("--model", default=model,
+                   help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC), prosac (MAGSAC++ "
+                        f"with PROSAC sampling by score) (default: {model})")
+    p.add_argument("--pairs", default=None,
+                   help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
+    p.add_argument("--kind", default=None, help="comma-separated pair kinds to keep: planar, nonplanar, depth")
+    p.add_argument("--gt", default="D", choices=list(GT_METHODS), help="ground-truth method (default: D)")
+    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
+    p.add_argument("--model-threshold", type=float, default=15.0,
+                   help="1SAC/RANSAC consistency threshold in px (default: 15)")
+    p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
+    p.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib); -1: all cores (default: 1)")
+    p.add_argument("--dask", default=None, metavar="ADDRESS",
+                   help="run on a Dask cluster at this scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--cache-dir", default=None,
+                   help="evaluation cache folder, shared by eval and sweep (default: the ctxmatch cache, 'sweep')")
+    p.add_argument("--recompute", action="store_true", help="ignore (and overwrite) the cached rows of these units")
+    p.add_argument("--out", default=out, help=f"output Parquet file (default: {out})")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def error(prog: str, msg: str) -> int:
+    """Print ``ctxmatch <prog>: error: msg`` on stderr; the exit status of a bad argument (2)."""
+    print(f"ctxmatch {prog}: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def check_numbers(args) -> str | None:
+    """The first invalid numeric flag, as a message naming it; ``None`` when all are valid."""
+    for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
+        if not (math.isfinite(value) and value > 0):
+            return f"{flag} must be a positive number of pixels, got {value:g}"
+    if args.max_keypoints is not None and args.max_keypoints < 0:
+        return f"--max-keypoints must be >= 0 (0: no cap), got {args.max_keypoints}"
+    if args.seed < 0:
+        return f"--seed must be >= 0, got {args.seed}"
+    if args.jobs == 0 or args.jobs < -1:
+        return f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}"
+    if args.dask is not None and args.jobs != 1:
+        return "give either --jobs (local processes) or --dask (a cluster), not both"
+    if args.dask is not None and "://" not in args.dask:
+        return f"--dask must be a scheduler address like tcp://host:8786, got {args.dask!r}"
+    return None
+
+
+def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
+    """Every flag resolved to the planner's arguments, or an error message naming the flag.
+
+    ``features`` replaces ``--features`` (eval's ``--descriptor``/``--upright``). The output path is
+    checked here too, so a run that could not write its table never starts.
+    """
+    from ..evaluation.plan import resolve_blob_configs, resolve_features
+    from ..evaluation.steps import check_models, resolve_blobs, resolve_filters
+
+    msg = check_numbers(args)
+    if msg:
+        return None, msg
+    out = {}
+    names = csv(args.filters)
+    if len(names) > 1 and {"all", "none"} & {n.lower() for n in names}:
+        return None, f"--filters: 'all' and 'none' stand alone, got {args.filters!r}"
+    steps = (
+        ("--out", lambda: check_output(args.out, "--out")),
+        ("--filters", lambda: resolve_filters("all" if [n.lower() for n in names] == ["all"] else
+                                              [] if [n.lower() for n in names] in ([], ["none"]) else names)),
+        ("--model", lambda: check_models(csv(args.model))),
+        # Named presets keep their names in the blob column; the grid is labelled by each setup's fields.
+        ("--blob", lambda: resolve_blob_configs("grid") if args.blob.strip() == "grid" else resolve_blobs(csv(args.blob))),
+        ("--features", lambda: resolve_features(features if features is not None else
+                                                csv(args.features or "sift-rootsift"))),
+    )
+    for flag, step in steps:
+        try:
+            out[flag] = step()
+        except (ValueError, KeyError, FileNotFoundError) as exc:
+            text = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            return None, f"{flag}: {text}"
+    pairs = None
+    if args.pairs is not None:
+        pairs = int(args.pairs) if args.pairs.strip().isdigit() else csv(args.pairs)
+        if pairs == 0:
+            return None, "--pairs must be a positive number of pairs or pair ids, got 0"
+    for cfg in out["--features"].values():
+        try:
+            cfg.key()  # a deep preset fails here, before any work, if its weights are missing
+        except (ValueError, FileNotFoundError) as exc:
+            return None, f"--features: {exc}"
+    return dict(out=out["--out"], filters=out["--filters"], models=out["--model"], blobs=out["--blob"],
+                features=out["--features"], pairs=pairs, kinds=csv(args.kind) if args.kind else None), None
+
+
+def plan(args, settings: dict, *, limit: int | None = None):
+    """The units of the run (:func:`~ctxmatch_lib.evaluation.plan.plan_sweep`), or an error message.
+
+    ``limit`` keeps the first N pairs of each dataset (eval's ``--limit``) instead of ``--pairs``.
+    """
+    from ..datasets import load_dataset
+    from ..evaluation.plan import plan_sweep, select_pairs
+
+    kw = dict(features=settings["features"], blobs=settings["blobs"], filters=settings["filters"],
+              models=settings["models"], gt_method=args.gt, gt_threshold=args.gt_threshold,
+              model_threshold=args.model_threshold, seed=args.seed, max_keypoints=args.max_keypoints,
+              data_root=args.data_root)
+    units = []
+    for name in csv(args.dataset) or ["embedded"]:
+        try:
+            ds = load_dataset(name, root=args.data_root)
+        except (ValueError, FileNotFoundError, OSError) as exc:
+            return None, f"--dataset: cannot load dataset {name!r}: {exc}"
+        try:
+            chosen = select_pairs(ds.pairs, settings["pairs"], kinds=settings["kinds"])
+        except ValueError as exc:
+            return None, f"--pairs: {exc}"
+        if limit is not None:
+            chosen = chosen[:limit]
+        if not chosen:
+            return None, f"--dataset {name!r} has no pairs left to evaluate (--pairs, --kind, --limit)"
+        try:
+            units.extend(plan_sweep([name], pairs=[p.pair_id for p in chosen], **kw))
+        except ValueError as exc:
+            return None, str(exc)
+    return units, None
