@@ -1,7 +1,9 @@
-"""Deep presets (HardNet2 / SOSNet stand-ins, OriNet) through kornia: the optional torch extra.
+"""Deep presets (HardNet2 / SOSNet stand-ins, OriNet), run in numpy from the weights shipped with the package.
 
-Tests that need torch and kornia skip with a reason when they are absent; the stand-in weights are read from
-``$CTXMATCH_WEIGHTS`` or ``$CTXMATCH_DATA/../weights`` (the shared weights folder) and skip without it.
+Most tests need neither torch nor the shared data (one runs the presets in an interpreter where ``import torch``
+fails). The comparisons with kornia skip with a reason when torch/kornia are absent; those against the
+published ``.pth`` files also when the shared weights folder (``$CTXMATCH_WEIGHTS`` or
+``$CTXMATCH_DATA/../weights``) is not set.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ def _weights_dir():
 
     d = weights_dir()
     if d is None or not (d / "HardTFeat.pth").is_file():
-        pytest.skip("stand-in weights not found: set CTXMATCH_WEIGHTS (or CTXMATCH_DATA beside a weights/ folder)")
+        pytest.skip("published weights not found: set CTXMATCH_WEIGHTS (or CTXMATCH_DATA beside a weights/ folder)")
     return d
 
 
@@ -32,6 +34,12 @@ def _torch():
     torch = pytest.importorskip("torch", reason="torch is not installed (optional extra: pip install 'ctxmatch[kornia]')")
     pytest.importorskip("kornia", reason="kornia is not installed (optional extra: pip install 'ctxmatch[kornia]')")
     return torch
+
+
+def _shipped(name):
+    from ctxmatch_lib.features.deep import load_numpy_net
+
+    return load_numpy_net(name, "auto")[1]
 
 
 def _patch():
@@ -49,98 +57,165 @@ def test_deep_presets_say_stand_in_and_name_their_weights():
     assert set(FEATURE_DESCRIPTIONS) == set(FEATURE_PRESETS)
 
 
-def test_cache_key_includes_the_weights_hash(tmp_path, monkeypatch):
-    src = _weights_dir()
-    for f in ("HardTFeat.pth", "OriNet.pth"):
-        shutil.copy(src / f, tmp_path / f)
-    monkeypatch.setenv("CTXMATCH_WEIGHTS", str(tmp_path))
-    cfg = FEATURE_PRESETS["sift-hardnet2"]
-    k1 = cfg.key()
-    with open(tmp_path / "HardTFeat.pth", "ab") as fh:  # same name, other content
-        fh.write(b"\0")
-    from ctxmatch_lib.features.deep import _file_sha1
+def test_cache_key_includes_the_weights_hash_and_the_inference(tmp_path, monkeypatch):
+    import ctxmatch_lib.features.deep as deep
 
-    _file_sha1.cache_clear()
+    src = deep.resolve_weights("HardTFeat.pth")
+    assert src.parent == deep.shipped_weights_dir() and src.name == "HardTFeat.npz"
+    copy = tmp_path / "mine.npz"
+    shutil.copy(src, copy)
+    cfg = FeatureConfig(descriptor="hardnet2", net="hardtfeat", weights=str(copy), orinet_weights="OriNet.pth")
+    k1 = cfg.key()
+    assert k1 == cfg.key()  # the arrays are hashed, not the zip container
+    monkeypatch.setattr(deep, "NUMPY_IMPL", "numpy-test")  # another inference: another key
     assert cfg.key() != k1
-    (tmp_path / "HardTFeat.pth").unlink()
-    with pytest.raises(FileNotFoundError, match="HardTFeat.pth"):
+    monkeypatch.undo()
+    z = dict(np.load(copy))
+    z["classifier.1.bias"] = z["classifier.1.bias"] + 1  # same name, other content
+    np.savez(copy, **z)
+    assert cfg.key() != k1
+    copy.unlink()
+    with pytest.raises(FileNotFoundError, match="mine.npz"):
         cfg.key()
 
 
-def test_import_and_handcrafted_presets_without_torch(tmp_path):
-    """With torch unimportable, ctxmatch_lib and the handcrafted presets work; a deep preset says what to install."""
+def test_deep_presets_without_torch(tmp_path):
+    """With torch and kornia unimportable, the deep presets run (numpy) and the heat map has its 8 blocks; a
+    torch weights file says what to install."""
     code = (
         "import sys; sys.modules['torch'] = None; sys.modules['kornia'] = None\n"
         "import numpy as np, ctxmatch_lib\n"
-        "from ctxmatch_lib.features import FEATURE_PRESETS, extract_features\n"
+        "from ctxmatch_lib.features import FEATURE_PRESETS, FeatureConfig, extract_features, paper_feature_blocks\n"
         "from skimage.data import camera\n"
+        "assert len(paper_feature_blocks()) == 8, paper_feature_blocks()\n"
         "img = camera()[::4, ::4]\n"
-        "for n in ('sift-rootsgloh2', 'harrisz-rootsift'):\n"
-        "    assert len(extract_features(img, FEATURE_PRESETS[n], cache_dir=False)) > 0\n"
+        "for n in ('sift-rootsgloh2', 'sift-hardnet2', 'harrisz-sosnet'):\n"
+        "    cfg = FeatureConfig(**{**FEATURE_PRESETS[n].__dict__, 'max_keypoints': 100})\n"
+        "    f = extract_features(img, cfg, cache_dir=False)\n"
+        "    assert len(f) > 20 and np.allclose(np.linalg.norm(f.desc, axis=1), 1, atol=1e-5), n\n"
+        "open('x.pth', 'wb').write(b'0')\n"
         "try:\n"
-        "    extract_features(img, FEATURE_PRESETS['harrisz-sosnet'].__class__(detector='harrisz',"
-        " descriptor='sosnet', weights='x.pth'), cache_dir=False)\n"
-        "except (ImportError, FileNotFoundError) as e:\n"
+        "    extract_features(img, FeatureConfig(detector='harrisz', descriptor='sosnet', net='tfeat',"
+        " weights='x.pth', orinet_weights='OriNet.pth'), cache_dir=False)\n"
+        "except ImportError as e:\n"
         "    print('deep:', type(e).__name__, e)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                         env={**os.environ, "CTXMATCH_CACHE": str(tmp_path)})
+    env = {k: v for k, v in os.environ.items() if k not in ("CTXMATCH_DATA", "CTXMATCH_WEIGHTS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                         env={**env, "CTXMATCH_CACHE": str(tmp_path)})
     assert out.returncode == 0, out.stderr
     assert "deep: ImportError" in out.stdout and "kornia" in out.stdout
 
 
+def test_backend_argument_is_checked():
+    from ctxmatch_lib.features.deep import describe_patches, orinet_angles
+
+    with pytest.raises(ValueError, match="backend"):
+        describe_patches(_patch()[None], "sosnet", net="tfeat", weights="tfeat-liberty.params", backend="jax")
+    with pytest.raises(ValueError, match="backend='numpy'"):
+        describe_patches(_patch()[None], "sosnet", weights=None, backend="numpy")  # kornia's published SOSNet
+    with pytest.raises(ValueError, match="descriptor"):
+        describe_patches(_patch()[None], "sift", weights="tfeat-liberty.params")
+    assert orinet_angles(np.zeros((40, 40)), np.empty((0, 2)), np.empty((0, 2, 2)), weights="OriNet.pth").shape == (0,)
+
+
 def test_tfeat_weights_and_known_output():
-    """kornia's TFeat with the stand-in SOSNet weights equals a functional re-computation of TFeat."""
+    """The numpy TFeat (stand-in SOSNet weights) equals a float64 functional re-computation of TFeat."""
     torch = _torch()
     import torch.nn.functional as F
 
-    from ctxmatch_lib.features.deep import describe_patches, resolve_weights
+    from ctxmatch_lib.features.deep import describe_patches
 
-    _weights_dir()
-    path = resolve_weights("tfeat-liberty.params")
-    sd = torch.load(path, map_location="cpu")
+    sd = {k: torch.from_numpy(v).double() for k, v in _shipped("tfeat-liberty.params").items()}
     patch = _patch()
     got = describe_patches(patch[None], "sosnet", net="tfeat", weights="tfeat-liberty.params")
     x = torch.from_numpy(patch)[None, None].double()
     x = (x - x.mean()) / torch.sqrt(x.var(unbiased=False) + 1e-5)  # InstanceNorm2d
-    x = torch.tanh(F.conv2d(x, sd["features.1.weight"].double(), sd["features.1.bias"].double()))
+    x = torch.tanh(F.conv2d(x, sd["features.1.weight"], sd["features.1.bias"]))
     x = F.max_pool2d(x, 2, 2)
-    x = torch.tanh(F.conv2d(x, sd["features.4.weight"].double(), sd["features.4.bias"].double()))
-    x = torch.tanh(F.linear(x.flatten(1), sd["descr.0.weight"].double(), sd["descr.0.bias"].double()))
+    x = torch.tanh(F.conv2d(x, sd["features.4.weight"], sd["features.4.bias"]))
+    x = torch.tanh(F.linear(x.flatten(1), sd["descr.0.weight"], sd["descr.0.bias"]))
     ref = (x / x.norm(dim=1, keepdim=True)).numpy()
-    assert got.shape == (1, 128)
+    assert got.shape == (1, 128) and got.dtype == np.float32
     assert np.allclose(got, ref, atol=1e-5)
 
 
 def test_hardtfeat_weights_and_known_output():
-    """The HardNet2 stand-in (HardTFeat.pth, TFeat architecture) equals a functional re-computation."""
+    """The HardNet2 stand-in (HardTFeat, TFeat architecture with the authors' final tanh) equals a float64
+    functional re-computation, in numpy and through the torch module."""
     torch = _torch()
     import torch.nn.functional as F
 
-    from ctxmatch_lib.features.deep import describe_patches, load_descriptor_net, resolve_weights
+    from ctxmatch_lib.features.deep import describe_patches, load_descriptor_net
 
-    _weights_dir()
     net = load_descriptor_net("hardnet2", net="hardtfeat", weights="HardTFeat.pth")
     assert not net.training
-    sd = torch.load(resolve_weights("HardTFeat.pth"), map_location="cpu", weights_only=False)["state_dict"]
+    sd = {k: torch.from_numpy(v).double() for k, v in _shipped("HardTFeat.pth").items()}
     patch = _patch()
-    got = describe_patches(patch[None], "hardnet2", net="hardtfeat", weights="HardTFeat.pth")
     x = torch.from_numpy(patch)[None, None].double()
     x = (x - x.mean()) / (x.std() + 1e-7)
-    x = torch.tanh(F.conv2d(x, sd["features.0.weight"].double(), sd["features.0.bias"].double()))
+    x = torch.tanh(F.conv2d(x, sd["features.0.weight"], sd["features.0.bias"]))
     x = F.max_pool2d(x, 2, 2)
-    x = torch.tanh(F.conv2d(x, sd["features.3.weight"].double(), sd["features.3.bias"].double()))
-    x = F.conv2d(x, sd["classifier.1.weight"].double(), sd["classifier.1.bias"].double()).flatten(1)
+    x = torch.tanh(F.conv2d(x, sd["features.3.weight"], sd["features.3.bias"]))
+    x = torch.tanh(F.conv2d(x, sd["classifier.1.weight"], sd["classifier.1.bias"])).flatten(1)
     ref = (x / x.norm(dim=1, keepdim=True)).numpy()
-    assert np.allclose(got, ref, atol=1e-5)
+    for backend in ("numpy", "torch"):
+        got = describe_patches(patch[None], "hardnet2", net="hardtfeat", weights="HardTFeat.pth", backend=backend)
+        assert np.allclose(got, ref, atol=1e-5), backend
+
+
+def test_shipped_npz_are_the_published_weights(tmp_path):
+    """The shipped .npz hold the published files' arrays unchanged, and name their origin and copyright."""
+    _torch()
+    src = _weights_dir()
+    from ctxmatch_lib.features.deep import _SHIPPED_SOURCES, export_npz
+
+    for name, (arch, _, notice) in _SHIPPED_SOURCES.items():
+        fresh = np.load(export_npz(src / name, tmp_path / "x.npz", arch))
+        shipped = np.load(__import__("ctxmatch_lib.features.deep", fromlist=["x"]).resolve_weights(name))
+        assert sorted(fresh.files) == sorted(shipped.files)
+        assert all(np.array_equal(fresh[k], shipped[k]) for k in fresh.files)
+        meta = shipped["__meta__"].item()
+        assert notice in meta and '"licence": "MIT"' in meta and name in meta
+
+
+def test_numpy_inference_equals_kornia():
+    """Patches, OriNet angles and descriptors: the numpy path against kornia's sampler and modules."""
+    torch = _torch()
+    import kornia.feature as KF
+
+    from ctxmatch_lib.features import _nn
+    from ctxmatch_lib.features.deep import deep_descriptors, describe_patches, orinet_angles
+
+    rng = np.random.default_rng(0)
+    img = (rng.uniform(0, 255, (161, 203)).astype(np.float32))
+    import cv2
+
+    img = cv2.GaussianBlur(img, (0, 0), 1.5)
+    n = 120
+    kp = np.c_[rng.uniform(-5, 208, n), rng.uniform(-5, 166, n)]  # some near or past the border
+    ang = rng.uniform(-np.pi, np.pi, n)
+    c, s = np.cos(ang), np.sin(ang)
+    A = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2) * np.exp(rng.uniform(0, 3.5, n))[:, None, None]
+    A[:, :, 0] *= rng.uniform(0.6, 1.4, n)[:, None]  # anisotropic frames, pyramid levels 0-2
+    laf = torch.from_numpy(np.concatenate([A, kp[:, :, None]], 2)).float()[None]
+    ref = KF.extract_patches_from_pyramid(torch.from_numpy(img / 255)[None, None].float(), laf, 32)[0, :, 0]
+    got = _nn.pyramid_patches(img / 255, kp, A)
+    assert np.abs(got - ref.numpy()).max() < 1e-4  # kornia's float32 sampling grid
+    for desc, net, w in (("hardnet2", "hardtfeat", "HardTFeat.pth"), ("sosnet", "tfeat", "tfeat-liberty.params")):
+        same = [describe_patches(got, desc, net=net, weights=w, backend=b) for b in ("numpy", "torch")]
+        assert np.abs(same[0] - same[1]).max() < 1e-5
+        full = [deep_descriptors(img, kp, A, descriptor=desc, net=net, weights=w, backend=b, support=1.0)
+                for b in ("numpy", "torch")]
+        assert np.abs(full[0] - full[1]).max() < 2e-4
+    a, b = (orinet_angles(img, kp, A, weights="OriNet.pth", support=1.0, backend=be) for be in ("numpy", "torch"))
+    assert np.abs(np.angle(np.exp(1j * (a - b)))).max() < 1e-3
 
 
 def test_orinet_follows_a_quarter_turn():
     """OriNet (OriNet.pth) angles turn with the image: np.rot90 changes them by about -90°."""
-    _torch()
     from ctxmatch_lib.features.deep import orinet_angles
 
-    _weights_dir()
     import cv2
 
     rng = np.random.default_rng(0)
@@ -157,8 +232,6 @@ def test_orinet_follows_a_quarter_turn():
 
 @pytest.mark.parametrize("name", ["sift-sosnet", "harrisz-hardnet2"])
 def test_deep_presets_extract(name, tmp_path):
-    _torch()
-    _weights_dir()
     from skimage.data import camera
 
     from ctxmatch_lib.features import extract_features

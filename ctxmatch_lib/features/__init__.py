@@ -224,8 +224,9 @@ def paper_feature_blocks(deep: bool | None = None) -> list[str]:
     Parameters
     ----------
     deep : bool, optional
-        Include the HardNet2 / SOSNet blocks (stand-in weights). ``None``: when kornia imports and their
-        weights are found; ``True``: always (an error later if they cannot run); ``False``: never.
+        Include the HardNet2 / SOSNet blocks (stand-in weights, run in numpy). ``None``: when their weights
+        are found (they ship with the package); ``True``: always (an error later if they cannot run);
+        ``False``: never.
 
     Returns
     -------
@@ -242,11 +243,9 @@ def paper_feature_blocks(deep: bool | None = None) -> list[str]:
         return handcrafted
     if deep is None:
         try:
-            import kornia  # noqa: F401
-
             for k in PAPER_FEATURE_BLOCKS:
                 FEATURE_PRESETS[k].key()  # resolves (and hashes) the weights: FileNotFoundError when missing
-        except (ImportError, FileNotFoundError, ValueError):
+        except (FileNotFoundError, ValueError):
             return handcrafted
     return list(PAPER_FEATURE_BLOCKS)
 
