@@ -231,7 +231,7 @@ def test_evaluate_cached_reads_back(tmp_path, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("run_unit called despite a cache hit")
 
-    monkeypatch.setattr(sweep, "run_unit", boom)
+    monkeypatch.setattr("ctxmatch_lib.evaluation.run.run_unit", boom)  # where run_units looks it up
     again = evaluate_cached(pairs, **kw)
     pd.testing.assert_frame_equal(first, again)
     # Another setting is another key; cache=False never reads.
