@@ -105,8 +105,8 @@ def resolve_features(features="sift-rootsift", *, max_keypoints: int | None = No
 
     if isinstance(features, str):
         if features not in FEATURE_PRESETS:
-            raise ValueError(f"features must be one of {', '.join(FEATURE_PRESETS)} or a FeatureConfig, "
-                             f"got {features!r}")
+            raise ValueError(f"unknown feature preset {features!r}; known presets: {', '.join(FEATURE_PRESETS)} "
+                             "(or pass a FeatureConfig)")
         features = FEATURE_PRESETS[features]
     elif not isinstance(features, FeatureConfig):
         raise ValueError(f"features must be a preset name or a FeatureConfig, got {type(features).__name__}")

@@ -337,3 +337,21 @@ def test_train_tiny_run_writes_the_cache_and_loads_with_weights(tmp_path, monkey
     keep = FILTERS["acne"](k, k + 1, m, np.linspace(0, 1, 40), image_size1=(64, 64), image_size2=(64, 64),
                            weights=path)
     assert keep.shape == (40,) and keep.dtype == bool
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--model-threshold", "-1"], "--model-threshold must be a positive number of pixels, got -1.0"),
+    (["--model-threshold", "nan"], "--model-threshold must be a positive"),
+    (["--features", "best"], "--features: unknown feature preset 'best'; known presets: sift-rootsift"),
+    (["--blob", "best"], "--blob: unknown blob preset 'best'; known presets: paper-best"),
+    (["--blob", "paper-best:zz=1"], "--blob: blob override 'zz=1'"),
+    (["--filter", "best"], "--filter: unknown filter 'best'; known filters:"),
+    (["--max-keypoints", "-1"], "--max-keypoints must be >= 0"),
+])
+def test_match_setting_errors_name_the_flag(images, tmp_path, monkeypatch, capsys, flags, message):
+    from ctxmatch_lib.cli import main
+
+    _no_work(monkeypatch)
+    assert main(["match", str(images / "a.png"), str(images / "b.png"), "--out", str(tmp_path / "m.npz"),
+                 *flags]) == 2
+    assert message in capsys.readouterr().err

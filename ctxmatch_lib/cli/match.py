@@ -135,17 +135,26 @@ def run(args) -> int:
         return _error(f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
     if args.max_keypoints is not None and args.max_keypoints < 0:
         return _error(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
+    if args.model_threshold is not None and not (args.model_threshold > 0 and args.model_threshold < float("inf")):
+        return _error(f"--model-threshold must be a positive number of pixels, got {args.model_threshold}")
     settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
                     model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
                     cache_dir=False if args.no_cache else None)
+    from ..match import _as_filter_list
+
+    # Each setting resolved here, so that its error names the flag (the library's names its parameter).
     try:
         settings["features"] = resolve_features(args.features)
+    except ValueError as exc:
+        return _error(f"--features: {exc}")
+    try:
         settings["blob"] = resolve_blob(args.blob)
-        from ..match import _as_filter_list
-
+    except ValueError as exc:
+        return _error(f"--blob: {exc}")
+    try:
         _as_filter_list(settings["filters"])
     except ValueError as exc:
-        return _error(str(exc))
+        return _error(f"--filter: {exc}")
     if args.export_h5 is not None:
         try:
             import h5py  # noqa: F401
