@@ -488,6 +488,12 @@ def test_cli_data_download(tmp_path, capsys):
     assert (root / "planar" / "oxford" / "graf" / "H1to2p").is_file()
     args = parser.parse_args(["data", "download", "homogr", "--root", str(root)])
     assert args.func(args) == 1
-    assert "no pinned SHA-256" in capsys.readouterr().out
+    assert "no pinned SHA-256" in capsys.readouterr().err
+    (tmp_path / "file").write_text("a regular file")
+    for command in (["download", "oxford-graf"], ["embedded"]):
+        args = parser.parse_args(["data", *command, "--root", str(tmp_path / "file" / "root")])
+        assert args.func(args) == 2
+        err = capsys.readouterr().err
+        assert "--root: cannot create" in err and "is a file, not a folder" in err
     with pytest.raises(SystemExit):
         parser.parse_args(["data", "download", "imagenet"])

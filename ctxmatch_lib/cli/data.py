@@ -11,6 +11,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -63,9 +64,26 @@ def _list(args) -> int:
     return 0
 
 
+def _check_root(args, command: str) -> str | None:
+    """``--root`` as a folder that can be filled, checked before any work; the error line, or ``None``."""
+    if args.root is None:
+        return None
+    from .._paths import check_writable
+
+    try:
+        check_writable(args.root, "--root", folder=True)
+    except ValueError as exc:
+        return f"ctxmatch data {command}: error: {exc}"
+    return None
+
+
 def _embedded(args) -> int:
     from ..datasets import load_dataset
 
+    problem = _check_root(args, "embedded")
+    if problem:
+        print(problem, file=sys.stderr)
+        return 2
     ds = load_dataset("embedded", root=args.root)
     print(f"{ds!r} at {ds.root}")
     return 0
@@ -74,13 +92,17 @@ def _embedded(args) -> int:
 def _download(args) -> int:
     from ..datasets.download import download_dataset
 
+    problem = _check_root(args, "download")
+    if problem:
+        print(problem, file=sys.stderr)
+        return 2
     try:
         paths = download_dataset(
             args.name, root=args.root, url=args.url, sha256=args.sha256, allow_unpinned=args.allow_unpinned,
             force=args.force, progress=args.progress,
         )
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"ctxmatch data download: error: {exc}")
+    except (ValueError, OSError) as exc:  # OSError: also the network errors (requests' derive from it)
+        print(f"ctxmatch data download: error: {exc}", file=sys.stderr)
         return 1
     for p in paths:
         print(p)
