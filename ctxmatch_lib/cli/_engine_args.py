@@ -116,20 +116,24 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         try:
             out[flag] = step()
         except (ValueError, KeyError, FileNotFoundError) as exc:
-            text = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-            return None, f"{flag}: {text}"
+            text = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
+            return None, text if text.startswith(flag) else f"{flag}: {text}"
     pairs = None
     if args.pairs is not None:
         pairs = int(args.pairs) if args.pairs.strip().isdigit() else csv(args.pairs)
         if pairs == 0:
             return None, "--pairs must be a positive number of pairs or pair ids, got 0"
+    kinds = csv(args.kind) if args.kind else None
+    unknown = sorted(set(kinds or ()) - {"planar", "nonplanar", "depth"})
+    if unknown:
+        return None, f"--kind must be among planar, nonplanar, depth, got {', '.join(unknown)}"
     for cfg in out["--features"].values():
         try:
             cfg.key()  # a deep preset fails here, before any work, if its weights are missing
         except (ValueError, FileNotFoundError) as exc:
             return None, f"--features: {exc}"
     return dict(out=out["--out"], filters=out["--filters"], models=out["--model"], blobs=out["--blob"],
-                features=out["--features"], pairs=pairs, kinds=csv(args.kind) if args.kind else None), None
+                features=out["--features"], pairs=pairs, kinds=kinds), None
 
 
 def plan(args, settings: dict, *, limit: int | None = None):
