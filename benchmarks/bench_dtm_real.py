@@ -42,7 +42,7 @@ from ctxmatch_lib import BLOB_PRESETS
 from ctxmatch_lib.datasets import load_dataset
 from ctxmatch_lib.dtm import dtm
 from ctxmatch_lib.dtm.boundary import boundary_step
-from ctxmatch_lib.pipeline import blob_candidates, label_candidates, pair_features
+from ctxmatch_lib.evaluation.steps import blob_candidates, label_candidates, pair_features
 
 GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "kusvod2": ("kusvod2",)}
 PRESETS = ("paper-best", "baseline")

@@ -1,7 +1,7 @@
 """Wall time of the full blob grid (issue 6, section 4).
 
 The 2430 blob-matching setups of Sec. 5.2 for SIFT+RootSIFT (8000 keypoints per image) on every pair of the
-shared real data (planar: HPatches, Oxford graf, homogr; non-planar: kusvod2), through `ctxmatch_lib.sweep`
+shared real data (planar: HPatches, Oxford graf, homogr; non-planar: kusvod2), through `ctxmatch_lib.evaluation`
 with joblib processes. The sweep cache is a fresh temporary folder, so every candidate set, ratio, FGINN
 overlap table and AP is computed; features come from the regular feature cache and are extracted (and
 timed) first. Prints the wall time against the 30-minute target, then the time of a rerun that finds every
@@ -31,8 +31,9 @@ def main(argv=None) -> int:
     from ctxmatch_lib._paths import data_root
     from ctxmatch_lib.blob import BLOB_PRESETS
     from ctxmatch_lib.features import FeatureConfig
-    from ctxmatch_lib.pipeline import pair_features
-    from ctxmatch_lib.sweep import blob_map, plan_sweep, run_sweep
+    from ctxmatch_lib.evaluation.steps import pair_features
+    from ctxmatch_lib.evaluation import plan_sweep, run_sweep
+    from ctxmatch_lib.report_blob import blob_map
 
     if data_root() is None and "embedded" not in args.dataset:
         print("bench_sweep: set CTXMATCH_DATA to the folder holding planar/ and nonplanar/", file=sys.stderr)
