@@ -355,3 +355,13 @@ def test_match_setting_errors_name_the_flag(images, tmp_path, monkeypatch, capsy
     assert main(["match", str(images / "a.png"), str(images / "b.png"), "--out", str(tmp_path / "m.npz"),
                  *flags]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_match_images_are_checked_before_matching(images, tmp_path, monkeypatch, capsys):
+    from ctxmatch_lib.cli import main
+
+    _no_work(monkeypatch)
+    assert main(["match", str(images), str(images / "b.png"), "--out", str(tmp_path / "m.npz")]) == 2
+    assert f"IMAGE: {images} is not a file" in capsys.readouterr().err
+    assert main(["match", str(images / "a.png"), str(tmp_path / "nope.png"), "--out", str(tmp_path / "m.npz")]) == 2
+    assert "IMAGE: file not found" in capsys.readouterr().err and not (tmp_path / "m.npz").exists()

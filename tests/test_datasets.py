@@ -495,5 +495,9 @@ def test_cli_data_download(tmp_path, capsys):
         assert args.func(args) == 2
         err = capsys.readouterr().err
         assert "--root: cannot create" in err and "is a file, not a folder" in err
+    for flags, named in ((["--url", archive.as_uri(), "--sha256", "xyz"], "--sha256"),
+                         (["--url", "archive.tar.gz", "--sha256", sha], "--url")):
+        args = parser.parse_args(["data", "download", "oxford-graf", "--root", str(root), *flags])
+        assert args.func(args) == 2 and f"{named} must" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         parser.parse_args(["data", "download", "imagenet"])

@@ -105,6 +105,11 @@ def _check_inputs_and_outputs(args, folder: bool) -> None:
         if args.plot:
             check_writable(args.plot, "--plot", folder=True)
     else:
+        for image in args.images_pair:
+            if not Path(image).exists():
+                raise ValueError(f"IMAGE: file not found: {image}")
+            if not Path(image).is_file():
+                raise ValueError(f"IMAGE: {image} is not a file")
         out = Path(args.out or "matches.npz")
         if out.suffix.lower() != ".npz":
             raise ValueError(f"--out must end with .npz, got {out}")
