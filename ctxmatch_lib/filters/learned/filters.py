@@ -69,11 +69,33 @@ def _cached(kind, loader, arch, weights):
         return _CACHE[key]
 
 
-def load_numpy_model_cached(arch: str, weights=None):
-    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached."""
-    from .npnets import load_numpy_model
+def _load_numpy(arch: str, path: Path):
+    from .npnets import from_state_dict, is_tf_checkpoint, load_numpy_model
 
-    return _cached("numpy", load_numpy_model, arch, weights)
+    if path.suffix == ".npz" or not path.is_file() or (arch == "acne" and is_tf_checkpoint(path)):
+        return load_numpy_model(arch, path)
+    # A torch checkpoint (ours, the OANet authors'): read with torch, run in numpy.
+    try:
+        import torch  # noqa: F401
+    except ImportError as e:
+        raise ImportError(f"weights {path} is a torch checkpoint: reading it needs PyTorch (pip install "
+                          "torch==2.13.0); or convert it once to .npz with python -m "
+                          "ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz") from e
+    from .checkpoints import load_model
+
+    m = load_model(arch, path)
+    sd = {k: v.detach().cpu().numpy() for k, v in m.net.state_dict().items()}
+    return from_state_dict(arch, m.net.config.to_dict(), sd, normalization=m.normalization, side=m.side,
+                           label=m.label, source=m.source)
+
+
+def load_numpy_model_cached(arch: str, weights=None):
+    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached.
+
+    ``.npz`` and the ACNe authors' TensorFlow checkpoints load with numpy alone; torch checkpoints (``.pt``,
+    ``.pth``) need torch to be read (they then run in numpy too).
+    """
+    return _cached("numpy", _load_numpy, arch, weights)
 
 
 def load_learned_model(arch: str, weights=None):

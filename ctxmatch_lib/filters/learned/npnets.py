@@ -30,7 +30,7 @@ import numpy as np
 from .configs import ACNeConfig, OANetConfig
 
 __all__ = ["NumpyModel", "oanet_logits", "acne_logits", "weighted_eight_point", "epipolar_residual",
-           "save_npz", "load_npz", "load_numpy_model", "is_tf_checkpoint", "tf_name_map", "acne_params_from_tf_tensors", "oanet_config_from_state_dict", "NPZ_FORMAT"]
+           "save_npz", "load_npz", "load_numpy_model", "from_state_dict", "is_tf_checkpoint", "tf_name_map", "acne_params_from_tf_tensors", "oanet_config_from_state_dict", "NPZ_FORMAT"]
 
 NPZ_FORMAT = "ctxmatch-learned-filter-npz"
 _F32 = np.float32
@@ -325,20 +325,23 @@ def is_tf_checkpoint(path: Path) -> bool:
     return path.name.endswith(".index") or ".data-" in path.name or path.with_name(path.name + ".index").is_file()
 
 
-def load_numpy_model(arch: str, weights) -> NumpyModel:
-    """The :class:`NumpyModel` of ``weights`` in any supported format.
+def from_state_dict(arch: str, config: dict, sd: dict, *, normalization: str, side: str, label: str,
+                    source: str) -> NumpyModel:
+    """A :class:`NumpyModel` from a ``state_dict`` of numpy arrays (or anything ``np.asarray`` reads)."""
+    return NumpyModel(arch, dict(config), _float_params(sd), normalization, side, label, source)
 
-    ``.npz`` (ctxmatch) and the ACNe authors' TensorFlow checkpoints load with numpy alone; torch checkpoints
-    (``.pt``/``.pth``: ours, the OANet authors') are read with torch, which must then be installed.
+
+def load_numpy_model(arch: str, weights) -> NumpyModel:
+    """The :class:`NumpyModel` of ``weights``: a ctxmatch ``.npz`` or an ACNe authors' TensorFlow checkpoint.
+
+    (Torch checkpoints, ``.pt``/``.pth``, are read by :func:`.filters.load_numpy_model_cached` with torch.)
 
     Raises
     ------
     FileNotFoundError
         ``weights`` does not exist.
     ValueError
-        Not a checkpoint of ``arch`` in a supported format.
-    ImportError
-        A torch checkpoint and no torch.
+        Not a checkpoint of ``arch`` in one of these formats.
     """
     from .tfbundle import read_tf_checkpoint
 
@@ -352,16 +355,4 @@ def load_numpy_model(arch: str, weights) -> NumpyModel:
         raise FileNotFoundError(f"weights not found: {path}")
     if path.is_dir():
         raise ValueError(f"weights must be a checkpoint file, got the folder {path}")
-    if path.suffix == ".npz":
-        return load_npz(arch, path)
-    try:
-        import torch  # noqa: F401
-    except ImportError as e:
-        raise ImportError(f"weights {path} is a torch checkpoint: reading it needs PyTorch (pip install "
-                          "torch==2.13.0); or convert it once to .npz with "
-                          "ctxmatch_lib.filters.learned.checkpoints.convert_to_npz") from e
-    from .checkpoints import load_model
-
-    m = load_model(arch, path)
-    sd = {k: v.detach().cpu().numpy() for k, v in m.net.state_dict().items()}
-    return NumpyModel(arch, m.net.config.to_dict(), _float_params(sd), m.normalization, m.side, m.label, m.source)
+    return load_npz(arch, path)
