@@ -361,3 +361,29 @@ def test_handcrafted_patch_presets(gray, name):
         base = f.shapes @ np.stack([np.stack([np.cos(f.angles), np.sin(f.angles)], -1),
                                     np.stack([-np.sin(f.angles), np.cos(f.angles)], -1)], -2)
         assert np.allclose(base, np.swapaxes(base, 1, 2), atol=1e-9)  # HarrisZ shapes are symmetric
+
+
+def test_readme_api_example_runs_on_any_image_size(tmp_path, monkeypatch):
+    # The README's ten-line example once hard-coded (640, 480) and raised on other images: run it as written.
+    import re
+    from pathlib import Path
+
+    import cv2
+    from skimage.data import astronaut
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## The Python API in ten lines", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    assert "640, 480" not in code and "image_size" in code
+    img = cv2.cvtColor(astronaut(), cv2.COLOR_RGB2GRAY)[:300, :220]  # 220 x 300, not 640 x 480
+    cv2.imwrite(str(tmp_path / "img1.png"), img)
+    cv2.imwrite(str(tmp_path / "img2.png"), np.ascontiguousarray(img[8:, 5:]))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    scope = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    assert scope["f1"].image_size == (220, 300) and scope["f2"].image_size == (215, 292)
+    m = scope["matches"]
+    assert m.ndim == 2 and m.shape[1] == 2 and len(m) > 20
+    shift = scope["f1"].kpts[m[:, 0]] - scope["f2"].kpts[m[:, 1]]
+    assert np.median(shift, axis=0).round().tolist() == [5.0, 8.0]
