@@ -1,0 +1,112 @@
+"""Plots of the ground-truth comparison (Appendix "Ground truth estimation methods", figure ``setup_imgs``).
+
+The caption's groups of matches (:func:`ctxmatch_lib.gt_compare.method_groups`) drawn as coloured motion flows
+on image 1 (:func:`plot_gt_flows`), and the support regions of their matches on image 2 with the region
+carried over from image 1 dashed (:func:`plot_support_regions`). One colour per group, the same in every
+panel (:data:`GROUP_COLORS`, Okabe–Ito); every helper takes an ``ax`` and never calls ``plt.show()``.
+
+Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.collections import LineCollection
+
+from .palette import OKABE_ITO
+from .viz2d import plot_flow, plot_image
+
+__all__ = ["GROUP_COLORS", "DETECTOR_LABELS", "ellipse_polylines", "plot_gt_flows", "plot_support_regions"]
+
+#: One colour per group of the caption (the paper's colour in comments).
+GROUP_COLORS = {
+    "C ∩ D": OKABE_ITO["blue"],  # blue (planar) / yellow (non-planar)
+    "C ∖ D": OKABE_ITO["vermillion"],  # red
+    "B ∖ C": OKABE_ITO["sky_blue"],  # light blue (planar) / light red (non-planar)
+    "D ∖ C": OKABE_ITO["orange"],  # orange
+    "A ∩ D": OKABE_ITO["bluish_green"],  # yellow
+    "A ∖ D": OKABE_ITO["reddish_purple"],  # light blue
+    "D ∖ A": OKABE_ITO["yellow"],  # orange
+}
+
+#: Short column titles of the figure (the detector of a feature block, as the paper's caption names it).
+DETECTOR_LABELS = {"sift": "SIFT", "harrisz": "HarrisZ"}
+
+
+def ellipse_polylines(centres, shapes, n: int = 48) -> np.ndarray:
+    """Outlines ``(P, n + 1, 2)`` of the ellipses ``{c + A u : |u| = 1}`` (closed), NaN rows dropped."""
+    c = np.asarray(centres, np.float64).reshape(-1, 2)
+    A = np.asarray(shapes, np.float64).reshape(-1, 2, 2)
+    keep = np.isfinite(c).all(1) & np.isfinite(A).all((1, 2))
+    t = np.linspace(0.0, 2.0 * np.pi, n + 1)
+    u = np.stack([np.cos(t), np.sin(t)], axis=1)
+    return c[keep, None, :] + np.einsum("pij,tj->pti", A[keep], u)
+
+
+def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7, ps: float = 2.0,
+                  dim: float = 0.55, counts: bool = True) -> None:
+    """Matches of each group as motion flows on image 1 (from the keypoint in image 1 to its match's
+    position in image 2), one colour per group.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    img : ndarray
+        Image 1.
+    kpts1, kpts2 : ndarray of shape (K, 2)
+        Matched keypoints (row k is a match), (x, y) pixels.
+    groups : dict of str to ndarray of shape (K,), bool
+        Disjoint groups (:func:`ctxmatch_lib.gt_compare.method_groups`), drawn in order.
+    colors : dict, optional
+        Group name -> colour (default :data:`GROUP_COLORS`).
+    counts : bool
+        Put each group's size in the legend label.
+    """
+    colors = GROUP_COLORS if colors is None else colors
+    plot_image(ax, img, dim=dim)
+    from matplotlib.lines import Line2D
+
+    handles = []
+    for name, mask in groups.items():
+        mask = np.asarray(mask, bool)
+        plot_flow(ax, kpts1[mask], kpts2[mask], color=colors[name], lw=lw, ps=ps)
+        handles.append(Line2D([], [], color=colors[name], lw=1.8, label=f"{name} ({mask.sum()})" if counts else name))
+    ax.legend(handles=handles, loc="lower left", fontsize=7, frameon=True, framealpha=0.8, handlelength=1.2,
+              borderpad=0.3, labelspacing=0.2)
+
+
+def plot_support_regions(ax, img, kpts2, shapes2, carried_centres, carried_shapes, groups, worst, *,
+                         colors=None, dim: float = 0.55, lw: float = 0.35, lw_worst: float = 1.4) -> None:
+    """Support regions on image 2: each match's region (solid) and the region of its image-1 keypoint
+    carried into image 2 by the ground truth (dashed), thin for every match of a group and thick for the
+    group's worst match.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    img : ndarray
+        Image 2.
+    kpts2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
+        The image-2 keypoint of each match and its region (as compared, i.e. already scaled).
+    carried_centres, carried_shapes : ndarray of shape (K, 2), (K, 2, 2)
+        The image-1 regions carried into image 2 (:class:`ctxmatch_lib.groundtruth.RegionErrors`).
+    groups : dict of str to ndarray of shape (K,), bool
+    worst : dict of str to int
+        The match drawn thick in each group (:func:`ctxmatch_lib.gt_compare.worst_in_groups`).
+    """
+    colors = GROUP_COLORS if colors is None else colors
+    plot_image(ax, img, dim=dim)
+    for name, mask in groups.items():
+        idx = np.flatnonzero(mask)
+        col = colors[name]
+        ax.add_collection(LineCollection(ellipse_polylines(kpts2[idx], shapes2[idx]), colors=col, linewidths=lw,
+                                         alpha=0.45))
+        if name in worst:
+            k = worst[name]
+            ax.add_collection(LineCollection(ellipse_polylines(kpts2[k], shapes2[k]), colors=col,
+                                             linewidths=lw_worst, zorder=4))
+            ax.add_collection(LineCollection(ellipse_polylines(carried_centres[k], carried_shapes[k]), colors=col,
+                                             linewidths=lw_worst, linestyles=(0, (3, 1.5)), zorder=4))
+    h, w = np.asarray(img).shape[:2]
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
