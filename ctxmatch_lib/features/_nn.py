@@ -54,8 +54,10 @@ def _chunked(fn):
 
 
 def _max_pool2(x: np.ndarray) -> np.ndarray:
-    n, h, w, c = x.shape
-    return x[:, : h // 2 * 2, : w // 2 * 2].reshape(n, h // 2, 2, w // 2, 2, c).max(axis=(2, 4))
+    """2×2 max pooling, stride 2 (an odd last row or column is dropped, as torch does)."""
+    h, w = x.shape[1] // 2 * 2, x.shape[2] // 2 * 2
+    return np.maximum(np.maximum(x[:, 0:h:2, 0:w:2], x[:, 0:h:2, 1:w:2]),
+                      np.maximum(x[:, 1:h:2, 0:w:2], x[:, 1:h:2, 1:w:2]))
 
 
 def _standardise(p: np.ndarray, eps: float, *, unbiased: bool, inside: bool) -> np.ndarray:
@@ -87,8 +89,8 @@ def tfeat(p: dict, patches: np.ndarray) -> np.ndarray:
     Instance normalisation of the patch, 7×7 conv + tanh, 2×2 max pool, 6×6 conv + tanh, linear + tanh.
     """
     x = _standardise(patches, 1e-5, unbiased=False, inside=True)
-    x = np.tanh(conv2d(x, p["features.1.weight"], p["features.1.bias"]))
-    x = np.tanh(conv2d(_max_pool2(x), p["features.4.weight"], p["features.4.bias"]))
+    x = np.tanh(_max_pool2(conv2d(x, p["features.1.weight"], p["features.1.bias"])))  # tanh is monotonic
+    x = np.tanh(conv2d(x, p["features.4.weight"], p["features.4.bias"]))
     flat = x.transpose(0, 3, 1, 2).reshape(len(x), -1)  # torch's (C, H, W) flattening
     return np.tanh(flat @ p["descr.0.weight"].T + p["descr.0.bias"])
 
@@ -101,8 +103,8 @@ def hardtfeat(p: dict, patches: np.ndarray) -> np.ndarray:
     then an 8×8 convolution to 128 channels and tanh (the authors' ``HardTFeatNet``).
     """
     x = _standardise(patches, 1e-7, unbiased=True, inside=False)
-    x = np.tanh(conv2d(x, p["features.0.weight"], p["features.0.bias"]))
-    x = np.tanh(conv2d(_max_pool2(x), p["features.3.weight"], p["features.3.bias"]))
+    x = np.tanh(_max_pool2(conv2d(x, p["features.0.weight"], p["features.0.bias"])))  # tanh is monotonic
+    x = np.tanh(conv2d(x, p["features.3.weight"], p["features.3.bias"]))
     return np.tanh(conv2d(x, p["classifier.1.weight"], p["classifier.1.bias"]).reshape(len(x), -1))
 
 
@@ -161,18 +163,12 @@ def _levels(h: int, w: int, ps: int) -> list[tuple[int, int]]:
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    # Bilinear interpolation at (x, y) clamped to the pixel centres: outside, the border pixel is read.
+    from scipy.ndimage import map_coordinates
+
     h, w = img.shape
-    x = np.clip(x, 0, w - 1)
-    y = np.clip(y, 0, h - 1)
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx = (x - x0).astype(np.float32)
-    fy = (y - y0).astype(np.float32)
-    x1 = np.minimum(x0 + 1, w - 1)
-    y1 = np.minimum(y0 + 1, h - 1)
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
+    return map_coordinates(img, [np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)], order=1, mode="nearest",
+                           prefilter=False)
 
 
 def pyramid_patches(img: np.ndarray, kpts: np.ndarray, A: np.ndarray, ps: int = 32) -> np.ndarray:
