@@ -441,7 +441,7 @@ def export_npz(source, output, net: str) -> Path:
               if v.is_floating_point()}
     origin = _SHIPPED_SOURCES.get(source.name)
     meta = {"format": _NPZ_FORMAT, "version": 1, "net": net, "source": source.name,
-            "source_sha1": _file_sha1(str(source.resolve()), 0, 0),
+            "source_sha1": _file_sha1(str(source.resolve()), source.stat().st_mtime_ns, source.stat().st_size),
             "origin": origin[1] if origin else None, "copyright": origin[2] if origin else None,
             "licence": "MIT" if origin else None}
     output = Path(output)
