@@ -199,13 +199,18 @@ def _threshold(value) -> float:
     return value
 
 
-def _read(image):
-    """The pixels of a path or an array (kept as given for plotting) and the gray image for the features."""
+def _read(image, name: str):
+    """The gray image for the features of a path or an array; errors name the argument."""
     from .features import _as_gray_uint8
 
-    gray = _as_gray_uint8(image)
+    try:
+        gray = _as_gray_uint8(image)
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{name}: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{name}: {exc}") from None
     if gray.ndim != 2 or gray.size == 0:
-        raise ValueError(f"image must be a non-empty 2-D image, got shape {gray.shape}")
+        raise ValueError(f"{name} must be a non-empty 2-D image, got shape {gray.shape}")
     return gray
 
 
@@ -285,7 +290,7 @@ def match_images(
     threshold = _threshold(model_threshold)
     filter_params = dict(filter_params or {})
 
-    gray1, gray2 = _read(image1), _read(image2)
+    gray1, gray2 = _read(image1, "image1"), _read(image2, "image2")
     size1 = (int(gray1.shape[1]), int(gray1.shape[0]))
     size2 = (int(gray2.shape[1]), int(gray2.shape[0]))
     f1 = extract_features(gray1, cfg_feat, cache_dir=cache_dir)

@@ -365,3 +365,18 @@ def test_match_images_are_checked_before_matching(images, tmp_path, monkeypatch,
     assert f"IMAGE: {images} is not a file" in capsys.readouterr().err
     assert main(["match", str(images / "a.png"), str(tmp_path / "nope.png"), "--out", str(tmp_path / "m.npz")]) == 2
     assert "IMAGE: file not found" in capsys.readouterr().err and not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("bad, error, message", [
+    ("zeros-5x5x5", ValueError, "image2: image must be a path"),
+    ("nope.png", FileNotFoundError, "image2: image file not found"),
+    ("zeros-0x4", ValueError, "image2 must be a non-empty 2-D image"),
+])
+def test_match_images_names_the_bad_image(bad, error, message):
+    import numpy as np
+
+    from ctxmatch_lib.match import match_images
+
+    arrays = {"zeros-5x5x5": np.zeros((5, 5, 5)), "zeros-0x4": np.zeros((0, 4))}
+    with pytest.raises(error, match=message):
+        match_images(np.zeros((50, 50), np.uint8), arrays.get(bad, bad), cache_dir=False)
