@@ -97,7 +97,8 @@ def _download(args) -> int:
     if args.sha256 is not None and not re.fullmatch(r"[0-9a-fA-F]{64}", args.sha256):
         problem = f"ctxmatch data download: error: --sha256 must be 64 hexadecimal digits, got {args.sha256!r}"
     if args.url is not None and not re.match(r"(https?|ftp|file)://", args.url):
-        problem = f"ctxmatch data download: error: --url must start with http://, https://, ftp:// or file://, got {args.url!r}"
+        problem = ("ctxmatch data download: error: --url must start with http://, https://, ftp:// or file://, "
+                   f"got {args.url!r}")
     if problem:
         print(problem, file=sys.stderr)
         return 2
