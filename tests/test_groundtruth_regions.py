@@ -243,3 +243,22 @@ def test_bad_shapes_name_the_argument():
         label_matches(k, k, [[0, 0]], gt, method="C", shapes1=np.ones((2, 3)), shapes2=np.ones((2, 2, 2)))
     with pytest.raises(ValueError, match="method"):
         label_matches(k, k, [[0, 0]], gt, method="E")
+
+
+@pytest.mark.parametrize("pair_id", ["planar/poster/1-3", "nonplanar/cat"])
+def test_engine_labels_with_method_c(pair_id):
+    """``evaluate_pair(gt_method="C")`` labels the candidates through ``label_matches`` with the shapes."""
+    from ctxmatch_lib.datasets import load_dataset
+    from ctxmatch_lib.features import FeatureConfig
+    from ctxmatch_lib.pipeline import evaluate_pair, pair_features
+
+    pair = {p.pair_id: p for p in load_dataset("embedded")}[pair_id]
+    f1, f2 = pair_features(pair, FeatureConfig(max_keypoints=300))
+    ev = evaluate_pair(pair, filters=[], models=["none"], gt_method="C", precomputed_features=(f1, f2))
+    row = ev.rows[0]
+    assert row["gt_method"] == "C" and row["n_candidates"] > 0
+    stage = next(iter(ev.stages.values()))
+    expected = label_matches(f1.kpts, f2.kpts, stage.matches, pair.gt, method="C", shapes1=f1.shapes,
+                             shapes2=f2.shapes)
+    np.testing.assert_array_equal(stage.labels, expected)
+    assert 0 < row["n_gt"] <= expected.sum()
