@@ -380,3 +380,17 @@ def test_match_images_names_the_bad_image(bad, error, message):
     arrays = {"zeros-5x5x5": np.zeros((5, 5, 5)), "zeros-0x4": np.zeros((0, 4))}
     with pytest.raises(error, match=message):
         match_images(np.zeros((50, 50), np.uint8), arrays.get(bad, bad), cache_dir=False)
+
+
+def test_match_missing_optional_dependency_is_one_line(images, tmp_path, monkeypatch, capsys):
+    # A deep feature preset without kornia: the install hint, not a traceback.
+    import ctxmatch_lib.match as match
+    from ctxmatch_lib.cli import main
+
+    def no_kornia(*args, **kwargs):
+        raise ImportError("the deep descriptors need kornia: pip install 'ctxmatch[kornia]'")
+
+    monkeypatch.setattr(match, "match_images", no_kornia)
+    assert main(["match", str(images / "a.png"), str(images / "b.png"), "--out", str(tmp_path / "m.npz"),
+                 "--features", "sift-hardnet2"]) == 2
+    assert "pip install 'ctxmatch[kornia]'" in capsys.readouterr().err

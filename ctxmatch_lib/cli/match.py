@@ -174,7 +174,7 @@ def run(args) -> int:
         img1, img2 = (Path(a) for a in args.images_pair)
         try:
             res = match_images(img1, img2, **settings)
-        except (FileNotFoundError, ValueError) as exc:
+        except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
             return _error(str(exc))
         out = Path(args.out or "matches.npz")
         save_result(res, out)
@@ -216,7 +216,7 @@ def run(args) -> int:
         try:
             summary = match_pairs(pairs, args.images, out_dir, progress=not args.no_progress, on_pair=on_pair,
                                   **settings)
-        except (FileNotFoundError, ValueError) as exc:
+        except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
             return _error(str(exc))
         print(f"{len(pairs)} pairs: {summary['done']} matched, {summary['skipped']} already done -> {out_dir}")
         results = summary["files"]
