@@ -244,7 +244,13 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
     """
     import h5py
 
+    for arg, path in (("features_path", features_path), ("matches_path", matches_path)):
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{arg}: file not found: {path}")
     with h5py.File(str(features_path), "r") as fd:
+        for name in (name1, name2):
+            if name not in fd:
+                raise KeyError(f"image {name!r} not in {features_path}")
         k1 = fd[name1]["keypoints"][()].astype(np.float64)
         k2 = fd[name2]["keypoints"][()].astype(np.float64)
     with h5py.File(str(matches_path), "r") as fd:
@@ -410,7 +416,14 @@ def read_colmap(database_path, name1: str, name2: str):
     matches : ndarray of shape (K, 2), int64
         Rows into ``kpts1`` and ``kpts2``, in the stored order.
     """
+    if not Path(database_path).is_file():
+        raise FileNotFoundError(f"database_path: file not found: {database_path}")
     con = sqlite3.connect(f"file:{Path(database_path)}?mode=ro", uri=True)
+    try:
+        con.execute("SELECT 1 FROM images LIMIT 1")
+    except sqlite3.DatabaseError as exc:
+        con.close()
+        raise ValueError(f"database_path: {database_path} is not a COLMAP database: {exc}") from None
     try:
         ids, kps = [], []
         for name in (name1, name2):

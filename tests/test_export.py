@@ -184,3 +184,18 @@ def test_write_hloc_bad_paths_name_the_argument(tmp_path, pair):
         write_hloc(tmp_path / "file" / "f.h5", tmp_path / "m.h5", "a", "b", k1, k2, m, s)
     with pytest.raises(ValueError, match="^matches_path: .*is not an HDF5 file"):
         write_hloc(tmp_path / "f.h5", tmp_path / "file", "a", "b", k1, k2, m, s)
+
+
+def test_readers_name_a_missing_or_foreign_file(tmp_path, pair):
+    (tmp_path / "file").write_text("a regular file")
+    with pytest.raises(FileNotFoundError, match="^database_path: file not found"):
+        read_colmap(tmp_path / "none.db", "a.jpg", "b.jpg")
+    with pytest.raises(ValueError, match="^database_path: .* is not a COLMAP database"):
+        read_colmap(tmp_path / "file", "a.jpg", "b.jpg")
+    pytest.importorskip("h5py", reason="h5py not installed (pip install 'ctxmatch[export]')")
+    with pytest.raises(FileNotFoundError, match="^features_path: file not found"):
+        read_hloc(tmp_path / "none.h5", tmp_path / "m.h5", "a", "b")
+    k1, k2, m, s = pair
+    write_hloc(tmp_path / "f.h5", tmp_path / "m.h5", "a", "b", k1, k2, m, s)
+    with pytest.raises(KeyError, match="image 'c' not in"):
+        read_hloc(tmp_path / "f.h5", tmp_path / "m.h5", "a", "c")
