@@ -8,7 +8,7 @@ import numpy as np
 
 from .palette import OKABE_ITO
 
-__all__ = ["plot_blob_heatmap", "plot_blob_bands", "W_LABELS", "FEATURE_LABELS"]
+__all__ = ["plot_blob_heatmap", "heatmap_key", "plot_blob_bands", "W_LABELS", "FEATURE_LABELS"]
 
 #: Figure titles of the feature presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS`. The paper's learned
 #: orientation and its HardNet2/SOSNet weights are not obtainable here: the blocks that use stand-ins say so.
@@ -42,9 +42,27 @@ def _groups(labels):
     return out
 
 
+#: Grey levels of the key strips of the heat map: W (five per D band) and f' (three per f group).
+_W_GREYS = {"a": "0.92", "b": "0.74", "min": "0.55", "max": "0.35", "harmonic": "0.12"}
+_FP_GREYS = ("0.85", "0.55", "0.15")
+_BEST_COLOR = "#ff1f1f"
+
+
+def _w_key(label) -> str:
+    """The W code of a column label (``"a"``, ``"harmonic"``, ... or its display name)."""
+    inv = {v: k for k, v in W_LABELS.items()}
+    return inv.get(str(label), str(label))
+
+
 def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap: str = "viridis",
-                      mark_best: bool = True, row_labels: bool = True, col_labels: bool = True):
+                      mark_best: bool = True, row_labels: bool = True, col_labels: bool = True,
+                      key_strips: bool = True):
     """Draw one detector+descriptor block of the heat map of Fig. 5.
+
+    Every one of the 27 rows and 90 columns is told by key strips drawn beside the block (at print size there
+    is no room for 117 texts): under the columns, a strip coloured by D (:data:`_D_COLOURS`, the colours of
+    Fig. 6) and a strip in five greys by W (light to dark: a, b, min, max, 2ab/(a+b)); left of the rows, a
+    strip in three greys by f' (light to dark: 1, 3, 5). :func:`heatmap_key` draws their legend.
 
     Parameters
     ----------
@@ -56,56 +74,96 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     vmin, vmax : float, optional
         Colour range (default: this block's own range; one shared range washes out the better blocks).
     mark_best : bool
-        Outline the best cell in red and write its mAP above it.
+        Outline the best cell and point at its row and column from outside the block (the value belongs in
+        the title: no text covers the map).
     row_labels, col_labels : bool
-        Tick labels on the left (f, f') and at the bottom (t_o, with D sub-bands).
+        Tick labels on the left (f) and at the bottom (t_o).
+    key_strips : bool
+        The D, W and f' key strips.
 
     Returns
     -------
     matplotlib.image.AxesImage
-        For a shared colour bar.
+        For a colour bar.
     """
+    from matplotlib.collections import PatchCollection
     from matplotlib.patches import Rectangle
 
     values = matrix.to_numpy(dtype=float)
-    im = ax.imshow(values, aspect="auto", interpolation="nearest", cmap=cmap, vmin=vmin, vmax=vmax)
+    n_rows, n_cols = values.shape
+    im = ax.imshow(values, aspect="auto", interpolation="nearest", cmap=cmap, vmin=vmin, vmax=vmax,
+                   extent=(-0.5, n_cols - 0.5, n_rows - 0.5, -0.5))
     rows = list(matrix.index)
     cols = list(matrix.columns)
     # Separators: thick between t_o groups and between f groups, thin between D sub-bands.
     for start, _, _ in _groups([c[0] for c in cols])[1:]:
-        ax.axvline(start - 0.5, color="white", lw=1.6)
+        ax.plot([start - 0.5] * 2, [-0.5, n_rows - 0.5], color="white", lw=1.4)
     for start, _, _ in _groups([c[:2] for c in cols])[1:]:
-        ax.axvline(start - 0.5, color="white", lw=0.4, alpha=0.8)
+        ax.plot([start - 0.5] * 2, [-0.5, n_rows - 0.5], color="white", lw=0.35, alpha=0.8)
     for start, _, _ in _groups([r[0] for r in rows])[1:]:
-        ax.axhline(start - 0.5, color="white", lw=1.2)
+        ax.plot([-0.5, n_cols - 0.5], [start - 0.5] * 2, color="white", lw=1.0)
+    strip = max(1.2, 0.045 * n_rows)  # strip thickness in rows, so that it is visible on a short block
+    left = -0.5
+    bottom = n_rows - 0.5
+    if key_strips:
+        patches, colours = [], []
+        for c, lab in enumerate(cols):
+            patches.append(Rectangle((c - 0.5, bottom + 0.15 * strip), 1, strip))
+            colours.append(_D_COLOURS.get(str(lab[1]), "0.5"))
+            patches.append(Rectangle((c - 0.5, bottom + 1.15 * strip), 1, strip))
+            colours.append(_W_GREYS.get(_w_key(lab[2]), "0.5"))
+        fps = list(dict.fromkeys(r[1] for r in rows))
+        width = max(1.6, 0.02 * n_cols)  # in columns: about as thick on paper as the column strips
+        for r, lab in enumerate(rows):
+            patches.append(Rectangle((-0.5 - 1.15 * width, r - 0.5), width, 1))
+            colours.append(_FP_GREYS[fps.index(lab[1]) % len(_FP_GREYS)])
+        ax.add_collection(PatchCollection(patches, facecolors=colours, edgecolors="none", zorder=1))
+        bottom += 2.25 * strip
+        left -= 1.3 * width
+    ax.set_xlim(left, n_cols - 0.5)
+    ax.set_ylim(bottom, -0.5)
+    for side in ("top", "right", "bottom", "left"):
+        ax.spines[side].set_visible(False)
     if row_labels:
-        # One label per f group (rows f' = 1, 3, 5 inside it), readable at 7 pt in a column-wide block.
         fg = _groups([r[0] for r in rows])
         ax.set_yticks([(a + b - 1) / 2 for a, b, _ in fg], [lab for _, _, lab in fg])
-        ax.set_yticks(range(len(rows)), minor=True)
-        ax.tick_params(axis="y", which="minor", length=1.5)
-        fps = list(dict.fromkeys(str(r[1]) for r in rows))
-        ax.set_ylabel(f"f  (rows: f' = {', '.join(fps)})")
+        ax.tick_params(axis="y", length=0, pad=1.5)
+        ax.set_ylabel("f (× f')")
     else:
         ax.set_yticks([])
-    if col_labels:
-        tg = _groups([c[0] for c in cols])
-        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"$t_o$ = {lab}" for _, _, lab in tg])
-        ax.set_xticks([(a + b - 1) / 2 for a, b, _ in _groups([c[:2] for c in cols])], minor=True)
-        ax.tick_params(axis="x", which="minor", length=2)
-        ax.set_xlabel("$t_o$ × D (sub-bands D≥, D+≥, D+) × W (a, b, min, max, 2ab/(a+b) in each)")
-    else:
-        ax.set_xticks([])
+    tg = _groups([c[0] for c in cols])
+    ax.set_xticks([(a + b - 1) / 2 for a, b, _ in tg], [f"$t_o$ = {lab}" for _, _, lab in tg] if col_labels else [])
+    ax.tick_params(axis="x", length=0, pad=1.5)
     if mark_best and np.isfinite(values).any():
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
-        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="red", lw=1.2, clip_on=False))
-        up = r >= len(rows) / 2  # write the value on the side with more room
-        ax.annotate(f"best {values[r, c]:.1f}", (c, r), xytext=(0, 8 if up else -8), textcoords="offset points",
-                    ha="center", va="bottom" if up else "top", color="black", fontsize=7,
-                    bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="red", lw=0.6, alpha=0.9),
-                    annotation_clip=False)
-    ax.set_title(title)
+        ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec=_BEST_COLOR, lw=1.0, zorder=4,
+                               clip_on=False))
+        # A triangle just above the block points at the best column (the outline alone is one small cell).
+        ax.plot([c], [-0.5], marker="v", ms=4, color=_BEST_COLOR, mec="black", mew=0.3, clip_on=False, zorder=5)
+    ax.set_title(title, pad=4)
     return im
+
+
+def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
+    """The legend of the key strips of :func:`plot_blob_heatmap` (D colours, W and f' greys) and of the
+    best-cell marker; ``kwargs`` go to ``legend``."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, labels = [], []
+    for d, c in _D_COLOURS.items():
+        handles.append(Patch(fc=c, ec="none"))
+        labels.append(d)
+    for w, g in _W_GREYS.items():
+        handles.append(Patch(fc=g, ec="0.5", lw=0.3))
+        labels.append(f"W = {W_LABELS[w]}")
+    for fp, g in zip((1, 3, 5), _FP_GREYS):
+        handles.append(Patch(fc=g, ec="0.5", lw=0.3))
+        labels.append(f"f' = {fp}")
+    if best:
+        handles.append(Line2D([], [], ls="", marker="s", mfc="none", mec=_BEST_COLOR, ms=6, mew=1.0))
+        labels.append("best setup of the block")
+    return fig_or_ax.legend(handles, labels, **kwargs)
 
 
 def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True):
