@@ -25,6 +25,7 @@ __all__ = [
     "triangulation_edges",
     "plot_triangulation",
     "plot_canvas",
+    "outer_fattening",
     "plot_boundary_steps",
     "plot_boundary_mesh",
     "plot_dtm_iteration_flow",
@@ -102,14 +103,51 @@ def _fit_view(ax, *arrays, margin: float = 0.04) -> None:
     ax.set_ylim(hi[1] + pad, lo[1] - pad)  # y down, as images
 
 
+def _shape_region(vertices, edges):
+    """The union of the polygons bounded by ``edges`` (rows into ``vertices``), or ``None``."""
+    import shapely
+
+    if len(edges) == 0:
+        return None
+    lines = shapely.linestrings(np.stack([vertices[edges[:, 0]], vertices[edges[:, 1]]], axis=1))
+    polys = shapely.get_parts(shapely.polygonize(lines))
+    return shapely.union_all(polys) if len(polys) else None
+
+
+def outer_fattening(boundary) -> np.ndarray:
+    """The segments of ``B'`` drawn dashed in Fig. 2: for each first-shape edge, its copy shifted by ``s`` to the
+    outside of the shape, ``(E, 2, 2)``.
+
+    ``Boundary.fattened`` holds both copies of every edge (``v0 ± s n``, ``v1 ± s n``); the inner one lies
+    inside the shape (or across it, where the shape is thinner than ``s``) and never reaches the contour of
+    ``V ∪ B'``, so the figure draws the outer one only. The outer copy is the one whose midpoint is outside the
+    shape; on a thin part where both are outside, both are kept.
+    """
+    import shapely
+
+    if len(boundary.fattened) == 0:
+        return np.empty((0, 2, 2))
+    f = boundary.fattened.reshape(-1, 4, 2)
+    copies = np.concatenate([f[:, [0, 1]], f[:, [2, 3]]])
+    region = _shape_region(boundary.vertices, boundary.shape_edges)
+    if region is None:
+        return copies
+    mid = copies.mean(axis=1)
+    outside = ~shapely.contains_xy(region, mid[:, 0], mid[:, 1])
+    return copies[outside]
+
+
 def plot_boundary_steps(ax, boundary, *, shape_color=None, ps: float = 6, lw: float = 1.2) -> None:
     """The boundary construction of Fig. 2 (left) / Appendix A (a, b, c, e) for one ``Boundary``.
 
     ``"alpha"`` / ``"convex"``: Delaunay triangulation of ``V`` (blue), convex hull (red), first shape edges
-    (solid, orange for the alpha shape, red for the convex hull, or ``shape_color``), the fattened points
-    ``B'`` joined edge by edge (dashed), the contour of ``V ∪ B'`` (purple) and the final set ``B`` (purple
-    dots). ``"corners"`` / ``"canvas"``: the image border and its sample points ``B``.
+    (solid, orange for the alpha shape, red for the convex hull, or ``shape_color``), each shape edge shifted
+    by ``s`` to the outside (dashed, :func:`outer_fattening`: the points ``B'`` that shape the contour), the
+    outer contour of ``V ∪ B'`` (purple) and the final set ``B`` (purple dots). ``"corners"`` / ``"canvas"``:
+    the image border and its sample points ``B``.
     """
+    import shapely
+
     v, c = boundary.vertices, DTM_COLORS
     if len(boundary.vertex_simplices):
         plot_triangulation(ax, v, boundary.vertex_simplices, color=c["delaunay"], lw=0.5, alpha=0.6)
@@ -120,13 +158,17 @@ def plot_boundary_steps(ax, boundary, *, shape_color=None, ps: float = 6, lw: fl
     if len(boundary.shape_edges):
         ax.add_collection(LineCollection(v[boundary.shape_edges], colors=shape_color, linewidths=lw * 1.4,
                                          zorder=4))
-    if len(boundary.fattened):
-        f = boundary.fattened.reshape(-1, 4, 2)
-        segs = np.concatenate([f[:, [0, 1]], f[:, [2, 3]]])  # the two offset copies of each edge
-        ax.add_collection(LineCollection(segs, colors=shape_color, linewidths=lw * 0.8, linestyles=(0, (3, 2)),
-                                         zorder=4))
-    for ring in boundary.contour:
-        ax.plot(ring[:, 0], ring[:, 1], color=c["boundary"], lw=lw, zorder=5)
+    segs = outer_fattening(boundary)
+    if len(segs):
+        # Over the contour: the contour of V ∪ B' runs along these segments, and would hide them.
+        ax.add_collection(LineCollection(segs, colors=shape_color, linewidths=lw * 0.9, linestyles=(0, (3, 2)),
+                                         zorder=5.5))
+    rings = [r for r in boundary.contour if len(r) >= 4]
+    if rings:  # the outer boundary of the contour polygons (a hole's ring is not part of it)
+        outline = shapely.union_all([shapely.Polygon(r) for r in rings])
+        for poly in shapely.get_parts(outline):
+            ring = shapely.get_coordinates(shapely.get_exterior_ring(poly))
+            ax.plot(ring[:, 0], ring[:, 1], color=c["boundary"], lw=lw, zorder=5)
     ax.scatter(*v.T, s=ps, c=c["vertex"], linewidths=0, zorder=6)
     if len(boundary.points):
         ax.scatter(*boundary.points.T, s=ps * 2.5, c=c["boundary"], linewidths=0, zorder=7)
