@@ -9,11 +9,10 @@ reuses what the others computed.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from .._paths import write_parquet_atomic
+from .._paths import check_writable, write_parquet_atomic
 from ..groundtruth import GT_THRESHOLD_PX
 from .cache import FORMAT
 from .plan import plan_sweep, plan_units
@@ -24,29 +23,20 @@ __all__ = ["check_output", "run_sweep", "evaluate_cached"]
 
 
 def check_output(path, name: str = "out", suffix: str = ".parquet") -> Path:
-    """Check, before any work, that ``path`` can be written: the right suffix, not a folder, and its first
-    existing ancestor a writable folder (missing folders are created when it is written).
+    """Check, before any work, that ``path`` can be written: the right suffix, then
+    :func:`ctxmatch_lib._paths.check_writable` (not a folder; its first existing ancestor a writable folder,
+    missing folders being created when it is written).
 
-    ``name`` is what the error calls it (``"--out"`` on the command line). Returns ``Path(path)``.
+    ``name`` is what the error calls it (``"--out"`` on the command line). Returns the path.
 
     Raises
     ------
     ValueError
         Naming ``name``, the path and the reason.
     """
-    path = Path(path)
-    if suffix and path.suffix.lower() != suffix:
+    if suffix and Path(path).suffix.lower() != suffix:
         raise ValueError(f"{name} must end with {suffix}, got {path}")
-    if path.is_dir():
-        raise ValueError(f"{name} {path} is a folder, not a {suffix or 'output'} file")
-    anc = path.parent
-    while not anc.exists() and anc != anc.parent:
-        anc = anc.parent
-    if not anc.is_dir():
-        raise ValueError(f"{name} {path} cannot be written: {anc} is a file, not a folder")
-    if not os.access(anc, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"{name} {path} cannot be written: permission denied")
-    return path
+    return check_writable(path, name)
 
 
 def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
