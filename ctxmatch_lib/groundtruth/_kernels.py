@@ -2,7 +2,8 @@
 
 * :func:`overlap_kernel`: overlap error of pairs of ellipses by ray integration from a common interior
   point (the method is described in :mod:`ctxmatch_lib.groundtruth.regions`);
-* :func:`homography_ellipse_kernel`: exact image of ellipses under a homography (conic pull-back).
+* :func:`homography_ellipse_kernel`: exact image of ellipses under a homography (conic pull-back);
+* :func:`flow_transfer_kernel`: ellipses carried by a dense flow and its Jacobian.
 
 One pass over the pairs, constant memory per pair. Compiled code is cached on disk under the ctxmatch
 cache directory (``$CTXMATCH_CACHE/numba``) unless ``NUMBA_CACHE_DIR`` is set, as for the DTM kernels.
@@ -19,7 +20,7 @@ import numpy as np
 
 from .._paths import cache_dir
 
-__all__ = ["overlap_kernel", "homography_ellipse_kernel"]
+__all__ = ["overlap_kernel", "homography_ellipse_kernel", "flow_transfer_kernel"]
 
 
 @contextmanager
@@ -154,4 +155,34 @@ with _user_cache() as _cache:
             l11 = math.sqrt(max(s11 - l10 * l10, 0.0))
             c2[k, 0], c2[k, 1] = ox, oy
             A2[k, 0, 0], A2[k, 0, 1], A2[k, 1, 0], A2[k, 1, 1] = l00, 0.0, l10, l11
+        return c2, A2
+
+    @_jit
+    def flow_transfer_kernel(flow, pts, A):
+        """Ellipses ``{p + A u}`` carried by ``x -> x + flow(x)``: centre moved by the flow at the nearest
+        pixel, shape multiplied by the map's Jacobian there (central differences, one-sided at the border);
+        NaN where the flow or a neighbour is unknown or the point lies outside the field."""
+        h, w = flow.shape[0], flow.shape[1]
+        n = pts.shape[0]
+        c2 = np.full((n, 2), np.nan)
+        A2 = np.full((n, 2, 2), np.nan)
+        for k in range(n):
+            x, y = pts[k, 0], pts[k, 1]
+            if not (math.isfinite(x) and math.isfinite(y)):
+                continue
+            col, row = int(np.rint(x)), int(np.rint(y))  # nearest pixel, as sample_flow
+            if col < 0 or col >= w or row < 0 or row >= h:
+                continue
+            cl, cr = max(col - 1, 0), min(col + 1, w - 1)
+            ru, rd = max(row - 1, 0), min(row + 1, h - 1)
+            c2[k, 0], c2[k, 1] = x + flow[row, col, 0], y + flow[row, col, 1]
+            if cr == cl or rd == ru:
+                continue
+            j00 = 1.0 + (flow[row, cr, 0] - flow[row, cl, 0]) / (cr - cl)
+            j10 = (flow[row, cr, 1] - flow[row, cl, 1]) / (cr - cl)
+            j01 = (flow[rd, col, 0] - flow[ru, col, 0]) / (rd - ru)
+            j11 = 1.0 + (flow[rd, col, 1] - flow[ru, col, 1]) / (rd - ru)
+            for i in range(2):
+                A2[k, 0, i] = j00 * A[k, 0, i] + j01 * A[k, 1, i]
+                A2[k, 1, i] = j10 * A[k, 0, i] + j11 * A[k, 1, i]
         return c2, A2

@@ -185,10 +185,15 @@ class PiecewiseAffineMap:
         b = simp[tri_idx, (opp + 2) % 3]
         self._hull = (src[a], src[b], tri_idx)
 
-    def locate(self, pts) -> tuple[np.ndarray, np.ndarray]:
-        """Triangle used for each point and its distance (pixels) outside the hull (0 inside)."""
+    def locate(self, pts, *, bruteforce: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Triangle used for each point and its distance (pixels) outside the hull (0 inside).
+
+        A point on an edge or a vertex belongs to several triangles; scipy's walk may pick a different one
+        depending on the other points of the batch. ``bruteforce=True`` picks the first in triangle order,
+        the same for a point whatever the batch (methods B and C use it: their local affine map changes
+        with the triangle)."""
         pts = as_points(pts, "pts")
-        simplex = self.tri.find_simplex(pts)
+        simplex = self.tri.find_simplex(pts, bruteforce=bruteforce)
         dist = np.zeros(len(pts))
         out = np.flatnonzero(simplex < 0)
         if len(out):

@@ -59,7 +59,7 @@ from .._validation import as_matches, as_points
 from ..blob.overlap import as_shapes, ellipse_overlap_error
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
 from ..geometry import _epipolar, _transfer_errors
-from ._kernels import homography_ellipse_kernel, overlap_kernel
+from ._kernels import flow_transfer_kernel, homography_ellipse_kernel, overlap_kernel
 from .core import PiecewiseAffineMap
 
 __all__ = [
@@ -175,27 +175,8 @@ class RegionErrors:
     shapes2: np.ndarray
 
 
-def _flow_jacobian(flow, pts):
-    """Displacement and Jacobian of ``x -> x + flow(x)`` at the points' nearest pixels (NaN if unknown)."""
-    h, w = flow.shape[:2]
-    col = np.rint(pts[:, 0]).astype(np.int64)
-    row = np.rint(pts[:, 1]).astype(np.int64)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    col, row = np.clip(col, 0, w - 1), np.clip(row, 0, h - 1)
-    cl, cr = np.maximum(col - 1, 0), np.minimum(col + 1, w - 1)
-    ru, rd = np.maximum(row - 1, 0), np.minimum(row + 1, h - 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        dx = (flow[row, cr] - flow[row, cl]) / (cr - cl)[:, None]  # d(flow)/dx, (P, 2)
-        dy = (flow[rd, col] - flow[ru, col]) / (rd - ru)[:, None]
-    J = np.stack([dx, dy], axis=2) + np.eye(2)  # J[:, i, j] = d(x_i + flow_i)/d x_j
-    disp = np.where(inside[:, None], flow[row, col], np.nan)
-    J[~inside] = np.nan
-    return disp, J
-
-
 def _flow_transfer(flow, c, A):
-    disp, J = _flow_jacobian(flow, c)
-    return c + disp, J @ A
+    return flow_transfer_kernel(flow, np.ascontiguousarray(c), np.ascontiguousarray(A))
 
 
 def _as_flow(flow, name):
@@ -237,6 +218,15 @@ def region_errors(
     -------
     RegionErrors
     """
+    p1, p2, A1, A2 = _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    q, B = _carry(gt, p1, A1)
+    back = _carry_back(gt, p2, A2)
+    overlap = _overlap(q, B, p2, A2, back, p1, A1)
+    return RegionErrors(overlap=overlap, centre=_centre(gt, p1, p2, q, back), centres2=q, shapes2=B)
+
+
+def _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale):
+    """Validated matched centres and scaled shapes ``p1, p2, A1, A2``."""
     if shapes1 is None or shapes2 is None:
         raise ValueError("shapes1 and shapes2 (the keypoints' affine shapes) are required by methods B and C")
     if not shape_scale > 0:
@@ -248,47 +238,61 @@ def region_errors(
     matches = as_matches(matches, len(kpts1), len(kpts2))
     if not isinstance(gt, (HomographyGT, EpipolarGT, FlowGT)):
         raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
-    p1, p2 = kpts1[matches[:, 0]], kpts2[matches[:, 1]]
-    A1, A2 = S1[matches[:, 0]] * shape_scale, S2[matches[:, 1]] * shape_scale
-    K = len(matches)
+    i, j = matches[:, 0], matches[:, 1]
+    return kpts1[i], kpts2[j], S1[i] * shape_scale, S2[j] * shape_scale
+
+
+def _carry(gt, p1, A1):
+    """Regions of image 1 carried into image 2: centres (K, 2) and shapes (K, 2, 2), NaN where unknown."""
+    K = len(p1)
     if isinstance(gt, HomographyGT):
-        H = np.asarray(gt.H, float)
-        q, B = homography_ellipses(H, p1, A1)
-        overlap = region_overlap_error(q, B, p2, A2)
-        fwd, bwd = _transfer_errors(H, p1, p2)
-        centre = np.maximum(fwd, bwd)
-    elif isinstance(gt, EpipolarGT):
-        F = np.asarray(gt.F, float)
-        d2, d1 = _epipolar(F, p1, p2)
-        centre = np.maximum(d1, d2)
-        q, B = np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan)
-        try:
-            pam = PiecewiseAffineMap(gt.pts1, gt.pts2)
-        except ValueError:
-            pam = None
-        if pam is not None and K:
-            simplex, _ = pam.locate(p1)
-            aff = pam.affine[simplex]  # (K, 2, 3)
-            q = np.einsum("kij,kj->ki", aff[:, :, :2], p1) + aff[:, :, 2]
-            B = aff[:, :, :2] @ A1
-            line = np.c_[p1, np.ones(K)] @ F.T  # epipolar lines in image 2
-            nrm2 = (line[:, :2] ** 2).sum(1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                t = ((np.c_[q, np.ones(K)] * line).sum(1) / nrm2)[:, None]
-            onto = q - t * line[:, :2]
-            q = np.where(np.isfinite(onto).all(1, keepdims=True), onto, q)
-        overlap = region_overlap_error(q, B, p2, A2)
-    else:
-        with np.errstate(invalid="ignore"):
-            q, B = _flow_transfer(_as_flow(gt.flow12, "gt.flow12"), p1, A1)
-            overlap = region_overlap_error(q, B, p2, A2)
-            centre = np.linalg.norm(q - p2, axis=1)
-            if gt.flow21 is not None:
-                r, C = _flow_transfer(_as_flow(gt.flow21, "gt.flow21"), p2, A2)
-                overlap = np.minimum(overlap, region_overlap_error(r, C, p1, A1))
-                centre = np.fmin(centre, np.linalg.norm(r - p1, axis=1))
-        centre = np.where(np.isnan(centre), np.inf, centre)
-    return RegionErrors(overlap=overlap, centre=centre, centres2=q, shapes2=B)
+        return homography_ellipses(np.asarray(gt.H, float), p1, A1)
+    if isinstance(gt, FlowGT):
+        return _flow_transfer(_as_flow(gt.flow12, "gt.flow12"), p1, A1)
+    q, B = np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan)
+    try:
+        pam = PiecewiseAffineMap(gt.pts1, gt.pts2)
+    except ValueError:
+        return q, B
+    if not K:
+        return q, B
+    simplex, _ = pam.locate(p1, bruteforce=True)
+    aff = pam.affine[simplex]  # (K, 2, 3)
+    q = np.einsum("kij,kj->ki", aff[:, :, :2], p1) + aff[:, :, 2]
+    B = aff[:, :, :2] @ A1
+    # The true position lies on the epipolar line: keep only the along-line part of the coarse map.
+    line = np.c_[p1, np.ones(K)] @ np.asarray(gt.F, float).T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = ((np.c_[q, np.ones(K)] * line).sum(1) / (line[:, :2] ** 2).sum(1))[:, None]
+    onto = q - t * line[:, :2]
+    return np.where(np.isfinite(onto).all(1, keepdims=True), onto, q), B
+
+
+def _carry_back(gt, p2, A2):
+    """Regions of image 2 carried into image 1 (flow pairs with ``flow21`` only), else None."""
+    if isinstance(gt, FlowGT) and gt.flow21 is not None:
+        return _flow_transfer(_as_flow(gt.flow21, "gt.flow21"), p2, A2)
+    return None
+
+
+def _overlap(q, B, p2, A2, back, p1, A1):
+    overlap = region_overlap_error(q, B, p2, A2)
+    if back is not None:
+        overlap = np.minimum(overlap, region_overlap_error(back[0], back[1], p1, A1))
+    return overlap
+
+
+def _centre(gt, p1, p2, q=None, back=None):
+    """Centre distance of method C (pixels, inf if unknown); flow pairs read it off the carried centres."""
+    if isinstance(gt, HomographyGT):
+        return np.maximum(*_transfer_errors(np.asarray(gt.H, float), p1, p2))
+    if isinstance(gt, EpipolarGT):
+        return np.maximum(*_epipolar(np.asarray(gt.F, float), p1, p2))
+    with np.errstate(invalid="ignore"):
+        centre = np.linalg.norm(q - p2, axis=1)
+        if back is not None:
+            centre = np.fmin(centre, np.linalg.norm(back[0] - p1, axis=1))
+    return np.where(np.isnan(centre), np.inf, centre)
 
 
 def label_regions(
@@ -319,8 +323,19 @@ def label_regions(
         raise ValueError(f"overlap must be in [0, 1], got {overlap}")
     if not centre_threshold > 0:
         raise ValueError(f"centre_threshold must be positive, got {centre_threshold}")
-    err = region_errors(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale=shape_scale)
-    ok = err.overlap <= overlap
-    if method == "C":
-        ok &= err.centre <= centre_threshold
+    p1, p2, A1, A2 = _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    if method == "B":
+        return _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1) <= overlap
+    # C: the centre constraint first, the overlap only where it holds (same labels, less work).
+    if isinstance(gt, FlowGT):
+        q, B = _carry(gt, p1, A1)
+        back = _carry_back(gt, p2, A2)
+        ok = _centre(gt, p1, p2, q, back) <= centre_threshold
+        i = np.flatnonzero(ok)
+        back = None if back is None else (back[0][i], back[1][i])
+        ok[i] = _overlap(q[i], B[i], p2[i], A2[i], back, p1[i], A1[i]) <= overlap
+        return ok
+    ok = _centre(gt, p1, p2) <= centre_threshold
+    i = np.flatnonzero(ok)
+    ok[i] = _overlap(*_carry(gt, p1[i], A1[i]), p2[i], A2[i], None, p1[i], A1[i]) <= overlap
     return ok
