@@ -20,7 +20,10 @@ How ``E1`` is carried into image 2, per ground-truth type:
   localisation check uses it). Our choice where the paper is silent: the carried centre is the
   piecewise-affine image of the keypoint **moved onto its epipolar line** in image 2 (its closest point),
   because the true position lies on that line and the coarse map is only used along it. With fewer than
-  three (or collinear) hand points no map exists and every match gets overlap error 1.
+  three (or collinear) hand points no map exists and every match gets overlap error 1. The map is only as
+  good as the hand points: on kusvod2 (7 to 14 points per pair) its position error along the line, for the
+  matches method D accepts, has a median of 10 to 70 px against doubled SIFT regions of 7 to 13 px radius,
+  so B and C keep far fewer matches than D there (``notebooks/fig_gt_methods.ipynb`` with the real data).
 * :class:`~ctxmatch_lib.datasets.FlowGT` (depth, synthetic): through the dense displacement field, its
   Jacobian giving the local affine map (central differences on the pixel grid at the keypoint's nearest
   pixel, one-sided at the border). As method D does on these pairs, either direction may pass: with
@@ -30,7 +33,8 @@ How ``E1`` is carried into image 2, per ground-truth type:
 Centre constraint of method C (threshold 30 px, inclusive): the larger of the two reprojection errors
 (planar), the larger of the two epipolar distances (non-planar, no localisation check: the overlap already
 localises the match), the flow transfer in either direction (depth), i.e. the centre rule of method D with
-30 px in place of 15 px (and without D's localisation check). Hence ``C = B ∩ centre`` by construction.
+30 px in place of 15 px (and without D's localisation check). Hence ``C = B ∩ centre`` by construction;
+:func:`label_regions` tests the centre first and computes the overlap only where it holds (same labels).
 
 Overlap areas are computed in closed form per ray, not with polygons: the problem is mapped affinely so
 that ``E1'`` is the unit disk (the overlap error is affine-invariant), a point ``p`` inside both regions is
