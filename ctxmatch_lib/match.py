@@ -62,6 +62,9 @@ class MatchResult:
         The fitted ``H`` or ``F`` of the model step (``None`` for ``model="none"`` or a failed fit).
     settings : dict
         The settings used (features, blob setup, filters, model), JSON-serialisable.
+    model_input : ndarray of shape (M,) bool or None
+        The candidates the model step was given (the filters' output), so that ``model_input & ~keep`` are
+        the ones it rejected; ``None`` without a model step.
     """
 
     kpts1: np.ndarray
@@ -77,6 +80,7 @@ class MatchResult:
     image_size2: tuple
     model: np.ndarray | None = None
     settings: dict = field(default_factory=dict)
+    model_input: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.matches)
@@ -302,8 +306,9 @@ def match_images(
         sub, _ = run_filter(name, f1, f2, cand[idx], cand_scores[idx], image_size1=size1, image_size2=size2,
                             blob_ratio=cfg_blob.ratio, **filter_params.get(name, {}))
         keep[idx[~sub]] = False
-    fitted = None
+    fitted = model_input = None
     if model != "none":
+        model_input = keep.copy()
         idx = np.flatnonzero(keep)
         fit = apply_model_step(model, f1.kpts, f2.kpts, cand[idx], cand_scores[idx], kind=model_kind,
                                threshold=threshold, rng=rng)
@@ -326,7 +331,7 @@ def match_images(
         kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
         matches=np.ascontiguousarray(cand[keep], np.int64), scores=np.asarray(cand_scores[keep], np.float64),
         candidates=cand, candidate_scores=cand_scores, keep=keep, image_size1=size1, image_size2=size2,
-        model=fitted, settings=settings,
+        model=fitted, settings=settings, model_input=model_input,
     )
 
 
@@ -397,9 +402,9 @@ def load_result(path) -> dict:
     return out
 
 
-def plot_result(result: MatchResult, image1, image2, *, ax=None, color="lime", lw: float = 0.6,
-                title: str | None = None):
-    """Draw the two images side by side with the kept matches (:mod:`ctxmatch_lib.plots.viz2d`).
+def plot_result(result: MatchResult, image1, image2, *, ax=None, title: str | None = None):
+    """Draw the two images side by side with the kept matches coloured by score and, after a model step, the
+    matches it rejected (:func:`ctxmatch_lib.plots.viz2d.plot_match_result`).
 
     Parameters
     ----------
@@ -408,10 +413,6 @@ def plot_result(result: MatchResult, image1, image2, *, ax=None, color="lime", l
         The images the result was computed on (paths are read in colour).
     ax : matplotlib Axes, optional
         Where to draw; a new figure is made when omitted.
-    color : colour or array of shape (K, 4)
-        Line colour(s).
-    lw : float
-        Line width.
     title : str, optional
         Default: the number of kept matches out of the candidates.
 
@@ -419,26 +420,11 @@ def plot_result(result: MatchResult, image1, image2, *, ax=None, color="lime", l
     -------
     matplotlib Figure
     """
-    import matplotlib.pyplot as plt
-
     from .features import load_image
-    from .plots.viz2d import plot_image_pair, plot_matches
+    from .plots.viz2d import plot_match_result
 
     imgs = [load_image(im, gray=False) if isinstance(im, (str, Path)) else np.asarray(im) for im in (image1, image2)]
-    if ax is None:
-        h = max(imgs[0].shape[0], imgs[1].shape[0])
-        w = imgs[0].shape[1] + imgs[1].shape[1]
-        fig, ax = plt.subplots(figsize=(min(14.0, 7.0 * w / max(h, 1) / 2 + 1), 4.5))
-    else:
-        fig = ax.figure
-    offset = plot_image_pair(ax, imgs[0], imgs[1], dim=0.8)
-    m = result.matches
-    plot_matches(ax, result.kpts1[m[:, 0]], result.kpts2[m[:, 1]], color=color, lw=lw, ps=2.0, offset=offset)
-    if title is None:
-        filt = "+".join(result.settings.get("filters", [])) or "no filter"
-        title = f"{len(m)} matches kept of {len(result.candidates)} blob candidates ({filt})"
-    ax.set_title(title, fontsize=9)
-    return fig
+    return plot_match_result(result, imgs[0], imgs[1], ax=ax, title=title)
 
 
 def save_plot(fig, path, *, dpi: int = 150) -> Path:

@@ -54,3 +54,60 @@ def test_figures_are_paper_sized_with_provenance(path):
     assert "paper_style()" in source and "figsize(" in source, path.name
     call = source[source.index("save_figure(fig"):]
     assert "columns=" in call and "provenance=" in call, path.name
+
+
+# ------------------------------------------------------------------------------------------- reruns
+
+
+@pytest.mark.slow
+def test_a_rerun_of_ctxmatch_figures_writes_the_same_bytes(tmp_path):
+    """Two `ctxmatch figures` runs that compute the same numbers, with different running times, write the same
+    figure and table bytes (PNG, PDF, CSV, Markdown): what keeps `git status` clean after `make figures` is run
+    again. The times go to the untracked executed/ folder, where they differ."""
+    pytest.importorskip("papermill")
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.evalcache import evaluate_cached, select_pairs
+
+    df = evaluate_cached(select_pairs("embedded", pair_ids=["planar/lab/1-2", "planar/poster/1-3"]),
+                         features=["sift-rootsift"], blobs=["paper-best", "baseline"], filters=["th", "dtm1", "dtm2"],
+                         models=["none", "1sac"], cache=False)
+    slow = df.copy()
+    slow["time_s"] = slow["time_s"] * 1.7 + 0.013  # another machine, the same numbers
+    runs = {}
+    for name, frame in (("one", df), ("two", slow)):
+        frame.to_parquet(tmp_path / "results.parquet")  # one path: the provenance names it
+        out = tmp_path / name
+        rc = main(["figures", "--only", "tables,fig_pr_scatter", "--output", str(out), "--no-progress",
+                   "-p", f"results={tmp_path / 'results.parquet'}"])
+        assert rc == 0
+        runs[name] = {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
+                      if p.is_file() and "executed" not in p.relative_to(out).parts}
+    assert sorted(runs["one"]) == ["fig_pr_scatter.pdf", "fig_pr_scatter.png", "tables.csv", "tables.md"]
+    assert sorted(runs["one"]) == sorted(runs["two"])
+    changed = [name for name in runs["one"] if runs["one"][name] != runs["two"][name]]
+    assert not changed, f"a rerun with other running times changed {changed}"
+    times = [(tmp_path / name / "executed" / "times.csv").read_text() for name in ("one", "two")]
+    assert times[0] != times[1]  # the times are written, apart
+    assert "time" not in runs["one"]["tables.csv"].decode().splitlines()[0]
+
+
+def test_figures_cli_rejects_a_bad_param(capsys):
+    pytest.importorskip("papermill")
+    from ctxmatch_lib.cli import main
+
+    assert main(["figures", "--only", "tables", "-p", "no_equals_sign"]) == 2
+    assert "--param must be KEY=VALUE" in capsys.readouterr().err
+
+
+def test_provenance_names_the_source_never_the_clock():
+    import subprocess
+
+    from ctxmatch_lib import __version__
+    from ctxmatch_lib.plots.base import SOURCE_PATHS, provenance
+
+    record = provenance(dataset="embedded")
+    assert set(record) == {"version", "git_commit", "dataset"} and record["version"] == __version__
+    if (ROOT / ".git").exists():
+        last = subprocess.run(["git", "log", "-1", "--format=%H", "--", *SOURCE_PATHS], cwd=ROOT,
+                              capture_output=True, text=True).stdout.strip()
+        assert record["git_commit"].removesuffix("-dirty") == last[:12]  # not HEAD: committing figures keeps it

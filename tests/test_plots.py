@@ -178,33 +178,60 @@ def _pr_table():
     return pd.DataFrame({"precision (%)": [20, 80, 90, 90, 95, 96], "recall (%)": [100, 85, 60, 90, 80, 55]}, index=idx)
 
 
-def test_plot_pr_scatter(ax):
+def test_plot_pr_scatter_hollow_without_model_filled_with_1sac(ax):
     t = _pr_table()
-    peval.plot_pr_scatter(ax, t, title="x", fit_exclude=())
+    pts = peval.plot_pr_scatter(ax, t, title="x")
     scatters = [c for c in ax.collections if isinstance(c, PathCollection)]
-    assert len(scatters) == 6
+    assert len(scatters) == len(pts) == 6
     assert np.allclose(scatters[0].get_offsets(), [[100, 20]])  # blob, no model: (recall, precision)
-    assert tuple(scatters[0].get_facecolors()[0][:3]) == to_rgba(peval.MODEL_COLORS["none"])[:3]
-    assert len([a for a in ax.texts]) >= 3 + 3  # 3 labels + 3 arrows (annotations)
+    colour = to_rgba(peval.method_style("blob")[0])
+    assert len(scatters[0].get_facecolors()) == 0 and tuple(scatters[0].get_edgecolors()[0]) == colour  # hollow
+    assert tuple(scatters[3].get_facecolors()[0]) == colour  # blob after 1SAC: the same marker, filled
+    assert not ax.texts  # no per-point labels: the legend names the methods
     assert ax.get_xlabel() == "recall (%)" and ax.get_title() == "x"
 
 
 def test_plot_pr_scatter_accepts_kind_level(ax):
     t = pd.concat({"planar": _pr_table()}, names=["kind"])
-    peval.plot_pr_scatter(ax, t, annotate=False, connect=False)
+    peval.plot_pr_scatter(ax, t, connect=True)
     assert len([c for c in ax.collections if isinstance(c, PathCollection)]) == 6
+    assert len(ax.lines) == 3  # the no-model -> 1SAC links
 
 
-def test_pr_legend_lists_times(ax):
-    leg = peval.pr_legend(ax, ["th", "dtm2", "blob"], times={"dtm2": "0.10/0.50 s"})
-    texts = [t.get_text() for t in leg.get_texts()]
-    assert texts == ["blob", "th", "DTM$_2$ (0.10/0.50 s)", "no model", "1SAC"]
+def test_pr_scatter_axes_show_every_point(ax):
+    rng = np.random.default_rng(0)
+    methods = ["blob", "th", "dtm1", "dtm2", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam"]
+    idx = pd.MultiIndex.from_product([["none", "1sac"], methods], names=["model", "method"])
+    prec = np.clip(np.r_[13, 88 + 6 * rng.random(10), 97 + 3 * rng.random(11)], 0, 100)
+    rec = np.clip(np.r_[100, 80 + 15 * rng.random(10), 25 + 30 * rng.random(11)], 0, 100)
+    t = pd.DataFrame({"precision (%)": prec, "recall (%)": rec}, index=idx)
+    peval.plot_pr_scatter(ax, t)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert x0 < rec.min() and x1 > rec.max() and y0 < prec.min() and y1 > prec.max()  # nothing pinned
+    assert x1 <= 102 and y1 <= 102
+    assert max(ax.get_yticks()) <= 100
 
 
-def test_markers_and_colors_are_stable():
-    assert peval.method_marker("dtm2") == "D"
-    assert peval.method_marker("somefilter") == peval.method_marker("somefilter")
-    assert peval.method_color("dtm1") != peval.method_color("dtm2")
+def test_pr_legend_one_entry_per_method_with_both_fills(ax):
+    from matplotlib.legend_handler import HandlerTuple  # noqa: F401
+
+    leg = peval.pr_legend(ax, ["th", "dtm2", "blob"])
+    assert [t.get_text() for t in leg.get_texts()] == ["blob", "th", "DTM$_2$"]
+    assert "hollow: no model" in leg.get_title().get_text() and "filled: 1SAC" in leg.get_title().get_text()
+    leg = peval.pr_legend(ax, ["dtm2"], times={"dtm2": "0.1 s"})
+    assert [t.get_text() for t in leg.get_texts()] == ["DTM$_2$ (0.1 s)"]
+
+
+def test_method_styles_unique_and_stable():
+    paper = ["blob", "th", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam",
+             "oanet", "acne", "pfm", "pgm", "scv", "bm"]
+    styles = [peval.method_style(m) for m in paper]
+    assert len(set(styles)) == len(paper)  # no two methods share colour and marker
+    for a, b in zip(styles, styles[1:]):  # neighbours in the paper's order differ in both
+        assert a[0] != b[0] and a[1] != b[1]
+    assert all(c in peval.METHOD_COLORS and m in peval.METHOD_MARKERS for c, m in styles)
+    assert peval.method_style("somefilter") == peval.method_style("somefilter")
+    assert peval.OKABE_ITO["yellow"] not in peval.METHOD_COLORS
 
 
 def _bin_table():
@@ -216,16 +243,24 @@ def _bin_table():
     return pd.DataFrame({"precision (%)": prec, "recall (%)": prec, "n": n, "share (%)": share}, index=idx)
 
 
-def test_plot_inlier_bars_and_share(ax):
+def test_plot_inlier_method_one_bar_per_metric_and_model(ax):
     t = _bin_table()
-    peval.plot_inlier_bars(ax, t, metric="precision (%)", model="none")
-    assert len(ax.patches) == 2 * 2  # the empty middle bin is dropped
-    assert [lbl.get_text() for lbl in ax.get_xticklabels()] == ["0-10 %\n(n=2)", "50-100 %\n(n=3)"]
+    peval.plot_inlier_method(ax, t, "dtm2")
+    assert len(ax.patches) == 2 * 4  # the empty middle bin is dropped; P/R x none/1SAC per bin
+    assert not ax.texts  # no "no pairs" text
+    faces = {tuple(p.get_facecolor()) for p in ax.patches}
+    assert to_rgba(peval.METRIC_COLORS["precision (%)"]) in faces and to_rgba("white") in faces  # filled, hollow
+    assert all(to_rgba(c) in {to_rgba(v) for v in peval.OKABE_ITO.values()} for c in peval.METRIC_COLORS.values())
+    # Bins not consecutive after the drop: named under their centres.
+    assert [lbl.get_text() for lbl in ax.get_xticklabels()] == ["0–10", "50–100"]
     fig, (a1, a2) = plt.subplots(1, 2)
-    peval.plot_inlier_bars(a1, t, drop_empty=False)
-    assert len(a1.patches) == 3 * 2
+    peval.plot_inlier_method(a1, t, "blob", bins=["0-10 %", "10-50 %", "50-100 %"])
+    assert [lbl.get_text() for lbl in a1.get_xticklabels()] == ["0", "10", "50", "100"]  # edges
     peval.plot_pair_share(a2, t)
     assert [round(p.get_height()) for p in a2.patches] == [40, 60]
+    assert [x.get_text() for x in a2.texts] == ["2", "3"]
+    leg = peval.inlier_legend(a2)
+    assert len(leg.get_texts()) == 4
     plt.close(fig)
 
 
@@ -235,13 +270,6 @@ def test_shared_bins_are_the_same_in_every_column():
     b["n"] = np.array([0, 4, 0]).repeat(4)  # only the middle bin populated
     common = peval.shared_bins([a, b])
     assert common == ["0-10 %", "10-50 %", "50-100 %"]
-    fig, (a1, a2) = plt.subplots(1, 2)
-    peval.plot_inlier_bars(a1, a, bins=common)
-    peval.plot_inlier_bars(a2, b, bins=common)
-    ticks = [[t.get_text().split("\n")[0] for t in ax.get_xticklabels()] for ax in (a1, a2)]
-    assert ticks[0] == ticks[1] == common
-    peval.plot_pair_share(a2, b, bins=common)
-    plt.close(fig)
     assert peval.shared_bins([a], drop_empty=True) == ["0-10 %", "50-100 %"]
 
 
@@ -249,36 +277,13 @@ def test_shared_bins_are_the_same_in_every_column():
 
 
 def test_fit_limits():
-    assert peval.fit_limits([80, 95, 100]) == (78.4, 101.0)
+    assert peval.fit_limits([80, 95, 100]) == (78.8, 101.2)
     lo, hi = peval.fit_limits([50.0, 50.0])
     assert hi - lo >= 10 and lo < 50 < hi
     assert peval.fit_limits([np.nan]) == (0.0, 100.0)
-    assert 100 < peval.fit_limits([99.5, 100])[1] <= 101.0  # room for the marker, never far beyond 100 %
-
-
-def test_pr_scatter_axes_fit_the_data_and_labels_do_not_overlap():
-    rng = np.random.default_rng(0)
-    methods = ["blob", "th", "dtm1", "dtm2", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam"]
-    idx = pd.MultiIndex.from_product([["none", "1sac"], methods], names=["model", "method"])
-    # A crowded top-right corner, as on real data.
-    prec = np.clip(np.r_[30, 88 + 6 * rng.random(10), 97 + 3 * rng.random(11)], 0, 100)
-    rec = np.clip(np.r_[100, 80 + 15 * rng.random(10), 60 + 30 * rng.random(11)], 0, 100)
-    t = pd.DataFrame({"precision (%)": prec, "recall (%)": rec}, index=idx)
-    fig, ax = plt.subplots(figsize=(2.4, 2.4))
-    pts = peval.plot_pr_scatter(ax, t)
-    assert len(pts) == 22 and {c for *_, c in pts} == set(peval.MODEL_COLORS[m] for m in ("none", "1sac"))
-    assert ax.get_xlim()[0] > 50 and ax.get_ylim()[0] > 20  # fitted, not 0-100
-    fig.draw_without_rendering()
-    r = fig.canvas.get_renderer()
-    labels = [a for a in ax.texts if a.get_text()]
-    assert len(labels) == 22  # every point labelled, the 1SAC ones too
-    # The unfiltered candidates, far below the filters, sit on the border with their true values in the label.
-    assert any(a.get_text() == "blob (P 30, R 100 %)" for a in labels)
-    assert ax.get_ylim()[0] > 50
-    boxes = [Text.get_window_extent(a, r) for a in labels]  # the text alone, not its leader line
-    overlaps = sum(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i))
-    assert overlaps == 0
-    plt.close(fig)
+    assert 100 < peval.fit_limits([99.5, 100])[1] <= 102.0  # room for the marker, never far beyond 100 %
+    lo, hi = peval.fit_limits([13, 99])
+    assert lo < 13 and hi > 99  # every value inside
 
 
 # ------------------------------------------------------------------------------------------- blob plots
@@ -295,7 +300,24 @@ def test_blob_heatmap_scale_per_block():
         im = pblob.plot_blob_heatmap(ax, m)
         assert im.get_clim() == (base, base + 4.7)  # its own range, not a shared one
     assert [t.get_text() for t in a1.get_yticklabels()] == ["1∪", "Ω"]  # one label per f group
-    assert any(t.get_text() == "best 84.7" for t in a2.texts)  # the best cell is annotated
+    # The best cell (last row, last column) is outlined inside the axes limits (nothing clipped), no text covers
+    # the map, and the key strips give each column its D colour and W grey and each row its f' grey.
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Rectangle
+
+    best = [p for p in a2.patches if isinstance(p, Rectangle) and not p.get_fill()]
+    assert len(best) == 1 and best[0].get_xy() == (7 - 0.5, 5 - 0.5)
+    (x0, x1), (y1, y0) = a2.get_xlim(), a2.get_ylim()
+    assert x0 <= 6.5 and 7.5 <= x1 and y0 <= 4.5 and 5.5 <= y1
+    assert not a2.texts
+    strips = [c for c in a2.collections if isinstance(c, PatchCollection)]
+    assert len(strips) == 1 and len(strips[0].get_paths()) == 2 * 8 + 6
+    faces = [tuple(f) for f in strips[0].get_facecolors()]
+    assert faces[0] == to_rgba(pblob._D_COLOURS["D≥"]) and faces[2 * 2] == to_rgba(pblob._D_COLOURS["D+"])
+    assert faces[1] == to_rgba(pblob._W_GREYS["a"]) and faces[3] == to_rgba(pblob._W_GREYS["harmonic"])
+    assert faces[16] == to_rgba(pblob._FP_GREYS[0]) and faces[18] == to_rgba(pblob._FP_GREYS[2])
+    leg = pblob.heatmap_key(a1)
+    assert len(leg.get_texts()) == 3 + 5 + 3 + 1
     plt.close(fig)
 
 
@@ -334,7 +356,8 @@ def test_match_palette_is_colour_blind_safe(cvd):
     c = viz2d.MATCH_COLORS
     assert delta_e(c["correct"], c["wrong"], cvd=cvd) > 60  # five times the ≈ 12 of green / red
     assert min(delta_e(c[a], c[b], cvd=cvd) for a, b in combinations(c, 2)) > 20
-    assert delta_e(peval.MODEL_COLORS["none"], peval.MODEL_COLORS["1sac"], cvd=cvd) > 60
+    p, r = peval.METRIC_COLORS["precision (%)"], peval.METRIC_COLORS["recall (%)"]
+    assert delta_e(p, r, cvd=cvd) > 40  # the two bar colours of the inlier histograms
 
 
 # ------------------------------------------------------------------------------------------- save_figure
@@ -379,7 +402,8 @@ def test_save_figure_png_pdf_with_provenance(tmp_path, monkeypatch):
     assert png.size == (1050, 600)  # exactly one column (3.5 in) at 300 dpi: no tight bounding box
     record = json.loads(png.text["ctxmatch:provenance"])
     assert record["dataset"] == "embedded" and record["blob"] == "a, b" and record["figure"] == "demo"
-    assert record["version"] and "date" in record and "git_commit" in record
+    assert record["version"] and "git_commit" in record
+    assert "date" not in record  # provenance from the source, never the clock
     pdf = (tmp_path / "out" / "demo.pdf").read_bytes()
     assert pdf.startswith(b"%PDF") and b"sift-rootsift" in pdf and b"/Subject" in pdf
     assert b"/Type3" not in pdf  # TrueType fonts (pdf.fonttype 42), as publishers require
@@ -441,7 +465,9 @@ def test_committed_figures_small_vector_and_traceable(png):
     assert png.stat().st_size < 2_000_000, f"{png.name} is {png.stat().st_size / 1e6:.1f} MB"
     assert png.with_suffix(".pdf").exists(), f"no vector PDF beside {png.name}"
     record = json.loads(Image.open(png).text["ctxmatch:provenance"])
-    assert {"version", "git_commit", "date", "dataset", "features", "blob"} <= set(record)
+    assert {"version", "git_commit", "dataset", "features", "blob"} <= set(record)
+    if png.parent == _FIGURES:  # the gallery of make figures (figures/paper is made by hand, at paper scale)
+        assert "date" not in record, "regenerate the gallery: its provenance carries the clock"
     img = Image.open(png)
     width_in = img.size[0] / img.info["dpi"][0]  # matplotlib records its dpi in the pHYs chunk
     assert width_in == pytest.approx(3.5, abs=0.01) or width_in == pytest.approx(7.16, abs=0.01), width_in
@@ -462,3 +488,53 @@ def test_png_palette_keeps_the_drawing_colours(tmp_path):
     assert im.mode == "P" and "ctxmatch:provenance" in im.text
     yellow = tuple(round(255 * v) for v in to_rgba(viz2d.MATCH_COLORS["correct_dropped"])[:3])
     assert yellow in {c for _, c in im.convert("RGB").getcolors(1 << 16)}
+
+
+@pytest.mark.parametrize("png", [p for p in GALLERY if p.stem.startswith(("fig_match_examples", "fig_boundary",
+                                                                          "fig_pr_scatter", "fig_inlier_hist"))
+                                 or p.parent == _FIGURES and p.stem == "fig_blob_heatmap"],
+                         ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_gallery_pages_fit_a_journal_page(png):
+    """At most 9.5 in tall (an IEEE page's text height is about 9.6 in), so that a figure prints unscaled."""
+    from PIL import Image
+
+    img = Image.open(png)
+    assert img.size[1] / img.info["dpi"][1] <= 9.5 + 0.01, f"{png.name} is too tall: split it into pages"
+
+
+# ------------------------------------------------------------------------------------------- ctxmatch match --plot
+
+
+class _Result:  # the fields of a MatchResult that the picture reads
+    def __init__(self, model_input):
+        self.kpts1 = np.array([[5.0, 5.0], [20.0, 10.0], [30.0, 25.0], [10.0, 30.0]])
+        self.kpts2 = self.kpts1 + 2.0
+        self.candidates = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
+        self.candidate_scores = np.array([0.1, 0.4, 0.7, 0.9])
+        self.keep = np.array([True, True, False, False])
+        self.model_input = model_input
+        self.settings = {"filters": ["dtm"], "model": "1sac" if model_input is not None else "none"}
+
+
+def test_match_picture_colours_by_score_and_shows_the_rejected():
+    img = np.zeros((40, 40), np.uint8)
+    fig = viz2d.plot_match_result(_Result(np.array([True, True, True, False])), img, img)
+    ax = fig.axes[0]
+    lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+    rejected, kept = lines
+    assert len(rejected.get_segments()) == 1 and len(kept.get_segments()) == 2  # candidate 3 was never offered
+    assert tuple(rejected.get_colors()[0][:3]) == to_rgba(viz2d.REJECTED_STYLE["color"])[:3]
+    cols = kept.get_colors()
+    assert not np.allclose(cols[0], cols[1])  # two scores, two colours; best (0.1) drawn last, on top
+    best = matplotlib.colormaps["viridis_r"](0.0)
+    assert np.allclose(cols[-1], best)
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert texts == ["kept by 1SAC (2), colour = score", "rejected by 1SAC (1)"]
+    assert any("score" in a.get_ylabel() for a in fig.axes[1:])  # the colour bar
+    plt.close(fig)
+    fig = viz2d.plot_match_result(_Result(None), img, img)
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["kept (2), colour = score"]
+    plt.close(fig)
+    with pytest.raises(ValueError, match="same length"):
+        viz2d.plot_scored_matches(plt.gca(), np.zeros((2, 2)), np.zeros((2, 2)), [0.1])
+    plt.close("all")

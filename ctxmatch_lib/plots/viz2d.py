@@ -31,6 +31,8 @@ __all__ = [
     "plot_flow",
     "add_text",
     "color_legend",
+    "plot_scored_matches",
+    "plot_match_result",
 ]
 
 #: The four-colour code of the paper's match figures, colour-blind safe (the paper's colour in comments).
@@ -177,3 +179,117 @@ def color_legend(ax_or_fig, labels: dict, **kwargs):
         else:
             handles.append(Line2D([], [], color=colour, lw=1.8, ls=style))
     return ax_or_fig.legend(handles, list(labels), **kwargs)
+
+
+#: How :func:`plot_match_result` draws the matches that the model step rejected (they are not good matches,
+#: and must not look like them): vermillion, thin, dashed, under the kept ones.
+REJECTED_STYLE = {"color": OKABE_ITO["vermillion"], "lw": 0.5, "linestyle": (0, (2.0, 1.5)), "alpha": 0.8}
+
+
+def plot_scored_matches(ax, kpts1, kpts2, scores, *, offset=(0.0, 0.0), cmap="viridis_r", norm=None,
+                        lw: float = 0.7, ps: float = 2.0, zorder: float = 3):
+    """Match lines coloured by their score (lower is better, as every ctxmatch score): the best on top in the
+    bright end of ``cmap``, the worst underneath in its dark end.
+
+    Parameters
+    ----------
+    kpts1, kpts2 : array_like of shape (K, 2)
+        Endpoints, (x, y) pixels; ``kpts2`` is shifted by ``offset`` (:func:`plot_image_pair`).
+    scores : array_like of shape (K,)
+    norm : matplotlib.colors.Normalize, optional
+        Default: the range of ``scores``.
+
+    Returns
+    -------
+    matplotlib.cm.ScalarMappable
+        For a colour bar.
+    """
+    import matplotlib
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    scores = np.asarray(scores, np.float64).reshape(-1)
+    p1 = np.asarray(kpts1, np.float64).reshape(-1, 2)
+    p2 = np.asarray(kpts2, np.float64).reshape(-1, 2)
+    if not len(scores) == len(p1) == len(p2):
+        raise ValueError(f"kpts1, kpts2 and scores must have the same length, got {len(p1)}, {len(p2)} and "
+                         f"{len(scores)}")
+    if norm is None:
+        lo, hi = (float(scores.min()), float(scores.max())) if len(scores) else (0.0, 1.0)
+        norm = Normalize(lo, hi if hi > lo else lo + 1e-9)
+    cmap = matplotlib.colormaps[cmap] if isinstance(cmap, str) else cmap
+    order = np.argsort(-scores, kind="stable")  # worst first, best drawn last (on top)
+    colours = cmap(norm(scores[order]))
+    plot_matches(ax, p1[order], p2[order], color=colours, lw=lw, ps=ps, offset=offset, zorder=zorder)
+    return ScalarMappable(norm=norm, cmap=cmap)
+
+
+def plot_match_result(result, image1, image2, *, ax=None, cmap="viridis_r", lw: float = 0.7,
+                      title: str | None = None):
+    """The picture of ``ctxmatch match --plot``: both images side by side, the kept matches coloured by their
+    blob-matching score (colour bar; lower is better) and, after a model step, the matches it rejected dashed in
+    vermillion (:data:`REJECTED_STYLE`), with a legend counting both.
+
+    Parameters
+    ----------
+    result : MatchResult
+        Of :func:`ctxmatch_lib.match.match_images`: ``kpts1``, ``kpts2``, ``candidates``,
+        ``candidate_scores``, ``keep`` and, when a model step ran, ``model_input`` (the candidates given to it).
+    image1, image2 : ndarray
+        The two images (``(H, W)`` gray or ``(H, W, 3)`` RGB).
+    ax : matplotlib Axes, optional
+        Where to draw; a new figure is made when omitted.
+    title : str, optional
+        Default: the counts and the settings' filters and model.
+
+    Returns
+    -------
+    matplotlib Figure
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
+
+    img1, img2 = np.asarray(image1), np.asarray(image2)
+    if ax is None:
+        h = max(img1.shape[0], img2.shape[0])
+        w = img1.shape[1] + img2.shape[1]
+        width = min(14.0, max(6.0, 7.0 * w / max(h, 1) / 2 + 1.5))
+        fig, ax = plt.subplots(figsize=(width, width * h / w + 0.9), layout="constrained")
+    else:
+        fig = ax.figure
+    offset = plot_image_pair(ax, img1, img2, dim=0.55)
+    cand = np.asarray(result.candidates).reshape(-1, 2)
+    cand_scores = np.asarray(result.candidate_scores, np.float64).reshape(-1)
+    keep = np.asarray(result.keep, bool).reshape(-1)
+    model_input = getattr(result, "model_input", None)
+    settings = getattr(result, "settings", {}) or {}
+    model = settings.get("model", "none")
+    rejected = (np.asarray(model_input, bool) & ~keep) if model_input is not None else np.zeros_like(keep)
+    shown = keep | rejected
+    lo, hi = (float(cand_scores[shown].min()), float(cand_scores[shown].max())) if shown.any() else (0.0, 1.0)
+    norm = Normalize(lo, hi if hi > lo else lo + 1e-9)
+    k1, k2 = np.asarray(result.kpts1, np.float64), np.asarray(result.kpts2, np.float64)
+    if rejected.any():
+        r = cand[rejected]
+        plot_matches(ax, k1[r[:, 0]], k2[r[:, 1]], color=REJECTED_STYLE["color"], lw=REJECTED_STYLE["lw"],
+                     alpha=REJECTED_STYLE["alpha"], linestyle=REJECTED_STYLE["linestyle"], offset=offset, zorder=2)
+    m = cand[keep]
+    mappable = plot_scored_matches(ax, k1[m[:, 0]], k2[m[:, 1]], cand_scores[keep], offset=offset, cmap=cmap,
+                                   norm=norm, lw=lw)
+    cb = fig.colorbar(mappable, ax=ax, fraction=0.03, pad=0.01, shrink=0.9)
+    cb.set_label("blob-matching score (lower is better)")
+    cb.ax.invert_yaxis()  # better matches up
+    step = {"none": "", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC"}.get(model, model)
+    handles = [Line2D([], [], color=plt.get_cmap(cmap)(0.15), lw=1.5)]
+    labels = [f"kept{' by ' + step if step else ''} ({int(keep.sum())}), colour = score"]
+    if model_input is not None and model != "none":
+        handles.append(Line2D([], [], color=REJECTED_STYLE["color"], lw=1.2, ls=(0, (2.0, 1.5))))
+        labels.append(f"rejected by {step} ({int(rejected.sum())})")
+    ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=len(handles), frameon=False,
+              fontsize=8)
+    if title is None:
+        filt = "+".join(settings.get("filters", [])) or "no filter"
+        title = f"{int(keep.sum())} matches kept of {len(cand)} blob candidates ({filt}{', ' + step if step else ''})"
+    ax.set_title(title, fontsize=9)
+    return fig
