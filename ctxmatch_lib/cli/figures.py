@@ -22,7 +22,12 @@ from pathlib import Path
 #: Arguments of the kernels: their log (the "running over TCP without encryption" warning at start, the
 #: "KeyboardInterrupt caught in kernel" that a shut-down can provoke) is not the user's business; a cell's
 #: error still reaches papermill, which raises it, and the executed notebook keeps it.
-KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL"]
+KERNEL_ARGUMENTS = [
+    "--IPKernelApp.log_level=CRITICAL",
+    # Without ipywidgets, tqdm.auto in a kernel falls back to the text bar (what a papermill run wants) and
+    # warns "IProgress not found" into every notebook that shows progress: say nothing instead.
+    "--IPKernelApp.exec_lines=import warnings; warnings.filterwarnings('ignore', message='IProgress not found')",
+]
 
 
 def add_parser(sub) -> None:
