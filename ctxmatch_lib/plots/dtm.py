@@ -32,6 +32,7 @@ __all__ = [
     "plot_dtm_clusters",
     "plot_dtm_final",
     "plot_dtm_mesh",
+    "mesh_border_distance",
 ]
 
 DTM_COLORS = {
@@ -299,6 +300,34 @@ def plot_dtm_mesh(ax, result, *, image: int = 1, color="white", lw: float = 0.35
         ax.add_collection(LineCollection(np.asarray(tri.points, np.float64)[edges], colors=color, linewidths=lw,
                                          alpha=alpha, zorder=zorder))
     return len(edges)
+
+
+def mesh_border_distance(result, points, *, image: int = 1) -> np.ndarray:
+    """Distance (pixels) of each of ``points`` (``(K, 2)`` (x, y) pixels) to the border of the region that
+    DTM's keypoint mesh covers on image ``image`` (the triangles of the last DTM1 iteration whose three vertices
+    are keypoints: what :func:`plot_dtm_mesh` draws); negative outside the region. With it one can check the
+    paper's remark (Sec. 5.3, App. "DTM evaluation") that DTM's wrong matches sit near the triangulation
+    border.
+
+    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
+    """
+    import shapely
+
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    if result.trace is None:
+        raise ValueError("result has no trace: compute it with dtm(..., trace=True)")
+    if not result.trace.iterations or len(points) == 0:
+        return np.full(len(points), np.nan)
+    last = result.trace.iterations[-1]
+    tri = last.tri1 if image == 1 else last.tri2
+    simp = np.asarray(tri.simplices, np.int64).reshape(-1, 3)
+    simp = simp[(simp < tri.n_vertices).all(axis=1)]
+    if len(simp) == 0:
+        return np.full(len(points), np.nan)
+    region = shapely.union_all(shapely.polygons(np.asarray(tri.points, np.float64)[simp]))
+    pts = shapely.points(points)
+    dist = shapely.distance(shapely.boundary(region), pts)
+    return np.where(shapely.contains_xy(region.buffer(1e-9), points[:, 0], points[:, 1]), dist, -dist)
 
 
 #: Legend entries of the Fig. 3 panels.
