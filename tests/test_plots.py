@@ -13,7 +13,6 @@ import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.collections import LineCollection, PathCollection  # noqa: E402
 from matplotlib.colors import to_rgba  # noqa: E402
-from matplotlib.text import Text  # noqa: E402
 
 from ctxmatch_lib.dtm import dtm, dtm_boundary  # noqa: E402
 from ctxmatch_lib.plots import dtm as pdtm  # noqa: E402
@@ -213,8 +212,6 @@ def test_pr_scatter_axes_show_every_point(ax):
 
 
 def test_pr_legend_one_entry_per_method_with_both_fills(ax):
-    from matplotlib.legend_handler import HandlerTuple  # noqa: F401
-
     leg = peval.pr_legend(ax, ["th", "dtm2", "blob"])
     assert [t.get_text() for t in leg.get_texts()] == ["blob", "th", "DTM$_2$"]
     assert "hollow: no model" in leg.get_title().get_text() and "filled: 1SAC" in leg.get_title().get_text()

@@ -66,7 +66,7 @@ def _fmt(seconds: float) -> str:
 
 
 class _Status:
-    """One status line, refreshed every second (every 15 s when stderr is not a terminal): the notebook in
+    """One status line, refreshed every second (every 30 s when stderr is not a terminal): the notebook in
     progress, its running time and the estimated time left."""
 
     def __init__(self, stems, expected: dict, enabled: bool):
@@ -111,7 +111,7 @@ class _Status:
         sys.stderr.flush()
 
     def _loop(self) -> None:
-        period = 1.0 if self.tty else 15.0
+        period = 1.0 if self.tty else 30.0
         while not self._stop.wait(period):
             self._show()
 
