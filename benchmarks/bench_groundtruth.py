@@ -5,7 +5,8 @@ pair with K candidate matches is built, a fraction ``--correct`` of them near-tr
 regions overlap, so B computes a real intersection area) and the rest random pairs; the script prints the
 best-of-``--repeat`` time of :func:`ctxmatch_lib.groundtruth.label_matches` with methods D, B and C, and the
 ratios B / D and C / D measured in the same run (the target: at most 3). ``--correct 1`` is the worst case
-for B (every region pair overlaps).
+for B (every region pair overlaps). The three methods are timed in the same process on the same inputs; the
+best of ``--repeat`` runs excludes the first call's compilation (numba) and the noise of the shared machine.
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_groundtruth.py [--candidates K] [--correct F]``.
 """
 

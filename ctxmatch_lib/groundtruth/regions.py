@@ -40,15 +40,19 @@ Overlap areas are computed in closed form per ray, not with polygons: the proble
 that ``E1'`` is the unit disk (the overlap error is affine-invariant), a point ``p`` inside both regions is
 found (the minimiser of the sum of the two ellipses' quadratic forms), and the area of the convex
 intersection is ``1/2 ∫ min(r1(θ), r2(θ))² dθ`` with ``r_i`` the exact distance from ``p`` to each boundary
-along the ray of angle ``θ``, integrated by the trapezoid rule on :data:`N_ANGLES` angles (spectrally
+along the ray of angle ``θ``, integrated by the trapezoid rule on :data:`N_ANGLES` angles (each ray with its
+opposite, which shares both square roots; spectrally
 accurate except at the two to four boundary crossings: absolute error below 2e-3 against shapely polygons
 within 0.2 of the 50 % threshold, below 5e-3 everywhere on well-conditioned shapes,
 ``tests/test_groundtruth_regions.py``). Pairs whose bounding circles are disjoint get exactly 1; the rare
 pairs where that interior point misses the intersection fall back to
 :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error` (32-gon polygons and shapely, about 1e-4, but
-about 20x slower, too slow for the 3x-method-D budget). The loops are compiled (numba,
-:mod:`~ctxmatch_lib.groundtruth._kernels`), one pass, O(K) memory; ``benchmarks/bench_groundtruth.py``
-measures B and C against D.
+about 20x slower, too slow for the 3x-method-D budget). When only labels are wanted (:func:`label_regions`),
+a pair is not integrated when a lower bound of its overlap error already exceeds the threshold by more than
+the integration's error (the area ratio, error >= 1 - min(area) / max(area), and the lens of the unit disk
+with the circle bounding the other ellipse): same labels, most wrong candidates and most polygon fallbacks
+skipped. The loops are compiled (numba, :mod:`~ctxmatch_lib.groundtruth._kernels`; on flow pairs transfer,
+centre and overlap in one pass), O(K) memory; ``benchmarks/bench_groundtruth.py`` measures B and C against D.
 
 Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
 """
@@ -63,7 +67,7 @@ from .._validation import as_matches, as_points
 from ..blob.overlap import as_shapes, ellipse_overlap_error
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
 from ..geometry import _epipolar, _transfer_errors
-from ._kernels import flow_transfer_kernel, homography_ellipse_kernel, overlap_kernel
+from ._kernels import flow_label_kernel, flow_transfer_kernel, homography_ellipse_kernel, overlap_kernel
 from .core import PiecewiseAffineMap
 
 __all__ = [
@@ -87,11 +91,15 @@ SHAPE_SCALE = 2.0
 #: Angles of the ray integration of the intersection area.
 N_ANGLES = 64
 
-_COS = np.cos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False))
-_SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False))
+# The kernel takes the first half of the angles: each ray is integrated with its opposite.
+_COS = np.cos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
+_SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
+#: Methods B and C skip the integration where a lower bound of the overlap error exceeds the threshold by
+#: more than this (the integration's own error is below 5e-3), so the labels are those of the full computation.
+_REJECT_MARGIN = 0.01
 
 
-def region_overlap_error(c1, A1, c2, A2) -> np.ndarray:
+def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.ndarray:
     """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of ellipses, element-wise (compiled loop).
 
     Ellipse ``E = {c + A u : |u| <= 1}``; see the module docstring for the ray integration. Same contract
@@ -103,11 +111,15 @@ def region_overlap_error(c1, A1, c2, A2) -> np.ndarray:
         Centres, (x, y) pixels.
     A1, A2 : array_like of shape (P, 2, 2)
         Affine shapes (non-singular).
+    reject_above : float
+        Pairs whose overlap error provably exceeds this (a lower bound from the areas and from the centre
+        distance) get 1 without computing the intersection; the default 1 computes every value. Labelling
+        needs only ``error <= threshold``: methods B and C pass the threshold plus a margin.
 
     Returns
     -------
     ndarray of shape (P,)
-        Overlap errors in [0, 1]; 1 where a shape is not finite.
+        Overlap errors in [0, 1]; 1 where a shape is not finite (or the error exceeds ``reject_above``).
 
     Examples
     --------
@@ -123,7 +135,7 @@ def region_overlap_error(c1, A1, c2, A2) -> np.ndarray:
     A2 = np.ascontiguousarray(A2, dtype=np.float64).reshape(-1, 2, 2)
     if not len(c1) == len(c2) == len(A1) == len(A2):
         raise ValueError(f"c1, A1, c2, A2 must have the same length, got {len(c1)}, {len(A1)}, {len(c2)}, {len(A2)}")
-    out = overlap_kernel(c1, A1, c2, A2, _COS, _SIN)
+    out = overlap_kernel(c1, A1, c2, A2, _COS, _SIN, float(reject_above))
     todo = np.flatnonzero(np.isnan(out))
     if len(todo):
         out[todo] = ellipse_overlap_error(c1[todo], A1[todo], c2[todo], A2[todo])
@@ -231,6 +243,13 @@ def region_errors(
 
 def _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale):
     """Validated matched centres and scaled shapes ``p1, p2, A1, A2``."""
+    kpts1, kpts2, S1, S2, matches = _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    i, j = matches[:, 0], matches[:, 1]
+    return kpts1[i], kpts2[j], S1[i] * shape_scale, S2[j] * shape_scale
+
+
+def _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale):
+    """Validated ``kpts1, kpts2, shapes1, shapes2`` (unscaled) and ``matches``."""
     if shapes1 is None or shapes2 is None:
         raise ValueError("shapes1 and shapes2 (the keypoints' affine shapes) are required by methods B and C")
     if not shape_scale > 0:
@@ -242,8 +261,7 @@ def _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale):
     matches = as_matches(matches, len(kpts1), len(kpts2))
     if not isinstance(gt, (HomographyGT, EpipolarGT, FlowGT)):
         raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
-    i, j = matches[:, 0], matches[:, 1]
-    return kpts1[i], kpts2[j], S1[i] * shape_scale, S2[j] * shape_scale
+    return kpts1, kpts2, S1, S2, matches
 
 
 def _carry(gt, p1, A1):
@@ -279,10 +297,10 @@ def _carry_back(gt, p2, A2):
     return None
 
 
-def _overlap(q, B, p2, A2, back, p1, A1):
-    overlap = region_overlap_error(q, B, p2, A2)
+def _overlap(q, B, p2, A2, back, p1, A1, reject_above=1.0):
+    overlap = region_overlap_error(q, B, p2, A2, reject_above=reject_above)
     if back is not None:
-        overlap = np.minimum(overlap, region_overlap_error(back[0], back[1], p1, A1))
+        overlap = np.minimum(overlap, region_overlap_error(back[0], back[1], p1, A1, reject_above=reject_above))
     return overlap
 
 
@@ -327,19 +345,36 @@ def label_regions(
         raise ValueError(f"overlap must be in [0, 1], got {overlap}")
     if not centre_threshold > 0:
         raise ValueError(f"centre_threshold must be positive, got {centre_threshold}")
+    rej = overlap + _REJECT_MARGIN
+    if isinstance(gt, FlowGT):
+        return _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method, overlap,
+                           centre_threshold, rej)
     p1, p2, A1, A2 = _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
     if method == "B":
-        return _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1) <= overlap
+        return _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1, rej) <= overlap
     # C: the centre constraint first, the overlap only where it holds (same labels, less work).
-    if isinstance(gt, FlowGT):
-        q, B = _carry(gt, p1, A1)
-        back = _carry_back(gt, p2, A2)
-        ok = _centre(gt, p1, p2, q, back) <= centre_threshold
-        i = np.flatnonzero(ok)
-        back = None if back is None else (back[0][i], back[1][i])
-        ok[i] = _overlap(q[i], B[i], p2[i], A2[i], back, p1[i], A1[i]) <= overlap
-        return ok
     ok = _centre(gt, p1, p2) <= centre_threshold
     i = np.flatnonzero(ok)
-    ok[i] = _overlap(*_carry(gt, p1[i], A1[i]), p2[i], A2[i], None, p1[i], A1[i]) <= overlap
+    ok[i] = _overlap(*_carry(gt, p1[i], A1[i]), p2[i], A2[i], None, p1[i], A1[i], rej) <= overlap
+    return ok
+
+
+def _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method, overlap, centre_threshold, rej):
+    """:func:`label_regions` on a flow pair: transfer, centre and overlap fused in one compiled pass
+    (:func:`~ctxmatch_lib.groundtruth._kernels.flow_label_kernel`; C computes the overlap only where the centre
+    holds), the polygon fallback on the few pairs that need it. Same labels as :func:`region_errors`."""
+    kpts1, kpts2, S1, S2, matches = _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    flow12 = _as_flow(gt.flow12, "gt.flow12")
+    flow21 = np.empty((0, 0, 2)) if gt.flow21 is None else _as_flow(gt.flow21, "gt.flow21")
+    cmax = centre_threshold if method == "C" else np.inf
+    err, centre = flow_label_kernel(flow12, flow21, kpts1, kpts2, S1, S2, matches[:, 0], matches[:, 1],
+                                    float(shape_scale), float(cmax), _COS, _SIN, float(rej))
+    todo = np.flatnonzero(np.isnan(err))
+    if len(todo):
+        p1, p2, A1, A2 = kpts1[matches[todo, 0]], kpts2[matches[todo, 1]], S1[matches[todo, 0]], S2[matches[todo, 1]]
+        A1, A2 = A1 * shape_scale, A2 * shape_scale
+        err[todo] = _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1, rej)
+    ok = err <= overlap
+    if method == "C":
+        ok &= centre <= centre_threshold
     return ok
