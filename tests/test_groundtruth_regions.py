@@ -64,6 +64,23 @@ def test_overlap_matches_polygons_near_the_threshold():
     assert np.abs(ours - ref)[band].max() < 2e-3
 
 
+def test_overlap_rejection_keeps_every_value_at_or_below_the_threshold():
+    # Labelling skips the integration where a lower bound of the error exceeds reject_above; the errors at or
+    # below the threshold are the exact computation's, bit for bit, and every skipped pair is truly above it.
+    rng = np.random.default_rng(1)
+    k = 3000
+    A1 = _circle(1.0) * rng.uniform(2, 10, k)[:, None, None]
+    A2 = A1 * rng.uniform(0.4, 2.5, k)[:, None, None] * np.array([1.0, 0.7])[None, None, :]
+    c1 = rng.uniform(0, 50, (k, 2))
+    c2 = c1 + rng.normal(0, 6, (k, 2))
+    exact = region_overlap_error(c1, A1, c2, A2)
+    fast = region_overlap_error(c1, A1, c2, A2, reject_above=0.51)
+    keep = exact <= 0.51
+    np.testing.assert_array_equal(fast[keep], exact[keep])
+    skipped = fast != exact
+    assert skipped.sum() > 300 and (fast[skipped] == 1.0).all() and (exact[skipped] > 0.51).all()
+
+
 def test_overlap_empty_and_non_finite():
     assert region_overlap_error(np.empty((0, 2)), np.empty((0, 2, 2)), np.empty((0, 2)), np.empty((0, 2, 2))).shape == (0,)
     err = region_overlap_error([[0.0, 0.0]], np.full((1, 2, 2), np.nan), [[0.0, 0.0]], _circle(1))
@@ -213,6 +230,23 @@ def test_c_is_b_and_centre_constraint(kind):
     np.testing.assert_array_equal(b, err.overlap <= OVERLAP_MAX)
     np.testing.assert_array_equal(c, b & (err.centre <= CENTRE_THRESHOLD_PX))
     assert 0 < c.sum() < b.sum() < len(m)  # the case exercises both constraints
+
+
+def test_c_is_b_and_centre_constraint_flow_both_directions():
+    # Flow pairs with flow21 and unknown (NaN) displacements: the fused labelling pass against region_errors.
+    k1, k2, s1, s2, m, gt = _random_case("flow", np.random.default_rng(4))
+    flow12 = gt.flow12.copy()
+    flow12[40:80, 40:80] = np.nan
+    yy, xx = np.mgrid[0:200, 0:260].astype(float)
+    flow21 = np.stack([-0.3 * xx - 15.0, np.zeros_like(yy)], axis=2)
+    flow21[:60, :60] = np.nan
+    gt = FlowGT(flow12=flow12, flow21=flow21)
+    b = label_matches(k1, k2, m, gt, method="B", shapes1=s1, shapes2=s2)
+    c = label_matches(k1, k2, m, gt, method="C", shapes1=s1, shapes2=s2)
+    err = region_errors(k1, k2, m, gt, s1, s2)
+    np.testing.assert_array_equal(b, err.overlap <= OVERLAP_MAX)
+    np.testing.assert_array_equal(c, b & (err.centre <= CENTRE_THRESHOLD_PX))
+    assert 0 < c.sum() < b.sum() < len(m)
 
 
 @pytest.mark.parametrize("gt", [HomographyGT(H=np.eye(3)), _nonplanar_gt(), FlowGT(flow12=np.zeros((10, 10, 2)))])
