@@ -57,24 +57,26 @@ with _user_cache() as _cache:
         k = (-d + 1.0 + r) * (d + 1.0 - r) * (d - 1.0 + r) * (d + 1.0 + r)
         return math.acos(c1) + r * r * math.acos(c2) - 0.5 * math.sqrt(max(k, 0.0))
 
-    @_jit
-    def overlap_kernel(c1, A1, c2, A2, cos_t, sin_t, reject_above):
-        """Overlap error of ``{c1 + A1 u}`` and ``{c2 + A2 u}`` (``|u| <= 1``) per pair; 1 where the
-        bounding circles are disjoint or a value is not finite, NaN where no common interior point was
-        found (the caller falls back to polygons).
-
-        ``cos_t, sin_t`` hold the first half of the ray angles (``[0, pi)``); each ray is integrated with
-        its opposite (``theta + pi``), which shares both square roots. Pairs whose overlap error is
-        provably larger than ``reject_above`` (a lower bound from the area ratio, ``1 - min/max``, and from
-        the lens of the unit disk and the circle bounding the other ellipse) get 1 without integration;
-        ``reject_above >= 1`` turns this off (exact values for every pair)."""
-        n = c1.shape[0]
-        out = np.ones(n)
-        for k in range(n):
-            out[k] = _overlap_one(c1[k, 0], c1[k, 1], A1[k, 0, 0], A1[k, 0, 1], A1[k, 1, 0], A1[k, 1, 1],
-                                  c2[k, 0], c2[k, 1], A2[k, 0, 0], A2[k, 0, 1], A2[k, 1, 0], A2[k, 1, 1],
-                                  cos_t, sin_t, reject_above)
-        return out
+    @numba.njit(cache=_cache, nogil=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
+    def _ray_sum(px, py, q1, n00, n01, n11, nvx, nvy, q2, cos_t, sin_t):
+        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2`` (fastmath: the loop
+        is vectorised; the sum's order changes in the last bits only)."""
+        acc = 0.0
+        for j in range(cos_t.shape[0]):
+            c, s = cos_t[j], sin_t[j]
+            pd = px * c + py * s
+            t1 = pd * pd + 1.0 - q1
+            s1 = math.sqrt(t1 if t1 > 0.0 else 0.0)
+            a = n00 * c * c + 2.0 * n01 * c * s + n11 * s * s
+            b = nvx * c + nvy * s
+            t2 = b * b - a * (q2 - 1.0)
+            s2 = math.sqrt(t2 if t2 > 0.0 else 0.0)
+            u1, u2 = s1 - pd, (s2 - b) / a
+            v1, v2 = s1 + pd, (s2 + b) / a
+            rf = u1 if u1 < u2 else u2
+            rr = v1 if v1 < v2 else v2
+            acc += rf * rf + rr * rr
+        return acc
 
     @_jit
     def _overlap_one(c1x, c1y, a00, a01, a10, a11, c2x, c2y, e00, e01, e10, e11, cos_t, sin_t, reject_above):
@@ -129,6 +131,25 @@ with _user_cache() as _cache:
         inter = 0.5 * acc * (math.pi / cos_t.shape[0])
         e = 1.0 - inter / (math.pi + area2 - inter)
         return min(max(e, 0.0), 1.0)
+
+    @_jit
+    def overlap_kernel(c1, A1, c2, A2, cos_t, sin_t, reject_above):
+        """Overlap error of ``{c1 + A1 u}`` and ``{c2 + A2 u}`` (``|u| <= 1``) per pair; 1 where the
+        bounding circles are disjoint or a value is not finite, NaN where no common interior point was
+        found (the caller falls back to polygons).
+
+        ``cos_t, sin_t`` hold the first half of the ray angles (``[0, pi)``); each ray is integrated with
+        its opposite (``theta + pi``), which shares both square roots. Pairs whose overlap error is
+        provably larger than ``reject_above`` (a lower bound from the area ratio, ``1 - min/max``, and from
+        the lens of the unit disk and the circle bounding the other ellipse) get 1 without integration;
+        ``reject_above >= 1`` turns this off (exact values for every pair)."""
+        n = c1.shape[0]
+        out = np.ones(n)
+        for k in range(n):
+            out[k] = _overlap_one(c1[k, 0], c1[k, 1], A1[k, 0, 0], A1[k, 0, 1], A1[k, 1, 0], A1[k, 1, 1],
+                                  c2[k, 0], c2[k, 1], A2[k, 0, 0], A2[k, 0, 1], A2[k, 1, 0], A2[k, 1, 1],
+                                  cos_t, sin_t, reject_above)
+        return out
 
     @_jit
     def _flow_one(flow, x, y, s, a00, a01, a10, a11):
@@ -191,27 +212,6 @@ with _user_cache() as _cache:
                 e = np.nan if (e != e or eb != eb) else min(e, eb)
             err[k] = e
         return err, cen
-
-    @numba.njit(cache=_cache, nogil=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
-    def _ray_sum(px, py, q1, n00, n01, n11, nvx, nvy, q2, cos_t, sin_t):
-        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2`` (fastmath: the loop
-        is vectorised; the sum's order changes in the last bits only)."""
-        acc = 0.0
-        for j in range(cos_t.shape[0]):
-            c, s = cos_t[j], sin_t[j]
-            pd = px * c + py * s
-            t1 = pd * pd + 1.0 - q1
-            s1 = math.sqrt(t1 if t1 > 0.0 else 0.0)
-            a = n00 * c * c + 2.0 * n01 * c * s + n11 * s * s
-            b = nvx * c + nvy * s
-            t2 = b * b - a * (q2 - 1.0)
-            s2 = math.sqrt(t2 if t2 > 0.0 else 0.0)
-            u1, u2 = s1 - pd, (s2 - b) / a
-            v1, v2 = s1 + pd, (s2 + b) / a
-            rf = u1 if u1 < u2 else u2
-            rr = v1 if v1 < v2 else v2
-            acc += rf * rf + rr * rr
-        return acc
 
     @_jit
     def homography_ellipse_kernel(Hinv, c, A):
