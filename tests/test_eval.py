@@ -338,7 +338,7 @@ def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
 def test_cli_eval_validates_before_any_work(tiny_dataset, tmp_path, monkeypatch, capsys, argv, message):
     import ctxmatch_lib.features as features
 
-    monkeypatch.setattr(features, "_extract", lambda *a, **k: pytest.fail("features computed for bad arguments"))
+    monkeypatch.setattr(features.cache, "_extract", lambda *a, **k: pytest.fail("features computed for bad arguments"))
     monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
     if message is None:  # a choice argparse refuses (exit status 2, its own message naming the flag)
         with pytest.raises(SystemExit) as exc:
@@ -479,7 +479,7 @@ def test_cli_out_is_checked_before_any_work(command, tmp_path, monkeypatch, caps
     import ctxmatch_lib.features as features
     from ctxmatch_lib.cli import main
 
-    monkeypatch.setattr(features, "_extract", lambda *a, **k: pytest.fail("features computed for a bad --out"))
+    monkeypatch.setattr(features.cache, "_extract", lambda *a, **k: pytest.fail("features computed for a bad --out"))
     (tmp_path / "DIR").write_text("a file, not a folder")
     argv = [command, "--pairs", "1", "--blob", "paper-best", "--cache-dir", str(tmp_path / "c"), "--no-progress"]
     assert main([*argv, "--out", str(tmp_path / "DIR" / "x.parquet")]) == 2

@@ -180,7 +180,7 @@ def test_cache_hit(tmp_path, gray, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError("cache miss: features recomputed")
 
-    monkeypatch.setattr(F, "_extract", boom)
+    monkeypatch.setattr(F.cache, "_extract", boom)  # where extract_features looks it up
     again = extract_features(gray, cfg, cache_dir=tmp_path)
     for name in ("kpts", "shapes", "desc", "scales", "angles", "responses"):
         np.testing.assert_array_equal(getattr(first, name), getattr(again, name))
@@ -216,7 +216,7 @@ def test_cache_write_is_atomic(tmp_path, gray, monkeypatch):
         f.write(b"partial")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(F.np, "savez", interrupted)
+    monkeypatch.setattr(np, "savez", interrupted)
     with pytest.raises(KeyboardInterrupt):
         extract_features(gray, cfg, cache_dir=tmp_path)
     assert not target.exists()
@@ -298,7 +298,7 @@ def test_cache_key_includes_the_opencv_version(gray, tmp_path, monkeypatch):
 
     assert here.is_file() and f"opencv-{cv2.__version__}" in here.parts
     # Another OpenCV is another entry: the stored features are not served to it.
-    monkeypatch.setattr(features, "_opencv_version", lambda: "0.0.0-other")
+    monkeypatch.setattr(features.cache, "_opencv_version", lambda: "0.0.0-other")
     other = feature_cache_path(gray, cfg, cache_dir=tmp_path)
     assert other != here and not other.exists()
 

@@ -1,0 +1,241 @@
+"""Feature settings: :class:`FeatureConfig` (detector, descriptor, orientation, cap) and the named presets.
+
+:data:`FEATURE_PRESETS` holds the paper's eight detector+descriptor blocks of Fig. 5 and the upright and plain
+SIFT variants; :func:`paper_feature_blocks` lists the blocks that can run here. Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .._validation import Presets
+
+__all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks"]
+
+
+# Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
+# every cache keyed on it (features, sweep units) is then recomputed.
+_CACHE_FORMAT = 1
+
+
+_DETECTORS = ("sift", "harrisz")
+
+
+_DESCRIPTORS = ("rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet")
+
+
+_DEEP = ("hardnet2", "sosnet")
+
+
+_ORIENTATIONS = ("auto", "sift", "dominant", "orinet", "none")
+
+
+_NETS = ("auto", "hardnet", "sosnet", "tfeat", "hardtfeat")
+
+
+# Fields added after cache format 1: left out of the key digest at their defaults, so the keys (and cache
+# entries) of the SIFT configurations stay what they were.
+_NEW_FIELDS = {"orientation": "auto", "weights": None, "net": "auto", "orinet_weights": None,
+               "support": 2.0}
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Settings of the keypoint extractor and descriptor.
+
+    Parameters
+    ----------
+    detector : {"sift", "harrisz"}
+        Keypoint detector: OpenCV's SIFT (difference of Gaussians), or HarrisZ (:func:`.harrisz.harrisz`,
+        affine multi-scale Harris corners).
+    descriptor : {"rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet"}
+        ``"rootsift"``: L1-normalised, square-rooted SIFT (Arandjelović & Zisserman 2012), so that the
+        Euclidean distance of the descriptors is the Hellinger distance of the histograms; ``"sift"``: plain
+        L2-normalised SIFT; ``"rootsgloh2"``: RootsGLOH2 (256-D, non-oriented patches, matched with the
+        rotation-min distance of :func:`descriptor_distance`); ``"hardnet2"``, ``"sosnet"``: deep patch
+        descriptors through kornia (needs torch and kornia, see ``weights``).
+    upright : bool
+        Use no dominant orientation: every keypoint gets angle 0 and the descriptor is computed on the
+        unrotated patch; keypoints that only differed by orientation are merged.
+    max_keypoints : int
+        Keep at most this many keypoints, strongest (largest absolute DoG response) first for SIFT, finest
+        scale then strongest first for HarrisZ; 0 means no cap.
+    n_octave_layers, contrast_threshold, edge_threshold, sigma : int, float, float, float
+        OpenCV ``SIFT_create`` parameters (defaults are Lowe's and OpenCV's).
+    precise_upscale : bool
+        Use OpenCV's precise upscaling of the first octave (index x ↦ 2x), which removes the quarter-pixel
+        localisation bias of the default linear upscaling, so keypoints follow the pixel-centre convention.
+    patch_radius : float
+        Radius of the elliptical patch in units of the keypoint scale (the Gaussian sigma of its octave
+        layer); 3 sigma is the usual support of a SIFT blob. For HarrisZ, the major semi-axis of the
+        ellipse in units of the integration scale.
+    orientation : {"auto", "sift", "dominant", "orinet", "none"}
+        Patch orientation: SIFT's own (SIFT detector only), the dominant gradient orientation of the
+        affine-normalised patch (a handcrafted stand-in for the learned orientation of Yi et al. 2016 that the
+        paper uses), OriNet through kornia (the learned stand-in, weights ``orinet_weights``), or none.
+        ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT+(Root)SIFT, dominant for
+        HarrisZ+(Root)SIFT, OriNet for the deep descriptors.
+    weights : str, optional
+        Deep descriptor weights: a path, or a file name in the weights folder (``$CTXMATCH_WEIGHTS``, else
+        ``$CTXMATCH_DATA/../weights``). ``None`` loads the published weights the way kornia does (download on a
+        connected machine). The file's hash is part of :meth:`key`.
+    net : {"auto", "hardnet", "sosnet", "tfeat", "hardtfeat"}
+        Network architecture for ``weights``: ``"auto"`` is the descriptor's own (kornia's HardNet for
+        hardnet2, SOSNet for sosnet); stand-in weights of another architecture name it here.
+    orinet_weights : str, optional
+        OriNet weights (path or file name in the weights folder); ``None``: kornia's published ones.
+    support : float
+        Patch descriptors sample ``support × A`` around each keypoint.
+    """
+
+    detector: str = "sift"
+    descriptor: str = "rootsift"
+    upright: bool = False
+    max_keypoints: int = 8000
+    n_octave_layers: int = 3
+    contrast_threshold: float = 0.04
+    edge_threshold: float = 10.0
+    sigma: float = 1.6
+    precise_upscale: bool = True
+    patch_radius: float = 3.0
+    orientation: str = "auto"
+    weights: str | None = None
+    net: str = "auto"
+    orinet_weights: str | None = None
+    support: float = 2.0
+
+    def __post_init__(self):
+        if self.detector not in _DETECTORS:
+            raise ValueError(f"detector must be one of {_DETECTORS}, got {self.detector!r}")
+        if self.descriptor not in _DESCRIPTORS:
+            raise ValueError(f"descriptor must be one of {_DESCRIPTORS}, got {self.descriptor!r}")
+        if self.orientation not in _ORIENTATIONS:
+            raise ValueError(f"orientation must be one of {_ORIENTATIONS}, got {self.orientation!r}")
+        if self.net not in _NETS:
+            raise ValueError(f"net must be one of {_NETS}, got {self.net!r}")
+        if self.orientation == "sift" and self.detector != "sift":
+            raise ValueError("orientation='sift' needs detector='sift'")
+        if self.descriptor == "rootsgloh2" and self.orientation not in ("auto", "none"):
+            raise ValueError("RootsGLOH2 works on non-oriented patches: orientation must be 'auto' or 'none', "
+                             f"got {self.orientation!r}")
+        if self.descriptor not in _DEEP and (self.weights is not None or self.net != "auto"):
+            raise ValueError(f"weights and net apply to the deep descriptors {_DEEP}, not {self.descriptor!r}")
+        if not np.isfinite(self.support) or self.support <= 0:
+            raise ValueError(f"support must be a positive number, got {self.support!r}")
+        if int(self.max_keypoints) != self.max_keypoints or self.max_keypoints < 0:
+            raise ValueError(f"max_keypoints must be a non-negative integer, got {self.max_keypoints!r}")
+        if int(self.n_octave_layers) != self.n_octave_layers or self.n_octave_layers < 1:
+            raise ValueError(f"n_octave_layers must be a positive integer, got {self.n_octave_layers!r}")
+        for name in ("contrast_threshold", "edge_threshold", "sigma", "patch_radius"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0 or (name in ("sigma", "patch_radius") and value == 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+
+    def key(self) -> str:
+        """A stable, file-name-safe string identifying this configuration (used for cache folders).
+
+        Examples
+        --------
+        >>> FeatureConfig().key()
+        'sift-rootsift-k8000-v1-441d0e9b'
+        """
+        items = sorted((k, v) for k, v in asdict(self).items() if not (k in _NEW_FIELDS and v == _NEW_FIELDS[k]))
+        # The weights enter by content: another file under the same name is another configuration.
+        for field in ("weights", "orinet_weights"):
+            if getattr(self, field) is not None or (field == "orinet_weights"
+                                                    and self.resolved_orientation() == "orinet"):
+                from .deep import weights_digest
+
+                items.append((field + "_sha1", weights_digest(getattr(self, field), field)))
+        digest = hashlib.sha1(repr(items).encode()).hexdigest()[:8]
+        up = "-upright" if self.upright else ""
+        return f"{self.detector}-{self.descriptor}{up}-k{self.max_keypoints}-v{_CACHE_FORMAT}-{digest}"
+
+    def resolved_orientation(self) -> str:
+        """The orientation ``"auto"`` stands for (see the class docstring)."""
+        if self.orientation != "auto":
+            return self.orientation
+        if self.descriptor == "rootsgloh2" or self.upright:
+            return "none"
+        if self.descriptor in _DEEP:
+            return "orinet"
+        return "sift" if self.detector == "sift" else "dominant"
+
+
+_HARDNET2_STANDIN = dict(weights="HardTFeat.pth", net="hardtfeat", orinet_weights="OriNet.pth")
+
+
+_SOSNET_STANDIN = dict(weights="tfeat-liberty.params", net="tfeat", orinet_weights="OriNet.pth")
+
+
+FEATURE_PRESETS = Presets("feature preset", {
+    "sift-rootsift": FeatureConfig(),
+    "sift-rootsift-upright": FeatureConfig(upright=True),
+    "sift": FeatureConfig(descriptor="sift"),
+    "sift-rootsgloh2": FeatureConfig(descriptor="rootsgloh2"),
+    "harrisz-rootsift": FeatureConfig(detector="harrisz"),
+    "harrisz-rootsgloh2": FeatureConfig(detector="harrisz", descriptor="rootsgloh2"),
+    "sift-hardnet2": FeatureConfig(descriptor="hardnet2", **_HARDNET2_STANDIN),
+    "sift-sosnet": FeatureConfig(descriptor="sosnet", **_SOSNET_STANDIN),
+    "harrisz-hardnet2": FeatureConfig(detector="harrisz", descriptor="hardnet2", **_HARDNET2_STANDIN),
+    "harrisz-sosnet": FeatureConfig(detector="harrisz", descriptor="sosnet", **_SOSNET_STANDIN),
+})
+
+
+#: One line per preset for tables and figure captions; every stand-in says so and names its weights.
+FEATURE_DESCRIPTIONS = {
+    "sift-rootsift": "SIFT + RootSIFT (SIFT orientation)",
+    "sift-rootsift-upright": "upright SIFT + RootSIFT",
+    "sift": "SIFT + SIFT (plain L2)",
+    "sift-rootsgloh2": "SIFT + RootsGLOH2 (non-oriented patches, rotation-min distance)",
+    "harrisz-rootsift": "HarrisZ + RootSIFT (dominant-gradient orientation: stand-in for the learned orientation)",
+    "harrisz-rootsgloh2": "HarrisZ + RootsGLOH2 (non-oriented patches, rotation-min distance)",
+    "sift-hardnet2": "SIFT + HardNet2 stand-in (TFeat architecture, weights HardTFeat.pth; "
+                     "orientation: OriNet stand-in, OriNet.pth)",
+    "sift-sosnet": "SIFT + SOSNet stand-in (TFeat architecture, weights tfeat-liberty.params; "
+                   "orientation: OriNet stand-in, OriNet.pth)",
+    "harrisz-hardnet2": "HarrisZ + HardNet2 stand-in (TFeat architecture, weights HardTFeat.pth; "
+                        "orientation: OriNet stand-in, OriNet.pth)",
+    "harrisz-sosnet": "HarrisZ + SOSNet stand-in (TFeat architecture, weights tfeat-liberty.params; "
+                      "orientation: OriNet stand-in, OriNet.pth)",
+}
+
+
+#: The eight detector + descriptor blocks of the paper's heat map (Fig. 5), handcrafted ones first.
+PAPER_FEATURE_BLOCKS = ("sift-rootsift", "sift-rootsgloh2", "harrisz-rootsift", "harrisz-rootsgloh2",
+                        "sift-hardnet2", "sift-sosnet", "harrisz-hardnet2", "harrisz-sosnet")
+
+
+def paper_feature_blocks(deep: bool | None = None) -> list[str]:
+    """The paper's detector + descriptor blocks that can run here.
+
+    Parameters
+    ----------
+    deep : bool, optional
+        Include the HardNet2 / SOSNet blocks (stand-in weights, run in numpy). ``None``: when their weights
+        are found (they ship with the package); ``True``: always (an error later if they cannot run);
+        ``False``: never.
+
+    Returns
+    -------
+    list of str
+        Keys of :data:`FEATURE_PRESETS`, in the order of :data:`PAPER_FEATURE_BLOCKS`.
+
+    Examples
+    --------
+    >>> paper_feature_blocks(deep=False)
+    ['sift-rootsift', 'sift-rootsgloh2', 'harrisz-rootsift', 'harrisz-rootsgloh2']
+    """
+    handcrafted = [k for k in PAPER_FEATURE_BLOCKS if FEATURE_PRESETS[k].descriptor not in _DEEP]
+    if deep is False:
+        return handcrafted
+    if deep is None:
+        try:
+            for k in PAPER_FEATURE_BLOCKS:
+                FEATURE_PRESETS[k].key()  # resolves (and hashes) the weights: FileNotFoundError when missing
+        except (FileNotFoundError, ValueError):
+            return handcrafted
+    return list(PAPER_FEATURE_BLOCKS)

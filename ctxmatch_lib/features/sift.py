@@ -1,0 +1,91 @@
+"""SIFT (OpenCV's DoG detector and SIFT/RootSIFT descriptors): keypoints, elliptical frames, descriptors.
+
+Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Features
+from .config import FeatureConfig
+
+__all__: list[str] = []
+
+
+def _shapes(scales: np.ndarray, angles: np.ndarray, radius: float) -> np.ndarray:
+    c, s = np.cos(angles), np.sin(angles)
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (N, 2, 2), columns = patch axes
+    return rot * (radius * scales)[:, None, None]
+
+
+def _sift_detect(gray: np.ndarray, config: FeatureConfig, *, merge: bool):
+    """OpenCV SIFT keypoints sorted strongest first and capped; ``merge`` folds orientation duplicates."""
+    import cv2
+
+    sift = cv2.SIFT_create(
+        0, int(config.n_octave_layers), float(config.contrast_threshold), float(config.edge_threshold),
+        float(config.sigma), bool(config.precise_upscale),
+    )
+    kps = sift.detect(gray, None)
+    if not kps:
+        return sift, None
+    pts = np.array([k.pt for k in kps], np.float64).reshape(-1, 2)
+    size = np.array([k.size for k in kps], np.float64)
+    ang = np.array([k.angle for k in kps], np.float64)
+    resp = np.abs(np.array([k.response for k in kps], np.float64))
+    octave = np.array([k.octave for k in kps], np.int64)  # compute() reads the pyramid level from it
+    if merge:
+        ang = np.zeros_like(ang)
+        # SIFT duplicates a blob for each secondary orientation peak; without its orientation they are one.
+        _, first = np.unique(np.c_[pts, size], axis=0, return_index=True)
+        keep = np.sort(first)
+        pts, size, ang, resp, octave = pts[keep], size[keep], ang[keep], resp[keep], octave[keep]
+    # Strongest first; ties broken by position, size and angle so the order never depends on OpenCV's.
+    order = np.lexsort((ang, size, pts[:, 1], pts[:, 0], -resp))
+    if config.max_keypoints:
+        order = order[: int(config.max_keypoints)]
+    return sift, (pts[order], size[order], ang[order], resp[order], octave[order])
+
+
+def _normalise(desc: np.ndarray, root: bool) -> np.ndarray:
+    desc = desc.astype(np.float64)
+    if root:
+        return np.sqrt(desc / np.maximum(desc.sum(1, keepdims=True), 1e-12))
+    return desc / np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
+
+
+def _extract_sift(gray: np.ndarray, config: FeatureConfig, *, upright: bool) -> Features:
+    """SIFT keypoints described by OpenCV's SIFT at their own orientation (or upright)."""
+    import cv2
+
+    sift, det = _sift_detect(gray, config, merge=upright)
+    if det is None:
+        return Features.empty()
+    pts, size, ang, resp, octave = det
+    kps = [
+        cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o))
+        for (x, y), s, a, r, o in zip(pts, size, ang, resp, octave)
+    ]
+    kps_out, desc = sift.compute(gray, kps)
+    if desc is None or len(kps_out) != len(kps):
+        # compute() may drop keypoints; re-align on what it kept.
+        if desc is None or not kps_out:
+            return Features.empty()
+        pts = np.array([k.pt for k in kps_out], np.float64)
+        size = np.array([k.size for k in kps_out], np.float64)
+        ang = np.array([k.angle for k in kps_out], np.float64)
+        resp = np.abs(np.array([k.response for k in kps_out], np.float64))
+    desc = _normalise(desc, config.descriptor == "rootsift")
+    scales = size / 2.0  # OpenCV's KeyPoint.size is twice the detection sigma
+    # OpenCV angles are degrees measured in the image frame (clockwise on screen, y down).
+    angles = np.deg2rad(ang)
+    angles = np.where(angles > np.pi, angles - 2 * np.pi, angles)
+    return Features(
+        kpts=np.ascontiguousarray(pts),
+        shapes=_shapes(scales, angles, float(config.patch_radius)),
+        desc=np.ascontiguousarray(desc, dtype=np.float32),
+        scales=scales,
+        angles=angles,
+        responses=resp,
+    )
