@@ -127,9 +127,93 @@ def _filters(values) -> list[str]:
     return [n for n in names if n.lower() != "none"]
 
 
-def run(args) -> int:
-    from ..match import match_images, match_pairs, plot_result, read_pairs, resolve_blob, resolve_features, save_plot, save_result
+def _settings(args) -> dict:
+    """The library settings of the flags, each resolved here so that its error names the flag (the library's
+    errors name its parameter). Raises ``ValueError`` with the message to print."""
+    from ..match import _as_filter_list, resolve_blob, resolve_features
 
+    if args.max_keypoints is not None and args.max_keypoints < 0:
+        raise ValueError(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
+    if args.model_threshold is not None and not (args.model_threshold > 0 and args.model_threshold < float("inf")):
+        raise ValueError(f"--model-threshold must be a positive number of pixels, got {args.model_threshold}")
+    settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
+                    model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
+                    cache_dir=False if args.no_cache else None)
+    for flag, resolve, key in (("--features", resolve_features, "features"), ("--blob", resolve_blob, "blob")):
+        try:
+            settings[key] = resolve(getattr(args, key))
+        except ValueError as exc:
+            raise ValueError(f"{flag}: {exc}") from None
+    try:
+        _as_filter_list(settings["filters"])
+    except ValueError as exc:
+        raise ValueError(f"--filter: {exc}") from None
+    if args.export_h5 is not None:
+        try:
+            import h5py  # noqa: F401
+        except ImportError:
+            raise ValueError("--export-h5 needs h5py: pip install 'ctxmatch[export]'") from None
+    return settings
+
+
+def _run_one(args, settings) -> dict:
+    """Two images: match, save, plot. Returns ``{(name1, name2): npz path}`` for the exports."""
+    from ..match import match_images, plot_result, save_plot, save_result
+
+    img1, img2 = (Path(a) for a in args.images_pair)
+    res = match_images(img1, img2, **settings)
+    out = Path(args.out or "matches.npz")
+    save_result(res, out)
+    print(f"{len(res.kpts1)} + {len(res.kpts2)} keypoints, {len(res.candidates)} blob candidates, "
+          f"{len(res.matches)} matches kept -> {out}")
+    if args.plot:
+        print(f"picture -> {save_plot(plot_result(res, img1, img2), args.plot)}")
+    # Export names: the file names, or the paths as given when the two file names are the same.
+    names = (img1.name, img2.name) if img1.name != img2.name else (args.images_pair[0], args.images_pair[1])
+    return {names: out}
+
+
+def _plot_saved_pair(args, plot_dir: Path | None):
+    """The ``on_pair`` callback of the folder mode: a picture per pair from its saved ``.npz``."""
+    import numpy as np
+
+    from ..match import MatchResult, load_result, plot_result, save_plot
+
+    def on_pair(name1, name2, path, skipped):
+        if plot_dir is None:
+            return
+        pic = plot_dir / (path.stem + ".png")
+        if skipped and pic.is_file():
+            return
+        d = load_result(path)
+        keep = np.ones(len(d["matches"]), bool)  # only the kept matches are stored
+        res = MatchResult(d["kpts1"], d["kpts2"], d["shapes1"], d["shapes2"], d["matches"], d["scores"],
+                          d["matches"], d["scores"], keep, tuple(d["image_size1"]), tuple(d["image_size2"]),
+                          settings=d["settings"])
+        save_plot(plot_result(res, Path(args.images) / name1, Path(args.images) / name2,
+                              title=f"{name1} - {name2}: {len(d['matches'])} matches"), pic)
+
+    return on_pair
+
+
+def _run_folder(args, settings) -> dict:
+    """``--pairs``/``--images``: one ``.npz`` per pair, resumable. Returns the exports' ``{names: path}``."""
+    from ..match import match_pairs, read_pairs
+
+    try:
+        pairs = read_pairs(args.pairs)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"--pairs: {exc}") from None
+    if not pairs:
+        raise ValueError(f"--pairs: {args.pairs} lists no pair")
+    out_dir = Path(args.out or "matches")
+    on_pair = _plot_saved_pair(args, Path(args.plot) if args.plot else None)
+    summary = match_pairs(pairs, args.images, out_dir, progress=not args.no_progress, on_pair=on_pair, **settings)
+    print(f"{len(pairs)} pairs: {summary['done']} matched, {summary['skipped']} already done -> {out_dir}")
+    return summary["files"]
+
+
+def run(args) -> int:
     folder = args.pairs is not None
     if folder:
         if args.images_pair:
@@ -138,88 +222,15 @@ def run(args) -> int:
             return _error("--pairs needs --images DIR (the folder the names are relative to)")
     elif len(args.images_pair) != 2:
         return _error(f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
-    if args.max_keypoints is not None and args.max_keypoints < 0:
-        return _error(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
-    if args.model_threshold is not None and not (args.model_threshold > 0 and args.model_threshold < float("inf")):
-        return _error(f"--model-threshold must be a positive number of pixels, got {args.model_threshold}")
-    settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
-                    model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
-                    cache_dir=False if args.no_cache else None)
-    from ..match import _as_filter_list
-
-    # Each setting resolved here, so that its error names the flag (the library's names its parameter).
     try:
-        settings["features"] = resolve_features(args.features)
-    except ValueError as exc:
-        return _error(f"--features: {exc}")
-    try:
-        settings["blob"] = resolve_blob(args.blob)
-    except ValueError as exc:
-        return _error(f"--blob: {exc}")
-    try:
-        _as_filter_list(settings["filters"])
-    except ValueError as exc:
-        return _error(f"--filter: {exc}")
-    if args.export_h5 is not None:
-        try:
-            import h5py  # noqa: F401
-        except ImportError:
-            return _error("--export-h5 needs h5py: pip install 'ctxmatch[export]'")
-    try:
+        settings = _settings(args)
         _check_inputs_and_outputs(args, folder)
     except ValueError as exc:
         return _error(str(exc))
-
-    if not folder:
-        img1, img2 = (Path(a) for a in args.images_pair)
-        try:
-            res = match_images(img1, img2, **settings)
-        except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
-            return _error(str(exc))
-        out = Path(args.out or "matches.npz")
-        save_result(res, out)
-        print(f"{len(res.kpts1)} + {len(res.kpts2)} keypoints, {len(res.candidates)} blob candidates, "
-              f"{len(res.matches)} matches kept -> {out}")
-        if args.plot:
-            print(f"picture -> {save_plot(plot_result(res, img1, img2), args.plot)}")
-        # Export names: the file names, or the paths as given when the two file names are the same.
-        names = (img1.name, img2.name) if img1.name != img2.name else (args.images_pair[0], args.images_pair[1])
-        results = {names: out}
-    else:
-        try:
-            pairs = read_pairs(args.pairs)
-        except (OSError, ValueError) as exc:
-            return _error(f"--pairs: {exc}")
-        if not pairs:
-            return _error(f"--pairs: {args.pairs} lists no pair")
-        out_dir = Path(args.out or "matches")
-        plot_dir = Path(args.plot) if args.plot else None
-
-        import numpy as np
-
-        def on_pair(name1, name2, path, skipped):
-            if plot_dir is None:
-                return
-            pic = plot_dir / (path.stem + ".png")
-            if skipped and pic.is_file():
-                return
-            from ..match import MatchResult, load_result
-
-            d = load_result(path)
-            keep = np.ones(len(d["matches"]), bool)  # only the kept matches are stored
-            res = MatchResult(d["kpts1"], d["kpts2"], d["shapes1"], d["shapes2"], d["matches"], d["scores"],
-                              d["matches"], d["scores"], keep, tuple(d["image_size1"]), tuple(d["image_size2"]),
-                              settings=d["settings"])
-            save_plot(plot_result(res, Path(args.images) / name1, Path(args.images) / name2,
-                                  title=f"{name1} - {name2}: {len(d['matches'])} matches"), pic)
-
-        try:
-            summary = match_pairs(pairs, args.images, out_dir, progress=not args.no_progress, on_pair=on_pair,
-                                  **settings)
-        except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
-            return _error(str(exc))
-        print(f"{len(pairs)} pairs: {summary['done']} matched, {summary['skipped']} already done -> {out_dir}")
-        results = summary["files"]
+    try:
+        results = _run_folder(args, settings) if folder else _run_one(args, settings)
+    except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
+        return _error(str(exc))
 
     if args.export_h5 is not None or args.export_colmap is not None:
         from ..export import export_results
