@@ -242,6 +242,11 @@ class SGLOH2Distance:
     def __repr__(self) -> str:
         return f"SGLOH2Distance(rotations={self.rotations})"
 
+    #: Rows per GEMM. Every GEMM has this many rows (the last chunk is zero-padded), so a row's distances
+    #: do not depend on how many rows the caller passes: OpenBLAS picks its kernel (and so the float32
+    #: rounding) by matrix shape, and BlobContext's row blocks must equal the whole-matrix distances.
+    ROWS = 64
+
     def __call__(self, desc1: np.ndarray, desc2: np.ndarray) -> np.ndarray:
         d1 = np.asarray(desc1, np.float32).reshape(-1, SGLOH_DIM)
         d2 = np.asarray(desc2, np.float32).reshape(-1, SGLOH_DIM)
@@ -250,6 +255,19 @@ class SGLOH2Distance:
             return np.zeros((B, m), np.float32)
         halves2 = [np.ascontiguousarray(d2[:, k * _HALF : (k + 1) * _HALF].T) for k in range(2)]  # (128, m)
         n2 = [np.einsum("ij,ij->j", h, h) for h in halves2]
+        out = np.empty((B, m), np.float32)
+        R = self.ROWS
+        rows = np.zeros((R, SGLOH_DIM), np.float32)
+        for r0 in range(0, B, R):
+            r1 = min(B, r0 + R)
+            rows[: r1 - r0] = d1[r0:r1]
+            rows[r1 - r0 :] = 0
+            out[r0:r1] = self._chunk(rows, halves2, n2)[: r1 - r0]
+        return out
+
+    def _chunk(self, d1: np.ndarray, halves2, n2) -> np.ndarray:
+        """Distances of ``ROWS`` rows of desc1 to every desc2 row: one GEMM per rotation, running minimum."""
+        B, m = len(d1), halves2[0].shape[1]
         shifts = _first_half_shifts(d1, {(a + 1) // 2 % _M for a in self.rotations})
         n1 = np.einsum("ij,ij->i", shifts[next(iter(shifts))], shifts[next(iter(shifts))])
         best = np.full((B, m), np.inf, np.float32)
