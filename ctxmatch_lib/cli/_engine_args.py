@@ -31,7 +31,7 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--data-root", default=None, help="root of the real data (default: $CTXMATCH_DATA)")
     p.add_argument("--features", default=None,
                    help="comma-separated feature presets: " + ", ".join(FEATURE_PRESETS) + " (default: "
-                        "sift-rootsift); the deep presets need the kornia extra and use stand-in weights")
+                        "sift-rootsift); the deep presets use stand-in weights, shipped and run in numpy")
     p.add_argument("--max-keypoints", type=int, default=None,
                    help="override the keypoint cap of every feature preset (presets: 8000; 0: no cap)")
     p.add_argument("--blob", default=blob,

@@ -65,11 +65,11 @@ def features_digest(*feats: Features) -> str:
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
     """SHA-1 of the library source files and shipped models that produce evaluation numbers (all of
-    ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules and the faces ``evalcache.py`` and
-    ``sweep.py``)."""
+    ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules (``report``, ``report_blob``, ``gt_compare``,
+    which read the engine's rows) and the faces ``evalcache.py`` and ``sweep.py``)."""
     root = Path(__file__).resolve().parent.parent
     # The faces and the report layer compute no numbers.
-    skip = {root / "report.py", root / "report_blob.py", root / "evalcache.py", root / "sweep.py"}
+    skip = {root / name for name in ("report.py", "report_blob.py", "gt_compare.py", "evalcache.py", "sweep.py")}
     h = hashlib.sha1()
     # Shipped models (LMR's trees, the learned filters' weights) produce numbers too.
     files = [*root.rglob("*.py"), *root.rglob("*.npz"), *root.rglob("*.pt")]

@@ -1,8 +1,8 @@
 """Features: keypoints with their elliptical frames and descriptors, cached on disk.
 
 Detectors: SIFT (OpenCV's DoG) and HarrisZ (:mod:`.harrisz`). Descriptors: RootSIFT / SIFT, RootsGLOH2
-(:mod:`.sgloh`, non-oriented patches, rotation-min distance) and, with the optional torch extra, HardNet2 and
-SOSNet through kornia (:mod:`.deep`), on patches oriented by OriNet. The paper's eight detector+descriptor
+(:mod:`.sgloh`, non-oriented patches, rotation-min distance), HardNet2 and SOSNet (:mod:`.deep`, on patches
+oriented by OriNet; **stand-in** TFeat-architecture weights shipped with the package, run in numpy). The paper's eight detector+descriptor
 blocks of Fig. 5 are in :data:`FEATURE_PRESETS` (Sec. 5: "SIFT and HarrisZ ... RootSIFT, RootsGLOH2, HardNet2
 and SOSNet").
 

@@ -56,7 +56,7 @@ class FeatureConfig:
         Euclidean distance of the descriptors is the Hellinger distance of the histograms; ``"sift"``: plain
         L2-normalised SIFT; ``"rootsgloh2"``: RootsGLOH2 (256-D, non-oriented patches, matched with the
         rotation-min distance of :func:`descriptor_distance`); ``"hardnet2"``, ``"sosnet"``: deep patch
-        descriptors through kornia (needs torch and kornia, see ``weights``).
+        descriptors (stand-in weights run in numpy; the published ones need torch and kornia, see ``weights``).
     upright : bool
         Use no dominant orientation: every keypoint gets angle 0 and the descriptor is computed on the
         unrotated patch; keypoints that only differed by orientation are merged.
@@ -75,7 +75,7 @@ class FeatureConfig:
     orientation : {"auto", "sift", "dominant", "orinet", "none"}
         Patch orientation: SIFT's own (SIFT detector only), the dominant gradient orientation of the
         affine-normalised patch (a handcrafted stand-in for the learned orientation of Yi et al. 2016 that the
-        paper uses), OriNet through kornia (the learned stand-in, weights ``orinet_weights``), or none.
+        paper uses), OriNet (the learned stand-in, weights ``orinet_weights``, run in numpy), or none.
         ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT+(Root)SIFT, dominant for
         HarrisZ+(Root)SIFT, OriNet for the deep descriptors.
     weights : str, optional

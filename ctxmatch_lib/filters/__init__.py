@@ -37,7 +37,7 @@ _BUILTIN: dict[str, str] = {
     "bm": "ctxmatch_lib.filters.bm:bm_filter",
     "pfm": "ctxmatch_lib.filters.pfm:pfm_filter",
     "lmr": "ctxmatch_lib.filters.lmr:lmr_filter",
-    # Learned filters (torch imported on the first call; default weights trained here, not the authors').
+    # Learned filters (numpy inference; default weights trained here, not the authors'; torch only to train).
     "oanet": "ctxmatch_lib.filters.learned.filters:oanet_filter",
     "acne": "ctxmatch_lib.filters.learned.filters:acne_filter",
 }
