@@ -57,10 +57,11 @@ with _user_cache() as _cache:
         k = (-d + 1.0 + r) * (d + 1.0 - r) * (d - 1.0 + r) * (d + 1.0 + r)
         return math.acos(c1) + r * r * math.acos(c2) - 0.5 * math.sqrt(max(k, 0.0))
 
-    @numba.njit(cache=_cache, nogil=True, fastmath={"reassoc", "contract", "arcp", "nsz"})
+    @numba.njit(cache=_cache, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "arcp", "nsz"})
     def _ray_sum(px, py, q1, n00, n01, n11, nvx, nvy, q2, cos_t, sin_t):
-        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2`` (fastmath: the loop
-        is vectorised; the sum's order changes in the last bits only)."""
+        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2``. Vectorised (SIMD):
+        ``error_model="numpy"`` drops the division-by-zero check that blocks it (``a > 0``: ``N`` is positive
+        definite), fastmath without ``nnan``/``ninf`` lets the sum be reordered (last bits only)."""
         acc = 0.0
         for j in range(cos_t.shape[0]):
             c, s = cos_t[j], sin_t[j]
