@@ -99,6 +99,15 @@ def test_figures_cli_rejects_a_bad_param(capsys):
     assert "--param must be KEY=VALUE" in capsys.readouterr().err
 
 
+def test_paper_parameters_never_write_the_embedded_gallery(tmp_path):
+    """`make figures-paper` (``--params paper``) writes figures/paper/, `make figures` figures/."""
+    from ctxmatch_lib.cli.figures import output_dir
+
+    assert output_dir("paper", None, tmp_path) == (tmp_path / "figures" / "paper").resolve()
+    assert output_dir("default", None, tmp_path) == (tmp_path / "figures").resolve()
+    assert output_dir("paper", tmp_path / "x", tmp_path) == (tmp_path / "x").resolve()
+
+
 def test_provenance_names_the_source_never_the_clock():
     import subprocess
 

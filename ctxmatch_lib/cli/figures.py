@@ -40,7 +40,8 @@ def add_parser(sub) -> None:
                    help="default: the embedded offline dataset (minutes); paper: notebooks/params/<stem>.yaml, "
                         "real data under CTXMATCH_DATA")
     p.add_argument("--only", default="", help="comma-separated notebook stems (default: all)")
-    p.add_argument("--output", type=Path, default=None, help="figure folder (default: figures/ of the checkout)")
+    p.add_argument("--output", type=Path, default=None, help="figure folder (default: figures/ of the checkout; figures/paper/ with --params paper, so "
+                        "that the paper-scale run never replaces the embedded gallery)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
                    help="set a notebook parameter (VALUE is read as YAML: 2, [a, b], null), after --params; "
                         "repeatable, given to every notebook run that has the parameter")
@@ -138,6 +139,14 @@ class _Status:
             self._thread.join()
 
 
+def output_dir(params: str, output, root: Path) -> Path:
+    """Where the figures go: ``output`` when given, else ``figures/`` of the checkout, or ``figures/paper/``
+    for the paper-scale parameters (which never replace the embedded gallery)."""
+    if output is not None:
+        return Path(output).resolve()
+    return (root / "figures" / "paper" if params == "paper" else root / "figures").resolve()
+
+
 def run(args: argparse.Namespace) -> int:
     import papermill as pm
     import yaml
@@ -154,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ctxmatch figures: {exc}", file=sys.stderr)
         return 2
     nb_dir = root / "notebooks"
-    out_dir = (args.output or root / "figures").resolve()
+    out_dir = output_dir(args.params, args.output, root)
     (out_dir / "executed").mkdir(parents=True, exist_ok=True)
     stems = sorted(p.stem for p in nb_dir.glob("*.ipynb"))
     if args.only:
