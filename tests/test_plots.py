@@ -488,7 +488,8 @@ def test_png_palette_keeps_the_drawing_colours(tmp_path):
 
 
 @pytest.mark.parametrize("png", [p for p in GALLERY if p.stem.startswith(("fig_match_examples", "fig_boundary",
-                                                                          "fig_pr_scatter", "fig_inlier_hist"))
+                                                                          "fig_pr_scatter", "fig_inlier_hist",
+                                                                          "fig_dtm_steps", "fig_gt_methods"))
                                  or p.parent == _FIGURES and p.stem == "fig_blob_heatmap"],
                          ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_gallery_pages_fit_a_journal_page(png):
