@@ -561,3 +561,48 @@ def test_engine_rows_identical_to_before_the_refactor():
     assert got[0] == ref[0] and len(got) == len(ref) == 1 + 32 + 39
     diff = [(i, a, b) for i, (a, b) in enumerate(zip(got, ref)) if a != b]
     assert not diff, diff[:3]
+
+
+@pytest.mark.parametrize("gt", ["C", "B"])
+def test_eval_gt_region_methods_on_a_hand_point_pair(tmp_path, monkeypatch, capsys, gt):
+    """``ctxmatch eval --gt C`` (and B) on a non-planar pair whose ground truth is hand points (EpipolarGT).
+
+    The embedded non-planar pairs carry dense flow, so a custom folder is built: the images of
+    nonplanar/cards and 24 correspondences sampled from its flow as the ``x1 y1 x2 y2`` hand points.
+    C adds the centre-distance rule to B's overlap error (Appendix "Ground truth estimation methods"),
+    both through the hand-point map, and the paper notes C finds fewer correct matches than D.
+    """
+    import shutil
+
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.datasets import load_dataset
+
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    src = {p.pair_id: p for p in load_dataset("embedded-nonplanar")}["nonplanar/cards"]
+    folder = tmp_path / "hand"
+    folder.mkdir()
+    shutil.copy(src.image1, folder / "a.png")
+    shutil.copy(src.image2, folder / "b.png")
+    flow = src.gt.flow12
+    rows, cols = np.nonzero(~np.isnan(flow[..., 0]))
+    pick = np.random.default_rng(0).choice(len(rows), 24, replace=False)
+    r, c = rows[pick], cols[pick]
+    np.savetxt(folder / "pts.txt", np.c_[c, r, c + flow[r, c, 0], r + flow[r, c, 1]])
+    (folder / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\ncards,a.png,b.png,nonplanar,pts.txt\n")
+    assert type(load_dataset(folder)[0].gt).__name__ == "EpipolarGT"
+
+    common = ["eval", "--dataset", str(folder), "--blob", "paper-best", "--filters", "dtm", "--max-keypoints", "300",
+              "--cache-dir", str(tmp_path / "cache"), "--no-progress"]
+    out = {}
+    for g in (gt, "D"):
+        assert main([*common, "--gt", g, "--out", str(tmp_path / f"{g}.parquet")]) == 0
+        out[g] = pd.read_parquet(tmp_path / f"{g}.parquet")
+    capsys.readouterr()
+    df, d = out[gt], out["D"]
+    assert (df.gt_method == gt).all() and (d.gt_method == "D").all()
+    assert (df.error == "").all() and set(df.kind) == {"nonplanar"}
+    assert set(df.method) >= {"blob", "dtm"}
+    assert (df.n_gt > 0).all()
+    assert df.n_candidates.iloc[0] == d.n_candidates.iloc[0]  # the same candidates, labelled two ways
+    if gt == "C":
+        assert df.n_gt.iloc[0] <= d.n_gt.iloc[0]
