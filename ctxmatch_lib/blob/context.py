@@ -13,6 +13,7 @@ import heapq
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .overlap import ellipse_overlap_error
 
@@ -174,7 +175,10 @@ class BlobContext:
             if keep_dense:  # fail fast, before any work
                 self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
         self.depth = int(depth)
-        self._scan(bool(keep_dense) if distances is None else True, block_bytes)
+        # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count, and the candidates and
+        # scores must not (the same tables on any machine setting).
+        with threadpool_limits(1):
+            self._scan(bool(keep_dense) if distances is None else True, block_bytes)
 
     # -- the one pass over D ------------------------------------------------------------------------
     def _block(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -245,16 +249,19 @@ class BlobContext:
 
     def _ensure_dense(self) -> np.ndarray:
         if self._dense is None:
-            self._check_dense(self.n * self.m * self._dtype.itemsize, "f='omega'")
-            if self._metric is not None:
-                dense = np.empty((self.n, self.m), self._dtype)
-                step = max(1, (64 * _MiB) // max(1, self.m * self._dtype.itemsize))
-                for r0 in range(0, self.n, step):
-                    dense[r0 : r0 + step] = self._hook(self._A[r0 : r0 + step], self._B)
-                self._dense = dense
-            else:
-                self._dense = self._A @ self._B.T
+            with threadpool_limits(1):
+                self._dense = self._dense_matrix()
         return self._dense
+
+    def _dense_matrix(self) -> np.ndarray:
+        self._check_dense(self.n * self.m * self._dtype.itemsize, "f='omega'")
+        if self._metric is None:
+            return self._A @ self._B.T
+        dense = np.empty((self.n, self.m), self._dtype)
+        step = max(1, (64 * _MiB) // max(1, self.m * self._dtype.itemsize))
+        for r0 in range(0, self.n, step):
+            dense[r0 : r0 + step] = self._hook(self._A[r0 : r0 + step], self._B)
+        return dense
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Whole rows (side 0) or columns (side 1) of D as float64 distances."""
@@ -262,9 +269,11 @@ class BlobContext:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
         elif self._metric is not None:
             # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
-            raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
+            with threadpool_limits(1):
+                raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
         else:
-            raw = self._A[which] @ self._B.T if side == 0 else self._B[which] @ self._A.T
+            with threadpool_limits(1):
+                raw = self._A[which] @ self._B.T if side == 0 else self._B[which] @ self._A.T
         raw = np.asarray(raw, np.float64)
         return np.sqrt(np.maximum(raw, 0)) if self._squared else raw
 

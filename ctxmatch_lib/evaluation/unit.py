@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..blob import combine_ratios, rank_candidates
 from ..metrics import average_precision, evaluate_matches, normalised_count
@@ -206,7 +207,15 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     such rows for that method (or method + model) only, and the other methods are evaluated as usual.
 
     ``cache_dir``: the evaluation cache (``None``: the default; ``False``: no cache).
+
+    BLAS runs on one thread inside a unit (the engine runs units in parallel instead): OpenBLAS's float32
+    rounding depends on its thread count, and the numbers must not.
     """
+    with threadpool_limits(1):
+        return _run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir)
+
+
+def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir):
     cache = None if cache_dir is False else engine_cache(cache_dir)
     pair = unit.pair
     try:

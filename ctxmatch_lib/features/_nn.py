@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+from threadpoolctl import threadpool_limits
 
 __all__ = ["conv2d", "tfeat", "hardtfeat", "orinet", "pyramid_patches", "NETS"]
 
@@ -43,11 +44,23 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
 
 def _chunked(fn):
     # The networks run on chunks of 16 patches: their im2col buffers then stay in cache (a 4x speed-up
-    # over 512-patch batches), and the result does not depend on the chunking.
+    # over 512-patch batches). Every chunk has exactly `chunk` patches (the last one zero-padded) and BLAS
+    # runs on one thread: OpenBLAS picks its kernels, and so the float32 rounding, by matrix shape and
+    # thread count, and a descriptor must not depend on its neighbours in the batch nor on the machine's
+    # thread setting (the figures must repeat on any thread count).
     def run(p: dict, patches: np.ndarray, chunk: int = 16) -> np.ndarray:
         patches = np.asarray(patches, np.float32)
-        return np.concatenate([fn(p, patches[s : s + chunk]) for s in range(0, len(patches), chunk)]) \
-            if len(patches) else fn(p, patches)
+        if not len(patches):
+            return fn(p, patches)
+        buf = np.zeros((chunk, *patches.shape[1:]), np.float32)
+        out = []
+        with threadpool_limits(1):
+            for s in range(0, len(patches), chunk):
+                part = patches[s : s + chunk]
+                buf[: len(part)] = part
+                buf[len(part) :] = 0
+                out.append(fn(p, buf)[: len(part)])
+        return np.concatenate(out)
 
     run.__doc__, run.__name__, run.__wrapped__ = fn.__doc__, fn.__name__, fn
     return run

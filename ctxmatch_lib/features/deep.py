@@ -39,7 +39,7 @@ _BACKENDS = ("auto", "numpy", "torch")
 _NPZ_FORMAT = "ctxmatch-patch-net-npz"
 #: Tag of the numpy inference, part of :func:`weights_digest` (and so of the feature cache keys): bump it when
 #: a change of :mod:`._nn` changes the descriptors or angles.
-NUMPY_IMPL = "numpy-1"
+NUMPY_IMPL = "numpy-2"  # 2: fixed chunk shapes, one BLAS thread (thread-independent numbers)
 _SHIPPED = Path(__file__).resolve().parent / "weights"
 #: The published files the shipped ``.npz`` copies come from, their architectures and authors.
 _SHIPPED_SOURCES = {
@@ -120,7 +120,7 @@ def _file_sha1(path: str, mtime_ns: int, size: int) -> str:
 
 def weights_digest(name, what: str = "weights") -> str:
     """Content hash (SHA-1) of a weights file and the inference that runs it, or ``"kornia-published"`` for
-    ``None``. ``.npz`` files are hashed by their arrays; ``":numpy-1"`` (:data:`NUMPY_IMPL`) says the numbers
+    ``None``. ``.npz`` files are hashed by their arrays; the ``":numpy-N"`` tag (:data:`NUMPY_IMPL`) says the numbers
     come from the numpy inference, so a change of it changes the feature cache keys."""
     if name is None:
         return "kornia-published"

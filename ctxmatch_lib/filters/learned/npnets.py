@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .configs import ACNeConfig, OANetConfig
 
@@ -201,10 +202,14 @@ class NumpyModel:
     source: str
 
     def logits(self, x: np.ndarray) -> np.ndarray:
-        """Inlier logits ``(K,)`` (float32) of the input ``(C_in, K)``; ``logit > 0``: inlier."""
-        if self.arch == "oanet":
-            return oanet_logits(self.params, x)[-1]
-        return acne_logits(self.params, x, groups=int(self.config.get("groups", 32)))
+        """Inlier logits ``(K,)`` (float32) of the input ``(C_in, K)``; ``logit > 0``: inlier.
+
+        BLAS runs on one thread: OpenBLAS's float32 rounding depends on the thread count, and the keep masks
+        must not."""
+        with threadpool_limits(1):
+            if self.arch == "oanet":
+                return oanet_logits(self.params, x)[-1]
+            return acne_logits(self.params, x, groups=int(self.config.get("groups", 32)))
 
 
 def _float_params(sd: dict) -> dict:
