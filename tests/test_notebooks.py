@@ -97,6 +97,21 @@ def test_figures_cli_rejects_a_bad_param(capsys):
 
     assert main(["figures", "--only", "tables", "-p", "no_equals_sign"]) == 2
     assert "--param must be KEY=VALUE" in capsys.readouterr().err
+    # A key no selected notebook has is an error, not silently dropped.
+    assert main(["figures", "--only", "tables", "-p", "max_keypionts=5"]) == 2
+    assert "--param max_keypionts: no selected notebook" in capsys.readouterr().err
+
+
+def test_figures_status_line_survives_braces_in_an_error(capsys):
+    """A failing notebook's message may hold a dict repr: it is printed, never used as a format template."""
+    from ctxmatch_lib.cli.figures import _Status
+
+    status = _Status(["a"], {}, enabled=False)
+    status.begin("a")
+    why = "KeyError: {'x': 1}"
+    status.end("a", lambda took: f"a: FAILED after {took:.1f} s ({why})")
+    out = capsys.readouterr().out
+    assert out.startswith("a: FAILED after ") and out.rstrip().endswith("(KeyError: {'x': 1})")
 
 
 def test_paper_parameters_never_write_the_embedded_gallery(tmp_path):

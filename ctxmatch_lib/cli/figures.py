@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -124,13 +125,14 @@ class _Status:
                 self._thread = threading.Thread(target=self._loop, daemon=True)
                 self._thread.start()
 
-    def end(self, stem: str, message: str) -> float:
+    def end(self, stem: str, message) -> float:
+        """Close ``stem``'s line with ``message(took)``, ``took`` its running time in seconds."""
         took = time.perf_counter() - self.t0
         self.done[stem], self.current = took, None
         if self.enabled and self.tty:
             sys.stderr.write("\r" + " " * self._width + "\r")
             self._width = 0
-        print(message.format(took=took), flush=True)
+        print(message(took), flush=True)
         return took
 
     def close(self) -> None:
@@ -179,6 +181,17 @@ def run(args: argparse.Namespace) -> int:
         expected = {s: float(durations[args.params][s]) for s in stems if s in durations.get(args.params, {})}
     except (OSError, ValueError, TypeError, AttributeError):
         durations, expected = {}, {}
+    if overrides:
+        known = {stem: set(pm.inspect_notebook(str(nb_dir / f"{stem}.ipynb"))) for stem in stems}
+        unused = sorted(k for k in overrides if not any(k in names for names in known.values()))
+        if unused:
+            print(f"ctxmatch figures: --param {', '.join(unused)}: no selected notebook has such a parameter "
+                  f"(papermill --help-notebook notebooks/<stem>.ipynb lists them)", file=sys.stderr)
+            return 2
+    # One BLAS thread in every kernel: OpenBLAS's float32 rounding (and so a figure's bytes) depends on the
+    # thread count, and the gallery must not; the engine parallelises over pairs instead.
+    saved_env = {var: os.environ.get(var) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    os.environ.update(dict.fromkeys(saved_env, "1"))
     status = _Status(stems, expected, enabled=not args.no_progress)
     failed = []
     try:
@@ -189,9 +202,7 @@ def run(args: argparse.Namespace) -> int:
                 yml = nb_dir / "params" / f"{stem}.yaml"
                 if yml.exists():
                     params.update(yaml.safe_load(yml.read_text()) or {})
-            if overrides:
-                known = pm.inspect_notebook(str(src))
-                params.update({k: v for k, v in overrides.items() if k in known})
+            params.update({k: v for k, v in overrides.items() if k in known[stem]})
             status.begin(stem)
             try:
                 pm.execute_notebook(str(src), str(out_dir / "executed" / f"{stem}.ipynb"), parameters=params,
@@ -200,12 +211,18 @@ def run(args: argparse.Namespace) -> int:
             except Exception as exc:  # keep going: one broken notebook should not hide the others
                 failed.append(stem)
                 first = (str(exc).strip().splitlines() or [""])[-1][:200]
-                status.end(stem, f"{stem}: FAILED after {{took:.1f}} s ({type(exc).__name__}: {first})")
+                why = f"{type(exc).__name__}: {first}"  # may hold braces: never a format template
+                status.end(stem, lambda took: f"{stem}: FAILED after {took:.1f} s ({why})")
             else:
-                took = status.end(stem, f"{stem}: ok in {{took:.1f}} s")
+                took = status.end(stem, lambda took: f"{stem}: ok in {took:.1f} s")
                 durations.setdefault(args.params, {})[stem] = round(took, 1)
     finally:
         status.close()
+        for var, value in saved_env.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
     durations_file.write_text(json.dumps(durations, indent=1, sort_keys=True) + "\n")
     total = time.perf_counter() - status.start
     print(f"{len(stems) - len(failed)} of {len(stems)} notebooks ran in {_fmt(total)}; figures and tables in "
