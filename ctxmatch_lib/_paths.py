@@ -100,10 +100,10 @@ def check_writable(path, name: str, *, folder: bool = False) -> Path:
     ...
     ValueError: --out: cannot create .../file/x.npz: .../file is a file, not a folder
     """
-    path = Path(path).expanduser()
     kind = "folder" if folder else "file"
-    if str(path) == "":
+    if str(path) == "":  # before Path(), which reads "" as "."
         raise ValueError(f"{name}: the output {kind} name is empty")
+    path = Path(path).expanduser()
     if os.path.lexists(path):
         if folder and not path.is_dir():
             raise ValueError(f"{name}: {path} exists and is not a folder")

@@ -3,7 +3,7 @@
 The input everywhere is a results frame with the pipeline's columns (``pair_id``, ``kind``, ``blob``,
 ``method``, ``model``, ``precision``, ``recall``, ``recall_star``, ``correct``, ``output``, ``failure``,
 ``time_s``, ...; optionally ``features``), one row per (pair, feature setup, blob setup, method, model), as
-written by ``ctxmatch eval`` or :func:`ctxmatch_lib.evalcache.evaluate_cached`.
+written by ``ctxmatch eval`` or :func:`ctxmatch_lib.evaluation.evaluate_cached`.
 
 - :func:`setup_rows` selects the rows of the paper's three settings (Sec. 5.3): ``"global"`` (every
   evaluated setup), ``"baseline"`` and ``"best"`` (:data:`SETUPS`).

@@ -606,3 +606,16 @@ def test_eval_gt_region_methods_on_a_hand_point_pair(tmp_path, monkeypatch, caps
     assert df.n_candidates.iloc[0] == d.n_candidates.iloc[0]  # the same candidates, labelled two ways
     if gt == "C":
         assert df.n_gt.iloc[0] <= d.n_gt.iloc[0]
+
+
+def test_gt_threshold_is_refused_with_the_region_methods(tmp_path, capsys):
+    """B and C have fixed thresholds: a --gt-threshold would only change the cache key, not a number."""
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.evaluation import plan_units
+
+    for cmd in ("eval", "sweep"):
+        rc = main([cmd, "--dataset", "embedded", "--gt", "C", "--gt-threshold", "10",
+                   "--out", str(tmp_path / f"{cmd}.parquet")])
+        assert rc == 2 and "--gt-threshold applies to --gt D and A only" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="gt_threshold applies to methods D and A only"):
+        plan_units([], gt_method="B", gt_threshold=7.0)

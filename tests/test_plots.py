@@ -1,6 +1,7 @@
 """Tests for the plot helpers: ctxmatch_lib.plots.viz2d, .dtm and .eval (tiny synthetic inputs, Agg backend)."""
 
 import json
+import os
 from pathlib import Path
 
 import matplotlib
@@ -227,7 +228,14 @@ def test_method_styles_unique_and_stable():
     for a, b in zip(styles, styles[1:]):  # neighbours in the paper's order differ in both
         assert a[0] != b[0] and a[1] != b[1]
     assert all(c in peval.METHOD_COLORS and m in peval.METHOD_MARKERS for c, m in styles)
-    assert peval.method_style("somefilter") == peval.method_style("somefilter")
+    # A name outside the paper's gets the same style in any process (no salted str hash).
+    import subprocess
+    import sys
+
+    code = "from ctxmatch_lib.plots.eval import method_style; print(method_style('somefilter'))"
+    other = {seed: subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                                  env={**os.environ, "PYTHONHASHSEED": seed}).stdout.strip() for seed in ("1", "2")}
+    assert other["1"] == other["2"] == str(peval.method_style("somefilter"))
     assert peval.OKABE_ITO["yellow"] not in peval.METHOD_COLORS
 
 

@@ -48,7 +48,7 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
                    help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
     p.add_argument("--kind", default=None, help="comma-separated pair kinds to keep: planar, nonplanar, depth")
     p.add_argument("--gt", default="D", choices=list(GT_METHODS), help="ground-truth method (default: D)")
-    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px (default: 15)")
+    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px for --gt D and A (default: 15)")
     p.add_argument("--model-threshold", type=float, default=15.0,
                    help="1SAC/RANSAC consistency threshold in px (default: 15)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
@@ -73,6 +73,9 @@ def check_numbers(args) -> str | None:
     for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
         if not (math.isfinite(value) and value > 0):
             return f"{flag} must be a positive number of pixels, got {value:g}"
+    if args.gt in ("B", "C") and args.gt_threshold != 15.0:
+        return (f"--gt-threshold applies to --gt D and A only; --gt {args.gt} uses its own thresholds "
+                f"(overlap error 50 %, C's centre 30 px), got {args.gt_threshold:g}")
     if args.max_keypoints is not None and args.max_keypoints < 0:
         return f"--max-keypoints must be >= 0 (0: no cap), got {args.max_keypoints}"
     if args.seed < 0:

@@ -13,9 +13,9 @@ from ._engine_args import add_engine_arguments, error, plan, resolve_args
 
 DESCRIPTION = """\
 Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac)
--> ground truth (method D) -> metrics. The unfiltered candidates appear as method 'blob'; the model is H
-for planar pairs, F for non-planar and depth pairs; time_s is the method's own running time, model_time_s
-the model step's. Parquet columns (fractions in [0, 1] for precision, recall, recall_star, ap, ap_star):
+-> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as method 'blob';
+the model is H for planar pairs, F for non-planar and depth pairs; time_s is the method's own running time,
+model_time_s the model step's. Parquet columns (fractions in [0, 1] for precision, recall, recall_star, ap, ap_star):
 dataset, pair_id, kind, features, blob (+ its fields), method, model, precision, recall, recall_star, ap,
 ap_star, correct, correct_norm, output, failure (output without a correct match), empty_output (no output),
 time_s, model_time_s, n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error (why a pair could

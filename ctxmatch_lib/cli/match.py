@@ -229,7 +229,7 @@ def run(args) -> int:
         return _error(str(exc))
     try:
         results = _run_folder(args, settings) if folder else _run_one(args, settings)
-    except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a deep preset without kornia
+    except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a missing optional dependency (published deep weights need kornia)
         return _error(str(exc))
 
     if args.export_h5 is not None or args.export_colmap is not None:

@@ -16,7 +16,7 @@ dataset. Each (pair, features) is one work unit whose rows are cached as an atom
 sweep cache, so an interrupted run resumes where it stopped (no lost, no duplicated rows) and a rerun is
 instant; the cache is shared with 'ctxmatch eval' (same flags, same keys). Intermediates (features,
 candidate sets, FGINN overlap tables, filter masks) are cached too.
-The AP of a row ranks the setup's candidates by its score, with method-D labels: 'ap' against the setup's own
+The AP of a row ranks the setup's candidates by its score, with the --gt labels (method D by default): 'ap' against the setup's own
 correct candidates, 'ap_star' against the correct candidates of all setups of the sweep on the pair; the mAP
 printed (and drawn in the heat map of Fig. 5) is the mean of ap_star over pairs."""
 

@@ -91,6 +91,9 @@ class EpipolarGT:
     pts2: np.ndarray
 
     def __post_init__(self):
+        for name in ("pts1", "pts2"):
+            if getattr(self, name) is None:
+                raise ValueError(f"{name}: EpipolarGT needs the hand-taken correspondences, got None")
         # Rank 2 is what a fundamental matrix has; rank 1 or 0 gives no usable epipolar lines.
         _check_matrix(self.F, "F", "fundamental matrix", min_rank=2)
         _check_points(self.pts1, "pts1")

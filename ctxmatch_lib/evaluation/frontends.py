@@ -145,7 +145,7 @@ def evaluate_cached(
     Returns
     -------
     pandas.DataFrame
-        :data:`ctxmatch_lib.sweep.SWEEP_COLUMNS`, which include the pipeline's
+        :data:`ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`, which include the pipeline's
         :data:`~ctxmatch_lib.pipeline.ROW_COLUMNS` and ``features``; ``time_s`` is the time measured when
         the row was computed, possibly by an earlier run. Pairs that could not be evaluated have a
         non-empty ``error`` (and a ``RuntimeWarning``).

@@ -217,6 +217,10 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
     """Validate every setting of an evaluation before any work; returns them resolved."""
     if gt_method not in GT_METHODS:
         raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
+    if gt_method in ("B", "C") and gt_threshold != GT_THRESHOLD_PX:
+        # B and C have their own fixed thresholds (overlap error 50 %, C's centre 30 px; Sec. 5.1).
+        raise ValueError(f"gt_threshold applies to methods D and A only; method {gt_method} uses its own "
+                         f"thresholds (got gt_threshold={gt_threshold!r})")
     for name, value in (("gt_threshold", gt_threshold), ("model_threshold", model_threshold)):
         if isinstance(value, bool) or not (isinstance(value, (int, float, np.number)) and math.isfinite(value)
                                            and value > 0):
