@@ -15,7 +15,6 @@ import time
 
 import numpy as np
 
-PORT_SECONDS_5000 = 8.3  # the author's public Python port on this machine, from the issue (not re-measured)
 
 
 def rootsift_like(n: int, m: int, d: int = 128, seed: int = 0):
@@ -60,8 +59,6 @@ def speed(n: int, repeat: int) -> None:
     print(f"  floor (D + top-{cfg['f']} argpartition): {t_floor * 1e3:8.1f} ms")
     print(f"  blob_matching:                      {t_blob * 1e3:8.1f} ms   ratio to floor {t_blob / t_floor:.2f}x"
           f"   (target <= 2x, <= 300 ms)")
-    if n == 5000:
-        print(f"  author's Python port (issue, 8.3 s):          speed-up {PORT_SECONDS_5000 / t_blob:.0f}x")
     base = BLOB_PRESETS["baseline"].kwargs()
     t_base = best_of(lambda: blob_matching(d1, d2, **base), 1)
     print(f"  baseline (f = Ω, f' = 1, D>=):      {t_base * 1e3:8.1f} ms   ratio to floor {t_base / t_floor:.2f}x")
