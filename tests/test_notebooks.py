@@ -91,6 +91,33 @@ def test_a_rerun_of_ctxmatch_figures_writes_the_same_bytes(tmp_path):
     assert "time" not in runs["one"]["tables.csv"].decode().splitlines()[0]
 
 
+@pytest.mark.slow
+def test_ctxmatch_figures_regenerates_the_committed_gallery(tmp_path):
+    """`make figures` on a clean checkout writes the committed bytes, so that `git status` stays clean: two
+    cheap notebooks of the gallery (the toy table and the DTM boundary on the embedded data) are rerun into a
+    temporary folder and compared with the tracked files byte for byte (PNG and PDF, provenance included)."""
+    import subprocess
+
+    pytest.importorskip("papermill")
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.plots.base import source_commit
+
+    commit = source_commit()
+    if not commit:
+        pytest.skip("not a git checkout: the provenance has no commit to compare")
+    if commit.endswith("-dirty"):
+        pytest.skip("the figures' sources have uncommitted changes: the gallery is regenerated at commit time")
+    shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True,
+                             text=True).stdout.strip()
+    if shallow == "true":
+        pytest.skip("a shallow clone cannot name the last commit that changed the sources")
+    stems = ("fig_blob_toy", "fig_boundary")
+    assert main(["figures", "--only", ",".join(stems), "--output", str(tmp_path), "--no-progress"]) == 0
+    changed = [f"{stem}{ext}" for stem in stems for ext in (".png", ".pdf")
+               if (tmp_path / f"{stem}{ext}").read_bytes() != (ROOT / "figures" / f"{stem}{ext}").read_bytes()]
+    assert not changed, f"ctxmatch figures would change the committed {changed}"
+
+
 def test_figures_cli_rejects_a_bad_param(capsys):
     pytest.importorskip("papermill")
     from ctxmatch_lib.cli import main
