@@ -22,6 +22,7 @@ The author's Python implementation (github fb82/sGLOH, ``src/sgloh.py``) was rea
 from __future__ import annotations
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 __all__ = [
     "SGLOH_DIM", "sgloh_descriptors", "sgloh_from_patches", "sgloh_rotate", "SGLOH2Distance",
@@ -242,9 +243,10 @@ class SGLOH2Distance:
     def __repr__(self) -> str:
         return f"SGLOH2Distance(rotations={self.rotations})"
 
-    #: Rows per GEMM. Every GEMM has this many rows (the last chunk is zero-padded), so a row's distances
-    #: do not depend on how many rows the caller passes: OpenBLAS picks its kernel (and so the float32
-    #: rounding) by matrix shape, and BlobContext's row blocks must equal the whole-matrix distances.
+    #: Rows per GEMM. Every GEMM has this many rows (the last chunk is zero-padded) and runs on one BLAS
+    #: thread, so a row's distances depend neither on how many rows the caller passes nor on the thread
+    #: count: OpenBLAS picks its kernel (and so the float32 rounding) by matrix shape and threads, and
+    #: BlobContext's row blocks must equal the whole-matrix distances.
     ROWS = 64
 
     def __call__(self, desc1: np.ndarray, desc2: np.ndarray) -> np.ndarray:
@@ -258,11 +260,12 @@ class SGLOH2Distance:
         out = np.empty((B, m), np.float32)
         R = self.ROWS
         rows = np.zeros((R, SGLOH_DIM), np.float32)
-        for r0 in range(0, B, R):
-            r1 = min(B, r0 + R)
-            rows[: r1 - r0] = d1[r0:r1]
-            rows[r1 - r0 :] = 0
-            out[r0:r1] = self._chunk(rows, halves2, n2)[: r1 - r0]
+        with threadpool_limits(1):
+            for r0 in range(0, B, R):
+                r1 = min(B, r0 + R)
+                rows[: r1 - r0] = d1[r0:r1]
+                rows[r1 - r0 :] = 0
+                out[r0:r1] = self._chunk(rows, halves2, n2)[: r1 - r0]
         return out
 
     def _chunk(self, d1: np.ndarray, halves2, n2) -> np.ndarray:
