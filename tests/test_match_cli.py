@@ -183,7 +183,12 @@ def test_ctrl_c_prints_one_line_and_the_rerun_resumes(tmp_path, monkeypatch, cap
 
 def test_sigint_in_a_real_process_has_no_traceback(tmp_path):
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "ctxmatch_lib.cli"] + _six_pairs(tmp_path)
+    # Each pair made to last at least 0.3 s, so that the signal lands between the first and the last pair
+    # (with warm caches a pair of these small images takes milliseconds: all six could finish first).
+    slow = ("import sys, time; import ctxmatch_lib.match as m; real = m.match_images; "
+            "m.match_images = lambda *a, **k: (time.sleep(0.3), real(*a, **k))[1]; "
+            "from ctxmatch_lib.cli import main; sys.exit(main(sys.argv[1:]))")
+    cmd = [sys.executable, "-c", slow] + _six_pairs(tmp_path)
     env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "cache")}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
