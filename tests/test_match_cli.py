@@ -190,7 +190,10 @@ def test_sigint_in_a_real_process_has_no_traceback(tmp_path):
             "from ctxmatch_lib.cli import main; sys.exit(main(sys.argv[1:]))")
     cmd = [sys.executable, "-c", slow] + _six_pairs(tmp_path)
     env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "cache")}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT as a terminal delivers it: a test run started in the background by a non-interactive shell (CI)
+    # inherits SIGINT ignored, and so would the child, which would then finish all six pairs.
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None and not list(out.glob("*.npz")):
         time.sleep(0.02)
