@@ -20,40 +20,18 @@ a machine pays the compilation (a few seconds).
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from functools import partial
 
 import numba
 import numpy as np
 
-from .._paths import cache_dir
+from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
            "triangle_neighbors_kernel"]
 
 
-@contextmanager
-def _user_cache():
-    """Point numba's on-disk cache at the ctxmatch cache directory while the kernels are decorated (numba
-    picks a function's cache location then), unless the user set ``NUMBA_CACHE_DIR``. Yields whether to
-    cache at all: not when the cache directory cannot be created (numba would fall back to the package's
-    own folder)."""
-    previous = numba.config.CACHE_DIR
-    if previous:
-        yield True
-        return
-    try:
-        numba.config.CACHE_DIR = str(cache_dir("numba"))
-    except OSError:
-        yield False
-        return
-    try:
-        yield True
-    finally:
-        numba.config.CACHE_DIR = previous
-
-
-with _user_cache() as _cache:
+with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
     @_jit

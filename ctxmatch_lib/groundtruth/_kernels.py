@@ -13,35 +13,17 @@ cache directory (``$CTXMATCH_CACHE/numba``) unless ``NUMBA_CACHE_DIR`` is set, a
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from functools import partial
 
 import numba
 import numpy as np
 
-from .._paths import cache_dir
+from .._numba import user_cache
 
 __all__ = ["overlap_kernel", "homography_ellipse_kernel", "flow_transfer_kernel", "flow_label_kernel"]
 
 
-@contextmanager
-def _user_cache():
-    previous = numba.config.CACHE_DIR
-    if previous:
-        yield True
-        return
-    try:
-        numba.config.CACHE_DIR = str(cache_dir("numba"))
-    except OSError:
-        yield False
-        return
-    try:
-        yield True
-    finally:
-        numba.config.CACHE_DIR = previous
-
-
-with _user_cache() as _cache:
+with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
     @_jit
