@@ -24,7 +24,7 @@ from ..datasets.base import Pair
 from ..features import FEATURE_PRESETS, FeatureConfig
 from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .cache import FORMAT, digest, pair_digest, source_digest
-from .steps import check_models, resolve_filters
+from .steps import check_models, named_configs, resolve_filters
 
 __all__ = ["SweepUnit", "resolve_features", "resolve_blob_configs", "select_pairs", "check_settings",
            "plan_units", "plan_sweep", "keyed"]
@@ -39,23 +39,11 @@ def resolve_features(features) -> dict[str, FeatureConfig]:
     dict of str -> FeatureConfig
         In the given order; a bare config is named by the preset it equals, else by its ``key()``.
     """
-    if isinstance(features, (str, FeatureConfig)):
-        features = [features]
-    items = features.items() if isinstance(features, Mapping) else [(None, f) for f in features]
-    out: dict[str, FeatureConfig] = {}
-    for name, f in items:
-        if isinstance(f, str):
-            if f not in FEATURE_PRESETS:
-                raise ValueError(f"unknown feature preset {f!r}; known presets: {', '.join(FEATURE_PRESETS)}")
-            name, f = name or f, FEATURE_PRESETS[f]
-        elif not isinstance(f, FeatureConfig):
-            raise ValueError(f"features must hold preset names or FeatureConfig, got {type(f).__name__}")
-        else:
-            name = name or next((k for k, v in FEATURE_PRESETS.items() if v == f), None)
-        out[name or f.key()] = f
-    if not out:
-        raise ValueError("features must name at least one feature configuration")
-    return out
+    def default_name(f: FeatureConfig) -> str:
+        return next((k for k, v in FEATURE_PRESETS.items() if v == f), None) or f.key()
+
+    return named_configs(features, FEATURE_PRESETS, FeatureConfig, argument="features", kind="feature",
+                         noun="feature configuration", default_name=default_name)
 
 
 def resolve_blob_configs(blobs) -> list[BlobConfig]:

@@ -60,20 +60,30 @@ def resolve_blobs(blobs) -> dict:
     """
     from ..blob import BLOB_PRESETS, BlobConfig
 
-    if isinstance(blobs, (str, BlobConfig)):
-        blobs = [blobs]
-    items = blobs.items() if isinstance(blobs, Mapping) else [(None, b) for b in blobs]
+    return named_configs(blobs, BLOB_PRESETS, BlobConfig, argument="blobs", kind="blob", noun="blob setup",
+                         default_name=lambda b: b.label)
+
+
+def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: str, noun: str,
+                  default_name: Callable) -> dict:
+    """``{name: config}`` from a preset name, a ``cls`` instance, a list of them or a dict name -> either,
+    in the given order: a preset is named by its key, a bare config by ``default_name(config)``; errors name
+    ``argument`` (the :func:`resolve_blobs` and :func:`~ctxmatch_lib.evaluation.plan.resolve_features`
+    rule)."""
+    if isinstance(configs, (str, cls)):
+        configs = [configs]
+    items = configs.items() if isinstance(configs, Mapping) else [(None, c) for c in configs]
     out = {}
-    for name, b in items:
-        if isinstance(b, str):
-            if b not in BLOB_PRESETS:
-                raise ValueError(f"unknown blob preset {b!r}; known presets: {', '.join(BLOB_PRESETS)}")
-            name, b = name or b, BLOB_PRESETS[b]
-        elif not isinstance(b, BlobConfig):
-            raise ValueError(f"blobs must hold preset names or BlobConfig, got {type(b).__name__}")
-        out[name or b.label] = b
+    for name, c in items:
+        if isinstance(c, str):
+            if c not in presets:
+                raise ValueError(f"unknown {kind} preset {c!r}; known presets: {', '.join(presets)}")
+            name, c = name or c, presets[c]
+        elif not isinstance(c, cls):
+            raise ValueError(f"{argument} must hold preset names or {cls.__name__}, got {type(c).__name__}")
+        out[name or default_name(c)] = c
     if not out:
-        raise ValueError("blobs must name at least one blob setup")
+        raise ValueError(f"{argument} must name at least one {noun}")
     return out
 
 
