@@ -71,8 +71,9 @@ def source_digest() -> str:
     # The faces and the report layer compute no numbers.
     skip = {root / name for name in ("report.py", "report_blob.py", "gt_compare.py", "evalcache.py", "sweep.py")}
     h = hashlib.sha1()
-    # Shipped models (LMR's trees, the learned filters' weights) produce numbers too.
-    files = [*root.rglob("*.py"), *root.rglob("*.npz"), *root.rglob("*.pt")]
+    # Shipped models (LMR's trees, the learned filters' and the stand-in descriptors' weights, all .npz) produce
+    # numbers too.
+    files = [*root.rglob("*.py"), *root.rglob("*.npz")]
     for path in sorted(files):
         rel = path.relative_to(root)
         if path in skip or rel.parts[0] in ("plots", "cli"):
