@@ -325,6 +325,7 @@ def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
     (["--model-threshold", "0"], "--model-threshold must be a positive number"),
     (["--gt-threshold", "nan"], "--gt-threshold"),
     (["--max-keypoints", "-5"], "--max-keypoints"),
+    (["--max-keypoints", "sparse"], "--max-keypoints must be a non-negative integer or a budget name (paper, dense)"),
     (["--seed", "-1"], "--seed"),
     (["--limit", "0"], "--limit"),
     (["--model-threshold", "-1"], "--model-threshold must be a positive number"),

@@ -252,3 +252,33 @@ def test_cli_errors_and_run(tmp_path, capsys):
     # Named presets keep their names in the blob column, as in ctxmatch eval.
     assert "2 pairs, 4 rows" in printed and "paper-best" in printed and "baseline" in printed
     assert len(pd.read_parquet(out)) == 4
+
+
+def test_source_digest_ignores_documentation_not_code(tmp_path):
+    from ctxmatch_lib.evaluation.cache import _code_bytes
+
+    def code(text):
+        path = tmp_path / "m.py"
+        path.write_text(text)
+        return _code_bytes(path)
+
+    base = code('"""Module."""\n\ndef f(x=1):\n    """Doc."""\n    return x + 1  # one\n')
+    assert code('"""Module, reworded."""\n\n\ndef f(x=1):\n    """Other doc."""\n    return x + 1\n') == base
+    assert code('"""Module."""\n\ndef f(x=2):\n    """Doc."""\n    return x + 1\n') != base  # a default
+    assert code('def f(x=1):\n    return x + 1\n') == base
+    assert code('def f(x=1):\n    """Doc."""\n') != base  # a docstring-only body is not the code above
+
+
+@pytest.mark.parametrize("value, expected", [("paper", 1500), ("dense", 8000), ("1200", 1200), (0, 0), (None, None)])
+def test_keypoint_budgets(value, expected):
+    from ctxmatch_lib.features import keypoint_budget
+
+    assert keypoint_budget(value) == expected
+
+
+@pytest.mark.parametrize("value", ["sparse", -1, 1.5, True])
+def test_keypoint_budget_errors_name_the_argument(value):
+    from ctxmatch_lib.evaluation import plan_units, select_pairs
+
+    with pytest.raises(ValueError, match="max_keypoints"):
+        plan_units(select_pairs("embedded")[:1], max_keypoints=value)

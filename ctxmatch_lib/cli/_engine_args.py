@@ -22,7 +22,7 @@ def csv(text: str) -> list[str]:
 
 def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) -> None:
     """Add the shared flags to the sub-parser ``p``, with the command's defaults."""
-    from ..features import FEATURE_PRESETS
+    from ..features import FEATURE_PRESETS, KEYPOINT_BUDGETS
     from ..groundtruth import GT_METHODS
 
     p.add_argument("--dataset", default="embedded",
@@ -32,8 +32,10 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--features", default=None,
                    help="comma-separated feature presets: " + ", ".join(FEATURE_PRESETS) + " (default: "
                         "sift-rootsift); the deep presets use stand-in weights, shipped and run in numpy")
-    p.add_argument("--max-keypoints", type=int, default=None,
-                   help="override the keypoint cap of every feature preset (presets: 8000; 0: no cap)")
+    p.add_argument("--max-keypoints", default=None,
+                   help="override the keypoint cap of every feature preset: an integer (0: no cap) or a budget "
+                        "name: " + ", ".join(f"{k} ({v})" for k, v in KEYPOINT_BUDGETS.items())
+                        + "; 'paper' is calibrated on the paper's Table 2 counts (presets: 8000)")
     p.add_argument("--blob", default=blob,
                    help=f"'grid' (the 2430 setups of Sec. 5.2) or comma-separated blob presets (default: {blob}); "
                         "recall_star uses the union of their correct candidates")
@@ -69,15 +71,20 @@ def error(prog: str, msg: str) -> int:
 
 
 def check_numbers(args) -> str | None:
-    """The first invalid numeric flag, as a message naming it; ``None`` when all are valid."""
+    """The first invalid numeric flag, as a message naming it; ``None`` when all are valid (``--max-keypoints``
+    is resolved to an int in place: a budget name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` or a number)."""
+    from ..features import keypoint_budget
+
     for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
         if not (math.isfinite(value) and value > 0):
             return f"{flag} must be a positive number of pixels, got {value:g}"
     if args.gt in ("B", "C") and args.gt_threshold != 15.0:
         return (f"--gt-threshold applies to --gt D and A only; --gt {args.gt} uses its own thresholds "
                 f"(overlap error 50 %, C's centre 30 px), got {args.gt_threshold:g}")
-    if args.max_keypoints is not None and args.max_keypoints < 0:
-        return f"--max-keypoints must be >= 0 (0: no cap), got {args.max_keypoints}"
+    try:
+        args.max_keypoints = keypoint_budget(args.max_keypoints, argument="--max-keypoints")
+    except ValueError as exc:
+        return str(exc)
     if args.seed < 0:
         return f"--seed must be >= 0, got {args.seed}"
     if args.jobs == 0 or args.jobs < -1:

@@ -14,6 +14,7 @@ skips what exists. Layout under ``ctxmatch_lib._paths.cache_dir("sweep")`` (feat
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import time
@@ -65,11 +66,15 @@ def features_digest(*feats: Features) -> str:
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
     """SHA-1 of the library source files and shipped models that produce evaluation numbers (all of
-    ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules (``report``, ``report_blob``, ``gt_compare``,
-    which read the engine's rows) and the faces ``evalcache.py`` and ``sweep.py``)."""
+    ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules (``report``, ``report_blob``, ``report_paper``,
+    ``gt_compare``, which read the engine's rows) and the faces ``evalcache.py`` and ``sweep.py``).
+
+    Python files enter by their syntax tree without docstrings and comments: a documentation edit keeps the
+    cache, any code edit (a constant, a default) renews it."""
     root = Path(__file__).resolve().parent.parent
     # The faces and the report layer compute no numbers.
-    skip = {root / name for name in ("report.py", "report_blob.py", "gt_compare.py", "evalcache.py", "sweep.py")}
+    skip = {root / name for name in ("report.py", "report_blob.py", "report_paper.py", "gt_compare.py", "evalcache.py",
+                                     "sweep.py")}
     h = hashlib.sha1()
     # Shipped models (LMR's trees, the learned filters' and the stand-in descriptors' weights, all .npz) produce
     # numbers too.
@@ -79,8 +84,21 @@ def source_digest() -> str:
         if path in skip or rel.parts[0] in ("plots", "cli"):
             continue
         h.update(str(rel).encode())
-        h.update(path.read_bytes())
+        h.update(_code_bytes(path) if path.suffix == ".py" else path.read_bytes())
     return h.hexdigest()
+
+
+def _code_bytes(path: Path) -> bytes:
+    """The code of a Python file without its docstrings, comments and layout (its syntax tree, docstrings
+    removed), so that editing documentation keeps the cached evaluation rows."""
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
+                    and isinstance(body[0].value.value, str):
+                node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree).encode()
 
 
 def save_npz(path: Path, arrays: dict) -> None:

@@ -42,7 +42,7 @@ def check_output(path, name: str = "out", suffix: str = ".parquet") -> Path:
 def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
               pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
               model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
-              max_keypoints: int | None = None, n_jobs: int = 1, dask=None, cache_dir=None,
+              max_keypoints: int | str | None = None, n_jobs: int = 1, dask=None, cache_dir=None,
               feature_cache_dir=None, out=None, progress: bool = True, data_root=None, recompute: bool = False):
     """Run (or resume) a sweep and return its rows as a ``pandas.DataFrame`` (:data:`SWEEP_COLUMNS`).
 
@@ -59,8 +59,9 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         method ``"blob"``); ``filter_params`` gives extra keyword arguments per filter.
     models : sequence of str
         Model steps (``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``) after each method.
-    max_keypoints : int, optional
-        Override the keypoint cap of every feature configuration (small values for quick runs).
+    max_keypoints : int or str, optional
+        Override the keypoint cap of every feature configuration: an integer (0: none; small values for quick
+        runs) or a budget name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` (``"paper"``).
     pairs : None, int or list of str
         Pair subset (:func:`~ctxmatch_lib.evaluation.plan.select_pairs`): ``N`` evenly spread pairs, or pair ids; ``kinds`` keeps only
         some pair kinds.
@@ -115,9 +116,11 @@ def evaluate_cached(
     blobs=("paper-best", "baseline"),
     filters="all",
     models=("none", "1sac"),
+    max_keypoints: int | str | None = None,
     cache: bool = True,
     cache_dir=None,
     progress: bool = False,
+    n_jobs: int = 1,
     **kwargs,
 ):
     """Evaluate ``pairs`` under every feature setup, reading and writing the evaluation cache.
@@ -134,6 +137,10 @@ def evaluate_cached(
         ``model_threshold``, ``filter_params``, ``seed``); the ``blob`` column holds the preset names.
     filters : "all" or sequence of str
         See :func:`~ctxmatch_lib.evaluation.steps.resolve_filters`.
+    max_keypoints : int or str, optional
+        Keypoint cap of every feature setup: an integer (0: none) or a budget name of
+        :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` (``"paper"``: the calibrated budget of the paper-scale
+        runs); ``None``: each preset's own.
     cache : bool
         Read and write the cache (``False``: always recompute, write nothing).
     cache_dir : path, optional
@@ -141,6 +148,8 @@ def evaluate_cached(
         eval`` and ``ctxmatch sweep``).
     progress : bool
         A tqdm bar over (feature setup, pair), naming the pair in progress.
+    n_jobs : int
+        Worker processes (joblib; -1: all cores). The rows do not depend on it.
 
     Returns
     -------
@@ -157,5 +166,6 @@ def evaluate_cached(
     filters = resolve_filters(filters)
     blob_cfgs = resolve_blobs(list(blobs) if not isinstance(blobs, str) else blobs)
     units = plan_units(list(pairs), features=list(features) if not isinstance(features, str) else features,
-                       blobs=blob_cfgs, filters=filters, models=models, **kwargs)
-    return run_units(units, cache_dir=cache_dir if cache else False, progress=progress, desc="evaluate")
+                       blobs=blob_cfgs, filters=filters, models=models, max_keypoints=max_keypoints, **kwargs)
+    return run_units(units, cache_dir=cache_dir if cache else False, progress=progress, desc="evaluate",
+                     n_jobs=n_jobs)

@@ -21,7 +21,7 @@ import numpy as np
 from ..blob import BLOB_PRESETS, BlobConfig, blob_grid
 from ..datasets import load_dataset
 from ..datasets.base import Pair
-from ..features import FEATURE_PRESETS, FeatureConfig
+from ..features import FEATURE_PRESETS, FeatureConfig, keypoint_budget
 from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .cache import FORMAT, digest, pair_digest, source_digest
 from .steps import check_models, named_configs, resolve_filters
@@ -215,9 +215,7 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
             raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    if max_keypoints is not None and (isinstance(max_keypoints, bool) or max_keypoints < 0
-                                      or not isinstance(max_keypoints, (int, np.integer))):
-        raise ValueError(f"max_keypoints must be a non-negative integer, got {max_keypoints!r}")
+    max_keypoints = keypoint_budget(max_keypoints)  # a budget name ("paper", "dense") or an int
     feats = resolve_features(features)
     if max_keypoints is not None:
         feats = {k: replace(v, max_keypoints=int(max_keypoints)) for k, v in feats.items()}

@@ -29,11 +29,12 @@ from __future__ import annotations
 
 from .base import Features, descriptor_distance
 from .cache import _ENTRY_FORMAT, _FIELDS, extract_features, feature_cache_path  # noqa: F401  (tests read the two)
-from .config import (FEATURE_DESCRIPTIONS, FEATURE_PRESETS, PAPER_FEATURE_BLOCKS, FeatureConfig,
-                     paper_feature_blocks)
+from .config import (FEATURE_DESCRIPTIONS, FEATURE_PRESETS, KEYPOINT_BUDGETS, PAPER_FEATURE_BLOCKS, FeatureConfig,
+                     keypoint_budget, paper_feature_blocks)
 from .io import _as_gray_uint8, load_image  # noqa: F401  (match.py converts images with it)
 
 __all__ = [
     "FeatureConfig", "Features", "extract_features", "load_image", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
+    "KEYPOINT_BUDGETS", "keypoint_budget",
     "descriptor_distance", "feature_cache_path", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
 ]

@@ -13,7 +13,8 @@ import numpy as np
 
 from .._validation import Presets
 
-__all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks"]
+__all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
+           "KEYPOINT_BUDGETS", "keypoint_budget"]
 
 
 # Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
@@ -239,3 +240,40 @@ def paper_feature_blocks(deep: bool | None = None) -> list[str]:
         except (FileNotFoundError, ValueError):
             return handcrafted
     return list(PAPER_FEATURE_BLOCKS)
+
+
+#: Named keypoint budgets (at most this many keypoints per image, for every detector + descriptor block).
+#:
+#: ``"paper"`` (1500) is the budget of the paper-scale runs, calibrated once on counts only (issue 21,
+#: ``benchmarks/calibrate_budget.py``): with it the baseline (SIFT + RootSIFT, one-to-one NNR) has on the
+#: shared real pairs 1358 / 1277 candidates and 292 / 242 ground-truth (D) matches per planar / non-planar
+#: pair, against 1329 / 1370 and 293 / 214 in the paper's Table 2 (ratios 1.02 / 0.93 and 1.00 / 1.13).
+#: ``"dense"`` (8000) is the cap of :class:`FeatureConfig` and of the earlier paper-scale runs, which gave
+#: 2.5x the paper's candidates (3603 / 2930 per pair).
+KEYPOINT_BUDGETS = {"paper": 1500, "dense": 8000}
+
+
+def keypoint_budget(value, *, argument: str = "max_keypoints") -> int | None:
+    """A keypoint cap from a budget name of :data:`KEYPOINT_BUDGETS` or a non-negative integer.
+
+    ``None`` stays ``None`` (each preset's own cap); 0 means no cap. Errors name ``argument``.
+
+    Examples
+    --------
+    >>> keypoint_budget("paper"), keypoint_budget(4000), keypoint_budget("2000"), keypoint_budget(None)
+    (1500, 4000, 2000, None)
+    """
+    if value is None:
+        return None
+    if isinstance(value, str):
+        name = value.strip()
+        if name in KEYPOINT_BUDGETS:
+            return KEYPOINT_BUDGETS[name]
+        if name.isdigit():
+            return int(name)
+        raise ValueError(f"{argument} must be a non-negative integer or a budget name "
+                         f"({', '.join(KEYPOINT_BUDGETS)}), got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"{argument} must be a non-negative integer or a budget name "
+                         f"({', '.join(KEYPOINT_BUDGETS)}), got {value!r}")
+    return int(value)
