@@ -24,14 +24,15 @@ def frame():
     """Two planar pairs and one non-planar pair, two blob setups, blob + dtm1 + dtm2, no model and 1SAC."""
     rows = []
     for pair, kind, inl in (("p1", "planar", 0.05), ("p2", "planar", 0.25), ("n1", "nonplanar", 0.15)):
-        for blob, shift in (("paper-best", 0.0), ("baseline", 0.5)):
+        for blob, feats, shift in (("paper-best-overlap", "harrisz-sosnet", 0.0), ("baseline", "sift-rootsift", 0.5)):
             ratio = inl + shift
-            rows.append(_row(pair, kind, blob, "blob", "none", ratio, 1.0, time_s=0.1))
-            rows.append(_row(pair, kind, blob, "blob", "1sac", 0.9, 0.8))
-            rows.append(_row(pair, kind, blob, "dtm2", "none", 0.8, 0.9, time_s=2.0))
-            rows.append(_row(pair, kind, blob, "dtm2", "1sac", 0.95, 0.85))
-            rows.append(_row(pair, kind, blob, "dtm1", "none", 0.82, 0.7, time_s=1.0, failure=(pair == "p1")))
-            rows.append(_row(pair, kind, blob, "dtm1", "1sac", 0.96, 0.65, failure=(pair == "p1")))
+            f = dict(features=feats)
+            rows.append(_row(pair, kind, blob, "blob", "none", ratio, 1.0, time_s=0.1, **f))
+            rows.append(_row(pair, kind, blob, "blob", "1sac", 0.9, 0.8, **f))
+            rows.append(_row(pair, kind, blob, "dtm2", "none", 0.8, 0.9, time_s=2.0, **f))
+            rows.append(_row(pair, kind, blob, "dtm2", "1sac", 0.95, 0.85, **f))
+            rows.append(_row(pair, kind, blob, "dtm1", "none", 0.82, 0.7, time_s=1.0, failure=(pair == "p1"), **f))
+            rows.append(_row(pair, kind, blob, "dtm1", "1sac", 0.96, 0.65, failure=(pair == "p1"), **f))
     return pd.DataFrame(rows)
 
 
@@ -52,7 +53,11 @@ def test_setup_rows(frame):
     assert len(report.setup_rows(frame, "global")) == len(frame)
     base = report.setup_rows(frame, "baseline")
     assert set(base.blob) == {"baseline"} and len(base) == len(frame) // 2
-    assert set(report.setup_rows(frame, {"blob": "paper-best"}).blob) == {"paper-best"}
+    assert set(report.setup_rows(frame, {"blob": "paper-best-overlap"}).blob) == {"paper-best-overlap"}
+    assert len(report.setup_rows(frame, {"blob": ("baseline", "paper-best-overlap")})) == len(frame)
+    assert len(report.setup_rows(frame.assign(blob="paper-best"), "global")) == 0  # global: the two setups only
+    with pytest.raises(ValueError, match="setup must be one of"):
+        report.setup_rows(frame, "best-of-all")
     # A frame from `ctxmatch eval` has no features column: that condition is ignored.
     assert len(report.setup_rows(frame.drop(columns="features"), "best")) == len(frame) // 2
     assert report.setup_rows(frame.assign(features="sift"), "best").empty
@@ -95,7 +100,7 @@ def test_method_table_counts_empty_outputs_apart_and_skips_errors(frame):
     frame.loc[empty, ["output", "correct", "precision", "recall"]] = [0, 0, 0.0, 0.0]
     frame["empty_output"] = empty
     frame["error"] = ""
-    bad = (frame.pair_id == "n1") & (frame.method == "dtm1") & (frame.blob == "paper-best")
+    bad = (frame.pair_id == "n1") & (frame.method == "dtm1") & (frame.blob == "paper-best-overlap")
     frame.loc[bad, ["error", "precision"]] = ["image1 n1.png: 0 keypoints", np.nan]
     t = report.method_table(frame)
     row = t.loc[("planar", "none", "dtm2")]
@@ -158,7 +163,8 @@ def test_paper_table():
 def test_with_inlier_ratio(frame):
     d = report.with_inlier_ratio(frame)
     assert len(d) == len(frame)
-    sel = d[(d.pair_id == "p1") & (d.blob == "paper-best")]
+    sel = d[(d.pair_id == "p1") & (d.blob == "paper-best-overlap")]
+    assert len(sel) == 6
     assert (sel.inlier_ratio == 0.05).all()
     assert report.with_inlier_ratio(d).equals(d)  # idempotent
 
