@@ -15,8 +15,8 @@ written by ``ctxmatch eval`` or :func:`ctxmatch_lib.evaluation.evaluate_cached`.
 
 from __future__ import annotations
 
-import io
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -232,23 +232,35 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True) ->
     return "\n".join(lines) + "\n"
 
 
+#: The paper's Tables 1-3 and caption counts, parsed from its LaTeX source by ``python -m
+#: ctxmatch_lib.report_paper TEX`` (:func:`ctxmatch_lib.report_paper.parse_paper_tables`), shipped as package data.
+_PAPER_DATA = Path(__file__).with_name("data")
+_PAPER_TABLES_CSV = _PAPER_DATA / "paper_tables.csv"
+_PAPER_GT_COUNTS_CSV = _PAPER_DATA / "paper_gt_counts.csv"
+
+
+def _read_gt_counts() -> dict:
+    c = pd.read_csv(_PAPER_GT_COUNTS_CSV)
+    kinds = ("planar", "nonplanar")
+    return {setup: {col: tuple(int(g.set_index("kind").loc[k, col]) for k in kinds)
+                    for col in ("n_gt", "n_gt_star")}
+            for setup, g in c.groupby("setup", sort=False)}
+
+
 #: Mean numbers of ground-truth matches per pair in the captions of the paper's Tables 1-3:
 #: (planar, non-planar) for the recall reference (blob) and the recall* reference (all matches).
-PAPER_GT_COUNTS = {
-    "global": {"n_gt": (457, 382), "n_gt_star": (792, 602)},
-    "baseline": {"n_gt": (293, 214), "n_gt_star": (740, 519)},
-    "best": {"n_gt": (632, 572), "n_gt_star": (844, 685)},
-}
+PAPER_GT_COUNTS = _read_gt_counts()
 
 
 def paper_table(setup: str | None = None) -> pd.DataFrame:
-    """The paper's Tables 1-3 (Appendix "DTM evaluation"), transcribed: ``setup`` is ``"global"`` (Table 1),
+    """The paper's Tables 1-3 (Appendix "DTM evaluation"): ``setup`` is ``"global"`` (Table 1),
     ``"baseline"`` (Table 2, SIFT+RootSIFT) or ``"best"`` (Table 3, HarrisZ+SOSNet); ``None`` gives all three
     with a ``setup`` column. Same layout as :func:`method_table` (kinds ``planar`` / ``nonplanar``, models
     ``none`` / ``1sac``, the paper's 18 methods); ``time (s)`` is NaN where the paper prints "--". The paper
     does not count empty outputs apart: its ``failures`` are pairs without a correct match, empty outputs
-    included, and ``empty`` is NaN."""
-    t = pd.read_csv(io.StringIO(_PAPER_TABLES_CSV))
+    included, and ``empty`` is NaN. Read from the package data ``ctxmatch_lib/data/paper_tables.csv``, parsed
+    from the paper's LaTeX source (:mod:`ctxmatch_lib.report_paper`)."""
+    t = pd.read_csv(_PAPER_TABLES_CSV)
     t = t.rename(columns={"precision": "precision (%)", "recall": "recall (%)", "recall_star": "recall* (%)",
                           "time_s": "time (s)"})
     t.insert(list(t.columns).index("failures") + 1, "empty", np.nan)
@@ -312,225 +324,3 @@ def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> p
     out["n"] = out["n"].fillna(0).astype(int)
     out["share (%)"] = share.reindex(labels).to_numpy().repeat(len(models) * len(methods))
     return out
-
-
-# Tables 1-3 of the paper, transcribed from its LaTeX source (setup: Table 1 global, 2 baseline, 3 best).
-_PAPER_TABLES_CSV = """\
-setup,kind,model,method,precision,recall,recall_star,correct,output,failures,time_s
-global,planar,none,blob,23.48,99.79,56.23,457,3806,0,
-global,planar,none,th,90.29,61.21,36.49,310,370,0,0.000
-global,planar,none,dtm1,78.78,67.84,40.05,356,593,1,0.283
-global,planar,none,dtm2,79.82,78.85,45.84,399,651,0,0.519
-global,planar,none,lmr,74.14,74.32,43.11,384,588,2,0.065
-global,planar,none,lpm,69.05,49.26,27.99,259,362,4,0.017
-global,planar,none,glpm,69.48,76.34,45.46,398,952,3,0.029
-global,planar,none,gms,56.51,27.62,18.37,200,365,28,0.253
-global,planar,none,vfc,78.91,89.48,51.52,440,781,4,0.031
-global,planar,none,llt,46.39,52.47,31.63,298,591,28,1.665
-global,planar,none,rfm_scan,57.71,92.84,52.65,438,1237,0,0.774
-global,planar,none,adalam,93.11,78.23,46.40,395,542,3,0.226
-global,planar,none,oanet,83.47,75.06,42.22,362,552,1,0.082
-global,planar,none,acne,74.69,78.61,45.33,385,638,0,0.047
-global,planar,none,pfm,85.40,36.39,21.79,180,195,8,0.114
-global,planar,none,pgm,71.10,78.06,43.78,341,486,6,5.051
-global,planar,none,scv,55.52,40.30,24.35,240,916,4,0.658
-global,planar,none,bm,85.27,55.35,33.06,328,445,9,0.892
-global,planar,1sac,blob,89.94,84.15,49.54,418,620,4,
-global,planar,1sac,th,91.35,55.81,33.76,294,340,5,
-global,planar,1sac,dtm1,89.68,60.72,36.57,333,482,5,
-global,planar,1sac,dtm2,90.61,70.26,41.72,372,529,5,
-global,planar,1sac,lmr,89.64,69.35,40.69,366,475,6,
-global,planar,1sac,lpm,80.62,46.18,26.51,248,311,12,
-global,planar,1sac,glpm,91.54,71.87,42.98,378,534,4,
-global,planar,1sac,gms,59.58,26.73,17.79,193,316,29,
-global,planar,1sac,vfc,89.56,83.11,48.39,417,614,5,
-global,planar,1sac,llt,59.60,48.94,29.77,281,408,28,
-global,planar,1sac,rfm_scan,93.43,84.57,49.13,414,612,2,
-global,planar,1sac,adalam,94.41,75.59,44.86,380,513,3,
-global,planar,1sac,oanet,91.95,70.67,40.21,346,472,4,
-global,planar,1sac,acne,91.10,72.79,42.67,366,493,5,
-global,planar,1sac,pfm,85.38,34.15,20.63,174,186,10,
-global,planar,1sac,pgm,86.48,69.92,40.02,318,365,7,
-global,planar,1sac,scv,78.80,37.10,22.55,228,277,14,
-global,planar,1sac,bm,85.00,53.69,32.11,316,419,10,
-global,nonplanar,none,blob,19.86,100.00,60.99,382,3834,0,
-global,nonplanar,none,th,82.26,44.89,28.71,185,235,1,0.000
-global,nonplanar,none,dtm1,73.01,64.77,41.34,269,501,0,0.271
-global,nonplanar,none,dtm2,72.76,72.71,45.90,298,546,0,0.512
-global,nonplanar,none,lmr,68.60,66.21,40.85,269,471,1,0.067
-global,nonplanar,none,lpm,65.92,46.48,26.73,177,264,3,0.017
-global,nonplanar,none,glpm,65.26,62.86,40.62,271,644,4,0.018
-global,nonplanar,none,gms,69.98,29.54,20.40,161,304,21,0.251
-global,nonplanar,none,vfc,58.20,81.63,51.75,345,897,6,0.037
-global,nonplanar,none,llt,45.01,61.68,40.20,279,737,23,1.602
-global,nonplanar,none,rfm_scan,54.03,92.71,57.27,365,1145,0,0.735
-global,nonplanar,none,adalam,91.21,58.95,37.50,254,339,3,0.165
-global,nonplanar,none,oanet,79.83,72.00,44.49,282,468,1,0.083
-global,nonplanar,none,acne,65.47,70.86,43.98,281,564,0,0.047
-global,nonplanar,none,pfm,82.27,28.81,18.46,112,125,8,0.100
-global,nonplanar,none,pgm,67.62,80.37,50.02,312,539,1,7.119
-global,nonplanar,none,scv,54.99,44.20,28.35,186,812,2,0.729
-global,nonplanar,none,bm,86.24,53.59,35.00,244,351,5,0.729
-global,nonplanar,1sac,blob,61.91,80.71,51.25,334,740,1,
-global,nonplanar,1sac,th,88.80,40.77,26.46,172,204,2,
-global,nonplanar,1sac,dtm1,85.08,58.01,37.57,248,394,2,
-global,nonplanar,1sac,dtm2,84.92,64.78,41.50,273,427,1,
-global,nonplanar,1sac,lmr,82.89,60.92,38.00,253,351,3,
-global,nonplanar,1sac,lpm,77.19,43.01,24.93,167,218,6,
-global,nonplanar,1sac,glpm,78.79,58.55,37.98,255,410,5,
-global,nonplanar,1sac,gms,68.63,27.88,19.28,153,267,25,
-global,nonplanar,1sac,vfc,73.39,74.14,47.31,318,573,7,
-global,nonplanar,1sac,llt,59.41,56.94,37.28,260,463,24,
-global,nonplanar,1sac,rfm_scan,74.42,81.51,51.33,333,631,1,
-global,nonplanar,1sac,adalam,91.50,56.32,35.85,243,322,3,
-global,nonplanar,1sac,oanet,83.33,66.98,41.65,267,409,1,
-global,nonplanar,1sac,acne,75.58,66.27,41.41,267,440,1,
-global,nonplanar,1sac,pfm,85.46,26.93,17.41,106,116,8,
-global,nonplanar,1sac,pgm,80.59,72.88,45.76,290,402,2,
-global,nonplanar,1sac,scv,76.81,40.53,26.25,173,265,4,
-global,nonplanar,1sac,bm,86.28,51.35,33.56,234,325,7,
-baseline,planar,none,blob,20.63,100.00,37.60,293,1329,0,
-baseline,planar,none,th,85.02,61.62,25.99,212,227,1,0.000
-baseline,planar,none,dtm1,84.23,63.99,25.69,228,244,2,0.168
-baseline,planar,none,dtm2,85.19,77.91,31.02,265,284,2,0.240
-baseline,planar,none,lmr,70.29,79.58,31.90,274,320,6,0.036
-baseline,planar,none,lpm,71.61,74.84,29.54,266,311,3,0.008
-baseline,planar,none,glpm,84.71,68.62,29.37,258,275,7,0.014
-baseline,planar,none,gms,45.48,15.69,7.31,92,94,40,0.260
-baseline,planar,none,vfc,87.12,89.57,34.56,282,298,4,0.019
-baseline,planar,none,llt,40.34,39.94,16.89,190,227,37,0.485
-baseline,planar,none,rfm_scan,59.56,94.78,35.96,283,482,0,0.075
-baseline,planar,none,adalam,91.45,78.08,32.41,266,273,5,0.090
-baseline,planar,none,oanet,85.96,81.80,30.78,248,267,2,0.043
-baseline,planar,none,acne,77.48,84.92,33.13,266,313,0,0.023
-baseline,planar,none,pfm,75.38,35.38,14.92,122,127,15,0.076
-baseline,planar,none,pgm,78.24,84.82,32.65,259,283,7,2.759
-baseline,planar,none,scv,84.15,47.13,19.92,198,209,6,0.445
-baseline,planar,none,bm,83.91,57.48,24.36,238,245,11,0.532
-baseline,planar,1sac,blob,81.07,75.11,31.20,263,270,12,
-baseline,planar,1sac,th,82.39,52.84,23.18,200,205,12,
-baseline,planar,1sac,dtm1,84.62,55.10,22.89,212,218,9,
-baseline,planar,1sac,dtm2,85.61,67.27,27.75,246,252,8,
-baseline,planar,1sac,lmr,85.78,72.99,29.78,259,265,9,
-baseline,planar,1sac,lpm,82.44,68.23,27.84,252,259,12,
-baseline,planar,1sac,glpm,86.70,66.24,28.44,248,254,9,
-baseline,planar,1sac,gms,45.93,15.61,7.28,91,93,40,
-baseline,planar,1sac,vfc,91.47,84.42,32.93,268,274,5,
-baseline,planar,1sac,llt,48.31,38.39,16.29,183,188,37,
-baseline,planar,1sac,rfm_scan,88.36,79.95,32.29,266,272,7,
-baseline,planar,1sac,adalam,91.83,75.75,31.47,256,262,5,
-baseline,planar,1sac,oanet,90.57,75.76,29.42,238,243,5,
-baseline,planar,1sac,acne,90.40,76.44,31.08,252,257,6,
-baseline,planar,1sac,pfm,74.92,32.62,14.02,118,121,18,
-baseline,planar,1sac,pgm,81.96,73.75,29.46,238,245,12,
-baseline,planar,1sac,scv,80.16,43.87,18.70,189,194,14,
-baseline,planar,1sac,bm,78.92,55.83,23.72,230,236,15,
-baseline,nonplanar,none,blob,16.41,100.00,38.91,214,1370,0,
-baseline,nonplanar,none,th,75.17,53.09,22.95,130,155,2,0.000
-baseline,nonplanar,none,dtm1,78.93,64.57,27.04,155,179,2,0.166
-baseline,nonplanar,none,dtm2,78.08,75.28,31.30,178,209,2,0.241
-baseline,nonplanar,none,lmr,64.29,76.50,31.95,182,257,4,0.040
-baseline,nonplanar,none,lpm,67.36,74.63,31.33,180,240,2,0.008
-baseline,nonplanar,none,glpm,82.37,60.41,27.19,161,180,4,0.010
-baseline,nonplanar,none,gms,68.75,15.22,7.54,55,56,30,0.266
-baseline,nonplanar,none,vfc,66.94,78.26,32.25,189,243,7,0.018
-baseline,nonplanar,none,llt,45.50,53.14,23.45,154,227,28,0.531
-baseline,nonplanar,none,rfm_scan,57.61,90.48,35.60,200,370,0,0.070
-baseline,nonplanar,none,adalam,90.24,66.81,28.78,168,176,4,0.064
-baseline,nonplanar,none,oanet,81.66,77.16,30.30,167,192,1,0.043
-baseline,nonplanar,none,acne,67.16,75.56,30.78,175,242,1,0.023
-baseline,nonplanar,none,pfm,75.95,35.13,15.53,83,91,12,0.075
-baseline,nonplanar,none,pgm,75.23,88.81,36.34,204,256,2,3.732
-baseline,nonplanar,none,scv,81.93,55.10,23.72,136,156,2,0.455
-baseline,nonplanar,none,bm,85.25,61.61,26.68,163,177,6,0.424
-baseline,nonplanar,1sac,blob,62.87,80.34,33.83,194,269,2,
-baseline,nonplanar,1sac,th,85.52,47.78,21.33,124,132,4,
-baseline,nonplanar,1sac,dtm1,87.61,58.72,25.18,147,157,2,
-baseline,nonplanar,1sac,dtm2,87.23,69.04,29.26,169,182,2,
-baseline,nonplanar,1sac,lmr,79.46,70.05,29.97,174,191,5,
-baseline,nonplanar,1sac,lpm,82.10,70.23,29.89,174,192,3,
-baseline,nonplanar,1sac,glpm,81.59,57.97,26.31,157,167,11,
-baseline,nonplanar,1sac,gms,52.14,14.63,7.31,54,55,47,
-baseline,nonplanar,1sac,vfc,78.29,74.22,30.87,181,201,8,
-baseline,nonplanar,1sac,llt,56.95,50.47,22.39,148,169,29,
-baseline,nonplanar,1sac,rfm_scan,76.32,79.06,32.86,189,225,1,
-baseline,nonplanar,1sac,adalam,89.59,64.51,27.85,164,171,5,
-baseline,nonplanar,1sac,oanet,85.30,73.76,29.32,163,178,1,
-baseline,nonplanar,1sac,acne,77.22,72.62,29.86,170,202,1,
-baseline,nonplanar,1sac,pfm,79.97,32.42,14.64,79,84,13,
-baseline,nonplanar,1sac,pgm,83.54,81.13,33.78,191,214,3,
-baseline,nonplanar,1sac,scv,86.84,51.50,22.49,130,139,3,
-baseline,nonplanar,1sac,bm,86.15,60.41,26.25,160,170,7,
-best,planar,none,blob,27.18,100.00,74.59,632,6081,0,
-best,planar,none,th,95.17,66.38,50.93,449,758,0,0.000
-best,planar,none,dtm1,76.75,77.48,59.05,526,1510,0,0.477
-best,planar,none,dtm2,77.45,83.94,63.57,561,1592,0,0.902
-best,planar,none,lmr,82.77,65.04,49.39,448,929,0,0.096
-best,planar,none,lpm,79.02,39.27,30.69,288,684,0,0.026
-best,planar,none,glpm,77.05,76.81,58.77,523,1518,0,0.062
-best,planar,none,gms,72.71,54.69,43.07,433,1329,9,0.246
-best,planar,none,vfc,79.13,95.09,71.88,626,1877,1,0.035
-best,planar,none,llt,44.49,56.98,43.67,328,1354,26,3.583
-best,planar,none,rfm_scan,60.18,92.96,69.89,610,2525,0,1.534
-best,planar,none,adalam,92.98,80.22,61.24,536,1175,1,0.429
-best,planar,none,oanet,86.50,78.58,58.77,525,1173,0,0.119
-best,planar,none,acne,79.21,79.33,60.47,524,1308,0,0.067
-best,planar,none,pfm,93.90,36.65,28.39,236,293,3,0.165
-best,planar,none,pgm,68.78,72.63,54.10,420,728,5,4.974
-best,planar,none,scv,21.14,45.54,35.79,353,2136,0,1.203
-best,planar,none,bm,86.26,54.88,42.69,439,954,8,1.654
-best,planar,1sac,blob,94.59,92.54,69.53,593,1527,1,
-best,planar,1sac,th,96.75,63.42,48.66,431,715,1,
-best,planar,1sac,dtm1,95.35,72.95,55.80,500,1211,1,
-best,planar,1sac,dtm2,95.40,78.96,60.03,532,1278,1,
-best,planar,1sac,lmr,94.13,60.04,45.79,417,793,2,
-best,planar,1sac,lpm,91.31,36.40,28.60,270,577,4,
-best,planar,1sac,glpm,95.24,73.16,56.10,498,1218,1,
-best,planar,1sac,gms,82.35,51.73,40.84,410,1077,10,
-best,planar,1sac,vfc,92.69,88.75,67.37,588,1510,2,
-best,planar,1sac,llt,62.13,53.63,41.14,307,825,26,
-best,planar,1sac,rfm_scan,94.69,86.62,65.54,574,1485,1,
-best,planar,1sac,adalam,96.25,76.58,58.44,512,1085,1,
-best,planar,1sac,oanet,94.94,74.08,55.64,500,1037,2,
-best,planar,1sac,acne,92.35,74.60,57.12,499,1073,3,
-best,planar,1sac,pfm,94.54,35.65,27.56,230,284,3,
-best,planar,1sac,pgm,89.74,67.95,50.76,393,545,5,
-best,planar,1sac,scv,81.88,41.76,32.89,335,548,12,
-best,planar,1sac,bm,86.46,52.75,41.04,420,881,9,
-best,nonplanar,none,blob,24.01,100.00,81.61,572,5933,0,
-best,nonplanar,none,th,90.37,42.26,36.15,262,424,0,0.000
-best,nonplanar,none,dtm1,70.25,71.38,59.59,432,1291,0,0.430
-best,nonplanar,none,dtm2,70.25,75.44,62.88,455,1348,0,0.856
-best,nonplanar,none,lmr,75.29,53.49,44.65,328,698,0,0.093
-best,nonplanar,none,lpm,74.09,29.90,25.29,180,451,1,0.024
-best,nonplanar,none,glpm,69.64,55.79,47.42,348,1002,3,0.032
-best,nonplanar,none,gms,76.84,57.30,48.49,379,1131,5,0.237
-best,nonplanar,none,vfc,57.76,86.87,72.55,535,2055,4,0.037
-best,nonplanar,none,llt,40.50,57.53,49.15,376,1646,27,3.243
-best,nonplanar,none,rfm_scan,52.30,95.06,77.99,557,2508,0,1.305
-best,nonplanar,none,adalam,92.15,54.95,46.67,353,691,2,0.295
-best,nonplanar,none,oanet,83.54,71.94,59.18,423,949,0,0.114
-best,nonplanar,none,acne,69.94,67.33,55.65,396,1047,0,0.063
-best,nonplanar,none,pfm,91.80,24.73,21.15,145,177,2,0.131
-best,nonplanar,none,pgm,67.76,72.30,59.92,417,829,1,7.961
-best,nonplanar,none,scv,22.66,40.03,34.16,248,1530,1,1.024
-best,nonplanar,none,bm,88.58,51.39,44.14,349,737,4,1.261
-best,nonplanar,1sac,blob,66.97,82.58,68.72,497,1624,0,
-best,nonplanar,1sac,th,93.05,38.48,32.99,240,379,1,
-best,nonplanar,1sac,dtm1,85.71,62.32,52.51,387,976,1,
-best,nonplanar,1sac,dtm2,85.40,65.59,55.22,407,1018,0,
-best,nonplanar,1sac,lmr,89.08,48.10,40.48,301,560,0,
-best,nonplanar,1sac,lpm,85.54,27.57,23.47,169,375,3,
-best,nonplanar,1sac,glpm,84.01,50.91,43.42,318,782,3,
-best,nonplanar,1sac,gms,83.66,51.43,43.67,340,917,5,
-best,nonplanar,1sac,vfc,74.84,75.19,63.26,472,1351,4,
-best,nonplanar,1sac,llt,57.15,52.21,44.77,344,1002,27,
-best,nonplanar,1sac,rfm_scan,75.16,80.64,67.08,489,1466,0,
-best,nonplanar,1sac,adalam,92.85,50.94,43.32,324,628,2,
-best,nonplanar,1sac,oanet,86.86,63.55,52.70,381,811,1,
-best,nonplanar,1sac,acne,79.01,60.91,50.67,365,850,0,
-best,nonplanar,1sac,pfm,92.89,23.17,19.84,137,165,2,
-best,nonplanar,1sac,pgm,80.57,65.48,54.63,388,646,1,
-best,nonplanar,1sac,scv,67.69,35.99,30.89,225,473,2,
-best,nonplanar,1sac,bm,87.80,47.29,40.65,319,659,6,
-"""

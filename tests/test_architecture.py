@@ -112,8 +112,9 @@ def layer(module: str) -> int:
         return 0
     if module in ("ctxmatch_lib", "ctxmatch_lib.__main__") or module.startswith("ctxmatch_lib.cli"):
         return 3
-    if module in ("ctxmatch_lib.report", "ctxmatch_lib.report_blob", "ctxmatch_lib.gt_compare", "ctxmatch_lib.sweep",
-                  "ctxmatch_lib.evalcache") or module.startswith("ctxmatch_lib.plots"):
+    if module in ("ctxmatch_lib.report", "ctxmatch_lib.report_blob", "ctxmatch_lib.report_paper",
+                  "ctxmatch_lib.gt_compare", "ctxmatch_lib.sweep", "ctxmatch_lib.evalcache") \
+            or module.startswith("ctxmatch_lib.plots"):
         return 2
     if module == "ctxmatch_lib.pipeline" or (module.startswith("ctxmatch_lib.evaluation")
                                             and module != "ctxmatch_lib.evaluation.steps"):
