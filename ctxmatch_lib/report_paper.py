@@ -69,7 +69,8 @@ _METHODS = {_norm(m): m for m in ("blob",) + PAPER_FILTERS}
 
 
 def _read_tex(tex) -> str:
-    if isinstance(tex, Path) or (isinstance(tex, str) and "\n" not in tex and tex.endswith(".tex")):
+    if isinstance(tex, Path) or (isinstance(tex, str) and "\n" not in tex
+                                 and (tex.endswith(".tex") or Path(tex).is_file())):
         path = Path(tex)
         if not path.is_file():
             raise FileNotFoundError(f"tex: no such LaTeX file {str(path)!r}")
