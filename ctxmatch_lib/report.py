@@ -24,6 +24,7 @@ import pandas as pd
 __all__ = [
     "METHOD_LABELS",
     "KIND_LABELS",
+    "FEATURE_LABELS",
     "MODEL_LABELS",
     "SETUPS",
     "SETUP_TITLES",
@@ -51,6 +52,15 @@ METHOD_LABELS = {
 #: Row order of the paper's Tables 1-3.
 _ORDER = ("blob", "th", "dtm", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam",
           "oanet", "acne", "pfm", "pgm", "scv", "bm")
+#: Short names of the feature presets for titles and tables; the stand-ins say so (full lines:
+#: :data:`ctxmatch_lib.features.FEATURE_DESCRIPTIONS`).
+FEATURE_LABELS = {
+    "sift-rootsift": "SIFT+RootSIFT", "sift-rootsift-upright": "upright SIFT+RootSIFT", "sift": "SIFT+SIFT",
+    "sift-rootsgloh2": "SIFT+RootsGLOH2", "harrisz-rootsift": "HarrisZ+RootSIFT",
+    "harrisz-rootsgloh2": "HarrisZ+RootsGLOH2", "sift-hardnet2": "SIFT+HardNet2 (stand-in)",
+    "sift-sosnet": "SIFT+SOSNet (stand-in)", "harrisz-hardnet2": "HarrisZ+HardNet2 (stand-in)",
+    "harrisz-sosnet": "HarrisZ+SOSNet (stand-in)",
+}
 KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (stereo)"}
 MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC"}
 
@@ -199,7 +209,7 @@ def gt_counts(df: pd.DataFrame) -> pd.DataFrame:
 def _fmt(value, fmt: str) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "–"
-    return format(value, fmt)
+    return value if isinstance(value, str) else format(value, fmt)
 
 
 def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True) -> str:

@@ -162,3 +162,16 @@ def test_provenance_names_the_source_never_the_clock():
         last = subprocess.run(["git", "log", "-1", "--format=%H", "--", *SOURCE_PATHS], cwd=ROOT,
                               capture_output=True, text=True).stdout.strip()
         assert record["git_commit"].removesuffix("-dirty") == last[:12]  # not HEAD: committing figures keeps it
+
+
+def test_paper_scale_runs_share_one_keypoint_budget():
+    """Every paper-scale evaluation runs at the calibrated budget "paper" (issue 21: the same budget for every
+    block and figure; the illustrations of one pair, fig_boundary and fig_dtm_steps, excepted)."""
+    yaml = pytest.importorskip("yaml")
+    from ctxmatch_lib.features import KEYPOINT_BUDGETS, keypoint_budget
+
+    evaluations = ["fig_blob_heatmap", "fig_blob_bands", "fig_gt_methods", "fig_pr_scatter", "fig_inlier_hist",
+                   "tables", "fig_match_examples", "fig_agreement"]
+    for stem in evaluations:
+        params = yaml.safe_load((ROOT / "notebooks" / "params" / f"{stem}.yaml").read_text())
+        assert keypoint_budget(params["max_keypoints"]) == KEYPOINT_BUDGETS["paper"], stem

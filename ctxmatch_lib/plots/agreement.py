@@ -19,7 +19,7 @@ __all__ = ["plot_agreement"]
 
 
 def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, ms: float = 14,
-                   panel_size: float = 2.0):
+                   panel_size: float = 2.0, figsize=None):
     """Ours (y) against the paper (x) per method, precision filled and recall hollow (Tables 1-3, Fig. 7).
 
     Parameters
@@ -27,7 +27,8 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     side : DataFrame
         A :func:`ctxmatch_lib.report_paper.side_by_side` frame (index setup, kind, model, method).
     setups : sequence of str, optional
-        The configurations, one row of panels each (default: those in ``side``, in order).
+        The configurations, one column of panels each (default: those in ``side``, in order); one row of
+        panels per kind of pair.
     models : sequence of str
         The models drawn (default no model only); a second model (``"1sac"``) is drawn at half opacity.
     blob : bool
@@ -35,13 +36,15 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     ms : float
         Marker area in points².
     panel_size : float
-        Width and height of one panel in inches.
+        Width and height of one panel in inches, when ``figsize`` is not given.
+    figsize : (float, float), optional
+        The figure's size (e.g. :func:`~ctxmatch_lib.plots.base.figsize` for a paper figure); the panels
+        share it under the constrained layout, the legend below them.
 
     Returns
     -------
     Figure
-        ``len(setups)`` × (kinds) panels sharing the 0-100 % axes; one legend outside, on the right (save
-        with a tight bounding box, as :func:`~ctxmatch_lib.plots.base.save_figure` does).
+        (kinds) × ``len(setups)`` panels sharing the 0-100 % axes; one legend below them.
     """
     setups = list(dict.fromkeys(side.index.get_level_values("setup"))) if setups is None else list(setups)
     unknown = [s for s in setups if s not in set(side.index.get_level_values("setup"))]
@@ -49,12 +52,13 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
         raise ValueError(f"setups: {unknown} not in side (has {sorted(set(side.index.get_level_values('setup')))})")
     kinds = [k for k in dict.fromkeys(side.index.get_level_values("kind"))]
     rho = rank_agreement(side)
-    fig, axes = plt.subplots(len(setups), len(kinds), figsize=(panel_size * len(kinds),
-                                                               panel_size * len(setups)),
-                             squeeze=False, sharex=True, sharey=True)
+    if figsize is None:
+        figsize = (panel_size * len(setups), panel_size * len(kinds) + 0.8)
+    fig, axes = plt.subplots(len(kinds), len(setups), figsize=figsize, squeeze=False, sharex=True, sharey=True,
+                             layout="constrained")
     shown = []
-    for r, setup in enumerate(setups):
-        for c, kind in enumerate(kinds):
+    for c, setup in enumerate(setups):
+        for r, kind in enumerate(kinds):
             ax = axes[r, c]
             ax.plot([0, 100], [0, 100], color="0.6", lw=0.6, zorder=1)
             for k, model in enumerate(models):
@@ -80,8 +84,8 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
             ax.set_xlim(0, 102)
             ax.set_ylim(0, 102)
             ax.set_aspect("equal")
-            ax.tick_params(labelsize=6)
-            if r == len(setups) - 1:
+            ax.tick_params(labelsize=7)
+            if r == len(kinds) - 1:
                 ax.set_xlabel("paper (%)", fontsize=7)
             if c == 0:
                 ax.set_ylabel("ours (%)", fontsize=7)
@@ -94,6 +98,6 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     if len(models) > 1:
         handles.append(Line2D([], [], ls="", marker="o", ms=4.5, mfc="0.3", mec="0.3", alpha=0.45))
         labels.append(f"{', '.join(models[1:])} (faded)")
-    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=6, frameon=False)
-    fig.tight_layout()
+    fig.legend(handles, labels, loc="outside lower center", ncol=6, fontsize=7, frameon=False,
+               columnspacing=1.0, handletextpad=0.3)
     return fig
