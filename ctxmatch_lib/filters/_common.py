@@ -15,7 +15,8 @@ from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive", "serial_blas"]
+__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive", "serial_blas",
+           "coincident_groups", "merge_coincident"]
 
 
 @dataclass(frozen=True)
@@ -176,3 +177,53 @@ def serial_blas():
     except ImportError:  # pragma: no cover - scikit-learn depends on it
         return nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
+
+
+def coincident_groups(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Group the matches whose keypoints coincide in both images (same coordinates, any keypoint index).
+
+    SIFT keeps one keypoint per dominant orientation, so one correspondence can appear as several candidate
+    rows on coincident keypoints, and a many-to-many matcher can repeat a row; a filter that counts such
+    copies as distinct matches lets a wrong correspondence support itself through its own copies.
+
+    Parameters
+    ----------
+    x, y : ndarray of shape (K, 2)
+        Image-1 and image-2 keypoint of each match, (x, y) pixels, origin at the centre of the top-left
+        pixel. Coincidence is exact equality of the coordinates.
+
+    Returns
+    -------
+    first : ndarray of shape (G,) int64
+        The first row of each group, increasing: ``x[first], y[first]`` are the distinct matches in input
+        order.
+    group : ndarray of shape (K,) int64
+        The group of every row (``first[group[i]]`` is the first copy of row ``i``).
+    """
+    n = len(x)
+    if n == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    _, first, group = np.unique(np.c_[x, y], axis=0, return_index=True, return_inverse=True)
+    group = group.reshape(-1)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return first[order].astype(np.int64), rank[group]
+
+
+def merge_coincident(ms: MatchSet) -> tuple[np.ndarray, np.ndarray] | None:
+    """One row per group of coincident matches (see :func:`coincident_groups`), and the map back.
+
+    Returns None when no two matches coincide, so a filter's result on an input without copies is exactly
+    what it was. Otherwise ``(rows, group)``: ``rows`` (G,) picks, for each group in the order of its first
+    copy, its best-scored copy (lowest score, the first one on ties), whose keypoint indices and shapes then
+    stand for the group; ``group`` (K,) is the position in ``rows`` of every input row. A filter decides
+    ``matches[rows]`` and maps the decision back with ``keep[group]``, so every copy gets the decision of its
+    group and no copy counts in the support or neighbourhood of another.
+    """
+    first, group = coincident_groups(ms.x, ms.y)
+    if len(first) == len(ms):
+        return None
+    order = np.lexsort((np.arange(len(ms)), ms.scores, group))
+    starts = np.r_[0, np.flatnonzero(np.diff(group[order])) + 1]
+    return order[starts], group  # groups are numbered 0..G-1 in order of first copy

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import check_positive, knn_without_self, prepare
+from ._common import check_positive, knn_without_self, merge_coincident, prepare
 
 __all__ = ["lmr_filter", "lmr_features", "train_lmr", "LMRModel", "LMR_TRAIN_DEFAULTS", "MODEL_PATH", "SCALES"]
 
@@ -366,6 +366,16 @@ def lmr_filter(
     -------
     keep : ndarray of shape (K,), bool
 
+    Notes
+    -----
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
+    in the neighbourhoods of the features. The authors' code was not found in the code index read here; this is
+    our choice. The shipped model needs no retraining: its synthetic training pairs hold no coincident rows. The
+    result on inputs without coincident rows is unchanged.
+
     References
     ----------
     J. Ma, X. Jiang, J. Jiang, J. Zhao, X. Guo, "LMR: learning a two-class classifier for mismatch
@@ -386,6 +396,13 @@ def lmr_filter(
     ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     threshold = check_positive(threshold, "threshold", allow_zero=True)
     model = _shipped_model() if model is None else model
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = lmr_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                          threshold=threshold, model=model)
+        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, knn_without_self, prepare
+from ._common import check_positive, knn_without_self, merge_coincident, prepare
 
 __all__ = ["lpm_filter", "glpm_filter", "GLPM_SCHEDULE"]
 
@@ -98,6 +98,16 @@ def lpm_filter(
     -------
     keep : ndarray of shape (K,), bool
 
+    Notes
+    -----
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
+    in the neighbourhoods. The authors' MATLAB demo (jiayi-ma/LPM, demo_LPM_v2.m and LPM_cosF.m) has no step for
+    them: it drops the k-d tree's first answer as the query itself, so copies are neighbours of one another; it
+    is silent, and counting them once is our choice. The result on inputs without coincident rows is unchanged.
+
     References
     ----------
     J. Ma, J. Zhao, J. Jiang, H. Zhou, X. Guo, "Locality preserving matching", IJCV 127(5), 2019.
@@ -118,6 +128,13 @@ def lpm_filter(
     lam = [check_positive(v, "lambdas", allow_zero=True) for v in np.atleast_1d(lambdas)]
     if len(lam) != 2:
         raise ValueError(f"lambdas must hold two thresholds, got {lambdas!r}")
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = lpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                          k=k, lambdas=lambdas, tau=tau)
+        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
@@ -185,6 +202,18 @@ def glpm_filter(
     -------
     keep : ndarray of shape (K,), bool
 
+    Notes
+    -----
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
+    in the neighbourhoods and in the guide. The authors' demo (jiayi-ma/GLPM, demo.m) has no step for them
+    (silent: our choice). It hands the small-set inliers to the whole set by their image-1 coordinates, so every
+    candidate at such an image-1 location joins the guide; here the guide is the small-set inliers themselves
+    (not changed: it would change the result on inputs without copies). The result on inputs without coincident
+    rows is unchanged.
+
     References
     ----------
     J. Ma, J. Jiang, H. Zhou, J. Zhao, X. Guo, "Guided locality preserving feature matching for remote
@@ -207,6 +236,13 @@ def glpm_filter(
              for kk, lam in schedule]
     if len(sched) != 4:
         raise ValueError(f"schedule must hold four (K, lambda) pairs, got {len(sched)}")
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = glpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                           image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                           ratio=ratio, schedule=schedule)
+        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

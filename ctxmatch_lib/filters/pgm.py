@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, knn_without_self, prepare
+from ._common import check_positive, knn_without_self, merge_coincident, prepare
 
 __all__ = ["pgm_filter", "rrwm"]
 
@@ -336,6 +336,16 @@ def pgm_filter(
     distances to its neighbours happen to be preserved in length is supported (for instance one match sent
     from the corner of a small regular grid to the far side of it).
 
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies and the keypoint indices and shapes of
+    the best-scored one) and gives every copy the decision of its match, so a wrong correspondence cannot
+    support itself through its own copies and a location counts once in the affinity graph and the votes. The
+    authors' MATLAB code was not read (it is not in the code index used here); this is our choice. The output
+    stays one-to-one: of the rows that repeat one keypoint pair only the best-scored is output, while copies on
+    distinct coincident keypoints are all output (distinct keypoints to the one-to-one constraint). The result
+    on inputs without coincident rows is unchanged.
+
     References
     ----------
     M. Cho, K. M. Lee, "Progressive graph matching: Making a move of graphs via probabilistic voting",
@@ -366,6 +376,21 @@ def pgm_filter(
     c = check_positive(c, "c", allow_zero=True)
     amp_max = check_positive(amp_max, "amp_max")
     max_iter = check_positive(max_iter, "max_iter", integer=True)
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = pgm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                          k=k, tau=tau, rho=rho, max_rounds=max_rounds, per_node=per_node, n_init=n_init,
+                          min_support=min_support, c=c, amp_max=amp_max, max_iter=max_iter)
+        # The output stays one-to-one: of the rows that repeat one keypoint pair only the best-scored (the
+        # first on ties, so the one that stood for the group) is output; copies on other, coincident,
+        # keypoints all are.
+        m = ms.matches
+        order = np.lexsort((np.arange(len(m)), ms.scores, m[:, 1], m[:, 0]))
+        first_of_pair = np.zeros(len(m), bool)
+        first_of_pair[order[np.r_[True, (np.diff(m[order], axis=0) != 0).any(axis=1)]]] = True
+        return keep[group] & first_of_pair
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

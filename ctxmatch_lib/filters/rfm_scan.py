@@ -33,7 +33,7 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, prepare
+from ._common import check_positive, merge_coincident, prepare
 
 __all__ = ["rfm_scan_filter"]
 
@@ -258,6 +258,17 @@ def rfm_scan_filter(
     -------
     keep : ndarray of shape (K,), bool
 
+    Notes
+    -----
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
+    in the density counts. The authors' demo (StaRainJ/RFM-SCAN, Demo_main.m) clusters the rows as given, with
+    no step for them (silent: our choice). Without it, MinPts copies of a row (3 below about 65 candidates) are
+    a core point of DBSCAN by themselves. ``N`` (for MinPts and the added random matches) counts distinct
+    matches. The result on inputs without coincident rows is unchanged.
+
     References
     ----------
     X. Jiang, J. Ma, J. Jiang, X. Guo, "Robust feature matching using spatial clustering with heavy
@@ -285,6 +296,14 @@ def rfm_scan_filter(
     mu = [check_positive(v, "mu", allow_zero=True) for v in np.atleast_1d(mu)]
     if len(mu) != 2:
         raise ValueError(f"mu must hold two rates, got {mu!r}")
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = rfm_scan_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                               image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                               gamma=gamma, pct=pct, min_pts_bounds=min_pts_bounds, mu=mu,
+                               add_noise=add_noise, rng=rng)
+        return keep[group]
     rng = np.random.default_rng(rng)
     n = len(ms)
     if n == 0:

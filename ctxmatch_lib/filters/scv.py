@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, knn_without_self, prepare
+from ._common import check_positive, knn_without_self, merge_coincident, prepare
 
 __all__ = ["scv_filter", "SCV_GROWTH"]
 
@@ -105,6 +105,13 @@ def scv_filter(
     for precision. The test has no randomness (no ``rng``): it is deterministic, ties in the neighbour search
     being broken by the k-d tree.
 
+    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
+    in the growing regions. No code of the authors is public (their method grows pixel regions); this is our
+    choice. The result on inputs without coincident rows is unchanged.
+
     References
     ----------
     J. Čech, J. Matas, M. Perdoch, "Efficient sequential correspondence selection by cosegmentation", IEEE
@@ -131,6 +138,13 @@ def scv_filter(
     alpha, beta = check_positive(alpha, "alpha"), check_positive(beta, "beta")
     if alpha >= 1 or beta >= 1:
         raise ValueError(f"alpha and beta must be below 1, got alpha={alpha}, beta={beta}")
+    merged = merge_coincident(ms)
+    if merged is not None:  # coincident copies of a match are one match (see Notes)
+        rows, group = merged
+        keep = scv_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
+                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
+                          growth=growth, p1=p1, p0=p0, alpha=alpha, beta=beta)
+        return keep[group]
     n = len(ms)
     sizes = sorted({min(s, n - 1) for s in sizes if min(s, n - 1) > 0})
     if not sizes:
