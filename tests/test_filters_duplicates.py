@@ -7,7 +7,8 @@ copies as it decides the correspondence alone: every copy rejected when the sing
 rejected, every copy kept when it is kept, and the other candidates decided as without the copies.
 
 The case: 300 correct candidates planted under a homography (one-to-one, half-pixel noise) plus one wrong
-correspondence (the image-2 keypoint 150 px from its true position), then the wrong one repeated
+correspondence (the image-2 keypoint 150 px from its true position; also with 60 correct candidates, where
+RFM-SCAN's MinPts is 3), then the wrong one repeated
 
 - on 8 coincident keypoint copies (8 rows, new keypoint indices, same coordinates in both images), or
 - as the same row, 3 or 10 times in all;
@@ -16,7 +17,9 @@ and, as a check that copies of a *correct* candidate are all kept, one correct c
 coincident copies. The correct candidates must be kept as without the copies, up to ``TOL`` of them (a
 filter that decides by global statistics, e.g. a density threshold or a robust scale, may move a few
 borderline ones when rows are added; the filters that group coincident candidates reproduce the decision
-without copies exactly).
+without copies exactly). PGM's output is one-to-one, so of a repeated row (same keypoint indices) it outputs
+at most one copy. The filters not fixed here run too, for the record: where they fail, the case is an expected
+failure (``strict=False``) with the reason.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ctxmatch_lib.filters._common import coincident_groups, merge_coincident, prepare
 from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
 from filter_cases import SIZE, run_filter
 
@@ -142,3 +146,27 @@ def test_copies_decided_as_the_single_candidate(name, case, size):
     assert changed <= TOL, f"{name}: {changed} other candidates decided differently with the copies"
     if name in FIXED:
         np.testing.assert_array_equal(keep[:n], single)
+
+
+def test_coincident_groups_exact():
+    # Rows 0 and 2 coincide in both images; rows 1 and 4 too; row 3 shares its image-1 keypoint with row 0
+    # but not its image-2 one (a many-to-many alternative, not a copy).
+    x = np.array([[1.0, 2.0], [0.0, 0.0], [1.0, 2.0], [1.0, 2.0], [0.0, 0.0]])
+    y = np.array([[3.0, 3.0], [1.0, 1.0], [3.0, 3.0], [2.0, 2.0], [1.0, 1.0]])
+    first, group = coincident_groups(x, y)
+    np.testing.assert_array_equal(first, [0, 1, 3])
+    np.testing.assert_array_equal(group, [0, 1, 0, 2, 1])
+    # The best-scored copy stands for each group (row 2 beats row 0; rows 1 and 4 tie: the first).
+    kpts1, kpts2 = np.vstack([x, [[1.0, 2.0]]]), np.vstack([y, [[3.0, 3.0]]])
+    matches = np.array([[0, 0], [1, 1], [5, 5], [3, 3], [4, 4]])
+    ms = prepare(kpts1, kpts2, matches, [0.5, 0.4, 0.1, 0.3, 0.4], (10, 10), (10, 10))
+    rows, grp = merge_coincident(ms)
+    np.testing.assert_array_equal(rows, [2, 1, 3])
+    np.testing.assert_array_equal(grp, [0, 1, 0, 2, 1])
+    empty = np.empty((0, 2))
+    assert [len(a) for a in coincident_groups(empty, empty)] == [0, 0]
+
+
+def test_no_coincident_rows_nothing_merged():
+    kpts1, kpts2, matches, scores = _case(60)
+    assert merge_coincident(prepare(kpts1, kpts2, matches, scores, SIZE, SIZE)) is None
