@@ -1,0 +1,140 @@
+"""Filters against their authors' code (issue 22): the duplicated-outlier case of GMS, and the helpers of
+``benchmarks/bench_filters_ref.py`` (reference runner, Jaccard, precision / recall) on tiny synthetic cases.
+
+The comparison with ``cv2.xfeatures2d.matchGMS`` runs only when ``CTXMATCH_GMS_REF_PYTHON`` names an
+interpreter with opencv-contrib-python (it conflicts with the project's OpenCV, so it is never installed here).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ctxmatch_lib.filters import FILTERS
+from ctxmatch_lib.synthetic import planted_homography_matches
+
+SIZE = (640, 480)
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_filters_ref.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_filters_ref", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def duplicated_outlier(copies: int, *, same_row: bool = False, seed: int = 0):
+    """300 correct planted matches plus one wrong match on ``copies`` coincident keypoint copies in both
+    images (SIFT's several orientations at one location), or the same row repeated ``copies`` times."""
+    pm = planted_homography_matches(300, 1.0, noise=0.3, image_size=SIZE, rng=seed)
+    p, q = np.array([[320.0, 240.0]]), np.array([[60.0, 420.0]])  # q is nowhere near H(p)
+    n1, n2 = len(pm.kpts1), len(pm.kpts2)
+    if same_row:
+        k1, k2 = np.vstack([pm.kpts1, p]), np.vstack([pm.kpts2, q])
+        extra = np.tile([[n1, n2]], (copies, 1))
+    else:
+        k1, k2 = np.vstack([pm.kpts1, np.repeat(p, copies, 0)]), np.vstack([pm.kpts2, np.repeat(q, copies, 0)])
+        extra = np.c_[n1 + np.arange(copies), n2 + np.arange(copies)]
+    return k1, k2, np.vstack([pm.matches, extra]).astype(np.int64)
+
+
+def gms(k1, k2, m, **kw):
+    return FILTERS["gms"](k1, k2, m, None, image_size1=SIZE, image_size2=SIZE, **kw)
+
+
+@pytest.mark.parametrize("same_row", [False, True])
+def test_gms_duplicated_outlier_counts_every_row_as_the_authors_code(same_row):
+    # matchGMS (and the authors' GmsMatcher) let every row vote: 8 copies of one wrong match outvote the
+    # sparse correct matches of their cell (about 0.75 per cell here) and pass 6 sqrt(n), so all 8 are kept;
+    # 1 or 3 copies are rejected. distinct_votes=True counts the copies once and rejects them.
+    for copies, kept in ((1, False), (3, False), (8, True)):
+        keep = gms(*duplicated_outlier(copies, same_row=same_row))
+        assert keep[300:].all() if kept else not keep[300:].any(), copies
+        assert keep[:300].sum() > 150
+    keep = gms(*duplicated_outlier(8, same_row=same_row), distinct_votes=True)
+    assert not keep[300:].any()
+    assert keep[:300].sum() > 150
+
+
+def test_gms_distinct_votes_shares_one_verdict_per_location_pair():
+    k1, k2, m = duplicated_outlier(5)
+    m = np.vstack([m, m[:40]])  # repeat 40 correct rows too
+    keep = gms(k1, k2, m, distinct_votes=True)
+    np.testing.assert_array_equal(keep[-40:], keep[:40])
+    assert not keep[300:305].any()
+
+
+@pytest.mark.skipif(not os.environ.get("CTXMATCH_GMS_REF_PYTHON"),
+                    reason="CTXMATCH_GMS_REF_PYTHON (an interpreter with opencv-contrib-python) is not set")
+@pytest.mark.parametrize("options", [{}, {"with_scale": True}, {"with_scale": True, "with_rotation": True}])
+def test_gms_equals_matchgms(bench, options):
+    cases, ours = [], []
+    for copies, same_row in ((1, False), (8, False), (8, True)):
+        k1, k2, m = duplicated_outlier(copies, same_row=same_row, seed=copies)
+        sh1, sh2 = np.tile(np.eye(2), (len(k1), 1, 1)), np.tile(np.eye(2), (len(k2), 1, 1))
+        cases.append(dict(kpts1=k1, kpts2=k2, matches=m, scores=np.full(len(m), 0.5), size1=np.array(SIZE),
+                          size2=np.array(SIZE), shapes1=sh1, shapes2=sh2, **bench.reference_options("gms", options)))
+        ours.append(gms(k1, k2, m, **options))
+    for keep, (ref, _) in zip(ours, bench.run_reference("gms", os.environ["CTXMATCH_GMS_REF_PYTHON"], cases)):
+        np.testing.assert_array_equal(keep, ref)
+
+
+# ----- the benchmark's helpers --------------------------------------------------------------------------
+
+
+def test_jaccard_exact(bench):
+    a = np.array([True, True, False, False, True])
+    b = np.array([True, False, True, False, True])
+    assert bench.jaccard(a, b) == pytest.approx(2 / 4)
+    assert bench.jaccard(a, a) == 1.0
+    assert bench.jaccard(np.zeros(3, bool), np.zeros(3, bool)) == 1.0
+    assert bench.jaccard(np.zeros(0, bool), np.zeros(0, bool)) == 1.0
+
+
+def test_precision_recall_normalised(bench):
+    # Correct candidates: rows 0, 1, 2 (rows 0 and 1 share image-1 keypoint 0); the output keeps rows 0, 1
+    # and the wrong row 3. Normalised counts: output correct {0-0, 0-1} -> 1, reference -> 2.
+    matches = np.array([[0, 0], [0, 1], [1, 2], [2, 3]])
+    labels = np.array([True, True, True, False])
+    p, r = bench.precision_recall(matches, labels, np.array([True, True, False, True]))
+    assert p == pytest.approx(200 / 3)
+    assert r == pytest.approx(50.0)
+
+
+def test_parse_ref_errors_name_the_flag(bench):
+    with pytest.raises(ValueError, match="--ref"):
+        bench.parse_ref("gms")
+    with pytest.raises(ValueError, match="no reference runner"):
+        bench.parse_ref("dtm=/usr/bin/python3")
+    with pytest.raises(ValueError, match="kornia"):
+        bench.parse_ref("gms=kornia")
+    assert bench.parse_ref("adalam=kornia") == ("adalam", sys.executable)
+
+
+def test_reference_runner_adalam_tiny_case(bench):
+    # The runner end to end (npz in, driver process, npz out) with the reference that this environment has.
+    pytest.importorskip("kornia")
+    g = np.stack(np.meshgrid(np.arange(12) * 25.0 + 40, np.arange(10) * 25.0 + 30), -1).reshape(-1, 2)
+    y = g + (7.0, -3.0)
+    y[0] = (600.0, 400.0)  # one outlier
+    m = np.c_[np.arange(len(g)), np.arange(len(g))]
+    rng = np.random.default_rng(0)
+    scores = rng.uniform(0.1, 0.7, len(g))
+    f = type("F", (), {})
+    f1, f2 = f(), f()
+    f1.kpts, f2.kpts = g, y
+    f1.shapes = f2.shapes = np.tile(np.eye(2) * 3.0, (len(g), 1, 1))
+    case = bench.make_case(f1, f2, m, scores, SIZE, SIZE)
+    [(keep, cpu)] = bench.run_reference("adalam", sys.executable, [case])
+    assert keep.dtype == bool and keep.shape == (len(g),) and cpu >= 0
+    assert not keep[0] and keep[1:].mean() > 0.9
+    ours = FILTERS["adalam"](g, y, m, scores, image_size1=SIZE, image_size2=SIZE, shapes1=f1.shapes,
+                             shapes2=f2.shapes)
+    assert bench.jaccard(ours, keep) > 0.9
