@@ -1,4 +1,4 @@
-"""Filters against their authors' code (issue 22): the duplicated-outlier case of GMS, and the helpers of
+"""Filters against their authors' code (issue 22): the duplicated-outlier case of GMS and AdaLAM, and the helpers of
 ``benchmarks/bench_filters_ref.py`` (reference runner, Jaccard, precision / recall) on tiny synthetic cases.
 
 The comparison with ``cv2.xfeatures2d.matchGMS`` runs only when ``CTXMATCH_GMS_REF_PYTHON`` names an
@@ -69,6 +69,20 @@ def test_gms_distinct_votes_shares_one_verdict_per_location_pair():
     keep = gms(k1, k2, m, distinct_votes=True)
     np.testing.assert_array_equal(keep[-40:], keep[:40])
     assert not keep[300:305].any()
+
+
+@pytest.mark.parametrize("same_row", [False, True])
+def test_adalam_duplicated_outlier_rejected_as_kornia(same_row):
+    # kornia's AdaLAM (the authors' port) lets residuals equal in half precision share one vote, so copies of
+    # a wrong match cannot make their own neighbourhood confident; measured: it rejects the 8 copies and
+    # keeps the 300 correct matches, as ours does.
+    k1, k2, m = duplicated_outlier(8, same_row=same_row)
+    s = np.random.default_rng(0).uniform(0.1, 0.7, len(m))
+    s[300:] = 0.2
+    sh1, sh2 = np.tile(np.eye(2) * 3.0, (len(k1), 1, 1)), np.tile(np.eye(2) * 3.0, (len(k2), 1, 1))
+    keep = FILTERS["adalam"](k1, k2, m, s, image_size1=SIZE, image_size2=SIZE, shapes1=sh1, shapes2=sh2)
+    assert not keep[300:].any()
+    assert keep[:300].all()
 
 
 @pytest.mark.skipif(not os.environ.get("CTXMATCH_GMS_REF_PYTHON"),
