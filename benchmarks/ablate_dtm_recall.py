@@ -32,7 +32,7 @@ are left out of the recall mean. Rows computed by the engine read and write the 
 Run: ``CTXMATCH_DATA=/path/to/data OMP_NUM_THREADS=1 .venv/bin/python benchmarks/ablate_dtm_recall.py
 [--pairs 24 | --pairs all] [--jobs 1] [--setups baseline,best]``. The default, 24 pairs evenly spread over the
 55 shared real pairs, took 9 min on one process (2 cores shared with another evaluation) with the baseline's
-features cached; a cold run adds the HarrisZ + SOSNet stand-in features (about 1.3 s per image and budget).
+features cached, and ``--pairs all`` 12 min more after it; a cold run adds the HarrisZ + SOSNet stand-in features (about 1.3 s per image and budget).
 """
 
 from __future__ import annotations
