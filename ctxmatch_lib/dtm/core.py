@@ -461,6 +461,10 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
       the port's 70.4 / 63.0 (kusvod2 78.0 / 44.7 against 75.3 / 44.2); without the matches that far, the
       two agree within 1.5 points (74.6 / 62.3 against 75.4 / 61.5; 79.2 / 44.1 against 79.0 / 43.2).
 
+    **Recall below the paper's** (``benchmarks/ablate_dtm_recall.py``, README "At paper scale"): at the budget
+    "paper" DTM1 recall stays 14 / 19 points below Table 2 (25.6 / 28.7 below Table 3) at near-paper precision;
+    no single factor (budget, coincident keypoints, f', image size) closes over 5 points; the port agrees.
+
     The result does not depend on the order of the matches: vertices are sorted, and ties in the ranking
     are broken by the keypoint coordinates, then the keypoint indices. Keypoints are rounded half away
     from zero (the paper's ``⌈·⌋``; the port rounds halves to even, which only matters at exact halves).
