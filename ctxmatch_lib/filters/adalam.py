@@ -41,14 +41,16 @@ implausible scale becomes the identity instead of being dropped; neighbourhoods 
 data) are recovered as the kornia port does (near-exact residuals on at least ``min_inliers`` distinct
 locations beyond the seed and couple); orientation and scale per keypoint (``similarity``).
 
-Measured on 6 pairs per dataset at 1500 keypoints (CPU, one thread): before the alignment, precision /
-recall ours vs kornia were 82.3 / 81.7 vs 82.7 / 79.6 (planar) and 96.5 / 68.6 vs 96.1 / 59.1 (non-planar)
-in the baseline configuration, mean Jaccard of the keep masks 0.976 and 0.811; 97.8 / 88.0 vs 97.8 / 87.8 and
-79.8 / 62.0 vs 73.5 / 59.6 (4 pairs) in the best one, Jaccard 0.965 and 0.789. After: 82.7 / 79.6 vs
-82.7 / 79.6 and 96.2 / 58.9 vs 96.1 / 59.1 (Jaccard 0.996, 0.972), 96.1 / 84.0 vs 96.1 / 84.0 and
-77.8 / 46.6 vs 77.8 / 46.7 (Jaccard 0.997, 0.999), ours taking 0.25-0.85x kornia's CPU time. The remaining
-differences are single matches at the inlier-count boundary (kornia sorts residuals by a float32 key that
-merges near-equal residuals).
+Measured with ``benchmarks/bench_filters_ref.py --ref adalam=kornia --pairs 12 --configs baseline best``
+(kornia 0.9.0; 12 pairs per dataset, 1500 keypoints, CPU, one thread): before the alignment, precision /
+recall ours vs kornia were 74.3 / 74.1 vs 74.7 / 71.8 (planar) and 93.1 / 77.1 vs 94.4 / 70.5 (non-planar)
+in the baseline configuration, mean Jaccard of the keep masks 0.973 and 0.889; 84.0 / 91.2 vs 87.0 / 90.0
+and 82.9 / 67.7 vs 81.2 / 65.1 in the best one, Jaccard 0.926 and 0.856. After: 74.7 / 72.4 vs 74.7 / 71.8
+and 94.5 / 70.4 vs 94.4 / 70.5 (Jaccard 0.991, 0.973); 87.1 / 90.0 vs 87.0 / 90.0 and 81.3 / 65.0 vs
+81.2 / 65.1 (Jaccard 0.997, 0.994); ours takes 0.3-0.9x kornia's CPU time. In the pairs
+inspected, the remaining differences are single matches at the inlier-count boundary of one neighbourhood
+with identical seeds, neighbourhoods and member order (likely the order of near-equal residuals, which kornia
+sorts by a float32 key; not verified further).
 """
 
 from __future__ import annotations

@@ -26,14 +26,15 @@ share our pixel-centre origin), the image-2 grid has ``int(grid_size * ratio)`` 
 image-2 cells go to the lowest index, and every candidate row votes, so coincident keypoints and repeated rows
 count as many times as they appear (``distinct_votes=True`` counts each distinct pair of locations once).
 
-Measured with ``benchmarks/bench_filters_ref.py --ref gms=PYTHON`` (opencv-contrib-python-headless 4.x,
-``cv2.xfeatures2d.matchGMS``) on the same blob candidates of the shared real pairs (6 pairs per dataset,
-baseline configuration, 1500 keypoints): before the alignment (``with_scale=True`` and cells from
-``(x + 0.5) / width``) precision / recall were 65.1 / 40.6 (planar) and 63.4 / 20.4 (non-planar) against the
-reference's 65.0 / 37.2 and 32.6 / 13.1, mean Jaccard of the keep masks 0.870 and 0.479; now the keep masks are
-identical (Jaccard 1.000) in the baseline and the best configuration and with ``with_scale`` /
-``with_rotation`` on both sides, and ours (a compiled O(K) pass per grid) takes 0.6-0.8x the CPU time of the
-C++ call. On the duplicated-outlier case (300 correct planted matches plus one wrong match repeated on 8
+Measured with ``benchmarks/bench_filters_ref.py --ref gms=PYTHON --pairs 12 --configs baseline best``
+(opencv-contrib-python-headless 5.0, ``cv2.xfeatures2d.matchGMS``) on the same blob candidates of the shared
+real pairs (12 pairs per dataset, 1500 keypoints, CPU, one thread). Before the alignment (``with_scale=True``,
+cells from ``(x + 0.5) / width``) precision / recall were 69.7 / 42.1 (planar) and 77.2 / 31.0 (non-planar)
+against the reference's 64.6 / 37.9 and 44.9 / 24.9 in the baseline configuration, mean Jaccard of the keep
+masks 0.765 and 0.481 (0.745 and 0.614 in the best configuration), and ours took 13-16x the reference's CPU
+time. Now the keep masks are identical (Jaccard 1.000) in both configurations, and with ``with_scale`` /
+``with_rotation`` on both sides; ours (a compiled O(K) pass per grid) takes 0.44-0.86x the CPU time of the
+C++ call (the reference's time excludes building its ``KeyPoint`` / ``DMatch`` lists). On the duplicated-outlier case (300 correct planted matches plus one wrong match repeated on 8
 coincident keypoint copies, or the same row repeated 8 times) matchGMS keeps the 8 copies: they outvote the
 sparse correct matches of their cell (about 0.75 per cell) and pass ``6 sqrt(n)``; with 1 or 3 copies it
 rejects them. Ours keeps the same rows by default; ``distinct_votes=True`` rejects them.
@@ -47,7 +48,7 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
-from ._common import check_positive, prepare
+from ._common import _as_shapes, check_positive, prepare
 
 __all__ = ["gms_filter", "GMS_SCALE_RATIOS"]
 
@@ -216,7 +217,10 @@ def gms_filter(
     >>> bool(keep.mean() > 0.9)
     True
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
+    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2)
+    # GMS reads no shapes: validated, not gathered per match.
+    _as_shapes(shapes1, np.shape(kpts1)[0], "shapes1")
+    _as_shapes(shapes2, np.shape(kpts2)[0], "shapes2")
     grid_size = check_positive(grid_size, "grid_size", integer=True)
     alpha = check_positive(alpha, "alpha", allow_zero=True)
     ratios = [check_positive(r, "scale_ratios") for r in np.atleast_1d(scale_ratios)] if with_scale else [1.0]
