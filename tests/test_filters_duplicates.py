@@ -42,10 +42,8 @@ TOL = 3
 # Filters not fixed here that failed a case when this file was written (strict=False: a fix elsewhere turns
 # the xfail into an xpass, which the report shows).
 _WHY = {
-    "gms": "GMS counts every copy in the cell-pair support: the copies of a match reach the threshold that "
-           "the match alone misses (gms.py, issue 22 item 4, not fixed here)",
-    "adalam": "AdaLAM counts the copies as inliers of the local RANSAC around the wrong match, which then "
-              "passes (adalam.py, issue 22 item 4, not fixed here)",
+    "gms": "GMS counts every copy in the cell-pair support, as the authors' matchGMS does (its default follows "
+           "the original; distinct_votes=True counts each location once, tests/test_filters_ref.py)",
     "acne": "the network's context normalisation is over all rows: the copies move the decisions of "
             "6-125 other candidates (learned filter, not fixed here)",
     "oanet": "the network's context normalisation is over all rows: the copies move the decisions of 4-17 "
@@ -54,8 +52,6 @@ _WHY = {
 _FAILING = {
     "gms": [("coincident-8", 300), ("coincident-8", 60), ("repeated-10", 300), ("repeated-10", 60),
             ("correct-coincident-8", 300), ("correct-coincident-8", 60)],
-    "adalam": [("coincident-8", 300), ("coincident-8", 60), ("repeated-3", 300), ("repeated-10", 300),
-               ("repeated-10", 60)],
     "acne": [(c, n) for c in ("coincident-8", "repeated-3", "repeated-10", "correct-coincident-8")
              for n in (300, 60)],
     "oanet": [("coincident-8", 300), ("coincident-8", 60), ("repeated-3", 300), ("repeated-10", 300),
