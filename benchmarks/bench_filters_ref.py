@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -130,7 +131,7 @@ for f in files:
     np.savez(dst / f.name, keep=keep, cpu=cpu)
 '''
 
-REFERENCES = ("gms", "adalam")
+REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc")
 
 #: Our keyword -> the reference's option, for the ``--param`` settings that exist on both sides (given to both).
 SHARED_OPTIONS = {
@@ -150,13 +151,19 @@ def reference_options(name: str, params: dict) -> dict:
 
 
 def parse_ref(text: str) -> tuple[str, str]:
-    """``NAME=SPEC`` -> ``(name, python)``: SPEC is an interpreter path, or ``kornia`` (this interpreter) for
-    ``adalam``."""
+    """``NAME=SPEC`` -> ``(name, spec)``: SPEC is an interpreter path, or ``kornia`` (this interpreter) for
+    ``adalam``; for ``lpm``, ``glpm`` and ``vfc`` the directory of the authors' MATLAB code (run by Octave)."""
     name, sep, spec = text.partition("=")
     if not sep or not spec:
         raise ValueError(f"--ref must be NAME=SPEC, got {text!r}")
     if name not in REFERENCES:
         raise ValueError(f"--ref: no reference runner for filter {name!r}; known: {', '.join(REFERENCES)}")
+    if name in OCTAVE_REFERENCES:
+        if not Path(spec).is_dir():
+            raise ValueError(f"--ref {text!r}: {spec} is not a directory (the checkout of the authors' code)")
+        for f in OCTAVE_FILES[name]:
+            find_reference_file(Path(spec), f)
+        return name, spec
     if spec == "kornia":
         if name != "adalam":
             raise ValueError(f"--ref {text!r}: 'kornia' is the reference of adalam only")
@@ -186,6 +193,215 @@ def run_reference(kind: str, python: str, cases: list[dict], repeat: int = 1) ->
             d = np.load(dst / f"case-{i:05d}.npz")
             out.append((d["keep"].astype(bool), float(d["cpu"])))
     return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# MATLAB references under GNU Octave (lpm, glpm, vfc). The authors' code is run as published: their functions
+# (LPM_cosF, ffm2, SparseVFC, norm2, VFC_init) from the checkout, and the filtering block of their demo read from
+# the checkout at run time (the lines between two markers of demo_LPM_v2.m / demo.m), so none of it is copied
+# here. The C/C++ parts (VLFeat's k-d tree, GLPM's ffm2.cpp) are compiled with ``mkoctfile --mex`` into the
+# temp dir of the run. Inputs and outputs travel as plain text.
+
+OCTAVE_REFERENCES = ("lpm", "glpm", "vfc")
+
+#: Files a checkout must hold, per reference (searched anywhere under PATH, e.g. VFC_short.zip unpacked).
+OCTAVE_FILES = {"lpm": ("demo_LPM_v2.m", "LPM_cosF.m"), "glpm": ("demo.m", "ffm2.cpp"),
+                "vfc": ("SparseVFC.m", "norm2.m", "VFC_init.m")}
+
+#: Our keyword -> the reference's variable, for the options given to both sides (see SHARED_OPTIONS).
+OCTAVE_OPTIONS = {
+    "lpm": {"k": ("numNeigh1", "numNeigh2"), "tau": ("tau1", "tau2"), "lambdas": ("lambda1", "lambda2")},
+    "vfc": {"beta": ("conf.beta",), "lam": ("conf.lambda",), "tau": ("conf.theta",), "gamma": ("conf.gamma",),
+            "a": ("conf.a",), "max_iter": ("conf.MaxIter",), "tol": ("conf.ecr",), "min_p": ("conf.minP",)},
+}
+
+
+def find_reference_file(root: Path, name: str) -> Path:
+    """The first file called ``name`` under ``root`` (the shallowest), or a ValueError naming it."""
+    hits = sorted(Path(root).rglob(name), key=lambda p: (len(p.parts), str(p)))
+    if not hits:
+        raise ValueError(f"--ref: no {name} under {root}")
+    return hits[0]
+
+
+def demo_block(text: str, start: str, stop: str, *, include_stop: bool = False, after: int = 0) -> str:
+    """The lines of ``text`` after the first line (at or after line ``after``) that starts with ``start`` and
+    before the next line that starts with ``stop`` (included if ``include_stop``); marker matching ignores
+    leading blanks. A ValueError names a missing marker."""
+    lines = text.splitlines()
+    strip = [ln.strip() for ln in lines]
+    try:
+        i = next(n for n in range(after, len(lines)) if strip[n].startswith(start))
+        j = next(n for n in range(i + 1, len(lines)) if strip[n].startswith(stop))
+    except StopIteration:
+        raise ValueError(f"demo has no block from {start!r} to {stop!r}") from None
+    return "\n".join(lines[i + 1:j + 1 if include_stop else j])
+
+
+def lpm_demo_parts(demo: str) -> tuple[str, str]:
+    """(parameter lines, filtering block) of the authors' ``demo_LPM_v2.m``: the assignments of
+    ``lambda1/2``, ``numNeigh1/2``, ``tau1/2`` and the lines between ``tic;`` and ``toc``."""
+    params = "\n".join(ln for ln in demo.splitlines()
+                       if ln.strip().startswith(("lambda1", "numNeigh1", "tau1")))
+    if not params:
+        raise ValueError("demo_LPM_v2.m: no parameter lines (lambda1 / numNeigh1 / tau1)")
+    return params, demo_block(demo, "tic", "toc")
+
+
+def glpm_demo_parts(demo: str) -> tuple[str, str]:
+    """The two filtering blocks of the authors' GLPM ``demo.m``: the small set (after ``load(fn_match_1_5)``
+    up to ``time1 = toc``) and the guided passes on the whole set (after ``load(fn_match_1)`` up to the
+    ``ind = find(p == 1)`` that follows the last ``ffm2`` call)."""
+    small = demo_block(demo, "load(fn_match_1_5)", "time1 = toc")
+    lines = demo.splitlines()
+    i = next((n for n, ln in enumerate(lines) if ln.strip().startswith("load(fn_match_1)")), None)
+    if i is None:
+        raise ValueError("demo.m: no line load(fn_match_1)")
+    j = next((n for n in range(i, len(lines)) if lines[n].strip().startswith("p = ffm2")), None)
+    if j is None:
+        raise ValueError("demo.m: no line p = ffm2(...) after load(fn_match_1)")
+    whole = demo_block(demo, "load(fn_match_1)", "ind = find(p == 1)", include_stop=True, after=i)
+    return small, whole
+
+
+def octave_assignments(name: str, params: dict) -> str:
+    """Octave lines setting the reference's variables of our shared ``params`` (after its own defaults)."""
+    out = []
+    for key, value in params.items():
+        targets = OCTAVE_OPTIONS.get(name, {}).get(key)
+        if not targets:
+            continue
+        values = list(value) if isinstance(value, (list, tuple)) else [value] * len(targets)
+        if len(values) != len(targets):
+            raise ValueError(f"--param {name}:{key}: {len(targets)} value(s) expected, got {value!r}")
+        out += [f"{t} = {float(v)!r};" for t, v in zip(targets, values)]
+    return "\n".join(out)
+
+
+def read_keep(text: str, n: int) -> np.ndarray:
+    """The keep mask of ``n`` rows from the driver's output: 1-based indices of the kept rows, one per line."""
+    idx = np.array([int(float(t)) for t in text.split()], np.int64)
+    if idx.size and (idx.min() < 1 or idx.max() > n):
+        raise ValueError(f"reference returned row indices outside 1..{n}")
+    keep = np.zeros(n, bool)
+    keep[idx - 1] = True
+    return keep
+
+
+def _mex(sources: list[Path], out: Path, includes: list[Path], defines=()) -> None:
+    cmd = (["mkoctfile", "--mex", *[f"-D{d}" for d in defines], *[f"-I{p}" for p in includes]]
+           + [str(s) for s in sources] + ["-o", str(out)])
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    if res.returncode != 0 or not out.exists():
+        raise RuntimeError(f"mkoctfile failed for {out.name}:\n{res.stdout}\n{res.stderr}")
+
+
+def compile_octave_mex(name: str, root: Path, dst: Path) -> None:
+    """Compile the C/C++ parts of reference ``name`` (checkout ``root``) into ``dst`` with mkoctfile."""
+    if name in ("lpm", "glpm"):  # VLFeat's k-d tree, as shipped in the checkout
+        vl = find_reference_file(root, "kdtree.c").parent.parent  # .../vlfeat (vl/kdtree.c)
+        srcs = [vl / "vl" / f for f in ("kdtree.c", "generic.c", "host.c", "random.c", "mathop.c", "stringop.c")]
+        for fn in ("vl_kdtreebuild", "vl_kdtreequery"):
+            _mex([find_reference_file(vl / "toolbox", fn + ".c"), *srcs], dst / f"{fn}.mex",
+                 [vl, vl / "toolbox"], ("VL_DISABLE_SSE2", "VL_DISABLE_THREADS"))
+    if name == "glpm":  # ffm2.cpp is stored as UTF-16: re-encoded for the compiler, unchanged otherwise
+        raw = find_reference_file(root, "ffm2.cpp").read_bytes()
+        text = raw.decode("utf-16") if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else raw.decode("utf-8", "replace")
+        src = dst / "ffm2_src.cpp"
+        src.write_text(text.replace("\r\n", "\n"))
+        _mex([src], dst / "ffm2.mex", [])
+
+
+def octave_driver(name: str, root: Path, params: dict) -> str:
+    """The Octave function ``ref_filter(X, Y, small)`` -> ``(keep indices, cpu seconds)`` of reference ``name``."""
+    if name == "lpm":
+        defaults, block = lpm_demo_parts(find_reference_file(root, "demo_LPM_v2.m").read_text(errors="replace"))
+        body = f"{defaults}\n{octave_assignments(name, params)}\nc0 = cputime;\n{block}\ncpu = cputime - c0;\n" \
+               "keep = find(p2 == 1);"
+    elif name == "glpm":
+        small, whole = glpm_demo_parts(find_reference_file(root, "demo.m").read_text(errors="replace"))
+        body = ("Xall = X; Yall = Y; X = Xall(small, :); Y = Yall(small, :);\nc0 = cputime;\n"
+                f"{small}\nX = Xall; Y = Yall;\n{whole}\ncpu = cputime - c0;\nkeep = find(p == 1);")
+    else:
+        body = (f"conf = [];\n{octave_assignments(name, params)}\nc0 = cputime;\n[nX, nY, normal] = norm2(X, Y);\n"
+                "conf = VFC_init(conf);\nVecFld = SparseVFC(nX, nY - nX, conf);\ncpu = cputime - c0;\n"
+                "keep = VecFld.VFCIndex;")
+    return f"function [keep, cpu] = ref_filter(X, Y, small)\n{body}\nend\n"
+
+
+_OCTAVE_MAIN = r'''
+src = '{src}'; dst = '{dst}'; repeat = {repeat};
+addpath('{mex}'); addpath('{dirs}');
+more off;
+files = dir(fullfile(src, 'case-*-X.txt'));
+for f = 1:numel(files)
+  stem = files(f).name(1:end - 6);
+  X = load(fullfile(src, [stem '-X.txt'])); Y = load(fullfile(src, [stem '-Y.txt']));
+  small = logical(load(fullfile(src, [stem '-S.txt'])));
+  rand('state', 0); randn('state', 0);
+  try
+    if f == 1, ref_filter(X, Y, small); end  % one untimed call first
+    [keep, cpu] = ref_filter(X, Y, small);
+    for r = 2:repeat
+      rand('state', 0); randn('state', 0);
+      [~, c] = ref_filter(X, Y, small); cpu = min(cpu, c);
+    end
+  catch err  % the authors' code stopped on this input: recorded, the case is left out of the means
+    fid = fopen(fullfile(dst, [stem '-error.txt']), 'w'); fprintf(fid, '%s\n', err.message); fclose(fid);
+    continue
+  end
+  fid = fopen(fullfile(dst, [stem '-keep.txt']), 'w'); fprintf(fid, '%d\n', keep); fclose(fid);
+  fid = fopen(fullfile(dst, [stem '-cpu.txt']), 'w'); fprintf(fid, '%.9g\n', cpu); fclose(fid);
+end
+'''
+
+
+def run_octave_reference(name: str, root: Path, cases: list[dict], repeat: int = 1,
+                         params: dict | None = None) -> list[tuple[np.ndarray, float]]:
+    """Run the authors' MATLAB code of ``name`` (checkout ``root``) under Octave on every case; one process.
+
+    Each case holds ``X``, ``Y`` (K, 2) (the candidates' keypoints in image 1 and 2) and ``small`` (K,) bool
+    (GLPM's small putative set). Returns one ``(keep, cpu_seconds)`` per case; the time is Octave's ``cputime``
+    around the filtering (the demo's block), the fastest of ``repeat`` calls, the random state reset to 0
+    before each call (SparseVFC draws its control points with ``randperm``).
+    """
+    if shutil.which("octave") is None:
+        raise RuntimeError("--ref lpm/glpm/vfc needs GNU Octave ('octave' on PATH), e.g. apt-get install octave")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        src, dst, mex = tmp / "in", tmp / "out", tmp / "mex"
+        for d in (src, dst, mex):
+            d.mkdir()
+        compile_octave_mex(name, Path(root), mex)
+        (tmp / "ref_filter.m").write_text(octave_driver(name, Path(root), params or {}))
+        dirs = [str(find_reference_file(root, f).parent) for f in {"lpm": ["LPM_cosF.m"], "vfc": ["SparseVFC.m"]}.get(name, [])]
+        for i, case in enumerate(cases):
+            np.savetxt(src / f"case-{i:05d}-X.txt", case["X"], fmt="%.17g")
+            np.savetxt(src / f"case-{i:05d}-Y.txt", case["Y"], fmt="%.17g")
+            np.savetxt(src / f"case-{i:05d}-S.txt", np.asarray(case["small"], np.int64), fmt="%d")
+        main = tmp / "main.m"
+        main.write_text(_OCTAVE_MAIN.format(src=src, dst=dst, mex=mex, dirs=os.pathsep.join(dirs), repeat=int(repeat)))
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        res = subprocess.run(["octave", "--no-gui", "--no-window-system", "--quiet", "--no-init-file",
+                              "--eval", f"cd('{tmp}'); main"], capture_output=True, text=True, env=env)
+        out = []
+        for i, case in enumerate(cases):
+            err = dst / f"case-{i:05d}-error.txt"
+            if err.exists():  # the authors' code stopped with an error on this input
+                out.append((None, err.read_text().strip()))
+                continue
+            if not (dst / f"case-{i:05d}-cpu.txt").exists():
+                raise RuntimeError(f"octave ({name}) failed on case {i}:\n{res.stderr[-3000:]}")
+            keep = read_keep((dst / f"case-{i:05d}-keep.txt").read_text(), len(case["X"]))
+            out.append((keep, float((dst / f"case-{i:05d}-cpu.txt").read_text())))
+    return out
+
+
+def make_octave_case(f1, f2, matches, scores, ratio: float) -> dict:
+    """The Octave driver's inputs: the candidates' keypoints and GLPM's small set (``scores <= ratio``)."""
+    m = np.asarray(matches, np.int64).reshape(-1, 2)
+    return dict(X=np.asarray(f1.kpts[m[:, 0], :2], np.float64), Y=np.asarray(f2.kpts[m[:, 1], :2], np.float64),
+                small=np.asarray(scores, np.float64) <= ratio)
 
 
 def make_case(f1, f2, matches, scores, size1, size2) -> dict:
@@ -230,10 +446,20 @@ def _inputs(dataset: str, config: str, n_pairs: int, max_keypoints):
         yield pair, f1, f2, matches, scores, labels
 
 
+def _default(name: str, key: str):
+    """The default of keyword ``key`` of our filter ``name``."""
+    import inspect
+
+    from ctxmatch_lib.filters import FILTERS
+
+    return inspect.signature(FILTERS[name]).parameters[key].default
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--ref", action="append", required=True, metavar="NAME=SPEC",
-                        help="filter and its reference: gms=PYTHON (opencv-contrib env), adalam=kornia|PYTHON")
+                        help="filter and its reference: gms=PYTHON (opencv-contrib env), adalam=kornia|PYTHON, "
+                             "lpm=DIR, glpm=DIR, vfc=DIR (checkouts of the authors' MATLAB code; GNU Octave)")
     parser.add_argument("--configs", nargs="+", default=["baseline"], choices=list(CONFIGS))
     parser.add_argument("--datasets", nargs="+", default=list(DATASETS))
     parser.add_argument("--pairs", type=int, default=6, help="pairs per dataset, evenly spread (default 6)")
@@ -273,15 +499,24 @@ def main(argv=None) -> int:
             data = list(_inputs(dataset, config, args.pairs, args.max_keypoints))
             for name, python in refs.items():
                 opts = reference_options(name, params[name])
-                cases = [dict(make_case(f1, f2, m, s, p.image_size1, p.image_size2), **opts)
-                         for p, f1, f2, m, s, _ in data]
-                ref_out = run_reference(name, python, cases, args.repeat)
+                if name in OCTAVE_REFERENCES:
+                    ratio = params[name].get("ratio", _default(name, "ratio")) if name == "glpm" else np.inf
+                    cases = [make_octave_case(f1, f2, m, s, ratio) for _, f1, f2, m, s, _ in data]
+                    ref_out = run_octave_reference(name, Path(python), cases, args.repeat, params[name])
+                else:
+                    cases = [dict(make_case(f1, f2, m, s, p.image_size1, p.image_size2), **opts)
+                             for p, f1, f2, m, s, _ in data]
+                    ref_out = run_reference(name, python, cases, args.repeat)
                 per = []
                 if data:  # one untimed call first (numba kernels load or compile on the first call)
                     pair, f1, f2, m, s, _ = data[0]
                     run_filter(name, f1, f2, m, s, image_size1=pair.image_size1, image_size2=pair.image_size2,
                                **params[name])
+                failed = []
                 for (pair, f1, f2, m, s, lab), (rkeep, rcpu) in zip(data, ref_out):
+                    if rkeep is None:  # the reference stopped with an error: not compared
+                        failed.append((pair.pair_id, rcpu))
+                        continue
                     cpu = np.inf
                     for _ in range(args.repeat):  # the fastest of ``repeat`` calls, as for the reference
                         c0 = time.process_time()
@@ -291,6 +526,10 @@ def main(argv=None) -> int:
                     per.append(dict(pair=pair.pair_id, K=int(len(m)), ours=precision_recall(m, lab, keep),
                                     ref=precision_recall(m, lab, rkeep), jaccard=jaccard(keep, rkeep),
                                     kept_ours=int(keep.sum()), kept_ref=int(rkeep.sum()), t_ours=cpu, t_ref=rcpu))
+                for pid, msg in failed:
+                    print(f"  {name}: the reference stopped on pair {pid} ({msg}); left out", flush=True)
+                if not per:
+                    continue
                 po, ro = np.nanmean([x["ours"] for x in per], axis=0)
                 pr, rr = np.nanmean([x["ref"] for x in per], axis=0)
                 jac = np.mean([x["jaccard"] for x in per])
