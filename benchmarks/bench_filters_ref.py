@@ -28,13 +28,35 @@ Printed per filter, configuration and dataset: the number of pairs and mean cand
 recall (percent; recall is the library's normalised recall, :func:`ctxmatch_lib.metrics.recall`, against the
 pair's correct candidates) of ours and of the reference, the mean Jaccard index of the two keep masks, and the
 summed CPU times (process time, one thread, each measured around the filter call only, the fastest of
-``--repeat`` calls, after one untimed call on the first pair on both sides) with the ratio ours / reference (< 1: ours faster). The reference's time
-excludes building its inputs (OpenCV ``KeyPoint`` / ``DMatch`` lists, torch tensors) from the arrays.
+``--repeat`` calls, after one untimed call on the first pair on both sides) with the ratio ours / reference
+(< 1: ours faster). The reference's time excludes building its inputs (OpenCV ``KeyPoint`` / ``DMatch`` lists,
+torch tensors) from the arrays.
+
+MATLAB references, run by GNU Octave (``apt-get install octave liboctave-dev``: ``octave`` and ``mkoctfile`` on
+PATH); ``DIR`` is a checkout of the authors' code, outside this repository, read at run time and never copied:
+
+- ``lpm=DIR`` (jiayi-ma/LPM): the parameter lines and the filtering block (between ``tic;`` and ``toc``) of
+  ``demo_LPM_v2.m``, calling ``LPM_cosF.m``; VLFeat's ``vl_kdtreebuild`` / ``vl_kdtreequery`` compiled from the
+  checkout's ``vlfeat`` sources with ``mkoctfile --mex`` into the run's temp dir.
+- ``glpm=DIR`` (jiayi-ma/GLPM): the two filtering blocks of ``demo.m`` (the small set after
+  ``load(fn_match_1_5)``, the guided passes after ``load(fn_match_1)``) with ``ffm2.cpp`` and the k-d tree
+  compiled likewise; the small set is the candidates with ``scores <= ratio`` (our ``ratio``), the whole set
+  all of them. A pair on which the demo stops with an error is reported and left out.
+- ``vfc=DIR`` (jiayi-ma/VFC, ``VFC_short.zip`` unpacked): ``norm2``, ``VFC_init`` and ``SparseVFC`` (the method
+  the demo selects) on ``(nX, nY - nX)``; the random state is reset to 0 before each call.
+
+Every candidate row is one correspondence ``X(i, :) = kpts1[matches[i, 0]]``, ``Y(i, :) = kpts2[matches[i, 1]]``
+(pixels). The reference's time is Octave's ``cputime`` around the filtering block (process time, as ours).
+``--param`` settings shared with the reference (:data:`OCTAVE_OPTIONS`) override the demo's values.
 
 Run::
 
     OMP_NUM_THREADS=1 CTXMATCH_DATA=/path/to/data .venv/bin/python benchmarks/bench_filters_ref.py \\
         --ref gms=/tmp/refenv/bin/python --ref adalam=kornia --pairs 6
+    OMP_NUM_THREADS=1 CTXMATCH_DATA=/path/to/data .venv/bin/python benchmarks/bench_filters_ref.py \\
+        --ref lpm=/tmp/ref/LPM --ref glpm=/tmp/ref/GLPM --ref vfc=/tmp/ref/VFC --pairs 6 --configs baseline best
+
+(the second: about a minute on one core, candidates included).
 """
 
 from __future__ import annotations
@@ -374,7 +396,8 @@ def run_octave_reference(name: str, root: Path, cases: list[dict], repeat: int =
             d.mkdir()
         compile_octave_mex(name, Path(root), mex)
         (tmp / "ref_filter.m").write_text(octave_driver(name, Path(root), params or {}))
-        dirs = [str(find_reference_file(root, f).parent) for f in {"lpm": ["LPM_cosF.m"], "vfc": ["SparseVFC.m"]}.get(name, [])]
+        funcs = {"lpm": ["LPM_cosF.m"], "vfc": ["SparseVFC.m"]}.get(name, [])  # glpm: ffm2, compiled above
+        dirs = [str(find_reference_file(root, f).parent) for f in funcs]
         for i, case in enumerate(cases):
             np.savetxt(src / f"case-{i:05d}-X.txt", case["X"], fmt="%.17g")
             np.savetxt(src / f"case-{i:05d}-Y.txt", case["Y"], fmt="%.17g")

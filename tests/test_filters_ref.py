@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -152,3 +153,133 @@ def test_reference_runner_adalam_tiny_case(bench):
     ours = FILTERS["adalam"](g, y, m, scores, image_size1=SIZE, image_size2=SIZE, shapes1=f1.shapes,
                              shapes2=f2.shapes)
     assert bench.jaccard(ours, keep) > 0.9
+
+
+# ----- LPM, GLPM, VFC against the authors' MATLAB code (GNU Octave) ----------------------------------------
+
+
+def _brute_lpm_code(x, y, k=6, lambdas=(0.8, 0.5), tau=0.2):
+    """LPM as the authors' LPM_cosF.m / demo_LPM_v2.m compute it, brute force, for inputs without ties: per
+    query the k + 3 nearest (itself included) among the candidates, the first answer dropped; scale j of
+    (k + 2, k, k - 2) takes the answers j .. j + s - 1 of what is left; squared length ratio; s < tau."""
+    v = y - x
+    d2 = (v**2).sum(1)
+
+    def keep_mask(cand, lam):
+        dx = ((x[:, None] - x[cand][None]) ** 2).sum(-1)
+        dy = ((y[:, None] - y[cand][None]) ** 2).sum(-1)
+        nx = cand[np.argsort(dx, axis=1)[:, :k + 3]][:, 1:]
+        ny = cand[np.argsort(dy, axis=1)[:, :k + 3]][:, 1:]
+        cost = np.zeros(len(x))
+        for j, s in enumerate((k + 2, k, k - 2)):
+            for i in range(len(x)):
+                common = set(nx[i, j:j + s]) & set(ny[i, j:j + s])
+                bad = 0
+                for c in common:
+                    cos = v[i] @ v[c] / np.sqrt(d2[i] * d2[c])
+                    bad += cos * min(d2[i], d2[c]) / max(d2[i], d2[c]) < tau
+                cost[i] += (s - len(common) + bad) / s
+        return cost / 3 <= lam
+
+    keep = keep_mask(np.arange(len(x)), lambdas[0])
+    if keep.sum() >= k + 4:
+        keep = keep_mask(np.flatnonzero(keep), lambdas[1])
+    return keep
+
+
+def _planted(n=150, outliers=40, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0, 600, (n, 2))
+    y = x * 1.05 + (12.0, -7.0) + rng.normal(0, 0.5, (n, 2))
+    y[:outliers] = rng.uniform(0, 600, (outliers, 2))
+    return x, y, np.c_[np.arange(n), np.arange(n)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_lpm_code_reading_equals_brute_force_of_the_authors_steps(seed):
+    x, y, m = _planted(seed=seed)
+    keep = FILTERS["lpm"](x, y, m, image_size1=SIZE, image_size2=SIZE)
+    np.testing.assert_array_equal(keep, _brute_lpm_code(x, y))
+    assert not keep[:40].any() and keep[40:].mean() > 0.9
+
+
+def test_lpm_readings_differ_and_validate():
+    x, y, m = _planted(n=300, outliers=120, seed=3)
+    code = FILTERS["lpm"](x, y, m, image_size1=SIZE, image_size2=SIZE)
+    ijcv = FILTERS["lpm"](x, y, m, image_size1=SIZE, image_size2=SIZE, reading="ijcv")
+    assert code.shape == ijcv.shape == (300,)
+    with pytest.raises(ValueError, match="reading"):
+        FILTERS["lpm"](x, y, m, image_size1=SIZE, image_size2=SIZE, reading="matlab")
+
+
+def test_glpm_guide_location_adds_the_candidates_at_a_guide_location():
+    # One-to-one input: no other candidate shares an image-1 location, so both guides are the same.
+    x, y, m = _planted(n=200, outliers=50, seed=4)
+    s = np.where(np.arange(200) % 2 == 0, 0.5, 0.9)
+    a = FILTERS["glpm"](x, y, m, s, image_size1=SIZE, image_size2=SIZE)
+    b = FILTERS["glpm"](x, y, m, s, image_size1=SIZE, image_size2=SIZE, guide="rows")
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="guide"):
+        FILTERS["glpm"](x, y, m, s, image_size1=SIZE, image_size2=SIZE, guide="coordinates")
+    # Many-to-many: every image-1 keypoint of a correct match also matched to a wrong image-2 keypoint, the
+    # wrong rows outside the small set. With guide="location" they join the guide (as the authors' demo);
+    # the correct rows still pass and the wrong ones, sharing no neighbourhood, are still rejected.
+    rng = np.random.default_rng(5)
+    k2 = np.vstack([y, rng.uniform(0, 600, (200, 2))])
+    mm = np.vstack([m, np.c_[np.arange(200), 200 + np.arange(200)]])
+    ss = np.r_[s, np.full(200, 0.95)]
+    keep = FILTERS["glpm"](x, k2, mm, ss, image_size1=SIZE, image_size2=SIZE)
+    assert keep[50:200].mean() > 0.9 and keep[200:].mean() < 0.1
+
+
+def test_octave_demo_blocks_are_read_between_markers(bench):
+    demo = "a = 1;\n%% p\nlambda1 = 0.8; lambda2 = 0.5;\nnumNeigh1 = 6;\ntau1 = 0.2;\ntic;\nb = 2;\nc = 3;\ntoc\nd = 4;"
+    params, block = bench.lpm_demo_parts(demo)
+    assert "lambda1 = 0.8" in params and "numNeigh1" in params and "tau1" in params
+    assert block == "b = 2;\nc = 3;"
+    glpm = ("load(fn_match_1_5);\nx = 1;\ntime1 = toc;\nload(fn_match_1);\ny = 2;\np = ffm2(X);\n"
+            "ind = find(p == 1);\nload(correct_index);")
+    small, whole = bench.glpm_demo_parts(glpm)
+    assert small == "x = 1;" and whole == "y = 2;\np = ffm2(X);\nind = find(p == 1);"
+    with pytest.raises(ValueError, match="block"):
+        bench.demo_block("x = 1;", "tic", "toc")
+
+
+def test_octave_options_and_keep_parsing(bench):
+    assert bench.octave_assignments("lpm", {"k": 5, "lambdas": [0.7, 0.4], "reading": "ijcv"}) == (
+        "numNeigh1 = 5.0;\nnumNeigh2 = 5.0;\nlambda1 = 0.7;\nlambda2 = 0.4;")
+    assert bench.octave_assignments("vfc", {"beta": 0.2, "n_control": 15}) == "conf.beta = 0.2;"
+    with pytest.raises(ValueError, match="lambdas"):
+        bench.octave_assignments("lpm", {"lambdas": [0.7]})
+    np.testing.assert_array_equal(bench.read_keep("2\n4\n", 5), [False, True, False, True, False])
+    assert not bench.read_keep("", 3).any()
+    with pytest.raises(ValueError, match="outside"):
+        bench.read_keep("0\n", 3)
+
+
+def test_parse_ref_octave_needs_a_checkout(bench, tmp_path):
+    with pytest.raises(ValueError, match="not a directory"):
+        bench.parse_ref(f"lpm={tmp_path / 'missing'}")
+    with pytest.raises(ValueError, match="LPM_cosF.m|demo_LPM_v2.m"):
+        bench.parse_ref(f"lpm={tmp_path}")
+
+
+_REF_DIRS = {name: os.environ.get(f"CTXMATCH_{name.upper()}_REF") for name in ("lpm", "glpm", "vfc")}
+
+
+@pytest.mark.parametrize("name", ["lpm", "glpm", "vfc"])
+def test_octave_reference_agrees_on_one_to_one_matches(bench, name):
+    # The authors' code under Octave on a tie-free planted case: the same decisions as ours.
+    if shutil.which("octave") is None:
+        pytest.skip("GNU Octave ('octave') is not on PATH")
+    if not _REF_DIRS[name]:
+        pytest.skip(f"CTXMATCH_{name.upper()}_REF (a checkout of the authors' {name} code) is not set")
+    x, y, m = _planted(n=200, outliers=50, seed=6)
+    s = np.where(np.arange(200) % 3 == 0, 0.9, 0.5)
+    [(ref, cpu)] = bench.run_octave_reference(name, Path(_REF_DIRS[name]), [dict(X=x, Y=y, small=s <= 1 / 1.5)])
+    ours = FILTERS[name](x, y, m, s, image_size1=SIZE, image_size2=SIZE)
+    assert cpu >= 0
+    if name == "vfc":  # control points drawn at random on both sides (measured: identical here)
+        assert bench.jaccard(ours, ref) > 0.95
+    else:  # no ties: the same neighbourhoods, the same decisions (measured: identical)
+        np.testing.assert_array_equal(ours, ref)
