@@ -282,3 +282,14 @@ def test_keypoint_budget_errors_name_the_argument(value):
 
     with pytest.raises(ValueError, match="max_keypoints"):
         plan_units(select_pairs("embedded")[:1], max_keypoints=value)
+
+
+def test_units_without_filters_keep_their_key_when_a_filter_changes():
+    from ctxmatch_lib.evaluation import cache as ev_cache
+    from ctxmatch_lib.evaluation import plan_units, select_pairs
+
+    pairs = select_pairs("embedded")[:1]
+    blob_only = plan_units(pairs, filters=())[0]
+    filtered = plan_units(pairs, filters=("th",))[0]
+    assert blob_only.salt == ev_cache.source_digest(filters=False)
+    assert filtered.salt == ev_cache.source_digest() != blob_only.salt

@@ -63,14 +63,16 @@ def features_digest(*feats: Features) -> str:
     return digest(*[a for f in feats for a in (f.kpts, f.shapes, f.desc)], *extra)
 
 
-@functools.lru_cache(maxsize=1)
-def source_digest() -> str:
+@functools.lru_cache(maxsize=2)
+def source_digest(filters: bool = True) -> str:
     """SHA-1 of the library source files and shipped models that produce evaluation numbers (all of
     ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules (``report``, ``report_blob``, ``report_paper``,
     ``gt_compare``, which read the engine's rows) and the faces ``evalcache.py`` and ``sweep.py``).
 
     Python files enter by their syntax tree without docstrings and comments: a documentation edit keeps the
-    cache, any code edit (a constant, a default) renews it."""
+    cache, any code edit (a constant, a default) renews it. ``filters=False`` also leaves out ``filters/`` and
+    ``dtm/`` (the spatial filters, which nothing else in the library imports): the key of units that run no
+    filter (the blob-matching sweeps), so that editing a filter keeps them."""
     root = Path(__file__).resolve().parent.parent
     # The faces and the report layer compute no numbers.
     skip = {root / name for name in ("report.py", "report_blob.py", "report_paper.py", "gt_compare.py", "evalcache.py",
@@ -81,7 +83,7 @@ def source_digest() -> str:
     files = [*root.rglob("*.py"), *root.rglob("*.npz")]
     for path in sorted(files):
         rel = path.relative_to(root)
-        if path in skip or rel.parts[0] in ("plots", "cli"):
+        if path in skip or rel.parts[0] in ("plots", "cli") or (not filters and rel.parts[0] in ("filters", "dtm")):
             continue
         h.update(str(rel).encode())
         h.update(_code_bytes(path) if path.suffix == ".py" else path.read_bytes())
