@@ -283,3 +283,23 @@ def test_octave_reference_agrees_on_one_to_one_matches(bench, name):
         assert bench.jaccard(ours, ref) > 0.95
     else:  # no ties: the same neighbourhoods, the same decisions (measured: identical)
         np.testing.assert_array_equal(ours, ref)
+
+
+@pytest.mark.parametrize("drop_outside", [True, False])
+def test_tree_neighbours_follow_the_demos_first_answer_rule(drop_outside):
+    # Rows at repeated locations (many-to-many candidates): brute force of the rule the demos apply to the
+    # k-d tree's answers, ties ranked by index: the k + 1 nearest candidates, the query included when it is
+    # one; the first answer dropped for a candidate query (and for an outside query if drop_outside).
+    from ctxmatch_lib.filters.lpm import _tree_neighbours
+
+    rng = np.random.default_rng(7)
+    pts = rng.integers(0, 6, (60, 2)).astype(float)  # many coincident rows
+    cand = np.sort(rng.choice(60, 35, replace=False))
+    k = 4
+    got = _tree_neighbours(pts, cand, k, drop_outside=drop_outside)
+    for i in range(60):
+        d2 = ((pts[cand] - pts[i]) ** 2).sum(1)
+        ranked = cand[np.lexsort((cand, d2))][:k + 1]
+        member = i in set(cand)
+        expect = ranked[1:k + 1] if (member or drop_outside) else ranked[:k]
+        np.testing.assert_array_equal(got[i], expect, err_msg=str(i))

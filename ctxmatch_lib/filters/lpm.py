@@ -32,7 +32,50 @@ def _common_neighbours(nx: np.ndarray, ny: np.ndarray):
     return both[:, :-1], dup
 
 
-def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code") -> np.ndarray:
+def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: bool) -> np.ndarray:
+    """The neighbour lists of the authors' demos: the ``k + 1`` nearest ``candidates`` of every query (the
+    query itself included when it is a candidate), the first answer dropped for a candidate query, as taken
+    for the query itself; a query outside ``candidates`` drops it too if ``drop_outside`` (LPM), else keeps
+    its ``k`` nearest (GLPM's ffm2). The k-d tree ranks rows at one location in an order of its own; here in
+    index order, so a query with a smaller-index candidate at its location keeps itself in its list and drops
+    that copy instead (VLFeat's tree likewise answers first one row of each such group for all of them).
+    """
+    q = np.arange(len(points)) if queries is None else np.asarray(queries)
+    cand = np.asarray(candidates)
+    nb = knn_without_self(points, cand, k + 1, queries=q)
+    n, w = nb.shape
+    if w == 0:
+        return nb
+    member = np.zeros(len(points), bool)
+    member[cand] = True
+    inside = member[q]
+    # Candidates at the query's location with a smaller index precede it in the (distance, index) ranking:
+    # sorted by (x, y, index), a candidate's count is its distance to the first of its run of equal points.
+    pts = np.asarray(points)
+    sc = cand[np.lexsort((cand, pts[cand, 1], pts[cand, 0]))]
+    new_run = np.r_[True, (np.diff(pts[sc], axis=0) != 0).any(axis=1)]
+    run_start = np.maximum.accumulate(np.where(new_run, np.arange(len(sc)), 0))
+    count = np.zeros(len(points), np.int64)
+    count[sc] = np.arange(len(sc)) - run_start
+    before = np.where(inside, np.minimum(count[q], w), 0)
+    if not before.any():  # every candidate query is the first at its location: it is the answer dropped
+        width = min(k, w) if not drop_outside or inside.all() else min(k, w - 1)
+        if inside.all():
+            return nb[:, :width]
+        return np.where(inside[:, None], nb[:, :width], nb[:, 1:1 + width] if drop_outside else nb[:, :width])
+    cols = np.arange(w + 1)[None, :]
+    src = np.clip(np.where(cols < before[:, None], cols, cols - 1), 0, w - 1)
+    with_self = np.where(cols == before[:, None], q[:, None], np.take_along_axis(nb, src, axis=1))
+    width = min(k, w) if not drop_outside or inside.all() else min(k, w - 1)
+    out = with_self[:, 1:1 + width]
+    if not inside.all():
+        outside = nb[:, 1:1 + width] if drop_outside else nb[:, :width]
+        out = np.where(inside[:, None], out, outside)
+    return out
+
+
+def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
+              tree_ties: bool = True) -> np.ndarray:
     """Multi-scale LPM cost (IJCV 2019, Eq. (15)) with neighbours searched among ``candidates``.
 
     ``reading="ijcv"``: the K nearest neighbours at every scale, length ratio ``min(|v_i|, |v_j|) /
@@ -40,23 +83,42 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code") -> np
     ``demo_LPM_v2.m`` compute it (see :func:`lpm_filter`, Notes): the ratio of the squared lengths, the scale
     ``s`` taking the neighbours of ranks ``j .. j + s - 1`` (``j`` = 0, 1, 2 for ``K + 2, K, K - 2``: the list
     is trimmed in place from one scale to the next), and a query that is not among ``candidates`` losing its
-    nearest candidate (the k-d tree's first answer is dropped as if it were the query itself).
+    nearest candidate (the k-d tree's first answer is dropped as if it were the query itself). ``tree_ties``
+    (with ``"code"``): the first answer among rows at the query's location is the smallest-index one, which
+    may not be the query (:func:`_tree_neighbours`); otherwise the query is always the one dropped.
     """
     v = y - x
     norm = np.hypot(v[:, 0], v[:, 1])
     scales = [s for s in (k + 2, k, k - 2) if s > 0]
     code = reading == "code"
-    need = max(scales) + (1 if code else 0)
-    nx_all = knn_without_self(x, candidates, need)
-    ny_all = knn_without_self(y, candidates, need)
-    if code:
+    if code and tree_ties:
         # The demo asks the tree for K + 3 answers and drops the first one: the query itself when it is a
-        # candidate, its nearest candidate otherwise.
+        # candidate and first among the rows at its location, its nearest candidate otherwise.
+        nx_all = _tree_neighbours(x, candidates, max(scales), drop_outside=True)
+        ny_all = _tree_neighbours(y, candidates, max(scales), drop_outside=True)
+    else:
+        nx_all = knn_without_self(x, candidates, max(scales) + (1 if code else 0))
+        ny_all = knn_without_self(y, candidates, max(scales) + (1 if code else 0))
+    if code and not tree_ties:  # the query always excluded, the nearest candidate of an outside query dropped
         outside = np.ones(len(x), bool)
         outside[candidates] = False
         if outside.any() and nx_all.shape[1] > 0:
             nx_all = np.where(outside[:, None], nx_all[:, 1:], nx_all[:, :-1])
             ny_all = np.where(outside[:, None], ny_all[:, 1:], ny_all[:, :-1])
+    # Motion similarity of every query to each of its image-1 neighbours (a common neighbour is one of them).
+    nbr = nx_all
+    vj = v[nbr]
+    ni, nj = norm[:, None], norm[nbr]
+    lo, hi = np.minimum(ni, nj), np.maximum(ni, nj)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = lo / hi
+        if code:
+            ratio = ratio * ratio
+        sim = (v[:, None, 0] * vj[..., 0] + v[:, None, 1] * vj[..., 1]) / (ni * nj) * ratio
+    # Two null motions agree; a null and a non-null one do not.
+    sim = np.where(hi == 0, 1.0, np.where(lo == 0, 0.0, sim))
+    # The code counts a disagreement when s < tau; the old reading here, s <= tau (measure zero).
+    disagree = (sim < tau) if code else (sim <= tau)
     cost = np.zeros(len(x))
     for j, s in enumerate(scales):
         first = j if code else 0
@@ -65,20 +127,10 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code") -> np
         if s_eff == 0:
             cost += 1.0
             continue
-        nb, dup = _common_neighbours(nx, ny)
-        vi, vj = v[:, None, :], v[nb]
-        ni, nj = norm[:, None], norm[nb]
-        lo, hi = np.minimum(ni, nj), np.maximum(ni, nj)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = lo / hi
-            if code:
-                ratio = ratio * ratio
-            sim = (vi * vj).sum(-1) / (ni * nj) * ratio
-        # Two null motions agree; a null and a non-null one do not.
-        sim = np.where(hi == 0, 1.0, np.where(lo == 0, 0.0, sim))
-        n_common = dup.sum(1)
-        # The code counts a disagreement when s < tau; the old reading here, s <= tau (measure zero).
-        n_bad = (dup & ((sim < tau) if code else (sim <= tau))).sum(1)
+        # Both lists hold distinct rows: an image-1 neighbour is common when it is in the image-2 list.
+        common = (nx[:, :, None] == ny[:, None, :]).any(axis=2)
+        n_common = common.sum(1)
+        n_bad = (common & disagree[:, first:first + s]).sum(1)
         cost += (s_eff - n_common + n_bad) / s_eff
     return cost / len(scales)
 
@@ -97,6 +149,7 @@ def lpm_filter(
     lambdas=(0.8, 0.5),
     tau: float = 0.2,
     reading: str = "code",
+    tree_ties: bool = True,
 ) -> np.ndarray:
     """Locality Preserving Matching, two iterations with multi-scale neighbourhoods.
 
@@ -122,6 +175,11 @@ def lpm_filter(
         ``"code"``: the neighbourhoods and the motion similarity as the authors' MATLAB code computes them
         (see Notes); ``"ijcv"``: as the text of the IJCV paper reads (the K nearest neighbours at each scale,
         the ratio of the motion lengths), this filter's default before issue 22.
+    tree_ties : bool, default True
+        With ``reading="code"``: the demo removes a query from its own neighbourhood by dropping the k-d
+        tree's first answer, which among the rows at the query's location (many-to-many candidates) is any
+        of them; True ranks them by index (the query stays in its list unless it has the smallest index
+        there), False always drops the query itself.
 
     Returns
     -------
@@ -144,27 +202,28 @@ def lpm_filter(
     from the IJCV text: (i) ``LPM_cosF`` trims the neighbour lists in place from one scale to the next, so the
     scales ``K + 2, K, K - 2`` use the neighbours of ranks 1..K+2, 2..K+1 and 3..K, not the ``K_m`` nearest;
     (ii) the length ratio of Eq. (13) is that of the squared lengths; (iii) a disagreement is ``s < tau``;
-    (iv) the second iteration drops the k-d tree's first answer of every query, i.e. its nearest first-pass
-    inlier when it is not one itself. Same constants (K = 6, lambda = 0.8 / 0.5, tau = 0.2, second iteration
-    from K + 4 inliers), pixel coordinates, every candidate row fed as one match. ``reading="ijcv"`` is the
-    former default. Measured on 6 pairs per dataset (``--pairs 6``), ours P / R, reference P / R, mean
-    Jaccard of the keep masks, planar then non-planar:
+    (iv) the query leaves its own list only as the k-d tree's first answer, which is dropped: in the second
+    iteration that is the nearest first-pass inlier of a query that is not one, and among rows at one
+    location (many-to-many candidates) it is one of them for all (``tree_ties``, index order here). Same
+    constants (K = 6, lambda = 0.8 / 0.5, tau = 0.2, second iteration from K + 4 inliers), pixel coordinates,
+    every candidate row fed as one match. ``reading="ijcv"`` is the former default. Measured on 6 pairs per
+    dataset (``--pairs 6``), ours P / R, reference P / R, mean Jaccard of the keep masks, planar then
+    non-planar:
 
     - baseline, before (``ijcv``): 62.4 / 80.6 vs 74.7 / 75.8, J 0.615; 60.5 / 82.5 vs 73.0 / 60.6, J 0.511.
-    - baseline, after (``code``): 78.1 / 75.3, J 0.777; 80.4 / 59.2, J 0.700; CPU time 0.91-0.94x the
-      reference's.
+    - baseline, after: 77.6 / 75.4, J 0.778; 76.6 / 58.7, J 0.705; CPU time 0.92-0.94x the reference's.
     - best, before: 73.6 / 81.2 vs 86.6 / 19.7, J 0.158; 54.1 / 37.7 vs 44.6 / 5.4, J 0.051.
-    - best, after: 80.7 / 66.6, J 0.189; 47.0 / 28.8, J 0.057; 0.77-0.82x the reference's time.
+    - best, after: 84.4 / 35.2, J 0.209; 50.9 / 11.5, J 0.104; 0.68-0.71x the reference's time.
 
-    Why not closer: the reference depends on the order of its rows. Many-to-many candidates share image-1
-    locations (17-20 % of the rows in the baseline configuration, 78 % in the best one) and the code removes a
-    query from its own neighbourhood by dropping the tree's first answer, which among rows tied at distance 0
-    is any of them, so the query may stay in its own list and a copy leave it. Given the same candidates with
-    the rows permuted, the reference agrees with itself at Jaccard 0.89 / 0.78 (baseline) and 0.20 / 0.12
-    (best), the level reached here. Ties in index order with the first answer dropped (a deterministic stand-in
-    for the tree's order, not adopted) give 84.4 / 35.2 and 50.9 / 11.5 in the best configuration, towards
-    the reference's low recall there. The rest of the baseline precision gap (+3.4 / +7.4) is counting the
-    coincident copies once (above): without it, 67.7 / 74.5 (J 0.782) and 70.0 / 63.2 (J 0.780).
+    Why not closer: the reference depends on the order of its rows, through the tree's order among rows at
+    one location (17-20 % of the rows share an image-1 location in the baseline configuration, 78 % in the
+    best one). Given the same candidates with the rows permuted (two permutations), the reference agrees with
+    itself at Jaccard 0.89 / 0.78 (baseline) and 0.20 / 0.12 (best), the level reached here, and its P / R in
+    the best configuration become 82.6-86.0 / 41.2-41.9 and 42.1-49.2 / 12.5-12.8, around ours: the 19.7 / 5.4
+    of the unpermuted rows is one draw of that order. With ``tree_ties=False`` (the query always dropped)
+    the best configuration gives 80.7 / 66.6 and 47.0 / 28.8. The baseline precision gap (+2.9 / +3.6) comes
+    with counting the coincident copies once (above, 3 % of the rows): without it, 66.9 / 74.5 (J 0.777) and
+    70.3 / 64.5 (J 0.769), below the reference's precision instead.
 
     References
     ----------
@@ -193,25 +252,30 @@ def lpm_filter(
         rows, group = merged
         keep = lpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
                           image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          k=k, lambdas=lambdas, tau=tau, reading=reading)
+                          k=k, lambdas=lambdas, tau=tau, reading=reading, tree_ties=tree_ties)
         return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
     everyone = np.arange(n)
-    keep = _lpm_cost(ms.x, ms.y, everyone, k, tau, reading) <= lam[0]
+    keep = _lpm_cost(ms.x, ms.y, everyone, k, tau, reading, tree_ties) <= lam[0]
     # Second iteration on the neighbourhoods of the first-pass inliers, when enough (demo code: k + 4).
     if keep.sum() >= k + 4:
-        keep = _lpm_cost(ms.x, ms.y, np.flatnonzero(keep), k, tau, reading) <= lam[1]
+        keep = _lpm_cost(ms.x, ms.y, np.flatnonzero(keep), k, tau, reading, tree_ties) <= lam[1]
     return keep
 
 
-def _glpm_pass(x, y, subset, candidates, k: int, lam: float) -> np.ndarray:
-    """One GLPM pass over ``subset``: neighbourhood cost 2 (K - n_i) against guide ``candidates``."""
+def _glpm_pass(x, y, subset, candidates, k: int, lam: float, tree_ties: bool = True) -> np.ndarray:
+    """One GLPM pass over ``subset``: neighbourhood cost 2 (K - n_i) against guide ``candidates``; with
+    ``tree_ties`` the lists of ffm2 (see :func:`_tree_neighbours`), else the query always excluded."""
     if len(subset) == 0 or len(candidates) < 2:
         return np.zeros(len(subset), bool)
-    nx = knn_without_self(x, candidates, k, queries=subset)
-    ny = knn_without_self(y, candidates, k, queries=subset)
+    if tree_ties:
+        nx = _tree_neighbours(x, candidates, k, queries=subset, drop_outside=False)
+        ny = _tree_neighbours(y, candidates, k, queries=subset, drop_outside=False)
+    else:
+        nx = knn_without_self(x, candidates, k, queries=subset)
+        ny = knn_without_self(y, candidates, k, queries=subset)
     kk = nx.shape[1]
     _, dup = _common_neighbours(nx, ny)
     n_common = dup.sum(1)
@@ -236,6 +300,7 @@ def glpm_filter(
     ratio: float = 1.0 / 1.5,
     schedule=GLPM_SCHEDULE,
     guide: str = "location",
+    tree_ties: bool = True,
 ) -> np.ndarray:
     """Guided Locality Preserving Matching.
 
@@ -263,6 +328,10 @@ def glpm_filter(
         location of a small-set inlier joins the guide, as the authors' demo hands the small-set result to
         the whole set (by image-1 coordinates); ``"rows"``: the small-set inliers alone (this filter's
         default before issue 22). The paper is silent; they differ on many-to-many candidates only.
+    tree_ties : bool, default True
+        The authors' ``ffm2`` skips the k-d tree's first answer of a guide member as the member itself; among
+        the guide rows at its location it is any of them. True ranks them by index (a member stays in its
+        own list unless it has the smallest index there), False always skips the member itself.
 
     Returns
     -------
@@ -277,27 +346,29 @@ def glpm_filter(
     in the neighbourhoods and in the guide. The authors' demo (jiayi-ma/GLPM, demo.m) has no step for them
     (silent: our choice). The result on inputs without coincident rows is unchanged.
 
-    Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref glpm=DIR`` runs the two
-    filtering blocks of the authors' ``demo.m`` with their ``ffm2.cpp`` and VLFeat's k-d tree (checkout of
-    jiayi-ma/GLPM, compiled with mkoctfile) under GNU Octave 7.3 on the same candidates, the small set being the
-    rows with ``scores <= ratio``. The passes, their (K, lambda) and the cost match; the demo hands the small-set
-    inliers to the whole set by their image-1 coordinates, which on many-to-many candidates brings every
-    candidate at those locations into the guide: the default ``guide="location"`` now does the same
-    (``"rows"``, the small-set inliers alone, is the former default). Measured on 6 pairs per dataset, ours
-    P / R, reference P / R, mean Jaccard, planar then non-planar:
+    Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref glpm=DIR`` runs the
+    two filtering blocks of the authors' ``demo.m`` with their ``ffm2.cpp`` and VLFeat's k-d tree (checkout of
+    jiayi-ma/GLPM, compiled with mkoctfile) under GNU Octave 7.3 on the same candidates, the small set being
+    the rows with ``scores <= ratio``. The passes, their (K, lambda) and the cost already matched. Two
+    changes, both on many-to-many candidates only (the paper is silent): the demo hands the small-set inliers
+    to the whole set by their image-1 coordinates, which brings every candidate at those locations into the
+    guide (default ``guide="location"``; ``"rows"`` is the former default), and ``ffm2`` skips the tree's
+    first answer of a guide member as the member itself, which among guide rows at one location is one of
+    them for all (``tree_ties``, index order here). Measured on 6 pairs per dataset, ours P / R, reference
+    P / R, mean Jaccard, planar then non-planar:
 
-    - baseline, before (``rows``): 98.1 / 79.9 vs 95.6 / 83.5, J 0.864; 90.7 / 57.0 vs 86.0 / 60.5, J 0.825.
-    - baseline, after (``location``): 95.8 / 81.9, J 0.900; 88.9 / 59.9, J 0.924; CPU time 0.16-0.29x the
-      reference's.
+    - baseline, before (``rows``, no ``tree_ties``): 98.1 / 79.9 vs 95.6 / 83.5, J 0.864; 90.7 / 57.0 vs
+      86.0 / 60.5, J 0.825.
+    - baseline, after: 95.8 / 82.0, J 0.901; 87.3 / 59.8, J 0.905; CPU time 0.18-0.32x the reference's.
     - best, before: 79.5 / 79.5 vs 62.3 / 70.6, J 0.489; 48.6 / 55.8 vs 34.5 / 37.5, J 0.216.
-    - best, after: 64.0 / 81.8, J 0.480; 34.9 / 63.0, J 0.258; 0.47-0.58x the reference's time.
+    - best, after: 64.9 / 67.9, J 0.461; 36.0 / 39.5, J 0.259; 0.56-0.69x the reference's time.
 
     The reference stops with an error on one planar pair (homogr/LePoint2: no small-set inlier, and VLFeat
-    cannot build a tree on nothing); that pair is left out above. Counting coincident copies once costs the
-    rest of the baseline agreement (J 0.965 / 0.934 without it). In the best configuration (78 % of the rows
-    share an image-1 location) ``ffm2`` skips the tree's first answer of a guide member as the member itself,
-    which among rows tied at distance 0 is any of them: the reference agrees with itself on the same candidates
-    with the rows permuted at Jaccard 0.47 / 0.26, the level reached here (0.994 / 0.973 in the baseline).
+    cannot build a tree on nothing); that pair is left out above. In the best configuration (78 % of the rows
+    share an image-1 location) the reference depends on the order of its rows: permuted, it agrees with
+    itself at Jaccard 0.47 / 0.26 (0.994 / 0.973 in the baseline), the level reached here, with P / R
+    61.4-63.4 / 73.9-76.3 and 34.0-36.4 / 41.8-42.2, around ours. Without counting coincident copies once
+    (above) the baseline gives J 0.962 / 0.915.
 
     References
     ----------
@@ -328,7 +399,7 @@ def glpm_filter(
         rows, group = merged
         keep = glpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
                            image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                           ratio=ratio, schedule=schedule, guide=guide)
+                           ratio=ratio, schedule=schedule, guide=guide, tree_ties=tree_ties)
         return keep[group]
     n = len(ms)
     if n < 2:
@@ -338,14 +409,14 @@ def glpm_filter(
     if len(small) < sched[0][0] + 1:
         small = np.arange(n)  # too few confident matches to guide anything: start from all of them
     # Passes 1-2: the small set filters itself (the second pass uses the first pass's survivors as guide).
-    inl = small[_glpm_pass(x, y, small, small, *sched[0])]
-    inl = small[_glpm_pass(x, y, small, inl, *sched[1])] if len(inl) > 1 else inl
+    inl = small[_glpm_pass(x, y, small, small, *sched[0], tree_ties)]
+    inl = small[_glpm_pass(x, y, small, inl, *sched[1], tree_ties)] if len(inl) > 1 else inl
     if guide == "location":  # every candidate at the image-1 location of a small-set inlier (demo.m)
         _, loc = np.unique(x, axis=0, return_inverse=True)
         loc = loc.reshape(-1)
         inl = np.flatnonzero(np.isin(loc, loc[inl]))
     # Passes 3-4: the whole set, guided by the small-set inliers, then by the first guided inliers.
     everyone = np.arange(n)
-    keep = _glpm_pass(x, y, everyone, inl, *sched[2])
-    keep = _glpm_pass(x, y, everyone, np.flatnonzero(keep), *sched[3])
+    keep = _glpm_pass(x, y, everyone, inl, *sched[2], tree_ties)
+    keep = _glpm_pass(x, y, everyone, np.flatnonzero(keep), *sched[3], tree_ties)
     return keep
