@@ -49,6 +49,10 @@ Every candidate row is one correspondence ``X(i, :) = kpts1[matches[i, 0]]``, ``
 (pixels). The reference's time is Octave's ``cputime`` around the filtering block (process time, as ours).
 ``--param`` settings shared with the reference (:data:`OCTAVE_OPTIONS`) override the demo's values.
 
+``--permutations N`` runs every reference N more times on its candidate rows permuted (seeded) and prints its
+P / R and the Jaccard with its unpermuted run: LPM's and GLPM's code exclude a query from its own k-d tree
+answers by dropping the first one, which among rows at one location depends on their order.
+
 Run::
 
     OMP_NUM_THREADS=1 CTXMATCH_DATA=/path/to/data .venv/bin/python benchmarks/bench_filters_ref.py \\
@@ -427,6 +431,13 @@ def make_octave_case(f1, f2, matches, scores, ratio: float) -> dict:
                 small=np.asarray(scores, np.float64) <= ratio)
 
 
+def permute_case(case: dict, perm: np.ndarray) -> dict:
+    """``case`` with its candidate rows (``matches``, ``scores``; ``X``, ``Y``, ``small``) in the order ``perm``;
+    the reference's keep mask ``k`` of it maps back as ``keep[perm] = k``."""
+    rows = ("matches", "scores", "X", "Y", "small")
+    return {key: (np.asarray(v)[perm] if key in rows else v) for key, v in case.items()}
+
+
 def make_case(f1, f2, matches, scores, size1, size2) -> dict:
     """The driver's input arrays for one candidate set."""
     return dict(kpts1=np.asarray(f1.kpts[:, :2], np.float64), kpts2=np.asarray(f2.kpts[:, :2], np.float64),
@@ -491,6 +502,10 @@ def main(argv=None) -> int:
                         help="extra keyword of our filter, e.g. gms:with_scale=true (repeatable); the reference "
                              "gets it too where it has the same option (SHARED_OPTIONS)")
     parser.add_argument("--repeat", type=int, default=3, help="time the fastest of this many calls (default 3)")
+    parser.add_argument("--permutations", type=int, default=0, metavar="N",
+                        help="also run each reference N times on its rows permuted (seeded) and print its "
+                             "P / R and the Jaccard of its keep masks with the unpermuted run: how much the "
+                             "reference depends on the order of its rows (default 0)")
     parser.add_argument("--json", type=Path, help="also write the per-pair numbers here")
     args = parser.parse_args(argv)
     try:
@@ -501,6 +516,8 @@ def main(argv=None) -> int:
         parser.error(f"--pairs must be a positive integer, got {args.pairs}")
     if args.repeat < 1:
         parser.error(f"--repeat must be a positive integer, got {args.repeat}")
+    if args.permutations < 0:
+        parser.error(f"--permutations must be a non-negative integer, got {args.permutations}")
     params: dict[str, dict] = {name: {} for name in refs}
     for p in args.param:
         name, _, kv = p.partition(":")
@@ -562,6 +579,23 @@ def main(argv=None) -> int:
                       f"{po:>6.1f} / {ro:<5.1f} {pr:>6.1f} / {rr:<5.1f} {jac:>7.3f} {1e3 * to:>8.1f} {1e3 * tr:>8.1f} "
                       f"{ratio:>7.2f}x", flush=True)
                 rows.extend(dict(filter=name, config=config, dataset=dataset, **x) for x in per)
+                for seed in range(1, args.permutations + 1):
+                    perms = [np.random.default_rng([seed, i]).permutation(len(d[3])) for i, d in enumerate(data)]
+                    pcases = [permute_case(c, pm) for c, pm in zip(cases, perms)]
+                    pout = (run_octave_reference(name, Path(python), pcases, 1, params[name])
+                            if name in OCTAVE_REFERENCES else run_reference(name, python, pcases, 1))
+                    pr_, jr = [], []
+                    for (pair, f1, f2, m, s, lab), (rkeep, _), (pkeep, _), pm in zip(data, ref_out, pout, perms):
+                        if rkeep is None or pkeep is None:
+                            continue
+                        back = np.zeros(len(pkeep), bool)
+                        back[pm] = pkeep
+                        pr_.append(precision_recall(m, lab, back))
+                        jr.append(jaccard(back, rkeep))
+                    if pr_:
+                        pp, rp = np.nanmean(pr_, axis=0)
+                        print(f"  {name} reference, rows permuted (seed {seed}): P / R {pp:.1f} / {rp:.1f}, "
+                              f"Jaccard with its unpermuted run {np.mean(jr):.3f}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

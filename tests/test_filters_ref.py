@@ -303,3 +303,18 @@ def test_tree_neighbours_follow_the_demos_first_answer_rule(drop_outside):
         member = i in set(cand)
         expect = ranked[1:k + 1] if (member or drop_outside) else ranked[:k]
         np.testing.assert_array_equal(got[i], expect, err_msg=str(i))
+
+
+def test_permute_case_moves_the_rows_only(bench):
+    case = dict(X=np.arange(10.0).reshape(5, 2), Y=-np.arange(10.0).reshape(5, 2), small=np.r_[True, False, True,
+                False, False], matches=np.c_[np.arange(5), np.arange(5)[::-1]], scores=np.arange(5.0),
+                size1=np.array(SIZE), kpts1=np.zeros((7, 2)))
+    perm = np.array([3, 0, 4, 1, 2])
+    out = bench.permute_case(case, perm)
+    for key in ("X", "Y", "small", "matches", "scores"):
+        np.testing.assert_array_equal(out[key], case[key][perm])
+    assert out["size1"] is case["size1"] and out["kpts1"] is case["kpts1"]
+    keep_perm = np.array([True, False, False, True, False])  # a mask on the permuted rows maps back by perm
+    back = np.zeros(5, bool)
+    back[perm] = keep_perm
+    np.testing.assert_array_equal(np.flatnonzero(back), np.sort(perm[keep_perm]))

@@ -217,13 +217,13 @@ def lpm_filter(
 
     Why not closer: the reference depends on the order of its rows, through the tree's order among rows at
     one location (17-20 % of the rows share an image-1 location in the baseline configuration, 78 % in the
-    best one). Given the same candidates with the rows permuted (two permutations), the reference agrees with
-    itself at Jaccard 0.89 / 0.78 (baseline) and 0.20 / 0.12 (best), the level reached here, and its P / R in
-    the best configuration become 82.6-86.0 / 41.2-41.9 and 42.1-49.2 / 12.5-12.8, around ours: the 19.7 / 5.4
-    of the unpermuted rows is one draw of that order. With ``tree_ties=False`` (the query always dropped)
-    the best configuration gives 80.7 / 66.6 and 47.0 / 28.8. The baseline precision gap (+2.9 / +3.6) comes
-    with counting the coincident copies once (above, 3 % of the rows): without it, 66.9 / 74.5 (J 0.777) and
-    70.3 / 64.5 (J 0.769), below the reference's precision instead.
+    best one). Run again on the same candidates with the rows permuted (``--permutations 2``), it agrees with
+    its unpermuted run at Jaccard 0.763-0.775 / 0.750-0.772 (baseline) and 0.204-0.206 / 0.096-0.109 (best),
+    the level reached here, and its P / R move to 67.2-68.0 / 74.0-74.2 and 76.7-77.3 / 59.5-59.8 (baseline),
+    83.7-87.4 / 40.2-41.2 and 45.2-47.1 / 12.2-12.7 (best), around ours. With ``tree_ties=False`` (the query
+    always the answer dropped) the best configuration gives 80.7 / 66.6 and 47.0 / 28.8, far from all of
+    these. Counting coincident copies once (above, 3 % of the rows in the baseline) raises the precision:
+    without it, 66.9 / 74.5 (J 0.777) and 70.3 / 64.5 (J 0.769).
 
     References
     ----------
@@ -365,10 +365,11 @@ def glpm_filter(
 
     The reference stops with an error on one planar pair (homogr/LePoint2: no small-set inlier, and VLFeat
     cannot build a tree on nothing); that pair is left out above. In the best configuration (78 % of the rows
-    share an image-1 location) the reference depends on the order of its rows: permuted, it agrees with
-    itself at Jaccard 0.47 / 0.26 (0.994 / 0.973 in the baseline), the level reached here, with P / R
-    61.4-63.4 / 73.9-76.3 and 34.0-36.4 / 41.8-42.2, around ours. Without counting coincident copies once
-    (above) the baseline gives J 0.962 / 0.915.
+    share an image-1 location) the reference depends on the order of its rows: run again with the rows
+    permuted (``--permutations 2``), it agrees with its unpermuted run at Jaccard 0.473-0.486 / 0.214-0.273
+    (0.984-0.989 / 0.938-0.971 in the baseline), the level reached here, with P / R 63.1-64.9 / 73.4-75.3 and
+    33.0-39.1 / 36.7-52.6, around ours. Without counting coincident copies once (above) the baseline gives
+    J 0.962 / 0.915.
 
     References
     ----------
