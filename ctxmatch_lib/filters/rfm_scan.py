@@ -126,16 +126,35 @@ class _Round:
                 rows.append(np.repeat(sel, lens))
                 vals.append(self.space.dist(queries[rows[-1]], j) * s)
         out = np.full(len(queries), np.nan, np.float32)
-        rows, vals = np.concatenate(rows), np.concatenate(vals)
-        order = np.lexsort((vals, rows))
-        rows, vals = rows[order], vals[order]
-        pos = np.arange(len(queries))
-        start, end = np.searchsorted(rows, pos), np.searchsorted(rows, pos, side="right")
+        # Sorted by (row, value) in one uint64 sort: the row in the high word, the float32 bits in the low word
+        # (the bits of non-negative floats order as the floats; ``+ 0`` turns a -0.0 into +0.0).
+        vals = np.concatenate(vals) + np.float32(0)
+        key = np.concatenate(rows).astype(np.uint64) << np.uint64(32)
+        key |= vals.view(np.uint32)
+        key.sort()
+        vals = (key & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32)
+        bounds = np.arange(len(queries) + 1, dtype=np.uint64) << np.uint64(32)
+        edges = np.searchsorted(key, bounds)
+        start, end = edges[:-1], edges[1:]
         ok = np.flatnonzero(end - start >= self.k)
         kth = vals[start[ok] + self.k - 1]
         good = kth <= radius[ok]  # k matches within radius: the k-th of the ball is the k-th of all
         out[ok[good]] = kth[good]
         return out
+
+    def ball_core(self, queries: np.ndarray, radius: float) -> np.ndarray:
+        """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances).
+
+        The same test as ``ball_kth(queries, radius) <= radius`` (the k-th smallest of the same float32
+        distances is within ``radius`` exactly when k of them are), by counting instead of sorting.
+        """
+        count = np.zeros(len(queries), np.int64)
+        for s, g in self.groups:
+            for sel, lens, j in self.space.ball(s, g, queries, np.full(len(queries), radius / s)):
+                rows = np.repeat(sel, lens)
+                hit = self.space.dist(queries[rows], j) * s <= radius
+                count += np.bincount(rows[hit], minlength=len(queries))
+        return count >= self.k
 
     def dense_kth(self, queries: np.ndarray) -> np.ndarray:
         """Exact ``L`` of ``queries`` from whole rows of distances (for the few far matches)."""
@@ -187,7 +206,7 @@ class _Round:
                 found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
         todo = todo[found >= self.k]
         if len(todo):
-            core[todo] = ~np.isnan(self.ball_kth(todo, np.full(len(todo), eps, np.float64)))
+            core[todo] = self.ball_core(todo, np.float64(eps))
         # Reached: a non-core match with a core match within eps (distance scaled by its own scale).
         reached = core.copy()
         core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
