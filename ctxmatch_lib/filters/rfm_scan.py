@@ -142,6 +142,21 @@ class _Round:
         out[ok[good]] = kth[good]
         return out
 
+    def lower_count(self, queries: np.ndarray, radius: np.float64) -> np.ndarray:
+        """For each query, ``min(MinPts, n)``-capped count of matches within ``radius`` (scaled) in the lower-bound
+        embedding (a k-NN search capped at ``radius``): fewer than ``MinPts`` there means fewer than ``MinPts``
+        matches within ``radius``."""
+        found = np.zeros(len(queries), np.int64)
+        for s, g in self.groups:
+            r = float(radius / s) * (1 + 1e-5) + 1e-6
+            level = float(np.exp2(np.ceil(np.log2(max(r, 1e-3)))))
+            m = min(self.k, len(g))
+            for b in range(0, len(queries), 4096):
+                q = queries[b : b + 4096]
+                dd, _ = self.space.tree(s, g, level).query(self.space.embed(q, level), k=m, distance_upper_bound=r)
+                found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
+        return found
+
     def ball_core(self, queries: np.ndarray, radius: float) -> np.ndarray:
         """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances).
 
@@ -179,7 +194,12 @@ class _Round:
         n = self.space.n
         everyone = np.arange(n)
         upper = self.upper()
-        kth = self.ball_kth(everyone, np.full(n, upper.min(), np.float64))  # min L
+        # min L: a ball search of radius min upper, where the lower bound finds k matches within it (elsewhere
+        # fewer than k matches lie within it, and the ball search would give NaN too)
+        kth = np.full(n, np.nan, np.float32)
+        near = np.flatnonzero(self.lower_count(everyone, np.float64(upper.min())) >= self.k)
+        if len(near):
+            kth[near] = self.ball_kth(near, np.full(len(near), upper.min(), np.float64))
         rest = np.flatnonzero(np.isnan(kth))
         rest = rest[np.argsort(-upper[rest], kind="stable")]
         for b in range(0, len(rest), 64):  # max L
@@ -195,16 +215,7 @@ class _Round:
         # the rest.
         core = upper <= eps
         todo = np.flatnonzero(~core)
-        found = np.zeros(len(todo), np.int64)
-        for s, g in self.groups:
-            r = float(np.float64(eps) / s) * (1 + 1e-5) + 1e-6
-            level = float(np.exp2(np.ceil(np.log2(max(r, 1e-3)))))
-            m = min(self.k, len(g))
-            for b in range(0, len(todo), 4096):
-                q = todo[b : b + 4096]
-                dd, _ = self.space.tree(s, g, level).query(self.space.embed(q, level), k=m, distance_upper_bound=r)
-                found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
-        todo = todo[found >= self.k]
+        todo = todo[self.lower_count(todo, np.float64(eps)) >= self.k]
         if len(todo):
             core[todo] = self.ball_core(todo, np.float64(eps))
         # Reached: a non-core match with a core match within eps (distance scaled by its own scale).
