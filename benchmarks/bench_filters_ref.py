@@ -157,7 +157,27 @@ for f in files:
     np.savez(dst / f.name, keep=keep, cpu=cpu)
 '''
 
-REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc")
+#: Octave references defined in their own module beside this script, ``benchmarks/ref_<name>.py``, which holds
+#: ``FILES`` (names a checkout must hold), ``FUNC_FILES`` (their folders go on Octave's path), ``OPTIONS`` (our
+#: keyword -> the reference's variables, as :data:`OCTAVE_OPTIONS`), ``octave_body(root, params)`` (Octave lines
+#: that read ``X``, ``Y`` (K, 2), ``small`` (K,) and ``info`` = [w1 h1 w2 h2] and set ``keep`` (1-based row
+#: indices) and ``cpu`` (``cputime`` around the filtering)) and optionally ``compile_mex(root, dst)``.
+PLUGIN_REFERENCES = ("llt", "rfm_scan")
+
+REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc", *PLUGIN_REFERENCES)
+
+
+def plugin(name: str):
+    """The module ``benchmarks/ref_<name>.py`` of an Octave reference of :data:`PLUGIN_REFERENCES`."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parent / f"ref_{name}.py"
+    if not path.exists():
+        raise ValueError(f"--ref {name}: its reference module {path.name} is missing beside {Path(__file__).name}")
+    spec = importlib.util.spec_from_file_location(f"ref_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 #: Our keyword -> the reference's option, for the ``--param`` settings that exist on both sides (given to both).
 SHARED_OPTIONS = {
@@ -178,7 +198,7 @@ def reference_options(name: str, params: dict) -> dict:
 
 def parse_ref(text: str) -> tuple[str, str]:
     """``NAME=SPEC`` -> ``(name, spec)``: SPEC is an interpreter path, or ``kornia`` (this interpreter) for
-    ``adalam``; for ``lpm``, ``glpm`` and ``vfc`` the directory of the authors' MATLAB code (run by Octave)."""
+    ``adalam``; for the :data:`OCTAVE_REFERENCES` the directory of the authors' MATLAB code (run by Octave)."""
     name, sep, spec = text.partition("=")
     if not sep or not spec:
         raise ValueError(f"--ref must be NAME=SPEC, got {text!r}")
@@ -187,7 +207,7 @@ def parse_ref(text: str) -> tuple[str, str]:
     if name in OCTAVE_REFERENCES:
         if not Path(spec).is_dir():
             raise ValueError(f"--ref {text!r}: {spec} is not a directory (the checkout of the authors' code)")
-        for f in OCTAVE_FILES[name]:
+        for f in (plugin(name).FILES if name in PLUGIN_REFERENCES else OCTAVE_FILES[name]):
             find_reference_file(Path(spec), f)
         return name, spec
     if spec == "kornia":
@@ -228,7 +248,7 @@ def run_reference(kind: str, python: str, cases: list[dict], repeat: int = 1) ->
 # here. The C/C++ parts (VLFeat's k-d tree, GLPM's ffm2.cpp) are compiled with ``mkoctfile --mex`` into the
 # temp dir of the run. Inputs and outputs travel as plain text.
 
-OCTAVE_REFERENCES = ("lpm", "glpm", "vfc")
+OCTAVE_REFERENCES = ("lpm", "glpm", "vfc", *PLUGIN_REFERENCES)
 
 #: Files a checkout must hold, per reference (searched anywhere under PATH, e.g. VFC_short.zip unpacked).
 OCTAVE_FILES = {"lpm": ("demo_LPM_v2.m", "LPM_cosF.m"), "glpm": ("demo.m", "ffm2.cpp"),
@@ -294,7 +314,8 @@ def octave_assignments(name: str, params: dict) -> str:
     """Octave lines setting the reference's variables of our shared ``params`` (after its own defaults)."""
     out = []
     for key, value in params.items():
-        targets = OCTAVE_OPTIONS.get(name, {}).get(key)
+        table = plugin(name).OPTIONS if name in PLUGIN_REFERENCES else OCTAVE_OPTIONS.get(name, {})
+        targets = table.get(key)
         if not targets:
             continue
         values = list(value) if isinstance(value, (list, tuple)) else [value] * len(targets)
@@ -324,6 +345,11 @@ def _mex(sources: list[Path], out: Path, includes: list[Path], defines=()) -> No
 
 def compile_octave_mex(name: str, root: Path, dst: Path) -> None:
     """Compile the C/C++ parts of reference ``name`` (checkout ``root``) into ``dst`` with mkoctfile."""
+    if name in PLUGIN_REFERENCES:
+        build = getattr(plugin(name), "compile_mex", None)
+        if build is not None:
+            build(Path(root), dst)
+        return
     if name in ("lpm", "glpm"):  # VLFeat's k-d tree, as shipped in the checkout
         vl = find_reference_file(root, "kdtree.c").parent.parent  # .../vlfeat (vl/kdtree.c)
         srcs = [vl / "vl" / f for f in ("kdtree.c", "generic.c", "host.c", "random.c", "mathop.c", "stringop.c")]
@@ -339,8 +365,11 @@ def compile_octave_mex(name: str, root: Path, dst: Path) -> None:
 
 
 def octave_driver(name: str, root: Path, params: dict) -> str:
-    """The Octave function ``ref_filter(X, Y, small)`` -> ``(keep indices, cpu seconds)`` of reference ``name``."""
-    if name == "lpm":
+    """The Octave function ``ref_filter(X, Y, small, info)`` -> ``(keep indices, cpu seconds)`` of reference
+    ``name`` (``info`` = [w1 h1 w2 h2], the image sizes)."""
+    if name in PLUGIN_REFERENCES:
+        body = plugin(name).octave_body(Path(root), params)
+    elif name == "lpm":
         defaults, block = lpm_demo_parts(find_reference_file(root, "demo_LPM_v2.m").read_text(errors="replace"))
         body = f"{defaults}\n{octave_assignments(name, params)}\nc0 = cputime;\n{block}\ncpu = cputime - c0;\n" \
                "keep = find(p2 == 1);"
@@ -352,7 +381,7 @@ def octave_driver(name: str, root: Path, params: dict) -> str:
         body = (f"conf = [];\n{octave_assignments(name, params)}\nc0 = cputime;\n[nX, nY, normal] = norm2(X, Y);\n"
                 "conf = VFC_init(conf);\nVecFld = SparseVFC(nX, nY - nX, conf);\ncpu = cputime - c0;\n"
                 "keep = VecFld.VFCIndex;")
-    return f"function [keep, cpu] = ref_filter(X, Y, small)\n{body}\nend\n"
+    return f"function [keep, cpu] = ref_filter(X, Y, small, info)\n{body}\nend\n"
 
 
 _OCTAVE_MAIN = r'''
@@ -363,14 +392,14 @@ files = dir(fullfile(src, 'case-*-X.txt'));
 for f = 1:numel(files)
   stem = files(f).name(1:end - 6);
   X = load(fullfile(src, [stem '-X.txt'])); Y = load(fullfile(src, [stem '-Y.txt']));
-  small = logical(load(fullfile(src, [stem '-S.txt'])));
+  small = logical(load(fullfile(src, [stem '-S.txt']))); info = load(fullfile(src, [stem '-I.txt']));
   rand('state', 0); randn('state', 0);
   try
-    if f == 1, ref_filter(X, Y, small); end  % one untimed call first
-    [keep, cpu] = ref_filter(X, Y, small);
+    if f == 1, ref_filter(X, Y, small, info); end  % one untimed call first
+    [keep, cpu] = ref_filter(X, Y, small, info);
     for r = 2:repeat
       rand('state', 0); randn('state', 0);
-      [~, c] = ref_filter(X, Y, small); cpu = min(cpu, c);
+      [~, c] = ref_filter(X, Y, small, info); cpu = min(cpu, c);
     end
   catch err  % the authors' code stopped on this input: recorded, the case is left out of the means
     fid = fopen(fullfile(dst, [stem '-error.txt']), 'w'); fprintf(fid, '%s\n', err.message); fclose(fid);
@@ -401,11 +430,15 @@ def run_octave_reference(name: str, root: Path, cases: list[dict], repeat: int =
         compile_octave_mex(name, Path(root), mex)
         (tmp / "ref_filter.m").write_text(octave_driver(name, Path(root), params or {}))
         funcs = {"lpm": ["LPM_cosF.m"], "vfc": ["SparseVFC.m"]}.get(name, [])  # glpm: ffm2, compiled above
+        if name in PLUGIN_REFERENCES:
+            funcs = list(plugin(name).FUNC_FILES)
         dirs = [str(find_reference_file(root, f).parent) for f in funcs]
         for i, case in enumerate(cases):
             np.savetxt(src / f"case-{i:05d}-X.txt", case["X"], fmt="%.17g")
             np.savetxt(src / f"case-{i:05d}-Y.txt", case["Y"], fmt="%.17g")
             np.savetxt(src / f"case-{i:05d}-S.txt", np.asarray(case["small"], np.int64), fmt="%d")
+            np.savetxt(src / f"case-{i:05d}-I.txt", np.asarray(case.get("info", np.zeros(4)), np.float64)[None],
+                       fmt="%.17g")
         main = tmp / "main.m"
         main.write_text(_OCTAVE_MAIN.format(src=src, dst=dst, mex=mex, dirs=os.pathsep.join(dirs), repeat=int(repeat)))
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
@@ -424,11 +457,13 @@ def run_octave_reference(name: str, root: Path, cases: list[dict], repeat: int =
     return out
 
 
-def make_octave_case(f1, f2, matches, scores, ratio: float) -> dict:
-    """The Octave driver's inputs: the candidates' keypoints and GLPM's small set (``scores <= ratio``)."""
+def make_octave_case(f1, f2, matches, scores, ratio: float, size1=(0, 0), size2=(0, 0)) -> dict:
+    """The Octave driver's inputs: the candidates' keypoints, GLPM's small set (``scores <= ratio``) and the
+    image sizes ``info`` = [w1 h1 w2 h2]."""
     m = np.asarray(matches, np.int64).reshape(-1, 2)
     return dict(X=np.asarray(f1.kpts[m[:, 0], :2], np.float64), Y=np.asarray(f2.kpts[m[:, 1], :2], np.float64),
-                small=np.asarray(scores, np.float64) <= ratio)
+                small=np.asarray(scores, np.float64) <= ratio,
+                info=np.asarray([*size1, *size2], np.float64))
 
 
 def permute_case(case: dict, perm: np.ndarray) -> dict:
@@ -493,7 +528,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--ref", action="append", required=True, metavar="NAME=SPEC",
                         help="filter and its reference: gms=PYTHON (opencv-contrib env), adalam=kornia|PYTHON, "
-                             "lpm=DIR, glpm=DIR, vfc=DIR (checkouts of the authors' MATLAB code; GNU Octave)")
+                             "lpm=DIR, glpm=DIR, vfc=DIR, llt=DIR, rfm_scan=DIR (checkouts of the authors' MATLAB "
+                             "code; GNU Octave)")
     parser.add_argument("--configs", nargs="+", default=["baseline"], choices=list(CONFIGS))
     parser.add_argument("--datasets", nargs="+", default=list(DATASETS))
     parser.add_argument("--pairs", type=int, default=6, help="pairs per dataset, evenly spread (default 6)")
@@ -541,7 +577,8 @@ def main(argv=None) -> int:
                 opts = reference_options(name, params[name])
                 if name in OCTAVE_REFERENCES:
                     ratio = params[name].get("ratio", _default(name, "ratio")) if name == "glpm" else np.inf
-                    cases = [make_octave_case(f1, f2, m, s, ratio) for _, f1, f2, m, s, _ in data]
+                    cases = [make_octave_case(f1, f2, m, s, ratio, p.image_size1, p.image_size2)
+                             for p, f1, f2, m, s, _ in data]
                     ref_out = run_octave_reference(name, Path(python), cases, args.repeat, params[name])
                 else:
                     cases = [dict(make_case(f1, f2, m, s, p.image_size1, p.image_size2), **opts)
