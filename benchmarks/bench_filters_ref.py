@@ -162,7 +162,7 @@ for f in files:
 #: keyword -> the reference's variables, as :data:`OCTAVE_OPTIONS`), ``octave_body(root, params)`` (Octave lines
 #: that read ``X``, ``Y`` (K, 2), ``small`` (K,) and ``info`` = [w1 h1 w2 h2] and set ``keep`` (1-based row
 #: indices) and ``cpu`` (``cputime`` around the filtering)) and optionally ``compile_mex(root, dst)``.
-PLUGIN_REFERENCES = ("llt", "rfm_scan")
+PLUGIN_REFERENCES = ("llt", "rfm_scan", "lmr")
 
 REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc", *PLUGIN_REFERENCES)
 
