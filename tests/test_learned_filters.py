@@ -402,3 +402,90 @@ def test_cli_train_tiny_run(torch, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "trained here" in text and "precision" in text and str(out) in text
     assert "trained here" in load_learned_model("acne", out).label
+
+
+# ------------------------------------------------------------------------------ blob training sets
+def test_blob_scene_ground_truth_follows_the_warp():
+    from ctxmatch_lib.filters.learned.blobsets import make_scene
+    from ctxmatch_lib.geometry import apply_homography
+
+    rng = np.random.default_rng(0)
+    imgs = [np.tile(np.uint8(i * 40), (120, 160)) for i in range(5)]
+    pts = np.c_[rng.uniform(0, 159, 400), rng.uniform(0, 119, 400)]
+    planar = make_scene(imgs, 1, kind="homography")
+    dest = planar.true_positions(pts)
+    seen = np.isfinite(dest[:, 0])
+    assert seen.any() and len(planar.homographies) == 1
+    np.testing.assert_allclose(dest[seen], apply_homography(planar.homographies[0], pts[seen]))
+    # Out of view in image 2: no true position.
+    w = apply_homography(planar.homographies[0], pts[~seen])
+    assert np.all((w[:, 0] < -0.5) | (w[:, 0] > 159.5) | (w[:, 1] < -0.5) | (w[:, 1] > 119.5))
+    layered = make_scene(imgs, 2, kind="layered")
+    assert len(layered.homographies) >= 2 and layered.layers1.max() == len(layered.homographies) - 1
+    dest = layered.true_positions(pts)
+    ij = np.round(pts).astype(int)
+    lab = layered.layers1[ij[:, 1], ij[:, 0]]
+    for i, H in enumerate(layered.homographies):
+        ok = np.isfinite(dest[:, 0]) & (lab == i)
+        np.testing.assert_allclose(dest[ok], apply_homography(H, pts[ok]))
+        # A seen point lands where its own layer is on top in image 2 (occlusion by the others).
+        d = np.round(dest[ok]).astype(int)
+        assert np.all(layered.layers2[d[:, 1], d[:, 0]] == i)
+    with pytest.raises(ValueError, match="kind"):
+        make_scene(imgs, 0, kind="affine")
+
+
+def test_blob_sets_are_labelled_many_to_many_and_cached(tmp_path):
+    from ctxmatch_lib.filters.learned import blobsets
+    from ctxmatch_lib.groundtruth import GT_THRESHOLD_PX
+
+    scene = blobsets.make_scene(blobsets.source_images()[:4], 3, kind="homography")
+    sets = blobsets.scene_sets(scene, features=("sift-rootsift",), blobs=("baseline", "paper-best-overlap"),
+                               max_keypoints=300)
+    assert [s.blob for s in sets] == ["baseline", "paper-best-overlap"]
+    base, best = sets
+    assert len(best.x1) > len(base.x1) > 0  # f' = 5 against one-to-one
+    assert 0 < best.inlier_ratio < 1
+    err = np.linalg.norm(best.x2 - scene.true_positions(best.x1), axis=1)
+    np.testing.assert_array_equal(best.is_inlier, np.nan_to_num(err, nan=np.inf) <= GT_THRESHOLD_PX)
+    path = tmp_path / "s.npz"
+    blobsets._save(path, sets)
+    back = blobsets._load(path)
+    assert [(b.kind, b.features, b.blob, b.size1) for b in back] == [(s.kind, s.features, s.blob, s.size1)
+                                                                     for s in sets]
+    np.testing.assert_array_equal(back[1].is_inlier, best.is_inlier)
+    np.testing.assert_allclose(back[1].x2, best.x2, atol=1e-4)
+    with pytest.raises(ValueError, match="n_scenes"):
+        blobsets.build_sets(0, cache_dir=tmp_path)
+
+
+def test_blob_batches_and_balanced_loss(torch, monkeypatch):
+    from ctxmatch_lib.filters.learned import training
+    from ctxmatch_lib.filters.learned.blobsets import BlobSet
+
+    rng = np.random.default_rng(0)
+
+    def fake(k, ratio):
+        lab = rng.uniform(size=k) < ratio
+        return BlobSet(rng.uniform(0, 600, (k, 2)), rng.uniform(0, 400, (k, 2)), rng.uniform(size=k), lab,
+                       (640, 480), (600, 400), "homography", "sift-rootsift", "baseline")
+
+    sets = [fake(300, 0.1), fake(500, 0.2), fake(900, 0.3)]
+    x, y = training._blob_batch(sets, np.random.default_rng(1), 4, 400, "score_rank")
+    assert x.shape[0] == 4 and x.shape[1] == 5 and x.shape[2] <= 400 and y.shape == (4, x.shape[2])
+    # Balanced: positives and negatives weigh half each, whatever their counts.
+    logits = torch.zeros(1, 10)
+    yb = torch.tensor([[1.0] + [0.0] * 9])
+    assert abs(training._bce(logits, yb, True).item() - np.log(2)) < 1e-6
+    logits[0, 0] = 5.0  # only the positive improves: the balanced loss drops by half its change
+    plain, bal = training._bce(logits, yb, False).item(), training._bce(logits, yb, True).item()
+    assert bal < plain
+    monkeypatch.setattr(training, "_blob_data", lambda n, seed: (sets, sets[:1]))
+    r = training.train("acne", steps=2, batch_size=2, n_candidates=(8, 128), data="blob", balanced=True,
+                       progress=False, config={"net_channels": 8, "net_depth": 1, "groups": 4})
+    assert len(r.losses) == 2 and r.validation["n_sets"] == 1
+    r2 = training.train("acne", steps=1, batch_size=2, n_candidates=(8, 128), data="blob", init=None,
+                        progress=False, validate=False, config={"net_channels": 8, "net_depth": 1, "groups": 4})
+    assert r2.validation == {}
+    with pytest.raises(ValueError, match="data"):
+        training.train("acne", steps=1, data="real")

@@ -26,7 +26,8 @@ from .checkpoints import save_model
 from .data import keypoint_pool, network_input, random_training_set
 from .nets import ACNe, build_network
 
-__all__ = ["TRAINED_HERE_CONFIGS", "TRAINED_HERE_STEPS", "TrainResult", "train", "evaluate_generated"]
+__all__ = ["TRAINED_HERE_CONFIGS", "TRAINED_HERE_STEPS", "TrainResult", "train", "evaluate_generated",
+           "evaluate_blob_sets"]
 
 #: Network shapes of the weights trained here: smaller than the authors' (128 channels, depth 12, 500
 #: clusters) so that training fits in minutes on two CPU cores.
@@ -37,6 +38,11 @@ TRAINED_HERE_CONFIGS = {
 
 #: Steps of the shipped runs (seed 0, batch 8, K in [500, 1500], one thread): what ``steps=None`` means.
 TRAINED_HERE_STEPS = {"oanet": 400, "acne": 2000}
+
+#: Blob training sets (``data="blob"``): generated scenes, the held-out fraction, the smallest set used.
+BLOB_SCENES = 48
+BLOB_VAL_FRACTION = 0.1
+BLOB_MIN_CANDIDATES = 100
 
 
 @dataclass
@@ -60,14 +66,38 @@ def _batch(pool, rng, batch_size, k, side):
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys).astype(np.float32))
 
 
-def _loss(net, x, y):
+def _blob_batch(sets, rng, batch_size, k_max, side):
+    """``batch_size`` blob sets drawn at random, each cut to the same K (a random subset of its rows):
+    K = the smallest of their sizes, at most ``k_max``."""
+    chosen = [sets[i] for i in rng.integers(len(sets), size=batch_size)]
+    k = min(k_max, min(len(s.x1) for s in chosen))
+    xs, ys = [], []
+    for s in chosen:
+        r = rng.choice(len(s.x1), size=k, replace=False) if len(s.x1) > k else rng.permutation(k)
+        xs.append(network_input(s.x1[r], s.x2[r], s.scores[r], s.size1, s.size2, side=side))
+        ys.append(s.is_inlier[r])
+    return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys).astype(np.float32))
+
+
+def _bce(logits, y, balanced):
+    if not balanced:
+        return F.binary_cross_entropy_with_logits(logits, y)
+    # The OANet / CNe authors' classification loss: the mean loss of the positives and that of the
+    # negatives, averaged with weight 1/2 each (per set), so that rare inliers weigh as much as the outliers.
+    per = F.binary_cross_entropy_with_logits(logits, y, reduction="none")
+    pos = (per * y).sum(-1) / y.sum(-1).clamp(min=1)
+    neg = (per * (1 - y)).sum(-1) / (1 - y).sum(-1).clamp(min=1)
+    return (0.5 * (pos + neg)).mean()
+
+
+def _loss(net, x, y, balanced=False):
     if isinstance(net, ACNe):
         logits, _, attention = net.forward_all(x)
-        loss = F.binary_cross_entropy_with_logits(logits, y)
+        loss = _bce(logits, y, balanced)
         if attention:
-            loss = loss + torch.stack([F.binary_cross_entropy_with_logits(a, y) for a in attention]).mean()
+            loss = loss + torch.stack([_bce(a, y, balanced) for a in attention]).mean()
         return loss
-    return torch.stack([F.binary_cross_entropy_with_logits(lg, y) for lg in net(x)]).sum()
+    return torch.stack([_bce(lg, y, balanced) for lg in net(x)]).sum()
 
 
 def evaluate_generated(net, pool, *, side: str, n_sets: int = 20, n_candidates: int = 1000,
@@ -88,13 +118,26 @@ def evaluate_generated(net, pool, *, side: str, n_sets: int = 20, n_candidates: 
             "n_sets": n_sets, "n_candidates": n_candidates}
 
 
-def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500), lr: float = 1e-3,
-          seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
-          num_threads: int = 1, progress: bool = True, validate: bool = True) -> TrainResult:
-    """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`."""
+def evaluate_blob_sets(net, sets, *, side: str) -> dict:
+    """Pooled precision and recall of ``logit > 0`` on blob sets (whole sets, every row)."""
+    tp = fp = fn = 0
+    net.eval()
+    with torch.no_grad():
+        for s in sets:
+            x = torch.from_numpy(network_input(s.x1, s.x2, s.scores, s.size1, s.size2, side=side))
+            keep = net(x[None])[-1][0].numpy() > 0
+            tp += int((keep & s.is_inlier).sum())
+            fp += int((keep & ~s.is_inlier).sum())
+            fn += int((~keep & s.is_inlier).sum())
+    return {"precision": tp / max(tp + fp, 1), "recall": tp / max(tp + fn, 1), "n_sets": len(sets),
+            "inlier_ratio": float(np.mean([s.inlier_ratio for s in sets])) if sets else float("nan")}
+
+
+def _check(arch, steps, batch_size, num_threads, n_candidates, lr, data):
     if arch not in TRAINED_HERE_CONFIGS:
         raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")
-    steps = TRAINED_HERE_STEPS[arch] if steps is None else steps
+    if data not in ("generated", "blob"):
+        raise ValueError(f"data must be 'generated' or 'blob', got {data!r}")
     for name, v in (("steps", steps), ("batch_size", batch_size), ("num_threads", num_threads)):
         if not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
@@ -103,6 +146,30 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
         raise ValueError(f"n_candidates must be an int >= 8 or a (low, high) range, got {n_candidates!r}")
     if not lr > 0:
         raise ValueError(f"lr must be positive, got {lr!r}")
+    return int(k_lo), int(k_hi)
+
+
+def _blob_data(n_scenes, data_seed, min_candidates=BLOB_MIN_CANDIDATES, val_fraction=BLOB_VAL_FRACTION):
+    """Training and validation blob sets: the last ``val_fraction`` of the scenes are held out."""
+    from .blobsets import build_sets, scene_count
+
+    sets = build_sets(n_scenes, data_seed, progress=False)
+    per = scene_count()
+    n_val = max(1, int(round(val_fraction * n_scenes))) if n_scenes > 1 else 0
+    cut = (n_scenes - n_val) * per
+    ok = [len(s.x1) >= min_candidates and s.is_inlier.any() for s in sets]
+    train_sets = [s for i, s in enumerate(sets) if ok[i] and (i < cut or not n_val)]
+    val_sets = [s for i, s in enumerate(sets) if ok[i] and i >= cut and n_val]
+    return train_sets, val_sets
+
+
+def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500), lr: float = 1e-3,
+          seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
+          num_threads: int = 1, progress: bool = True, validate: bool = True, data: str = "generated",
+          n_scenes: int = BLOB_SCENES, balanced: bool = False, init=None) -> TrainResult:
+    """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`."""
+    steps = TRAINED_HERE_STEPS[arch] if steps is None and arch in TRAINED_HERE_STEPS else steps
+    k_lo, k_hi = _check(arch, steps, batch_size, num_threads, n_candidates, lr, data)
     cfg = dict(TRAINED_HERE_CONFIGS[arch], **(config or {}))
     side = "score_rank" if cfg.get("side_channels", 0) == 1 else "none"
     if cfg.get("side_channels", 0) not in (0, 1):
@@ -112,45 +179,87 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
     torch.set_num_threads(int(num_threads))
     t0 = time.perf_counter()
     try:
-        pool = keypoint_pool(max_images)
+        if data == "blob":
+            train_sets, val_sets = _blob_data(n_scenes, seed)
+            draw = lambda rng: _blob_batch(train_sets, rng, batch_size, k_hi, side)  # noqa: E731
+        else:
+            pool = keypoint_pool(max_images)
+            draw = lambda rng: _batch(pool, rng, batch_size, int(rng.integers(k_lo, k_hi + 1)), side)  # noqa: E731
         rng = np.random.default_rng(seed)
         torch.manual_seed(seed)
         net = build_network(arch, cfg)
-        opt = torch.optim.Adam(net.parameters(), lr=lr)
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=lr / 10)
-        losses = []
-        bar = None
-        if progress:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=steps, desc=f"train {arch} (trained here)", unit="step")
-        net.train()
-        for _ in range(steps):
-            k = int(rng.integers(k_lo, k_hi + 1))
-            x, y = _batch(pool, rng, batch_size, k, side)
-            opt.zero_grad()
-            loss = _loss(net, x, y)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-            opt.step()
-            sched.step()
-            losses.append(loss.item())
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{np.mean(losses[-20:]):.3f}")
-        if bar is not None:
-            bar.close()
+        if init is not None:
+            _load_init(net, arch, init)
+        losses = _optimise(net, draw, rng, steps, lr, balanced, f"train {arch} (trained here)" if progress else None)
         net.eval()
-        validation = evaluate_generated(net, pool, side=side) if validate else {}
+        validation = {}
+        if validate:
+            validation = evaluate_blob_sets(net, val_sets, side=side) if data == "blob" else \
+                evaluate_generated(net, pool, side=side)
     finally:
         torch.set_num_threads(old_threads)
     seconds = time.perf_counter() - t0
     result = TrainResult(arch, net, losses, validation, seconds)
     if output is not None:
-        training = {"steps": steps, "batch_size": batch_size, "n_candidates": [int(k_lo), int(k_hi)], "lr": lr,
-                    "seed": seed, "max_images": max_images, "num_threads": num_threads, "seconds": seconds,
+        training = {"steps": steps, "batch_size": batch_size, "n_candidates": [k_lo, k_hi], "lr": lr,
+                    "seed": seed, "num_threads": num_threads, "seconds": seconds, "balanced_loss": balanced,
                     "final_loss": float(np.mean(losses[-50:])), "validation": validation,
-                    "data": "generated from the embedded images (ctxmatch_lib.filters.learned.data)",
-                    "torch": str(torch.__version__)}
+                    "torch": str(torch.__version__), "init": _init_record(init)}
+        if data == "blob":
+            from .blobsets import describe
+
+            training.update(data="blob candidates of generated pairs (ctxmatch_lib.filters.learned.blobsets)",
+                            n_scenes=n_scenes, n_train_sets=len(train_sets), n_val_sets=len(val_sets),
+                            blobsets=describe())
+        else:
+            training.update(data="generated from the embedded images (ctxmatch_lib.filters.learned.data)",
+                            max_images=max_images)
         result.path = save_model(output, arch, net, training=training, side=side)
     return result
+
+
+def _load_init(net, arch, init) -> None:
+    """Start from the weights in ``init`` (fine-tuning); their network shape must be ``net``'s."""
+    from .checkpoints import load_model
+
+    src = load_model(arch, init).net
+    if src.config != net.config:
+        raise ValueError(f"init weights {init} have the shape {src.config}, not {net.config}")
+    net.load_state_dict(src.state_dict())
+
+
+def _init_record(init):
+    if init is None:
+        return None
+    import hashlib
+
+    path = Path(init)
+    return {"file": path.name, "sha1": hashlib.sha1(path.read_bytes()).hexdigest() if path.is_file() else None}
+
+
+def _optimise(net, draw, rng, steps, lr, balanced, desc) -> list:
+    """Adam with cosine decay to ``lr / 10``, gradient norm clipped at 10; returns the loss of every step."""
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=lr / 10)
+    losses = []
+    bar = None
+    if desc is not None:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=steps, desc=desc, unit="step")
+    net.train()
+    for _ in range(steps):
+        x, y = draw(rng)
+        opt.zero_grad()
+        loss = _loss(net, x, y, balanced)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+        opt.step()
+        sched.step()
+        losses.append(loss.item())
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.3f}")
+    if bar is not None:
+        bar.close()
+    return losses
