@@ -622,3 +622,29 @@ def test_gt_threshold_is_refused_with_the_region_methods(tmp_path, capsys):
         assert rc == 2 and "--gt-threshold applies to --gt D and A only" in capsys.readouterr().err
     with pytest.raises(ValueError, match="gt_threshold applies to methods D and A only"):
         plan_units([], gt_method="B", gt_threshold=7.0)
+
+
+_COUNTED: list[int] = []
+
+
+@register_filter("test-counting")
+def _counting_filter(kpts1, kpts2, matches, scores, **kw):
+    _COUNTED.append(len(matches))
+    return np.arange(len(matches)) % 2 == 0
+
+
+def test_run_filter_times_after_a_warm_up_call():
+    # The first call of a filter in a process runs it once untimed (kernels compile there), then the timed
+    # call; later calls run it once. The output is the filter's.
+    from ctxmatch_lib.evaluation.steps import run_filter
+
+    z = np.zeros(3)
+    f = Features(kpts=np.zeros((3, 2)), shapes=np.tile(np.eye(2), (3, 1, 1)), desc=np.zeros((3, 4), np.float32),
+                 scales=z + 1, angles=z, responses=z)
+    m = np.array([[0, 0], [1, 1], [2, 2]])
+    _COUNTED.clear()
+    keep, t = run_filter("test-counting", f, f, m, z, image_size1=(10, 10), image_size2=(10, 10))
+    assert _COUNTED == [3, 3] and t >= 0
+    np.testing.assert_array_equal(keep, [True, False, True])
+    run_filter("test-counting", f, f, m, z, image_size1=(10, 10), image_size2=(10, 10))
+    assert _COUNTED == [3, 3, 3]

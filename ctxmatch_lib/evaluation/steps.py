@@ -209,6 +209,10 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
     return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
 
 
+#: (name, function) of the filters already called by :func:`run_filter` in this process.
+_WARM: set[tuple[str, Callable]] = set()
+
+
 def run_filter(
     name: str,
     f1: Features,
@@ -226,10 +230,16 @@ def run_filter(
     ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
     on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
 
+    The first call of each filter in a process runs it once more, untimed, before the timed call: compiled
+    (numba) kernels are compiled or loaded from the disk cache on their first call, which would otherwise be
+    charged to whichever pair a worker process meets first (up to five times a filter's time per pair on a
+    cold cache). The filters are deterministic, so the output is the same.
+
     Returns
     -------
     keep : ndarray of shape (K,), bool
     time_s : float
+        Wall time of the filter call alone (first-call compilation excluded, see above).
     """
     from ..filters import FILTERS
 
@@ -239,9 +249,14 @@ def run_filter(
     if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
         params.setdefault("ratio", blob_ratio)
     k = len(matches)
-    t0 = time.perf_counter()
     if k == 0:
         return np.zeros(0, bool), 0.0
+    call = (name, func)
+    if call not in _WARM:  # compile / load the filter's kernels outside the timing (see above)
+        func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
+             shapes1=f1.shapes, shapes2=f2.shapes, **params)
+        _WARM.add(call)
+    t0 = time.perf_counter()
     out = func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
                shapes1=f1.shapes, shapes2=f2.shapes, **params)
     elapsed = time.perf_counter() - t0
