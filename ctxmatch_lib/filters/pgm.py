@@ -44,6 +44,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ._common import check_positive, knn_without_self, merge_coincident, prepare
+from ._pgm_kernels import pair_affinity as _pair_affinity
 
 __all__ = ["pgm_filter", "rrwm"]
 
@@ -60,30 +61,6 @@ def _local_affines(A1: np.ndarray | None, A2: np.ndarray | None) -> np.ndarray |
     # A singular image-1 shape gives no transformation: such a match predicts nothing (infinite error).
     T[~np.isfinite(T).all(axis=(1, 2))] = np.inf
     return T
-
-
-def _pair_affinity(x, y, T, a: np.ndarray, b: np.ndarray, tau: float, rho: float) -> np.ndarray:
-    """Pairwise affinity in [0, 1] of the candidates ``a`` and ``b`` (arrays of indices).
-
-    With local affine transformations ``T``: ``max(1 - d / tau, 0)``, ``d`` the mutual projection error in
-    pixels. Without: ``max(1 - d / rho, 0)``, ``d = |l1 - l2| / ((l1 + l2) / 2)`` the relative length
-    distortion of the edge (0 for two coincident keypoints in both images).
-    """
-    dx, dy = x[b] - x[a], y[b] - y[a]
-    if T is None:
-        l1, l2 = np.hypot(dx[:, 0], dx[:, 1]), np.hypot(dy[:, 0], dy[:, 1])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            d = np.where(l1 + l2 > 0, 2.0 * np.abs(l1 - l2) / (l1 + l2), 0.0)
-        return np.maximum(1.0 - d / rho, 0.0)
-    Ta, Tb = T.reshape(-1, 4)[a], T.reshape(-1, 4)[b]
-    with np.errstate(invalid="ignore"):
-        e_a = np.hypot(dy[:, 0] - Ta[:, 0] * dx[:, 0] - Ta[:, 1] * dx[:, 1],
-                       dy[:, 1] - Ta[:, 2] * dx[:, 0] - Ta[:, 3] * dx[:, 1])
-        e_b = np.hypot(dy[:, 0] - Tb[:, 0] * dx[:, 0] - Tb[:, 1] * dx[:, 1],
-                       dy[:, 1] - Tb[:, 2] * dx[:, 0] - Tb[:, 3] * dx[:, 1])
-        d = 0.5 * (e_a + e_b)
-    d = np.where(np.isfinite(d), d, np.inf)
-    return np.maximum(1.0 - d / tau, 0.0)
 
 
 def _unique(key: np.ndarray) -> np.ndarray:
@@ -447,13 +424,21 @@ def _votes(x, y, T, m, sol: np.ndarray, weight: np.ndarray, k: int, tau: float, 
     """
     n = len(x)
     kk = min(k, len(sol))
-    pairs = []
-    for p in (x, y):
-        _, nb = cKDTree(p[sol]).query(p, k=kk)
-        pairs.append(np.arange(n)[:, None] * n + sol[np.asarray(nb).reshape(n, kk)])
-    key = _unique(np.concatenate(pairs, axis=1).ravel())
-    a, b = key // n, key % n
-    ok = (m[a, 0] != m[b, 0]) & (m[a, 1] != m[b, 1])
-    a, b = a[ok], b[ok]
-    w = _pair_affinity(x, y, T, a, b, tau, rho) * weight[np.searchsorted(sol, b)]
+    nbs = []
+    for p, key in ((x, m[:, 0]), (y, m[:, 1])):
+        # The candidates of one keypoint share its location, hence its neighbours: one query per keypoint.
+        _, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        _, nb = cKDTree(p[sol]).query(p[first], k=kk)
+        nbs.append(np.asarray(nb).reshape(len(first), kk)[inv.reshape(-1)])
+    # Each candidate's neighbours in either image, each once, ascending (the pairs in (a, b) order).
+    b = np.sort(np.concatenate(nbs, axis=1), axis=1)
+    ok = np.ones(b.shape, bool)
+    ok[:, 1:] = b[:, 1:] != b[:, :-1]
+    b = sol[b]
+    ok &= (m[:, :1] != m[b, 0]) & (m[:, 1:] != m[b, 1])
+    a = np.broadcast_to(np.arange(n)[:, None], b.shape)[ok]
+    pos = np.zeros(n, np.int64)
+    pos[sol] = np.arange(len(sol))
+    weight_b = weight[pos[b[ok]]]
+    w = _pair_affinity(x, y, T, a, b[ok], tau, rho) * weight_b
     return np.bincount(a, w, n)
