@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ctxmatch_lib.filters._pgm_kernels import pair_affinity
+from ctxmatch_lib.filters._pgm_kernels import pair_affinity, sinkhorn
 from ctxmatch_lib.filters.pgm import _local_affines
 
 
@@ -70,3 +70,60 @@ def test_pair_affinity_bit_identical_to_arrays(with_shapes):
     want = _pair_affinity_arrays(x, y, T, a, b, 50.0, 0.5)
     np.testing.assert_array_equal(got, want)
     assert 0 < np.count_nonzero(got) < npairs
+
+
+def _sinkhorn_arrays(a, g1, g2, tol, max_iter):
+    """The array formulation of PGM's Sinkhorn normalisation that the kernel replaced (the reference)."""
+    n1, n2 = int(g1.max()) + 1, int(g2.max()) + 1
+    if n1 > n2:
+        g1, g2, n1, n2 = g2, g1, n2, n1
+    extra = n2 - n1
+    dummy = np.ones(n2)
+    for _ in range(max_iter):
+        a = a / np.bincount(g1, a, n1)[g1]
+        if extra:
+            dummy = dummy / dummy.sum()
+        col = np.bincount(g2, a, n2) + extra * dummy
+        b = a / col[g2]
+        dummy = dummy / col
+        done = np.abs(b - a).max() < tol
+        a = b
+        if done:
+            break
+    return a
+
+
+def test_sinkhorn_exact_small():
+    # Two candidates of one image-1 keypoint on two image-2 keypoints, weights 3 and 1: the row sums to 1
+    # (0.75, 0.25); the second image has one more keypoint, so one dummy row (1/2, 1/2) joins the columns,
+    # which then hold 1.25 and 0.75: 0.75 / 1.25 = 0.6 and 0.25 / 0.75 = 1/3 after one iteration.
+    out = sinkhorn(np.array([3.0, 1.0]), np.array([0, 0]), np.array([0, 1]), 1e-3, 1)
+    np.testing.assert_allclose(out, [0.6, 1.0 / 3.0])
+    a = np.array([3.0, 1.0])
+    sinkhorn(a, np.array([0, 0]), np.array([0, 1]), 1e-3, 1)
+    np.testing.assert_array_equal(a, [3.0, 1.0])  # the input is left alone
+
+
+@pytest.mark.parametrize("n1, n2, max_iter", [(40, 40, 10), (30, 200, 10), (300, 50, 1000), (5, 3, 10)])
+def test_sinkhorn_bit_identical_to_arrays(n1, n2, max_iter):
+    # Many-to-many candidate sets, square or not (slack on either side, more than 128 dummies too), a
+    # zero-weight group included: the kernel gives exactly the array formulation's values.
+    rng = np.random.default_rng(n1 + n2)
+    k = 6 * max(n1, n2)
+    g1 = np.r_[np.arange(n1), rng.integers(0, n1, k - n1)]
+    g2 = np.r_[np.arange(n2), rng.integers(0, n2, k - n2)][:k] if k >= n2 else rng.integers(0, n2, k)
+    a = np.exp(30.0 * rng.random(k))
+    a[g1 == 0] = 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want = _sinkhorn_arrays(a, g1, g2, 1e-3, max_iter)
+    np.testing.assert_array_equal(sinkhorn(a, g1, g2, 1e-3, max_iter), want)
+
+
+def test_pairwise_sum_is_numpys_sum():
+    # The kernel's normalisations must sum as numpy does (pairwise, blockwise) to stay bit-identical.
+    from ctxmatch_lib.filters._pgm_kernels import _pairwise_sum
+
+    rng = np.random.default_rng(0)
+    for n in [0, 1, 7, 8, 9, 127, 128, 129, 255, 256, 1000, 4099, 40000]:
+        a = rng.exponential(size=n) * 10.0 ** rng.uniform(-20, 5, n)
+        assert _pairwise_sum(a, 0, n) == a.sum(), n

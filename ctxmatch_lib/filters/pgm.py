@@ -45,6 +45,8 @@ from scipy.spatial import cKDTree
 
 from ._common import check_positive, knn_without_self, merge_coincident, prepare
 from ._pgm_kernels import pair_affinity as _pair_affinity
+from ._pgm_kernels import sinkhorn as _pgm_sinkhorn
+from ._pgm_kernels import votes as _pgm_votes
 
 __all__ = ["pgm_filter", "rrwm"]
 
@@ -98,23 +100,7 @@ def _sinkhorn(a: np.ndarray, g1: np.ndarray, g2: np.ndarray, tol: float, max_ite
     each entry starting at 1 (the jump weight of a candidate without support). The dummy rows stay equal to
     one another, so they are kept as one vector with a multiplicity: ``O(K + n)`` per iteration.
     """
-    n1, n2 = int(g1.max()) + 1, int(g2.max()) + 1
-    if n1 > n2:  # transpose the problem so that the dummies are rows
-        g1, g2, n1, n2 = g2, g1, n2, n1
-    extra = n2 - n1
-    dummy = np.ones(n2)
-    for _ in range(max_iter):
-        a = a / np.bincount(g1, a, n1)[g1]
-        if extra:
-            dummy = dummy / dummy.sum()
-        col = np.bincount(g2, a, n2) + extra * dummy
-        b = a / col[g2]
-        dummy = dummy / col
-        done = np.abs(b - a).max() < tol
-        a = b
-        if done:
-            break
-    return a
+    return _pgm_sinkhorn(a, g1, g2, tol, max_iter)  # compiled, same arithmetic as the array form
 
 
 def rrwm(
@@ -430,15 +416,8 @@ def _votes(x, y, T, m, sol: np.ndarray, weight: np.ndarray, k: int, tau: float, 
         _, first, inv = np.unique(key, return_index=True, return_inverse=True)
         _, nb = cKDTree(p[sol]).query(p[first], k=kk)
         nbs.append(np.asarray(nb).reshape(len(first), kk)[inv.reshape(-1)])
-    # Each candidate's neighbours in either image, each once, ascending (the pairs in (a, b) order).
-    b = np.sort(np.concatenate(nbs, axis=1), axis=1)
-    ok = np.ones(b.shape, bool)
-    ok[:, 1:] = b[:, 1:] != b[:, :-1]
-    b = sol[b]
-    ok &= (m[:, :1] != m[b, 0]) & (m[:, 1:] != m[b, 1])
-    a = np.broadcast_to(np.arange(n)[:, None], b.shape)[ok]
-    pos = np.zeros(n, np.int64)
-    pos[sol] = np.arange(len(sol))
-    weight_b = weight[pos[b[ok]]]
-    w = _pair_affinity(x, y, T, a, b[ok], tau, rho) * weight_b
-    return np.bincount(a, w, n)
+    # Each candidate's neighbours in either image, ascending (the pairs in (a, b) order), each voting once.
+    nb = sol[np.sort(np.concatenate(nbs, axis=1), axis=1)]
+    score = np.zeros(n)
+    score[sol] = weight
+    return _pgm_votes(x, y, T, m, nb, score, tau, rho)
