@@ -123,3 +123,29 @@ def test_paper_rows_quoted_for_every_swept_peer(ablate):
     # The Table 2 (baseline, no model) values printed beside the sweeps: four numbers per filter, percentages.
     assert set(ablate.PAPER_BASELINE) == {"bm", "scv", "pfm", "lmr"}
     assert all(len(v) == 4 and all(0 < x < 100 for x in v) for v in ablate.PAPER_BASELINE.values())
+
+
+def test_mpc_features_of_one_translation_are_all_one():
+    # 30 tie-free matches of one translation: every stage keeps all (10 of 10 neighbours shared), at every
+    # scale every neighbour is shared, the lengths agree (ratio 1) and the directions too (angle 0).
+    from ctxmatch_lib.filters.lmr import MPC_SCALES, mpc_features
+
+    x = np.random.default_rng(0).uniform(0, 500, (30, 2))
+    f = mpc_features(x, x + (3.0, 4.0))
+    assert f.shape == (30, 3 * len(MPC_SCALES))
+    np.testing.assert_allclose(f, 1.0, rtol=0, atol=1e-12)
+    # Five matches: 4 of 10 neighbours at most, below the last stage's 50 %: no consensus, all features 0
+    # (the authors' MPC.m stops with an error there), and the filter keeps nothing.
+    assert not mpc_features(x[:5], x[:5] + 1.0).any()
+    m = np.c_[np.arange(5), np.arange(5)]
+    assert not FILTERS["lmr"](x[:5], x[:5] + 1.0, m, image_size1=SIZE, image_size2=SIZE).any()
+
+
+def test_lmr_features_option_is_checked():
+    x = np.random.default_rng(1).uniform(0, 500, (40, 2))
+    m = np.c_[np.arange(40), np.arange(40)]
+    with pytest.raises(ValueError, match="features"):
+        FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE, features="nope")
+    former = FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE, features="lpm")
+    default = FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE)
+    assert former.all() and default.all()
