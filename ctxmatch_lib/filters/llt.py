@@ -151,7 +151,15 @@ def llt_filter(
     with Octave's random state 1 or 2 instead of 0, the reference itself agrees with its state-0 run at a
     mean Jaccard of 0.978 / 0.985 (baseline planar) and 0.824 / 0.817 (baseline non-planar, P / R 54.8 / 45.2
     and 54.7 / 45.4 against 44.5 / 41.7 at state 0): the non-planar row's one pair (nothing kept at state 0, 59 and 61
-    matches at states 1 and 2, 74 in ours) decides both its Jaccard and its 12-point precision gap.
+    matches at states 1 and 2, 74 in ours) decides both its Jaccard and its 12-point precision gap. At best,
+    non-planar, the reference at states 1 / 2 agrees with state 0 at 0.833 / 0.985 (P / R 31.3 / 29.4 and
+    41.7 / 41.3 against 41.7 / 42.2): the pair behind our 3.4-point recall gap (J 0.638) is one where the
+    reference keeps nothing at state 1. On those two pairs the EM does not converge, and even the rounding
+    of an equivalent product order moves a match.
+
+    Speed (issue 22, item 5): ``OMP_NUM_THREADS=1 CTXMATCH_DATA=... .venv/bin/python
+    benchmarks/bench_filters_real.py --pairs 3 --filters llt``: 2.29x DTM summed, 2.75x on the worst pair
+    (19 000 - 30 000 candidates); 5.1x on the largest pair before the alignment (measured in one run).
 
     Distance from the paper's Table 2 row (baseline, planar, no model: P 40.3, R 39.9, 49 % failures): the
     authors' code on our candidates gives 44.0 / 44.3 and keeps nothing on 3 of the 6 pairs in every row,
