@@ -129,12 +129,15 @@ with user_cache() as _cache:
         row = np.empty(n1)
         col = np.empty(n2)
         b = np.empty(k)
+        tmp = np.empty(k)  # gathered divisors: the divisions then run in vectorisable loops
         for _ in range(max_iter):
             row[:] = 0.0
             for i in range(k):
                 row[g1[i]] += a[i]
             for i in range(k):
-                a[i] = a[i] / row[g1[i]]
+                tmp[i] = row[g1[i]]
+            for i in range(k):
+                a[i] = a[i] / tmp[i]
             if n2 > n1:
                 total = _pairwise_sum(dummy, 0, n2)
                 for j in range(n2):
@@ -144,21 +147,23 @@ with user_cache() as _cache:
                 col[g2[i]] += a[i]
             for j in range(n2):
                 col[j] = col[j] + extra * dummy[j]
+            for i in range(k):
+                tmp[i] = col[g2[i]]
+            for i in range(k):
+                b[i] = a[i] / tmp[i]
             change = 0.0
             nan = False  # np.max of the changes is NaN if any is: not converged
             for i in range(k):
-                b[i] = a[i] / col[g2[i]]
                 e = abs(b[i] - a[i])
-                if e > change:
-                    change = e
-                elif e != e:
-                    nan = True
+                nan |= e != e
+                change = e if e > change else change
             for j in range(n2):
                 dummy[j] = dummy[j] / col[j]
             a, b = b, a
             if not nan and change < tol:
                 break
         return a
+
 
 def pair_affinity(x: np.ndarray, y: np.ndarray, T: np.ndarray | None, a: np.ndarray, b: np.ndarray,
                   tau: float, rho: float) -> np.ndarray:
