@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import random
+
 import numpy as np
 import pytest
 
@@ -256,12 +258,11 @@ def test_th_applies_the_nnr_threshold_on_the_scale_of_d_plus_scores():
 
 def _rfm_scan_dense(x, y, size, gamma=10.0, pct=0.05, mu=(0.1, 0.08), rng=0):
     """RFM-SCAN with the full K x K distance matrix (the definition the k-d tree search must reproduce)."""
-    rng = np.random.default_rng(rng)
     n = len(x)
-    n_noise = int(round(min(0.05 * n, 20)))
-    hi = np.asarray(size) - 0.5
-    x = np.vstack([x, rng.uniform(-0.5, hi, size=(n_noise, 2))])
-    y = np.vstack([y, rng.uniform(-0.5, hi, size=(n_noise, 2))])
+    n_noise = int(np.floor(min(0.05 * n, 20) + 0.5))  # MATLAB's round
+    draw = random.Random(rng).random  # Octave's rand after rand('state', rng), as the authors' demo
+    u = np.array([draw() for _ in range(4 * n_noise)]).reshape(2, 2, n_noise)  # rand(n, 2) column by column
+    x, y = np.vstack([x, u[0].T * x.max(0)]), np.vstack([y, u[1].T * y.max(0)])
     f = np.hstack([x, y, y - x])
     span = f.max(0) - f.min(0)
     f = ((f - f.min(0)) / np.where(span > 0, span, 1.0)).astype(np.float32)
