@@ -459,7 +459,7 @@ def test_blob_sets_are_labelled_many_to_many_and_cached(tmp_path):
         blobsets.build_sets(0, cache_dir=tmp_path)
 
 
-def test_blob_batches_and_balanced_loss(torch, monkeypatch):
+def test_blob_batches_and_balanced_loss(torch, monkeypatch, tmp_path):
     from ctxmatch_lib.filters.learned import training
     from ctxmatch_lib.filters.learned.blobsets import BlobSet
 
@@ -481,11 +481,17 @@ def test_blob_batches_and_balanced_loss(torch, monkeypatch):
     plain, bal = training._bce(logits, yb, False).item(), training._bce(logits, yb, True).item()
     assert bal < plain
     monkeypatch.setattr(training, "_blob_data", lambda n, seed: (sets, sets[:1]))
+    small = {"net_channels": 8, "net_depth": 1, "groups": 4}
     r = training.train("acne", steps=2, batch_size=2, n_candidates=(8, 128), data="blob", balanced=True,
-                       progress=False, config={"net_channels": 8, "net_depth": 1, "groups": 4})
+                       progress=False, config=small, output=tmp_path / "a.npz")
     assert len(r.losses) == 2 and r.validation["n_sets"] == 1
-    r2 = training.train("acne", steps=1, batch_size=2, n_candidates=(8, 128), data="blob", init=None,
-                        progress=False, validate=False, config={"net_channels": 8, "net_depth": 1, "groups": 4})
+    # Fine-tuning starts from the given weights: one step at a vanishing learning rate leaves them as they were.
+    r2 = training.train("acne", steps=1, batch_size=2, n_candidates=(8, 128), data="blob", init=r.path,
+                        lr=1e-9, progress=False, validate=False, config=small)
     assert r2.validation == {}
+    a, b = r.net.state_dict(), r2.net.state_dict()
+    assert all(torch.allclose(a[k].float(), b[k].float(), atol=1e-6) for k in a if "num_batches" not in k)
+    with pytest.raises(ValueError, match="shape"):
+        training.train("acne", steps=1, data="blob", init=r.path, progress=False, config=dict(small, net_channels=16))
     with pytest.raises(ValueError, match="data"):
         training.train("acne", steps=1, data="real")

@@ -1,13 +1,21 @@
-"""Training OANet and ACNe here, on correspondences generated from the embedded images (imports torch).
+"""Training OANet and ACNe here (imports torch).
 
 Reach it through :func:`ctxmatch_lib.filters.learned.train_learned_filter` or ``ctxmatch train oanet|acne``.
-The data are those of :mod:`.data` (random homographies and layered non-planar scenes on the embedded
-images' SIFT keypoints, planted outliers, inlier ratios 5-60 %), drawn afresh at every step from one seeded
-generator; nothing is read from ``CTXMATCH_DATA``. The loss is the binary cross-entropy of every stage's
-inlier logits against the labels (OANet: both stages, as the authors' classification loss; ACNe: the output
-logits plus, with weight 1, the local-attention logits of every ACN layer, the authors' "multi-logit"
-loss). The authors' geometric (essential-matrix) loss is not used: the labels here are exact. Adam,
-learning rate ``lr`` with cosine decay to ``lr / 10``.
+Two kinds of training sets, neither read from ``CTXMATCH_DATA``:
+
+* ``data="generated"`` (``ctxmatch train``'s recipe, the shipped weights): the sets of :mod:`.data`
+  (random homographies and layered non-planar scenes on the embedded images' SIFT keypoints, planted
+  outliers, inlier ratios 5-60 %), drawn afresh at every step from one seeded generator;
+* ``data="blob"``: the project's own blob candidates on generated image pairs (:mod:`.blobsets`, cached),
+  each step drawing ``batch_size`` sets and cutting them to a common K (a random subset of rows); the last
+  :data:`BLOB_VAL_FRACTION` of the scenes are held out for the validation.
+
+The loss is the binary cross-entropy of every stage's inlier logits against the labels (OANet: both stages,
+as the authors' classification loss; ACNe: the output logits plus, with weight 1, the local-attention logits
+of every ACN layer, the authors' "multi-logit" loss), plain or, with ``balanced=True``, balanced as the
+OANet / CNe authors balance it (the mean over inliers and the mean over outliers, half each). The authors'
+geometric (essential-matrix) loss is not used: the labels here are exact. Adam, learning rate ``lr`` with
+cosine decay to ``lr / 10``; ``init`` starts from given weights (fine-tuning).
 
 Runs are deterministic for a given seed and thread count (``num_threads``, default 1).
 """
