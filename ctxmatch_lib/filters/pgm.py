@@ -289,7 +289,7 @@ def pgm_filter(
     - Stopping: the objective ``X' W X`` of the discrete solution must grow from one round to the next
       (PGM), and ``max_rounds = 3`` bounds the rounds (the authors' demo allows 10). Three rounds, not the
       five used before, for speed (issue 22, item 5): 1.4x - 1.6x faster on 23 000 - 30 000 candidates
-      (homogr/boat 5.2x -> 3.7x DTM's time), at equal or better precision and recall on the 55 shared pairs
+      (homogr/boat 5.2x -> 3.7x DTM's time), no cell worse by more than 0.1 point on the 55 shared pairs
       (``benchmarks/ablate_peer_filters.py --sweep pgm:max_rounds=2,3,5``; planar / non-planar P / R in %):
       baseline configuration at the paper's budget 71.6 / 83.1 and 72.9 / 74.6 with 3 or 5 rounds alike;
       best configuration at the paper's budget 77.6 / 81.4 and 74.0 / 64.4 (3) against 77.5 / 81.5 and
