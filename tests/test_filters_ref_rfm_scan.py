@@ -178,3 +178,23 @@ def test_octave_reference_agrees_on_a_planted_case(bench):
     assert cpu >= 0 and 0 < ref.sum() < len(x)
     np.testing.assert_array_equal(rfm(x, y), ref)
     np.testing.assert_array_equal(rfm(x, y, merge_coincident=False), ref)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_round_clusters_as_the_dense_definition_with_second_round_scales(seed):
+    # One round with the second round's column scales (1 / 100): the pruned searches (L1-bound core test,
+    # nearest-core reach test) give the dense definition's clustered set.
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, 1, (4, 6))
+    feats = np.vstack([c + rng.normal(0, 0.02, (60, 6)) for c in centres] + [rng.uniform(0, 1, (160, 6))])
+    scale = np.where(rng.random(len(feats)) < 0.6, 1.0, 100.0).astype(np.float32)
+    space = _MotionSpace(feats, 10.0)
+    k, mu = 12, 0.08
+    got = _Round(space, scale, k).clustered(mu)
+    every = np.arange(len(feats))
+    d = space.dist(every[:, None], every[None, :]) * scale[None, :]
+    kth = np.partition(d, k - 1, axis=1)[:, k - 1]
+    eps = kth.min() + np.float32(mu) * (kth.max() - kth.min())
+    core = kth <= eps
+    np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
+    assert 0 < got.sum() < len(feats)
