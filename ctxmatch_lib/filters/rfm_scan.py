@@ -405,6 +405,12 @@ def rfm_scan_filter(
     0-5 its masks agree with its state-0 mask at Jaccard 0.95-0.985 (means per cell). Its masks do not depend
     on the row order (``--permutations 1``: Jaccard 1.000). Before this alignment: Jaccard 0.962 / 0.846 /
     0.975 / 0.954 (baseline planar / non-planar, best planar / non-planar). Ours takes 1-7 % of its CPU time.
+    At the paper's scale (the 55 shared pairs, baseline, no model; ``benchmarks/ablate_peer_filters.py --sweep
+    rfm_scan:merge_coincident=true,false --pairs 40``): planar P / R 54.2 / 91.1, non-planar 49.2 / 80.6 by
+    default; 55.0 / 93.1 and 51.0 / 79.9 with ``merge_coincident=False`` (the original's own result on our
+    candidates); 52.3 / 93.8 and 45.1 / 85.7 before this alignment (``figures/paper/tables.md``); the paper's
+    Table 2 (as quoted there) 57.7 / 92.8 and 54.0 / 92.7. The non-planar recall gap (12 points) is the
+    original's on our data.
 
     Speed at real sizes (issue 22, item 5; ``OMP_NUM_THREADS=1 CTXMATCH_DATA=... python
     benchmarks/bench_filters_real.py --pairs 3 --filters rfm_scan,dtm --repeat 3``; sift-rootsift,
