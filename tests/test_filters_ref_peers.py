@@ -149,3 +149,142 @@ def test_lmr_features_option_is_checked():
     former = FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE, features="lpm")
     default = FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE)
     assert former.all() and default.all()
+
+
+# ------------------------------------------------------------------ LMR with the authors' network (network=)
+
+
+def _cell(items, shape):
+    c = np.empty(shape, object)
+    for i, v in enumerate(items):
+        c.flat[i] = v
+    return c
+
+
+def _save_net(path, weights, biases, transfers, in_proc=(), out_proc=()):
+    """A MATLAB-network-like struct as scipy.io.savemat writes it (the fields lmr_filter reads)."""
+    from scipy.io import savemat
+
+    n = len(weights)
+    iw = _cell([weights[0]] + [np.zeros((0, 0))] * (n - 1), (n, 1))
+    lw = _cell([np.zeros((0, 0))] * (n * n), (n, n))
+    for l in range(1, n):
+        lw[l, l - 1] = weights[l]
+    procs = lambda names: _cell(list(names), (1, len(names)))  # noqa: E731
+    outputs = _cell([np.zeros((0, 0))] * (n - 1) + [{"processFcns": procs(out_proc)}], (1, n))
+    net = dict(IW=iw, LW=lw, b=_cell([np.reshape(b, (-1, 1)) for b in biases], (n, 1)),
+               layers=_cell([{"transferFcn": t} for t in transfers], (n, 1)),
+               inputs=_cell([{"processFcns": procs(in_proc)}], (1, 1)), outputs=outputs)
+    savemat(path, {"net": net})
+    return path
+
+
+def _random_net(rng, dims):
+    return ([rng.normal(size=(dims[i + 1], dims[i])) for i in range(len(dims) - 1)],
+            [rng.normal(size=dims[i + 1]) for i in range(len(dims) - 1)])
+
+
+def test_lmr_network_forward_pass_matches_the_transfer_definitions(tmp_path):
+    from scipy.io import loadmat
+
+    from ctxmatch_lib.filters._lmr_network import parse_network
+
+    rng = np.random.default_rng(0)
+    w, b = _random_net(rng, [3, 4, 3, 2])
+    net = parse_network(loadmat(_save_net(tmp_path / "n.mat", w, b, ["tansig", "logsig", "purelin"]))["net"])
+    x = rng.normal(size=(7, 3))
+    a = np.tanh(x @ w[0].T + b[0])  # tansig(n) = 2 / (1 + exp(-2n)) - 1 = tanh(n)
+    a = 1.0 / (1.0 + np.exp(-(a @ w[1].T + b[1])))
+    a = a @ w[2].T + b[2]
+    np.testing.assert_allclose(net.forward(x), a, rtol=0, atol=1e-12)
+    assert net.forward(np.empty((0, 3))).shape == (0, 2)
+
+
+def test_lmr_with_a_network_keeps_the_rows_whose_first_output_wins(tmp_path):
+    from ctxmatch_lib.filters.lmr import mpc_features
+
+    rng = np.random.default_rng(1)
+    w, b = _random_net(rng, [48, 5, 2])
+    path = _save_net(tmp_path / "Net.mat", w, b, ["tansig", "purelin"])
+    x = rng.uniform(0, 600, (120, 2))
+    y = x * 1.05 + (12.0, -7.0) + rng.normal(0, 0.5, (120, 2))
+    y[:30] = rng.uniform(0, 600, (30, 2))
+    m = np.c_[np.arange(120), np.arange(120)]
+    keep = FILTERS["lmr"](x, y, m, image_size1=SIZE, image_size2=SIZE, network=path)
+    out = np.tanh(mpc_features(x, y, exact=True) @ w[0].T + b[0]) @ w[1].T + b[1]
+    np.testing.assert_array_equal(keep, out[:, 0] > out[:, 1])
+    assert 0 < keep.sum() < 120  # the random net decides both ways here: the comparison is not vacuous
+    assert not FILTERS["lmr"](x[:0], y[:0], m[:0], image_size1=SIZE, image_size2=SIZE, network=path).any()
+
+
+def test_mpc_exact_features_are_mpc_m_values():
+    # MPC.m's direction: atan of the shifted ratio moved to [0, 2 pi) by its quadrant rules = atan2 mod 2 pi
+    # away from the axes; its maps are gaussmf(r, [0.4 1]) and gaussmf(angle, [0.8 0]).
+    from ctxmatch_lib.filters._lmr_network import gaussmf, mpc_motion
+    from ctxmatch_lib.filters.lmr import mpc_features
+
+    v = np.array([[3.0, 4.0], [-3.0, 4.0], [-3.0, -4.0], [3.0, -4.0], [0.5, -7.0]])
+    d2, theta = mpc_motion(np.zeros_like(v), v)
+    np.testing.assert_allclose(theta, np.arctan2(v[:, 1], v[:, 0]) % (2 * np.pi), atol=1e-6)
+    np.testing.assert_allclose(d2, (v**2).sum(1), rtol=1e-6)
+    np.testing.assert_allclose(gaussmf(np.array([1.0, 1.4]), 0.4, 1.0), [1.0, np.exp(-0.5)])
+    x = np.random.default_rng(0).uniform(0, 500, (30, 2))
+    np.testing.assert_allclose(mpc_features(x, x + (3.0, 4.0), exact=True), 1.0, rtol=0, atol=1e-9)
+    # A length ratio of 2 at one match: its length consistency is gaussmf(2, [0.4 1]) exactly where it
+    # differs from the rational map of the default.
+    y = x + (3.0, 4.0)
+    y[0] = x[0] + (6.0, 8.0)
+    fe, fd = mpc_features(x, y, exact=True), mpc_features(x, y)
+    assert not np.array_equal(fe, fd) and np.array_equal(fe[:, :16], fd[:, :16])
+
+
+def test_lmr_network_is_refused_with_a_clear_error(tmp_path):
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0, 500, (40, 2))
+    m = np.c_[np.arange(40), np.arange(40)]
+    w, b = _random_net(rng, [48, 4, 2])
+
+    def run(path, **kw):
+        return FILTERS["lmr"](x, x + 1.0, m, image_size1=SIZE, image_size2=SIZE, network=path, **kw)
+
+    cases = {
+        "in_proc.mat": dict(weights=w, biases=b, transfers=["tansig", "tansig"], in_proc=["mapminmax"]),
+        "out_proc.mat": dict(weights=w, biases=b, transfers=["tansig", "tansig"], out_proc=["mapminmax"]),
+        "poslin.mat": dict(weights=w, biases=b, transfers=["tansig", "poslin"]),
+        "chain.mat": dict(weights=[w[0], rng.normal(size=(2, 3))], biases=b, transfers=["tansig", "tansig"]),
+        "bias.mat": dict(weights=w, biases=[b[0], np.zeros(3)], transfers=["tansig", "tansig"]),
+        "inputs.mat": dict(weights=[rng.normal(size=(4, 10)), w[1]], biases=b, transfers=["tansig", "tansig"]),
+    }
+    messages = {"in_proc.mat": "processFcns", "out_proc.mat": "processFcns", "poslin.mat": "poslin",
+                "chain.mat": "chain", "bias.mat": "chain", "inputs.mat": "48 inputs"}
+    for name, kw in cases.items():
+        path = _save_net(tmp_path / name, **kw)
+        with pytest.raises(ValueError, match=f"^network: .*{messages[name]}"):
+            run(path)
+    with pytest.raises(ValueError, match="^network: no such file"):
+        run(tmp_path / "missing.mat")
+    (tmp_path / "junk.mat").write_text("not a mat file")
+    with pytest.raises(ValueError, match="^network: cannot read"):
+        run(tmp_path / "junk.mat")
+    ok = _save_net(tmp_path / "ok.mat", w, b, ["tansig", "logsig"])
+    with pytest.raises(ValueError, match="network.*features"):
+        run(ok, features="lpm")
+    assert run(ok).shape == (40,)
+
+
+@pytest.mark.skipif(shutil.which("octave") is None or not LMR_REF,
+                    reason="needs GNU Octave and CTXMATCH_LMR_REF (a checkout of StaRainJ/LMR)")
+def test_lmr_with_the_authors_network_agrees_with_their_code(bench):
+    # One affine motion, 150 uniform outliers and a second, weaker motion: the authors' MPC.m + network
+    # under Octave and network=<checkout>/Trained_Model/Net.mat evaluated here give the same mask.
+    net = next(Path(LMR_REF).rglob("Net.mat"))
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0, 600, (500, 2))
+    y = x * 1.05 + (12.0, -7.0) + rng.normal(0, 1.0, (500, 2))
+    y[:150] = rng.uniform(0, 600, (150, 2))
+    y[150:200] = x[150:200] * 0.9 + (40.0, 30.0) + rng.normal(0, 1.0, (50, 2))
+    (ref, _), = bench.run_octave_reference("lmr", Path(LMR_REF), [dict(X=x, Y=y, small=np.ones(500, bool))])
+    m = np.c_[np.arange(500), np.arange(500)]
+    ours = FILTERS["lmr"](x, y, m, image_size1=SIZE, image_size2=SIZE, network=net)
+    assert ref is not None and 0 < ref.sum() < 500
+    np.testing.assert_array_equal(ours, ref)

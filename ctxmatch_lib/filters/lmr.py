@@ -55,7 +55,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, knn_without_self, merge_coincident, prepare
+from ._common import check_positive, knn_without_self, prepare
+from ._common import merge_coincident as _merge_coincident
+from ._lmr_network import ANGLE_GAUSSMF, LENGTH_GAUSSMF, gaussmf, load_network, mpc_motion
 
 __all__ = ["lmr_filter", "lmr_features", "mpc_features", "train_lmr", "LMRModel", "LMR_TRAIN_DEFAULTS",
            "MODEL_PATH", "SCALES", "MPC_SCALES"]
@@ -130,7 +132,7 @@ def _shared_sorted(nx: np.ndarray, ny: np.ndarray):
     return both[:, :-1], both[:, 1:] == both[:, :-1]
 
 
-def mpc_features(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.ndarray:
     """The authors' match representation (``MPC.m`` of their code), ``(K, 3 * len(MPC_SCALES))`` float64.
 
     Parameters
@@ -138,12 +140,17 @@ def mpc_features(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     x, y : ndarray of shape (K, 2)
         Image-1 and image-2 keypoints of each match, (x, y) pixels, origin at the centre of the top-left
         pixel.
+    exact : bool, default False
+        ``True``: ``MPC.m``'s own values (its ``gaussmf`` maps, motion shift ``dv`` and quadrant rules, see
+        :func:`~ctxmatch_lib.filters._lmr_network.mpc_motion`), as the authors' network needs; ``False``: the
+        rational maps of the module notes, which the shipped trees classify.
 
     Returns
     -------
     ndarray of shape (K, 48)
         First the shared-neighbour fraction at each scale of :data:`MPC_SCALES`, then per scale a length and
         an angle consistency (see the module notes); neighbours are searched among the consensus matches.
+        The column order of ``MPC.m``'s output.
     """
     n = len(x)
     feats = np.zeros((n, 3 * len(MPC_SCALES)))
@@ -155,10 +162,13 @@ def mpc_features(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         idx = np.flatnonzero((eq.sum(1) - 1) / k > frac)
     if len(idx) == 0:
         return feats
-    v = y - x
-    d2 = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]
-    # Motion direction in [0, 2 pi); math.atan2 (the C library's) keeps the bits the same from run to run.
-    theta = np.array([math.atan2(b, a) for a, b in v.tolist()]) % (2 * np.pi)
+    if exact:
+        d2, theta = mpc_motion(x, y)
+    else:
+        v = y - x
+        d2 = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]
+        # Motion direction in [0, 2 pi); math.atan2 (the C library's) keeps the bits the same from run to run.
+        theta = np.array([math.atan2(b, a) for a, b in v.tolist()]) % (2 * np.pi)
     nx0 = _knn_among(x, idx, MPC_SCALES[-1] + 1)
     ny0 = _knn_among(y, idx, MPC_SCALES[-1] + 1)
     ns = len(MPC_SCALES)
@@ -175,14 +185,19 @@ def mpc_features(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         ang = np.abs(theta - th_mean)
         ang = np.where(ang > np.pi, 2 * np.pi - ang, ang)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            r = np.maximum(d2 / d2_mean, d2_mean / d2)
-            # MPC.m maps (r - 1) and the angle by Gaussians (gaussmf). Trees split alike on any monotone map
-            # of a feature, so 1 / (1 + u^2), monotone in |u| as the Gaussian and made of correctly rounded
-            # operations only, stands in for exp(-u^2 / (2 sigma^2)); 0 where no neighbour is shared, below
-            # every defined value, as gaussmf's 0 there.
-            length = 1.0 / (1.0 + (r - 1.0) ** 2)
+            if exact:  # MATLAB's max ignores a NaN
+                length = gaussmf(np.fmax(d2 / d2_mean, d2_mean / d2), *LENGTH_GAUSSMF)
+                angle = gaussmf(ang, *ANGLE_GAUSSMF)
+            else:
+                r = np.maximum(d2 / d2_mean, d2_mean / d2)
+                # MPC.m maps (r - 1) and the angle by Gaussians (gaussmf). Trees split alike on any monotone
+                # map of a feature, so 1 / (1 + u^2), monotone in |u| as the Gaussian and made of correctly
+                # rounded operations only, stands in for exp(-u^2 / (2 sigma^2)); 0 where no neighbour is
+                # shared, below every defined value, as gaussmf's 0 there.
+                length = 1.0 / (1.0 + (r - 1.0) ** 2)
+                angle = 1.0 / (1.0 + ang * ang)
         feats[:, ns + 2 * s] = np.where(ok & np.isfinite(length), length, 0.0)
-        feats[:, ns + 2 * s + 1] = np.where(ok, 1.0 / (1.0 + ang * ang), 0.0)
+        feats[:, ns + 2 * s + 1] = np.where(ok, angle, 0.0)
     return feats
 
 
@@ -433,6 +448,8 @@ def lmr_filter(
     threshold: float = 0.5,
     model: LMRModel | None = None,
     features: str = "mpc",
+    network: str | Path | None = None,
+    merge_coincident: bool = True,
 ) -> np.ndarray:
     """LMR: classify every match from its multi-scale neighbourhood features, in two passes.
 
@@ -456,6 +473,15 @@ def lmr_filter(
     features : {"mpc", "lpm"}, default "mpc"
         ``"mpc"``: the authors' match representation (:func:`mpc_features`, their ``MPC.m``), one pass, as
         their code; ``"lpm"``: the former reading, :func:`lmr_features` in two passes (see the module notes).
+    network : path-like, optional
+        The authors' trained network, ``Trained_Model/Net.mat`` of a user's checkout of StaRainJ/LMR (not
+        shipped: the weights are theirs). Given, ``MPC.m``'s exact features (``mpc_features(..., exact=True)``)
+        are classified by that network, evaluated in NumPy, and a match is kept when its first output exceeds
+        its second, as their demo; ``model`` and ``threshold`` are then unused and ``features`` must be
+        ``"mpc"``. A network with input or output processing functions, a transfer function other than
+        ``tansig``, ``logsig``, ``purelin``, or shapes that do not chain 48 features to 2 outputs is refused.
+    merge_coincident : bool, default True
+        Decide coincident rows as one match (see Notes); ``False`` classifies every row, as the authors' code.
 
     Returns
     -------
@@ -515,17 +541,25 @@ def lmr_filter(
     threshold = check_positive(threshold, "threshold", allow_zero=True)
     if features not in ("mpc", "lpm"):
         raise ValueError(f"features must be 'mpc' or 'lpm', got {features!r}")
-    model = _shipped_model() if model is None else model
-    merged = merge_coincident(ms)
+    if network is not None:
+        if features != "mpc":
+            raise ValueError(f"network classifies the 'mpc' features; got features={features!r}")
+        net = load_network(network, 3 * len(MPC_SCALES))
+    model = _shipped_model() if model is None and network is None else model
+    merged = _merge_coincident(ms) if merge_coincident else None
     if merged is not None:  # coincident copies of a match are one match (see Notes)
         rows, group = merged
         keep = lmr_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
                           image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          threshold=threshold, model=model, features=features)
+                          threshold=threshold, model=model, features=features, network=network,
+                          merge_coincident=False)
         return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
+    if network is not None:
+        out = net.forward(mpc_features(ms.x, ms.y, exact=True))
+        return out[:, 0] > out[:, 1]
     if features == "mpc":
         return model.proba(3, mpc_features(ms.x, ms.y)) > threshold
     first = model.proba(1, lmr_features(ms.x, ms.y)) > threshold
