@@ -25,8 +25,9 @@ LPM's second iteration (IJCV 2019, Sec. 4.3), sees neighbours among the first pa
 own classifier. Either way a match is kept when the inlier probability exceeds ``threshold`` (0.5).
 
 **Classifier** (a choice made here: the paper treats the classifier as a replaceable component; the authors'
-demo uses a small neural network trained on their ten image pairs, whose weights are theirs and are not used
-here, hence "trained here"): gradient boosted decision trees (scikit-learn's ``GradientBoostingClassifier``,
+demo uses a small neural network trained on their ten image pairs, whose weights are theirs and are not
+shipped, hence "trained here"; ``lmr_filter(..., network=PATH)`` reads them from a user's checkout instead,
+see :mod:`ctxmatch_lib.filters._lmr_network`): gradient boosted decision trees (scikit-learn's ``GradientBoostingClassifier``,
 60 trees of depth 3 per classifier: stage 3 for ``"mpc"``, stages 1 and 2 for ``"lpm"``), trained
 without threads, so training is bit-for-bit repeatable, and stored as plain arrays in
 ``ctxmatch_lib/filters/data/lmr_model.npz`` (a few tens of kB); prediction is pure NumPy.
@@ -519,6 +520,21 @@ def lmr_filter(
     59.8 / 60.1: the non-planar recall gap of the default (-16.8) is the original's own on our data (-16.4),
     whose consensus stages leave too few matches on the hard pairs where both fail. ``threshold`` 0.3 / 0.7
     moves the default to 65.2 / 69.9, 68.1 / 66.2 (planar) and 64.2 / 62.9, 71.3 / 57.0.
+
+    The authors' network (``network=<checkout>/Trained_Model/Net.mat``, their classifier on ``MPC.m``'s exact
+    values; the reference does not receive the option): ``OMP_NUM_THREADS=1 benchmarks/bench_filters_ref.py
+    --ref lmr=DIR --pairs 6 --configs baseline best --param lmr:network='"DIR/Trained_Model/Net.mat"'
+    [--param lmr:merge_coincident=false]`` (pairs where the reference runs: 5, 4, 6, 5). Jaccard baseline
+    planar / non-planar 0.879 / 0.807 (merged coincident rows) and 0.947 / 0.934 with
+    ``merge_coincident=False`` (P / R 93.9 / 90.9 against the reference's 92.6 / 90.3, 84.1 / 85.5 against
+    83.7 / 85.3); best 0.723 / 0.430 either way (83.0 / 76.2 against 83.8 / 77.2, 60.7 / 37.3 against
+    59.2 / 36.3): with ``merge_coincident=False`` P / R within 2 points in all four, Jaccard 0.90 on the
+    baseline only (merged, baseline non-planar 81.1 / 87.1 against 83.7 / 85.3); ours 0.39-0.41x the
+    reference's CPU time. The network alone is exact (fed ``MPC.m``'s own features, dumped from Octave, it
+    gives the reference's mask on every pair); what remains is the neighbour order among equidistant
+    matches: the many-to-many candidates repeat keypoints (homogr/LePoint2, best: 2270 rows on 481 distinct
+    image-1 positions), both k-d trees are exact but VLFeat's and SciPy's return different tied neighbours,
+    and ``MPC.m``'s counts depend on which.
 
     References
     ----------
