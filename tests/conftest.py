@@ -1,4 +1,6 @@
+import importlib.util
 import os
+from pathlib import Path
 
 import matplotlib
 import pytest
@@ -21,3 +23,17 @@ def data_root():
     if root is None:
         pytest.skip("CTXMATCH_DATA is not set or not a folder: real-data test skipped")
     return root
+
+
+@pytest.fixture(scope="session")
+def load_benchmark():
+    """``load_benchmark(name)`` imports ``benchmarks/<name>.py`` by path (the folder is not a package)."""
+    root = Path(__file__).resolve().parents[1] / "benchmarks"
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, root / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

@@ -7,7 +7,6 @@ interpreter with opencv-contrib-python (it conflicts with the project's OpenCV, 
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
 import sys
@@ -20,15 +19,11 @@ from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.synthetic import planted_homography_matches
 
 SIZE = (640, 480)
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_filters_ref.py"
 
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_filters_ref", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 def duplicated_outlier(copies: int, *, same_row: bool = False, seed: int = 0):

@@ -7,7 +7,6 @@ jiayi-ma/LLT and GNU Octave is on PATH.
 
 from __future__ import annotations
 
-import importlib.util
 import inspect
 import os
 import shutil
@@ -21,7 +20,6 @@ from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters.llt import lle_weights, llt_filter, m_step
 
 SIZE = (640, 480)
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_filters_ref.py"
 REF_DIR = os.environ.get("CTXMATCH_LLT_REF")
 
 # A stand-in for the shape of the authors' demo (written here, not theirs): conf lines, the normalisation,
@@ -42,11 +40,8 @@ VecFld.TX=(VecFld.TX)*normal.yscale;
 
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_filters_ref", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 def _fake_checkout(root: Path) -> Path:

@@ -8,7 +8,6 @@ Notes of ``bm``, ``scv`` and ``pfm``; its parsing and flag errors are tested her
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
 from pathlib import Path
@@ -18,31 +17,23 @@ import pytest
 
 from ctxmatch_lib.filters import FILTERS
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 SIZE = (640, 480)
 LMR_REF = os.environ.get("CTXMATCH_LMR_REF")
 
 
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def ref_lmr(load_benchmark):
+    return load_benchmark("ref_lmr")
 
 
 @pytest.fixture(scope="module")
-def ref_lmr():
-    return _load("ref_lmr")
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 @pytest.fixture(scope="module")
-def bench():
-    return _load("bench_filters_ref")
-
-
-@pytest.fixture(scope="module")
-def ablate():
-    return _load("ablate_peer_filters")
+def ablate(load_benchmark):
+    return load_benchmark("ablate_peer_filters")
 
 
 def _fake_checkout(root: Path, demo: str) -> Path:

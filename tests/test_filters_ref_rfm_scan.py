@@ -7,7 +7,6 @@ names a checkout of StaRainJ/RFM-SCAN.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import random
 import shutil
@@ -22,7 +21,6 @@ from ctxmatch_lib.filters.rfm_scan import _added_matches, _MotionSpace, _Round
 from ctxmatch_lib.synthetic import planted_homography_matches
 
 SIZE = (640, 480)
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 # A stand-in for the demo's layout (the lines the plugin reads; not the authors' file).
 DEMO = """clear;
@@ -46,21 +44,14 @@ disp(1)
 """
 
 
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def plugin(load_benchmark):
+    return load_benchmark("ref_rfm_scan")
 
 
 @pytest.fixture(scope="module")
-def plugin():
-    return _load("ref_rfm_scan")
-
-
-@pytest.fixture(scope="module")
-def bench():
-    return _load("bench_filters_ref")
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 def rfm(x, y, **kw):
