@@ -66,6 +66,7 @@ Run::
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -75,6 +76,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -161,14 +163,18 @@ for f in files:
 #: ``FILES`` (names a checkout must hold), ``FUNC_FILES`` (their folders go on Octave's path), ``OPTIONS`` (our
 #: keyword -> the reference's variables, as :data:`OCTAVE_OPTIONS`), ``octave_body(root, params)`` (Octave lines
 #: that read ``X``, ``Y`` (K, 2), ``small`` (K,) and ``info`` = [w1 h1 w2 h2] and set ``keep`` (1-based row
-#: indices) and ``cpu`` (``cputime`` around the filtering)) and optionally ``compile_mex(root, dst)``.
+#: indices) and ``cpu`` (``cputime`` around the filtering)) and optionally ``compile_mex(root, dst)``. The
+#: module runs with this script's helpers as its global ``host`` (set by :func:`plugin`): it calls
+#: ``host.find_reference_file``, ``host.demo_block``, ``host.octave_assignments``, ``host.compile_octave_mex``.
 PLUGIN_REFERENCES = ("llt", "rfm_scan", "lmr")
 
 REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc", *PLUGIN_REFERENCES)
 
 
+@functools.lru_cache(maxsize=None)
 def plugin(name: str):
-    """The module ``benchmarks/ref_<name>.py`` of an Octave reference of :data:`PLUGIN_REFERENCES`."""
+    """The module ``benchmarks/ref_<name>.py`` of an Octave reference of :data:`PLUGIN_REFERENCES`, loaded
+    once, with this script's shared helpers as its global ``host``."""
     import importlib.util
 
     path = Path(__file__).resolve().parent / f"ref_{name}.py"
@@ -176,6 +182,8 @@ def plugin(name: str):
         raise ValueError(f"--ref {name}: its reference module {path.name} is missing beside {Path(__file__).name}")
     spec = importlib.util.spec_from_file_location(f"ref_{name}", path)
     mod = importlib.util.module_from_spec(spec)
+    mod.host = SimpleNamespace(find_reference_file=find_reference_file, demo_block=demo_block,
+                               octave_assignments=octave_assignments, compile_octave_mex=compile_octave_mex)
     spec.loader.exec_module(mod)
     return mod
 

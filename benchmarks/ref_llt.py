@@ -18,6 +18,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: bench_filters_ref's shared helpers, set by ``bench_filters_ref.plugin`` before this module runs.
+host: object
+
 #: Files a checkout must hold.
 FILES = ("demo.m", "LLTV.m", "LLT_init.m", "norm2.m")
 
@@ -30,13 +33,6 @@ OPTIONS = {
     "tau": ("conf.theta",), "gamma": ("conf.gamma",), "a": ("conf.a",), "max_iter": ("conf.MaxIter",),
     "tol": ("conf.ecr",), "min_p": ("conf.minP",),
 }
-
-
-def _find(root: Path, name: str) -> Path:
-    hits = sorted(Path(root).rglob(name), key=lambda p: (len(p.parts), str(p)))
-    if not hits:
-        raise ValueError(f"--ref llt: no {name} under {root}")
-    return hits[0]
 
 
 def demo_parts(demo: str) -> tuple[str, str]:
@@ -59,18 +55,10 @@ def demo_parts(demo: str) -> tuple[str, str]:
     return "\n".join(conf), "\n".join(lines[i:k + 1])
 
 
-def assignments(params: dict) -> str:
-    """Octave lines setting the ``conf`` fields of our shared ``params`` (after the demo's own)."""
-    out = []
-    for key, value in params.items():
-        for target in OPTIONS.get(key, ()):
-            out.append(f"{target} = {float(value)!r};")
-    return "\n".join(out)
-
-
 def octave_body(root: Path, params: dict) -> str:
     """Body of ``ref_filter(X, Y, small, info)``: the demo's configuration and filtering block with
     ``method = 'nonrigid'`` (``LLTV``); ``keep`` = ``VecFld.VFCIndex``; ``cpu`` around the block only."""
-    conf, block = demo_parts(_find(Path(root), "demo.m").read_text(errors="replace"))
-    return (f"conf = [];\n{conf}\n{assignments(params)}\nmethod = 'nonrigid';\nc0 = cputime;\n{block}\n"
+    conf, block = demo_parts(host.find_reference_file(Path(root), "demo.m").read_text(errors="replace"))
+    return (f"conf = [];\n{conf}\n{host.octave_assignments('llt', params)}\nmethod = 'nonrigid';\n"
+            f"c0 = cputime;\n{block}\n"
             "cpu = cputime - c0;\nkeep = VecFld.VFCIndex;")

@@ -23,9 +23,10 @@ checkout's ``vlfeat`` sources as for LPM. ``Klist`` is read from ``LMR_Test.m`` 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
+
+#: bench_filters_ref's shared helpers, set by ``bench_filters_ref.plugin`` before this module runs.
+host: object
 
 #: Files a checkout must hold.
 FILES = ("LMR_Test.m", "MPC.m", "Net.mat", "vl_kdtreebuild.c", "kdtree.c")
@@ -58,13 +59,6 @@ testVal0 = a';
 """
 
 
-def _find(root: Path, name: str) -> Path:
-    hits = sorted(Path(root).rglob(name), key=lambda p: (len(p.parts), str(p)))
-    if not hits:
-        raise ValueError(f"--ref lmr: no {name} under {root}")
-    return hits[0]
-
-
 def klist_line(demo: str) -> str:
     """The ``Klist = [...];`` statement of ``LMR_Test.m`` (possibly continued over lines with ``...``)."""
     lines = demo.splitlines()
@@ -84,8 +78,8 @@ def octave_body(root: Path, params: dict) -> str:
     """Body of ``ref_filter(X, Y, small, info)``: ``Klist`` from the demo, ``MPC``, the network of
     ``Net.mat``; ``keep`` = the rows whose first output exceeds the second; ``cpu`` around MPC and the net."""
     root = Path(root)
-    klist = klist_line(_find(root, "LMR_Test.m").read_text(errors="replace"))
-    net = _find(root, "Net.mat")
+    klist = klist_line(host.find_reference_file(root, "LMR_Test.m").read_text(errors="replace"))
+    net = host.find_reference_file(root, "Net.mat")
     return (f"persistent lmr_net\nif isempty(lmr_net)\n  warning('off', 'all');\n  s = load('{net}');\n"
             f"  lmr_net = s.net;\nend\n{klist}\nc0 = cputime;\nXt = X'; Yt = Y';\n"
             f"feature = MPC(Xt, Yt, Klist);\n{_NET_FORWARD}\n"
@@ -94,11 +88,5 @@ def octave_body(root: Path, params: dict) -> str:
 
 def compile_mex(root: Path, dst: Path) -> None:
     """VLFeat's k-d tree from the checkout (as for LPM) and the ``gaussmf`` stand-in, into ``dst``."""
-    bench = sys.modules.get("__main__")
-    if not hasattr(bench, "compile_octave_mex"):  # imported from elsewhere (tests): load the script itself
-        path = Path(__file__).resolve().parent / "bench_filters_ref.py"
-        spec = importlib.util.spec_from_file_location("bench_filters_ref", path)
-        bench = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(bench)
-    bench.compile_octave_mex("lpm", Path(root), dst)
+    host.compile_octave_mex("lpm", Path(root), dst)
     (Path(dst) / "gaussmf.m").write_text(_GAUSSMF)

@@ -20,6 +20,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: bench_filters_ref's shared helpers, set by ``bench_filters_ref.plugin`` before this module runs.
+host: object
+
 FILES = ("Demo_main.m", "DBSCAN.m", "GetParamater.m", "myDist.m")
 FUNC_FILES = ("DBSCAN.m", "GetParamater.m", "myDist.m")
 
@@ -60,16 +63,6 @@ def _lines_from(lines: list[str], start: str, stop: str, *, include_stop: bool, 
     return lines[i:j + 1 if include_stop else j], j
 
 
-def _bench():
-    """The benchmark module beside this one (its checkout and ``--param`` helpers), loaded from its path."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("bench_filters_ref", Path(__file__).with_name("bench_filters_ref.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def demo_parts(demo: str) -> tuple[str, str]:
     """(parameter lines, filtering lines) of the authors' ``Demo_main.m``.
 
@@ -88,9 +81,8 @@ def demo_parts(demo: str) -> tuple[str, str]:
 
 def octave_body(root: Path, params: dict) -> str:
     """The body of ``ref_filter(X, Y, small, info)``: the demo's filtering on ``X``, ``Y``; sets ``keep``, ``cpu``."""
-    bench = _bench()
-    defaults, block = demo_parts(bench.find_reference_file(Path(root), "Demo_main.m").read_text(errors="replace"))
-    return (f"{defaults}\n{bench.octave_assignments('rfm_scan', params)}\nc0 = cputime;\n{block}\n"
+    defaults, block = demo_parts(host.find_reference_file(Path(root), "Demo_main.m").read_text(errors="replace"))
+    return (f"{defaults}\n{host.octave_assignments('rfm_scan', params)}\nc0 = cputime;\n{block}\n"
             "cpu = cputime - c0;\nkeep = ind;")
 
 

@@ -22,13 +22,13 @@ LMR_REF = os.environ.get("CTXMATCH_LMR_REF")
 
 
 @pytest.fixture(scope="module")
-def ref_lmr(load_benchmark):
-    return load_benchmark("ref_lmr")
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 @pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
+def ref_lmr(bench):
+    return bench.plugin("lmr")
 
 
 @pytest.fixture(scope="module")

@@ -45,13 +45,13 @@ disp(1)
 
 
 @pytest.fixture(scope="module")
-def plugin(load_benchmark):
-    return load_benchmark("ref_rfm_scan")
+def bench(load_benchmark):
+    return load_benchmark("bench_filters_ref")
 
 
 @pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
+def plugin(bench):
+    return bench.plugin("rfm_scan")
 
 
 def rfm(x, y, **kw):
