@@ -141,6 +141,20 @@ def test_figures_status_line_survives_braces_in_an_error(capsys):
     assert out.startswith("a: FAILED after ") and out.rstrip().endswith("(KeyError: {'x': 1})")
 
 
+def test_figures_status_line_has_no_time_left_without_previous_durations():
+    """A first run (no previous durations) shows elapsed time and notebooks done, not a guessed time left."""
+    from ctxmatch_lib.cli.figures import _Status
+
+    status = _Status(["a", "b", "c"], {}, enabled=False)
+    status.done["a"] = 5.0
+    status.begin("b")
+    line = status.line()
+    assert "left" not in line and "1 of 3 notebooks done" in line and "elapsed" in line
+    status = _Status(["a", "b"], {"a": 10.0, "b": 20.0}, enabled=False)
+    status.begin("a")
+    assert "left" in status.line() and "(last run 10 s)" in status.line()
+
+
 def test_paper_parameters_never_write_the_embedded_gallery(tmp_path):
     """`make figures-paper` (``--params paper``) writes figures/paper/, `make figures` figures/."""
     from ctxmatch_lib.cli.figures import output_dir

@@ -2,8 +2,10 @@
 
 The run is quiet (the kernels' start-up and shut-down log lines are dropped; a failing cell is reported with
 its error and the executed notebook) and its progress moves: one status line names the notebook in progress, its
-running time, and the time left, estimated from the previous run's durations (``executed/durations.json`` of
-the figure folder, untracked) or, on a first run, from the notebooks done so far.
+running time, the time elapsed and the time left, estimated from the previous run's durations
+(``executed/durations.json`` of the figure folder, untracked). A notebook without a previous duration (a first
+run) gives no estimate: the line shows the time elapsed and how many notebooks are done instead of a "time left"
+that a mean of unlike notebooks would make jump.
 
 A rerun that computes the same numbers writes byte-identical figures and tables: their provenance names the
 source commit and library version (:func:`ctxmatch_lib.plots.base.provenance`), never the clock, and running
@@ -69,7 +71,8 @@ def _fmt(seconds: float) -> str:
 
 class _Status:
     """One status line, refreshed every second (every 30 s when stderr is not a terminal): the notebook in
-    progress, its running time and the estimated time left."""
+    progress, its running time, the time elapsed and either the time left (every remaining notebook has a
+    previous duration) or the number of notebooks done (no estimate to go on)."""
 
     def __init__(self, stems, expected: dict, enabled: bool):
         self.stems, self.expected, self.done = list(stems), dict(expected), {}
@@ -84,10 +87,11 @@ class _Status:
         todo = [s for s in self.stems if s not in self.done]
         if not todo:
             return 0.0
-        mean = sum(self.done.values()) / len(self.done) if self.done else None
-        est = {s: self.expected.get(s, mean) for s in todo}
-        if any(v is None for v in est.values()):
+        # Only previous durations: the notebooks differ by orders of magnitude, so a mean of those done so far
+        # is no estimate of those to come.
+        if any(s not in self.expected for s in todo):
             return None
+        est = {s: self.expected[s] for s in todo}
         running = now - self.t0 if self.current else 0.0
         return sum(est.values()) - (min(running, est[self.current]) if self.current in est else 0.0)
 
@@ -99,7 +103,11 @@ class _Status:
         if self.current:
             parts.append(f"{_fmt(now - self.t0)}" + (f" (last run {_fmt(self.expected[self.current])})"
                                                       if self.current in self.expected else ""))
-        parts.append(f"total {_fmt(now - self.start)}" + (f", about {_fmt(left)} left" if left is not None else ""))
+        elapsed = f"{_fmt(now - self.start)} elapsed"
+        if left is not None:
+            parts.append(f"{elapsed}, about {_fmt(left)} left")
+        else:
+            parts.append(f"{elapsed}, {len(self.done)} of {len(self.stems)} notebooks done")
         return " | ".join(parts)
 
     def _show(self) -> None:

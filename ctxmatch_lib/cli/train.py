@@ -28,7 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "train", help="train the OANet or ACNe filter here (needs torch)",
         description="Train OANet or ACNe on correspondences generated from the embedded images (random "
-                    "homographies and layered non-planar scenes, planted outliers, 5-60 %% inliers); never "
+                    "homographies and layered non-planar scenes, planted outliers, 5-60 % inliers); never "
                     "reads CTXMATCH_DATA. Seeded; shows a progress bar. The weights go to the user's cache "
                     "unless --output names a file; use them with weights=PATH (FILTERS['oanet'](..., "
                     "weights=PATH) or match_images(..., filter_params={'oanet': {'weights': PATH}})).",
