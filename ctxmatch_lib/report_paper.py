@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .report import PAPER_SETUP, paper_table
+from .report import KIND_LABELS, PAPER_GT_COUNTS, PAPER_SETUP, SETUP_TITLES, markdown_table, paper_table
 
 __all__ = [
     "PAPER_TABLE_LABELS",
@@ -37,6 +37,7 @@ __all__ = [
     "side_by_side",
     "rank_agreement",
     "check_claims",
+    "tables_markdown",
 ]
 
 #: The ``\\label`` of each of the paper's tables: Table 1 (global), 2 (baseline, SIFT+RootSIFT), 3 (best,
@@ -333,6 +334,86 @@ def rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(columns=["ρ precision", "ρ recall", "mean |ΔP|", "mean |ΔR|", "n"])
     out.index = pd.MultiIndex.from_tuples(out.index, names=["setup", "kind", "model"])
     return out
+
+
+def _side_cell(row: pd.Series, what: str) -> str:
+    return f"{row[f'{what} ours (%)']:.1f} / {row[f'{what} paper (%)']:.1f} / {row[f'{what} Δ']:+.1f}"
+
+
+def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.DataFrame, *, provenance: dict,
+                    data_label: str, pairs_per_kind: pd.Series, features, blobs, max_keypoints=None) -> str:
+    """The Markdown report of the ``tables`` notebook (``tables.md``): the analogues of Tables 1-3, every cell
+    next to the paper's and the rank agreement.
+
+    Parameters
+    ----------
+    tables : dict
+        ``{configuration: method_table frame}`` without the time column
+        (:func:`~ctxmatch_lib.report.method_table`).
+    counts : dict
+        ``{configuration: gt_counts frame}`` (:func:`~ctxmatch_lib.report.gt_counts`): mean ground-truth
+        matches per pair and kind.
+    side, rho : DataFrame
+        :func:`side_by_side` of ``tables`` and its :func:`rank_agreement`.
+    provenance : dict
+        ``{key: value}`` printed on the provenance line (:func:`~ctxmatch_lib.plots.base.provenance`).
+    data_label : str
+        The dataset (or results file) named in the text.
+    pairs_per_kind : Series
+        Pairs per kind of pair (index: ``planar``, ``nonplanar``, ...).
+    features, blobs : sequence of str
+        The feature blocks and blob setups evaluated.
+    max_keypoints : int or str, optional
+        The keypoint budget (``None``: the presets' 8000).
+
+    Returns
+    -------
+    str
+        The report; the same inputs give the same bytes (no clock, no running time).
+    """
+    kinds = ", ".join(f"{n} {KIND_LABELS[k]}" for k, n in pairs_per_kind.items())
+    parts = [
+        "# Analogues of Tables 1-3 of *SIFT Matching by Context Exposed*\n",
+        "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n",
+        f"Data: `{data_label}` ({int(pairs_per_kind.sum())} pairs: {kinds}); features " + ", ".join(features)
+        + " (SOSNet/HardNet2: stand-in weights); keypoint budget "
+        + f"{max_keypoints if max_keypoints is not None else 'the presets (8000)'}; blob setups "
+        + ", ".join(blobs) + ". Means per pair; precision, recall and recall* in %; failures = pairs whose "
+        "non-empty output holds no correct match, empty = pairs with an empty output (per setup). Running times are "
+        "not here (they change from run to run): `ctxmatch figures` writes them to `executed/times.md` of the figure "
+        "folder.\n",
+    ]
+    table_number = {name: k for k, name in enumerate(PAPER_GT_COUNTS, start=1)}  # global 1, baseline 2, best 3
+    for s, t in tables.items():
+        c = counts[s]
+        gt = " / ".join(f"{c.loc[k, 'n_gt']:.0f}" for k in c.index)
+        gt_star = " / ".join(f"{c.loc[k, 'n_gt_star']:.0f}" for k in c.index)
+        kinds_txt = " / ".join(KIND_LABELS[k] for k in c.index)
+        paper_gt = PAPER_GT_COUNTS[PAPER_SETUP[s]]
+        parts += [f"## Table {table_number[PAPER_SETUP[s]]} analogue: {SETUP_TITLES[s]}\n",
+                  f"Mean ground-truth matches per pair ({kinds_txt}): {gt} among the candidates of the setup "
+                  f"(recall), {gt_star} among all the setups (recall*); the paper: {paper_gt['n_gt'][0]}/"
+                  f"{paper_gt['n_gt'][1]} and {paper_gt['n_gt_star'][0]}/{paper_gt['n_gt_star'][1]} "
+                  "(planar/non-planar).\n",
+                  markdown_table(t)]
+    cells = pd.DataFrame({f"{what} (%)": side.apply(_side_cell, axis=1, what=what)
+                          for what in ("precision", "recall", "failures")}, index=side.index)
+    parts += ["## Next to the paper: ours / paper / Δ\n",
+              "Each cell: ours / the paper's / the difference. Precision, recall and failures (failures + empty "
+              "outputs, as a share of the pairs: ours over "
+              + ", ".join(f"{n} {KIND_LABELS[k]}" for k, n in pairs_per_kind.items() if k in PAPER_PAIRS)
+              + " pairs, the paper's over " + ", ".join(f"{n} {KIND_LABELS[k]}" for k, n in PAPER_PAIRS.items())
+              + "), in %; Δ = ours − paper. best-rootsgloh2 is compared with Table 3 (best) too.\n"]
+    for s in dict.fromkeys(cells.index.get_level_values("setup")):
+        parts += [f"### {SETUP_TITLES[s]} (paper: Table {table_number[PAPER_SETUP[s]]})\n",
+                  markdown_table(cells.xs(s, level="setup"))]
+    parts += ["## Rank agreement with the paper\n",
+              "Spearman ρ of the 17 filters' precision and recall, ours against the paper's, and the mean absolute "
+              "difference in points, per configuration, kind and model (n: filters in both).\n",
+              markdown_table(rho.rename(columns=lambda c: c.replace("|", "\\|")),  # a bare | splits a cell
+                             formats={"ρ precision": ".2f", "ρ recall": ".2f", "mean \\|ΔP\\|": ".1f",
+                                      "mean \\|ΔR\\|": ".1f", "n": ".0f"})]
+    return "\n".join(parts)
 
 
 # ----------------------------------------------------------------------------------------------------------------
