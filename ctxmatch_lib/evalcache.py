@@ -16,6 +16,8 @@ paper does.
 
 from __future__ import annotations
 
+import warnings
+
 from .evaluation.cache import source_digest
 from .evaluation.frontends import evaluate_cached
 from .evaluation.plan import select_pairs
@@ -29,3 +31,6 @@ __all__ = [
     "source_digest",
     "evaluate_cached",
 ]
+
+warnings.warn("ctxmatch_lib.evalcache is a compatibility face: import from ctxmatch_lib.evaluation instead",
+              FutureWarning, stacklevel=2)

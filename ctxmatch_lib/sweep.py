@@ -11,6 +11,8 @@ Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of 
 
 from __future__ import annotations
 
+import warnings
+
 from ._paths import write_parquet_atomic
 from .evaluation.cache import source_digest
 from .evaluation.frontends import run_sweep
@@ -42,3 +44,6 @@ __all__ = [
     "write_parquet_atomic",
 ]
 
+warnings.warn("ctxmatch_lib.sweep is a compatibility face: import from ctxmatch_lib.evaluation (the engine) and "
+              "ctxmatch_lib.report_blob (blob_map, heatmap_matrix) instead",
+              FutureWarning, stacklevel=2)

@@ -183,6 +183,18 @@ def test_function_sizes():
     assert not long, f"functions over {MAX_FUNCTION_LINES} lines of code: {long}"
 
 
+@pytest.mark.parametrize("face, new", [("ctxmatch_lib.sweep", "ctxmatch_lib.evaluation"),
+                                       ("ctxmatch_lib.evalcache", "ctxmatch_lib.evaluation")])
+def test_compatibility_faces_warn_with_the_new_name(face, new, monkeypatch):
+    import importlib
+    import sys
+
+    monkeypatch.delitem(sys.modules, face, raising=False)
+    with pytest.warns(FutureWarning, match=rf"{face} is a compatibility face: import from {new}"):
+        importlib.import_module(face)
+
+
+@pytest.mark.filterwarnings("ignore:ctxmatch_lib.(sweep|evalcache) is a compatibility face:FutureWarning")
 @pytest.mark.parametrize("statement", [
     "from ctxmatch_lib.pipeline import evaluate_pair, evaluate_dataset, summary_table, pair_features, "
     "blob_candidates, label_candidates, run_filter, run_model, register_dtm_stages, ROW_COLUMNS",

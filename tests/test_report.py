@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from ctxmatch_lib import report
-from ctxmatch_lib.evalcache import evaluate_cached, resolve_filters, select_pairs
+from ctxmatch_lib.evaluation import evaluate_cached, resolve_filters, select_pairs
 from ctxmatch_lib.pipeline import ROW_COLUMNS
 
 
