@@ -1,10 +1,10 @@
-"""Two-view models: normalised DLT homography, normalised 8-point fundamental matrix, 1SAC and RANSAC.
+"""Two-view models: normalised DLT homography, normalised 8-point fundamental matrix, their errors and 1SAC.
 
 The model step of the pipeline (Sec. 5.1): after the spatial filter, a global model -- a homography
 ``H`` for planar pairs, a fundamental matrix ``F`` otherwise -- is fitted and only the matches consistent
 with it are kept. 1SAC (one SAmple Consensus, Sec. 5.1 and its footnote) fits the model once, on the
-``3 q`` top-ranked matches (``q = 4`` for ``H``, ``q = 8`` for ``F``); :func:`ransac` is the seeded robust
-alternative (OpenCV's USAC with MAGSAC++ scoring).
+``3 q`` top-ranked matches (``q = 4`` for ``H``, ``q = 8`` for ``F``); the seeded robust alternatives
+(OpenCV's USAC) live in :mod:`~ctxmatch_lib.geometry.usac`.
 
 Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
 pixel. ``H`` maps image-1 points to image 2 (``x2 ~ H x1``); ``F`` satisfies ``x2^T F x1 = 0``.
@@ -20,10 +20,9 @@ from typing import Literal
 
 import numpy as np
 
-from ._validation import as_matches, as_points, as_scores, cumulative_distinct
+from .._validation import as_matches, as_points, as_scores, cumulative_distinct
 
 __all__ = [
-    "MODEL_STEPS",
     "MIN_SAMPLE",
     "CONSISTENCY_THRESHOLD_PX",
     "ModelFit",
@@ -36,17 +35,9 @@ __all__ = [
     "model_errors",
     "top_ranked_sample",
     "one_sac",
-    "ransac",
-    "apply_model_step",
-    "model_kind_for",
 ]
 
 ModelKind = Literal["H", "F"]
-
-#: Names accepted by :func:`apply_model_step`: ``none`` keeps the filter output as it is, ``1sac`` is the
-#: paper's, ``ransac`` OpenCV's USAC_MAGSAC preset (uniform sampling), ``prosac`` the same with PROSAC
-#: sampling by the match ranking.
-MODEL_STEPS = ("none", "1sac", "ransac", "prosac")
 
 #: Minimal sample size ``q`` of each model (Sec. 5.1, footnote).
 MIN_SAMPLE = {"H": 4, "F": 8}
@@ -490,130 +481,3 @@ def _one_sac(kpts1, kpts2, matches, scores, kind, threshold, sample_factor=3) ->
         return _failed(k, kind, sample)
     err = _model_errors(model, kind, kpts1[matches[:, 0]], kpts2[matches[:, 1]])
     return ModelFit(err <= threshold, model, kind, sample, err)
-
-
-def ransac(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
-    *,
-    kind: ModelKind = "H",
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    magsac_threshold: float = 3.0,
-    confidence: float = 0.999,
-    max_iters: int = 100_000,
-    sampler: str = "uniform",
-    rng=None,
-) -> ModelFit:
-    """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
-
-    The model is estimated by USAC with ``magsac_threshold`` as its noise bound; the matches kept are then
-    chosen with the same rule as :func:`one_sac` (error at most ``threshold`` pixels against the returned
-    model), so that 1SAC and RANSAC differ only in how the model is estimated.
-
-    Parameters
-    ----------
-    kpts1, kpts2, matches, scores, kind, threshold
-        As in :func:`one_sac`; ``scores`` are used only by the PROSAC sampler.
-    magsac_threshold : float
-        USAC's threshold in pixels.
-    confidence : float
-        RANSAC confidence.
-    max_iters : int
-        Iteration cap. The default is high because blob candidates are many-to-many with inlier ratios
-        near 10 %, where uniform 4-samples are all-inlier with probability ~1e-4; MAGSAC's adaptive
-        termination stops far earlier on easy pairs.
-    sampler : {"uniform", "prosac"}
-        ``"uniform"`` is OpenCV's ``USAC_MAGSAC`` preset; ``"prosac"`` draws samples from the best-ranked
-        matches first (by ``scores``), which copes far better with the ~10 % inlier ratios of many-to-many
-        candidates, especially for ``F``.
-    rng : None, int or numpy.random.Generator
-        Seeds USAC's own generator, so results are reproducible for a given seed.
-
-    Returns
-    -------
-    ModelFit
-        ``sample`` holds the inliers reported by USAC.
-    """
-    kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
-    if sampler not in ("uniform", "prosac"):
-        raise ValueError(f"sampler must be 'uniform' or 'prosac', got {sampler!r}")
-    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, magsac_threshold=magsac_threshold,
-                   confidence=confidence, max_iters=max_iters, sampler=sampler, rng=rng)
-
-
-def _ransac(kpts1, kpts2, matches, scores, kind, threshold, *, magsac_threshold=3.0, confidence=0.999,
-            max_iters=100_000, sampler="uniform", rng=None) -> ModelFit:
-    import cv2
-
-    k = len(matches)
-    q = MIN_SAMPLE[kind]
-    if k == 0 or min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < q:
-        return _failed(k, kind)
-    seed = int(np.random.default_rng(rng).integers(0, 2**31 - 1))
-    params = cv2.UsacParams()
-    params.threshold = float(magsac_threshold)
-    params.confidence = float(confidence)
-    params.maxIterations = int(max_iters)
-    params.randomGeneratorState = seed
-    params.sampler = cv2.SAMPLING_UNIFORM if sampler == "uniform" else cv2.SAMPLING_PROSAC
-    params.score = cv2.SCORE_METHOD_MAGSAC
-    params.loMethod = cv2.LOCAL_OPTIM_SIGMA
-    params.final_polisher = cv2.MAGSAC
-    params.isParallel = False
-    # PROSAC expects the correspondences best first; uniform sampling does not care about the order.
-    order = np.argsort(scores, kind="stable")
-    p1 = np.ascontiguousarray(kpts1[matches[order, 0]], np.float64)
-    p2 = np.ascontiguousarray(kpts2[matches[order, 1]], np.float64)
-    try:
-        if kind == "H":
-            model, mask = cv2.findHomography(p1, p2, params)
-        else:
-            model, mask = cv2.findFundamentalMat(p1, p2, params)
-    except cv2.error:
-        return _failed(k, kind)
-    if model is None or np.asarray(model).shape != (3, 3) or not np.isfinite(model).all():
-        return _failed(k, kind)
-    model = np.asarray(model, np.float64)
-    inl = np.flatnonzero(np.asarray(mask).reshape(-1) > 0) if mask is not None else np.empty(0, np.int64)
-    err = np.empty(k)
-    err[order] = _model_errors(model, kind, p1, p2)
-    return ModelFit(err <= threshold, model, kind, np.sort(order[inl]).astype(np.int64), err)
-
-
-def model_kind_for(pair_kind: str) -> ModelKind:
-    """``"H"`` for planar pairs, ``"F"`` for non-planar and depth pairs."""
-    if pair_kind == "planar":
-        return "H"
-    if pair_kind in ("nonplanar", "depth"):
-        return "F"
-    raise ValueError(f"pair kind must be 'planar', 'nonplanar' or 'depth', got {pair_kind!r}")
-
-
-def apply_model_step(
-    name: str,
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
-    *,
-    kind: ModelKind,
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    rng=None,
-) -> ModelFit:
-    """Run the model step ``name`` (one of :data:`MODEL_STEPS`) on the matches.
-
-    ``"none"`` keeps every match (``model`` is ``None``); ``"1sac"`` calls :func:`one_sac`; ``"ransac"`` and
-    ``"prosac"`` call :func:`ransac` with ``rng`` and the uniform or PROSAC sampler.
-    """
-    if name not in MODEL_STEPS:
-        raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")
-    if name == "none":
-        k = len(as_matches(matches))
-        return ModelFit(np.ones(k, bool), None, _check_kind(kind), np.arange(k, dtype=np.int64), np.zeros(k))
-    kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
-    if name == "1sac":
-        return _one_sac(kpts1, kpts2, matches, scores, kind, threshold)
-    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, rng=rng,
-                   sampler="prosac" if name == "prosac" else "uniform")
