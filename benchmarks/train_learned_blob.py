@@ -6,7 +6,7 @@ Two stages per network, both seeded:
    defaults: the shipped weights): correspondences generated from the embedded images' SIFT keypoints
    (:mod:`ctxmatch_lib.filters.learned.data`). Skipped with ``--init ARCH=PATH`` (start from those weights,
    e.g. ``--init oanet=ctxmatch_lib/filters/learned/weights/oanet_trained_here.npz``).
-2. Fine-tuning on blob candidate sets (:mod:`ctxmatch_lib.filters.learned.blobsets`: the project's blob
+2. Fine-tuning on blob candidate sets (:mod:`ctxmatch_lib.training.blobsets`: the project's blob
    candidates, presets ``baseline`` and ``paper-best-overlap``, of SIFT / HarrisZ + RootSIFT at the paper
    budget on warped and layered scenes of scikit-image's photos; sets built once and cached under the user
    cache), with the OANet / CNe authors' balanced loss (``--plain``: the plain mean cross-entropy).
@@ -29,6 +29,7 @@ from pathlib import Path
 
 from ctxmatch_lib._paths import cache_dir
 from ctxmatch_lib.filters.learned import train_learned_filter
+from ctxmatch_lib.training import train_on_blob_candidates
 
 #: Stage 2 (the run measured in the weights' README: variant "balanced, short").
 FINE_TUNE = {
@@ -60,8 +61,8 @@ def main(argv=None) -> None:
             r1 = train_learned_filter(arch, output=start, num_threads=args.threads)
             print(f"{arch} stage 1: {r1.seconds:.0f} s, generated-set validation {json.dumps(r1.validation)}")
         kw = dict(FINE_TUNE[arch], **({} if args.steps is None else {"steps": args.steps}))
-        r2 = train_learned_filter(arch, data="blob", n_scenes=args.n_scenes, balanced=not args.plain, init=start,
-                                  seed=SEED, num_threads=args.threads, output=out / f"{arch}_trained_here.npz", **kw)
+        r2 = train_on_blob_candidates(arch, n_scenes=args.n_scenes, balanced=not args.plain, init=start, seed=SEED,
+                                      num_threads=args.threads, output=out / f"{arch}_trained_here.npz", **kw)
         print(f"{arch} stage 2: {r2.seconds:.0f} s, held-out blob-set validation {json.dumps(r2.validation)}; "
               f"wrote {r2.path}")
 

@@ -336,27 +336,19 @@ def rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _side_cell(row: pd.Series, what: str) -> str:
-    return f"{row[f'{what} ours (%)']:.1f} / {row[f'{what} paper (%)']:.1f} / {row[f'{what} Δ']:+.1f}"
-
-
 def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.DataFrame, *, provenance: dict,
                     data_label: str, pairs_per_kind: pd.Series, features, blobs, max_keypoints=None) -> str:
-    """The Markdown report of the ``tables`` notebook (``tables.md``): the analogues of Tables 1-3, every cell
-    next to the paper's and the rank agreement.
+    """The Markdown report of the ``tables`` notebook (``tables.md``): Tables 1-3's analogues, next to the paper's.
 
     Parameters
     ----------
-    tables : dict
-        ``{configuration: method_table frame}`` without the time column
-        (:func:`~ctxmatch_lib.report.method_table`).
-    counts : dict
-        ``{configuration: gt_counts frame}`` (:func:`~ctxmatch_lib.report.gt_counts`): mean ground-truth
-        matches per pair and kind.
+    tables, counts : dict
+        ``{configuration: frame}``: :func:`~ctxmatch_lib.report.method_table` without the time column and
+        :func:`~ctxmatch_lib.report.gt_counts` (mean ground-truth matches per pair and kind).
     side, rho : DataFrame
         :func:`side_by_side` of ``tables`` and its :func:`rank_agreement`.
     provenance : dict
-        ``{key: value}`` printed on the provenance line (:func:`~ctxmatch_lib.plots.base.provenance`).
+        Printed on the provenance line (:func:`~ctxmatch_lib.plots.base.provenance`).
     data_label : str
         The dataset (or results file) named in the text.
     pairs_per_kind : Series
@@ -369,7 +361,7 @@ def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.Data
     Returns
     -------
     str
-        The report; the same inputs give the same bytes (no clock, no running time).
+        The same inputs give the same bytes (no clock, no running time).
     """
     kinds = ", ".join(f"{n} {KIND_LABELS[k]}" for k, n in pairs_per_kind.items())
     parts = [
@@ -385,19 +377,18 @@ def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.Data
     ]
     table_number = {name: k for k, name in enumerate(PAPER_GT_COUNTS, start=1)}  # global 1, baseline 2, best 3
     for s, t in tables.items():
-        c = counts[s]
-        gt = " / ".join(f"{c.loc[k, 'n_gt']:.0f}" for k in c.index)
-        gt_star = " / ".join(f"{c.loc[k, 'n_gt_star']:.0f}" for k in c.index)
-        kinds_txt = " / ".join(KIND_LABELS[k] for k in c.index)
-        paper_gt = PAPER_GT_COUNTS[PAPER_SETUP[s]]
+        c, paper_gt = counts[s], PAPER_GT_COUNTS[PAPER_SETUP[s]]
+        gt, gt_star = (" / ".join(f"{c.loc[k, col]:.0f}" for k in c.index) for col in ("n_gt", "n_gt_star"))
         parts += [f"## Table {table_number[PAPER_SETUP[s]]} analogue: {SETUP_TITLES[s]}\n",
-                  f"Mean ground-truth matches per pair ({kinds_txt}): {gt} among the candidates of the setup "
+                  f"Mean ground-truth matches per pair ({' / '.join(KIND_LABELS[k] for k in c.index)}): {gt} "
+                  "among the candidates of the setup "
                   f"(recall), {gt_star} among all the setups (recall*); the paper: {paper_gt['n_gt'][0]}/"
                   f"{paper_gt['n_gt'][1]} and {paper_gt['n_gt_star'][0]}/{paper_gt['n_gt_star'][1]} "
                   "(planar/non-planar).\n",
                   markdown_table(t)]
-    cells = pd.DataFrame({f"{what} (%)": side.apply(_side_cell, axis=1, what=what)
-                          for what in ("precision", "recall", "failures")}, index=side.index)
+    cells = pd.DataFrame({f"{w} (%)": [f"{r[f'{w} ours (%)']:.1f} / {r[f'{w} paper (%)']:.1f} / {r[f'{w} Δ']:+.1f}"
+                                       for _, r in side.iterrows()]
+                          for w in ("precision", "recall", "failures")}, index=side.index)
     parts += ["## Next to the paper: ours / paper / Δ\n",
               "Each cell: ours / the paper's / the difference. Precision, recall and failures (failures + empty "
               "outputs, as a share of the pairs: ours over "

@@ -106,15 +106,16 @@ DRAWING_PRIMITIVES = ("ctxmatch_lib.plots.palette", "ctxmatch_lib.plots.viz2d")
 
 
 def layer(module: str) -> int:
-    """0: the per-pair steps and the methods under them; 1: the evaluation engine; 2: tables, reports, plots
-    and the compatibility faces over them; 3: the command line and the package's front door."""
+    """0: the per-pair steps and the methods under them; 1: the evaluation engine; 2: tables, reports, plots,
+    the training sets built with the engine's steps and the compatibility faces over them; 3: the command line
+    and the package's front door."""
     if module in DRAWING_PRIMITIVES:
         return 0
     if module in ("ctxmatch_lib", "ctxmatch_lib.__main__") or module.startswith("ctxmatch_lib.cli"):
         return 3
     if module in ("ctxmatch_lib.report", "ctxmatch_lib.report_blob", "ctxmatch_lib.report_paper",
                   "ctxmatch_lib.gt_compare", "ctxmatch_lib.sweep", "ctxmatch_lib.evalcache") \
-            or module.startswith("ctxmatch_lib.plots"):
+            or module.startswith(("ctxmatch_lib.plots", "ctxmatch_lib.training")):
         return 2
     if module == "ctxmatch_lib.pipeline" or (module.startswith("ctxmatch_lib.evaluation")
                                             and module != "ctxmatch_lib.evaluation.steps"):
@@ -192,6 +193,15 @@ def test_compatibility_faces_warn_with_the_new_name(face, new, monkeypatch):
     monkeypatch.delitem(sys.modules, face, raising=False)
     with pytest.warns(FutureWarning, match=rf"{face} is a compatibility face: import from {new}"):
         importlib.import_module(face)
+
+
+def test_the_filters_room_never_imports_the_engine():
+    """Filters sit under the evaluation engine (data flows one way): no module of ``ctxmatch_lib.filters``
+    imports ``ctxmatch_lib.evaluation``, not even its per-pair steps."""
+    graph = _graph()
+    bad = sorted(f"{a} imports {b}" for a in graph if a.startswith("ctxmatch_lib.filters")
+                 for b in graph[a] if b.startswith("ctxmatch_lib.evaluation"))
+    assert not bad, bad
 
 
 @pytest.mark.filterwarnings("ignore:ctxmatch_lib.(sweep|evalcache) is a compatibility face:FutureWarning")

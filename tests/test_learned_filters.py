@@ -406,7 +406,7 @@ def test_cli_train_tiny_run(torch, tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ blob training sets
 def test_blob_scene_ground_truth_follows_the_warp():
-    from ctxmatch_lib.filters.learned.blobsets import make_scene
+    from ctxmatch_lib.training.blobsets import make_scene
     from ctxmatch_lib.geometry import apply_homography
 
     rng = np.random.default_rng(0)
@@ -436,7 +436,7 @@ def test_blob_scene_ground_truth_follows_the_warp():
 
 
 def test_blob_sets_are_labelled_many_to_many_and_cached(tmp_path):
-    from ctxmatch_lib.filters.learned import blobsets
+    from ctxmatch_lib.training import blobsets
     from ctxmatch_lib.groundtruth import GT_THRESHOLD_PX
 
     scene = blobsets.make_scene(blobsets.source_images()[:4], 3, kind="homography")
@@ -459,9 +459,30 @@ def test_blob_sets_are_labelled_many_to_many_and_cached(tmp_path):
         blobsets.build_sets(0, cache_dir=tmp_path)
 
 
-def test_blob_batches_and_balanced_loss(torch, monkeypatch, tmp_path):
+def test_blob_training_sets_hold_out_the_last_scenes(tmp_path, monkeypatch):
+    from ctxmatch_lib import training
+    from ctxmatch_lib.training.blobsets import BlobSet
+
+    rng = np.random.default_rng(0)
+    per = training.blobsets.scene_count()
+
+    def fake_build(n_scenes, seed, cache_dir=None, progress=False):
+        return [BlobSet(rng.uniform(0, 600, (k, 2)), rng.uniform(0, 400, (k, 2)), rng.uniform(size=k),
+                        np.arange(k) % 5 == 0, (640, 480), (600, 400), "homography", "sift-rootsift", "baseline")
+                for i in range(n_scenes * per) for k in [150 if i % per else 50]]
+
+    monkeypatch.setattr(training, "build_sets", fake_build)
+    train_sets, val_sets, info = training.blob_training_sets(10, 0, cache_dir=tmp_path)
+    # 10 scenes, the last one held out; the sets under 100 candidates left out of both.
+    assert len(train_sets) == 9 * (per - 1) and len(val_sets) == per - 1
+    assert info["n_scenes"] == 10 and info["blobsets"]["version"] == training.blobsets.GENERATOR_VERSION
+    with pytest.raises(ValueError, match="val_fraction"):
+        training.blob_training_sets(10, val_fraction=1.0)
+
+
+def test_blob_batches_and_balanced_loss(torch, tmp_path):
     from ctxmatch_lib.filters.learned import training
-    from ctxmatch_lib.filters.learned.blobsets import BlobSet
+    from ctxmatch_lib.training.blobsets import BlobSet
 
     rng = np.random.default_rng(0)
 
@@ -480,18 +501,22 @@ def test_blob_batches_and_balanced_loss(torch, monkeypatch, tmp_path):
     logits[0, 0] = 5.0  # only the positive improves: the balanced loss drops by half its change
     plain, bal = training._bce(logits, yb, False).item(), training._bce(logits, yb, True).item()
     assert bal < plain
-    monkeypatch.setattr(training, "_blob_data", lambda n, seed: (sets, sets[:1]))
+    blob_sets = (sets, sets[:1], {"n_scenes": 3})
     small = {"net_channels": 8, "net_depth": 1, "groups": 4}
     r = training.train("acne", steps=2, batch_size=2, n_candidates=(8, 128), data="blob", balanced=True,
-                       progress=False, config=small, output=tmp_path / "a.npz")
+                       progress=False, config=small, output=tmp_path / "a.npz", blob_sets=blob_sets)
     assert len(r.losses) == 2 and r.validation["n_sets"] == 1
+    # The loop never builds candidates itself (the filters sit under the engine): no sets, a clear error.
+    with pytest.raises(ValueError, match="blob_sets"):
+        training.train("acne", steps=1, data="blob", progress=False, config=small)
     # Fine-tuning starts from the given weights: one step at a vanishing learning rate leaves them as they were.
     r2 = training.train("acne", steps=1, batch_size=2, n_candidates=(8, 128), data="blob", init=r.path,
-                        lr=1e-9, progress=False, validate=False, config=small)
+                        lr=1e-9, progress=False, validate=False, config=small, blob_sets=blob_sets)
     assert r2.validation == {}
     a, b = r.net.state_dict(), r2.net.state_dict()
     assert all(torch.allclose(a[k].float(), b[k].float(), atol=1e-6) for k in a if "num_batches" not in k)
     with pytest.raises(ValueError, match="shape"):
-        training.train("acne", steps=1, data="blob", init=r.path, progress=False, config=dict(small, net_channels=16))
+        training.train("acne", steps=1, data="blob", init=r.path, progress=False, config=dict(small, net_channels=16),
+                       blob_sets=blob_sets)
     with pytest.raises(ValueError, match="data"):
         training.train("acne", steps=1, data="real")

@@ -16,14 +16,18 @@ Filters are imported lazily on first use, so ``import ctxmatch_lib`` stays cheap
 
 from __future__ import annotations
 
+import functools
 import importlib
 from collections.abc import Callable, Iterator, Mapping
 
 __all__ = ["FILTERS", "register_filter"]
 
-# name -> "module:function"; modules live in this package (dtm lives in ctxmatch_lib.dtm).
+# name -> "module:function[:stages]"; modules live in this package (dtm lives in ctxmatch_lib.dtm). ``dtm1``
+# (DTM1 only) and ``dtm2`` (DTM1 + DTM2, the same as ``dtm``) are DTM's stages, listed apart as in Tables 1-3.
 _BUILTIN: dict[str, str] = {
     "dtm": "ctxmatch_lib.dtm:dtm_filter",
+    "dtm1": "ctxmatch_lib.dtm:dtm_filter:1",
+    "dtm2": "ctxmatch_lib.dtm:dtm_filter:2",
     "th": "ctxmatch_lib.filters.th:th_filter",
     "gms": "ctxmatch_lib.filters.gms:gms_filter",
     "lpm": "ctxmatch_lib.filters.lpm:lpm_filter",
@@ -54,8 +58,9 @@ class _Registry(Mapping):
             return self._loaded[name]
         if name not in _BUILTIN:
             raise KeyError(f"unknown filter {name!r}; known filters: {', '.join(self)}")
-        module, func = _BUILTIN[name].split(":")
-        self._loaded[name] = getattr(importlib.import_module(module), func)
+        module, func, *stages = _BUILTIN[name].split(":")
+        f = getattr(importlib.import_module(module), func)
+        self._loaded[name] = functools.partial(f, stages=int(stages[0])) if stages else f
         return self._loaded[name]
 
     def __iter__(self) -> Iterator[str]:

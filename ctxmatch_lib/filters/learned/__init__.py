@@ -48,16 +48,17 @@ def torch_available() -> bool:
 def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500),
                          lr: float = 1e-3, seed: int = 0, config: dict | None = None, output=None,
                          max_images: int | None = None, num_threads: int = 1, progress: bool = True,
-                         validate: bool = True, data: str = "generated", n_scenes: int | None = None,
-                         balanced: bool = False, init=None):
+                         validate: bool = True, data: str = "generated", balanced: bool = False, init=None,
+                         blob_sets=None):
     """Train OANet or ACNe here, on generated correspondences or on blob candidates of generated pairs.
 
     Each step draws ``batch_size`` candidate sets of K correspondences (K uniform in ``n_candidates``) from
     :func:`~.data.random_training_set`: SIFT keypoints of the embedded images under a random homography or
     a layered non-planar scene, planted outliers, inlier ratio uniform in 5-60 %. Never reads
-    ``CTXMATCH_DATA``. With ``data="blob"``, each step draws ``batch_size`` blob candidate sets of
-    :mod:`.blobsets` (the project's blob candidates on warped and layered scenes of scikit-image's photos,
-    cached) instead, each cut to a random subset of K = min(their sizes, ``n_candidates`` high end) rows.
+    ``CTXMATCH_DATA``. With ``data="blob"``, each step draws ``batch_size`` of the given ``blob_sets`` (the
+    project's blob candidates on warped and layered scenes of scikit-image's photos, built above the evaluation
+    engine: :func:`ctxmatch_lib.training.train_on_blob_candidates` builds them and calls this function)
+    instead, each cut to a random subset of K = min(their sizes, ``n_candidates`` high end) rows.
 
     Parameters
     ----------
@@ -88,15 +89,15 @@ def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int
         Measure precision and recall of ``logit > 0`` at the end: on 20 generated sets at 40 % inliers, or
         (``data="blob"``) on the held-out scenes' blob sets (the last 10 %).
     data : {"generated", "blob"}, default "generated"
-        The training sets: :mod:`.data` or :mod:`.blobsets`.
-    n_scenes : int, optional
-        With ``data="blob"``: generated scenes (each gives 4 sets); default
-        :data:`~.training.BLOB_SCENES`.
+        The training sets: :mod:`.data`, or the given ``blob_sets``.
     balanced : bool, default False
         The OANet / CNe authors' balanced loss (mean over inliers and mean over outliers, half each)
         instead of the plain mean binary cross-entropy.
     init : str or Path, optional
         Start from these weights (same network shape): fine-tuning.
+    blob_sets : (list, list, dict), optional
+        With ``data="blob"``: the training sets, the validation sets and a description recorded in the
+        weights' metadata (:func:`ctxmatch_lib.training.blob_training_sets`).
 
     Returns
     -------
@@ -114,4 +115,4 @@ def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int
     return train(arch, steps=steps, batch_size=batch_size, n_candidates=n_candidates, lr=lr, seed=seed,
                  config=config, output=output, max_images=max_images, num_threads=num_threads,
                  progress=progress, validate=validate, data=data, balanced=balanced, init=init,
-                 **({} if n_scenes is None else {"n_scenes": n_scenes}))
+                 blob_sets=blob_sets)

@@ -6,9 +6,12 @@ Two kinds of training sets, neither read from ``CTXMATCH_DATA``:
 * ``data="generated"`` (``ctxmatch train``'s recipe, the shipped weights): the sets of :mod:`.data`
   (random homographies and layered non-planar scenes on the embedded images' SIFT keypoints, planted
   outliers, inlier ratios 5-60 %), drawn afresh at every step from one seeded generator;
-* ``data="blob"``: the project's own blob candidates on generated image pairs (:mod:`.blobsets`, cached),
-  each step drawing ``batch_size`` sets and cutting them to a common K (a random subset of rows); the last
-  :data:`BLOB_VAL_FRACTION` of the scenes are held out for the validation.
+* ``data="blob"``: given sets of the project's own blob candidates on generated image pairs, built above the
+  evaluation engine by :mod:`ctxmatch_lib.training` (:func:`ctxmatch_lib.training.train_on_blob_candidates`,
+  which holds the last
+  :data:`~ctxmatch_lib.training.BLOB_VAL_FRACTION` of the scenes out for the validation) and passed in as
+  ``blob_sets``; each step draws ``batch_size`` sets and cuts them to a common K (a random subset of rows).
+  This module never builds candidates itself: the filters sit under the engine.
 
 The loss is the binary cross-entropy of every stage's inlier logits against the labels (OANet: both stages,
 as the authors' classification loss; ACNe: the output logits plus, with weight 1, the local-attention logits
@@ -47,10 +50,6 @@ TRAINED_HERE_CONFIGS = {
 #: Steps of the shipped runs (seed 0, batch 8, K in [500, 1500], one thread): what ``steps=None`` means.
 TRAINED_HERE_STEPS = {"oanet": 400, "acne": 2000}
 
-#: Blob training sets (``data="blob"``): generated scenes, the held-out fraction, the smallest set used.
-BLOB_SCENES = 48
-BLOB_VAL_FRACTION = 0.1
-BLOB_MIN_CANDIDATES = 100
 
 
 @dataclass
@@ -157,25 +156,28 @@ def _check(arch, steps, batch_size, num_threads, n_candidates, lr, data):
     return int(k_lo), int(k_hi)
 
 
-def _blob_data(n_scenes, data_seed, min_candidates=BLOB_MIN_CANDIDATES, val_fraction=BLOB_VAL_FRACTION):
-    """Training and validation blob sets: the last ``val_fraction`` of the scenes are held out."""
-    from .blobsets import build_sets, scene_count
-
-    sets = build_sets(n_scenes, data_seed, progress=False)
-    per = scene_count()
-    n_val = max(1, int(round(val_fraction * n_scenes))) if n_scenes > 1 else 0
-    cut = (n_scenes - n_val) * per
-    ok = [len(s.x1) >= min_candidates and s.is_inlier.any() for s in sets]
-    train_sets = [s for i, s in enumerate(sets) if ok[i] and (i < cut or not n_val)]
-    val_sets = [s for i, s in enumerate(sets) if ok[i] and i >= cut and n_val]
-    return train_sets, val_sets
+def _check_blob_sets(blob_sets):
+    """``(train_sets, val_sets, info)`` of ``data="blob"``, checked."""
+    if blob_sets is None:
+        raise ValueError("data='blob' needs blob_sets=(train_sets, val_sets, info): build them with "
+                         "ctxmatch_lib.training.blob_training_sets, or train with "
+                         "ctxmatch_lib.training.train_on_blob_candidates")
+    train_sets, val_sets, info = blob_sets
+    if not len(train_sets):
+        raise ValueError("blob_sets holds no training set")
+    return list(train_sets), list(val_sets), dict(info)
 
 
 def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candidates=(500, 1500), lr: float = 1e-3,
           seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
           num_threads: int = 1, progress: bool = True, validate: bool = True, data: str = "generated",
-          n_scenes: int = BLOB_SCENES, balanced: bool = False, init=None) -> TrainResult:
-    """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`."""
+          balanced: bool = False, init=None, blob_sets=None) -> TrainResult:
+    """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`.
+
+    With ``data="blob"``, ``blob_sets`` is ``(train_sets, val_sets, info)``: lists of blob sets (objects with
+    ``x1``, ``x2``, ``scores``, ``is_inlier``, ``size1``, ``size2``, ``inlier_ratio``) and a dict recorded in the
+    weights' metadata (:func:`ctxmatch_lib.training.blob_training_sets` builds them).
+    """
     steps = TRAINED_HERE_STEPS[arch] if steps is None and arch in TRAINED_HERE_STEPS else steps
     k_lo, k_hi = _check(arch, steps, batch_size, num_threads, n_candidates, lr, data)
     cfg = dict(TRAINED_HERE_CONFIGS[arch], **(config or {}))
@@ -188,7 +190,7 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
     t0 = time.perf_counter()
     try:
         if data == "blob":
-            train_sets, val_sets = _blob_data(n_scenes, seed)
+            train_sets, val_sets, blob_info = _check_blob_sets(blob_sets)
             draw = lambda rng: _blob_batch(train_sets, rng, batch_size, k_hi, side)  # noqa: E731
         else:
             pool = keypoint_pool(max_images)
@@ -214,11 +216,8 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
                     "final_loss": float(np.mean(losses[-50:])), "validation": validation,
                     "torch": str(torch.__version__), "init": _init_record(init)}
         if data == "blob":
-            from .blobsets import describe
-
-            training.update(data="blob candidates of generated pairs (ctxmatch_lib.filters.learned.blobsets)",
-                            n_scenes=n_scenes, n_train_sets=len(train_sets), n_val_sets=len(val_sets),
-                            blobsets=describe())
+            training.update(data="blob candidates of generated pairs (ctxmatch_lib.training.blobsets)",
+                            n_train_sets=len(train_sets), n_val_sets=len(val_sets), **blob_info)
         else:
             training.update(data="generated from the embedded images (ctxmatch_lib.filters.learned.data)",
                             max_images=max_images)

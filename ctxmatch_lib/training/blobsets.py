@@ -11,7 +11,8 @@ Nothing here reads ``CTXMATCH_DATA`` (the evaluation data). The images are sciki
 (:data:`SOURCE_IMAGES`), scaled so that the longer side is 1024 px (the real pairs' size). Each scene draws:
 
 * **homography** (planar): image 2 is image 1 under a random homography
-  (:func:`~ctxmatch_lib.filters.learned.data._random_homography`, the generator of :mod:`.data`);
+  (:func:`~ctxmatch_lib.filters.learned.data._random_homography`, the generator of
+  :mod:`ctxmatch_lib.filters.learned.data`);
 * **layered** (non-planar): image 1 is a background photo with one to three elliptical foreground layers cut
   from other photos pasted on it; in image 2 the background moves by a homography and every layer by its
   own homography on top of it (an extra shift of up to 12 % of the image), the layers drawn in order, so
@@ -40,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...geometry import apply_homography
-from ...groundtruth import GT_THRESHOLD_PX
-from .data import _random_homography
+from ..filters.learned.data import _random_homography
+from ..geometry import apply_homography
+from ..groundtruth import GT_THRESHOLD_PX
 
 __all__ = ["SOURCE_IMAGES", "FEATURES", "BLOBS", "GENERATOR_VERSION", "BlobSet", "source_images", "make_scene",
            "scene_sets", "build_sets", "load_sets"]
@@ -88,7 +89,7 @@ def source_images() -> list[np.ndarray]:
     import cv2
     import skimage.data
 
-    from ...features import _as_gray_uint8
+    from ..features import _as_gray_uint8
 
     out = []
     for name in SOURCE_IMAGES:
@@ -194,9 +195,9 @@ def make_scene(images, rng, kind: str | None = None) -> Scene:
 # ------------------------------------------------------------------------------------- candidate sets
 def scene_sets(scene: Scene, features=FEATURES, blobs=BLOBS, max_keypoints: int = MAX_KEYPOINTS) -> list[BlobSet]:
     """The blob candidates of ``scene`` for every feature preset and blob preset, labelled by the warp."""
-    from ...blob import BLOB_PRESETS
-    from ...evaluation.steps import blob_candidates
-    from ...features import FEATURE_PRESETS, extract_features
+    from ..blob import BLOB_PRESETS
+    from ..evaluation.steps import blob_candidates
+    from ..features import FEATURE_PRESETS, extract_features
 
     out = []
     for fname in features:
@@ -216,7 +217,7 @@ def scene_sets(scene: Scene, features=FEATURES, blobs=BLOBS, max_keypoints: int 
 
 
 def _cache_root(cache_dir) -> Path:
-    from ..._paths import cache_dir as _cache_dir
+    from .._paths import cache_dir as _cache_dir
 
     root = Path(cache_dir) if cache_dir is not None else _cache_dir("learned-sets")
     return root / f"v{GENERATOR_VERSION}"
@@ -227,7 +228,7 @@ def _scene_path(root: Path, seed: int, index: int) -> Path:
 
 
 def _save(path: Path, sets: list[BlobSet]) -> None:
-    from ..._paths import atomic_path
+    from .._paths import atomic_path
 
     arrays = {}
     meta = []
