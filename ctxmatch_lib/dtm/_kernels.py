@@ -28,6 +28,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
+           "single_ring_kernel",
            "triangle_neighbors_kernel"]
 
 
@@ -375,3 +376,41 @@ with user_cache() as _cache:
                                 break
                     k += 1
         return rows, others, both
+
+    @_jit
+    def single_ring_kernel(edges, n_points):
+        """The boundary ``edges`` (rows of point indices) as one closed ring, when they form exactly one simple
+        cycle (every endpoint on exactly two edges, all edges connected): the point indices from
+        ``edges[0, 1]`` to ``edges[0, 0]`` and on around the cycle, the first point repeated at the end (the ring
+        GEOS's polygonizer returns for such edges, see :func:`~ctxmatch_lib.dtm.boundary._rings_from_edges`).
+        Empty when the edges form anything else (several rings, pinched vertices, open chains)."""
+        n_edges = edges.shape[0]
+        fail = np.empty(0, np.int64)
+        if n_edges < 3:
+            return fail
+        degree = np.zeros(n_points, np.int64)
+        inc = np.full((n_points, 2), -1, np.int64)  # the two edges at each endpoint
+        for e in range(n_edges):
+            for side in range(2):
+                p = edges[e, side]
+                if degree[p] == 2:
+                    return fail
+                inc[p, degree[p]] = e
+                degree[p] += 1
+        for e in range(n_edges):
+            if degree[edges[e, 0]] != 2 or degree[edges[e, 1]] != 2 or edges[e, 0] == edges[e, 1]:
+                return fail
+        ring = np.empty(n_edges + 1, np.int64)
+        ring[0] = edges[0, 1]
+        ring[1] = edges[0, 0]
+        prev_edge = 0
+        for k in range(2, n_edges + 1):
+            v = ring[k - 1]
+            e = inc[v, 0] if inc[v, 0] != prev_edge else inc[v, 1]
+            ring[k] = edges[e, 0] if edges[e, 1] == v else edges[e, 1]
+            prev_edge = e
+            if ring[k] == ring[0] and k < n_edges:
+                return fail  # the cycle through edges[0] misses some edges: several rings
+        if ring[n_edges] != ring[0]:
+            return fail
+        return ring

@@ -32,7 +32,7 @@ import shapely
 from scipy.spatial import cKDTree
 
 from .._validation import as_image_size, as_points
-from ._kernels import alpha_shapes_kernel, circumradii_kernel, triangle_neighbors_kernel
+from ._kernels import alpha_shapes_kernel, circumradii_kernel, single_ring_kernel, triangle_neighbors_kernel
 from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, round_half_away, unique_rows
 
 __all__ = [
@@ -267,9 +267,22 @@ def _fatten(points: np.ndarray, edges: np.ndarray, s: float) -> np.ndarray:
 
 
 def _rings_from_edges(points: np.ndarray, edges: np.ndarray) -> list:
-    """Closed rings (as (R, 2) arrays, first point repeated) of the polygons bounded by ``edges``."""
+    """Closed rings (as (R, 2) arrays, first point repeated) of the polygons bounded by ``edges``.
+
+    The rings are GEOS's (``shapely.polygonize``): their start and direction set where the boundary samples
+    fall (:func:`_sample_rings`). The common case, edges forming one simple cycle, is traced by a compiled
+    walk (:func:`~ctxmatch_lib.dtm._kernels.single_ring_kernel`) that gives GEOS's ring for it (from
+    ``edges[0, 1]`` through ``edges[0, 0]``, clockwise); a traced ring that turns counter-clockwise, and
+    every other edge set, goes to GEOS.
+    """
     if len(edges) == 0:
         return []
+    ring = single_ring_kernel(np.ascontiguousarray(edges, np.int64), len(points))
+    if len(ring):
+        xy = points[ring]
+        x, y = xy[:, 0], xy[:, 1]
+        if float(np.dot(x[:-1], y[1:]) - np.dot(x[1:], y[:-1])) < 0:  # twice the signed area: clockwise
+            return [xy]
     lines = shapely.linestrings(np.stack([points[edges[:, 0]], points[edges[:, 1]]], axis=1))
     polys = shapely.get_parts(shapely.polygonize(lines))
     return [shapely.get_coordinates(shapely.get_exterior_ring(p)) for p in polys]
