@@ -190,10 +190,14 @@ def test_plot_agreement_axes():
     tabs = {s: report.paper_table(s).assign(pairs=1) for s in ("baseline", "best")}
     side = side_by_side(tabs)
     fig = plot_agreement(side)
-    assert len(fig.axes) == 2 * 2
-    assert fig.axes[0].get_title().startswith("baseline, planar\nρ P 1.00")
-    fig2 = plot_agreement(side, ["best"], models=("none", "1sac"))
+    assert len(fig.axes) == 2 * 2 * 2  # setups x (kinds x precision, recall)
+    assert fig.axes[0].get_title().startswith("baseline\nplanar precision: ρ = 1.00")
+    fig2 = plot_agreement(side, ["best"], models=("none", "1sac"), metrics=("recall",))
     assert len(fig2.axes) == 2
+    # The convention of the precision/recall scatter: hollow without a model, filled after 1SAC.
+    points = fig2.axes[0].collections  # the methods without a model, then after 1SAC
+    hollow, filled = points[0], points[len(points) // 2]
+    assert len(hollow.get_facecolors()) == 0 and len(filled.get_facecolors()) == 1
     with pytest.raises(ValueError, match="setups"):
         plot_agreement(side, ["global"])
     matplotlib.pyplot.close("all")
