@@ -99,6 +99,30 @@ with user_cache() as _cache:
         return top
 
     @njit(cache=_cache, nogil=True)
+    def _kth(work, cnt, k):
+        """The k-th smallest (0-based) of ``work[:cnt]`` (quickselect; reorders ``work``)."""
+        lo, hi = 0, cnt - 1
+        while lo < hi:
+            pivot = work[(lo + hi) >> 1]
+            a, b = lo, hi
+            while a <= b:
+                while work[a] < pivot:
+                    a += 1
+                while work[b] > pivot:
+                    b -= 1
+                if a <= b:
+                    work[a], work[b] = work[b], work[a]
+                    a += 1
+                    b -= 1
+            if k <= b:
+                hi = b
+            elif k >= a:
+                lo = a
+            else:
+                break
+        return work[k]
+
+    @njit(cache=_cache, nogil=True)
     def _append(val, idx, cnt, thr, line, K, v, x):
         """Append to the line's buffer; a full buffer (2K) keeps its K smallest and lowers the threshold."""
         c = cnt[line]
@@ -123,35 +147,58 @@ with user_cache() as _cache:
         """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the row and column buffers.
 
         ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is
-        collected without branching, then appended to the line's buffer of 2K entries; a full buffer keeps
+        flagged in a vectorisable pass, then appended to the line's buffer of 2K entries; a full buffer keeps
         its K smallest and takes the K-th as its new threshold. With ``keep``, ``v`` is also written to
         ``dense`` (f = Ω).
         """
         B, C = G.shape
         buf = np.empty(C, np.float32)
-        cand = np.empty(C, np.int64)
+        nw = (C + 7) // 8
+        fl = np.zeros(8 * nw, np.uint8)
+        words = fl.view(np.uint64)
+        work = np.empty(max(B, C), np.float32)
+        up = np.float32(np.inf)
+        # A fresh line starts with a threshold just above the K-th smallest of its first tile (any value
+        # at or above the K-th smallest seen keeps the K smallest), not with +inf: otherwise every entry
+        # of the first tile would pass through the buffer.
+        if B >= Kc:
+            for jj in range(C):
+                j = c0 + jj
+                if cc[j] == 0 and cthr[j] == np.inf:
+                    for bi in range(B):
+                        g = G[bi, jj]
+                        work[bi] = (n1[r0 + bi] + n2[j]) - (g + g)
+                    cthr[j] = np.nextafter(_kth(work, B, Kc - 1), up)
         for bi in range(B):
             i = r0 + bi
             a = n1[i]
-            t = rthr[i]
-            k = 0
+            # Vectorisable pass: values and a flag per entry; the scan below skips 8 flags at a time.
             for jj in range(C):
                 g = G[bi, jj]
-                v = (a + n2[c0 + jj]) - (g + g)
-                buf[jj] = v
-                cand[k] = jj
-                k += (v < t) | (v < cthr[c0 + jj])
+                buf[jj] = (a + n2[c0 + jj]) - (g + g)
+            if rc[i] == 0 and rthr[i] == np.inf and C >= Kr:
+                for jj in range(C):
+                    work[jj] = buf[jj]
+                rthr[i] = np.nextafter(_kth(work, C, Kr - 1), up)
+            t = rthr[i]
+            for jj in range(C):
+                v = buf[jj]
+                fl[jj] = (v < t) | (v < cthr[c0 + jj])
             if keep:
                 for jj in range(C):
                     dense[i, c0 + jj] = buf[jj]
-            for q in range(k):
-                jj = cand[q]
-                v = buf[jj]
-                j = c0 + jj
-                if v < rthr[i]:
-                    _append(rv, ri, rc, rthr, i, Kr, v, j)
-                if v < cthr[j]:
-                    _append(cv, ci, cc, cthr, j, Kc, v, i)
+            for w in range(nw):
+                if words[w] == 0:
+                    continue
+                for jj in range(8 * w, min(C, 8 * w + 8)):
+                    if fl[jj] == 0:
+                        continue
+                    v = buf[jj]
+                    j = c0 + jj
+                    if v < rthr[i]:
+                        _append(rv, ri, rc, rthr, i, Kr, v, j)
+                    if v < cthr[j]:
+                        _append(cv, ci, cc, cthr, j, Kc, v, i)
 
     @njit(cache=_cache, nogil=True)
     def _sort_pairs(val, idx, count):
