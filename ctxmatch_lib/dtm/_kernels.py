@@ -28,7 +28,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "single_ring_kernel",
+           "key_rows_kernel", "nearest_kernel", "single_ring_kernel", "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
 
@@ -414,3 +414,118 @@ with user_cache() as _cache:
         if ring[n_edges] != ring[0]:
             return fail
         return ring
+
+    @_jit
+    def nearest_kernel(queries, points):
+        """Nearest of ``points`` to each query by exhaustive search: the distance ``sqrt(dx² + dy²)`` (as
+        ``scipy.spatial.cKDTree.query`` computes it), the index, and whether any query has two nearest points
+        at exactly the same distance (then the index is a tie that a k-d tree may break otherwise)."""
+        n = queries.shape[0]
+        dist = np.empty(n)
+        index = np.empty(n, np.int64)
+        tie = False
+        for q in range(n):
+            qx, qy = queries[q, 0], queries[q, 1]
+            best = np.inf
+            arg = -1
+            again = False
+            for i in range(points.shape[0]):
+                dx = qx - points[i, 0]
+                dy = qy - points[i, 1]
+                d2 = dx * dx + dy * dy
+                if d2 < best:
+                    best = d2
+                    arg = i
+                    again = False
+                elif d2 == best:
+                    again = True
+            tie = tie or again
+            dist[q] = math.sqrt(best)
+            index[q] = arg
+        return dist, index, tie
+
+    @_jit
+    def key_rows_kernel(keys, queries):
+        """Row of each query among ``keys`` (int64, e.g. the bit patterns of float32 point pairs) through an
+        open-addressing hash table. Returns ``(rows, status)``: ``status`` 0 when every query is a key and every
+        key is some query's, 1 when ``keys`` hold duplicates, 2 when a query is no key, 3 when a key is no
+        query's (``rows`` then meaningless)."""
+        n = keys.shape[0]
+        bits = 4
+        while (1 << bits) < 4 * n:
+            bits += 1
+        mask = (1 << bits) - 1
+        shift = np.uint64(64 - bits)
+        fib = np.uint64(0x9E3779B97F4A7C15)
+        table = np.full(1 << bits, -1, np.int64)
+        rows = np.empty(queries.shape[0], np.int64)
+        for i in range(n):
+            h = np.int64((np.uint64(keys[i]) * fib) >> shift)
+            while table[h] >= 0:
+                if keys[table[h]] == keys[i]:
+                    return rows, 1
+                h = (h + 1) & mask
+            table[h] = i
+        seen = np.zeros(n, np.bool_)
+        for q in range(queries.shape[0]):
+            h = np.int64((np.uint64(queries[q]) * fib) >> shift)
+            while True:
+                r = table[h]
+                if r < 0:
+                    return rows, 2
+                if keys[r] == queries[q]:
+                    break
+                h = (h + 1) & mask
+            rows[q] = r
+            seen[r] = True
+        for i in range(n):
+            if not seen[i]:
+                return rows, 3
+        return rows, 0
+
+    @_jit
+    def vertex_csr_kernel(simplices, n):
+        """CSR ``(indptr, indices)`` of the vertices ``0..n-1`` adjacent to each vertex ``v < n`` through an edge
+        of ``simplices``, ``v`` itself included, increasing and without repeats (rows ``>= n`` are left out)."""
+        count = np.ones(n + 1, np.int64)  # the self loop
+        count[n] = 0
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                if a < n and b < n:
+                    count[a] += 1
+                    count[b] += 1
+        start = np.zeros(n + 1, np.int64)
+        for v in range(n):
+            start[v + 1] = start[v] + count[v]
+        buf = np.empty(start[n], np.int64)
+        fill = start[:-1].copy()
+        for v in range(n):
+            buf[fill[v]] = v
+            fill[v] += 1
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                if a < n and b < n:
+                    buf[fill[a]] = b
+                    fill[a] += 1
+                    buf[fill[b]] = a
+                    fill[b] += 1
+        indptr = np.zeros(n + 1, np.int64)
+        indices = np.empty(start[n], np.int64)
+        m = 0
+        for v in range(n):
+            lo, hi = start[v], start[v + 1]
+            for i in range(lo + 1, hi):  # insertion sort of the few neighbours
+                x = buf[i]
+                j = i - 1
+                while j >= lo and buf[j] > x:
+                    buf[j + 1] = buf[j]
+                    j -= 1
+                buf[j + 1] = x
+            for i in range(lo, hi):
+                if i == lo or buf[i] != buf[i - 1]:
+                    indices[m] = buf[i]
+                    m += 1
+            indptr[v + 1] = m
+        return indptr, indices[:m].copy()
