@@ -137,8 +137,6 @@ def _knn_ratio(desc1, desc2, ratio: float):
 
 def _run_pair(pair, f1, f2, args, blob_cfg):
     """Every timed step of one pair; returns a dict of times (s), sizes and corner errors."""
-    import numpy as np
-
     from ctxmatch_lib.dtm import dtm
     from ctxmatch_lib.evaluation.steps import blob_candidates
     from ctxmatch_lib.geometry import apply_model_step
