@@ -7,9 +7,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.ctxmatch-installed
-# The tests also cover the optional extras (learned filters, kornia interop, hloc export): the test
+# The tests also cover the optional extras (learned filters, kornia interop, hloc and COLMAP export): the test
 # environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
-TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0
+TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
 # Real data: CTXMATCH_DATA from the environment, else ../shared/data when that folder exists.
 export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
