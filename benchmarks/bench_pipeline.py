@@ -9,7 +9,8 @@ Per pair of ``--dataset`` (default ``planar``: the 31 shared HPatches / Oxford /
 * **ctxmatch**: blob matching ``--blob`` (default ``paper-best``), then DTM (the paper's alpha boundary, DTM2),
   then the estimator on DTM's output;
 * **OpenCV**: ``cv2.BFMatcher(NORM_L2).knnMatch(k=2)`` on the same descriptors with Lowe's ratio ``--ratio``
-  (0.8), then the same estimator, the matches ranked by their ratio;
+  (0.8; :func:`~ctxmatch_lib.opencv_matchers.opencv_ratio_matches`), then the same estimator, the matches
+  ranked by their ratio;
 * **blob+est** (for reference, ``--no-raw`` leaves it out): the estimator straight on the blob candidates,
   without DTM, ranked by the blob score: what the estimator costs on 10 000 - 33 000 many-to-many rows.
 
@@ -26,10 +27,9 @@ corner error of the estimated homography against the ground truth (the four imag
 the mean distance in image-2 pixels; ``inf`` without a model), and its AUC over pairs at 1 / 3 / 5 / 10 px
 (the area under the cumulative error curve up to the threshold, divided by it; failures count as ``inf``).
 
-The two accuracy computations are written here (:func:`_corner_error`, :func:`_auc`) while the library's
-geometry metrics land (issue 30, ``ctxmatch_lib.geometry_metrics``); they follow the same definitions
-(glue-factory's ``homography_corner_error``, SuperGlue's ``pose_auc``) and should switch to the library's
-functions once those are committed.
+The matcher and the metrics are the library's: :func:`ctxmatch_lib.opencv_matchers.opencv_ratio_matches`,
+:func:`ctxmatch_lib.geometry_metrics.homography_corner_error` and :func:`~ctxmatch_lib.geometry_metrics.pose_auc`
+(the engine's ``opencv_ratio`` rows and geometry columns, issue 30).
 
 Run::
 
@@ -46,7 +46,6 @@ import sys
 import time
 from pathlib import Path
 
-AUC_THRESHOLDS = (1.0, 3.0, 5.0, 10.0)
 
 
 def _set_threads(n: int) -> None:
@@ -65,43 +64,6 @@ def _threads_arg(argv) -> int:
     return 1
 
 
-# ------------------------------------------------------------------------------------------ accuracy
-# Local stand-ins for ctxmatch_lib.geometry_metrics.homography_corner_error / pose_auc (issue 30), same
-# definitions; to be replaced by the library's functions once they are committed.
-
-
-def _corner_error(H, H_gt, image_size) -> float:
-    """Mean distance of the four image-1 corners (pixel-centre origin: the image spans [-0.5, w - 0.5] x
-    [-0.5, h - 0.5]) mapped by ``H`` and by ``H_gt``, image-2 pixels; ``inf`` without a model."""
-    import numpy as np
-
-    if H is None:
-        return float("inf")
-    w, h = image_size
-    c = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]]) - np.array([0.5, 0.5, 0.0])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = c @ np.asarray(H, np.float64).T
-        b = c @ np.asarray(H_gt, np.float64).T
-        d = np.linalg.norm(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:], axis=1)
-    return float(d.mean()) if np.isfinite(d).all() else float("inf")
-
-
-def _auc(errors, thresholds=AUC_THRESHOLDS):
-    """Area under the cumulative error curve up to each threshold over the threshold (SuperGlue's
-    ``pose_auc``): every pair in the denominator, failures (``inf``) included."""
-    import numpy as np
-
-    e = np.sort(np.where(np.isnan(errors), np.inf, np.asarray(errors, np.float64)))
-    n = len(e)
-    out = []
-    for t in thresholds:
-        k = int(np.searchsorted(e, t, side="left"))
-        x = np.r_[0.0, e[:k], t]
-        r = np.r_[0.0, np.arange(1, k + 1) / n, k / n]
-        out.append(float(np.sum(np.diff(x) * (r[1:] + r[:-1])) / 2.0 / t) if n else float("nan"))
-    return out
-
-
 # ------------------------------------------------------------------------------------------ steps
 
 
@@ -117,29 +79,13 @@ def _clock(fn, repeat: int):
     return float(np.median(times)), out
 
 
-def _knn_ratio(desc1, desc2, ratio: float):
-    """``BFMatcher(NORM_L2).knnMatch(k=2)`` with Lowe's ratio: ``(matches (K, 2), ratios (K,))``."""
-    import cv2
-    import numpy as np
-
-    d1 = np.ascontiguousarray(desc1, np.float32)
-    d2 = np.ascontiguousarray(desc2, np.float32)
-    if len(d1) == 0 or len(d2) < 2:
-        return np.empty((0, 2), np.int64), np.empty(0)
-    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(d1, d2, k=2)
-    q = np.array([[m[0].queryIdx, m[0].trainIdx, m[0].distance, m[1].distance] for m in knn if len(m) == 2],
-                 np.float64).reshape(-1, 4)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(q[:, 3] > 0, q[:, 2] / q[:, 3], 1.0)
-    keep = r < ratio
-    return q[keep, :2].astype(np.int64), r[keep]
-
-
 def _run_pair(pair, f1, f2, args, blob_cfg):
     """Every timed step of one pair; returns a dict of times (s), sizes and corner errors."""
     from ctxmatch_lib.dtm import dtm
     from ctxmatch_lib.evaluation.steps import blob_candidates
     from ctxmatch_lib.geometry import apply_model_step
+    from ctxmatch_lib.geometry_metrics import homography_corner_error as corner_error
+    from ctxmatch_lib.opencv_matchers import opencv_ratio_matches
 
     def estimate(matches, scores):
         fit = apply_model_step(args.estimator, f1.kpts, f2.kpts, matches, scores, kind="H", rng=args.seed)
@@ -149,9 +95,9 @@ def _run_pair(pair, f1, f2, args, blob_cfg):
     gt = pair.gt.H
     size = tuple(pair.image_size1)
     # OpenCV
-    t, (m, r) = _clock(lambda: _knn_ratio(f1.desc, f2.desc, args.ratio), args.repeat)
+    t, (m, r) = _clock(lambda: opencv_ratio_matches(f1.desc, f2.desc, ratio=args.ratio), args.repeat)
     te, H = _clock(lambda: estimate(m, r), args.repeat)
-    rec["opencv"] = dict(match=t, est=te, total=t + te, rows=len(m), err=_corner_error(H, gt, size))
+    rec["opencv"] = dict(match=t, est=te, total=t + te, rows=len(m), err=corner_error(H, gt, size))
     # ctxmatch
     t, (m, s, _) = _clock(lambda: blob_candidates(f1, f2, blob_cfg), args.repeat)
     td, res = _clock(lambda: dtm(f1.kpts, f2.kpts, m, s, image_size1=tuple(pair.image_size1),
@@ -159,10 +105,10 @@ def _run_pair(pair, f1, f2, args, blob_cfg):
     keep = res.keep
     te, H = _clock(lambda: estimate(m[keep], s[keep]), args.repeat)
     rec["ctxmatch"] = dict(match=t, dtm=td, est=te, total=t + td + te, rows=len(m), kept=int(keep.sum()),
-                           err=_corner_error(H, gt, size))
+                           err=corner_error(H, gt, size))
     if not args.no_raw:
         te, H = _clock(lambda: estimate(m, s), args.repeat)
-        rec["blob+est"] = dict(match=t, est=te, total=t + te, rows=len(m), err=_corner_error(H, gt, size))
+        rec["blob+est"] = dict(match=t, est=te, total=t + te, rows=len(m), err=corner_error(H, gt, size))
     return rec
 
 
@@ -175,6 +121,8 @@ def main(argv=None) -> int:
     from ctxmatch_lib.evaluation import select_pairs
     from ctxmatch_lib.features import FeatureConfig, extract_features
     from ctxmatch_lib.geometry import ROBUST_STEPS
+    from ctxmatch_lib.geometry_metrics import CORNER_AUC_THRESHOLDS_PX as AUC_THRESHOLDS
+    from ctxmatch_lib.geometry_metrics import pose_auc
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dataset", default="planar", help="dataset or group of CTXMATCH_DATA (default planar)")
@@ -236,7 +184,7 @@ def main(argv=None) -> int:
     for name in methods:
         rows = [r[name] for r in recs]
         err = np.array([r["err"] for r in rows])
-        auc = _auc(err)
+        auc = [float(a) for a in pose_auc(err, AUC_THRESHOLDS)]
         tot = sum(r["total"] for r in rows)
         summary[name] = dict(total=tot, auc=auc, median_err=float(np.median(err)))
         print(f"{name:<10} {tot:>18.2f} {sum(r['match'] for r in rows):>7.2f} "
