@@ -4,7 +4,8 @@
   adjacency and the MATLAB-``boundary`` alpha shapes (:mod:`ctxmatch_lib.dtm.boundary`);
 - :func:`locate_kernel`: the visibility walk of
   :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex` (DTM2's point location);
-- :func:`neighbourhood_kernel`, :func:`contraction_kernel`: DTM1 steps 3 and 5 (:mod:`ctxmatch_lib.dtm.core`).
+- :func:`neighbourhood_kernel`, :func:`row_counts_kernel`, :func:`contract_expand_kernel` (and the older
+  :func:`contraction_kernel`): DTM1 steps 3-6 (:mod:`ctxmatch_lib.dtm.core`);
 
 These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
 can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
@@ -28,7 +29,8 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "key_rows_kernel", "nearest_kernel", "single_ring_kernel", "vertex_csr_kernel",
+           "contract_expand_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
+           "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
 
@@ -529,3 +531,54 @@ with user_cache() as _cache:
                     m += 1
             indptr[v + 1] = m
         return indptr, indices[:m].copy()
+
+    @_jit
+    def row_counts_kernel(rows, flag, n):
+        """``np.bincount(rows[flag], minlength=n)``: per row, how many of its pairs are flagged."""
+        out = np.zeros(n, np.int64)
+        for j in range(rows.shape[0]):
+            if flag[j]:
+                out[rows[j]] += 1
+        return out
+
+    @_jit
+    def _row_ptr(rows, n):
+        """CSR pointers of pairs grouped by non-decreasing ``rows``: row ``m`` holds ``ptr[m]:ptr[m + 1]``."""
+        ptr = np.zeros(n + 1, np.int64)
+        for j in range(rows.shape[0]):
+            ptr[rows[j] + 1] += 1
+        for m in range(n):
+            ptr[m + 1] += ptr[m]
+        return ptr
+
+    @_jit
+    def contract_expand_kernel(rank, rows_a, others_a, both_a, rows_b, others_b, both_b, n):
+        """DTM1 steps 5-6 on the neighbourhood pairs of both images (:func:`neighbourhood_kernel`, rows
+        non-decreasing): walk the matches in ``rank`` order, pick each one still alive and kill the others of its
+        pairs that are not flagged in either image's list (``(M_A1 ∪ M_A2) \\ (M_A1 ∩ M_A2)``); then keep the
+        flagged others of image 1's pairs of every picked match (the union of ``M_A1 ∩ M_A2``). Returns the
+        picked matches in pick order and the kept flags (what :func:`contraction_kernel` and the NumPy
+        expansion give)."""
+        ptr_a = _row_ptr(rows_a, n)
+        ptr_b = _row_ptr(rows_b, n)
+        alive = np.ones(n, np.bool_)
+        picked = np.empty(n, np.int64)
+        n_picked = 0
+        for i in range(n):
+            m = rank[i]
+            if alive[m]:
+                picked[n_picked] = m
+                n_picked += 1
+                for j in range(ptr_a[m], ptr_a[m + 1]):
+                    if not both_a[j]:
+                        alive[others_a[j]] = False
+                for j in range(ptr_b[m], ptr_b[m + 1]):
+                    if not both_b[j]:
+                        alive[others_b[j]] = False
+        kept = np.zeros(n, np.bool_)
+        for i in range(n_picked):
+            m = picked[i]
+            for j in range(ptr_a[m], ptr_a[m + 1]):
+                if both_a[j]:
+                    kept[others_a[j]] = True
+        return picked[:n_picked].copy(), kept
