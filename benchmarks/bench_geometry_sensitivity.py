@@ -73,13 +73,13 @@ def score(pair, kind, model, corr):
 
 
 def run(args) -> pd.DataFrame:
-    try:
-        import poselib  # noqa: F401
-
-        estimators = [*args.steps, "poselib"]
-    except ImportError:
-        estimators = list(args.steps)
-        print("poselib not installed (pip install 'ctxmatch[geometry]'): PoseLib skipped")
+    estimators = list(args.steps)
+    if "poselib" in estimators:
+        try:
+            import poselib  # noqa: F401
+        except ImportError:
+            estimators.remove("poselib")
+            print("poselib not installed (pip install 'ctxmatch[geometry]'): PoseLib skipped")
     feats = FEATURE_PRESETS["sift-rootsift"]
     budget = keypoint_budget(args.max_keypoints)
     if budget is not None:
@@ -141,7 +141,8 @@ def main(argv=None) -> None:
     p.add_argument("--blob", default="paper-best")
     p.add_argument("--filters", default="dtm,adalam,gms", type=lambda s: [x for x in s.split(",") if x])
     p.add_argument("--matchers", default="opencv_ratio,opencv_mnn", type=lambda s: [x for x in s.split(",") if x])
-    p.add_argument("--steps", default="ransac,prosac,magsac", type=lambda s: [x for x in s.split(",") if x])
+    p.add_argument("--steps", default="ransac,prosac,magsac,poselib", type=lambda s: [x for x in s.split(",") if x],
+                   help="estimators: OpenCV model steps and 'poselib' (skipped when not installed)")
     p.add_argument("--thresholds", default="0.5,1,2,3", type=lambda s: [float(x) for x in s.split(",")])
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--csv", default=None, help="also write the per-pair records here")
