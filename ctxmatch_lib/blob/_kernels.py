@@ -169,13 +169,16 @@ with user_cache() as _cache:
                         g = G[bi, jj]
                         work[bi] = (n1[r0 + bi] + n2[j]) - (g + g)
                     cthr[j] = np.nextafter(_kth(work, B, Kc - 1), up)
+        n2t = n2[c0 : c0 + C]  # views: plain jj indices let LLVM vectorise the pass below
+        ctt = cthr[c0 : c0 + C]
         for bi in range(B):
             i = r0 + bi
             a = n1[i]
+            grow = G[bi]
             # Vectorisable pass: values and a flag per entry; the scan below skips 8 flags at a time.
             for jj in range(C):
-                g = G[bi, jj]
-                buf[jj] = (a + n2[c0 + jj]) - (g + g)
+                g = grow[jj]
+                buf[jj] = (a + n2t[jj]) - (g + g)
             if rc[i] == 0 and rthr[i] == np.inf and C >= Kr:
                 for jj in range(C):
                     work[jj] = buf[jj]
@@ -183,10 +186,12 @@ with user_cache() as _cache:
             t = rthr[i]
             for jj in range(C):
                 v = buf[jj]
-                fl[jj] = (v < t) | (v < cthr[c0 + jj])
+                c = ctt[jj]
+                fl[jj] = np.uint8(v < (t if t > c else c))
             if keep:
+                drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
-                    dense[i, c0 + jj] = buf[jj]
+                    drow[jj] = buf[jj]
             for w in range(nw):
                 if words[w] == 0:
                     continue
