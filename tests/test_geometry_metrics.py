@@ -189,6 +189,7 @@ def test_geometry_table_hand_computed():
     assert t.loc[("nonplanar", "dtm", "magsac"), "epi_share_mean_pct"] == 50.0
     assert np.isnan(t.loc[("nonplanar", "dtm", "magsac"), "auc_1px_pct"])
     assert t.loc[("nonplanar", "blob", "magsac"), "geometry_time_s"] == 3.0
+    assert t.loc[("planar", "blob", "magsac"), "geometry_time_median_s"] == 1.5
     assert ("planar", "blob", "none") not in t.index
 
 

@@ -139,8 +139,10 @@ def _print_summary(df, args, out, n_pairs: int, summary_table) -> None:
             print("\nthe model's accuracy over pairs: auc_*px_pct (planar): AUC of the mean corner error up to t px "
                   "in % (pairs without a model count as failures); epi_share_*_pct (other kinds): ground-truth "
                   "correspondences consistent with the estimated F, mean over 1..19 px and at t px, in %; "
-                  "no_model: pairs without a model; geometry_time_s: blob (or matcher) + filter + model step")
-            print(geometry_table(df).to_string(formatters={"geometry_time_s": "{:.4f}".format}))
+                  "no_model: pairs without a model; geometry_time_(median_)s: blob (or matcher) + filter + model "
+                  "step, mean (median) per pair")
+            print(geometry_table(df).to_string(formatters={c: "{:.4f}".format
+                                                           for c in ("geometry_time_s", "geometry_time_median_s")}))
     if n_failed:
         print(f"\n{n_failed} of {n_pairs} pairs could not be fully evaluated (rows kept, 'error' column):",
               file=sys.stderr)
