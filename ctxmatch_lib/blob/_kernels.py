@@ -39,19 +39,22 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _exact_sq(A, i, B, j):
-        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64, eight running sums in a fixed order."""
-        d = A.shape[1]
+        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8), added
+        in a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction in numba
+        without fastmath."""
+        a, b = A[i], B[j]
+        d = a.shape[0]
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
-        k = 0
-        while k + 8 <= d:
-            t0 = np.float64(A[i, k]) - np.float64(B[j, k])
-            t1 = np.float64(A[i, k + 1]) - np.float64(B[j, k + 1])
-            t2 = np.float64(A[i, k + 2]) - np.float64(B[j, k + 2])
-            t3 = np.float64(A[i, k + 3]) - np.float64(B[j, k + 3])
-            t4 = np.float64(A[i, k + 4]) - np.float64(B[j, k + 4])
-            t5 = np.float64(A[i, k + 5]) - np.float64(B[j, k + 5])
-            t6 = np.float64(A[i, k + 6]) - np.float64(B[j, k + 6])
-            t7 = np.float64(A[i, k + 7]) - np.float64(B[j, k + 7])
+        d8 = d - d % 8
+        for k in range(0, d8, 8):
+            t0 = np.float64(a[k]) - np.float64(b[k])
+            t1 = np.float64(a[k + 1]) - np.float64(b[k + 1])
+            t2 = np.float64(a[k + 2]) - np.float64(b[k + 2])
+            t3 = np.float64(a[k + 3]) - np.float64(b[k + 3])
+            t4 = np.float64(a[k + 4]) - np.float64(b[k + 4])
+            t5 = np.float64(a[k + 5]) - np.float64(b[k + 5])
+            t6 = np.float64(a[k + 6]) - np.float64(b[k + 6])
+            t7 = np.float64(a[k + 7]) - np.float64(b[k + 7])
             s0 += t0 * t0
             s1 += t1 * t1
             s2 += t2 * t2
@@ -60,12 +63,23 @@ with user_cache() as _cache:
             s5 += t5 * t5
             s6 += t6 * t6
             s7 += t7 * t7
-            k += 8
-        while k < d:
-            t0 = np.float64(A[i, k]) - np.float64(B[j, k])
+        for k in range(d8, d):
+            t0 = np.float64(a[k]) - np.float64(b[k])
             s0 += t0 * t0
-            k += 1
         return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_block(A, i, B, js, q, out):
+        """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q."""
+        for p in range(q):
+            out[p] = np.sqrt(_exact_sq(A, i, B, js[p]))
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_row(A, i, B, out):
+        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
+        m = B.shape[0]
+        for j in range(m):
+            out[j] = np.sqrt(_exact_sq(A, i, B, j))
 
     @njit(cache=_cache, nogil=True)
     def _select(val, idx, line, cnt, K):
@@ -156,19 +170,33 @@ with user_cache() as _cache:
         nw = (C + 7) // 8
         fl = np.zeros(8 * nw, np.uint8)
         words = fl.view(np.uint64)
-        work = np.empty(max(B, C), np.float32)
         up = np.float32(np.inf)
-        # A fresh line starts with a threshold just above the K-th smallest of its first tile (any value
-        # at or above the K-th smallest seen keeps the K smallest), not with +inf: otherwise every entry
-        # of the first tile would pass through the buffer.
-        if B >= Kc:
+        # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
+        # (which would pass the whole tile through the buffer): the K-th smallest of the minima of 2K
+        # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
+        # and it costs one vectorised pass plus a selection among 2K values.
+        ngc = min(B, 2 * Kc)
+        if B >= Kc and cc[c0] == 0 and cthr[c0] == np.inf:
+            gsz = B // ngc
+            gm = np.full((ngc, C), np.inf, np.float32)
+            for bi in range(ngc * gsz):
+                grp = gm[bi // gsz]
+                grow = G[bi]
+                a = n1[r0 + bi]
+                for jj in range(C):
+                    g = grow[jj]
+                    v = (a + n2[c0 + jj]) - (g + g)
+                    if v < grp[jj]:
+                        grp[jj] = v
+            colw = np.empty(ngc, np.float32)
             for jj in range(C):
                 j = c0 + jj
                 if cc[j] == 0 and cthr[j] == np.inf:
-                    for bi in range(B):
-                        g = G[bi, jj]
-                        work[bi] = (n1[r0 + bi] + n2[j]) - (g + g)
-                    cthr[j] = np.nextafter(_kth(work, B, Kc - 1), up)
+                    for q in range(ngc):
+                        colw[q] = gm[q, jj]
+                    cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), up)
+        ngr = min(C, 2 * Kr)
+        roww = np.empty(ngr, np.float32)
         n2t = n2[c0 : c0 + C]  # views: plain jj indices let LLVM vectorise the pass below
         ctt = cthr[c0 : c0 + C]
         for bi in range(B):
@@ -180,9 +208,14 @@ with user_cache() as _cache:
                 g = grow[jj]
                 buf[jj] = (a + n2t[jj]) - (g + g)
             if rc[i] == 0 and rthr[i] == np.inf and C >= Kr:
-                for jj in range(C):
-                    work[jj] = buf[jj]
-                rthr[i] = np.nextafter(_kth(work, C, Kr - 1), up)
+                for q in range(ngr):
+                    roww[q] = buf[q]
+                for q0 in range(ngr, C - ngr + 1, ngr):  # strided groups {q, q + 2K, q + 4K, ...}
+                    for q in range(ngr):
+                        v = buf[q0 + q]
+                        if v < roww[q]:
+                            roww[q] = v
+                rthr[i] = np.nextafter(_kth(roww, ngr, Kr - 1), up)
             t = rthr[i]
             for jj in range(C):
                 v = buf[jj]
@@ -223,8 +256,7 @@ with user_cache() as _cache:
         """The T best entries of a whole line by exact distance, ties by index (stable sort)."""
         m = B.shape[0]
         dist = np.empty(m)
-        for j in range(m):
-            dist[j] = np.sqrt(_exact_sq(A, line, B, j))
+        _exact_row(A, line, B, dist)
         order = np.argsort(dist, kind="mergesort")
         for t in range(T):
             out_idx[line, t] = order[t]
@@ -243,6 +275,7 @@ with user_cache() as _cache:
         n, m = A.shape[0], B.shape[0]
         val = np.empty(K)
         idx = np.empty(K, np.int64)
+        ex = np.empty(K)
         work = 0
         for line in range(n):
             c = cnt[line]
@@ -255,8 +288,10 @@ with user_cache() as _cache:
             if c == m or val[c - 1] > band:
                 q = 0
                 while q < c and val[q] <= band:
-                    val[q] = np.sqrt(_exact_sq(A, line, B, idx[q]))
                     q += 1
+                _exact_block(A, line, B, idx, q, ex)
+                for p in range(q):
+                    val[p] = ex[p]
                 work += q
                 _sort_pairs(val, idx, q)
                 for t in range(T):
@@ -271,8 +306,7 @@ with user_cache() as _cache:
         """Whole lines ``A[which]`` against every row of ``B``: exact distances, float64."""
         out = np.empty((len(which), B.shape[0]))
         for r in range(len(which)):
-            for j in range(B.shape[0]):
-                out[r, j] = np.sqrt(_exact_sq(A, which[r], B, j))
+            _exact_row(A, which[r], B, out[r])
         return out
 
     @njit(cache=_cache, nogil=True)
