@@ -13,6 +13,7 @@ SEQUENCE = Path("planar") / "hpatches" / "v_churchill"
 
 
 @pytest.mark.slow
+@pytest.mark.realdata
 def test_reconstruction_from_ctxmatch_matches_registers_the_sequence(tmp_path):
     pycolmap = pytest.importorskip("pycolmap", reason="pycolmap not installed (it is in the test extras)")
     root = os.environ.get("CTXMATCH_DATA")
