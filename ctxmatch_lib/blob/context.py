@@ -2,8 +2,11 @@
 
 Blob matching only ever looks at the few best entries of each row and column of the distance matrix
 (pre-filter of Eqs. 10-11, second-best search of Eqs. 13-14), plus, rarely, a whole row or column. A
-:class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, in row
-blocks, without ever holding D in float64 nor any n×n matrix. Every setup of the grid of Sec. 5.2 then
+:class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, without
+ever holding D in float64 nor any n×n matrix. For L2 descriptors the pass runs over float32 GEMM tiles
+sized to the cache, keeps each line's candidates in a compiled kernel while the tile is in cache, and
+decides on exact float64 distances (:mod:`._kernels`): the candidates and scores do not depend on the BLAS
+kernel, its SIMD width or the thread count. Every setup of the grid of Sec. 5.2 then
 reuses it: the candidate set G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
 """
 
@@ -99,8 +102,9 @@ class BlobContext:
     Parameters
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Computed in
-        float32 (float64 if a descriptor array is float64), in row blocks.
+        Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Proposed by
+        float32 GEMM tiles, decided on float64 distances computed without BLAS in a fixed order (the same
+        on any CPU).
     distances : ndarray of shape (n, m), optional
         A precomputed distance matrix instead of descriptors.
     distance : callable, optional
