@@ -471,9 +471,15 @@ class BlobContext:
         if len(anchors) == 0:
             return out
         cand, vals = lists.idx[anchors], lists.val[anchors]
-        ok = ~self._excluded(1 - side, cand, others, t_o, t_o_kind)
-        if geq:
-            ok &= vals >= dist[:, None]
+        if t_o is not None and t_o_kind == "overlap":
+            ok = cand != others[:, None]
+            if geq:
+                ok &= vals >= dist[:, None]
+            ok = self._first_not_overlapping(1 - side, cand, others, ok, t_o)
+        else:
+            ok = ~self._excluded(1 - side, cand, others, t_o, t_o_kind)
+            if geq:
+                ok &= vals >= dist[:, None]
         out[:] = np.where(ok, vals, np.inf).min(axis=1)
         if not lists.complete:
             # Nothing qualified among the T best: scan the whole line (rare).
@@ -498,6 +504,32 @@ class BlobContext:
                     ok &= line >= dist[sel, None]
                 out[sel] = np.where(ok, line, np.inf).min(axis=1)
         return out
+
+    def _first_not_overlapping(self, img: int, cand: np.ndarray, other: np.ndarray, allowed: np.ndarray,
+                               t_o: float) -> np.ndarray:
+        """FGINN by overlap on sorted lists, lazily: per row, the first ``allowed`` candidate whose overlap
+        error with ``other`` is above ``t_o``, marked True (all False when none is).
+
+        The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
+        candidates before it need their overlap error (one vectorised call per round), not the whole list.
+        """
+        K, L = cand.shape
+        ok = np.zeros((K, L), bool)
+        pos = np.zeros(K, np.int64)
+        active = np.arange(K)
+        cols = np.arange(L)
+        while len(active):
+            nxt = np.where(allowed[active] & (cols[None, :] >= pos[active, None]), cols[None, :], L).min(axis=1)
+            has = nxt < L
+            active, nxt = active[has], nxt[has]
+            if not len(active):
+                break
+            err = np.asarray(self.overlap_errors(img, other[active], cand[active, nxt][:, None])).reshape(-1)
+            keep = err > t_o
+            ok[active[keep], nxt[keep]] = True
+            pos[active[~keep]] = nxt[~keep] + 1
+            active = active[~keep]
+        return ok
 
     def _excluded(self, img: int, cand: np.ndarray, other: np.ndarray, t_o, t_o_kind) -> np.ndarray:
         """Which candidates ``cand`` (K, L) of image ``img`` the second-best search skips for ``other``."""
