@@ -153,6 +153,9 @@ def main(argv=None) -> int:
                 else "")
         print(f"{k:>5} {t * 1e3:>8.1f} {port}{f * 1e3:>11.1f} "
               f"{int(np.median(calls)):>5} {t / f:>8.2f}x {prec:>6.3f} {rec:>6.3f} {prec1:>6.3f} {rec1:>6.3f}")
+        if with_port:
+            print("      per seed (ours / port ms): " + ", ".join(
+                f"{seed}: {a * 1e3:.1f} / {b * 1e3:.0f}" for seed, a, b in zip(SEEDS, times, ports)))
     print(f"dtm ms: CPU time, median of {args.repeat} runs per seed, median over seeds {SEEDS}; P/R: DTM2 output, "
           "P1/R1: DTM1 output"
           + (f"; port ms: the port's CPU time in its own process (one thread), median of {args.repeat} calls per "
