@@ -136,7 +136,7 @@ with user_cache() as _cache:
                 break
         return work[k]
 
-    @njit(cache=_cache, nogil=True)
+    @njit(cache=_cache, nogil=True, inline="always")
     def _append(val, idx, cnt, thr, line, K, v, x):
         """Append to the line's buffer; a full buffer (2K) keeps its K smallest and lowers the threshold."""
         c = cnt[line]
