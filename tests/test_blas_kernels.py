@@ -122,7 +122,12 @@ def test_evaluation_rows_identical_under_every_openblas_kernel(tmp_path):
         pytest.skip(f"OPENBLAS_CORETYPE names x86-64 kernels; this is {platform.machine()}")
     if _numpy_openblas() is None:
         pytest.skip("numpy's BLAS is not OpenBLAS (threadpoolctl finds no OpenBLAS in numpy): no kernel to force")
-    results = {c: _rows(c, tmp_path) for c in _coretypes()}
+    from concurrent.futures import ThreadPoolExecutor
+
+    # One subprocess per core type, as many at once as there are cores (each runs on one BLAS thread).
+    cores = _coretypes()
+    with ThreadPoolExecutor(max_workers=max(1, min(len(cores), os.cpu_count() or 1))) as pool:
+        results = dict(zip(cores, pool.map(lambda c: _rows(c, tmp_path), cores)))
     archs = {c or "default": arch for c, (arch, _) in results.items()}
     if len(set(archs.values())) < 2:
         pytest.skip(f"OpenBLAS ignored OPENBLAS_CORETYPE (not a DYNAMIC_ARCH build?): cores {archs}")
