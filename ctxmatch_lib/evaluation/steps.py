@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
+from .._scores import nnr_scores, score_ratio
 from ..datasets.base import Pair
 from ..features import FeatureConfig, Features, extract_features
 from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ModelFit, apply_model_step, model_kind_for
@@ -228,7 +229,9 @@ def run_filter(
     """Run the registered filter ``name`` on candidate matches.
 
     ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
-    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
+    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it, and the
+    scores of the filters with NNR thresholds (``nnr_thresholds``: ``th``, ``glpm``, ``adalam``) are tagged
+    with it, as ``blob_matching`` returns them (cached candidates come back as plain arrays).
 
     The first call of each filter in a process runs it once more, untimed, before the timed call: compiled
     (numba) kernels are compiled or loaded from the disk cache on their first call, which would otherwise be
@@ -248,6 +251,8 @@ def run_filter(
     func: Callable = FILTERS[name]
     if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
         params.setdefault("ratio", blob_ratio)
+    if blob_ratio is not None and getattr(func, "nnr_thresholds", None) and score_ratio(scores) is None:
+        scores = nnr_scores(scores, blob_ratio)
     k = len(matches)
     if k == 0:
         return np.zeros(0, bool), 0.0
