@@ -15,7 +15,8 @@ The candidate sets are
   with repeated rows, so that the coincident-row merging of the filters that ask for it is exercised.
 
 The filters are called as the evaluation engine calls them (keypoint shapes, the blob setup's ``ratio`` for
-the filters with ``uses_blob_ratio``). The inputs are saved next to the masks (``--save``), and ``--compare``
+the filters with ``uses_blob_ratio``; with ``--tag-scores`` the scores of a real set carry the ratio that
+made them, as :func:`ctxmatch_lib.blob.blob_matching` returns them). The inputs are saved next to the masks (``--save``), and ``--compare``
 reads them back from there, so a change of the feature or blob code between the two runs does not show as
 a filter change.
 
@@ -99,8 +100,9 @@ def real_sets(n_pairs: int, step: int, features: str, blobs, max_keypoints):
     return out
 
 
-def keep_mask(name: str, d: dict) -> np.ndarray:
-    """``FILTERS[name]`` on one candidate set, called as the evaluation engine calls it."""
+def keep_mask(name: str, d: dict, tag_scores: bool = False) -> np.ndarray:
+    """``FILTERS[name]`` on one candidate set, called as the evaluation engine calls it (``tag_scores``: the
+    scores of a real set carry the blob ratio that made them, as ``blob_matching`` returns them)."""
     from ctxmatch_lib.filters import FILTERS
 
     func = FILTERS[name]
@@ -109,7 +111,12 @@ def keep_mask(name: str, d: dict) -> np.ndarray:
         params["ratio"] = str(d["ratio"])
     if len(d["matches"]) == 0:
         return np.zeros(0, bool)
-    out = func(d["kpts1"], d["kpts2"], d["matches"], d["scores"], image_size1=tuple(int(v) for v in d["image_size1"]),
+    scores = d["scores"]
+    if tag_scores and "ratio" in d:
+        from ctxmatch_lib.filters import nnr_scores
+
+        scores = nnr_scores(scores, str(d["ratio"]))
+    out = func(d["kpts1"], d["kpts2"], d["matches"], scores, image_size1=tuple(int(v) for v in d["image_size1"]),
                image_size2=tuple(int(v) for v in d["image_size2"]), shapes1=d.get("shapes1"),
                shapes2=d.get("shapes2"), **params)
     keep = np.asarray(getattr(out, "keep", out))
@@ -144,6 +151,8 @@ def main(argv=None) -> int:
     parser.add_argument("--blobs", nargs="+", default=["paper-best", "baseline"])
     parser.add_argument("--max-keypoints", default="paper")
     parser.add_argument("--filters", default="", help="comma-separated names (default: every registered filter)")
+    parser.add_argument("--tag-scores", action="store_true",
+                        help="the real sets' scores carry their blob ratio (as blob_matching returns them)")
     args = parser.parse_args(argv)
     names = [n for n in args.filters.split(",") if n] if args.filters else list(FILTERS)
     unknown = [n for n in names if n not in FILTERS]
@@ -173,7 +182,7 @@ def main(argv=None) -> int:
         t0 = time.process_time()
         diffs = []
         for s, d in sets.items():
-            keep = keep_mask(name, d)
+            keep = keep_mask(name, d, args.tag_scores)
             masks[f"mask|{name}|{s}"] = keep
             if args.compare is not None:
                 key = f"mask|{name}|{s}"

@@ -262,7 +262,8 @@ def first_of_pair(ms: MatchSet) -> np.ndarray:
 # Shared documentation, composed into the filters' docstrings (one way of scipy's ``_lib/doccer``).
 
 #: Parameter and section texts shared by the filters. A docstring line holding only ``%(name)s`` is replaced
-#: by ``DOCS[name]``, indented as that line; ``{label}`` in an entry is the filter's name (``match_filter``).
+#: by ``DOCS[name]``, indented as that line; ``{label}`` in an entry is the filter's name (``match_filter``); an
+#: entry may itself be made of ``%(name)s`` lines.
 DOCS: dict[str, str] = {
     "kpts": """\
 kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
@@ -286,6 +287,7 @@ image_size1, image_size2 : (int, int)
     "shapes_unused": """\
 shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
     Unused.""",
+    "common_unused": "%(kpts)s\n%(matches)s\n%(scores_unused)s\n%(image_sizes)s\n%(shapes_unused)s",
     "merge_option": """\
 merge_coincident : bool, default True
     Decide coincident rows as one match (see Notes); ``False`` decides every row as given, as the
@@ -328,6 +330,7 @@ def compose_doc(doc: str | None, **fields) -> str | None:
         if name not in DOCS:
             raise KeyError(f"no shared documentation named {name!r}")
         text = DOCS[name].format(**fields) if "{" in DOCS[name] else DOCS[name]
+        text = compose_doc(text, **fields)  # an entry may be made of entries
         return "\n".join(indent + line if line else line for line in text.splitlines())
 
     return _PLACEHOLDER.sub(entry, doc)
@@ -448,10 +451,10 @@ def _scale(scores, ms: MatchSet, given, given_name, thresholds: dict, name: str)
         return carried
     if scores is not None and len(ms) and ms.scores.max() <= 0.5 and all(
             ms.scores.max() <= t for t in thresholds.values()):
+        told = ", ".join(f"{k}={v:g}" for k, v in thresholds.items())
         warnings.warn(f"{name}: every score is at most 0.5, the range of D+ / D+>= blob scores (r / (1 + r)), "
-                      f"and read as NNR ratios (D>=, the default) the thresholds "
-                      f"({', '.join(f'{k}={v:g}' for k, v in thresholds.items())}) keep every row; say which blob ratio made "
-                      "the scores: " + (f"pass {given_name}=..., or " if given_name else "")
+                      f"and read as NNR ratios (D>=, the default) the thresholds ({told}) keep every row; say "
+                      "which blob ratio made the scores: " + (f"pass {given_name}=..., or " if given_name else "")
                       + "pass ctxmatch_lib.filters.nnr_scores(scores, ratio) (blob_matching's scores carry it)",
                       UserWarning, stacklevel=4)
     return "D>="

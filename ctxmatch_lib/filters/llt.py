@@ -70,11 +70,7 @@ def llt_filter(
 
     Parameters
     ----------
-    %(kpts)s
-    %(matches)s
-    %(scores_unused)s
-    %(image_sizes)s
-    %(shapes_unused)s
+    %(common_unused)s
     n_neighbors : int, default 15
         Neighbours of the locally linear reconstruction (``conf.Kn`` of the authors' demo).
     lam : float, default 9e9

@@ -448,11 +448,7 @@ def lmr_filter(
 
     Parameters
     ----------
-    %(kpts)s
-    %(matches)s
-    %(scores_unused)s
-    %(image_sizes)s
-    %(shapes_unused)s
+    %(common_unused)s
     threshold : float, default 0.5
         Inlier probability above which a match is kept (both passes).
     model : LMRModel, optional

@@ -149,11 +149,7 @@ def lpm_filter(
 
     Parameters
     ----------
-    %(kpts)s
-    %(matches)s
-    %(scores_unused)s
-    %(image_sizes)s
-    %(shapes_unused)s
+    %(common_unused)s
     k : int, default 6
         Central neighbourhood size; the scales are ``k + 2, k, k - 2`` = {8, 6, 4} (Sec. 5.1).
     lambdas : (float, float), default (0.8, 0.5)

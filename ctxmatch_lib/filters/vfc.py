@@ -63,11 +63,7 @@ def vfc_filter(
 
     Parameters
     ----------
-    %(kpts)s
-    %(matches)s
-    %(scores_unused)s
-    %(image_sizes)s
-    %(shapes_unused)s
+    %(common_unused)s
     beta : float, default 0.1
         Width of the Gaussian kernel on normalised coordinates (Sec. V).
     lam : float, default 3
