@@ -7,9 +7,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.ctxmatch-installed
-# The tests also cover the optional extras (learned filters, kornia interop, hloc export): the test
+# The tests also cover the optional extras (learned filters, kornia interop, hloc and COLMAP export): the test
 # environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
-TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0
+TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
 # Real data: CTXMATCH_DATA from the environment, else ../shared/data when that folder exists.
 export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
@@ -48,8 +48,9 @@ test-fast: $(TEST_STAMP)
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
-# The numpydoc API of ctxmatch_lib as HTML (pdoc, the optional 'docs' extra) in build/docs: the package and
-# every public module and subpackage (pdoc alone follows only the submodules named in __all__, like dtm).
+# The user guide (docs/*.md and the README, rendered with mistune by docs/render_guide.py) and the numpydoc API
+# of ctxmatch_lib (pdoc, the optional 'docs' extra) as HTML in build/docs, index.html linking both: the package
+# and every public module and subpackage (pdoc alone follows only the submodules named in __all__, like dtm).
 DOC_MODULES := ctxmatch_lib \
 	$(subst /,.,$(patsubst %.py,%,$(filter-out ctxmatch_lib/_%,$(wildcard ctxmatch_lib/*.py)))) \
 	$(filter-out ctxmatch_lib.dtm,$(subst /,.,$(patsubst %/__init__.py,%,$(wildcard ctxmatch_lib/*/__init__.py))))
@@ -58,7 +59,8 @@ docs: $(STAMP)
 	$(BIN)/python -m pip install -q "pdoc>=14"
 	rm -rf build/docs
 	$(BIN)/pdoc --docformat numpy --no-show-source -o build/docs $(DOC_MODULES)
-	@echo "API docs -> build/docs/index.html"
+	$(BIN)/python docs/render_guide.py build/docs
+	@echo "User guide and API docs -> build/docs/index.html"
 
 clean:
 	rm -rf build figures/executed .pytest_cache

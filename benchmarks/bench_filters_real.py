@@ -126,11 +126,11 @@ def main(argv=None) -> int:
         func = FILTERS[name]
         _call(func, pair0, f1, f2, m[:WARMUP_ROWS], s[:WARMUP_ROWS])  # untimed: compilation, imports
         times[name], masks[name] = [], []
-        for pair, f1, f2, m, s in data:
+        for pair, g1, g2, gm, gs in data:  # own names: f1, f2, m, s stay the first pair's, for the warm-ups
             best = np.inf
             for _ in range(args.repeat):
                 c0 = time.process_time()
-                keep = _call(func, pair, f1, f2, m, s)
+                keep = _call(func, pair, g1, g2, gm, gs)
                 best = min(best, time.process_time() - c0)
             times[name].append(best)
             masks[name].append(keep)

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .report import KIND_LABELS, PAPER_GT_COUNTS, PAPER_SETUP, SETUP_TITLES, markdown_table, paper_table
+from .report import KIND_LABELS, MODEL_LABELS, PAPER_GT_COUNTS, PAPER_SETUP, SETUP_TITLES, markdown_table, paper_table
 
 __all__ = [
     "PAPER_TABLE_LABELS",
@@ -584,9 +584,9 @@ def check_claims(tables: dict, *, paper: dict | None = None) -> pd.DataFrame:
     -------
     DataFrame
         One row per claim and scope: ``claim`` (a-h), ``statement`` (the paper's words), ``scope``
-        ("configuration, kind, model"), ``verdict`` ("supported", "contradicted" or "not testable" when a row
-        is missing), ``evidence`` (the numbers), ``paper_verdict`` and ``paper_evidence`` (the same test on the
-        paper's table).
+        ("configuration, kind, model", the model by its display name), ``verdict`` ("supported",
+        "contradicted" or "not testable" when a row is missing), ``evidence`` (the numbers),
+        ``paper_verdict`` and ``paper_evidence`` (the same test on the paper's table).
     """
     if paper is None:
         paper = paper_tables([s for s in tables if s in PAPER_SETUP])
@@ -598,7 +598,8 @@ def check_claims(tables: dict, *, paper: dict | None = None) -> pd.DataFrame:
                 for model in models:
                     verdict, evidence = _verdict(fn, tables, setup, kind, model)
                     p_verdict, p_evidence = _verdict(fn, paper, setup, kind, model)
-                    rows.append((cid, statement, f"{setup}, {kind}, {model}", verdict, evidence, p_verdict,
+                    label = "→".join(MODEL_LABELS.get(m, m) for m in model.split("→"))  # "no model→1SAC"
+                    rows.append((cid, statement, f"{setup}, {kind}, {label}", verdict, evidence, p_verdict,
                                  p_evidence))
     return pd.DataFrame(rows, columns=["claim", "statement", "scope", "verdict", "evidence", "paper_verdict",
                                        "paper_evidence"])

@@ -763,3 +763,121 @@ def test_neighbourhood_pairs_match_their_definition():
                 for m in range(len(k1)) for u in adjacent(t1, vl[m]) for o in np.flatnonzero(vl == u)]
     assert len(expected) > 200
     assert list(zip(rows.tolist(), others.tolist(), both.tolist())) == [(m, int(o), bool(b)) for m, o, b in expected]
+
+
+# --- compiled stand-ins of the boundary construction (issue 33): same output as what they replaced ---------
+
+
+def _shapely_rings(points, edges):
+    import shapely
+
+    lines = shapely.linestrings(np.stack([points[edges[:, 0]], points[edges[:, 1]]], axis=1))
+    return [shapely.get_coordinates(shapely.get_exterior_ring(p))
+            for p in shapely.get_parts(shapely.polygonize(lines))]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_contour_rings_are_geos_rings(seed):
+    """The traced ring of a simple boundary cycle is GEOS's polygonize ring (start, direction, coordinates),
+    for alpha-shape edges in their kernel order and for the same edges shuffled and flipped; several rings go
+    to GEOS."""
+    from ctxmatch_lib.dtm._kernels import single_ring_kernel
+    from ctxmatch_lib.dtm.boundary import _rings_from_edges
+
+    rng = np.random.default_rng(seed)
+    pts = np.unique(np.round(rng.uniform(0, 400, (int(rng.integers(20, 400)), 2))), axis=0)
+    shape = alpha_shape(pts)
+    cases = [shape.edges]
+    e = shape.edges[rng.permutation(len(shape.edges))]
+    flip = rng.random(len(e)) < 0.5
+    e[flip] = e[flip][:, ::-1]
+    cases.append(e)
+    for edges in cases:
+        ours, geos = _rings_from_edges(pts, edges), _shapely_rings(pts, edges)
+        assert len(ours) == len(geos)
+        for a, b in zip(ours, geos):
+            np.testing.assert_array_equal(a, b)
+    # Two disjoint squares: not one cycle, the kernel declines and GEOS answers.
+    sq = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    two = np.vstack([sq, sq + 100])
+    edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4]])
+    assert len(single_ring_kernel(edges, 8)) == 0
+    got = _rings_from_edges(two, edges)
+    assert len(got) == 2 and all(np.array_equal(a, b) for a, b in zip(got, _shapely_rings(two, edges)))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_ring_samples_are_geos_interpolation(seed):
+    """Boundary samples equal shapely's line_interpolate_point at n equal steps, bit for bit."""
+    import math
+
+    import shapely
+
+    from ctxmatch_lib.dtm.boundary import _sample_rings
+
+    rng = np.random.default_rng(seed)
+    pts = np.unique(np.round(rng.uniform(0, 640, (200, 2))), axis=0) + rng.uniform(-0.5, 0.5, 2)
+    ring = _shapely_rings(pts, alpha_shape(pts).edges)
+    ring.append(np.array([[0.0, 0.0], [0.0, 0.0], [3.0, 4.0], [3.0, 4.0], [0.0, 0.0]]))  # repeated points
+    for s in (7.0, 48.0, 1e4):
+        expected = []
+        for r in ring:
+            line = shapely.linestrings(r)
+            length = float(shapely.length(line))
+            n = max(math.ceil(length / s - 1e-9), 3)
+            expected.append(shapely.get_coordinates(shapely.line_interpolate_point(line, np.arange(n) * (length / n))))
+        np.testing.assert_array_equal(_sample_rings(ring, s), np.vstack(expected))
+
+
+def test_nearest_vertex_search_matches_the_kd_tree():
+    """Distances bit for bit those of cKDTree; indices too except where a tie is reported (then the tree
+    decides)."""
+    from ctxmatch_lib.dtm._kernels import nearest_kernel
+    from ctxmatch_lib.dtm.boundary import _nearest
+
+    rng = np.random.default_rng(3)
+    v = np.unique(np.round(rng.uniform(0, 640, (700, 2))), axis=0)
+    b = rng.uniform(-60, 700, (150, 2)).astype(np.float32).astype(np.float64)
+    d_ref, j_ref = cKDTree(v).query(b)
+    d, j, tie = nearest_kernel(b, v)
+    np.testing.assert_array_equal(d, d_ref)
+    assert not tie
+    np.testing.assert_array_equal(j, j_ref)
+    # A sample halfway between two vertices is a tie: _nearest returns the tree's answer.
+    v2 = np.array([[0.0, 0.0], [10.0, 0.0], [5.0, 40.0]])
+    q = np.array([[5.0, 0.0]])
+    assert nearest_kernel(q, v2)[2]
+    np.testing.assert_array_equal(_nearest(q, v2)[1], cKDTree(v2, balanced_tree=False, compact_nodes=False).query(q)[1])
+
+
+def test_key_rows_kernel_statuses():
+    from ctxmatch_lib.dtm._kernels import key_rows_kernel
+
+    rng = np.random.default_rng(0)
+    keys = np.unique(rng.integers(-2**62, 2**62, 500))
+    rng.shuffle(keys)
+    q = np.r_[keys, rng.choice(keys, 1000)]
+    rows, status = key_rows_kernel(keys, q)
+    assert status == 0
+    np.testing.assert_array_equal(keys[rows], q)
+    assert key_rows_kernel(np.r_[keys, keys[:1]], q)[1] == 1  # duplicate key
+    assert key_rows_kernel(keys, np.r_[q, np.setdiff1d([7, 8, 9], keys)[:1]])[1] == 2  # a query is no key
+    assert key_rows_kernel(keys, q[1:len(keys)])[1] == 3  # keys[0] is nobody's
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_vertex_csr_matches_sorted_edge_keys(seed):
+    from ctxmatch_lib.dtm._kernels import vertex_csr_kernel
+    from ctxmatch_lib.dtm.triangulation import delaunay_simplices
+
+    rng = np.random.default_rng(seed)
+    pts = np.unique(np.round(rng.uniform(0, 300, (400, 2))), axis=0)
+    s = delaunay_simplices(pts)
+    n = len(pts) - 25  # the last points play the boundary: left out of the CSR
+    a = np.concatenate([s[:, 0], s[:, 1], s[:, 2], s[:, 1], s[:, 2], s[:, 0], np.arange(n)])
+    b = np.concatenate([s[:, 1], s[:, 2], s[:, 0], s[:, 0], s[:, 1], s[:, 2], np.arange(n)])
+    both = (a < n) & (b < n)
+    key = np.unique(a[both] * n + b[both])
+    indptr, indices = vertex_csr_kernel(np.ascontiguousarray(s, np.int64), n)
+    np.testing.assert_array_equal(indptr, np.r_[0, np.cumsum(np.bincount(key // n, minlength=n))])
+    np.testing.assert_array_equal(indices, key % n)

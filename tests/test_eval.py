@@ -556,7 +556,9 @@ def test_engine_rows_identical_to_before_the_refactor():
     df2 = run_sweep("embedded", blobs=grid, pairs=[pp[1].pair_id], max_keypoints=300, cache_dir=False,
                     progress=False)
     df1["source"], df2["source"] = "eval", "sweep"
-    df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s"])
+    from ctxmatch_lib.evaluation.rows import GEOMETRY_COLUMNS  # added by issue 30, after the reference
+
+    df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s", *GEOMETRY_COLUMNS])
     buf = io.StringIO()
     df.to_csv(buf, index=False, float_format="%.17g")
     before = (Path(__file__).parent / "data" / "engine_rows_before.csv").read_text()

@@ -264,9 +264,31 @@ def test_plot_inlier_method_one_bar_per_metric_and_model(ax):
     peval.plot_pair_share(a2, t)
     assert [round(p.get_height()) for p in a2.patches] == [40, 60]
     assert [x.get_text() for x in a2.texts] == ["2", "3"]
-    leg = peval.inlier_legend(a2)
+    leg = peval.inlier_legend(a2, empty=False)
     assert len(leg.get_texts()) == 4
+    assert len(peval.inlier_legend(a2).get_texts()) == 5  # and the mark of a bin without a value
     plt.close(fig)
+
+
+def test_inlier_panel_tells_an_empty_bin_from_a_zero(ax):
+    """A bin without a value (NaN) gets a grey cross per bar, a true 0 % a stroke on the axis: neither is a bare
+    gap that reads as the other."""
+    from matplotlib.collections import LineCollection
+
+    t = _bin_table()
+    t.loc[("50-100 %", "none", "dtm2"), "precision (%)"] = 0.0
+    peval.plot_inlier_method(ax, t, "dtm2", bins=["0-10 %", "10-50 %", "50-100 %"])
+    crosses = [c for c in ax.collections if isinstance(c, PathCollection)]
+    assert sum(len(c.get_offsets()) for c in crosses) == 4  # the middle bin: P/R x none/1SAC
+    assert all(np.allclose(c.get_offsets()[:, 0], c.get_offsets()[:, 0].clip(0.5, 1.5)) for c in crosses)
+    strokes = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert len(strokes) == 1 and len(strokes[0].get_segments()) == 1
+    assert np.allclose(strokes[0].get_segments()[0][:, 1], 0.0)
+
+
+def test_bin_axis_label_says_when_bins_are_unequal():
+    assert peval.bin_axis_label([0, 0.1, 0.2, 0.3, 0.5, 1.0]).endswith("unequal bins drawn equally wide")
+    assert "unequal" not in peval.bin_axis_label([0, 0.25, 0.5, 0.75, 1.0])
 
 
 def test_shared_bins_are_the_same_in_every_column():
@@ -319,7 +341,14 @@ def test_blob_heatmap_scale_per_block():
     assert len(strips) == 1 and len(strips[0].get_paths()) == 2 * 8 + 6
     faces = [tuple(f) for f in strips[0].get_facecolors()]
     assert faces[0] == to_rgba(pblob._D_COLOURS["D≥"]) and faces[2 * 2] == to_rgba(pblob._D_COLOURS["D+"])
-    assert faces[1] == to_rgba(pblob._W_GREYS["a"]) and faces[3] == to_rgba(pblob._W_GREYS["harmonic"])
+    assert faces[1] == to_rgba(pblob._W_COLOURS["a"]) and faces[3] == to_rgba(pblob._W_COLOURS["harmonic"])
+    # The five W colours stay apart at print size, also with a red-green deficiency (five greys did not).
+    from itertools import combinations
+
+    from ctxmatch_lib.plots.palette import delta_e
+
+    assert min(delta_e(a, b, cvd) for a, b in combinations(pblob._W_COLOURS.values(), 2)
+               for cvd in (None, "deuteranopia", "protanopia")) > 20
     assert faces[16] == to_rgba(pblob._FP_GREYS[0]) and faces[18] == to_rgba(pblob._FP_GREYS[2])
     leg = pblob.heatmap_key(a1)
     assert len(leg.get_texts()) == 3 + 5 + 3 + 1

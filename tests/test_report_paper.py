@@ -159,21 +159,21 @@ def test_check_claims_exact_verdicts():
     ours, paper = _claims_frame(55, (60, 95)), _claims_frame(75, (88, 85))
     c = check_claims({"baseline": ours}, paper={"baseline": paper}).set_index(["claim", "scope"])
     assert list(c.columns) == ["statement", "verdict", "evidence", "paper_verdict", "paper_evidence"]
-    b = c.loc[("b", "baseline, planar, none")]
+    b = c.loc[("b", "baseline, planar, no model")]
     assert (b["verdict"], b["paper_verdict"]) == ("contradicted", "supported")
     assert b["evidence"] == "P DTM2 82.00 vs DTM1 80.00 (|Δ| 2.00); R DTM2 55.00 vs DTM1 60.00"
-    assert c.loc[("a", "baseline, planar, none"), "verdict"] == "supported"
-    assert c.loc[("d", "baseline, planar, none"), "verdict"] == "supported"
-    assert c.loc[("f", "baseline, planar, none→1sac"), "evidence"] == \
+    assert c.loc[("a", "baseline, planar, no model"), "verdict"] == "supported"
+    assert c.loc[("d", "baseline, planar, no model"), "verdict"] == "supported"
+    assert c.loc[("f", "baseline, planar, no model→1SAC"), "evidence"] == \
         "blob P 20.00→60.00, R 100.00→95.00; 4/4 filters raise P and lower R"
-    g = c.loc[("g", "baseline, planar, 1sac")]
+    g = c.loc[("g", "baseline, planar, 1SAC")]
     assert (g["verdict"], g["paper_verdict"]) == ("contradicted", "supported")  # ours: P 60 vs th's 90
     assert g["paper_evidence"] == "blob+1SAC R 85.00 (best filter dtm2 65.00); P 88.00 (best th 90.00)"
     # (c) needs AdaLAM, (e) the best configuration: not testable here, never silently "supported".
-    assert c.loc[("c", "baseline, nonplanar, none"), "verdict"] == "not testable"
+    assert c.loc[("c", "baseline, nonplanar, no model"), "verdict"] == "not testable"
     assert "e" not in c.index.get_level_values("claim")
     # (h): DTM2 has 0 failures, the fewest.
-    assert c.loc[("h", "baseline, planar, none"), "evidence"].startswith("DTM2 failures 0 (rank 1/4")
+    assert c.loc[("h", "baseline, planar, no model"), "evidence"].startswith("DTM2 failures 0 (rank 1/4")
 
 
 def test_check_claims_on_the_paper_tables_flags_its_own_text():
@@ -181,8 +181,8 @@ def test_check_claims_on_the_paper_tables_flags_its_own_text():
     c = check_claims(tabs).set_index(["claim", "scope"])
     assert (c["verdict"] == c["paper_verdict"]).all()
     # Table 3: SCV's precision 21.14 is below blob's 27.18, against "all methods improve the precision".
-    assert c.loc[("a", "best, planar, none"), "paper_verdict"] == "contradicted"
-    assert c.loc[("e", "best, nonplanar, none"), "paper_verdict"] == "supported"
+    assert c.loc[("a", "best, planar, no model"), "paper_verdict"] == "contradicted"
+    assert c.loc[("e", "best, nonplanar, no model"), "paper_verdict"] == "supported"
 
 
 def test_plot_agreement_axes():
@@ -190,10 +190,14 @@ def test_plot_agreement_axes():
     tabs = {s: report.paper_table(s).assign(pairs=1) for s in ("baseline", "best")}
     side = side_by_side(tabs)
     fig = plot_agreement(side)
-    assert len(fig.axes) == 2 * 2
-    assert fig.axes[0].get_title().startswith("baseline, planar\nρ P 1.00")
-    fig2 = plot_agreement(side, ["best"], models=("none", "1sac"))
+    assert len(fig.axes) == 2 * 2 * 2  # setups x (kinds x precision, recall)
+    assert fig.axes[0].get_title().startswith("baseline\nplanar precision: ρ = 1.00")
+    fig2 = plot_agreement(side, ["best"], models=("none", "1sac"), metrics=("recall",))
     assert len(fig2.axes) == 2
+    # The convention of the precision/recall scatter: hollow without a model, filled after 1SAC.
+    points = fig2.axes[0].collections  # the methods without a model, then after 1SAC
+    hollow, filled = points[0], points[len(points) // 2]
+    assert len(hollow.get_facecolors()) == 0 and len(filled.get_facecolors()) == 1
     with pytest.raises(ValueError, match="setups"):
         plot_agreement(side, ["global"])
     matplotlib.pyplot.close("all")

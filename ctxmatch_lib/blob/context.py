@@ -2,8 +2,11 @@
 
 Blob matching only ever looks at the few best entries of each row and column of the distance matrix
 (pre-filter of Eqs. 10-11, second-best search of Eqs. 13-14), plus, rarely, a whole row or column. A
-:class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, in row
-blocks, without ever holding D in float64 nor any n×n matrix. Every setup of the grid of Sec. 5.2 then
+:class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, without
+ever holding D in float64 nor any n×n matrix. For L2 descriptors the pass runs over float32 GEMM tiles
+sized to the cache, keeps each line's candidates in a compiled kernel while the tile is in cache, and
+decides on exact float64 distances (:mod:`._kernels`): the candidates and scores do not depend on the BLAS
+kernel, its SIMD width or the thread count. Every setup of the grid of Sec. 5.2 then
 reuses it: the candidate set G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
 """
 
@@ -15,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from . import _kernels
 from .overlap import ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
@@ -98,8 +102,9 @@ class BlobContext:
     Parameters
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Computed in
-        float32 (float64 if a descriptor array is float64), in row blocks.
+        Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Proposed by
+        float32 GEMM tiles, decided on float64 distances computed without BLAS in a fixed order (the same
+        on any CPU).
     distances : ndarray of shape (n, m), optional
         A precomputed distance matrix instead of descriptors.
     distance : callable, optional
@@ -159,26 +164,26 @@ class BlobContext:
             if keep_dense:
                 self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
         else:
+            # L2: float32 GEMM tiles propose, exact float64 distances decide (see _kernels).
             dtype = np.result_type(desc1.dtype, desc2.dtype, np.float32)
-            a = np.asarray(desc1, dtype)
-            b = np.asarray(desc2, dtype)
-            self.n, self.m = len(a), len(b)
-            self._squared = True
-            # Augmented vectors: A @ B.T = |a|^2 + |b|^2 - 2 a.b = squared L2, straight out of one GEMM.
-            self._A = np.hstack([a, np.einsum("ij,ij->i", a, a)[:, None], np.ones((self.n, 1), dtype)])
-            self._B = np.hstack([-2 * b, np.ones((self.m, 1), dtype), np.einsum("ij,ij->i", b, b)[:, None]])
-            self._dtype = np.dtype(dtype)
+            self._X = (np.ascontiguousarray(desc1, dtype), np.ascontiguousarray(desc2, dtype))
+            self.n, self.m = len(self._X[0]), len(self._X[1])
+            self._squared = False
+            self._A = self._B = None
+            self._dtype = np.dtype(np.float32)
             self._dense = None
-            dense_bytes = self.n * self.m * np.dtype(dtype).itemsize
-            if keep_dense is None:
-                keep_dense = dense_bytes <= 256 * _MiB
             if keep_dense:  # fail fast, before any work
-                self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
+                self._check_dense(self.n * self.m * 4, "f='omega' (keep_dense=True)")
+        self._exact = distances is None and distance is None
+        self._approx = None
         self.depth = int(depth)
         # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count, and the candidates and
         # scores must not (the same tables on any machine setting).
         with threadpool_limits(1):
-            self._scan(bool(keep_dense) if distances is None else True, block_bytes)
+            if self._exact:
+                self._scan_exact(bool(keep_dense))
+            else:
+                self._scan(bool(keep_dense) if distances is None else True, block_bytes)
 
     # -- the one pass over D ------------------------------------------------------------------------
     def _block(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -238,6 +243,74 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc, self._squared), complete=Tc == n)
 
+    #: GEMM tile (rows x columns): the tile, its row and column heaps stay in a 1-2 MiB L2 cache.
+    tile = (256, 1024)
+    #: Heap entries per line beyond the T kept: room for the certified band of the float32 rounding.
+    slack = 8
+
+    def _scan_exact(self, keep_dense: bool) -> None:
+        """One pass over float32 GEMM tiles keeps each line's K smallest; exact float64 distances decide."""
+        X1, X2 = self._X
+        n, m = self.n, self.m
+        d = X1.shape[1]
+        Tr, Tc = min(m, self.depth + self.margin), min(n, self.depth + self.margin)
+        Kr, Kc = min(m, Tr + self.slack), min(n, Tc + self.slack)
+        A32 = np.ascontiguousarray(X1, np.float32)
+        B32 = np.ascontiguousarray(X2, np.float32)
+        # Squared norms summed in float64 (fixed order), rounded once: part of the certified bound.
+        nrm1 = np.einsum("ij,ij->i", X1.astype(np.float64), X1.astype(np.float64))
+        nrm2 = np.einsum("ij,ij->i", X2.astype(np.float64), X2.astype(np.float64))
+        self._scale = _kernels.error_scale(d)
+        self._norms = (nrm1, nrm2)
+        rv, ri = np.empty((n, 2 * Kr), np.float32), np.empty((n, 2 * Kr), np.int64)
+        cv, ci = np.empty((m, 2 * Kc), np.float32), np.empty((m, 2 * Kc), np.int64)
+        rc, cc = np.zeros(n, np.int64), np.zeros(m, np.int64)
+        rthr, cthr = np.full(n, np.inf, np.float32), np.full(m, np.inf, np.float32)
+        dense = np.empty((n, m), np.float32) if keep_dense else np.empty((1, 1), np.float32)
+        R, C = self.tile
+        buf = np.empty(R * C, np.float32)
+        n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
+        for r0 in range(0, n, R):
+            a = A32[r0 : r0 + R]
+            for c0 in range(0, m, C):
+                b = B32[c0 : c0 + C]
+                G = buf[: len(a) * len(b)].reshape(len(a), len(b))
+                np.matmul(a, b.T, out=G)
+                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rc, rthr, cv, ci, cc, cthr, Kr, Kc, dense,
+                                   keep_dense)
+        _kernels.finish_lines(rv, ri, rc, Kr)
+        _kernels.finish_lines(cv, ci, cc, Kc)
+        if keep_dense:
+            self._approx = dense
+        E1 = float(nrm1.max())
+        E2 = float(nrm2.max())
+        idx, val = np.empty((n, Tr), np.int64), np.empty((n, Tr))
+        self.work = _kernels.certify_lines(X1, X2, rv, ri, rc, Kr, Tr, nrm1, E2, self._scale, idx, val)
+        self.rows = SortedLists(idx, val, complete=Tr == m)
+        idx, val = np.empty((m, Tc), np.int64), np.empty((m, Tc))
+        self.work += _kernels.certify_lines(X2, X1, cv, ci, cc, Kc, Tc, nrm2, E1, self._scale, idx, val)
+        self.cols = SortedLists(idx, val, complete=Tc == n)
+
+    def _line_bounds(self, side: int) -> np.ndarray:
+        """Per line of ``side``, the bound E on |approx - exact| of its squared distances."""
+        own, other = self._norms[side], self._norms[1 - side]
+        return self._scale * (own + other.max())
+
+    def _approx_dense(self) -> np.ndarray:
+        """The float32 approximate squared distances of the L2 path (f = Ω), computed on demand."""
+        if self._approx is None:
+            self._check_dense(self.n * self.m * 4, "f='omega'")
+            X1, X2 = self._X
+            a, b = X1.astype(np.float32), X2.astype(np.float32)
+            n1, n2 = self._norms
+            with threadpool_limits(1):
+                g = a @ b.T
+            g *= np.float32(-2)
+            g += n1.astype(np.float32)[:, None]
+            g += n2.astype(np.float32)[None, :]
+            self._approx = g
+        return self._approx
+
     # -- whole rows / columns, for the rare look-ups beyond the sorted lists ------------------------
     def _check_dense(self, nbytes: int, what: str) -> None:
         if nbytes > self.max_dense_bytes:
@@ -265,6 +338,10 @@ class BlobContext:
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Whole rows (side 0) or columns (side 1) of D as float64 distances."""
+        if self._exact:
+            X1, X2 = self._X
+            which = np.asarray(which, np.int64)
+            return _kernels.exact_lines(X1, which, X2) if side == 0 else _kernels.exact_lines(X2, which, X1)
         if self._dense is not None:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
         elif self._metric is not None:
@@ -311,7 +388,7 @@ class BlobContext:
             vals = self.rows.val[:, :fr].ravel()[pos]
         order = np.lexsort((keys, vals))  # by value, then row, then column
         keys, vals = keys[order], vals[order]
-        accepted = _greedy(keys // m, keys % m, n, m, f_prime)
+        accepted = _kernels.greedy_sorted(keys // m, keys % m, n, m, int(f_prime))
         keys = keys[accepted]
         return np.stack([keys // m, keys % m], axis=1), vals[accepted]
 
@@ -320,8 +397,13 @@ class BlobContext:
 
         A heap holds each row's next entry in (value, column) order. Saturated columns stay saturated, so
         a row skips them when it advances; past its sorted list, the next entry of a row is found with one
-        vectorised scan of the row.
+        vectorised scan of the row. On the L2 path the same runs compiled, on exact distances.
         """
+        if self._exact:
+            X1, X2 = self._X
+            gi, gj, gd = _kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
+                                               self._line_bounds(0), int(f_prime))
+            return np.stack([gi, gj], axis=1).reshape(-1, 2), gd
         D = self._ensure_dense()
         n, m = self.n, self.m
         T = self.rows.idx.shape[1]
@@ -389,13 +471,28 @@ class BlobContext:
         if len(anchors) == 0:
             return out
         cand, vals = lists.idx[anchors], lists.val[anchors]
-        ok = ~self._excluded(1 - side, cand, others, t_o, t_o_kind)
-        if geq:
-            ok &= vals >= dist[:, None]
+        if t_o is not None and t_o_kind == "overlap":
+            ok = cand != others[:, None]
+            if geq:
+                ok &= vals >= dist[:, None]
+            ok = self._first_not_overlapping(1 - side, cand, others, ok, t_o)
+        else:
+            ok = ~self._excluded(1 - side, cand, others, t_o, t_o_kind)
+            if geq:
+                ok &= vals >= dist[:, None]
         out[:] = np.where(ok, vals, np.inf).min(axis=1)
         if not lists.complete:
             # Nothing qualified among the T best: scan the whole line (rare).
             miss = np.flatnonzero(~ok.any(axis=1))
+            if self._exact and self._approx is not None and (t_o is None or t_o_kind == "px") and len(miss):
+                X = self._X
+                Dap = self._approx if side == 0 else self._approx.T
+                pts = self.kpts[1 - side] if t_o is not None else np.zeros((1, 2))
+                out[miss] = _kernels.second_best_dense(
+                    Dap, X[side], X[1 - side], anchors[miss].astype(np.int64), others[miss].astype(np.int64),
+                    np.asarray(dist, np.float64)[miss], self._line_bounds(side), geq,
+                    np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) ** 2)
+                return out
             size = self.m if side == 0 else self.n
             step = max(1, (8 * _MiB) // (8 * size))
             for s in range(0, len(miss), step):
@@ -407,6 +504,32 @@ class BlobContext:
                     ok &= line >= dist[sel, None]
                 out[sel] = np.where(ok, line, np.inf).min(axis=1)
         return out
+
+    def _first_not_overlapping(self, img: int, cand: np.ndarray, other: np.ndarray, allowed: np.ndarray,
+                               t_o: float) -> np.ndarray:
+        """FGINN by overlap on sorted lists, lazily: per row, the first ``allowed`` candidate whose overlap
+        error with ``other`` is above ``t_o``, marked True (all False when none is).
+
+        The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
+        candidates before it need their overlap error (one vectorised call per round), not the whole list.
+        """
+        K, L = cand.shape
+        ok = np.zeros((K, L), bool)
+        pos = np.zeros(K, np.int64)
+        active = np.arange(K)
+        cols = np.arange(L)
+        while len(active):
+            nxt = np.where(allowed[active] & (cols[None, :] >= pos[active, None]), cols[None, :], L).min(axis=1)
+            has = nxt < L
+            active, nxt = active[has], nxt[has]
+            if not len(active):
+                break
+            err = np.asarray(self.overlap_errors(img, other[active], cand[active, nxt][:, None])).reshape(-1)
+            keep = err > t_o
+            ok[active[keep], nxt[keep]] = True
+            pos[active[~keep]] = nxt[~keep] + 1
+            active = active[~keep]
+        return ok
 
     def _excluded(self, img: int, cand: np.ndarray, other: np.ndarray, t_o, t_o_kind) -> np.ndarray:
         """Which candidates ``cand`` (K, L) of image ``img`` the second-best search skips for ``other``."""

@@ -153,8 +153,12 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     -----
     Ties are broken deterministically everywhere: by value, then row, then column. "The f best of a row"
     are the first f in that order, so exactly min(f, m) per row. When no entry qualifies as second best
-    (e.g. m = 1, or FGINN excludes all), the ratio is 0. The memory is O((n + m) f) plus row blocks of D
-    in float32 (64 MiB); no float64 n×m nor n×n matrix is built except for f = Ω.
+    (e.g. m = 1, or FGINN excludes all), the ratio is 0. With descriptors and the L2 distance, every
+    decision (the best entries of a row or column, the greedy order, the second best) is taken on float64
+    distances computed in a fixed order without BLAS; the float32 GEMM only proposes candidates within a
+    certified rounding bound, so the output is the same under any BLAS kernel or thread count. The memory
+    is O((n + m) f) plus one GEMM tile of D in float32 (1 MiB); no n×m matrix is built except the float32
+    one of f = Ω.
 
     References
     ----------

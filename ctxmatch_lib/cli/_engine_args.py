@@ -44,8 +44,19 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
                         f"that can run here, in the paper's order) or 'none' (the blob candidates only) "
                         f"(default: {filters})")
     p.add_argument("--model", default=model,
-                   help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC), prosac (MAGSAC++ "
-                        f"with PROSAC sampling by score) (default: {model})")
+                   help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC, 3 px), prosac (MAGSAC++ "
+                        "with PROSAC sampling by score, 3 px), magsac (USAC_MAGSAC with fb82/MiHo's 1 px, 0.9999, "
+                        f"100000 iterations); rows with a model carry its accuracy (default: {model})")
+    p.add_argument("--matchers", default="none",
+                   help="comma-separated alternative matchers evaluated as methods on the same descriptors: "
+                        "opencv_ratio (BFMatcher.knnMatch + Lowe's 0.8 ratio), opencv_mnn (mutual nearest "
+                        "neighbours), or 'none' (default: none)")
+    p.add_argument("--estimator-threshold", type=float, default=None,
+                   help="USAC threshold in px of the ransac/prosac/magsac steps (default: each step's preset)")
+    p.add_argument("--estimator-confidence", type=float, default=None,
+                   help="USAC confidence of the ransac/prosac/magsac steps (default: each step's preset)")
+    p.add_argument("--estimator-iterations", type=int, default=None,
+                   help="USAC iteration cap of the ransac/prosac/magsac steps (default: each step's preset)")
     p.add_argument("--pairs", default=None,
                    help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
     p.add_argument("--kind", default=None, help="comma-separated pair kinds to keep: planar, nonplanar, depth")
@@ -78,6 +89,13 @@ def check_numbers(args) -> str | None:
     for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
         if not (math.isfinite(value) and value > 0):
             return f"{flag} must be a positive number of pixels, got {value:g}"
+    if args.estimator_threshold is not None and not (math.isfinite(args.estimator_threshold)
+                                                     and args.estimator_threshold > 0):
+        return f"--estimator-threshold must be a positive number of pixels, got {args.estimator_threshold:g}"
+    if args.estimator_confidence is not None and not 0 < args.estimator_confidence < 1:
+        return f"--estimator-confidence must lie strictly between 0 and 1, got {args.estimator_confidence:g}"
+    if args.estimator_iterations is not None and args.estimator_iterations < 1:
+        return f"--estimator-iterations must be a positive number of iterations, got {args.estimator_iterations}"
     if args.gt in ("B", "C") and args.gt_threshold != 15.0:
         return (f"--gt-threshold applies to --gt D and A only; --gt {args.gt} uses its own thresholds "
                 f"(overlap error 50 %, C's centre 30 px), got {args.gt_threshold:g}")
@@ -103,7 +121,7 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
     checked here too, so a run that could not write its table never starts.
     """
     from ..evaluation.plan import resolve_blob_configs, resolve_features
-    from ..evaluation.steps import check_models, resolve_blobs, resolve_filters
+    from ..evaluation.steps import check_estimator, check_matchers, check_models, resolve_blobs, resolve_filters
 
     msg = check_numbers(args)
     if msg:
@@ -117,6 +135,9 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         ("--filters", lambda: resolve_filters("all" if [n.lower() for n in names] == ["all"] else
                                               [] if [n.lower() for n in names] in ([], ["none"]) else names)),
         ("--model", lambda: check_models(csv(args.model))),
+        ("--matchers", lambda: check_matchers([] if [n.lower() for n in csv(args.matchers)] in ([], ["none"])
+                                              else csv(args.matchers))),
+        ("--estimator", lambda: check_estimator(estimator_overrides(args))),
         # Named presets keep their names in the blob column; the grid is labelled by each setup's fields.
         ("--blob", lambda: resolve_blob_configs("grid") if args.blob.strip() == "grid" else resolve_blobs(csv(args.blob))),
         ("--features", lambda: resolve_features(features if features is not None else
@@ -143,7 +164,15 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         except (ValueError, FileNotFoundError) as exc:
             return None, f"--features: {exc}"
     return dict(out=out["--out"], filters=out["--filters"], models=out["--model"], blobs=out["--blob"],
-                features=out["--features"], pairs=pairs, kinds=kinds), None
+                features=out["--features"], pairs=pairs, kinds=kinds, matchers=out["--matchers"],
+                estimator=dict(out["--estimator"])), None
+
+
+def estimator_overrides(args) -> dict:
+    """The ``--estimator-*`` flags that were given, as :func:`~ctxmatch_lib.geometry.usac_settings` keys."""
+    flags = (("threshold", args.estimator_threshold), ("confidence", args.estimator_confidence),
+             ("max_iters", args.estimator_iterations))
+    return {key: value for key, value in flags if value is not None}
 
 
 def plan(args, settings: dict, *, limit: int | None = None):
@@ -157,7 +186,7 @@ def plan(args, settings: dict, *, limit: int | None = None):
     kw = dict(features=settings["features"], blobs=settings["blobs"], filters=settings["filters"],
               models=settings["models"], gt_method=args.gt, gt_threshold=args.gt_threshold,
               model_threshold=args.model_threshold, seed=args.seed, max_keypoints=args.max_keypoints,
-              data_root=args.data_root)
+              data_root=args.data_root, matchers=settings["matchers"], estimator=settings["estimator"])
     units = []
     for name in csv(args.dataset) or ["embedded"]:
         try:

@@ -12,14 +12,19 @@ import sys
 from ._engine_args import add_engine_arguments, error, plan, resolve_args
 
 DESCRIPTION = """\
-Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac)
--> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as method 'blob';
+Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac/
+magsac) -> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as method
+'blob', --matchers adds OpenCV's matchers (opencv_ratio, opencv_mnn) as methods on the same descriptors;
 the model is H for planar pairs, F for non-planar and depth pairs; time_s is the method's own running time,
 model_time_s the model step's. Parquet columns (fractions in [0, 1] for precision, recall, recall_star, ap, ap_star):
 dataset, pair_id, kind, features, blob (+ its fields), method, model, precision, recall, recall_star, ap,
 ap_star, correct, correct_norm, output, failure (output without a correct match), empty_output (no output),
-time_s, model_time_s, n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error (why a pair could
-not be evaluated, else empty). Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image)
+time_s, model_time_s, the model's accuracy (NaN for model none): model_inliers (the estimator's inliers),
+corner_error (planar: mean distance in px of the image-1 corners mapped by the estimated and the true H;
+inf without a model), epi_share_mean, epi_share_1/3/5/10 (other kinds: share of the ground-truth
+correspondences within 1..19 px, resp. t px, of the estimated F by the symmetric epipolar distance of the
+WxBS benchmark; 0 without a model), n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error
+(why a pair could not be evaluated, else empty). Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image)
 against the correct blob candidates of the same setup; recall_star against their union over all --blob
 setups. The printed table shows means in percent (*_pct columns).
 Each pair's rows are kept in the evaluation cache ($CTXMATCH_CACHE, else $XDG_CACHE_HOME/ctxmatch or
@@ -30,6 +35,7 @@ computed): a killed run resumes where it stopped, and a pair that cannot be eval
 EXAMPLE = """\
 example:
   ctxmatch eval --dataset embedded --blob paper-best --filters dtm --model none,1sac --out results.parquet
+  ctxmatch eval --filters dtm --matchers opencv_ratio,opencv_mnn --model magsac --out geometry.parquet
   CTXMATCH_DATA=/path/to/data ctxmatch eval --dataset planar,nonplanar --filters all --jobs 2
 """
 
@@ -106,6 +112,7 @@ def run(args) -> int:
         "filters": list(settings["filters"]), "models": list(settings["models"]), "gt_method": args.gt,
         "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold,
         "features": {u.features_name: u.features.key() for u in units}, "seed": args.seed, "pairs": n_pairs,
+        "matchers": list(settings["matchers"]), "estimator": settings["estimator"],
         "units": "precision, recall, recall_star, ap, ap_star: fractions in [0, 1]",
     }
     write_parquet_atomic(df, settings["out"], meta)
@@ -126,6 +133,16 @@ def _print_summary(df, args, out, n_pairs: int, summary_table) -> None:
               "(Sec. 5.1); failures: outputs without a correct match; empty_outputs: empty outputs (0 % precision and "
               "recall in the means); errors: pairs not evaluated; time_s: the method, model_time_s: the model step")
         print(table.to_string(formatters={c: "{:.4f}".format for c in ("time_s", "model_time_s")}))
+        if (df["model"] != "none").any() and (df["error"] == "").any():
+            from ..geometry_metrics import geometry_table
+
+            print("\nthe model's accuracy over pairs: auc_*px_pct (planar): AUC of the mean corner error up to t px "
+                  "in % (pairs without a model count as failures); epi_share_*_pct (other kinds): ground-truth "
+                  "correspondences consistent with the estimated F, mean over 1..19 px and at t px, in %; "
+                  "no_model: pairs without a model; geometry_time_(median_)s: blob (or matcher) + filter + model "
+                  "step, mean (median) per pair")
+            print(geometry_table(df).to_string(formatters={c: "{:.4f}".format
+                                                           for c in ("geometry_time_s", "geometry_time_median_s")}))
     if n_failed:
         print(f"\n{n_failed} of {n_pairs} pairs could not be fully evaluated (rows kept, 'error' column):",
               file=sys.stderr)

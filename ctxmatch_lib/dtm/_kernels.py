@@ -4,7 +4,8 @@
   adjacency and the MATLAB-``boundary`` alpha shapes (:mod:`ctxmatch_lib.dtm.boundary`);
 - :func:`locate_kernel`: the visibility walk of
   :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex` (DTM2's point location);
-- :func:`neighbourhood_kernel`, :func:`contraction_kernel`: DTM1 steps 3 and 5 (:mod:`ctxmatch_lib.dtm.core`).
+- :func:`neighbourhood_kernel`, :func:`row_counts_kernel`, :func:`contract_expand_kernel` (and the older
+  :func:`contraction_kernel`): DTM1 steps 3-6 (:mod:`ctxmatch_lib.dtm.core`);
 
 These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
 can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
@@ -28,6 +29,8 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
+           "contract_expand_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
+           "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
 
@@ -375,3 +378,207 @@ with user_cache() as _cache:
                                 break
                     k += 1
         return rows, others, both
+
+    @_jit
+    def single_ring_kernel(edges, n_points):
+        """The boundary ``edges`` (rows of point indices) as one closed ring, when they form exactly one simple
+        cycle (every endpoint on exactly two edges, all edges connected): the point indices from
+        ``edges[0, 1]`` to ``edges[0, 0]`` and on around the cycle, the first point repeated at the end (the ring
+        GEOS's polygonizer returns for such edges, see :func:`~ctxmatch_lib.dtm.boundary._rings_from_edges`).
+        Empty when the edges form anything else (several rings, pinched vertices, open chains)."""
+        n_edges = edges.shape[0]
+        fail = np.empty(0, np.int64)
+        if n_edges < 3:
+            return fail
+        degree = np.zeros(n_points, np.int64)
+        inc = np.full((n_points, 2), -1, np.int64)  # the two edges at each endpoint
+        for e in range(n_edges):
+            for side in range(2):
+                p = edges[e, side]
+                if degree[p] == 2:
+                    return fail
+                inc[p, degree[p]] = e
+                degree[p] += 1
+        for e in range(n_edges):
+            if degree[edges[e, 0]] != 2 or degree[edges[e, 1]] != 2 or edges[e, 0] == edges[e, 1]:
+                return fail
+        ring = np.empty(n_edges + 1, np.int64)
+        ring[0] = edges[0, 1]
+        ring[1] = edges[0, 0]
+        prev_edge = 0
+        for k in range(2, n_edges + 1):
+            v = ring[k - 1]
+            e = inc[v, 0] if inc[v, 0] != prev_edge else inc[v, 1]
+            ring[k] = edges[e, 0] if edges[e, 1] == v else edges[e, 1]
+            prev_edge = e
+            if ring[k] == ring[0] and k < n_edges:
+                return fail  # the cycle through edges[0] misses some edges: several rings
+        if ring[n_edges] != ring[0]:
+            return fail
+        return ring
+
+    @_jit
+    def nearest_kernel(queries, points):
+        """Nearest of ``points`` to each query by exhaustive search: the distance ``sqrt(dx² + dy²)`` (as
+        ``scipy.spatial.cKDTree.query`` computes it), the index, and whether any query has two nearest points
+        at exactly the same distance (then the index is a tie that a k-d tree may break otherwise)."""
+        n = queries.shape[0]
+        dist = np.empty(n)
+        index = np.empty(n, np.int64)
+        tie = False
+        for q in range(n):
+            qx, qy = queries[q, 0], queries[q, 1]
+            best = np.inf
+            arg = -1
+            again = False
+            for i in range(points.shape[0]):
+                dx = qx - points[i, 0]
+                dy = qy - points[i, 1]
+                d2 = dx * dx + dy * dy
+                if d2 < best:
+                    best = d2
+                    arg = i
+                    again = False
+                elif d2 == best:
+                    again = True
+            tie = tie or again
+            dist[q] = math.sqrt(best)
+            index[q] = arg
+        return dist, index, tie
+
+    @_jit
+    def key_rows_kernel(keys, queries):
+        """Row of each query among ``keys`` (int64, e.g. the bit patterns of float32 point pairs) through an
+        open-addressing hash table. Returns ``(rows, status)``: ``status`` 0 when every query is a key and every
+        key is some query's, 1 when ``keys`` hold duplicates, 2 when a query is no key, 3 when a key is no
+        query's (``rows`` then meaningless)."""
+        n = keys.shape[0]
+        bits = 4
+        while (1 << bits) < 4 * n:
+            bits += 1
+        mask = (1 << bits) - 1
+        shift = np.uint64(64 - bits)
+        fib = np.uint64(0x9E3779B97F4A7C15)
+        table = np.full(1 << bits, -1, np.int64)
+        rows = np.empty(queries.shape[0], np.int64)
+        for i in range(n):
+            h = np.int64((np.uint64(keys[i]) * fib) >> shift)
+            while table[h] >= 0:
+                if keys[table[h]] == keys[i]:
+                    return rows, 1
+                h = (h + 1) & mask
+            table[h] = i
+        seen = np.zeros(n, np.bool_)
+        for q in range(queries.shape[0]):
+            h = np.int64((np.uint64(queries[q]) * fib) >> shift)
+            while True:
+                r = table[h]
+                if r < 0:
+                    return rows, 2
+                if keys[r] == queries[q]:
+                    break
+                h = (h + 1) & mask
+            rows[q] = r
+            seen[r] = True
+        for i in range(n):
+            if not seen[i]:
+                return rows, 3
+        return rows, 0
+
+    @_jit
+    def vertex_csr_kernel(simplices, n):
+        """CSR ``(indptr, indices)`` of the vertices ``0..n-1`` adjacent to each vertex ``v < n`` through an edge
+        of ``simplices``, ``v`` itself included, increasing and without repeats (rows ``>= n`` are left out)."""
+        count = np.ones(n + 1, np.int64)  # the self loop
+        count[n] = 0
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                if a < n and b < n:
+                    count[a] += 1
+                    count[b] += 1
+        start = np.zeros(n + 1, np.int64)
+        for v in range(n):
+            start[v + 1] = start[v] + count[v]
+        buf = np.empty(start[n], np.int64)
+        fill = start[:-1].copy()
+        for v in range(n):
+            buf[fill[v]] = v
+            fill[v] += 1
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                if a < n and b < n:
+                    buf[fill[a]] = b
+                    fill[a] += 1
+                    buf[fill[b]] = a
+                    fill[b] += 1
+        indptr = np.zeros(n + 1, np.int64)
+        indices = np.empty(start[n], np.int64)
+        m = 0
+        for v in range(n):
+            lo, hi = start[v], start[v + 1]
+            for i in range(lo + 1, hi):  # insertion sort of the few neighbours
+                x = buf[i]
+                j = i - 1
+                while j >= lo and buf[j] > x:
+                    buf[j + 1] = buf[j]
+                    j -= 1
+                buf[j + 1] = x
+            for i in range(lo, hi):
+                if i == lo or buf[i] != buf[i - 1]:
+                    indices[m] = buf[i]
+                    m += 1
+            indptr[v + 1] = m
+        return indptr, indices[:m].copy()
+
+    @_jit
+    def row_counts_kernel(rows, flag, n):
+        """``np.bincount(rows[flag], minlength=n)``: per row, how many of its pairs are flagged."""
+        out = np.zeros(n, np.int64)
+        for j in range(rows.shape[0]):
+            if flag[j]:
+                out[rows[j]] += 1
+        return out
+
+    @_jit
+    def _row_ptr(rows, n):
+        """CSR pointers of pairs grouped by non-decreasing ``rows``: row ``m`` holds ``ptr[m]:ptr[m + 1]``."""
+        ptr = np.zeros(n + 1, np.int64)
+        for j in range(rows.shape[0]):
+            ptr[rows[j] + 1] += 1
+        for m in range(n):
+            ptr[m + 1] += ptr[m]
+        return ptr
+
+    @_jit
+    def contract_expand_kernel(rank, rows_a, others_a, both_a, rows_b, others_b, both_b, n):
+        """DTM1 steps 5-6 on the neighbourhood pairs of both images (:func:`neighbourhood_kernel`, rows
+        non-decreasing): walk the matches in ``rank`` order, pick each one still alive and kill the others of its
+        pairs that are not flagged in either image's list (``(M_A1 ∪ M_A2) \\ (M_A1 ∩ M_A2)``); then keep the
+        flagged others of image 1's pairs of every picked match (the union of ``M_A1 ∩ M_A2``). Returns the
+        picked matches in pick order and the kept flags (what :func:`contraction_kernel` and the NumPy
+        expansion give)."""
+        ptr_a = _row_ptr(rows_a, n)
+        ptr_b = _row_ptr(rows_b, n)
+        alive = np.ones(n, np.bool_)
+        picked = np.empty(n, np.int64)
+        n_picked = 0
+        for i in range(n):
+            m = rank[i]
+            if alive[m]:
+                picked[n_picked] = m
+                n_picked += 1
+                for j in range(ptr_a[m], ptr_a[m + 1]):
+                    if not both_a[j]:
+                        alive[others_a[j]] = False
+                for j in range(ptr_b[m], ptr_b[m + 1]):
+                    if not both_b[j]:
+                        alive[others_b[j]] = False
+        kept = np.zeros(n, np.bool_)
+        for i in range(n_picked):
+            m = picked[i]
+            for j in range(ptr_a[m], ptr_a[m + 1]):
+                if both_a[j]:
+                    kept[others_a[j]] = True
+        return picked[:n_picked].copy(), kept

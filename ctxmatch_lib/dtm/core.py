@@ -13,7 +13,7 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
 from ..geometry import _dlt_normal_matrix, _normalise, _transfer_errors
-from ._kernels import contraction_kernel, neighbourhood_kernel
+from ._kernels import contract_expand_kernel, neighbourhood_kernel, row_counts_kernel
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
 from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
 
@@ -202,21 +202,18 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
     m_a, o_a, in_both = _neighbourhood_pairs(t1, t2, vl, vr)
     m_b, o_b, in_1 = _neighbourhood_pairs(t2, t1, vr, vl)
     # Step 4: rank by score ascending, then |M_A1 ∩ M_A2| descending, then the canonical key.
-    consistency = np.bincount(m_a[in_both], minlength=n)
+    consistency = row_counts_kernel(m_a, in_both, n)
     rank = np.lexsort((canon, -consistency, score))
     # Step 5: contraction. Each pick removes (M_A1 ∪ M_A2) \ (M_A1 ∩ M_A2): the pairs of M_A1 not in M_A2
-    # and those of M_A2 not in M_A1, both already grouped by match (rows of m_a and m_b never decrease); the
-    # sequential greedy loop is compiled.
-    only1, only2 = ~in_both, ~in_1
-    picked = contraction_kernel(rank, o_a[only1], np.searchsorted(m_a[only1], np.arange(n + 1)),
-                                o_b[only2], np.searchsorted(m_b[only2], np.arange(n + 1)))
-    # Step 6: expansion, the union of the picked matches' intersections.
-    is_picked = np.zeros(n, bool)
-    is_picked[picked] = True
-    sel = in_both & is_picked[m_a]
-    kept_local = np.flatnonzero(np.bincount(o_a[sel], minlength=n))
+    # and those of M_A2 not in M_A1, both already grouped by match (rows of m_a and m_b never decrease).
+    # Step 6: expansion, the union of the picked matches' intersections. One compiled pass over the pairs.
+    picked, kept_flag = contract_expand_kernel(rank, m_a, o_a, in_both, m_b, o_b, in_1, n)
+    kept_local = np.flatnonzero(kept_flag)
     record = None
     if want_record:
+        is_picked = np.zeros(n, bool)
+        is_picked[picked] = True
+        sel = in_both & is_picked[m_a]
         pos_in_t = np.full(n, -1, np.int64)
         pos_in_t[picked] = np.arange(len(picked))
         cm, co = pos_in_t[m_a[sel]], o_a[sel]

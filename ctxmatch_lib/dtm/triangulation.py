@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import locate_kernel, triangle_neighbors_kernel
+from ._kernels import key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
 
 __all__ = [
     "DelaunayMesh",
@@ -244,21 +244,17 @@ class IncrementalDelaunay:
             return np.empty((0, 3), np.int64)
 
     def _subdiv2d_simplices(self) -> np.ndarray | None:
-        keys = self._p32.view(np.int64).reshape(-1)
-        index = _KeyIndex(keys)
-        if index.has_duplicates:
-            return None  # duplicates: let Qhull decide which copy it keeps
+        keys = np.ascontiguousarray(self._p32).view(np.int64).reshape(-1)
         tri = np.asarray(self._sub.getTriangleList(), np.float32).reshape(-1, 6)
         if len(tri) == 0:
-            return np.empty((0, 3), np.int64)
+            return None if _KeyIndex(keys).has_duplicates else np.empty((0, 3), np.int64)
         tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
-        idx = index.lookup(tk)
-        if idx is None:
+        # Every triangle corner is a point (and every point a corner); duplicates go to Qhull, which decides
+        # which copy it keeps.
+        idx, status = key_rows_kernel(keys, tk)
+        if status != 0:
             return None
         simplices = idx.reshape(-1, 3)
-        n = len(keys)
-        if np.count_nonzero(np.bincount(simplices.reshape(-1), minlength=n)) != n:
-            return None
         t = tri.astype(np.float64)  # exact: these are the float32 input coordinates
         area = np.abs((t[:, 2] - t[:, 0]) * (t[:, 5] - t[:, 1]) - (t[:, 3] - t[:, 1]) * (t[:, 4] - t[:, 0])).sum()
         hull = 2.0 * cv2.contourArea(cv2.convexHull(self._p32))
@@ -449,15 +445,10 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
         indptr = np.arange(n + 1, dtype=np.int64)
         indices = np.arange(n, dtype=np.int64)
         return Triangulation(points, n, simplices, indptr, indices, None)
-    # Directed keypoint-keypoint edges plus the self loops, as sorted keys -> CSR over V.
+    # Keypoint-keypoint edges both ways plus the self loops, sorted per vertex: CSR over V (compiled).
     s = tri.simplices
-    a = np.concatenate([s[:, 0], s[:, 1], s[:, 2], s[:, 1], s[:, 2], s[:, 0], np.arange(n)])
-    b = np.concatenate([s[:, 1], s[:, 2], s[:, 0], s[:, 0], s[:, 1], s[:, 2], np.arange(n)])
-    both = (a < n) & (b < n)
-    key = unique_ints(a[both] * n + b[both])
-    indptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(key // n, minlength=n), out=indptr[1:])
-    return Triangulation(points, n, s, indptr, key % n, tri)
+    indptr, indices = vertex_csr_kernel(np.ascontiguousarray(s, np.int64), n)
+    return Triangulation(points, n, s, indptr, indices, tri)
 
 
 def expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

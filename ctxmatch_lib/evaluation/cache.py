@@ -30,7 +30,7 @@ __all__ = ["FORMAT", "digest", "pair_digest", "features_digest", "source_digest"
            "engine_cache", "candidate_sets"]
 
 # Bump when the rows or the cached intermediates change meaning: old parts and caches are then ignored.
-FORMAT = 3
+FORMAT = 4  # 4: the geometry columns and the OpenCV matcher rows (issue 30)
 
 
 def digest(*parts) -> str:

@@ -43,7 +43,8 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
               pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
               model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
               max_keypoints: int | str | None = None, n_jobs: int = 1, dask=None, cache_dir=None,
-              feature_cache_dir=None, out=None, progress: bool = True, data_root=None, recompute: bool = False):
+              feature_cache_dir=None, out=None, progress: bool = True, data_root=None, recompute: bool = False,
+              matchers=(), estimator=None):
     """Run (or resume) a sweep and return its rows as a ``pandas.DataFrame`` (:data:`SWEEP_COLUMNS`).
 
     Parameters
@@ -58,7 +59,13 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         Registered filters run on every setup's candidates (the unfiltered candidates are always the
         method ``"blob"``); ``filter_params`` gives extra keyword arguments per filter.
     models : sequence of str
-        Model steps (``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``) after each method.
+        Model steps (``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``, ``"magsac"``) after each method; every
+        row with a model carries its accuracy (:data:`~ctxmatch_lib.evaluation.rows.GEOMETRY_COLUMNS`).
+    matchers : sequence of str
+        Alternative matchers evaluated as methods beside the blob candidates and the filters
+        (``"opencv_ratio"``, ``"opencv_mnn"``: :mod:`ctxmatch_lib.opencv_matchers`).
+    estimator : dict, optional
+        USAC overrides of the robust model steps (``threshold``, ``confidence``, ``max_iters``).
     max_keypoints : int or str, optional
         Override the keypoint cap of every feature configuration: an integer (0: none; small values for quick
         runs) or a budget name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` (``"paper"``).
@@ -96,7 +103,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     units = plan_sweep(datasets, features=features, blobs=blobs, filters=filters, models=models,
                        pairs=pairs, kinds=kinds, gt_method=gt_method, gt_threshold=gt_threshold,
                        model_threshold=model_threshold, filter_params=filter_params, seed=seed,
-                       max_keypoints=max_keypoints, data_root=data_root)
+                       max_keypoints=max_keypoints, data_root=data_root, matchers=matchers, estimator=estimator)
     df = run_units(units, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, n_jobs=n_jobs, dask=dask,
                    progress=progress, recompute=recompute, desc="ctxmatch sweep")
     if out is not None:
@@ -104,7 +111,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
                 "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
                 "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": gt_method,
                 "gt_threshold": gt_threshold, "model_threshold": model_threshold, "seed": seed,
-                "format": FORMAT}
+                "matchers": list(units[0].matchers), "estimator": dict(units[0].estimator), "format": FORMAT}
         write_parquet_atomic(df, out, meta)
     return df
 
@@ -134,7 +141,8 @@ def evaluate_cached(
         ``features`` column with the name.
     blobs, models, kwargs
         As :func:`ctxmatch_lib.pipeline.evaluate_pair` (``gt_method``, ``gt_threshold``,
-        ``model_threshold``, ``filter_params``, ``seed``); the ``blob`` column holds the preset names.
+        ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``);
+        the ``blob`` column holds the preset names.
     filters : "all" or sequence of str
         See :func:`~ctxmatch_lib.evaluation.steps.resolve_filters`.
     max_keypoints : int or str, optional
@@ -159,7 +167,7 @@ def evaluate_cached(
         the row was computed, possibly by an earlier run. Pairs that could not be evaluated have a
         non-empty ``error`` (and a ``RuntimeWarning``).
     """
-    known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed"}
+    known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed", "matchers", "estimator"}
     unknown = sorted(set(kwargs) - known)
     if unknown:
         raise TypeError(f"evaluate_cached got unexpected arguments {unknown}; known: {sorted(known)}")

@@ -24,7 +24,7 @@ from ..datasets.base import Pair
 from ..features import FEATURE_PRESETS, FeatureConfig, keypoint_budget
 from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .cache import FORMAT, digest, pair_digest, source_digest
-from .steps import check_models, named_configs, resolve_filters
+from .steps import check_estimator, check_matchers, check_models, named_configs, resolve_filters
 
 __all__ = ["SweepUnit", "resolve_features", "resolve_blob_configs", "select_pairs", "check_settings",
            "plan_units", "plan_sweep", "keyed"]
@@ -165,7 +165,9 @@ class SweepUnit:
     they are applied when the rows are read, so they are not part of the key and parts are shared whatever
     the names. ``salt`` joins the key and the keys of the cached candidate sets and filter masks: the
     planners put :func:`~ctxmatch_lib.evaluation.cache.source_digest` there, so that editing the library
-    invalidates the rows it computed.
+    invalidates the rows it computed. ``matchers`` names alternative candidate sets evaluated beside the
+    blob setups (the OpenCV matchers, :func:`~ctxmatch_lib.evaluation.steps.check_matchers`); ``estimator``
+    holds the USAC overrides of the robust model steps (:func:`~ctxmatch_lib.evaluation.steps.check_estimator`).
     """
 
     dataset: str
@@ -183,6 +185,8 @@ class SweepUnit:
     key: str = field(default="", compare=False)
     blob_names: tuple = field(default=(), compare=False)
     salt: str = ""
+    matchers: tuple = ()
+    estimator: tuple = ()  # ((key, value), ...), sorted
 
     def label(self) -> str:
         where = self.dataset or self.pair.dataset
@@ -196,12 +200,12 @@ def unit_key(u: SweepUnit, pair_hash: str) -> str:
     return digest(
         FORMAT, u.pair.dataset or u.dataset, u.pair.pair_id, pair_hash, u.features.key(),
         [c.kwargs() for c in u.blobs], u.filters, u.models, u.filter_params, u.gt_method, float(u.gt_threshold),
-        float(u.model_threshold), int(u.seed), u.salt,
+        float(u.model_threshold), int(u.seed), u.salt, u.matchers, u.estimator,
     )
 
 
 def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold, model_threshold,
-                    filter_params, seed, max_keypoints) -> dict:
+                    filter_params, seed, max_keypoints, matchers=(), estimator=None) -> dict:
     """Validate every setting of an evaluation before any work; returns them resolved."""
     if gt_method not in GT_METHODS:
         raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
@@ -236,7 +240,7 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
     fparams = tuple((k, json.dumps(params[k], sort_keys=True)) for k in filters if k in params)
     return dict(feats=feats, blobs=blob_cfgs, blob_names=names, filters=filters, models=models, fparams=fparams,
                 gt_method=gt_method, gt_threshold=float(gt_threshold), model_threshold=float(model_threshold),
-                seed=int(seed))
+                seed=int(seed), matchers=check_matchers(matchers), estimator=check_estimator(estimator))
 
 
 def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
@@ -244,24 +248,25 @@ def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
     salt = source_digest(filters=bool(st["filters"])) if salt is None else salt
     return [SweepUnit(str(dataset_name), pair, fname, fcfg, st["blobs"], st["filters"], st["models"], st["fparams"],
                       st["gt_method"], st["gt_threshold"], st["model_threshold"], st["seed"],
-                      blob_names=st["blob_names"], salt=salt)
+                      blob_names=st["blob_names"], salt=salt, matchers=st["matchers"], estimator=st["estimator"])
             for fname, fcfg in st["feats"].items() for pair in pairs]
 
 
 def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(), models=("none",),
                gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX, model_threshold: float = 15.0,
                filter_params: Mapping[str, dict] | None = None, seed: int = 0,
-               max_keypoints: int | None = None, salt: str | None = None) -> list[SweepUnit]:
+               max_keypoints: int | None = None, salt: str | None = None, matchers=(),
+               estimator: Mapping | None = None) -> list[SweepUnit]:
     """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
 
     The arguments are those of :func:`run_sweep`; ``blobs`` may also be a dict name -> ``BlobConfig``
     (:func:`ctxmatch_lib.pipeline.resolve_blobs`), whose names then fill the ``blob`` column; ``salt``
     joins the units' keys (default: :func:`~ctxmatch_lib.evaluation.cache.source_digest`; see
-    :class:`SweepUnit`). Every argument is validated here, before any work.
+    :class:`SweepUnit`; ``matchers`` and ``estimator`` too). Every argument is validated here, before any work.
     """
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
-                         seed=seed, max_keypoints=max_keypoints)
+                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator)
     pairs = list(pairs)
     for p in pairs:
         if not isinstance(p, Pair):
@@ -272,16 +277,17 @@ def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(
 def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", filters=(), models=("none",),
                pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
                model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
-               max_keypoints: int | None = None, data_root=None, salt: str | None = None) -> list[SweepUnit]:
+               max_keypoints: int | None = None, data_root=None, salt: str | None = None, matchers=(),
+               estimator: Mapping | None = None) -> list[SweepUnit]:
     """The work units of a sweep, in the order of its result table (dataset, features, pair).
 
     Every argument is validated here, before any work; see :func:`run_sweep` for their meaning and
-    :func:`plan_units` for ``blobs`` given as a dict and for ``salt``. ``ctxmatch eval`` and ``ctxmatch
-    sweep`` both plan here, so the same settings give the same units (and keys).
+    :func:`plan_units` for ``blobs`` given as a dict, ``salt``, ``matchers`` and ``estimator``. ``ctxmatch eval``
+    and ``ctxmatch sweep`` both plan here, so the same settings give the same units (and keys).
     """
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
-                         seed=seed, max_keypoints=max_keypoints)
+                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator)
     if isinstance(datasets, str):
         datasets = [d.strip() for d in datasets.split(",") if d.strip()]
     datasets = list(datasets)

@@ -3,6 +3,15 @@
 Units: ``precision``, ``recall``, ``recall_star``, ``ap`` and ``ap_star`` are fractions in [0, 1] (NaN
 when undefined); ``time_s`` (the method) and ``model_time_s`` (the model step) in seconds; ``error`` is
 empty, or says why the row could not be evaluated (its metrics are then NaN).
+
+The geometry columns (:data:`GEOMETRY_COLUMNS`, issue 30) say how good the model of the row's model step is
+(NaN for model ``none`` and where a column does not apply; see
+:func:`~ctxmatch_lib.evaluation.steps.model_accuracy`): ``model_inliers`` (the estimator's inlier count),
+``corner_error`` (planar: mean corner error of ``H`` in px, ``inf`` without a model), ``epi_share_mean`` and
+``epi_share_<t>`` (other kinds: share of ground-truth correspondences within 1 ... 19 px, resp. ``t`` px,
+of the estimated ``F``; 0 without a model). The time to geometry of a row is its ``model_time_s`` plus its
+``time_s``, plus the ``time_s`` of the blob row of its setup for a filter
+(:func:`~ctxmatch_lib.geometry_metrics.time_to_geometry`).
 """
 
 from __future__ import annotations
@@ -11,15 +20,20 @@ import numpy as np
 
 from .._validation import cumulative_distinct
 from ..blob import BlobConfig
+from .steps import EPI_SHARE_AT_PX
 
-__all__ = ["SWEEP_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame", "ranked_ap"]
+__all__ = ["SWEEP_COLUMNS", "GEOMETRY_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame",
+           "ranked_ap"]
+
+#: The columns of the model's accuracy (issue 30), in :data:`SWEEP_COLUMNS` after ``model_time_s``.
+GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_share_{t}" for t in EPI_SHARE_AT_PX))
 
 #: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
 SWEEP_COLUMNS = (
     "dataset", "pair_id", "kind", "features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind",
     "combine", "method", "model", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
-    "correct_norm", "output", "failure", "empty_output", "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates",
-    "n_gt", "n_gt_star", "gt_method", "error",
+    "correct_norm", "output", "failure", "empty_output", "time_s", "model_time_s", *GEOMETRY_COLUMNS, "n_kpts1",
+    "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method", "error",
 )
 
 
@@ -37,7 +51,7 @@ def error_rows(unit, message: str, n: int = 0, m: int = 0) -> list[dict]:
     """Rows of a unit that could not be evaluated: NaN metrics, zero counts, ``error`` set."""
     rows = []
     for cfg in unit.blobs:
-        for method in ("blob", *unit.filters):
+        for method in ("blob", *unit.filters, *unit.matchers):
             for model in unit.models:
                 rows.append(error_row(unit, cfg, method, model, message, n, m))
     return rows
@@ -50,7 +64,8 @@ def error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
            "features": unit.features_name, **blob_record(cfg), "method": method, "model": model,
            "precision": nan, "recall": nan, "recall_star": nan, "ap": nan, "ap_star": nan, "correct": 0,
            "correct_norm": 0, "output": 0, "failure": False, "empty_output": False, "time_s": nan, "model_time_s": nan,
-           "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0, "n_gt_star": 0, "gt_method": unit.gt_method,
+           **{c: nan for c in GEOMETRY_COLUMNS}, "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0,
+           "n_gt_star": 0, "gt_method": unit.gt_method,
            "error": message}
     row.update(known)
     return row
@@ -63,7 +78,9 @@ def frame(rows):
     df = pd.DataFrame(rows, columns=list(SWEEP_COLUMNS))
     return df.astype({**{c: "int64" for c in INT_COLUMNS}, "failure": "bool", "empty_output": "bool", "t_o": "float64",
                       "precision": "float64", "recall": "float64", "recall_star": "float64", "ap": "float64",
-                      "ap_star": "float64", "time_s": "float64", "model_time_s": "float64", "error": "str"})
+                      "ap_star": "float64", "time_s": "float64", "model_time_s": "float64",
+                      **{c: "float64" for c in GEOMETRY_COLUMNS},
+                      "error": "str"})
 
 
 def ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:

@@ -20,7 +20,8 @@ import numpy as np
 from .._scores import nnr_scores, score_ratio
 from ..datasets.base import Pair
 from ..features import FeatureConfig, Features, extract_features
-from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ModelFit, apply_model_step, model_kind_for
+from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, ModelFit, apply_model_step, model_kind_for
+from ..geometry_metrics import EPIPOLAR_THRESHOLDS_PX, epipolar_consistency, homography_corner_error
 from ..groundtruth import GT_THRESHOLD_PX, label_matches
 
 __all__ = [
@@ -31,14 +32,23 @@ __all__ = [
     "register_dtm_stages",
     "check_filters",
     "check_models",
+    "check_matchers",
+    "check_estimator",
     "check_pair_keypoints",
     "pair_seed",
     "pair_features",
     "blob_candidates",
     "run_filter",
     "run_model",
+    "run_matcher",
+    "model_accuracy",
+    "EPI_SHARE_AT_PX",
     "label_candidates",
 ]
+
+#: The thresholds (px) whose share of consistent ground-truth correspondences gets its own column
+#: (``epi_share_<t>``), beside the mean over 1 ... 19 px (``epi_share_mean``).
+EPI_SHARE_AT_PX = (1, 3, 5, 10)
 
 #: Method name of the unfiltered blob candidates.
 BLOB_METHOD = "blob"
@@ -138,6 +148,31 @@ def check_models(models: Iterable[str]) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"models are repeated: {names}")
     return names
+
+
+def check_matchers(matchers) -> tuple[str, ...]:
+    """Validate the names of the alternative matchers
+    (:data:`~ctxmatch_lib.opencv_matchers.OPENCV_MATCHERS`: ``opencv_ratio``, ``opencv_mnn``)."""
+    from ..opencv_matchers import OPENCV_MATCHERS
+
+    names = (matchers,) if isinstance(matchers, str) else tuple(matchers or ())
+    for name in names:
+        if name not in OPENCV_MATCHERS:
+            raise ValueError(f"unknown matcher {name!r}; known matchers: {', '.join(OPENCV_MATCHERS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"matchers are repeated: {names}")
+    return names
+
+
+def check_estimator(estimator) -> tuple:
+    """The USAC overrides (``threshold``, ``confidence``, ``max_iters``) of the robust model steps as sorted
+    ``(key, value)`` pairs, validated (:func:`~ctxmatch_lib.geometry.usac_settings`); ``None`` or ``{}``: the
+    presets' own settings."""
+    from ..geometry import usac_settings
+
+    items = dict(estimator or {})
+    usac_settings("ransac", items)  # raises naming a bad key or value
+    return tuple(sorted((k, int(v) if k == "max_iters" else float(v)) for k, v in items.items()))
 
 
 def resolve_filters(filters="all") -> tuple[str, ...]:
@@ -281,15 +316,59 @@ def run_model(
     pair_kind: str,
     threshold: float = CONSISTENCY_THRESHOLD_PX,
     rng=None,
+    estimator=None,
 ) -> tuple[ModelFit, float]:
-    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``) on a match set.
+    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``, ``magsac``) on a match set.
 
-    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`).
+    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`);
+    ``estimator`` overrides the USAC settings of the robust steps (:func:`check_estimator`).
     """
     t0 = time.perf_counter()
     fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
-                           threshold=threshold, rng=rng)
+                           threshold=threshold, rng=rng, estimator=dict(estimator or ()))
     return fit, time.perf_counter() - t0
+
+
+def run_matcher(name: str, f1: Features, f2: Features) -> tuple[np.ndarray, np.ndarray, float]:
+    """The alternative matcher ``name`` (:data:`~ctxmatch_lib.opencv_matchers.OPENCV_MATCHERS`) on the
+    descriptors of both images: matches (K, 2) int64, scores (K,) lower is better, and its wall time."""
+    from ..opencv_matchers import OPENCV_MATCHERS
+
+    t0 = time.perf_counter()
+    matches, scores = OPENCV_MATCHERS[name](f1.desc, f2.desc)
+    return matches, scores, time.perf_counter() - t0
+
+
+def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr) -> dict:
+    """The geometry columns of a row: how good the model of step ``model`` is against the pair's ground truth.
+
+    ``inliers``: the estimator's inliers (USAC's inlier mask; for 1SAC the matches within its threshold);
+    ``corner_error``: planar pairs, :func:`~ctxmatch_lib.geometry_metrics.homography_corner_error` of the
+    estimated ``H`` (``inf`` without a model); ``epi_share_*``: other pairs with ground-truth correspondences
+    ``corr`` (:func:`~ctxmatch_lib.geometry_metrics.gt_correspondences`), the share consistent with the
+    estimated ``F`` (:func:`~ctxmatch_lib.geometry_metrics.epipolar_consistency`; 0 without a model), its mean
+    over 1 ... 19 px and at :data:`EPI_SHARE_AT_PX`. NaN where a column does not apply (model ``none``).
+    """
+    nan = float("nan")
+    out = {"model_inliers": nan, "corner_error": nan, "epi_share_mean": nan,
+           **{f"epi_share_{t}": nan for t in EPI_SHARE_AT_PX}}
+    if model == "none" or fit is None:
+        return out
+    if fit.model is not None:
+        out["model_inliers"] = float(len(fit.sample) if model in ROBUST_STEPS else fit.keep.sum())
+    else:
+        out["model_inliers"] = 0.0
+    if fit.kind == "H":
+        H_gt = getattr(pair.gt, "H", None)
+        if H_gt is not None:
+            out["corner_error"] = homography_corner_error(fit.model, H_gt, pair.image_size1)
+    elif corr is not None and len(corr[0]):
+        th = EPIPOLAR_THRESHOLDS_PX
+        share = epipolar_consistency(fit.model, corr[0], corr[1], thresholds=th)
+        out["epi_share_mean"] = float(share.mean())
+        for t in EPI_SHARE_AT_PX:
+            out[f"epi_share_{t}"] = float(share[np.flatnonzero(th == t)[0]])
+    return out
 
 
 def label_candidates(

@@ -21,12 +21,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..blob import combine_ratios, rank_candidates
+from ..geometry_metrics import gt_correspondences
 from ..metrics import average_precision, evaluate_matches, normalised_count
 from .cache import FORMAT, candidate_sets, digest, engine_cache, features_digest, load_npz, save_npz
 from .overlap import TabulatedContext, overlap_table
 from .plan import SweepUnit
 from .rows import blob_record, error_row, error_rows, frame, ranked_ap
-from .steps import check_pair_keypoints, label_candidates, pair_seed, run_filter, run_model
+from .steps import (check_pair_keypoints, label_candidates, model_accuracy, pair_seed, run_filter, run_matcher,
+                    run_model)
 
 __all__ = ["PairError", "unit_features", "run_unit"]
 
@@ -67,6 +69,9 @@ class _PairData:
     base_row: dict
     filter_params: dict
     rng_seed: int
+    corr: object = None  # the ground-truth correspondences the epipolar share is measured on, or None
+    fits: dict = None  # (method, model) -> (fit, seconds) of the matcher rows, shared by the blob setups
+    matcher_sets: dict = None  # what _matcher_sets returns, once computed
 
 
 def _context_factory(unit: SweepUnit, f1, f2, cache):
@@ -126,7 +131,7 @@ def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: fl
             "ap_star": ranked_ap(mt[:, 0], mt[:, 1], lab, scores, d.n_gt_star, n, m),
             "correct": correct, "correct_norm": n_gt, "output": len(mt),
             "failure": len(mt) > 0 and correct == 0, "empty_output": len(mt) == 0,
-            "time_s": t_blob, "model_time_s": 0.0}
+            "time_s": t_blob, "model_time_s": 0.0, **model_accuracy("none", None, d.unit.pair, None)}
 
 
 def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tuple[dict, bool]:
@@ -152,19 +157,24 @@ def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tupl
 
 
 def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> list[dict]:
-    """The rows of every (method, model) of one setup; a step that raised gives an error row."""
+    """The rows of every (method, model) of one setup; a step that raised gives an error row.
+
+    ``keeps`` maps the blob candidates and each filter to a mask over ``sm`` (or an error message) and its
+    time; :func:`_matcher_sets` adds the alternative matchers, with their own matches, scores and labels.
+    """
     unit, n, m = d.unit, len(d.f1), len(d.f2)
     known = {"n_candidates": common["n_candidates"], "n_gt": common["n_gt"], "n_gt_star": d.n_gt_star}
     ref = sm[sl]
+    sets = [(method, sm, ss, sl, keep, t, False) for method, (keep, t) in keeps.items()]
+    sets += [(name, *alt, True) for name, alt in _matcher_sets(d).items()]
     rows = []
-    for method, (keep, t_method) in keeps.items():
+    for method, cm, cs, cl, keep, t_method, shared in sets:
         for model in unit.models:
             if isinstance(keep, str):
                 rows.append(error_row(unit, cfg, method, model, keep, n, m, **known))
                 continue
             try:
-                fit, t_model = run_model(model, d.f1, d.f2, sm[keep], ss[keep], pair_kind=unit.pair.kind,
-                                         threshold=unit.model_threshold, rng=d.rng_seed)
+                fit, t_model = _fit(d, method, model, cm[keep], cs[keep], shared)
             except Exception as exc:
                 rows.append(error_row(unit, cfg, method, model,
                                       f"model {model!r} raised {type(exc).__name__}: {exc}", n, m,
@@ -172,15 +182,41 @@ def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> li
                 continue
             final = keep.copy()
             final[np.flatnonzero(keep)] = fit.keep
-            mm = evaluate_matches(sm[final], sl[final], reference=ref, reference_star=d.ref_star,
-                                  scores=ss[final], time_s=t_method)
+            mm = evaluate_matches(cm[final], cl[final], reference=ref, reference_star=d.ref_star,
+                                  scores=cs[final], time_s=t_method)
             rows.append({**common, "method": method, "model": model, "precision": mm.precision,
                          "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
-                         "ap_star": average_precision(sm[final], sl[final], ss[final], d.ref_star),
+                         "ap_star": average_precision(cm[final], cl[final], cs[final], d.ref_star),
                          "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
                          "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
-                         "model_time_s": t_model})
+                         "model_time_s": t_model, **model_accuracy(model, fit, unit.pair, d.corr)})
     return rows
+
+
+def _fit(d: _PairData, method: str, model: str, matches, scores, shared: bool):
+    """The model step on a method's output; a matcher's (the same for every blob setup) is fitted once."""
+    if shared and (method, model) in d.fits:
+        return d.fits[method, model]
+    unit = d.unit
+    out = run_model(model, d.f1, d.f2, matches, scores, pair_kind=unit.pair.kind, threshold=unit.model_threshold,
+                    rng=d.rng_seed, estimator=unit.estimator)
+    if shared:
+        d.fits[method, model] = out
+    return out
+
+
+def _matcher_sets(d: _PairData) -> dict:
+    """Each alternative matcher of the unit: (matches, scores, labels, all-True mask, its time), computed and
+    labelled once per unit."""
+    if d.matcher_sets is None:
+        out = {}
+        for name in d.unit.matchers:
+            matches, scores, t = run_matcher(name, d.f1, d.f2)
+            lab = label_candidates(d.unit.pair, d.f1, d.f2, matches, method=d.unit.gt_method,
+                                   threshold=d.unit.gt_threshold)
+            out[name] = (matches, scores, lab, np.ones(len(matches), bool), t)
+        d.matcher_sets = out
+    return d.matcher_sets
 
 
 def _mask_store(unit: SweepUnit, feats_digest: str, cache):
@@ -230,8 +266,9 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir):
                 "features": unit.features_name, "n_kpts1": len(f1), "n_kpts2": len(f2),
                 "gt_method": unit.gt_method, "error": ""}
     d = _PairData(unit, f1, f2, ref_star, n_gt_star, base_row,
-                  {name: json.loads(p) for name, p in unit.filter_params}, pair_seed(unit.seed, pair.pair_id))
-    fast = not unit.filters and unit.models == ("none",)
+                  {name: json.loads(p) for name, p in unit.filter_params}, pair_seed(unit.seed, pair.pair_id),
+                  gt_correspondences(pair.gt) if any(m != "none" for m in unit.models) else None, {})
+    fast = not unit.filters and not unit.matchers and unit.models == ("none",)
     masks, mask_path = _mask_store(unit, feats_digest, cache)
     masks_added = False
     ranks: dict = {}

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import MatchSet, check_positive, match_filter, serial_blas, zero_mean_unit_rms
+from ._em_kernels import dot, matmul, solve, weighted_gram
 
 __all__ = ["vfc_filter"]
 
@@ -154,6 +155,10 @@ def vfc_filter(
         gamma = min(max(gamma, 0.05), 0.95)
         energy, change = 1.0, 1.0
         p = np.ones(n)
+        # The products and the solve run in _em_kernels (fixed summation order, no BLAS): the EM amplifies
+        # the last bits of each iteration, and the posteriors near tau must not follow the BLAS kernel.
+        m = len(ctrl)
+        H = np.ascontiguousarray(np.hstack([U, motion]))  # one weighted Gram gives U' P U and U' P motion
         for _ in range(max_iter):
             if change <= tol or sigma2 <= 1e-8:
                 break
@@ -161,13 +166,13 @@ def vfc_filter(
             p = posterior(r2, sigma2, gamma, a)
             # Eq. (12): the expected complete-data energy, plus the regulariser.
             old = energy
-            energy = p @ r2 / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * np.trace(C.T @ G @ C)
+            energy = dot(p, r2) / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * float((C * matmul(G, C)).sum())
             change = abs((energy - old) / energy) if energy != 0 else 0.0
             pw = np.maximum(p, min_p)
             # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
-            lhs = U.T @ (pw[:, None] * U) + lam * sigma2 * G
-            C = np.linalg.lstsq(lhs, U.T @ (pw[:, None] * motion), rcond=None)[0]
-            field = U @ C
-            sigma2 = float(pw @ ((motion - field) ** 2).sum(1) / (2 * pw.sum()))
+            A = weighted_gram(H, pw)
+            C = solve(A[:m, :m] + lam * sigma2 * G, A[:m, m:])
+            field = matmul(U, C)
+            sigma2 = dot(pw, ((motion - field) ** 2).sum(1)) / (2 * pw.sum())
             gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
         return p > tau

@@ -42,8 +42,11 @@ def _groups(labels):
     return out
 
 
-#: Grey levels of the key strips of the heat map: W (five per D band) and f' (three per f group).
-_W_GREYS = {"a": "0.92", "b": "0.74", "min": "0.55", "max": "0.35", "harmonic": "0.12"}
+#: Colours of the W key strip of the heat map (five per D band): the Okabe–Ito colours that D does not use,
+#: told apart at print size and with a colour-vision deficiency (five greys were not), and f' greys (three per
+#: f group).
+_W_COLOURS = {"a": OKABE_ITO["sky_blue"], "b": OKABE_ITO["yellow"], "min": OKABE_ITO["vermillion"],
+              "max": OKABE_ITO["reddish_purple"], "harmonic": OKABE_ITO["black"]}
 _FP_GREYS = ("0.85", "0.55", "0.15")
 _BEST_COLOR = "#ff1f1f"
 
@@ -61,8 +64,9 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
 
     Every one of the 27 rows and 90 columns is told by key strips drawn beside the block (at print size there
     is no room for 117 texts): under the columns, a strip coloured by D (:data:`_D_COLOURS`, the colours of
-    Fig. 6) and a strip in five greys by W (light to dark: a, b, min, max, 2ab/(a+b)); left of the rows, a
-    strip in three greys by f' (light to dark: 1, 3, 5). :func:`heatmap_key` draws their legend.
+    Fig. 6) and a strip coloured by W (:data:`_W_COLOURS`: a sky blue, b yellow, min vermillion, max reddish
+    purple, 2ab/(a+b) black); left of the rows, a strip in three greys by f' (light to dark: 1, 3, 5).
+    :func:`heatmap_key` draws their legend.
 
     Parameters
     ----------
@@ -111,7 +115,7 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
             patches.append(Rectangle((c - 0.5, bottom + 0.15 * strip), 1, strip))
             colours.append(_D_COLOURS.get(str(lab[1]), "0.5"))
             patches.append(Rectangle((c - 0.5, bottom + 1.15 * strip), 1, strip))
-            colours.append(_W_GREYS.get(_w_key(lab[2]), "0.5"))
+            colours.append(_W_COLOURS.get(_w_key(lab[2]), "0.5"))
         fps = list(dict.fromkeys(r[1] for r in rows))
         width = max(1.6, 0.02 * n_cols)  # in columns: about as thick on paper as the column strips
         for r, lab in enumerate(rows):
@@ -145,7 +149,7 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
 
 
 def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
-    """The legend of the key strips of :func:`plot_blob_heatmap` (D colours, W and f' greys) and of the
+    """The legend of the key strips of :func:`plot_blob_heatmap` (D and W colours, f' greys) and of the
     best-cell marker; ``kwargs`` go to ``legend``."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -154,7 +158,7 @@ def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
     for d, c in _D_COLOURS.items():
         handles.append(Patch(fc=c, ec="none"))
         labels.append(d)
-    for w, g in _W_GREYS.items():
+    for w, g in _W_COLOURS.items():
         handles.append(Patch(fc=g, ec="0.5", lw=0.3))
         labels.append(f"W = {W_LABELS[w]}")
     for fp, g in zip((1, 3, 5), _FP_GREYS):

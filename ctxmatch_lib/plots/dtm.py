@@ -4,9 +4,10 @@ of Fig. 3. Each helper draws overlays on a given ``ax`` (draw the image first wi
 
 Points are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel.
 
-Colours follow the paper in the boundary figure (Fig. 2): Delaunay triangulation blue, edges joining two
-keypoint vertices green (the final meshes), convex hull red, alpha-shape edges solid orange, fattening ``B'``
-dashed, contour and boundary set ``B`` purple. The DTM-step figure (Fig. 3) gives each colour one meaning:
+Colours of the boundary figure (Fig. 2), the paper's roles in the colour-blind-safe Okabe–Ito palette:
+Delaunay triangulation blue, edges joining two keypoint vertices bluish green (the final meshes), convex hull
+vermillion, alpha-shape edges solid sky blue, fattening ``B'`` dashed, contour and boundary set ``B`` reddish
+purple. The DTM-step figure (Fig. 3) gives each colour one meaning:
 matches in the colour-blind-safe code of :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS` (kept correct / wrong,
 dropped correct / wrong), matches re-added by DTM2 dashed in the kept colours, triangulations grey, the DTM1
 contraction set white dots and the expansion clusters bluish green.
@@ -18,6 +19,7 @@ import numpy as np
 from matplotlib.collections import LineCollection
 from matplotlib.patches import Rectangle
 
+from .palette import OKABE_ITO
 from .viz2d import MATCH_COLORS, match_colors, plot_flow
 
 __all__ = [
@@ -36,11 +38,14 @@ __all__ = [
 ]
 
 DTM_COLORS = {
-    "delaunay": "#3a6fd8",     # blue
-    "keypoint_edge": "#1fae3a",  # green
-    "hull": "#e02020",         # red
-    "alpha": "#ff8c00",        # orange
-    "boundary": "#9b30d0",     # purple
+    # Okabe–Ito (the palette the README promises; the paper's red hull against an orange alpha shape is hard to
+    # tell apart with a red-green deficiency): hull vermillion against alpha shape sky blue, ΔE ≈ 90-114
+    # under normal vision and the three simulated dichromacies (palette.delta_e).
+    "delaunay": OKABE_ITO["blue"],
+    "keypoint_edge": OKABE_ITO["bluish_green"],
+    "hull": OKABE_ITO["vermillion"],
+    "alpha": OKABE_ITO["sky_blue"],
+    "boundary": OKABE_ITO["reddish_purple"],
     "contraction": "#ffffff",  # white (Fig. 3: orange, the colour of wrong matches here)
     "expansion": "#009E73",    # bluish green (Fig. 3: yellow, the colour of dropped correct matches here)
     "mesh": "#a0a0a0",         # triangulations of the DTM-step figure: grey, blue is taken by correct matches
@@ -142,7 +147,7 @@ def plot_boundary_steps(ax, boundary, *, shape_color=None, ps: float = 6, lw: fl
     """The boundary construction of Fig. 2 (left) / Appendix A (a, b, c, e) for one ``Boundary``.
 
     ``"alpha"`` / ``"convex"``: Delaunay triangulation of ``V`` (blue), convex hull (red), first shape edges
-    (solid, orange for the alpha shape, red for the convex hull, or ``shape_color``), each shape edge shifted
+    (solid, sky blue for the alpha shape, vermillion for the convex hull, or ``shape_color``), each shape edge shifted
     by ``s`` to the outside (dashed, :func:`outer_fattening`: the points ``B'`` that shape the contour), the
     outer contour of ``V ∪ B'`` (purple) and the final set ``B`` (purple dots). ``"corners"`` / ``"canvas"``:
     the image border and its sample points ``B``.
@@ -226,7 +231,12 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     gone_colors = match_colors(labels[gone], np.zeros(len(gone), bool))
     as_dots = max_dropped_lines is not None and len(gone) > max_dropped_lines
     if as_dots:
-        ax.scatter(*src[gone].T, s=max(ps, 3.0), c=gone_colors, linewidths=0, alpha=0.85, zorder=2)
+        # The removed wrong ones are thousands of small dots under the flows; the removed correct ones are few
+        # and yellow (pale on a bright photo): larger, outlined in black and drawn above the flows.
+        good = labels[gone].astype(bool)
+        ax.scatter(*src[gone[~good]].T, s=max(ps, 3.0), c=gone_colors[~good], linewidths=0, alpha=0.85, zorder=2)
+        ax.scatter(*src[gone[good]].T, s=max(ps, 3.0) * 3.5, c=gone_colors[good], edgecolors="black",
+                   linewidths=0.4, zorder=4)
     else:
         plot_flow(ax, src[gone], dst[gone], color=gone_colors, lw=dropped_lw, ps=ps * 0.5, alpha=dropped_alpha)
     plot_flow(ax, src[stay], dst[stay], color=match_colors(labels[stay]), lw=lw, ps=ps, zorder=3)

@@ -3,10 +3,12 @@ scatter of Fig. 7 (``pr_plot``) and the inlier-ratio histograms (``inl_plot``). 
 ``ax`` from a table of :mod:`ctxmatch_lib.report` and never calls ``plt.show()``.
 
 As in the paper's Fig. 7, every method has one colour and one marker, named once in one legend, and no point
-carries a text: the model step is told by the fill, hollow without a model and filled after 1SAC. Colours are
-the colour-blind-safe Okabe–Ito palette (:data:`~ctxmatch_lib.plots.palette.OKABE_ITO`, yellow left out, too
-pale on white); seven colours times six markers give every method its own pair, and methods next to each other
-in the paper's order differ in both.
+carries a text: the model step is told by the fill, hollow without a model and filled after 1SAC (the same
+convention in every figure of the package). Colours are the colour-blind-safe Okabe–Ito palette
+(:data:`~ctxmatch_lib.plots.palette.OKABE_ITO`, yellow left out, too pale on white) and two dark colours of Paul
+Tol's; nine colours and nine markers give each of the paper's 18 methods its own pair
+(:data:`PAPER_METHOD_STYLES`): no colour is worn by more than two of them, the two with markers of different
+shape families, and methods next to each other in the paper's order differ in both.
 """
 
 from __future__ import annotations
@@ -19,6 +21,9 @@ from .palette import OKABE_ITO
 __all__ = [
     "METHOD_COLORS",
     "METHOD_MARKERS",
+    "PAPER_METHOD_STYLES",
+    "SETUP_HEADERS",
+    "row_limits",
     "METRIC_COLORS",
     "method_style",
     "plot_pr_scatter",
@@ -27,24 +32,37 @@ __all__ = [
     "shared_bins",
     "plot_inlier_method",
     "inlier_legend",
+    "bin_axis_label",
     "plot_pair_share",
 ]
 
-#: The colours of the methods, in the order they are handed out (Okabe–Ito without yellow).
+#: The colours of the methods: Okabe–Ito without yellow (too pale on white) and two dark colours of Paul Tol's
+#: palettes (indigo, wine), at least ΔE 23 from the others with normal vision and simulated deutan/protan
+#: dichromacy (palette.delta_e). Nine colours, each worn by two of the paper's 18 methods at most.
 METHOD_COLORS = tuple(OKABE_ITO[k] for k in ("black", "blue", "vermillion", "bluish_green", "reddish_purple",
-                                             "orange", "sky_blue"))
-#: The markers of the methods, all fillable (hollow = no model, filled = 1SAC), in the order handed out.
-METHOD_MARKERS = ("o", "s", "^", "D", "v", "p")
-# The paper's methods (Tables 1-3 order, the blob candidates first) get fixed styles; others follow them.
-_PAPER_METHODS = ("blob", "th", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam",
-                  "oanet", "acne", "pfm", "pgm", "scv", "bm", "dtm")
+                                             "orange", "sky_blue")) + ("#332288", "#882255")
+#: The markers of the methods, all fillable (hollow = no model, filled = 1SAC).
+METHOD_MARKERS = ("o", "s", "^", "D", "v", "p", "h", "<", ">")
+_K, _B, _V, _G, _P, _O, _S, _I, _W = METHOD_COLORS
+#: The paper's methods (Tables 1-3 order, the blob candidates first) and their fixed (colour, marker): the two
+#: methods that share a colour have markers of different families (round / square / triangle), and methods
+#: next to each other in the paper's order differ in both.
+PAPER_METHOD_STYLES = {
+    "blob": (_K, "o"), "th": (_B, "s"), "dtm1": (_V, "^"), "dtm2": (_G, "D"), "lmr": (_P, "v"), "lpm": (_O, "p"),
+    "glpm": (_S, "h"), "gms": (_I, "<"), "vfc": (_W, ">"), "llt": (_K, "^"), "rfm_scan": (_B, "o"),
+    "adalam": (_V, "s"), "oanet": (_G, "o"), "acne": (_P, "s"), "pfm": (_O, "v"), "pgm": (_S, "D"),
+    "scv": (_I, "p"), "bm": (_W, "D"), "dtm": (_K, "s"),
+}
+_PAPER_METHODS = tuple(PAPER_METHOD_STYLES)
 #: Colours of the inlier-ratio bars: precision and recall.
 METRIC_COLORS = {"precision (%)": OKABE_ITO["blue"], "recall (%)": OKABE_ITO["orange"]}
+#: Colour of the cross that marks a bin without a value in the inlier-ratio panels.
+EMPTY_COLOR = "0.35"
 
 
 def method_style(name: str) -> tuple[str, str]:
-    """``(colour, marker)`` of a method: fixed for the paper's methods (``k``-th method: colour ``k mod 7``,
-    marker ``k mod 6``, so that no two of the first 42 share both), deterministic for any other name.
+    """``(colour, marker)`` of a method: fixed for the paper's methods (:data:`PAPER_METHOD_STYLES`: 18 pairs,
+    nine colours), deterministic for any other name (a pair no paper method has).
 
     Examples
     --------
@@ -53,11 +71,11 @@ def method_style(name: str) -> tuple[str, str]:
     >>> method_style("dtm2") != method_style("dtm1")
     True
     """
-    if name in _PAPER_METHODS:
-        k = _PAPER_METHODS.index(name)
-    else:
-        k = len(_PAPER_METHODS) + sum(map(ord, name)) % 23
-    return METHOD_COLORS[k % len(METHOD_COLORS)], METHOD_MARKERS[k % len(METHOD_MARKERS)]
+    if name in PAPER_METHOD_STYLES:
+        return PAPER_METHOD_STYLES[name]
+    taken = set(PAPER_METHOD_STYLES.values())
+    free = [(c, m) for m in METHOD_MARKERS for c in METHOD_COLORS if (c, m) not in taken]
+    return free[sum(map(ord, name)) % len(free)]
 
 
 def _label(name: str, fmt: bool = True) -> str:
@@ -92,8 +110,32 @@ def fit_limits(values, *, pad: float = 0.06, min_span: float = 10.0, bounds=(0.0
     return (round(lo_lim, 3), round(hi_lim, 3))
 
 
+#: Short column headers of the configurations of :data:`ctxmatch_lib.report.SETUPS` (their full definitions:
+#: ``SETUP_TITLES`` there, and the notebook's text).
+SETUP_HEADERS = {
+    "global": "global: every block,\nbaseline and best blob setups",
+    "baseline": "baseline: SIFT+RootSIFT,\none-to-one NNR",
+    "best": "best: HarrisZ+SOSNet (stand-in),\nbest blob setup",
+    "best-rootsgloh2": "best blob setup on\nHarrisZ+RootsGLOH2",
+}
+
+
+def _points(table, models=("none", "1sac")):
+    t = table.droplevel("kind") if "kind" in table.index.names else table
+    methods = method_order(t.index.get_level_values("method"))
+    return [(model, m, float(t.loc[(model, m), "recall (%)"]), float(t.loc[(model, m), "precision (%)"]))
+            for model in models for m in methods if (model, m) in t.index]
+
+
+def row_limits(tables, models=("none", "1sac")) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``(xlim, ylim)`` that show every point of every table (:func:`fit_limits`): one range for the panels of a
+    row of :func:`plot_pr_scatter`, so that positions compare across the row."""
+    pts = [p for t in tables for p in _points(t, models)]
+    return fit_limits([p[2] for p in pts]), fit_limits([p[3] for p in pts])
+
+
 def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sac"), ms: float = 18,
-                    lim=None, connect: bool = False) -> list:
+                    lim=None, xlim=None, ylim=None, connect: bool = False) -> list:
     """Mean precision (y) against mean recall (x): one colour and marker per method (:func:`method_style`),
     hollow without a model, filled after 1SAC, as the paper's Fig. 7; no text at the points (the legend of
     :func:`pr_legend` names the methods).
@@ -110,6 +152,8 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
     lim : (float, float) or None
         Limits of both axes; ``None``: each axis fitted to show every point (:func:`fit_limits`), the blob
         candidates included.
+    xlim, ylim : (float, float) or None
+        Limits of one axis (over ``lim``), e.g. shared by a row of panels (:func:`row_limits`).
     connect : bool
         A thin grey line from each method's no-model point to its 1SAC point.
 
@@ -120,12 +164,13 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
     """
     t = table.droplevel("kind") if "kind" in table.index.names else table
     methods = method_order(t.index.get_level_values("method"))
-    pts = [(model, m, float(t.loc[(model, m), "recall (%)"]), float(t.loc[(model, m), "precision (%)"]))
-           for model in models for m in methods if (model, m) in t.index]
+    pts = _points(t, models)
     if lim is None:
-        xlim, ylim = fit_limits([p[2] for p in pts]), fit_limits([p[3] for p in pts])
+        fx, fy = fit_limits([p[2] for p in pts]), fit_limits([p[3] for p in pts])
     else:
-        xlim = ylim = tuple(lim)
+        fx = fy = tuple(lim)
+    xlim = tuple(xlim) if xlim is not None else fx
+    ylim = tuple(ylim) if ylim is not None else fy
     for model, m, x, y in pts:
         colour, marker = method_style(m)
         filled = model != "none"
@@ -228,7 +273,8 @@ def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1s
         The bins drawn, the same in every panel (:func:`shared_bins`); default: the populated bins of ``table``.
     models, metrics : sequence of str
     min_n : int
-        A bin with fewer cases is left blank (no text: the bins drawn are the populated ones).
+        A bin with fewer cases has no value: a grey cross marks it, as a bin where the method kept no match
+        (precision undefined); a true 0 % is a stroke on the axis, so that neither looks like the other.
     tick_labels : bool
         Bin names under the axis (only on the bottom row of a grid).
     """
@@ -243,8 +289,18 @@ def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1s
             vals = np.array([t.loc[(b, method), metric] if (b, method) in t.index and t.loc[(b, method), "n"] >= min_n
                              else np.nan for b in bins], np.float64)
             filled = model != "none"
-            ax.bar(x - 0.42 + (k + 0.5) * width, np.nan_to_num(vals), width * 0.92,
+            xs = x - 0.42 + (k + 0.5) * width
+            ax.bar(xs, np.nan_to_num(vals), width * 0.92,
                    color=colour if filled else "white", edgecolor=colour, linewidth=0 if filled else 0.6)
+            # A bar of height 0 is invisible, and so is a missing one: a true 0 % gets a stroke on the axis in
+            # its colour, a bin without a value (no case, or nothing kept: no precision) a grey cross.
+            zero, empty = vals == 0, np.isnan(vals)
+            if zero.any():
+                ax.hlines(np.zeros(zero.sum()), xs[zero] - 0.46 * width, xs[zero] + 0.46 * width, colors=colour,
+                          linewidths=1.8, zorder=4, clip_on=False)
+            if empty.any():
+                ax.scatter(xs[empty], np.full(empty.sum(), 6.0), marker="x", s=7, c=EMPTY_COLOR, linewidths=0.6,
+                           zorder=4)
             k += 1
     _bin_edge_ticks(ax, bins, tick_labels)
     ax.set_ylim(0, 100)
@@ -254,8 +310,11 @@ def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1s
         ax.set_title(title, pad=2)
 
 
-def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)", "recall (%)"), **kwargs):
-    """The key of :func:`plot_inlier_method`: one bar per metric and model."""
+def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)", "recall (%)"),
+                  empty: bool = True, **kwargs):
+    """The key of :func:`plot_inlier_method`: one bar per metric and model, and (``empty``) the cross of a bin
+    without a value."""
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     from ..report import MODEL_LABELS
@@ -267,7 +326,26 @@ def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)
             filled = model != "none"
             handles.append(Patch(fc=colour if filled else "white", ec=colour, lw=0 if filled else 0.8))
             labels.append(f"{metric.split(' ')[0]}, {MODEL_LABELS.get(model, model)}")
+    if empty:
+        handles.append(Line2D([], [], ls="", marker="x", ms=3.5, mec=EMPTY_COLOR, mew=0.8))
+        labels.append("no value\n(0 %: a stroke)")
     return fig_or_ax.legend(handles, labels, **kwargs)
+
+
+def bin_axis_label(edges, what: str = "inlier ratio of the blob candidates") -> str:
+    """The x label of the inlier-ratio panels: ``what`` in %, and, when the bins (``edges`` in [0, 1]) are not
+    equally wide, that they are drawn so (the edge values under the axis give their true extent).
+
+    Examples
+    --------
+    >>> bin_axis_label([0, 0.1, 0.2, 0.3, 0.5, 1.0])
+    'inlier ratio of the blob candidates (%); unequal bins drawn equally wide'
+    >>> bin_axis_label([0, 0.5, 1.0])
+    'inlier ratio of the blob candidates (%)'
+    """
+    w = np.diff(np.asarray(edges, np.float64))
+    equal = np.allclose(w, w[0]) if len(w) else True
+    return f"{what} (%)" + ("" if equal else "; unequal bins drawn equally wide")
 
 
 def plot_pair_share(ax, table, *, color="0.45", title: str | None = None, drop_empty: bool = True, bins=None,

@@ -16,16 +16,18 @@ from matplotlib.collections import LineCollection
 from .palette import OKABE_ITO
 from .viz2d import plot_flow, plot_image
 
-__all__ = ["GROUP_COLORS", "DETECTOR_LABELS", "ellipse_polylines", "plot_gt_flows", "plot_support_regions"]
+__all__ = ["GROUP_COLORS", "DETECTOR_LABELS", "ellipse_polylines", "plot_gt_flows", "groups_legend",
+           "plot_support_regions"]
 
 #: One colour per group of the caption (the paper's colour in comments).
+#: The groups drawn together (C ∩ D, C ∖ D, B ∖ C, D ∖ C) have no two blues: sky blue is kept for A ∖ D.
 GROUP_COLORS = {
     "C ∩ D": OKABE_ITO["blue"],  # blue (planar) / yellow (non-planar)
     "C ∖ D": OKABE_ITO["vermillion"],  # red
-    "B ∖ C": OKABE_ITO["sky_blue"],  # light blue (planar) / light red (non-planar)
+    "B ∖ C": OKABE_ITO["reddish_purple"],  # light blue (planar) / light red (non-planar)
     "D ∖ C": OKABE_ITO["orange"],  # orange
     "A ∩ D": OKABE_ITO["bluish_green"],  # yellow
-    "A ∖ D": OKABE_ITO["reddish_purple"],  # light blue
+    "A ∖ D": OKABE_ITO["sky_blue"],  # light blue
     "D ∖ A": OKABE_ITO["yellow"],  # orange
 }
 
@@ -44,7 +46,7 @@ def ellipse_polylines(centres, shapes, n: int = 48) -> np.ndarray:
 
 
 def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7, ps: float = 2.0,
-                  dim: float = 0.55, counts: bool = True) -> None:
+                  dim: float = 0.55, counts: bool = True, legend: bool = True) -> None:
     """Matches of each group as motion flows on image 1 (from the keypoint in image 1 to its match's
     position in image 2), one colour per group.
 
@@ -61,6 +63,9 @@ def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7
         Group name -> colour (default :data:`GROUP_COLORS`).
     counts : bool
         Put each group's size in the legend label.
+    legend : bool
+        A legend on the photo (lower left); without it, draw one key for the figure with :func:`groups_legend`
+        and give the sizes elsewhere (e.g. the panel title).
     """
     colors = GROUP_COLORS if colors is None else colors
     plot_image(ax, img, dim=dim)
@@ -71,8 +76,18 @@ def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7
         mask = np.asarray(mask, bool)
         plot_flow(ax, kpts1[mask], kpts2[mask], color=colors[name], lw=lw, ps=ps)
         handles.append(Line2D([], [], color=colors[name], lw=1.8, label=f"{name} ({mask.sum()})" if counts else name))
-    ax.legend(handles=handles, loc="lower left", fontsize=7, frameon=True, framealpha=0.8, handlelength=1.2,
-              borderpad=0.3, labelspacing=0.2)
+    if legend:
+        ax.legend(handles=handles, loc="lower left", fontsize=7, frameon=True, framealpha=0.8, handlelength=1.2,
+                  borderpad=0.3, labelspacing=0.2)
+
+
+def groups_legend(fig_or_ax, names, *, colors=None, **kwargs):
+    """One key for the groups ``names`` (their :data:`GROUP_COLORS` lines); ``kwargs`` go to ``legend``."""
+    from matplotlib.lines import Line2D
+
+    colors = GROUP_COLORS if colors is None else colors
+    handles = [Line2D([], [], color=colors[n], lw=1.8) for n in names]
+    return fig_or_ax.legend(handles, list(names), **kwargs)
 
 
 def plot_support_regions(ax, img, kpts2, shapes2, carried_centres, carried_shapes, groups, worst, *,

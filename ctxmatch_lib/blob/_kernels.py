@@ -1,0 +1,476 @@
+"""Compiled kernels of blob matching: one pass over float32 GEMM tiles, exact float64 decisions.
+
+The float32 GEMM ``d1 @ d2.T`` only *proposes* candidates. Its rounding depends on the BLAS kernel (SIMD
+width, FMA, blocking), so no decision is taken on its values: every line (row or column of D) keeps the
+``K`` smallest approximate squared distances, and the entries that can be among the ``T`` best under the
+certified error bound ``E`` of the approximation are recomputed in float64 by :func:`_exact_sq` (products
+of float32 are exact in float64, the sum runs in a fixed order, no BLAS), then ranked by (distance, index).
+A line whose bound does not separate (many near ties) is recomputed whole. The decisions are then those of
+the exact distances, on any CPU.
+
+Error bound (Higham, *Accuracy and Stability of Numerical Algorithms*, Sec. 3.1): a float32 dot product of
+length ``d`` in any summation order, with or without FMA, is within ``γ_d |a||b|`` of the exact one
+(``γ_d = d u / (1 - d u)``, ``u = 2^-24``); the squared norms and the two float32 operations that form
+``|a|² + |b|² − 2 a·b`` add a few ``u (|a|² + |b|²)``. With ``2|a||b| <= |a|² + |b|²``, the approximation
+is within ``(2 γ_d + 8u)(|a|² + |b|²)`` (``+ 4u`` more for float64 descriptors rounded to float32);
+:func:`error_scale` doubles that.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .._numba import user_cache
+
+__all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "exact_lines", "greedy_sorted", "greedy_dense",
+           "next_in_line"]
+
+_U = 2.0**-24
+
+
+def error_scale(d: int) -> float:
+    """Factor ``c`` with ``|approx − exact| <= c (|a|² + |b|²)`` for the float32 squared distance, doubled."""
+    gamma = d * _U / (1 - d * _U)
+    return 2.0 * (2 * gamma + 12 * _U)
+
+
+with user_cache() as _cache:
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_sq(A, i, B, j):
+        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8), added
+        in a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction in numba
+        without fastmath."""
+        a, b = A[i], B[j]
+        d = a.shape[0]
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+        d8 = d - d % 8
+        for k in range(0, d8, 8):
+            t0 = np.float64(a[k]) - np.float64(b[k])
+            t1 = np.float64(a[k + 1]) - np.float64(b[k + 1])
+            t2 = np.float64(a[k + 2]) - np.float64(b[k + 2])
+            t3 = np.float64(a[k + 3]) - np.float64(b[k + 3])
+            t4 = np.float64(a[k + 4]) - np.float64(b[k + 4])
+            t5 = np.float64(a[k + 5]) - np.float64(b[k + 5])
+            t6 = np.float64(a[k + 6]) - np.float64(b[k + 6])
+            t7 = np.float64(a[k + 7]) - np.float64(b[k + 7])
+            s0 += t0 * t0
+            s1 += t1 * t1
+            s2 += t2 * t2
+            s3 += t3 * t3
+            s4 += t4 * t4
+            s5 += t5 * t5
+            s6 += t6 * t6
+            s7 += t7 * t7
+        for k in range(d8, d):
+            t0 = np.float64(a[k]) - np.float64(b[k])
+            s0 += t0 * t0
+        return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_block(A, i, B, js, q, out):
+        """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q."""
+        for p in range(q):
+            out[p] = np.sqrt(_exact_sq(A, i, B, js[p]))
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_row(A, i, B, out):
+        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
+        m = B.shape[0]
+        for j in range(m):
+            out[j] = np.sqrt(_exact_sq(A, i, B, j))
+
+    @njit(cache=_cache, nogil=True)
+    def _select(val, idx, line, cnt, K):
+        """Keep the K smallest of ``val[line, :cnt]`` in its first K slots (quickselect); returns the
+        largest kept value (the K-th smallest)."""
+        lo, hi = 0, cnt - 1
+        kth = K - 1
+        while lo < hi:
+            pivot = val[line, (lo + hi) >> 1]
+            a, b = lo, hi
+            while a <= b:
+                while val[line, a] < pivot:
+                    a += 1
+                while val[line, b] > pivot:
+                    b -= 1
+                if a <= b:
+                    val[line, a], val[line, b] = val[line, b], val[line, a]
+                    idx[line, a], idx[line, b] = idx[line, b], idx[line, a]
+                    a += 1
+                    b -= 1
+            if kth <= b:
+                hi = b
+            elif kth >= a:
+                lo = a
+            else:
+                break
+        top = val[line, 0]
+        for p in range(1, K):
+            if val[line, p] > top:
+                top = val[line, p]
+        return top
+
+    @njit(cache=_cache, nogil=True)
+    def _kth(work, cnt, k):
+        """The k-th smallest (0-based) of ``work[:cnt]`` (quickselect; reorders ``work``)."""
+        lo, hi = 0, cnt - 1
+        while lo < hi:
+            pivot = work[(lo + hi) >> 1]
+            a, b = lo, hi
+            while a <= b:
+                while work[a] < pivot:
+                    a += 1
+                while work[b] > pivot:
+                    b -= 1
+                if a <= b:
+                    work[a], work[b] = work[b], work[a]
+                    a += 1
+                    b -= 1
+            if k <= b:
+                hi = b
+            elif k >= a:
+                lo = a
+            else:
+                break
+        return work[k]
+
+    @njit(cache=_cache, nogil=True)
+    def _append(val, idx, cnt, thr, line, K, v, x):
+        """Append to the line's buffer; a full buffer (2K) keeps its K smallest and lowers the threshold."""
+        c = cnt[line]
+        val[line, c] = v
+        idx[line, c] = x
+        c += 1
+        if c == val.shape[1]:
+            thr[line] = _select(val, idx, line, c, K)
+            c = K
+        cnt[line] = c
+
+    @njit(cache=_cache, nogil=True)
+    def finish_lines(val, idx, cnt, K):
+        """Reduce every buffer to its K smallest (after the last tile)."""
+        for line in range(val.shape[0]):
+            if cnt[line] > K:
+                _select(val, idx, line, cnt[line], K)
+                cnt[line] = K
+
+    @njit(cache=_cache, nogil=True)
+    def scan_tile(G, r0, c0, n1, n2, rv, ri, rc, rthr, cv, ci, cc, cthr, Kr, Kc, dense, keep):
+        """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the row and column buffers.
+
+        ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is
+        flagged in a vectorisable pass, then appended to the line's buffer of 2K entries; a full buffer keeps
+        its K smallest and takes the K-th as its new threshold. With ``keep``, ``v`` is also written to
+        ``dense`` (f = Ω).
+        """
+        B, C = G.shape
+        buf = np.empty(C, np.float32)
+        nw = (C + 7) // 8
+        fl = np.zeros(8 * nw, np.uint8)
+        words = fl.view(np.uint64)
+        up = np.float32(np.inf)
+        # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
+        # (which would pass the whole tile through the buffer): the K-th smallest of the minima of 2K
+        # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
+        # and it costs one vectorised pass plus a selection among 2K values.
+        ngc = min(B, 2 * Kc)
+        if B >= Kc and cc[c0] == 0 and cthr[c0] == np.inf:
+            gsz = B // ngc
+            gm = np.full((ngc, C), np.inf, np.float32)
+            for bi in range(ngc * gsz):
+                grp = gm[bi // gsz]
+                grow = G[bi]
+                a = n1[r0 + bi]
+                for jj in range(C):
+                    g = grow[jj]
+                    v = (a + n2[c0 + jj]) - (g + g)
+                    if v < grp[jj]:
+                        grp[jj] = v
+            colw = np.empty(ngc, np.float32)
+            for jj in range(C):
+                j = c0 + jj
+                if cc[j] == 0 and cthr[j] == np.inf:
+                    for q in range(ngc):
+                        colw[q] = gm[q, jj]
+                    cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), up)
+        ngr = min(C, 2 * Kr)
+        roww = np.empty(ngr, np.float32)
+        n2t = n2[c0 : c0 + C]  # views: plain jj indices let LLVM vectorise the pass below
+        ctt = cthr[c0 : c0 + C]
+        for bi in range(B):
+            i = r0 + bi
+            a = n1[i]
+            grow = G[bi]
+            # Vectorisable pass: values and a flag per entry; the scan below skips 8 flags at a time.
+            for jj in range(C):
+                g = grow[jj]
+                buf[jj] = (a + n2t[jj]) - (g + g)
+            if rc[i] == 0 and rthr[i] == np.inf and C >= Kr:
+                for q in range(ngr):
+                    roww[q] = buf[q]
+                for q0 in range(ngr, C - ngr + 1, ngr):  # strided groups {q, q + 2K, q + 4K, ...}
+                    for q in range(ngr):
+                        v = buf[q0 + q]
+                        if v < roww[q]:
+                            roww[q] = v
+                rthr[i] = np.nextafter(_kth(roww, ngr, Kr - 1), up)
+            t = rthr[i]
+            for jj in range(C):
+                v = buf[jj]
+                c = ctt[jj]
+                fl[jj] = np.uint8(v < (t if t > c else c))
+            if keep:
+                drow = dense[i, c0 : c0 + C]
+                for jj in range(C):
+                    drow[jj] = buf[jj]
+            for w in range(nw):
+                if words[w] == 0:
+                    continue
+                for jj in range(8 * w, min(C, 8 * w + 8)):
+                    if fl[jj] == 0:
+                        continue
+                    v = buf[jj]
+                    j = c0 + jj
+                    if v < rthr[i]:
+                        _append(rv, ri, rc, rthr, i, Kr, v, j)
+                    if v < cthr[j]:
+                        _append(cv, ci, cc, cthr, j, Kc, v, i)
+
+    @njit(cache=_cache, nogil=True)
+    def _sort_pairs(val, idx, count):
+        """Insertion sort of the first ``count`` entries by (val, idx), in place."""
+        for p in range(1, count):
+            v, x = val[p], idx[p]
+            q = p - 1
+            while q >= 0 and (val[q] > v or (val[q] == v and idx[q] > x)):
+                val[q + 1] = val[q]
+                idx[q + 1] = idx[q]
+                q -= 1
+            val[q + 1] = v
+            idx[q + 1] = x
+
+    @njit(cache=_cache, nogil=True)
+    def _full_line(A, line, B, T, out_idx, out_val):
+        """The T best entries of a whole line by exact distance, ties by index (stable sort)."""
+        m = B.shape[0]
+        dist = np.empty(m)
+        _exact_row(A, line, B, dist)
+        order = np.argsort(dist, kind="mergesort")
+        for t in range(T):
+            out_idx[line, t] = order[t]
+            out_val[line, t] = dist[order[t]]
+        return m
+
+    @njit(cache=_cache, nogil=True)
+    def certify_lines(A, B, hv, hi, cnt, K, T, norm_a, max_norm_b, scale, out_idx, out_val):
+        """The exact T best entries of every line (rows of ``A`` against ``B``) from its heap of K.
+
+        The T-th smallest approximate value ``τ`` bounds the T-th exact value by ``τ + E``, so every entry
+        among the exact T best has an approximate value ``<= τ + 2E``; when the heap's largest value is above
+        that (or the heap holds the whole line), those entries are all in the heap: they alone are recomputed.
+        Otherwise the whole line is. Returns the number of exact distances computed.
+        """
+        n, m = A.shape[0], B.shape[0]
+        val = np.empty(K)
+        idx = np.empty(K, np.int64)
+        ex = np.empty(K)
+        work = 0
+        for line in range(n):
+            c = cnt[line]
+            for p in range(c):
+                val[p] = hv[line, p]
+                idx[p] = hi[line, p]
+            _sort_pairs(val, idx, c)
+            E = scale * (norm_a[line] + max_norm_b)
+            band = val[T - 1] + 2.0 * E
+            if c == m or val[c - 1] > band:
+                q = 0
+                while q < c and val[q] <= band:
+                    q += 1
+                _exact_block(A, line, B, idx, q, ex)
+                for p in range(q):
+                    val[p] = ex[p]
+                work += q
+                _sort_pairs(val, idx, q)
+                for t in range(T):
+                    out_idx[line, t] = idx[t]
+                    out_val[line, t] = val[t]
+            else:
+                work += _full_line(A, line, B, T, out_idx, out_val)
+        return work
+
+    @njit(cache=_cache, nogil=True)
+    def exact_lines(A, which, B):
+        """Whole lines ``A[which]`` against every row of ``B``: exact distances, float64."""
+        out = np.empty((len(which), B.shape[0]))
+        for r in range(len(which)):
+            _exact_row(A, which[r], B, out[r])
+        return out
+
+    @njit(cache=_cache, nogil=True)
+    def greedy_sorted(rows, cols, n, m, f_prime):
+        """Step 2 on entries already sorted: accept while row and column counts stay <= f'."""
+        rc = np.zeros(n, np.int64)
+        cc = np.zeros(m, np.int64)
+        acc = np.empty(len(rows), np.int64)
+        k = 0
+        for e in range(len(rows)):
+            i, j = rows[e], cols[e]
+            if rc[i] < f_prime and cc[j] < f_prime:
+                rc[i] += 1
+                cc[j] += 1
+                acc[k] = e
+                k += 1
+        return acc[:k]
+
+    @njit(cache=_cache, nogil=True)
+    def next_in_line(Dap, A, line, B, E, d, j, strict, skip, free, pts, t_o2):
+        """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
+
+        ``Dap`` is the line's approximate squared distances (float32, within ``E`` of the exact ones).
+        Candidates: ``free[k]``, ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip`` (FGINN, when
+        ``t_o2 > 0``) and exact distance ``> d`` or ``== d`` with ``k > j`` (``strict``) / ``>= d`` (not
+        ``strict``, any ``k``). Exact distances are computed only for entries whose approximation cannot
+        rule them out. Returns ``(distance, index)``, ``(inf, -1)`` when none qualifies.
+        """
+        m = Dap.shape[0]
+        lo = d * d - 2.0 * E  # below: certainly closer than d
+        floor = -np.inf  # entries with approx <= floor have been looked at
+        best_d, best_k = np.inf, -1
+        while True:
+            mu = np.inf
+            for k in range(m):
+                a = np.float64(Dap[k])
+                if a > floor and a >= lo and a < mu and free[k] and k != skip:
+                    mu = a
+            if mu == np.inf:
+                return best_d, best_k
+            top = mu + 2.0 * E
+            if best_k >= 0:
+                top = max(top, best_d * best_d + 2.0 * E)
+            for k in range(m):
+                a = np.float64(Dap[k])
+                if a > floor and a >= lo and a <= top and free[k] and k != skip:
+                    if t_o2 > 0:
+                        dx = pts[k, 0] - pts[skip, 0]
+                        dy = pts[k, 1] - pts[skip, 1]
+                        if dx * dx + dy * dy < t_o2:
+                            continue
+                    e = np.sqrt(_exact_sq(A, line, B, k))
+                    if e < d or (strict and e == d and k <= j):
+                        continue
+                    if e < best_d or (e == best_d and k < best_k):
+                        best_d, best_k = e, k
+            floor = top
+            # Unseen entries have approx > top, so exact > top - E: certified once that exceeds best_d².
+            if best_k >= 0 and top - E > best_d * best_d * (1.0 + 1e-12):
+                return best_d, best_k
+
+    @njit(cache=_cache, nogil=True)
+    def _hpush(hv, hi, hj, size, v, i, j):
+        p = size
+        while p > 0:
+            q = (p - 1) >> 1
+            if hv[q] > v or (hv[q] == v and (hi[q] > i or (hi[q] == i and hj[q] > j))):
+                hv[p], hi[p], hj[p] = hv[q], hi[q], hj[q]
+                p = q
+            else:
+                break
+        hv[p], hi[p], hj[p] = v, i, j
+        return size + 1
+
+    @njit(cache=_cache, nogil=True)
+    def _hpop(hv, hi, hj, size):
+        v, i, j = hv[0], hi[0], hj[0]
+        size -= 1
+        lv, li, lj = hv[size], hi[size], hj[size]
+        p = 0
+        while True:
+            c = 2 * p + 1
+            if c >= size:
+                break
+            if c + 1 < size and (hv[c + 1] < hv[c] or (hv[c + 1] == hv[c] and (
+                    hi[c + 1] < hi[c] or (hi[c + 1] == hi[c] and hj[c + 1] < hj[c])))):
+                c += 1
+            if hv[c] < lv or (hv[c] == lv and (hi[c] < li or (hi[c] == li and hj[c] < lj))):
+                hv[p], hi[p], hj[p] = hv[c], hi[c], hj[c]
+                p = c
+            else:
+                break
+        if size > 0:
+            hv[p], hi[p], hj[p] = lv, li, lj
+        return v, i, j, size
+
+    @njit(cache=_cache, nogil=True)
+    def greedy_dense(Dap, A, B, lidx, lval, E_rows, f_prime):
+        """Step 2 over all of D (f = Ω): a heap holds each row's next entry in (distance, column) order.
+
+        Rows walk their exact sorted lists first, then continue with :func:`next_in_line` on the
+        approximate dense matrix (exact distances where the approximation cannot decide).
+        """
+        n, m = Dap.shape
+        T = lidx.shape[1]
+        rc = np.zeros(n, np.int64)
+        cc = np.zeros(m, np.int64)
+        free = np.ones(m, np.bool_)
+        ptr = np.zeros(n, np.int64)
+        hv = np.empty(n)
+        hi = np.empty(n, np.int64)
+        hj = np.empty(n, np.int64)
+        size = 0
+        for i in range(n):
+            size = _hpush(hv, hi, hj, size, lval[i, 0], i, lidx[i, 0])
+        out_i = np.empty(n * f_prime, np.int64)
+        out_j = np.empty(n * f_prime, np.int64)
+        out_d = np.empty(n * f_prime)
+        K = 0
+        free_cols = m
+        dummy = np.zeros((1, 2))
+        while size > 0 and free_cols > 0:
+            d, i, j, size = _hpop(hv, hi, hj, size)
+            if cc[j] < f_prime:
+                out_i[K], out_j[K], out_d[K] = i, j, d
+                K += 1
+                rc[i] += 1
+                cc[j] += 1
+                if cc[j] == f_prime:
+                    free[j] = False
+                    free_cols -= 1
+            if rc[i] >= f_prime:
+                continue
+            p = ptr[i] + 1
+            pushed = False
+            while p < T:
+                jj = lidx[i, p]
+                if cc[jj] < f_prime:
+                    ptr[i] = p
+                    size = _hpush(hv, hi, hj, size, lval[i, p], i, jj)
+                    pushed = True
+                    break
+                p += 1
+            if pushed:
+                continue
+            if ptr[i] < T:
+                ptr[i] = T
+                d, j = lval[i, T - 1], lidx[i, T - 1]
+            if T == m:
+                continue
+            e, k = next_in_line(Dap[i], A, i, B, E_rows[i], d, j, True, -1, free, dummy, 0.0)
+            if k >= 0:
+                size = _hpush(hv, hi, hj, size, e, i, k)
+        return out_i[:K], out_j[:K], out_d[:K]
+
+    @njit(cache=_cache, nogil=True)
+    def second_best_dense(Dap, A, B, anchors, others, dist, E_lines, geq, pts, t_o2):
+        """Second-best entries of whole lines (the fallback of step 3) on the approximate dense matrix."""
+        m = Dap.shape[1]
+        out = np.empty(len(anchors))
+        free = np.ones(m, np.bool_)
+        for r in range(len(anchors)):
+            i = anchors[r]
+            d = dist[r] if geq else 0.0
+            e, k = next_in_line(Dap[i], A, i, B, E_lines[i], d, -1, False, others[r], free, pts, t_o2)
+            out[r] = e
+        return out

@@ -1,0 +1,334 @@
+"""Accuracy of an estimated two-view model against the ground truth, and its AUC over pairs (issue 30).
+
+The metrics the field reports after a robust estimator, beside the paper's match-level numbers:
+
+* planar pairs: the **mean corner error** of an estimated homography (:func:`homography_corner_error`): the
+  four corners of image 1 mapped by the estimate and by the ground truth, the mean of the four distances
+  in image-2 pixels (glue-factory's ``homography_corner_error``, ``gluefactory/geometry/homography.py``);
+  ``inf`` when there is no model;
+* pairs with ground-truth correspondences (hand-taken points, or the dense flow of depth and synthetic pairs
+  sampled by :func:`gt_correspondences`): the **share of them consistent with an estimated F**, i.e. whose
+  symmetric epipolar distance (:func:`symmetric_epipolar_distance`) is at most ``theta`` pixels, for
+  ``theta`` = 1 ... 19 (:func:`epipolar_consistency`; the WxBS benchmark's
+  ``fraction_of_gt_corrs_consisent_with_F``, ducha-aiki/wxbs-benchmark ``metrics.ipynb``); 0 when there is
+  no model;
+* over pairs: the **AUC** of the cumulative error curve up to a threshold (:func:`pose_auc`, SuperGlue's
+  ``pose_auc``, ``models/utils.py`` of magicleap/SuperGluePretrainedNetwork): pairs without a model enter
+  with an infinite error and stay in the denominator.
+
+Keypoints and points are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
+pixel; ``H`` maps image 1 to image 2 and ``F`` satisfies ``x2^T F x1 = 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import as_points
+from .datasets.base import EpipolarGT, FlowGT, HomographyGT
+from .geometry import apply_homography, epipolar_distances
+
+__all__ = [
+    "EPIPOLAR_THRESHOLDS_PX",
+    "CORNER_AUC_THRESHOLDS_PX",
+    "FLOW_SAMPLE_POINTS",
+    "image_corners",
+    "homography_corner_error",
+    "symmetric_epipolar_distance",
+    "epipolar_consistency",
+    "gt_correspondences",
+    "pose_auc",
+    "time_to_geometry",
+    "geometry_table",
+]
+
+#: The thresholds ``theta`` of the epipolar consistency, in pixels: 1 ... 19 (WxBS scores 0 ... 19; the share
+#: at 0 px is 0 for any real estimate, so it is left out of the mean here).
+EPIPOLAR_THRESHOLDS_PX = np.arange(1, 20, dtype=np.float64)
+
+#: The thresholds of the AUC of the corner error that glue-factory's HPatches evaluation reports (1, 3, 5 px),
+#: and 10 px.
+CORNER_AUC_THRESHOLDS_PX = (1.0, 3.0, 5.0, 10.0)
+
+#: How many correspondences :func:`gt_correspondences` samples from a dense ground truth.
+FLOW_SAMPLE_POINTS = 2000
+
+
+def image_corners(image_size) -> np.ndarray:
+    """The four outer corners of an image of ``(width, height)`` pixels, clockwise from the top left.
+
+    With the origin at the centre of the top-left pixel, the image spans ``[-0.5, width - 0.5]`` by
+    ``[-0.5, height - 0.5]``.
+
+    Returns
+    -------
+    ndarray of shape (4, 2)
+
+    Examples
+    --------
+    >>> image_corners((4, 2))
+    array([[-0.5, -0.5],
+           [ 3.5, -0.5],
+           [ 3.5,  1.5],
+           [-0.5,  1.5]])
+    """
+    size = np.asarray(image_size, dtype=np.float64).reshape(-1)
+    if size.shape != (2,) or not np.isfinite(size).all() or (size <= 0).any():
+        raise ValueError(f"image_size must be (width, height) in pixels, got {image_size!r}")
+    w, h = size
+    return np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]]) - 0.5
+
+
+def homography_corner_error(H, H_gt, image_size) -> float:
+    """Mean distance between the image-1 corners mapped by ``H`` and by ``H_gt``, in image-2 pixels.
+
+    glue-factory's ``homography_corner_error`` (the HPatches metric of SuperPoint, LoFTR and LightGlue):
+    the four corners of image 1 (:func:`image_corners`) are mapped by both homographies and the four
+    Euclidean distances averaged. glue-factory puts the origin at the top-left corner of the top-left pixel;
+    the same homographies written in that convention give the same value.
+
+    Parameters
+    ----------
+    H : array_like of shape (3, 3) or None
+        The estimate (image 1 -> image 2); ``None`` when the estimator found no model.
+    H_gt : array_like of shape (3, 3)
+        The ground truth.
+    image_size : (int, int)
+        (width, height) of image 1.
+
+    Returns
+    -------
+    float
+        ``inf`` when there is no model or a corner is mapped to infinity.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> shift = np.array([[1.0, 0, 3], [0, 1, 4], [0, 0, 1]])
+    >>> homography_corner_error(shift, np.eye(3), (640, 480))
+    5.0
+    """
+    corners = image_corners(image_size)
+    H_gt = _matrix(H_gt, "H_gt")
+    if H is None:
+        return float("inf")
+    H = _matrix(H, "H")
+    d = np.linalg.norm(apply_homography(H, corners) - apply_homography(H_gt, corners), axis=1)
+    if not np.isfinite(d).all():
+        return float("inf")
+    return float(d.mean())
+
+
+def _matrix(M, name: str) -> np.ndarray:
+    M = np.asarray(M, dtype=np.float64)
+    if M.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 matrix, got shape {M.shape}")
+    return M
+
+
+def symmetric_epipolar_distance(F, pts1, pts2) -> np.ndarray:
+    """``sqrt(d1^2 + d2^2)``: the two point-to-epipolar-line distances of each correspondence combined.
+
+    ``d2`` is the distance in image 2 of ``x2`` from the line ``F x1``, ``d1`` that in image 1 of ``x1`` from
+    ``F^T x2`` (:func:`~ctxmatch_lib.geometry.epipolar_distances`). This is kornia's
+    ``symmetrical_epipolar_distance(..., squared=False)``, the distance the WxBS benchmark thresholds:
+    ``(x2^T F x1)^2 (1 / |(F x1)_{1,2}|^2 + 1 / |(F^T x2)_{1,2}|^2)``, square-rooted.
+
+    Parameters
+    ----------
+    F : array_like of shape (3, 3)
+    pts1, pts2 : array_like of shape (N, 2)
+        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+
+    Returns
+    -------
+    ndarray of shape (N,)
+        ``inf`` where a point lies at an epipole (degenerate line).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> F = np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # a horizontal translation: lines y' = y
+    >>> symmetric_epipolar_distance(F, [[0.0, 0.0], [5.0, 2.0]], [[3.0, 0.0], [1.0, 5.0]])
+    array([0.        , 4.24264069])
+    """
+    d2, d1 = epipolar_distances(_matrix(F, "F"), pts1, pts2)
+    return np.hypot(d1, d2)
+
+
+def epipolar_consistency(F, pts1, pts2, thresholds=EPIPOLAR_THRESHOLDS_PX) -> np.ndarray:
+    """Share of ground-truth correspondences whose symmetric epipolar distance under ``F`` is at most
+    each threshold (the WxBS benchmark's score of a fundamental matrix).
+
+    Parameters
+    ----------
+    F : array_like of shape (3, 3) or None
+        The estimate; ``None`` when the estimator found no model (every share is then 0).
+    pts1, pts2 : array_like of shape (N, 2)
+        Ground-truth correspondences, (x, y) pixels, origin at the centre of the top-left pixel.
+    thresholds : array_like of shape (T,)
+        In pixels (default 1 ... 19).
+
+    Returns
+    -------
+    ndarray of shape (T,)
+        Fractions in [0, 1]; NaN when there is no correspondence.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> F = np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    >>> epipolar_consistency(F, [[0, 0], [5, 2]], [[3, 0], [1, 5]], thresholds=[1, 5])
+    array([0.5, 1. ])
+    """
+    pts1 = as_points(pts1, "pts1")
+    pts2 = as_points(pts2, "pts2", n=len(pts1))
+    th = np.asarray(thresholds, dtype=np.float64).reshape(-1)
+    if len(pts1) == 0:
+        return np.full(len(th), np.nan)
+    if F is None:
+        return np.zeros(len(th))
+    d = symmetric_epipolar_distance(F, pts1, pts2)
+    return (d[:, None] <= th[None, :]).mean(axis=0)
+
+
+def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
+    """Ground-truth correspondences to score a fundamental matrix on, or ``None``.
+
+    ``EpipolarGT``: its hand-taken points. ``FlowGT``: up to ``max_points`` pixels of image 1 with a known
+    displacement, evenly spaced in row-major order (deterministic), each with its target ``x + flow12``.
+    ``HomographyGT``: ``None`` (planar pairs are scored by the corner error).
+
+    Returns
+    -------
+    (pts1, pts2) : ndarrays of shape (N, 2), or None
+    """
+    if isinstance(gt, EpipolarGT):
+        return np.asarray(gt.pts1, np.float64), np.asarray(gt.pts2, np.float64)
+    if isinstance(gt, HomographyGT):
+        return None
+    if not isinstance(gt, FlowGT):
+        raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
+    if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)) or max_points < 1:
+        raise ValueError(f"max_points must be a positive integer, got {max_points!r}")
+    flow = np.asarray(gt.flow12, np.float64)
+    known = np.flatnonzero(np.isfinite(flow).all(axis=2).reshape(-1))
+    if len(known) > max_points:
+        known = known[np.unique(np.round(np.linspace(0, len(known) - 1, int(max_points))).astype(np.int64))]
+    row, col = np.divmod(known, flow.shape[1])
+    pts1 = np.c_[col, row].astype(np.float64)
+    return pts1, pts1 + flow.reshape(-1, 2)[known]
+
+
+def pose_auc(errors, thresholds) -> np.ndarray:
+    """Area under the cumulative error curve up to each threshold, divided by the threshold.
+
+    SuperGlue's ``pose_auc``: the recall ``r(e)`` (share of pairs with an error below ``e``) is linearly
+    interpolated between the sorted errors, starting from ``(0, 0)``, integrated from 0 to ``t`` and divided
+    by ``t``. Every pair stays in the denominator: a pair without a model has an infinite error (NaN counts
+    as infinite too). An error equal to ``t`` counts from above ``t``, as there.
+
+    Parameters
+    ----------
+    errors : array_like of shape (N,)
+        Non-negative errors, one per pair (``inf`` for a failure).
+    thresholds : array_like of shape (T,)
+        Positive.
+
+    Returns
+    -------
+    ndarray of shape (T,)
+        In [0, 1]; NaN for every threshold when there is no pair.
+
+    Examples
+    --------
+    >>> pose_auc([0.0, 2.0, float("inf"), 1.0], [1.0, 2.0])
+    array([0.25  , 0.4375])
+    """
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    th = np.asarray(thresholds, dtype=np.float64).reshape(-1)
+    if (th <= 0).any() or not np.isfinite(th).all():
+        raise ValueError(f"thresholds must be positive and finite, got {th.tolist()}")
+    if (e < 0).any():
+        raise ValueError("errors must be non-negative (inf or NaN for a pair without a model)")
+    n = len(e)
+    if n == 0:
+        return np.full(len(th), np.nan)
+    e = np.sort(np.where(np.isnan(e), np.inf, e))
+    out = np.empty(len(th))
+    for i, t in enumerate(th):
+        k = int(np.searchsorted(e, t, side="left"))  # pairs with an error below t
+        x = np.r_[0.0, e[:k], t]
+        r = np.r_[0.0, np.arange(1, k + 1) / n, k / n]
+        out[i] = np.sum(np.diff(x) * (r[1:] + r[:-1])) / 2.0 / t
+    return out
+
+
+def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn")):
+    """Seconds from the features to the model of each row of the evaluation engine: the row's ``time_s`` and
+    ``model_time_s``, plus, for a filter, the ``time_s`` of the blob candidates it filtered (the ``blob`` row
+    of the same pair, features and blob setup). NaN for model ``none``.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Rows with :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`.
+    standalone : sequence of str
+        Methods that do not run on the blob candidates (the blob candidates themselves, the OpenCV matchers).
+
+    Returns
+    -------
+    pandas.Series
+        Aligned with ``rows``.
+    """
+    keys = ["dataset", "pair_id", "features", "blob"]
+    blob_time = rows[rows["method"] == "blob"].groupby(keys)["time_s"].first().rename("_blob_time_s")
+    base = rows[keys].join(blob_time, on=keys)["_blob_time_s"].where(~rows["method"].isin(standalone), 0.0)
+    total = rows["time_s"] + rows["model_time_s"] + base
+    return total.where(rows["model"] != "none")
+
+
+def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX):
+    """The model's accuracy over pairs, per group: the AUC of the corner error (planar rows), the mean
+    epipolar consistency (other rows), pairs left without a model, the mean time to geometry.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Rows of the evaluation engine; rows with model ``none`` or an ``error`` are left out.
+    by : sequence of str
+        Grouping columns.
+    thresholds : sequence of float
+        Of the AUC (:func:`pose_auc`), in pixels.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Indexed by ``by``: ``pairs``, ``auc_<t>px_pct`` (planar: :func:`pose_auc` of ``corner_error`` in %,
+        pairs without a model at infinity), ``epi_share_mean_pct`` and ``epi_share_<t>_pct`` (other kinds: means
+        over pairs in %), ``no_model`` (pairs where the estimator returned no model), ``geometry_time_s`` and
+        ``geometry_time_median_s`` (mean and median :func:`time_to_geometry`: the mean carries any one-off cost,
+        such as compiling kernels on a cold cache, charged to the first pair).
+    """
+    import pandas as pd
+
+    by = list(by)
+    ok = rows[(rows["model"] != "none") & (rows["error"] == "")].copy()
+    ok["_t"] = time_to_geometry(rows).loc[ok.index]
+    share_cols = [c for c in ok.columns if c.startswith("epi_share_")]
+    out = []
+    for key, g in ok.groupby(by, sort=False):
+        rec = dict(zip(by, key if isinstance(key, tuple) else (key,)))
+        planar = g["corner_error"].notna()
+        rec["pairs"] = len(g)
+        aucs = pose_auc(g.loc[planar, "corner_error"].to_numpy(), thresholds) if planar.any() else \
+            np.full(len(thresholds), np.nan)
+        rec.update({f"auc_{t:g}px_pct": 100 * a for t, a in zip(thresholds, aucs)})
+        rec.update({f"{c}_pct": 100 * g.loc[~planar, c].mean() for c in share_cols})
+        rec["no_model"] = int((g["model_inliers"] == 0).sum())
+        rec["geometry_time_s"] = g["_t"].mean()
+        rec["geometry_time_median_s"] = g["_t"].median()
+        out.append(rec)
+    cols = [*by, "pairs", *(f"auc_{t:g}px_pct" for t in thresholds), *(f"{c}_pct" for c in share_cols), "no_model",
+            "geometry_time_s", "geometry_time_median_s"]
+    return pd.DataFrame(out, columns=cols).set_index(by)

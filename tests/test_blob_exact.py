@@ -1,0 +1,104 @@
+"""Blob matching's decisions do not depend on the BLAS kernel (issue 31) and equal a dense float64 reference."""
+
+import json
+import os
+import platform
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ctxmatch_lib.blob import BLOB_PRESETS, BlobConfig, BlobContext, blob_matching
+
+SETUPS = [BLOB_PRESETS["paper-best"], BLOB_PRESETS["baseline"],
+          BlobConfig(f=3, prefilter="cap", f_prime=3, ratio="D+>=", t_o=5.0, combine="max"),
+          BlobConfig(f="omega", f_prime=2, ratio="D>=", t_o=8.0, combine="min")]
+
+
+def planted(seed, n, m, d=32, ties=False):
+    """RootSIFT-like unit descriptors, half of image 2 noisy copies of image 1; ``ties``: small integers."""
+    rng = np.random.default_rng(seed)
+    if ties:
+        d1 = rng.integers(0, 3, (n, d)).astype(np.float32)
+        d2 = np.vstack([d1[: m // 3], rng.integers(0, 3, (m - m // 3, d))]).astype(np.float32)
+    else:
+        d1 = np.abs(rng.normal(size=(n, d))).astype(np.float32)
+        d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
+        d2 = np.abs(rng.normal(size=(m, d))).astype(np.float32)
+        k = min(n, m) // 2
+        d2[:k] = d1[rng.choice(n, k, replace=False)] + 0.2 * np.abs(rng.normal(size=(k, d))).astype(np.float32) / d
+        d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
+    k1, k2 = rng.uniform(0, 60, (n, 2)), rng.uniform(0, 60, (m, 2))
+    return d1, d2, k1, k2
+
+
+def dense_reference(d1, d2, k1, k2, cfg):
+    """Blob matching on the dense float64 distance matrix (differences squared and summed in float64)."""
+    D = np.sqrt(((d1[:, None, :].astype(np.float64) - d2[None].astype(np.float64)) ** 2).sum(-1))
+    return blob_matching(distances=D, kpts1=k1, kpts2=k2, **cfg.kwargs())
+
+
+@pytest.mark.parametrize("cfg", SETUPS, ids=lambda c: c.label)
+@pytest.mark.parametrize("seed, n, m, ties", [(0, 300, 260, False), (1, 90, 400, False), (2, 250, 200, True)])
+def test_descriptors_equal_the_dense_float64_reference(cfg, seed, n, m, ties):
+    d1, d2, k1, k2 = planted(seed, n, m, ties=ties)
+    got = blob_matching(d1, d2, kpts1=k1, kpts2=k2, **cfg.kwargs())
+    ref = dense_reference(d1, d2, k1, k2, cfg)
+    assert np.array_equal(got.matches, ref.matches)
+    # Distances agree to the last bits only: the reference sums in numpy's order, the kernel in its own.
+    assert np.allclose(got.scores, ref.scores, rtol=1e-12, atol=1e-14)
+
+
+def test_sorted_lists_hold_the_exact_best_entries_with_ties_by_index():
+    d1, d2, _, _ = planted(3, 200, 180, ties=True)
+    ctx = BlobContext(d1, d2, depth=5)
+    D = np.sqrt(((d1[:, None, :].astype(np.float64) - d2[None]) ** 2).sum(-1))
+    T = ctx.rows.idx.shape[1]
+    for i in range(len(d1)):
+        order = np.lexsort((np.arange(D.shape[1]), D[i]))[:T]
+        assert np.array_equal(ctx.rows.idx[i], order)
+    assert np.allclose(ctx.rows.val, np.take_along_axis(D, ctx.rows.idx, 1), rtol=1e-12)
+
+
+def test_empty_inputs():
+    d = np.zeros((0, 8), np.float32)
+    e = np.ones((3, 8), np.float32)
+    for a, b in ((d, e), (e, d), (d, d)):
+        out = blob_matching(a, b, t_o=None)
+        assert out.matches.shape == (0, 2) and out.scores.shape == (0,)
+
+
+CHILD = r"""
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_blob_exact import SETUPS, planted
+from ctxmatch_lib.blob import blob_matching
+out = []
+for seed, n, m, ties in [(0, 700, 650, False), (2, 300, 280, True)]:
+    d1, d2, k1, k2 = planted(seed, n, m, d=128, ties=ties)
+    for cfg in SETUPS:
+        r = blob_matching(d1, d2, kpts1=k1, kpts2=k2, **cfg.kwargs())
+        out.append([r.matches.tolist(), [float(s).hex() for s in r.scores]])
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="OPENBLAS_CORETYPE names x86-64 kernels")
+def test_outputs_identical_under_every_openblas_kernel():
+    """The same candidates and scores, bit for bit, whichever SIMD kernels OpenBLAS picks."""
+    here = os.path.dirname(__file__)
+    results = {}
+    for core in (None, "Haswell", "Nehalem", "Prescott"):
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+        env.pop("OPENBLAS_CORETYPE", None)
+        if core:
+            env["OPENBLAS_CORETYPE"] = core
+        proc = subprocess.run([sys.executable, "-c", CHILD, here], env=env, capture_output=True, text=True,
+                              check=True)
+        results[core or "default"] = json.loads(proc.stdout)
+    first = results["default"]
+    for core, res in results.items():
+        assert res == first, core

@@ -1,0 +1,62 @@
+"""The geometry plots (issue 30) on hand-built rows: what is drawn, where."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from ctxmatch_lib.geometry_metrics import geometry_table  # noqa: E402
+from ctxmatch_lib.plots.geometry import (  # noqa: E402
+    accuracy_column,
+    geometry_legend,
+    method_name,
+    plot_accuracy_vs_time,
+    plot_cumulative_errors,
+)
+
+
+def _rows():
+    base = dict(dataset="d", features="f", blob="b", error="", kind="planar", model="magsac", model_inliers=9.0,
+                epi_share_mean=np.nan)
+    rows = []
+    for i, (e_blob, e_dtm) in enumerate([(0.5, 0.2), (3.0, 1.5), (np.inf, 4.0), (20.0, np.inf)]):
+        pid = f"p{i}"
+        rows += [dict(base, pair_id=pid, method="blob", time_s=1.0, model_time_s=1.0, corner_error=e_blob),
+                 dict(base, pair_id=pid, method="dtm", time_s=0.5, model_time_s=0.5, corner_error=e_dtm),
+                 dict(base, pair_id=pid, method="opencv_ratio", time_s=0.1, model_time_s=0.1, corner_error=1.0)]
+    return pd.DataFrame(rows)
+
+
+def test_accuracy_vs_time_draws_one_point_per_method():
+    table = geometry_table(_rows(), by=("kind", "method", "model"))
+    fig, ax = plt.subplots()
+    pts = plot_accuracy_vs_time(ax, table, "planar", model="magsac", auc_px=5.0)
+    at = {m: (x, y) for m, x, y in pts}
+    assert set(at) == {"blob", "dtm", "opencv_ratio"}
+    assert at["blob"][0] == 2.0 and at["dtm"][0] == 1.0 + 0.5 + 0.5  # DTM's time adds the blob time
+    # Every pair at 1 px: SuperGlue's curve rises from (0, 0) to (1, 1/4), jumps to 1, stays: (1/8 + 4) / 5.
+    assert at["opencv_ratio"] == (0.2, 82.5)
+    assert ax.get_xscale() == "log" and ax.get_ylabel() == accuracy_column("planar")[1]
+    geometry_legend(fig, [m for m, _, _ in pts])
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["blob", "DTM", "OpenCV ratio 0.8"]
+    plt.close(fig)
+
+
+def test_cumulative_errors_share_below_the_limit():
+    fig, ax = plt.subplots()
+    shares = plot_cumulative_errors(ax, _rows(), ["blob", "dtm", "opencv_ratio", "gms"], model="magsac", max_px=10)
+    assert shares == {"blob": 0.5, "dtm": 0.75, "opencv_ratio": 1.0}  # no gms rows: no curve
+    assert len(ax.lines) == 3
+    x, y = ax.lines[0].get_data()
+    np.testing.assert_array_equal(x, [0.0, 0.5, 3.0, 10.0])
+    np.testing.assert_array_equal(y, [0.0, 25.0, 50.0, 50.0])
+    plt.close(fig)
+
+
+def test_names_and_columns():
+    assert method_name("opencv_mnn") == "OpenCV MNN" and method_name("dtm2") == "DTM$_2$"
+    assert accuracy_column("nonplanar")[0] == "epi_share_mean_pct"
+    assert accuracy_column("planar", 10)[0] == "auc_10px_pct"
