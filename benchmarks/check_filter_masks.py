@@ -151,6 +151,8 @@ def main(argv=None) -> int:
     parser.add_argument("--blobs", nargs="+", default=["paper-best", "baseline"])
     parser.add_argument("--max-keypoints", default="paper")
     parser.add_argument("--filters", default="", help="comma-separated names (default: every registered filter)")
+    parser.add_argument("--inputs", type=Path, metavar="IN.npz",
+                        help="with --save: take the candidate sets saved in IN.npz instead of building them")
     parser.add_argument("--tag-scores", action="store_true",
                         help="the real sets' scores carry their blob ratio (as blob_matching returns them)")
     args = parser.parse_args(argv)
@@ -165,6 +167,9 @@ def main(argv=None) -> int:
         saved = np.load(args.compare)
         sets = _unflatten(saved)
         print(f"{len(sets)} candidate sets read from {args.compare}")
+    elif args.inputs is not None:
+        sets = _unflatten(np.load(args.inputs))
+        print(f"{len(sets)} candidate sets read from {args.inputs}")
     else:
         sets = planted_sets()
         if args.pairs > 0:
