@@ -333,6 +333,13 @@ def glpm_filter(
     33.0-39.1 / 36.7-52.6, around ours. Without counting coincident copies once (above) the baseline gives
     J 0.962 / 0.915.
 
+    The guide's ``ratio`` is an NNR ratio read on the scale of the scores (issue 32): on D+ blob scores
+    (``r / (1 + r)``) 1/1.5 becomes 0.4. The measurements above passed the scores as plain arrays, so 1/1.5
+    was read on the D+ scale there, where it holds every candidate of the best configuration. Read on their
+    scale (``benchmarks/ablate_peer_filters.py --config best --sweep glpm:ratio=0.6667,0.4 --pairs 40``,
+    HarrisZ + SOSNet stand-in, ``paper-best-overlap``): P / R 48.5 / 54.6 -> 55.8 / 63.1 (planar) and
+    43.7 / 44.7 -> 61.2 / 50.9 (non-planar).
+
     References
     ----------
     J. Ma, J. Jiang, H. Zhou, J. Zhao, X. Guo, "Guided locality preserving feature matching for remote
