@@ -40,6 +40,8 @@ __all__ = [
     "PAPER_GT_COUNTS",
     "with_inlier_ratio",
     "inlier_bin_table",
+    "GEOMETRY_TIME_COLUMNS",
+    "geometry_markdown",
 ]
 
 #: Display names of the methods, as in the paper; models trained here and stand-ins say so in their name.
@@ -48,10 +50,11 @@ METHOD_LABELS = {
     "lpm": "LPM", "glpm": "GLPM", "gms": "GMS", "vfc": "VFC", "llt": "LLT", "rfm_scan": "RFM-SCAN",
     "adalam": "AdaLAM", "oanet": "OANet (trained here)", "acne": "ACNe (trained here)", "pfm": "PFM",
     "pgm": "PGM", "scv": "SCV (stand-in)", "bm": "BM",
+    "opencv_ratio": "OpenCV ratio 0.8", "opencv_mnn": "OpenCV MNN",  # the matchers a user would pick instead
 }
 #: Row order of the paper's Tables 1-3.
 _ORDER = ("blob", "th", "dtm", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", "llt", "rfm_scan", "adalam",
-          "oanet", "acne", "pfm", "pgm", "scv", "bm")
+          "oanet", "acne", "pfm", "pgm", "scv", "bm", "opencv_ratio", "opencv_mnn")
 #: Short names of the feature presets for titles and tables; the stand-ins say so (full lines:
 #: :data:`ctxmatch_lib.features.FEATURE_DESCRIPTIONS`).
 FEATURE_LABELS = {
@@ -62,7 +65,7 @@ FEATURE_LABELS = {
     "harrisz-sosnet": "HarrisZ+SOSNet (stand-in)",
 }
 KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (stereo)"}
-MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC"}
+MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC", "magsac": "MAGSAC"}
 
 #: Row selections of the paper's three configurations (Sec. 5.3, Tables 1-3): column -> required value (or a
 #: tuple of accepted values). "global" pools every evaluated feature block under the two blob setups the
@@ -334,3 +337,45 @@ def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> p
     out["n"] = out["n"].fillna(0).astype(int)
     out["share (%)"] = share.reindex(labels).to_numpy().repeat(len(models) * len(methods))
     return out
+
+
+#: Columns of :func:`~ctxmatch_lib.geometry_metrics.geometry_table` that hold running times: they change from
+#: run to run, so the tracked geometry tables leave them out (the notebook writes them under ``executed/``).
+GEOMETRY_TIME_COLUMNS = ("geometry_time_s", "geometry_time_median_s")
+
+
+def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "") -> str:
+    """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report (``geometry.md``), the
+    running times left out (:data:`GEOMETRY_TIME_COLUMNS`): the same numbers give the same bytes.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Indexed by (setup, kind, method, model) or any index; AUCs and shares in %, ``pairs``, ``no_model``.
+    title : str
+        The first heading.
+    provenance : dict
+        Printed on the provenance line.
+    notes : str
+        A paragraph under the provenance line.
+
+    Returns
+    -------
+    str
+    """
+    t = table.drop(columns=[c for c in GEOMETRY_TIME_COLUMNS if c in table.columns]).dropna(axis=1, how="all")
+    names = list(t.index.names)
+    labels = {"kind": KIND_LABELS, "model": MODEL_LABELS}
+    lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
+    if notes:
+        lines.append(notes + "\n")
+    lines += ["| " + " | ".join(names + list(t.columns)) + " |",
+              "|" + "|".join([":--"] * len(names) + ["--:"] * len(t.columns)) + "|"]
+    for key, row in t.iterrows():
+        key = key if isinstance(key, tuple) else (key,)
+        cells = [labels.get(n, {}).get(v, METHOD_LABELS.get(v, v)) if n in labels or n == "method" else str(v)
+                 for n, v in zip(names, key)]
+        cells += ["" if pd.isna(v) else (f"{v:.0f}" if c in ("pairs", "no_model") else f"{v:.2f}")
+                  for c, v in row.items()]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

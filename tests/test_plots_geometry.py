@@ -60,3 +60,27 @@ def test_names_and_columns():
     assert method_name("opencv_mnn") == "OpenCV MNN" and method_name("dtm2") == "DTM$_2$"
     assert accuracy_column("nonplanar")[0] == "epi_share_mean_pct"
     assert accuracy_column("planar", 10)[0] == "auc_10px_pct"
+
+
+def test_accuracy_by_method_sorts_by_auc_and_names_pairs_without_a_model():
+    from ctxmatch_lib.plots.geometry import plot_accuracy_by_method
+
+    rows = _rows()
+    rows.loc[np.isinf(rows.corner_error), "model_inliers"] = 0  # the estimator returned no model
+    table = geometry_table(rows, by=("kind", "method", "model"))
+    fig, ax = plt.subplots()
+    order = plot_accuracy_by_method(ax, table, "planar", model="magsac")
+    # Top to bottom by AUC at 5 px: OpenCV (every pair at 1 px), DTM (0.2, 1.5, 4, failure), blob.
+    assert order == ["opencv_ratio", "dtm", "blob"]
+    labels = [t.get_text() for t in ax.get_yticklabels()][::-1]
+    assert labels == ["OpenCV ratio 0.8", "DTM (1 w/o model)", "blob (1 w/o model)"]
+    plt.close(fig)
+
+
+def test_geometry_markdown_leaves_the_times_out():
+    from ctxmatch_lib.report import geometry_markdown
+
+    table = geometry_table(_rows(), by=("kind", "method", "model"))
+    text = geometry_markdown(table, title="t", provenance={"dataset": "d"})
+    assert "geometry_time" not in text and "| planar | DTM | MAGSAC | 4 |" in text
+    assert text == geometry_markdown(table, title="t", provenance={"dataset": "d"})

@@ -24,7 +24,7 @@ from numba import njit
 from .._numba import user_cache
 
 __all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "exact_lines", "greedy_sorted", "greedy_dense",
-           "next_in_line"]
+           "next_in_line", "first_allowed"]
 
 _U = 2.0**-24
 
@@ -136,7 +136,7 @@ with user_cache() as _cache:
                 break
         return work[k]
 
-    @njit(cache=_cache, nogil=True)
+    @njit(cache=_cache, nogil=True, inline="always")
     def _append(val, idx, cnt, thr, line, K, v, x):
         """Append to the line's buffer; a full buffer (2K) keeps its K smallest and lowers the threshold."""
         c = cnt[line]
@@ -474,3 +474,29 @@ with user_cache() as _cache:
             e, k = next_in_line(Dap[i], A, i, B, E_lines[i], d, -1, False, others[r], free, pts, t_o2)
             out[r] = e
         return out
+
+    @njit(cache=_cache, nogil=True)
+    def first_allowed(cand, vals, others, dist, geq, pts, t_o2):
+        """Second best on sorted lists: per row the first entry that is not the match itself, not below
+        ``dist`` (``geq``) and not within ``sqrt(t_o2)`` pixels of the matched keypoint (FGINN, ``t_o2 > 0``);
+        ``inf`` and ``found = False`` when none is."""
+        K, L = cand.shape
+        out = np.full(K, np.inf)
+        found = np.zeros(K, np.bool_)
+        for r in range(K):
+            o = others[r]
+            for q in range(L):
+                k = cand[r, q]
+                if k == o:
+                    continue
+                if geq and vals[r, q] < dist[r]:
+                    continue
+                if t_o2 > 0:
+                    dx = pts[k, 0] - pts[o, 0]
+                    dy = pts[k, 1] - pts[o, 1]
+                    if dx * dx + dy * dy < t_o2:
+                        continue
+                out[r] = vals[r, q]
+                found[r] = True
+                break
+        return out, found

@@ -476,14 +476,17 @@ class BlobContext:
             if geq:
                 ok &= vals >= dist[:, None]
             ok = self._first_not_overlapping(1 - side, cand, others, ok, t_o)
+            out[:] = np.where(ok, vals, np.inf).min(axis=1)
+            ok = ok.any(axis=1)
         else:
-            ok = ~self._excluded(1 - side, cand, others, t_o, t_o_kind)
-            if geq:
-                ok &= vals >= dist[:, None]
-        out[:] = np.where(ok, vals, np.inf).min(axis=1)
+            pts = self.kpts[1 - side] if t_o is not None else None
+            out[:], ok = _kernels.first_allowed(
+                np.ascontiguousarray(cand), np.ascontiguousarray(vals), np.asarray(others, np.int64),
+                np.asarray(dist, np.float64), geq, np.zeros((1, 2)) if pts is None else np.asarray(pts, np.float64),
+                0.0 if t_o is None else float(t_o) * float(t_o))
         if not lists.complete:
             # Nothing qualified among the T best: scan the whole line (rare).
-            miss = np.flatnonzero(~ok.any(axis=1))
+            miss = np.flatnonzero(~ok)
             if self._exact and self._approx is not None and (t_o is None or t_o_kind == "px") and len(miss):
                 X = self._X
                 Dap = self._approx if side == 0 else self._approx.T
@@ -491,7 +494,7 @@ class BlobContext:
                 out[miss] = _kernels.second_best_dense(
                     Dap, X[side], X[1 - side], anchors[miss].astype(np.int64), others[miss].astype(np.int64),
                     np.asarray(dist, np.float64)[miss], self._line_bounds(side), geq,
-                    np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) ** 2)
+                    np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) * float(t_o))
                 return out
             size = self.m if side == 0 else self.n
             step = max(1, (8 * _MiB) // (8 * size))

@@ -36,10 +36,20 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
     for i in range(kh):
         for j in range(kw):
             cols[:, :, :, i, j, :] = x[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride]
-    out = cols.reshape(n * ho * wo, kh * kw * c) @ w.transpose(0, 2, 3, 1).reshape(o, -1).T
+    out = _product(cols.reshape(n * ho * wo, kh * kw * c), w.transpose(0, 2, 3, 1).reshape(o, -1).T)
     if b is not None:
         out += b
     return out.reshape(n, ho, wo, o)
+
+
+def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` of float32 matrices, accumulated in float64 and rounded once to float32 (issue 31).
+
+    A float32 GEMM rounds differently under each OpenBLAS kernel (SkylakeX, Haswell, Nehalem: descriptors
+    up to 3e-6 and AffNet shapes up to 6e-5 apart on the same image); in float64 the kernels differ in the
+    last bits of float64, which the rounding to float32 removes but for values on a float32 rounding
+    boundary (about one in 10^8)."""
+    return (a.astype(np.float64) @ b.astype(np.float64)).astype(np.float32)
 
 
 def _chunked(fn):
@@ -105,7 +115,7 @@ def tfeat(p: dict, patches: np.ndarray) -> np.ndarray:
     x = np.tanh(_max_pool2(conv2d(x, p["features.1.weight"], p["features.1.bias"])))  # tanh is monotonic
     x = np.tanh(conv2d(x, p["features.4.weight"], p["features.4.bias"]))
     flat = x.transpose(0, 3, 1, 2).reshape(len(x), -1)  # torch's (C, H, W) flattening
-    return np.tanh(flat @ p["descr.0.weight"].T + p["descr.0.bias"])
+    return np.tanh(_product(flat, p["descr.0.weight"].T) + p["descr.0.bias"])
 
 
 @_chunked

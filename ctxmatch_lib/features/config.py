@@ -151,6 +151,10 @@ class FeatureConfig:
                 from .deep import weights_digest
 
                 items.append((field + "_sha1", weights_digest(getattr(self, field), field)))
+        if self.detector != "sift" or self.descriptor not in ("sift", "rootsift") or self.resolved_orientation() == "orinet":
+            # HarrisZ's shapes and the float32 networks and sGLOH products no longer go through BLAS's float32
+            # or batched products (issue 31): features cached before differ in their last bits.
+            items.append(("blas_independent", 1))
         digest = hashlib.sha1(repr(items).encode()).hexdigest()[:8]
         up = "-upright" if self.upright else ""
         return f"{self.detector}-{self.descriptor}{up}-k{self.max_keypoints}-v{_CACHE_FORMAT}-{digest}"

@@ -127,12 +127,20 @@ def _subpixel(resp: np.ndarray, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarra
 
 def _ellipses(mxx, myy, mxy, major: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Symmetric affine shapes ∝ M^{-1/2} with major semi-axis ``major``; also sqrt(λ_min / λ_max)."""
-    M = np.stack([np.stack([mxx, mxy], -1), np.stack([mxy, myy], -1)], -2)
-    lam, V = np.linalg.eigh(M)  # ascending
-    lam = np.maximum(lam, 1e-300)
-    ratio = np.sqrt(lam[:, 0] / lam[:, 1])
-    axes = np.stack([np.ones_like(ratio), ratio], -1) * major[:, None]
-    A = (V * axes[:, None, :]) @ np.swapaxes(V, 1, 2)
+    # The 2x2 eigen decomposition in closed form, elementwise (LAPACK's eigh and a batched matmul go through
+    # BLAS, whose kernel changes the last bits with the CPU; issue 31): eigenvalues t -/+ r, the larger one's
+    # eigenvector at the angle phi, the smaller one's perpendicular to it.
+    t = 0.5 * (mxx + myy)
+    r = np.hypot(0.5 * (mxx - myy), mxy)
+    lam_min, lam_max = np.maximum(t - r, 1e-300), np.maximum(t + r, 1e-300)
+    ratio = np.sqrt(lam_min / lam_max)
+    phi = 0.5 * np.arctan2(2.0 * mxy, mxx - myy)
+    c, s = np.cos(phi), np.sin(phi)
+    # A = major (v_min v_min' + ratio v_max v_max') with v_max = (c, s), v_min = (-s, c).
+    a_xx = major * (s * s + ratio * (c * c))
+    a_yy = major * (c * c + ratio * (s * s))
+    a_xy = major * ((ratio - 1.0) * (c * s))
+    A = np.stack([np.stack([a_xx, a_xy], -1), np.stack([a_xy, a_yy], -1)], -2)
     return A, ratio
 
 

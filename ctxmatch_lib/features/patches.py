@@ -18,8 +18,11 @@ __all__ = ["extract_patches", "rotation_shapes", "dominant_orientation", "sift_f
 def rotation_shapes(shapes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """``A @ R(θ)``: the same ellipses with their first axis turned by ``θ`` (radians, image frame)."""
     c, s = np.cos(angles), np.sin(angles)
-    R = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-    return np.asarray(shapes, np.float64) @ R
+    A = np.asarray(shapes, np.float64)
+    # Elementwise, not a batched matmul: BLAS would round by its CPU kernel (issue 31).
+    col0 = A[..., 0] * c[..., None] + A[..., 1] * s[..., None]
+    col1 = A[..., 1] * c[..., None] - A[..., 0] * s[..., None]
+    return np.stack([col0, col1], -1)
 
 
 def _pyramid(img: np.ndarray, levels: int) -> list[np.ndarray]:

@@ -131,7 +131,8 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
             size = B * n_reg * fine
             hist = (np.bincount((cell + lo).ravel(), w_lo, size)
                     + np.bincount((cell + hi).ravel(), w_hi, size)).reshape(B, n_reg, fine)
-            desc[:, k] = np.einsum("brf,rfw->brw", hist.astype(np.float32), kern[k], optimize=True)
+            # float64 products (issue 31): a float32 GEMM's rounding follows the OpenBLAS kernel.
+            desc[:, k] = np.einsum("brf,rfw->brw", hist, np.asarray(kern[k], np.float64), optimize=True)
         desc = desc.reshape(B, 2, _HALF)
         if root:
             tot = desc.sum(-1, keepdims=True)

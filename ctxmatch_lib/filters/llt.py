@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
+from ._em_kernels import dot, matmul, solve, solve_batched, weighted_gram_t
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights", "m_step"]
@@ -40,10 +41,12 @@ def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     if kk == 0:
         return sp.csr_matrix((n, n))
     z = x[nb] - x[:, None, :]  # (n, kk, 2)
-    gram = z @ z.transpose(0, 2, 1)
+    # Elementwise Gram matrices and a compiled solve (no BLAS / LAPACK, whose rounding follows the CPU's
+    # kernel; issue 31).
+    gram = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
     trace = np.trace(gram, axis1=1, axis2=2)
     gram += (reg * np.maximum(trace, 1e-12))[:, None, None] * np.eye(kk)
-    w = np.linalg.solve(gram, np.ones((n, kk, 1)))[..., 0]
+    w = solve_batched(gram, np.ones((n, kk, 1)))[..., 0]
     w /= w.sum(1, keepdims=True)
     rows = np.repeat(np.arange(n), kk)
     return sp.csr_matrix((w.ravel(), (rows, nb.ravel())), shape=(n, n))
@@ -206,16 +209,25 @@ def m_step(G: np.ndarray, Z: np.ndarray, pw: np.ndarray, c: float) -> np.ndarray
     sides come from one product of ``sqrt(P) G`` with itself and with ``sqrt(P) Z``.
     """
     m = G.shape[1] // 2
-    w = np.sqrt(pw)[:, None]
-    Gs = G * w
-    A = Gs.T @ Gs
-    R = Gs.T @ (Z * w)
-    lhs = A[:m, :m] + c * A[m:, m:]
-    rhs = R[:m, :2] - c * R[m:, 2:]
-    try:
-        return np.linalg.solve(lhs, rhs)
-    except np.linalg.LinAlgError:  # exactly singular: the least-squares answer
-        return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    return _m_step(_stacked(G, Z), pw, c, m)
+
+
+def _stacked(G: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``[U, y - x]'`` and ``[BU, Bx]'`` (each (m + 2, K), contiguous): the two operands of :func:`_m_step`."""
+    m = G.shape[1] // 2
+    return (np.ascontiguousarray(np.hstack([G[:, :m], Z[:, :2]]).T),
+            np.ascontiguousarray(np.hstack([G[:, m:], Z[:, 2:]]).T))
+
+
+def _m_step(HT, pw, c, m):
+    # Only the blocks the system needs, [U, y - x]' P [U, y - x] and [BU, Bx]' P [BU, Bx], in compiled loops
+    # summing in a fixed order, and a compiled solve (no BLAS: the EM amplifies the last bits, which BLAS
+    # rounds by the CPU's kernel; issue 31).
+    A1 = weighted_gram_t(HT[0], pw)
+    A2 = weighted_gram_t(HT[1], pw)
+    lhs = A1[:m, :m] + c * A2[:m, :m]
+    rhs = A1[:m, m:] - c * A2[:m, m:]
+    return solve(lhs, rhs)  # exactly singular: the least-squares answer
 
 
 def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarray:
@@ -229,6 +241,7 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
     n, m = U.shape
     G = np.ascontiguousarray(np.hstack([U, BU]))  # row i = [U_i, (BU)_i]
     Z = np.hstack([target, BX])
+    HT = _stacked(G, Z)
     C = np.zeros((m, 2))
     res, loc = target, BX  # y - x - U C and (I - W)(x + U C) at C = 0
     r2 = np.einsum("ij,ij->i", res, res)
@@ -245,16 +258,16 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
         # Eq. (8) as the authors' code evaluates it: the mixture's complete-data energy plus lam / 2 times
         # the (unsquared) Frobenius norm of the P-weighted locally linear residual.
         old, ps = energy, p.sum()
-        energy = (p @ r2 / (2 * sigma2) + ps * np.log(sigma2) - np.log(gamma) * ps - np.log(1 - gamma) * (n - ps)
-                  + lam / 2 * np.sqrt(pw @ local))
+        energy = (dot(p, r2) / (2 * sigma2) + ps * np.log(sigma2) - np.log(gamma) * ps - np.log(1 - gamma) * (n - ps)
+                  + lam / 2 * np.sqrt(dot(pw, local)))
         change = (energy - old) / energy if energy != 0 else 0.0
         # M-step for C (Sec. III-C), multiplied through by sigma^2:
         # (U' P U + lam sigma^2 (BU)' P (BU)) C = U' P (y - x) - lam sigma^2 (BU)' P (B x).
-        C = m_step(G, Z, pw, lam * sigma2)
-        F = (G.reshape(2 * n, m) @ C).reshape(n, 2, 2)  # [U C, BU C] per row
+        C = _m_step(HT, pw, lam * sigma2, m)
+        F = matmul(G.reshape(2 * n, m), C).reshape(n, 2, 2)  # [U C, BU C] per row
         res, loc = target - F[:, 0], BX + F[:, 1]
         r2 = np.einsum("ij,ij->i", res, res)
         local = np.einsum("ij,ij->i", loc, loc)
-        sigma2 = float(pw @ r2 / (2 * pw.sum()))
+        sigma2 = dot(pw, r2) / (2 * pw.sum())
         gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
     return p > tau

@@ -544,15 +544,24 @@ def lmr_filter(
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
+    # The rows best score first, equal scores in the order of their coordinates (x1, y1, x2, y2), the mask
+    # mapped back: neighbours at equal distances (one image-1 keypoint in several candidates) are then taken
+    # best first whatever the candidates' order (issue 31). Candidates sorted by score with distinct
+    # scores keep their order, so their masks are those of the input order.
+    order = np.lexsort((ms.y[:, 1], ms.y[:, 0], ms.x[:, 1], ms.x[:, 0], ms.scores))
+    x, y = ms.x[order], ms.y[order]
     if network is not None:
-        out = net.forward(mpc_features(ms.x, ms.y, exact=True))
-        return out[:, 0] > out[:, 1]
-    if features == "mpc":
-        return model.proba(3, mpc_features(ms.x, ms.y)) > threshold
-    first = model.proba(1, lmr_features(ms.x, ms.y)) > threshold
-    if first.sum() < 2:
-        return first
-    return model.proba(2, lmr_features(ms.x, ms.y, np.flatnonzero(first))) > threshold
+        out = net.forward(mpc_features(x, y, exact=True))
+        decided = out[:, 0] > out[:, 1]
+    elif features == "mpc":
+        decided = model.proba(3, mpc_features(x, y)) > threshold
+    else:
+        decided = model.proba(1, lmr_features(x, y)) > threshold
+        if decided.sum() >= 2:
+            decided = model.proba(2, lmr_features(x, y, np.flatnonzero(decided))) > threshold
+    keep = np.empty(n, bool)
+    keep[order] = decided
+    return keep
 
 
 if __name__ == "__main__":  # python -m ctxmatch_lib.filters.lmr: retrain the shipped model

@@ -141,9 +141,21 @@ def vfc_filter(
     n = len(ms)
     if n == 0:
         return np.zeros(0, bool)
+    # The rows in the order of their coordinates (x1, y1, x2, y2): every sum of the EM then runs in the same
+    # order whatever the order of the candidates (rows that tie are equal), and the EM, which amplifies the last
+    # bits, decides the same for a reordered candidate set.
+    order = np.lexsort((ms.y[:, 1], ms.y[:, 0], ms.x[:, 1], ms.x[:, 0]))
+    keep = np.empty(n, bool)
+    keep[order] = _vfc(ms.x[order], ms.y[order], beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng)
+    return keep
+
+
+def _vfc(x1, y1, beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng) -> np.ndarray:
+    """The EM of :func:`vfc_filter` on the keypoints ``x1``, ``y1`` (K, 2) of the matches: the inlier mask."""
+    n = len(x1)
     with serial_blas():  # skinny products in a loop: threads cost more than they give
-        x = zero_mean_unit_rms(ms.x)
-        motion = zero_mean_unit_rms(ms.y) - x
+        x = zero_mean_unit_rms(x1)
+        motion = zero_mean_unit_rms(y1) - x
         ctrl = control_points(x, n_control, rng)
         U = gaussian_kernel(x, ctrl, beta)  # (K, M)
         G = gaussian_kernel(ctrl, ctrl, beta)  # (M, M)

@@ -1,7 +1,11 @@
 """OANet and ACNe inference in numpy: the default engine of the ``oanet`` and ``acne`` filters (no torch).
 
 The layers are those of :mod:`.nets` (the torch modules, used for training), evaluated on one candidate set
-of shape ``(C, K)`` in float32 from the same parameters (the torch ``state_dict`` names, as numpy arrays):
+of shape ``(C, K)`` from the same parameters (the torch ``state_dict`` names, as numpy arrays); the
+parameters are stored in float32 and the input is rounded to float32 as in training, but :meth:`NumpyModel.logits`
+evaluates the layers in float64 (issue 31): in float32 the logits moved by up to 5e-4 with the OpenBLAS kernel
+(SkylakeX against Nehalem on real candidate sets whose smallest ``|logit|`` was 2e-4), in float64 by 1e-10, so
+the keep decision ``logit > threshold`` no longer follows the CPU:
 
 * a 1x1 convolution is ``W @ x + b``;
 * context (instance) normalisation subtracts the per-channel mean over the K candidates and divides by
@@ -66,6 +70,14 @@ def _relu(x):
 def _softmax(x: np.ndarray, axis: int) -> np.ndarray:
     e = np.exp(x - x.max(axis=axis, keepdims=True))
     return e / e.sum(axis=axis, keepdims=True)
+
+
+def _gated(s: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``s * sigmoid(x)`` without overflow: ``s / (1 + exp(-x))`` where ``x >= -80`` (the plain form, whose
+    values are kept), ``s exp(x) / (1 + exp(x))`` below, where ``exp(-x)`` overflows float32 (from -88.7)."""
+    low = x < _F32(-80)
+    e = np.exp(np.where(low, x, -x))
+    return np.where(low, s * e, s) / (_F32(1) + e)
 
 
 def _cn_bn_relu_conv(p, name, i, x):
@@ -168,7 +180,7 @@ def _group_norm(p, name, x, groups, eps=1e-5):
 def _acn_layer(p, name, x, groups):
     x = _conv(p, name + ".conv", x)
     a = _conv(p, name + ".acn.attn", x)  # row 0: global (softmax) logit, row 1: local (sigmoid) logit
-    w = _softmax(a[0], axis=0) / (1 + np.exp(-a[1]))  # Eq. (5)-(7)
+    w = _gated(_softmax(a[0], axis=0), a[1])  # Eq. (5)-(7): global softmax times local sigmoid
     w = w / max(w.sum(), _F32(1e-30))
     mean = x @ w
     d = x - mean[:, None]
@@ -202,14 +214,23 @@ class NumpyModel:
     source: str
 
     def logits(self, x: np.ndarray) -> np.ndarray:
-        """Inlier logits ``(K,)`` (float32) of the input ``(C_in, K)``; ``logit > 0``: inlier.
+        """Inlier logits ``(K,)`` (float64) of the input ``(C_in, K)``; ``logit > 0``: inlier.
 
-        BLAS runs on one thread: OpenBLAS's float32 rounding depends on the thread count, and the keep masks
-        must not."""
+        The layers run in float64 (the float32 parameters converted once per model): float32 products round
+        differently under each OpenBLAS kernel and thread count, and the keep masks must not follow them.
+        BLAS runs on one thread."""
+        params = self._float64_params()
         with threadpool_limits(1):
             if self.arch == "oanet":
-                return oanet_logits(self.params, x)[-1]
-            return acne_logits(self.params, x, groups=int(self.config.get("groups", 32)))
+                return oanet_logits(params, x)[-1]
+            return acne_logits(params, x, groups=int(self.config.get("groups", 32)))
+
+    def _float64_params(self) -> dict:
+        cached = self.__dict__.get("_params64")
+        if cached is None or cached[0] is not self.params:
+            cached = (self.params, {k: np.asarray(v, np.float64) for k, v in self.params.items()})
+            self.__dict__["_params64"] = cached
+        return cached[1]
 
 
 def _float_params(sd: dict) -> dict:
