@@ -63,6 +63,13 @@ def _env(coretype: str | None, cache: str, numba_cache: str) -> dict:
                PYTHONHASHSEED="0")
     env.setdefault("NUMBA_CACHE_DIR", numba_cache)
     env.pop("OPENBLAS_CORETYPE", None)
+    if coretype and "+" in coretype:
+        # "Haswell+npy-avx2": also numpy's own SIMD dispatch without AVX-512 (NPY_DISABLE_CPU_FEATURES), as
+        # on an AVX2 machine; "+npy-base": without AVX2 either. numpy's float64 exp/log/power and float32
+        # exp/tanh differ in their last bit between these (not a BLAS matter; issue 31 notes).
+        coretype, npy = coretype.split("+", 1)
+        env["NPY_DISABLE_CPU_FEATURES"] = {"npy-avx2": "X86_V4 AVX512_ICL AVX512_SPR",
+                                           "npy-base": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}[npy]
     if coretype:
         env["OPENBLAS_CORETYPE"] = coretype
     return env
@@ -158,7 +165,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--what", choices=["rows", "masks", "features"], default="masks")
     parser.add_argument("--coretypes", default=",".join(CORETYPES),
-                        help="comma-separated OPENBLAS_CORETYPE values; 'default' = unset (first is the reference)")
+                        help="comma-separated OPENBLAS_CORETYPE values; 'default' = unset (first is the reference); "
+                        "'Haswell+npy-avx2' / 'Nehalem+npy-base' also turn off numpy's AVX-512 / AVX2 dispatch")
     parser.add_argument("--features", default=",".join(EMBEDDED_FEATURES), help="rows: feature setups")
     parser.add_argument("--pair-step", type=int, default=2, help="rows: every n-th embedded pair (default 2)")
     parser.add_argument("--max-pairs", type=int, default=0, help="rows: at most this many pairs (0: all)")

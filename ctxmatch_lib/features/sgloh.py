@@ -256,11 +256,13 @@ class SGLOH2Distance:
         B, m = len(d1), len(d2)
         if B == 0 or m == 0:
             return np.zeros((B, m), np.float32)
-        halves2 = [np.ascontiguousarray(d2[:, k * _HALF : (k + 1) * _HALF].T) for k in range(2)]  # (128, m)
+        # The products in float64, rounded once to float32 at the end (issue 31): a float32 GEMM rounds by the
+        # OpenBLAS kernel, and |a|^2 + |b|^2 - 2ab loses the small distances' digits that the ratio test reads.
+        halves2 = [np.ascontiguousarray(d2[:, k * _HALF : (k + 1) * _HALF].T, np.float64) for k in range(2)]
         n2 = [np.einsum("ij,ij->j", h, h) for h in halves2]
         out = np.empty((B, m), np.float32)
         R = self.ROWS
-        rows = np.zeros((R, SGLOH_DIM), np.float32)
+        rows = np.zeros((R, SGLOH_DIM), np.float64)
         with threadpool_limits(1):
             for r0 in range(0, B, R):
                 r1 = min(B, r0 + R)
@@ -274,8 +276,8 @@ class SGLOH2Distance:
         B, m = len(d1), halves2[0].shape[1]
         shifts = _first_half_shifts(d1, {(a + 1) // 2 % _M for a in self.rotations})
         n1 = np.einsum("ij,ij->i", shifts[next(iter(shifts))], shifts[next(iter(shifts))])
-        best = np.full((B, m), np.inf, np.float32)
-        tmp = np.empty((B, m), np.float32)
+        best = np.full((B, m), np.inf, np.float64)
+        tmp = np.empty((B, m), np.float64)
         for a in self.rotations:
             k = a % 2
             np.matmul(shifts[(a + 1) // 2 % _M], halves2[k], out=tmp)
