@@ -232,7 +232,8 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
     Returns
     -------
     matches : ndarray of shape (K, 2), int64
-    scores : ndarray of shape (K,), lower is better, sorted
+    scores : ndarray of shape (K,), lower is better, sorted; it carries the blob ratio that made it
+        (``BlobMatches.scores``)
     time_s : float
     """
     from ..blob import blob_matching
@@ -242,7 +243,8 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
         return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
     bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
                        distance=f1.distance(), **config.kwargs())
-    return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
+    # asanyarray: the scores keep the blob ratio that made them (their scale, read by the filters' thresholds).
+    return np.asarray(bm.matches, np.int64), np.asanyarray(bm.scores, np.float64), time.perf_counter() - t0
 
 
 #: (name, function) of the filters already called by :func:`run_filter` in this process.
