@@ -372,10 +372,9 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
 
     ``shapes``: ``"match"`` (checked and gathered per match for the core, ``ms.A1`` / ``ms.A2``), ``"check"``
     (checked only, for a core that reads none) or ``"both"`` (as ``"match"``, and one without the other is a
-    ``ValueError``). The docstring is the
-    core's, composed with :func:`compose_doc` (``{label}`` is ``label``, ``{thresholds}`` the ``nnr``
-    parameters). The public function is made in the core's module (its globals), so doctest and the docs
-    find it there; the core stays reachable as ``.core``.
+    ``ValueError``). The docstring is the core's, composed with :func:`compose_doc` (``{label}`` is ``label``,
+    ``{thresholds}`` the ``nnr`` parameters). The public function is made in the core's module (its globals),
+    so doctest and the docs find it there; the core stays reachable as ``.core``.
     """
     if shapes not in ("match", "check", "both"):
         raise ValueError(f"shapes must be 'match', 'check' or 'both', got {shapes!r}")
