@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._scores import nnr_scores
 from .._validation import as_finite_matrix, as_points
 from .config import BlobConfig
 from .context import BlobContext
@@ -24,7 +25,8 @@ class BlobMatches:
         Row into image 1 (keypoint / descriptor index), row into image 2.
     scores : ndarray of shape (K,), float64
         The final similarity D̄ of Eq. (15): lower is better. Rows are sorted by score, ties by row then
-        column.
+        column. The array (an ``NNRScores``) carries the ``ratio`` that made it, the scale
+        the filters read their NNR thresholds on (``r`` for ``"D>="``, ``r / (1 + r)`` for the others).
     """
 
     matches: np.ndarray
@@ -86,9 +88,10 @@ def rank_candidates(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, *, 
     return a, b
 
 
-def _sorted(matches: np.ndarray, scores: np.ndarray) -> BlobMatches:
+def _sorted(matches: np.ndarray, scores: np.ndarray, ratio: str) -> BlobMatches:
     order = np.lexsort((matches[:, 1], matches[:, 0], scores))
-    return BlobMatches(np.ascontiguousarray(matches[order]), scores[order])
+    # The scores say which ratio made them (their scale), for the filters that read thresholds on them.
+    return BlobMatches(np.ascontiguousarray(matches[order]), nnr_scores(scores[order], ratio))
 
 
 def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
@@ -221,4 +224,4 @@ def match_context(ctx: BlobContext, cfg: BlobConfig) -> BlobMatches:
     if len(matches) == 0:
         return BlobMatches.empty()
     a, b = rank_candidates(ctx, matches, dist, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
-    return _sorted(matches, combine_ratios(a, b, cfg.combine))
+    return _sorted(matches, combine_ratios(a, b, cfg.combine), cfg.ratio)

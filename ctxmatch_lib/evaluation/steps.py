@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
+from .._scores import nnr_scores, score_ratio
 from ..datasets.base import Pair
 from ..features import FeatureConfig, Features, extract_features
 from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, ModelFit, apply_model_step, model_kind_for
@@ -231,7 +232,8 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
     Returns
     -------
     matches : ndarray of shape (K, 2), int64
-    scores : ndarray of shape (K,), lower is better, sorted
+    scores : ndarray of shape (K,), lower is better, sorted; it carries the blob ratio that made it
+        (``BlobMatches.scores``)
     time_s : float
     """
     from ..blob import blob_matching
@@ -241,7 +243,8 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
         return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
     bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
                        distance=f1.distance(), **config.kwargs())
-    return np.asarray(bm.matches, np.int64), np.asarray(bm.scores, np.float64), time.perf_counter() - t0
+    # asanyarray: the scores keep the blob ratio that made them (their scale, read by the filters' thresholds).
+    return np.asarray(bm.matches, np.int64), np.asanyarray(bm.scores, np.float64), time.perf_counter() - t0
 
 
 #: (name, function) of the filters already called by :func:`run_filter` in this process.
@@ -263,7 +266,9 @@ def run_filter(
     """Run the registered filter ``name`` on candidate matches.
 
     ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
-    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it.
+    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it, and the
+    scores of the filters with NNR thresholds (``nnr_thresholds``: ``th``, ``glpm``, ``adalam``) are tagged
+    with it, as ``blob_matching`` returns them (cached candidates come back as plain arrays).
 
     The first call of each filter in a process runs it once more, untimed, before the timed call: compiled
     (numba) kernels are compiled or loaded from the disk cache on their first call, which would otherwise be
@@ -283,6 +288,8 @@ def run_filter(
     func: Callable = FILTERS[name]
     if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
         params.setdefault("ratio", blob_ratio)
+    if blob_ratio is not None and getattr(func, "nnr_thresholds", None) and score_ratio(scores) is None:
+        scores = nnr_scores(scores, blob_ratio)
     k = len(matches)
     if k == 0:
         return np.zeros(0, bool), 0.0

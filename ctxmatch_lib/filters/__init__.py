@@ -8,7 +8,9 @@ Every filter has the same signature::
 ``kpts*`` are ``(N, 2)`` (x, y) pixels with the origin at the centre of the top-left pixel, ``matches`` is
 ``(K, 2)`` int64 into ``kpts1``/``kpts2`` (many-to-many allowed), ``scores`` is ``(K,)`` with lower is
 better (``None``: all equal), image sizes are ``(width, height)``. The mask selects the kept matches:
-``matches[keep]``.
+``matches[keep]``. Scores that :func:`ctxmatch_lib.blob.blob_matching` returns carry the blob ratio that made
+them, and the filters that read a threshold on the NNR ratio (``th``, ``glpm``, ``adalam``) read it on that
+scale; :func:`nnr_scores` tags a plain array the same way.
 
 Filters are imported lazily on first use, so ``import ctxmatch_lib`` stays cheap; users add their own with
 :func:`register_filter`.
@@ -20,7 +22,9 @@ import functools
 import importlib
 from collections.abc import Callable, Iterator, Mapping
 
-__all__ = ["FILTERS", "register_filter"]
+from .._scores import nnr_scores
+
+__all__ = ["FILTERS", "register_filter", "nnr_scores"]
 
 # name -> "module:function[:stages]"; modules live in this package (dtm lives in ctxmatch_lib.dtm). ``dtm1``
 # (DTM1 only) and ``dtm2`` (DTM1 + DTM2, the same as ``dtm``) are DTM's stages, listed apart as in Tables 1-3.

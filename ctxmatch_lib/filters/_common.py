@@ -1,22 +1,34 @@
-"""Input handling shared by the peer spatial filters (private).
+"""What the peer spatial filters share (private): one wrapper around each filter's core, and its helpers.
 
-Every filter of this package starts with :func:`prepare`, which validates the common arguments with the
-helpers of :mod:`ctxmatch_lib._validation` and returns the matched coordinates as two aligned ``(K, 2)``
-arrays. Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel.
+A filter module writes its method as a *core*, ``core(ms, *, **params) -> keep``, on a prepared
+:class:`MatchSet`, and :func:`match_filter` turns it into the public function with the common signature
+``f(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None, **params)``.
+The wrapper validates the common arguments (:func:`prepare`, with the helpers of
+:mod:`ctxmatch_lib._validation`), maps the thresholds the core reads on the NNR scale to the scale of the
+scores (:mod:`ctxmatch_lib._scores`), merges coincident rows once where the filter asks for it
+(:func:`merge_coincident`), calls the core and spreads its decisions back to every row. The parameters every
+filter shares are documented once here (:data:`DOCS`) and composed into each docstring (:func:`compose_doc`).
+Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel.
 """
 
 from __future__ import annotations
 
+import inspect
+import re
+import types
+import warnings
+from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._scores import _check_ratio, nnr_threshold, score_ratio
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive", "serial_blas",
-           "coincident_groups", "merge_coincident"]
+           "coincident_groups", "merge_coincident", "first_of_pair", "match_filter", "compose_doc", "DOCS"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +46,11 @@ class MatchSet:
 
     def __len__(self) -> int:
         return len(self.matches)
+
+    def take(self, rows: np.ndarray) -> MatchSet:
+        """The match set restricted to ``rows`` (as if only those matches had been given)."""
+        return MatchSet(self.x[rows], self.y[rows], self.matches[rows], self.scores[rows], self.size1, self.size2,
+                        None if self.A1 is None else self.A1[rows], None if self.A2 is None else self.A2[rows])
 
 
 def _as_shapes(shapes, n: int, name: str) -> np.ndarray | None:
@@ -103,8 +120,14 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     # Work per distinct query location (duplicated queries share their neighbours, all but themselves):
     # the kk + 1 nearest candidates of each location by (distance, index), then each query drops itself
     # (or, when it is not among them, the last one).
-    qlocs, qinv = np.unique(pts[queries], axis=0, return_inverse=True)
-    qinv = qinv.reshape(-1)
+    # Distinct candidate locations; the members of each, by index (``order[start[u]:start[u] + cnt[u]]``).
+    locs, inv, cnt = np.unique(pts[cand], axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    if n == len(cand) and np.array_equal(queries, cand):  # the queries are the candidates: same locations
+        qlocs, qinv = locs, inv
+    else:
+        qlocs, qinv = np.unique(pts[queries], axis=0, return_inverse=True)
+        qinv = qinv.reshape(-1)
     kq = kk + 1
 
     def ranked(rows, jj, valid):
@@ -116,9 +139,6 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
         key = np.lexsort((idx, d2), axis=1)
         return np.take_along_axis(idx, key, axis=1), np.take_along_axis(d2, key, axis=1)
 
-    # Distinct candidate locations; the members of each, by index (``order[start[u]:start[u] + cnt[u]]``).
-    locs, inv, cnt = np.unique(pts[cand], axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
     order = np.lexsort((cand, inv))
     start = np.r_[0, np.cumsum(cnt)[:-1]]
     # kq locations hold kq candidates at least; one more shows whether the last one needed is tied.
@@ -227,3 +247,213 @@ def merge_coincident(ms: MatchSet) -> tuple[np.ndarray, np.ndarray] | None:
     order = np.lexsort((np.arange(len(ms)), ms.scores, group))
     starts = np.r_[0, np.flatnonzero(np.diff(group[order])) + 1]
     return order[starts], group  # groups are numbered 0..G-1 in order of first copy
+
+
+def first_of_pair(ms: MatchSet) -> np.ndarray:
+    """``(K,)`` bool: the best-scored row (the first on ties) of every set of rows repeating one keypoint pair."""
+    m = ms.matches
+    order = np.lexsort((np.arange(len(m)), ms.scores, m[:, 1], m[:, 0]))
+    first = np.zeros(len(m), bool)
+    first[order[np.r_[True, (np.diff(m[order], axis=0) != 0).any(axis=1)]]] = True
+    return first
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Shared documentation, composed into the filters' docstrings (one way of scipy's ``_lib/doccer``).
+
+#: Parameter and section texts shared by the filters. A docstring line holding only ``%(name)s`` is replaced
+#: by ``DOCS[name]``, indented as that line; ``{label}`` in an entry is the filter's name (``match_filter``); an
+#: entry may itself be made of ``%(name)s`` lines.
+DOCS: dict[str, str] = {
+    "kpts": """\
+kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
+    Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.""",
+    "matches": """\
+matches : ndarray of shape (K, 2)
+    Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.""",
+    "scores_unused": """\
+scores : ndarray of shape (K,) or None
+    Unused by {label} (validated only).""",
+    "nnr_scale": """\
+Thresholds on the NNR ratio ({thresholds}) are read on the scale of the scores: the
+blob ratio they carry (``blob_matching(...).scores``; ``"D>="`` scores are the NNR ratio
+``r``, ``"D+>="`` and ``"D+"`` scores ``r / (1 + r)``, where a threshold ``t`` reads
+``t / (1 + t)``), else ``"D>="``, the ratio of Lowe's test (OpenCV's). A plain array whose
+scores all lie at or below 1/2 (the D+ range) and that the ``"D>="`` reading would keep whole
+warns (``UserWarning``); ``ctxmatch_lib.filters.nnr_scores(scores, ratio)`` tags one.""",
+    "image_sizes": """\
+image_size1, image_size2 : (int, int)
+    Image sizes (width, height), validated only.""",
+    "shapes_unused": """\
+shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
+    Unused.""",
+    "common_unused": "%(kpts)s\n%(matches)s\n%(scores_unused)s\n%(image_sizes)s\n%(shapes_unused)s",
+    "merge_option": """\
+merge_coincident : bool, default True
+    Decide coincident rows as one match (see Notes); ``False`` decides every row as given, as the
+    authors' code does.""",
+    "keep": """\
+keep : ndarray of shape (K,), bool
+    The kept matches: ``matches[keep]``.""",
+    "coincident": """\
+Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
+correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
+decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
+its match, so a wrong correspondence cannot support itself through its own copies. The result on inputs
+without coincident rows is unchanged.""",
+}
+
+_PLACEHOLDER = re.compile(r"^([ \t]*)%\((\w+)\)s[ \t]*$", re.M)
+
+
+def compose_doc(doc: str | None, **fields) -> str | None:
+    """``doc`` with every line that holds only ``%(name)s`` replaced by :data:`DOCS` ``[name]``.
+
+    The entry is indented as the placeholder and formatted with ``fields`` (``{label}``, ...). Other ``%``
+    signs in ``doc`` are left alone (percentages in Notes), unlike ``%``-formatting a whole docstring.
+
+    Examples
+    --------
+    >>> print(compose_doc('''Parameters
+    ...     ----------
+    ...     %(scores_unused)s''', label="BM"))
+    Parameters
+        ----------
+        scores : ndarray of shape (K,) or None
+            Unused by BM (validated only).
+    """
+    if doc is None:
+        return None
+
+    def entry(m: re.Match) -> str:
+        indent, name = m.groups()
+        if name not in DOCS:
+            raise KeyError(f"no shared documentation named {name!r}")
+        text = DOCS[name].format(**fields) if "{" in DOCS[name] else DOCS[name]
+        text = compose_doc(text, **fields)  # an entry may be made of entries
+        return "\n".join(indent + line if line else line for line in text.splitlines())
+
+    return _PLACEHOLDER.sub(entry, doc)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The wrapper.
+
+_P = inspect.Parameter
+_REQUIRED = _P.empty
+
+
+def _common_parameters(scores_default) -> list[inspect.Parameter]:
+    pos, kw = _P.POSITIONAL_OR_KEYWORD, _P.KEYWORD_ONLY
+    return [_P("kpts1", pos), _P("kpts2", pos), _P("matches", pos), _P("scores", pos, default=scores_default),
+            _P("image_size1", kw), _P("image_size2", kw), _P("shapes1", kw, default=None),
+            _P("shapes2", kw, default=None)]
+
+
+def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = False, nnr: tuple[str, ...] = (),
+                 ratio_param: str | None = None, shapes: str = "match", scores_required: bool = False):
+    """Decorator: the public filter with the common signature around ``core(ms, *, **params) -> keep``.
+
+    The public function takes ``(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
+    shapes1=None, shapes2=None)`` followed by the core's keyword parameters (with their defaults and
+    annotations; ``inspect.signature`` and ``help`` show them), and
+
+    1. validates the common arguments (:func:`prepare`; ``ValueError`` naming the argument);
+    2. maps the core's parameters named in ``nnr`` (thresholds on the NNR ratio, checked positive) to the
+       scale of the scores: the ratio named by the public parameter ``ratio_param`` when given, else the one
+       the scores carry (:func:`ctxmatch_lib._scores.score_ratio`), else ``"D>="``, with a ``UserWarning``
+       where that default keeps every row although every score lies in the D+ range (at most 1/2); a
+       ratio given that contradicts the scores' own is a ``ValueError``;
+    3. merges coincident rows (:func:`merge_coincident`) when ``merge`` is True, or when the public boolean
+       parameter named by ``merge`` (default True) is; the core then decides the distinct rows and every
+       copy gets the decision of its group; with ``one_to_one`` only the first of the rows that repeat one
+       keypoint pair (:func:`first_of_pair`) is kept, so that a one-to-one output stays one-to-one;
+    4. returns the core's mask over the rows given.
+
+    ``shapes``: ``"match"`` (checked and gathered per match for the core, ``ms.A1`` / ``ms.A2``), ``"check"``
+    (checked only, for a core that reads none) or ``"both"`` (as ``"match"``, and one without the other is a
+    ``ValueError``). The docstring is the core's, composed with :func:`compose_doc` (``{label}`` is ``label``,
+    ``{thresholds}`` the ``nnr`` parameters). The public function is made in the core's module (its globals),
+    so doctest and the docs find it there; the core stays reachable as ``.core``.
+    """
+    if shapes not in ("match", "check", "both"):
+        raise ValueError(f"shapes must be 'match', 'check' or 'both', got {shapes!r}")
+
+    def wrap(core: Callable) -> Callable:
+        csig = inspect.signature(core)
+        own = list(csig.parameters.values())[1:]  # the first one is the MatchSet
+        extra = []
+        if ratio_param is not None:
+            extra.append(_P(ratio_param, _P.KEYWORD_ONLY, default=None, annotation="str | None"))
+        if isinstance(merge, str):
+            extra.append(_P(merge, _P.KEYWORD_ONLY, default=True, annotation="bool"))
+        sig = inspect.Signature(_common_parameters(_REQUIRED if scores_required else None) + own + extra,
+                                return_annotation=csig.return_annotation)
+        core_names = [p.name for p in own]
+        name = core.__name__
+
+        def run(args, kwargs):
+            try:
+                bound = sig.bind(*args, **kwargs)
+            except TypeError as e:
+                raise TypeError(f"{name}() {e}") from None
+            bound.apply_defaults()
+            a = bound.arguments
+            sh1, sh2 = a["shapes1"], a["shapes2"]
+            if shapes == "check":
+                ms = prepare(a["kpts1"], a["kpts2"], a["matches"], a["scores"], a["image_size1"], a["image_size2"])
+                _as_shapes(sh1, np.shape(a["kpts1"])[0], "shapes1")
+                _as_shapes(sh2, np.shape(a["kpts2"])[0], "shapes2")
+            else:
+                ms = prepare(a["kpts1"], a["kpts2"], a["matches"], a["scores"], a["image_size1"], a["image_size2"],
+                             sh1, sh2)
+            if shapes == "both" and (sh1 is None) != (sh2 is None):
+                raise ValueError("shapes1 and shapes2 must be given together")
+            params = {k: a[k] for k in core_names}
+            if nnr:
+                checked = {k: check_positive(params[k], k) for k in nnr}
+                ratio = _scale(a["scores"], ms, a[ratio_param] if ratio_param else None, ratio_param, checked,
+                               name)
+                params.update({k: nnr_threshold(v, ratio) for k, v in checked.items()})
+            merged = merge_coincident(ms) if (a[merge] if isinstance(merge, str) else merge) else None
+            if merged is None:
+                return core(ms, **params)
+            rows, group = merged
+            keep = core(ms.take(rows), **params)[group]
+            return keep & first_of_pair(ms) if one_to_one else keep
+
+        def public(*args, **kwargs):  # refers to no global: it runs in the core's module (see below)
+            return run(args, kwargs)
+
+        f = types.FunctionType(public.__code__, core.__globals__, name, None, public.__closure__)
+        f.__qualname__, f.__module__, f.__signature__, f.core = name, core.__module__, sig, core
+        f.__doc__ = compose_doc(core.__doc__, label=label, thresholds=", ".join(f"``{k}``" for k in nnr))
+        if ratio_param is not None:
+            f.uses_blob_ratio = True  # the evaluation engine passes the blob setup's ratio (steps.run_filter)
+        if nnr:
+            f.nnr_thresholds = tuple(nnr)
+        return f
+
+    return wrap
+
+
+def _scale(scores, ms: MatchSet, given, given_name, thresholds: dict, name: str) -> str:
+    """The blob ratio the scores of a filter are read with (see :func:`match_filter`, step 2)."""
+    carried = score_ratio(scores)
+    if given is not None:
+        _check_ratio(given, given_name)
+        if carried is not None and carried != given:
+            raise ValueError(f"{given_name}={given!r} contradicts the scores, which blob matching made with "
+                             f"ratio {carried!r}; leave {given_name} out or pass the same")
+        return given
+    if carried is not None:
+        return carried
+    if scores is not None and len(ms) and ms.scores.max() <= 0.5 and all(
+            ms.scores.max() <= t for t in thresholds.values()):
+        told = ", ".join(f"{k}={v:g}" for k, v in thresholds.items())
+        warnings.warn(f"{name}: every score is at most 0.5, the range of D+ / D+>= blob scores (r / (1 + r)), "
+                      f"and read as NNR ratios (D>=, the default) the thresholds ({told}) keep every row; say "
+                      "which blob ratio made the scores: " + (f"pass {given_name}=..., or " if given_name else "")
+                      + "pass ctxmatch_lib.filters.nnr_scores(scores, ratio) (blob_matching's scores carry it)",
+                      UserWarning, stacklevel=4)
+    return "D>="

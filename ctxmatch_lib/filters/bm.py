@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d
 
-from ._common import check_positive, merge_coincident, prepare
+from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["bm_filter"]
 
@@ -85,16 +85,10 @@ def _local_affine_fit(flat, shape, u, v, w, ridge: float):
     return s0, coef[:, 0, :]
 
 
+@match_filter(label="BM", merge=True)
 def bm_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     sigma_s: float = 0.1,
     sigma_r: float = 0.05,
     tau: float = 0.25,
@@ -107,12 +101,10 @@ def bm_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts)s
     matches : ndarray of shape (K, 2)
         Indices into ``kpts1`` and ``kpts2``; many-to-many allowed (each match is one sample of the motion).
-    scores : ndarray of shape (K,) or None
-        Unused by BM (validated only).
+    %(scores_unused)s
     image_size1, image_size2 : (int, int)
         Image sizes (width, height): the grid cells are fractions of the image diagonals.
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
@@ -139,7 +131,7 @@ def bm_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
@@ -161,13 +153,9 @@ def bm_filter(
     ``min_support = 2`` asks for at least two consistent neighbours; ``density_ratio = 3`` keeps the test
     meaningful when very many matches fill the grid.
 
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the kernel mass (support) and in the local fits of the others. The authors' code was not found in the
-    code index read here; the paper is silent, so this is our choice. The result on inputs without coincident
-    rows is unchanged.
+    %(coincident)s
+    A location counts once in the kernel mass (support) and in the local fits of the others. The authors' code
+    was not found in the code index read here; the paper is silent, so this is our choice.
 
     Next to the paper's Table 2 (issue 22, item 2). The authors' MATLAB code is published as a zip on the
     project's own server (``eccv_2014_release.zip``, linked from mmcheng.net/bfun), not on GitHub; it could not
@@ -214,7 +202,6 @@ def bm_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     sigma_s = check_positive(sigma_s, "sigma_s")
     sigma_r = check_positive(sigma_r, "sigma_r")
     tau = check_positive(tau, "tau")
@@ -222,14 +209,6 @@ def bm_filter(
     min_support = check_positive(min_support, "min_support", allow_zero=True)
     density_ratio = check_positive(density_ratio, "density_ratio", allow_zero=True)
     ridge = check_positive(ridge, "ridge", allow_zero=True)
-    merged = merge_coincident(ms)
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = bm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                         image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                         sigma_s=sigma_s, sigma_r=sigma_r, tau=tau, n_iter=n_iter, min_support=min_support,
-                         density_ratio=density_ratio, ridge=ridge)
-        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

@@ -56,7 +56,7 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
-from ._common import _as_shapes, check_positive, prepare
+from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["gms_filter", "GMS_SCALE_RATIOS"]
 
@@ -159,16 +159,10 @@ def _run(u1, u2, g1: tuple[int, int], g2: tuple[int, int], rotation: int, alpha:
     return _gms_kernel(c1, c2y * g2[0] + c2x, g1[0], g1[1], g2[0], g2[1], off1, off2, float(alpha))
 
 
+@match_filter(label="GMS", shapes="check")
 def gms_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     grid_size: int = 20,
     alpha: float = 6.0,
     with_scale: bool = False,
@@ -180,16 +174,13 @@ def gms_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts)s
     matches : ndarray of shape (K, 2)
         Indices into ``kpts1`` and ``kpts2``; many-to-many matches simply vote several times.
-    scores : ndarray of shape (K,) or None
-        Unused by GMS (validated only).
+    %(scores_unused)s
     image_size1, image_size2 : (int, int)
         Image sizes (width, height); the grids span the images.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(shapes_unused)s
     grid_size : int, default 20
         Cells per side of the image-1 grid (20 x 20, CVPR 2017 Sec. 5, IJCV 2020 Sec. 6.1).
     alpha : float, default 6
@@ -208,7 +199,7 @@ def gms_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     References
     ----------
@@ -225,10 +216,6 @@ def gms_filter(
     >>> bool(keep.mean() > 0.9)
     True
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2)
-    # GMS reads no shapes: validated, not gathered per match.
-    _as_shapes(shapes1, np.shape(kpts1)[0], "shapes1")
-    _as_shapes(shapes2, np.shape(kpts2)[0], "shapes2")
     grid_size = check_positive(grid_size, "grid_size", integer=True)
     alpha = check_positive(alpha, "alpha", allow_zero=True)
     ratios = [check_positive(r, "scale_ratios") for r in np.atleast_1d(scale_ratios)] if with_scale else [1.0]

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ._common import check_positive, knn_without_self, zero_mean_unit_rms, prepare, serial_blas
+from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, solve, solve_batched, weighted_gram_t
 from .vfc import control_points, gaussian_kernel, posterior
 
@@ -52,16 +52,10 @@ def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     return sp.csr_matrix((w.ravel(), (rows, nb.ravel())), shape=(n, n))
 
 
+@match_filter(label="LLT")
 def llt_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     n_neighbors: int = 15,
     lam: float = 9e9,
     beta: float = 0.1,
@@ -79,16 +73,7 @@ def llt_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
-    scores : ndarray of shape (K,) or None
-        Unused by LLT (validated only).
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(common_unused)s
     n_neighbors : int, default 15
         Neighbours of the locally linear reconstruction (``conf.Kn`` of the authors' demo).
     lam : float, default 9e9
@@ -116,7 +101,7 @@ def llt_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
@@ -192,7 +177,6 @@ def llt_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     n_neighbors = check_positive(n_neighbors, "n_neighbors", integer=True)
     lam = check_positive(lam, "lam", allow_zero=True)
     beta, a, gamma = check_positive(beta, "beta"), check_positive(a, "a"), check_positive(gamma, "gamma")

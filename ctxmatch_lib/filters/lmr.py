@@ -56,8 +56,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, knn_without_self, prepare
-from ._common import merge_coincident as _merge_coincident
+from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._lmr_network import ANGLE_GAUSSMF, LENGTH_GAUSSMF, gaussmf, load_network, mpc_motion
 
 __all__ = ["lmr_filter", "lmr_features", "mpc_features", "train_lmr", "LMRModel", "LMR_TRAIN_DEFAULTS",
@@ -436,36 +435,20 @@ def train_lmr(
 # ----------------------------------------------------------------------------------------------- the filter
 
 
+@match_filter(label="LMR", merge="merge_coincident")
 def lmr_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     threshold: float = 0.5,
     model: LMRModel | None = None,
     features: str = "mpc",
     network: str | Path | None = None,
-    merge_coincident: bool = True,
 ) -> np.ndarray:
     """LMR: classify every match from its multi-scale neighbourhood features, in two passes.
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
-    scores : ndarray of shape (K,) or None
-        Unused by LMR (validated only).
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(common_unused)s
     threshold : float, default 0.5
         Inlier probability above which a match is kept (both passes).
     model : LMRModel, optional
@@ -486,18 +469,15 @@ def lmr_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the neighbourhoods of the features. The authors' code (``MPC.m``) counts every row, so there coincident
-    copies of a wrong match are each other's shared neighbours; merging them is kept (issue 22, item 4). The
-    shipped model needs no retraining for it: its synthetic training pairs hold no coincident rows. The result
-    on inputs without coincident rows is unchanged.
+    %(coincident)s
+    A location counts once in the neighbourhoods of the features. The authors' code (``MPC.m``) counts every
+    row, so there coincident copies of a wrong match are each other's shared neighbours; merging them is kept
+    (issue 22, item 4). The shipped model needs no retraining for it: its synthetic training pairs hold no
+    coincident rows.
 
     Side by side with the authors' code (issue 22, item 1): ``benchmarks/bench_filters_ref.py --ref
     lmr=DIR`` runs StaRainJ/LMR under Octave (``MPC.m`` and the demo's network ``Net.mat``; see
@@ -553,7 +533,6 @@ def lmr_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     threshold = check_positive(threshold, "threshold", allow_zero=True)
     if features not in ("mpc", "lpm"):
         raise ValueError(f"features must be 'mpc' or 'lpm', got {features!r}")
@@ -562,14 +541,6 @@ def lmr_filter(
             raise ValueError(f"network classifies the 'mpc' features; got features={features!r}")
         net = load_network(network, 3 * len(MPC_SCALES))
     model = _shipped_model() if model is None and network is None else model
-    merged = _merge_coincident(ms) if merge_coincident else None
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = lmr_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          threshold=threshold, model=model, features=features, network=network,
-                          merge_coincident=False)
-        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

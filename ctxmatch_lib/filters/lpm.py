@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, knn_without_self, merge_coincident, prepare
+from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["lpm_filter", "glpm_filter", "GLPM_SCHEDULE"]
 
@@ -135,16 +135,10 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
     return cost / len(scales)
 
 
+@match_filter(label="LPM", merge=True)
 def lpm_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     k: int = 6,
     lambdas=(0.8, 0.5),
     tau: float = 0.2,
@@ -155,16 +149,7 @@ def lpm_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
-    scores : ndarray of shape (K,) or None
-        Unused by LPM (validated only).
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(common_unused)s
     k : int, default 6
         Central neighbourhood size; the scales are ``k + 2, k, k - 2`` = {8, 6, 4} (Sec. 5.1).
     lambdas : (float, float), default (0.8, 0.5)
@@ -183,17 +168,14 @@ def lpm_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the neighbourhoods. The authors' MATLAB demo (jiayi-ma/LPM, demo_LPM_v2.m and LPM_cosF.m) has no step for
-    them: it drops the k-d tree's first answer as the query itself, so copies are neighbours of one another; it
-    is silent, and counting them once is our choice. The result on inputs without coincident rows is unchanged.
+    %(coincident)s
+    A location counts once in the neighbourhoods. The authors' MATLAB demo (jiayi-ma/LPM, demo_LPM_v2.m and
+    LPM_cosF.m) has no step for them: it drops the k-d tree's first answer as the query itself, so copies are
+    neighbours of one another; it is silent, and counting them once is our choice.
 
     Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref lpm=DIR`` runs the
     filtering block of ``demo_LPM_v2.m`` with ``LPM_cosF.m`` (checkout of jiayi-ma/LPM, VLFeat's k-d tree built
@@ -240,20 +222,12 @@ def lpm_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 35)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     k = check_positive(k, "k", integer=True)
     lam = [check_positive(v, "lambdas", allow_zero=True) for v in np.atleast_1d(lambdas)]
     if len(lam) != 2:
         raise ValueError(f"lambdas must hold two thresholds, got {lambdas!r}")
     if reading not in ("code", "ijcv"):
         raise ValueError(f"reading must be 'code' or 'ijcv', got {reading!r}")
-    merged = merge_coincident(ms)
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = lpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          k=k, lambdas=lambdas, tau=tau, reading=reading, tree_ties=tree_ties)
-        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
@@ -287,16 +261,10 @@ def _glpm_pass(x, y, subset, candidates, k: int, lam: float, tree_ties: bool = T
 GLPM_SCHEDULE = ((4, 6.0), (4, 4.0), (6, 6.0), (5, 4.0))
 
 
+@match_filter(label="GLPM", merge=True, nnr=("ratio",))
 def glpm_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     ratio: float = 1.0 / 1.5,
     schedule=GLPM_SCHEDULE,
     guide: str = "location",
@@ -306,17 +274,14 @@ def glpm_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
+    %(kpts)s
+    %(matches)s
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better. The guide is built from the matches with ``scores <= ratio``;
         ``None`` (all equal) puts every match in it.
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+        %(nnr_scale)s
+    %(image_sizes)s
+    %(shapes_unused)s
     ratio : float, default 1/1.5
         Strict NNR threshold of the small putative set (ratio 1.5 between second and first distance in
         Sec. IV of the paper; the large set is the whole input).
@@ -335,16 +300,13 @@ def glpm_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the neighbourhoods and in the guide. The authors' demo (jiayi-ma/GLPM, demo.m) has no step for them
-    (silent: our choice). The result on inputs without coincident rows is unchanged.
+    %(coincident)s
+    A location counts once in the neighbourhoods and in the guide. The authors' demo (jiayi-ma/GLPM, demo.m)
+    has no step for them (silent: our choice).
 
     Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref glpm=DIR`` runs the
     two filtering blocks of the authors' ``demo.m`` with their ``ffm2.cpp`` and VLFeat's k-d tree (checkout of
@@ -371,6 +333,13 @@ def glpm_filter(
     33.0-39.1 / 36.7-52.6, around ours. Without counting coincident copies once (above) the baseline gives
     J 0.962 / 0.915.
 
+    The guide's ``ratio`` is an NNR ratio read on the scale of the scores (issue 32): on D+ blob scores
+    (``r / (1 + r)``) 1/1.5 becomes 0.4. The measurements above passed the scores as plain arrays, so 1/1.5
+    was read on the D+ scale there, where it holds every candidate of the best configuration. Read on their
+    scale (``benchmarks/ablate_peer_filters.py --config best --sweep glpm:ratio=0.6667,0.4 --pairs 40``,
+    HarrisZ + SOSNet stand-in, ``paper-best-overlap``): P / R 48.5 / 54.6 -> 55.8 / 63.1 (planar) and
+    43.7 / 44.7 -> 61.2 / 50.9 (non-planar).
+
     References
     ----------
     J. Ma, J. Jiang, H. Zhou, J. Zhao, X. Guo, "Guided locality preserving feature matching for remote
@@ -387,7 +356,6 @@ def glpm_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 35)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     ratio = check_positive(ratio, "ratio")
     sched = [(check_positive(kk, "schedule", integer=True), check_positive(lam, "schedule", allow_zero=True))
              for kk, lam in schedule]
@@ -395,13 +363,6 @@ def glpm_filter(
         raise ValueError(f"schedule must hold four (K, lambda) pairs, got {len(sched)}")
     if guide not in ("location", "rows"):
         raise ValueError(f"guide must be 'location' or 'rows', got {guide!r}")
-    merged = merge_coincident(ms)
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = glpm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                           image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                           ratio=ratio, schedule=schedule, guide=guide, tree_ties=tree_ties)
-        return keep[group]
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

@@ -41,7 +41,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
-from ._common import check_positive, knn_without_self, prepare, serial_blas
+from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas
 
 __all__ = ["pfm_filter", "local_affines"]
 
@@ -208,16 +208,10 @@ def _min_cut(n: int, unary: np.ndarray, edges: np.ndarray, weights: np.ndarray) 
     return labels[:n]
 
 
+@match_filter(label="PFM", shapes="both")
 def pfm_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     sigma: float = 0.5,
     t: float = 1.5,
     lam: float = 1.0,
@@ -229,15 +223,12 @@ def pfm_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
+    %(kpts)s
+    %(matches)s
     scores : ndarray of shape (K,) or None
         Lower is better: the order in which candidates join the graph and a small bias of the labelling
         (``None``: all equal, input order).
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
+    %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
         Affine shapes of the keypoints: the local maps ``A2 A1^-1``. Without them the maps are fitted to
         the neighbours shared in both images.
@@ -254,7 +245,7 @@ def pfm_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
@@ -297,9 +288,6 @@ def pfm_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
-    if (shapes1 is None) != (shapes2 is None):
-        raise ValueError("shapes1 and shapes2 must be given together")
     sigma, lam = check_positive(sigma, "sigma"), check_positive(lam, "lam")
     t = check_positive(t, "t")
     beta = check_positive(beta, "beta", allow_zero=True)

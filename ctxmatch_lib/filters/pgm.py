@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, knn_without_self, merge_coincident, prepare
+from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._pgm_kernels import pair_affinity as _pair_affinity
 from ._pgm_kernels import sinkhorn as _pgm_sinkhorn
 from ._pgm_kernels import votes as _pgm_votes
@@ -204,16 +204,10 @@ def _top_per_keypoint(vote: np.ndarray, key: np.ndarray, per_node: int, positive
     return sel & (vote > 0) if positive else sel
 
 
+@match_filter(label="PGM", merge=True, one_to_one=True)
 def pgm_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     k: int = 10,
     tau: float = 50.0,
     rho: float = 0.5,
@@ -229,15 +223,13 @@ def pgm_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts)s
     matches : ndarray of shape (K, 2)
         Candidate matches, indices into ``kpts1`` and ``kpts2``; many-to-many allowed (candidates sharing a
         keypoint are the conflict groups of RRWM; the output is one-to-one).
     scores : ndarray of shape (K,) or None
         Unused by PGM (validated only): the candidates are already those of the descriptor matcher.
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
+    %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
         Affine shapes of the keypoints; when both are given the affinity is the mutual projection error of
         the local affine transformations, otherwise the edge length distortion.
@@ -261,7 +253,7 @@ def pgm_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
@@ -306,16 +298,13 @@ def pgm_filter(
     distances to its neighbours happen to be preserved in length is supported (for instance one match sent
     from the corner of a small regular grid to the far side of it).
 
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies and the keypoint indices and shapes of
-    the best-scored one) and gives every copy the decision of its match, so a wrong correspondence cannot
-    support itself through its own copies and a location counts once in the affinity graph and the votes. The
-    authors' code (below) drops such redundant candidates instead: a candidate within 3 pixels of an already
-    selected one in both images is not selected (``redundancy_thres``); merging keeps the decision with every
-    copy, our choice. The output stays one-to-one: of the rows that repeat one keypoint pair only the best-scored is output, while copies on
-    distinct coincident keypoints are all output (distinct keypoints to the one-to-one constraint). The result
-    on inputs without coincident rows is unchanged.
+    %(coincident)s
+    A group is decided with the keypoint indices and shapes of its best-scored copy, and a location counts once
+    in the affinity graph and the votes. The authors' code (below) drops such redundant candidates instead: a
+    candidate within 3 pixels of an already selected one in both images is not selected
+    (``redundancy_thres``); merging keeps the decision with every copy, our choice. The output stays
+    one-to-one: of the rows that repeat one keypoint pair only the best-scored is output, while copies on
+    distinct coincident keypoints are all output (distinct keypoints to the one-to-one constraint).
 
     **Side by side with the authors' code and the paper (issue 22).** Cho's MATLAB release (ProgGM v1.0,
     2013, with RRWM) is public today only as a copy inside a third-party thesis repository (GitHub
@@ -399,7 +388,6 @@ def pgm_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     k = check_positive(k, "k", integer=True)
     tau = check_positive(tau, "tau")
     rho = check_positive(rho, "rho")
@@ -410,21 +398,6 @@ def pgm_filter(
     c = check_positive(c, "c", allow_zero=True)
     amp_max = check_positive(amp_max, "amp_max")
     max_iter = check_positive(max_iter, "max_iter", integer=True)
-    merged = merge_coincident(ms)
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = pgm_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          k=k, tau=tau, rho=rho, max_rounds=max_rounds, per_node=per_node, n_init=n_init,
-                          min_support=min_support, c=c, amp_max=amp_max, max_iter=max_iter)
-        # The output stays one-to-one: of the rows that repeat one keypoint pair only the best-scored (the
-        # first on ties, so the one that stood for the group) is output; copies on other, coincident,
-        # keypoints all are.
-        m = ms.matches
-        order = np.lexsort((np.arange(len(m)), ms.scores, m[:, 1], m[:, 0]))
-        first_of_pair = np.zeros(len(m), bool)
-        first_of_pair[order[np.r_[True, (np.diff(m[order], axis=0) != 0).any(axis=1)]]] = True
-        return keep[group] & first_of_pair
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

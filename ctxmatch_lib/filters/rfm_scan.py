@@ -36,8 +36,7 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._common import check_positive, prepare
-from ._common import merge_coincident as _merge_coincident
+from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["rfm_scan_filter"]
 
@@ -311,39 +310,28 @@ def _added_matches(x: np.ndarray, y: np.ndarray, n_noise: int, rng) -> tuple[np.
     return u[0].T * x.max(0), u[1].T * y.max(0)
 
 
+@match_filter(label="RFM-SCAN", merge="merge_coincident")
 def rfm_scan_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     gamma: float = 10.0,
     pct: float = 0.05,
     min_pts_bounds=(3, 30),
     mu=(0.1, 0.08),
     add_noise: bool = True,
     rng=0,
-    merge_coincident: bool = True,
 ) -> np.ndarray:
     """RFM-SCAN: density clustering of the matches in a normalised motion space.
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
-    scores : ndarray of shape (K,) or None
-        Unused by RFM-SCAN (validated only).
+    %(kpts)s
+    %(matches)s
+    %(scores_unused)s
     image_size1, image_size2 : (int, int)
         Image sizes (width, height); validated only (the added random matches span the matches' own
         coordinates, as in the authors' demo).
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(shapes_unused)s
     gamma : float, default 10
         Amplification of the motion distance for nearby matches, Eq. (3) (Sec. IV-A).
     pct : float, default 0.05
@@ -365,19 +353,16 @@ def rfm_scan_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the density counts. The authors' demo (StaRainJ/RFM-SCAN, Demo_main.m) clusters the rows as given, with
-    no step for them (silent: our choice). Without it, MinPts copies of a row (3 below about 65 candidates) are
-    a core point of DBSCAN by themselves. ``N`` (for MinPts and the added random matches) counts distinct
-    matches. The result on inputs without coincident rows is unchanged. ``merge_coincident=False`` clusters
-    the rows as given, as the authors' code does.
+    %(coincident)s
+    A location counts once in the density counts. The authors' demo (StaRainJ/RFM-SCAN, Demo_main.m) clusters
+    the rows as given, with no step for them (silent: our choice). Without it, MinPts copies of a row (3 below
+    about 65 candidates) are a core point of DBSCAN by themselves. ``N`` (for MinPts and the added random
+    matches) counts distinct matches. ``merge_coincident=False`` clusters the rows as given, as the authors'
+    code does.
 
     The authors' code (StaRainJ/RFM-SCAN: ``Demo_main.m``, ``myDist.m``, ``GetParamater.m``, ``DBSCAN.m``),
     where Bellavia's paper and Jiang et al.'s are silent: ``mapminmax`` of every coordinate of ``[x, y, y - x]``
@@ -437,7 +422,6 @@ def rfm_scan_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     gamma = check_positive(gamma, "gamma", allow_zero=True)
     pct = check_positive(pct, "pct", allow_zero=True)
     lo_pts, hi_pts = (check_positive(v, "min_pts_bounds", integer=True) for v in min_pts_bounds)
@@ -449,14 +433,6 @@ def rfm_scan_filter(
     if rng is not None and not isinstance(rng, (int, np.integer, np.random.Generator)) or (
             isinstance(rng, (int, np.integer)) and rng < 0):
         raise ValueError(f"rng must be None, a non-negative int or a numpy Generator, got {rng!r}")
-    merged = _merge_coincident(ms) if merge_coincident else None
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = rfm_scan_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                               image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                               gamma=gamma, pct=pct, min_pts_bounds=min_pts_bounds, mu=mu,
-                               add_noise=add_noise, rng=rng, merge_coincident=False)
-        return keep[group]
     n = len(ms)
     if n == 0:
         return np.zeros(0, bool)

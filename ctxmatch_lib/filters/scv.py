@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, knn_without_self, merge_coincident, prepare
+from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["scv_filter", "SCV_GROWTH"]
 
@@ -41,16 +41,10 @@ def _shared_counts(n1: np.ndarray, n2: np.ndarray, sizes) -> np.ndarray:
     return out
 
 
+@match_filter(label="SCV", merge=True)
 def scv_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     growth=SCV_GROWTH,
     p1: float = 0.15,
     p0: float = 0.03,
@@ -61,16 +55,13 @@ def scv_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts)s
     matches : ndarray of shape (K, 2)
         Indices into ``kpts1`` and ``kpts2``; many-to-many allowed (matches are the region elements).
     scores : ndarray of shape (K,) or None
         Unused (validated only): every correspondence is tested on its own.
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(image_sizes)s
+    %(shapes_unused)s
     growth : sequence of int, default (4, 8, 16, 32, 64)
         Increasing region sizes, in matches, of the growth steps (capped at ``K - 1``).
     p1 : float, default 0.15
@@ -105,12 +96,9 @@ def scv_filter(
     for precision. The test has no randomness (no ``rng``): it is deterministic, ties in the neighbour search
     being broken by the k-d tree.
 
-    Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-    correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-    decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-    its match, so a wrong correspondence cannot support itself through its own copies and a location counts once
-    in the growing regions. No code of the authors is public (their method grows pixel regions); this is our
-    choice. The result on inputs without coincident rows is unchanged.
+    %(coincident)s
+    A location counts once in the growing regions. No code of the authors is public (their method grows pixel
+    regions); this is our choice.
 
     Next to the paper's Table 2 (issue 22, item 2). No implementation of the authors was found (the code index
     holds only citations of the paper), and the pixel-based method could not be run by a keypoint filter
@@ -148,7 +136,6 @@ def scv_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     sizes = [check_positive(s, "growth", integer=True) for s in np.atleast_1d(growth)]
     if not sizes or any(b <= a for a, b in zip(sizes, sizes[1:])):
         raise ValueError(f"growth must be a non-empty increasing sequence of sizes, got {growth!r}")
@@ -158,13 +145,6 @@ def scv_filter(
     alpha, beta = check_positive(alpha, "alpha"), check_positive(beta, "beta")
     if alpha >= 1 or beta >= 1:
         raise ValueError(f"alpha and beta must be below 1, got alpha={alpha}, beta={beta}")
-    merged = merge_coincident(ms)
-    if merged is not None:  # coincident copies of a match are one match (see Notes)
-        rows, group = merged
-        keep = scv_filter(kpts1, kpts2, ms.matches[rows], ms.scores[rows], image_size1=image_size1,
-                          image_size2=image_size2, shapes1=shapes1, shapes2=shapes2,
-                          growth=growth, p1=p1, p0=p0, alpha=alpha, beta=beta)
-        return keep[group]
     n = len(ms)
     sizes = sorted({min(s, n - 1) for s in sizes if min(s, n - 1) > 0})
     if not sizes:

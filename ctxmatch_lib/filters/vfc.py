@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_positive, zero_mean_unit_rms, prepare, serial_blas
+from ._common import MatchSet, check_positive, match_filter, serial_blas, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, solve, weighted_gram
 
 __all__ = ["vfc_filter"]
@@ -45,16 +45,10 @@ def posterior(residual2: np.ndarray, sigma2: float, gamma: float, a: float, dim:
     return inl / (inl + out)
 
 
+@match_filter(label="VFC")
 def vfc_filter(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
+    ms: MatchSet,
     *,
-    image_size1,
-    image_size2,
-    shapes1=None,
-    shapes2=None,
     beta: float = 0.1,
     lam: float = 3.0,
     tau: float = 0.75,
@@ -70,16 +64,7 @@ def vfc_filter(
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.
-    scores : ndarray of shape (K,) or None
-        Unused by VFC (validated only).
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height), validated only.
-    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Unused.
+    %(common_unused)s
     beta : float, default 0.1
         Width of the Gaussian kernel on normalised coordinates (Sec. V).
     lam : float, default 3
@@ -102,7 +87,7 @@ def vfc_filter(
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
+    %(keep)s
 
     Notes
     -----
@@ -146,7 +131,6 @@ def vfc_filter(
     >>> bool(keep[0]), int(keep[1:].sum())
     (False, 63)
     """
-    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2)
     beta, a = check_positive(beta, "beta"), check_positive(a, "a")
     lam = check_positive(lam, "lam", allow_zero=True)
     tau = check_positive(tau, "tau", allow_zero=True)
