@@ -23,6 +23,7 @@ from .dtm import DTMResult, DTMTrace, dtm_boundary
 from .features import FeatureConfig, Features, extract_features, load_image
 from .filters import FILTERS, register_filter
 from .geometry import fit_fundamental, fit_homography, one_sac, ransac
+from .geometry_metrics import epipolar_consistency, geometry_table, homography_corner_error, pose_auc
 from .groundtruth import label_matches
 from .metrics import average_precision, evaluate_matches, mean_average_precision
 from .match import MatchResult, match_images
@@ -61,6 +62,10 @@ __all__ = [
     "mean_average_precision",
     "one_sac",
     "ransac",
+    "homography_corner_error",
+    "epipolar_consistency",
+    "pose_auc",
+    "geometry_table",
     "summary_table",
     "__version__",
 ]
