@@ -503,8 +503,8 @@ def test_committed_figures_small_vector_and_traceable(png):
     # The inputs: the feature and blob setups, or the named configurations that fix both (fig_geometry).
     from ctxmatch_lib.report import SETUPS
 
-    assert {"features", "blob"} <= set(record) or (record.get("setups") and
-                                                   all(s in SETUPS and s != "global" for s in record["setups"]))
+    setups = record.get("setups", "").split(", ")  # lists are stored joined
+    assert {"features", "blob"} <= set(record) or all(s in SETUPS and s != "global" for s in setups), record
     if png.parent == _FIGURES:  # the gallery of make figures (figures/paper is made by hand, at paper scale)
         assert "date" not in record, "regenerate the gallery: its provenance carries the clock"
     img = Image.open(png)
