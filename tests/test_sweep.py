@@ -55,6 +55,12 @@ def test_ranked_ap_is_bit_identical_to_metrics(seed):
     expected = average_precision(m, lab, scores, ref)
     got = ev_rows.ranked_ap(m[:, 0], m[:, 1], lab, scores, den, 12, 12)
     assert (np.isnan(expected) and np.isnan(got)) or got == expected
+    # Both references of a row from one ranking (the unit's ap and ap_star).
+    den_star = normalised_count(m)
+    got2 = ev_rows.ranked_aps(m[:, 0], m[:, 1], lab, scores, (den, den_star))
+    expected_star = average_precision(m, lab, scores, m)
+    assert (np.isnan(expected) and np.isnan(got2[0])) or got2[0] == expected
+    assert (np.isnan(expected_star) and np.isnan(got2[1])) or got2[1] == expected_star
 
 
 def test_tabulated_overlap_context_matches_plain_context():

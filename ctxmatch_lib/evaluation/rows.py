@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import cumulative_distinct
 from ..blob import BlobConfig
+from ..metrics import ranked_area
 from .steps import EPI_SHARE_AT_PX
 
 __all__ = ["SWEEP_COLUMNS", "GEOMETRY_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame",
-           "ranked_ap"]
+           "ranked_ap", "ranked_aps"]
 
 #: The columns of the model's accuracy (issue 30), in :data:`SWEEP_COLUMNS` after ``model_time_s``.
 GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_share_{t}" for t in EPI_SHARE_AT_PX))
@@ -89,18 +89,15 @@ def ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
     The same arithmetic in the same order, so the value is bit-identical (tested); ties in ``scores`` keep
     the given order, as there.
     """
-    if den == 0:
-        return float("nan")
-    k = len(lab)
-    if k == 0:
-        return 0.0
-    order = np.argsort(scores, kind="stable")
-    lab = lab[order]
-    prec = np.cumsum(lab) / np.arange(1, k + 1)
-    cnt = np.zeros(k, np.int64)
-    if lab.any():
-        r, c = rows[order][lab], cols[order][lab]
-        cnt[lab] = np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64)
-        cnt = np.maximum.accumulate(cnt)
-    dn = np.diff(np.r_[0, cnt])
-    return float((prec * dn).sum() / den)
+    return ranked_aps(rows, cols, lab, scores, (den,))[0]
+
+
+def ranked_aps(rows, cols, lab, scores, dens) -> list[float]:
+    """:func:`ranked_ap` against several reference sizes ``dens`` (the setup's own and the unit's recall*
+    reference): the ranking and its area (:func:`~ctxmatch_lib.metrics.ranked_area`) are computed once."""
+    if all(den == 0 for den in dens):
+        return [float("nan")] * len(dens)
+    if len(lab) == 0:
+        return [float("nan") if den == 0 else 0.0 for den in dens]
+    area = ranked_area(rows, cols, lab, np.asarray(scores, np.float64))
+    return [float("nan") if den == 0 else float(area / den) for den in dens]

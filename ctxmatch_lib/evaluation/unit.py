@@ -26,7 +26,7 @@ from ..metrics import average_precision, evaluate_matches, normalised_count
 from .cache import FORMAT, candidate_sets, digest, engine_cache, features_digest, load_npz, save_npz
 from .overlap import TabulatedContext, overlap_table
 from .plan import SweepUnit
-from .rows import blob_record, error_row, error_rows, frame, ranked_ap
+from .rows import blob_record, error_row, error_rows, frame, ranked_aps
 from .steps import (check_pair_keypoints, label_candidates, model_accuracy, pair_seed, run_filter, run_matcher,
                     run_model)
 
@@ -119,16 +119,15 @@ def _labelled_sets(unit: SweepUnit, f1, f2, cands: dict):
 
 
 def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: float) -> dict:
-    """The blob row of a setup when the unit has no filter and no model (the grid's case), via
-    :func:`~ctxmatch_lib.evaluation.rows.ranked_ap`."""
-    n, m = len(d.f1), len(d.f2)
+    """The blob row of a setup when the unit has no filter and no model (the grid's case): ``ap`` and
+    ``ap_star`` from one ranking (:func:`~ctxmatch_lib.evaluation.rows.ranked_aps`)."""
     correct = int(lab.sum())
+    ap, ap_star = ranked_aps(mt[:, 0], mt[:, 1], lab, scores, (n_gt, d.n_gt_star))
     return {**common, "method": "blob", "model": "none",
             "precision": correct / len(mt) if len(mt) else 0.0,
             "recall": 1.0 if n_gt else float("nan"),
             "recall_star": n_gt / d.n_gt_star if d.n_gt_star else float("nan"),
-            "ap": ranked_ap(mt[:, 0], mt[:, 1], lab, scores, n_gt, n, m),
-            "ap_star": ranked_ap(mt[:, 0], mt[:, 1], lab, scores, d.n_gt_star, n, m),
+            "ap": ap, "ap_star": ap_star,
             "correct": correct, "correct_norm": n_gt, "output": len(mt),
             "failure": len(mt) > 0 and correct == 0, "empty_output": len(mt) == 0,
             "time_s": t_blob, "model_time_s": 0.0, **model_accuracy("none", None, d.unit.pair, None)}
