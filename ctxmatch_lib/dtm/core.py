@@ -7,7 +7,7 @@ pixel; image sizes are ``(width, height)``; ``matches`` are ``(K, 2)`` int indic
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -171,7 +171,8 @@ def _neighbourhood_pairs(tri: Triangulation, other: Triangulation, vertex: np.nd
 
 @dataclass(frozen=True)
 class _Setup:
-    """What every triangulation of one :func:`dtm` run needs besides its vertices."""
+    """What every triangulation of one :func:`dtm` run needs besides its vertices, and the triangulations
+    the run has built so far."""
 
     size1: tuple
     size2: tuple
@@ -179,16 +180,29 @@ class _Setup:
     shrink: float
     others1: np.ndarray | None  # all keypoints of each image, collapsed ("keypoints" boundary only)
     others2: np.ndarray | None
+    built: dict = field(default_factory=dict, compare=False, repr=False)
 
     def triangulations(self, v1: np.ndarray, v2: np.ndarray):
-        """Boundaries ``B_1``, ``B_2`` of the vertex sets and the triangulations of ``V ∪ B``."""
+        """Boundaries ``B_1``, ``B_2`` of the vertex sets and the triangulations of ``V ∪ B`` (steps 1-2).
+
+        Each image's boundary and triangulation depend on its vertex set alone, so they are built once per
+        vertex set and run: a DTM2 level whose ``E`` a DTM1 iteration has already triangulated (the last
+        level re-added every match that iteration removed), or an iteration that changed the vertices of one
+        image only (many-to-many sets), reuses them. The results are those of a fresh construction."""
+        keys = [(0, v1.shape, v1.tobytes()), (1, v2.shape, v2.tobytes())]
+        new = [j for j in (0, 1) if keys[j] not in self.built]
+        vs, sizes, others = (v1, v2), (self.size1, self.size2), (self.others1, self.others2)
         if self.boundary == "keypoints":
-            b1 = keypoint_boundary(v1, self.size1, self.others1, collapsed=True)
-            b2 = keypoint_boundary(v2, self.size2, self.others2, collapsed=True)
-            return b1, b2, triangulate(v1, b1.points), triangulate(v2, b2.points)
-        (b1, s1), (b2, s2) = boundaries_and_triangulations([v1, v2], [self.size1, self.size2], self.boundary,
-                                                           shrink=self.shrink)
-        return b1, b2, triangulate(v1, b1.points, simplices=s1), triangulate(v2, b2.points, simplices=s2)
+            for j in new:
+                b = keypoint_boundary(vs[j], sizes[j], others[j], collapsed=True)
+                self.built[keys[j]] = b, triangulate(vs[j], b.points)
+        elif new:
+            pairs = boundaries_and_triangulations([vs[j] for j in new], [sizes[j] for j in new], self.boundary,
+                                                  shrink=self.shrink)
+            for j, (b, s) in zip(new, pairs):
+                self.built[keys[j]] = b, triangulate(vs[j], b.points, simplices=s)
+        (b1, t1), (b2, t2) = self.built[keys[0]], self.built[keys[1]]
+        return b1, b2, t1, t2
 
 
 def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_record):
