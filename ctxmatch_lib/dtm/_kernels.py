@@ -29,7 +29,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
+           "contract_expand_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
            "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
@@ -441,6 +441,90 @@ with user_cache() as _cache:
                     again = False
                 elif d2 == best:
                     again = True
+            tie = tie or again
+            dist[q] = math.sqrt(best)
+            index[q] = arg
+        return dist, index, tie
+
+    @_jit
+    def grid_nearest_kernel(queries, points):
+        """:func:`nearest_kernel` through a uniform grid over ``points`` (about two per cell): the same
+        distances, indices and tie flag, bit for bit. Each query visits the cells ring by ring around its own
+        and stops when every cell left lies farther than its nearest point so far (with a margin that
+        covers the rounding), so it still sees every point at the nearest distance, and the tie flag stays
+        exact."""
+        n, m = points.shape[0], queries.shape[0]
+        dist = np.full(m, np.inf)
+        index = np.full(m, -1, np.int64)
+        tie = False
+        if n == 0:
+            return dist, index, tie
+        x0, x1, y0, y1 = points[0, 0], points[0, 0], points[0, 1], points[0, 1]
+        for i in range(n):
+            x0, x1 = min(x0, points[i, 0]), max(x1, points[i, 0])
+            y0, y1 = min(y0, points[i, 1]), max(y1, points[i, 1])
+        w, h = x1 - x0, y1 - y0
+        cell = max(math.sqrt(2.0 * w * h / n), max(w, h) / n)
+        if not cell > 0:
+            cell = 1.0
+        nx, ny = min(int(w / cell) + 1, 4096), min(int(h / cell) + 1, 4096)
+        cell = max(cell, w / nx * (1 + 1e-12), h / ny * (1 + 1e-12))  # after capping: nx, ny cells cover the box
+        key = np.empty(n, np.int64)
+        for i in range(n):
+            cx = min(max(int((points[i, 0] - x0) / cell), 0), nx - 1)
+            cy = min(max(int((points[i, 1] - y0) / cell), 0), ny - 1)
+            key[i] = cy * nx + cx
+        start, at = _group_by(key, nx * ny)
+        margin = 1e-9 * cell
+        for q in range(m):
+            qx, qy = queries[q, 0], queries[q, 1]
+            fx, fy = (qx - x0) / cell, (qy - y0) / cell
+            cx = 0 if fx < 0 else min(int(fx), nx - 1)
+            cy = 0 if fy < 0 else min(int(fy), ny - 1)
+            best = np.inf
+            arg = -1
+            again = False
+            r = 0
+            while True:
+                if r > 0:
+                    # Cells left: outside the box of rings < r. Their points lie beyond the box's inner sides
+                    # (the sides on the grid's edge have nothing beyond them).
+                    lb = np.inf
+                    if cx - r >= 0:
+                        lb = min(lb, qx - (x0 + (cx - r + 1) * cell))
+                    if cx + r < nx:
+                        lb = min(lb, x0 + (cx + r) * cell - qx)
+                    if cy - r >= 0:
+                        lb = min(lb, qy - (y0 + (cy - r + 1) * cell))
+                    if cy + r < ny:
+                        lb = min(lb, y0 + (cy + r) * cell - qy)
+                    if lb == np.inf:
+                        break  # the box covers the grid
+                    lb -= margin
+                    if lb > 0 and lb * lb > best * (1.0 + 1e-9):
+                        break
+                for j in range(max(cy - r, 0), min(cy + r, ny - 1) + 1):
+                    edge_row = j == cy - r or j == cy + r
+                    step = 1 if edge_row else 2 * r
+                    i = cx - r
+                    while i <= cx + r:
+                        if 0 <= i < nx:
+                            c = j * nx + i
+                            for k in range(start[c], start[c + 1]):
+                                p = at[k]
+                                dx = qx - points[p, 0]
+                                dy = qy - points[p, 1]
+                                d2 = dx * dx + dy * dy
+                                if d2 < best:
+                                    best = d2
+                                    arg = p
+                                    again = False
+                                elif d2 == best:
+                                    again = True
+                        if r == 0:
+                            break
+                        i += step
+                r += 1
             tie = tie or again
             dist[q] = math.sqrt(best)
             index[q] = arg

@@ -11,7 +11,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from ._kernels import nearest_kernel, single_ring_kernel
+from ._kernels import grid_nearest_kernel, single_ring_kernel
 from .triangulation import unique_rows
 
 _EMPTY2 = np.empty((0, 2))
@@ -86,16 +86,15 @@ def _sample_rings(rings: list, s: float) -> np.ndarray:
 def _nearest(b: np.ndarray, vertices: np.ndarray, need_index: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Distance to and index of the nearest vertex of each point of ``b``, as ``cKDTree.query`` gives them.
 
-    An exhaustive compiled search (:func:`~ctxmatch_lib.dtm._kernels.nearest_kernel`, same distances bit for
-    bit) for the few boundary samples against ``V``; a k-d tree for large products, and whenever an index is
-    needed and some sample has two nearest vertices at exactly the same distance (a tie the tree breaks its
+    A compiled grid search (:func:`~ctxmatch_lib.dtm._kernels.grid_nearest_kernel`, the distances of the
+    exhaustive :func:`~ctxmatch_lib.dtm._kernels.nearest_kernel` bit for bit); the k-d tree whenever an index
+    is needed and some point has two nearest vertices at exactly the same distance (a tie the tree breaks its
     own way)."""
     b = np.ascontiguousarray(b, np.float64)
     vertices = np.ascontiguousarray(vertices, np.float64)
-    if len(b) * len(vertices) <= 4_000_000:
-        d, j, tie = nearest_kernel(b, vertices)
-        if not (need_index and tie):
-            return d, j
+    d, j, tie = grid_nearest_kernel(b, vertices)
+    if not (need_index and tie):
+        return d, j
     return cKDTree(vertices, balanced_tree=False, compact_nodes=False).query(b)  # unbalanced: faster to build
 
 

@@ -579,7 +579,8 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
             records.append(DTM1Iteration(**record))
         if len(kept) == len(active):
             break
-        removed_at[np.setdiff1d(active, kept)] = i
+        removed_at[active] = i  # M^{i-1} \ M^i (kept is a subset of active, none removed before)
+        removed_at[kept] = 0
         active = kept
         if len(active) == 0:
             i += 1  # M^{i} = M^{i-1} = ∅ trivially; nothing to triangulate
@@ -600,7 +601,7 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
             readded_at[added] = level
             if trace:
                 levels.append(DTM2Level(level, base, t1, t2, cand, added))
-            base = np.union1d(base, added)
+            base = np.sort(np.concatenate([base, added]))  # added: none of them in base
 
     keep = (removed_at == 0) | (readded_at > 0)
     tr = DTMTrace(tuple(records), tuple(levels), size1, size2) if trace else None

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
+from ._kernels import grid_nearest_kernel, key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
 
 __all__ = [
     "DelaunayMesh",
@@ -381,7 +381,8 @@ class Triangulation:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
         A visibility walk (compiled, :func:`~ctxmatch_lib.dtm._kernels.locate_kernel`): each query starts in a
-        triangle around its nearest vertex (usually the one holding it) and crosses, while the point lies
+        triangle around its nearest vertex (:func:`~ctxmatch_lib.dtm._kernels.grid_nearest_kernel`; the k-d
+        tree's choice where two are nearest) (usually the one holding it) and crosses, while the point lies
         outside the current triangle, the edge that separates them most; on a Delaunay triangulation this
         terminates, in a few steps from there. Points on an edge count as inside (either triangle may be
         returned). Queries still walking after many steps (only possible on near-degenerate slivers) are
@@ -392,7 +393,9 @@ class Triangulation:
         if self.delaunay is None or len(xy) == 0 or len(self.simplices) == 0:
             return out
         simplices, p = self.simplices, np.ascontiguousarray(self.points, np.float64)
-        _, nearest = cKDTree(p, balanced_tree=False, compact_nodes=False).query(xy)
+        _, nearest, tie = grid_nearest_kernel(xy, p)
+        if tie:  # a query with two nearest vertices: the k-d tree's choice, as before
+            _, nearest = cKDTree(p, balanced_tree=False, compact_nodes=False).query(xy)
         out, unresolved = locate_kernel(p, np.ascontiguousarray(simplices, np.int64), self.delaunay.neighbors, xy,
                                         nearest.astype(np.int64), max(64, int(math.isqrt(len(simplices))) * 4))
         active = np.flatnonzero(unresolved)
