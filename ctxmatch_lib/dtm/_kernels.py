@@ -29,7 +29,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
+           "contract_expand_kernel", "doubled_areas_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
            "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
@@ -531,6 +531,19 @@ with user_cache() as _cache:
         return dist, index, tie
 
     @_jit
+    def doubled_areas_kernel(tri):
+        """``|cross|`` (twice the area) of each triangle ``(x0, y0, x1, y1, x2, y2)`` of a float32 ``(T, 6)``
+        triangle list, in float64 (exact inputs): ``(x1 - x0)(y2 - y0) - (y1 - y0)(x2 - x0)``, as NumPy computes it
+        on the float64 columns."""
+        out = np.empty(tri.shape[0])
+        for t in range(tri.shape[0]):
+            x0, y0 = np.float64(tri[t, 0]), np.float64(tri[t, 1])
+            x1, y1 = np.float64(tri[t, 2]), np.float64(tri[t, 3])
+            x2, y2 = np.float64(tri[t, 4]), np.float64(tri[t, 5])
+            out[t] = abs((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0))
+        return out
+
+    @_jit
     def key_rows_kernel(keys, queries):
         """Row of each query among ``keys`` (int64, e.g. the bit patterns of float32 point pairs) through an
         open-addressing hash table. Returns ``(rows, status)``: ``status`` 0 when every query is a key and every
@@ -573,11 +586,10 @@ with user_cache() as _cache:
     def vertex_csr_kernel(simplices, n):
         """CSR ``(indptr, indices)`` of the vertices ``0..n-1`` adjacent to each vertex ``v < n`` through an edge
         of ``simplices``, ``v`` itself included, increasing and without repeats (rows ``>= n`` are left out)."""
-        count = np.ones(n + 1, np.int64)  # the self loop
-        count[n] = 0
+        count = np.zeros(n + 1, np.int64)
         for t in range(simplices.shape[0]):
             for k in range(3):
-                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                a, b = simplices[t, k], simplices[t, k + 1 if k < 2 else 0]
                 if a < n and b < n:
                     count[a] += 1
                     count[b] += 1
@@ -586,33 +598,37 @@ with user_cache() as _cache:
             start[v + 1] = start[v] + count[v]
         buf = np.empty(start[n], np.int64)
         fill = start[:-1].copy()
-        for v in range(n):
-            buf[fill[v]] = v
-            fill[v] += 1
         for t in range(simplices.shape[0]):
             for k in range(3):
-                a, b = simplices[t, k], simplices[t, (k + 1) % 3]
+                a, b = simplices[t, k], simplices[t, k + 1 if k < 2 else 0]
                 if a < n and b < n:
                     buf[fill[a]] = b
                     fill[a] += 1
                     buf[fill[b]] = a
                     fill[b] += 1
+        # Each edge is listed once per triangle holding it: drop the repeats (stamp), add v, sort the few left.
         indptr = np.zeros(n + 1, np.int64)
-        indices = np.empty(start[n], np.int64)
+        indices = np.empty(start[n] + n, np.int64)
+        stamp = np.full(n, -1, np.int64)
         m = 0
         for v in range(n):
-            lo, hi = start[v], start[v + 1]
-            for i in range(lo + 1, hi):  # insertion sort of the few neighbours
-                x = buf[i]
-                j = i - 1
-                while j >= lo and buf[j] > x:
-                    buf[j + 1] = buf[j]
-                    j -= 1
-                buf[j + 1] = x
-            for i in range(lo, hi):
-                if i == lo or buf[i] != buf[i - 1]:
-                    indices[m] = buf[i]
+            lo = m
+            indices[m] = v
+            m += 1
+            stamp[v] = v
+            for i in range(start[v], start[v + 1]):
+                u = buf[i]
+                if stamp[u] != v:
+                    stamp[u] = v
+                    indices[m] = u
                     m += 1
+            for i in range(lo + 1, m):  # insertion sort of the few neighbours
+                x = indices[i]
+                j = i - 1
+                while j >= lo and indices[j] > x:
+                    indices[j + 1] = indices[j]
+                    j -= 1
+                indices[j + 1] = x
             indptr[v + 1] = m
         return indptr, indices[:m].copy()
 

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import grid_nearest_kernel, key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
+from ._kernels import doubled_areas_kernel, grid_nearest_kernel, key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
 
 __all__ = [
     "DelaunayMesh",
@@ -255,8 +255,7 @@ class IncrementalDelaunay:
         if status != 0:
             return None
         simplices = idx.reshape(-1, 3)
-        t = tri.astype(np.float64)  # exact: these are the float32 input coordinates
-        area = np.abs((t[:, 2] - t[:, 0]) * (t[:, 5] - t[:, 1]) - (t[:, 3] - t[:, 1]) * (t[:, 4] - t[:, 0])).sum()
+        area = doubled_areas_kernel(tri).sum()  # in float64, exact inputs: the float32 input coordinates
         hull = 2.0 * cv2.contourArea(cv2.convexHull(self._p32))
         if abs(area - hull) > 1e-9 * max(hull, 1.0):
             return None
