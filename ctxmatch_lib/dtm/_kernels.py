@@ -29,7 +29,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "doubled_areas_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel",
+           "contract_expand_kernel", "doubled_areas_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel", "transfer_test_kernel",
            "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
@@ -319,6 +319,77 @@ with user_cache() as _cache:
                     break
                 t = nxt
         return out, unresolved
+
+    @_jit(inline="always")
+    def _strictly_inside(x, y, ax, ay, bx, by, cx, cy, orientation):
+        """Whether ``(x, y)`` lies strictly inside triangle ``abc`` turning the way of ``orientation`` (+1, -1;
+        0 holds nothing): the three products of ``core._strictly_inside``, in its operation order."""
+        return ((_cross(ax, ay, bx, by, x, y) * orientation > 0) and (_cross(bx, by, cx, cy, x, y) * orientation > 0)
+                and (_cross(cx, cy, ax, ay, x, y) * orientation > 0))
+
+    @_jit
+    def transfer_test_kernel(simplex, simplices, points, n_vertices, indptr, indices, q_src, q_dst, base_src,
+                             base_dst, base_vertex):
+        """DTM2 step 2 in one direction (:func:`ctxmatch_lib.dtm.core._transfer_test`, which states the rule):
+        whether each candidate ``(q_src, q_dst)`` passes, given the triangle ``simplex`` (``-1``: none) of
+        ``simplices`` holding ``q_src``. Keypoint triangles try every partner triangle of base matches; triangles
+        with one or two boundary vertices try the translations by the base matches on the vertices adjacent to
+        their keypoint vertex nearest to ``q_src`` (the first on ties). The arithmetic is that of the NumPy
+        version, operation for operation."""
+        n = q_src.shape[0]
+        ok = np.zeros(n, np.bool_)
+        start, at = _group_by(base_vertex, n_vertices)  # base matches collapsed onto each vertex
+        for q in range(n):
+            t = simplex[q]
+            if t < 0:
+                continue
+            w0, w1, w2 = simplices[t, 0], simplices[t, 1], simplices[t, 2]
+            ax, ay, bx, by = points[w0, 0], points[w0, 1], points[w1, 0], points[w1, 1]
+            cx, cy = points[w2, 0], points[w2, 1]
+            area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+            orientation = 1.0 if area > 0 else (-1.0 if area < 0 else 0.0)
+            n_kp = (w0 < n_vertices) + (w1 < n_vertices) + (w2 < n_vertices)
+            x, y = q_dst[q, 0], q_dst[q, 1]
+            if n_kp == 3:
+                for i in range(start[w0], start[w0 + 1]):
+                    ea = at[i]
+                    for j in range(start[w1], start[w1 + 1]):
+                        eb = at[j]
+                        for k in range(start[w2], start[w2 + 1]):
+                            ec = at[k]
+                            if _strictly_inside(x, y, base_dst[ea, 0], base_dst[ea, 1], base_dst[eb, 0],
+                                                base_dst[eb, 1], base_dst[ec, 0], base_dst[ec, 1], orientation):
+                                ok[q] = True
+                                break
+                        if ok[q]:
+                            break
+                    if ok[q]:
+                        break
+            elif n_kp > 0:
+                near = -1
+                best = np.inf
+                for v in (w0, w1, w2):
+                    if v < n_vertices:
+                        dx = points[v, 0] - q_src[q, 0]
+                        dy = points[v, 1] - q_src[q, 1]
+                        d2 = dx * dx + dy * dy
+                        if d2 < best or near < 0:
+                            best = d2
+                            near = v
+                for j in range(indptr[near], indptr[near + 1]):
+                    u = indices[j]
+                    if u == near:
+                        continue
+                    for i in range(start[u], start[u + 1]):
+                        e = at[i]
+                        mx = q_dst[q, 0] - base_dst[e, 0] + base_src[e, 0]
+                        my = q_dst[q, 1] - base_dst[e, 1] + base_src[e, 1]
+                        if _strictly_inside(mx, my, ax, ay, bx, by, cx, cy, orientation):
+                            ok[q] = True
+                            break
+                    if ok[q]:
+                        break
+        return ok
 
     @_jit
     def contraction_kernel(rank, conflicts_a, ptr_a, conflicts_b, ptr_b):

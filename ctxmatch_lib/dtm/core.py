@@ -13,9 +13,9 @@ import numpy as np
 
 from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
 from ..geometry import _dlt_normal_matrix, _normalise, _transfer_errors
-from ._kernels import contract_expand_kernel, neighbourhood_kernel, row_counts_kernel
+from ._kernels import contract_expand_kernel, neighbourhood_kernel, row_counts_kernel, transfer_test_kernel
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
-from .triangulation import Triangulation, collapse_vertices, expand_ranges, stable_argsort_small, triangulate
+from .triangulation import Triangulation, collapse_vertices, stable_argsort_small, triangulate
 
 __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_filter"]
 
@@ -280,16 +280,6 @@ def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     return bool((fwd <= tol).all() and (bwd <= tol).all())
 
 
-def _strictly_inside(xy, a, b, c, orientation) -> np.ndarray:
-    """Whether ``xy[k]`` lies strictly inside triangle ``(a[k], b[k], c[k])`` *and* that triangle turns the
-    same way as ``orientation[k]`` (+1 or -1): a mirrored partner triangle holds nothing."""
-    def cross(p, q, r):
-        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
-
-    return ((cross(a, b, xy) * orientation > 0) & (cross(b, c, xy) * orientation > 0)
-            & (cross(c, a, xy) * orientation > 0))
-
-
 def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray, base_src: np.ndarray,
                    base_dst: np.ndarray, base_vertex: np.ndarray) -> np.ndarray:
     """DTM2 step 2 in one direction: the candidates ``(q_src, q_dst)`` that pass.
@@ -305,49 +295,18 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
     - ``W`` of boundary vertices only, or no ``W``: the candidate fails.
 
     The paper states only the first case; the rest follows the author's Python port (see :func:`dtm`).
+    "Strictly inside" compares the three edge cross products, times the orientation of the triangle ``W``
+    (``+1``/``-1``; ``0`` for a flat one, which holds nothing), with zero. One compiled pass over the
+    candidates (:func:`~ctxmatch_lib.dtm._kernels.transfer_test_kernel`).
     """
-    n = len(q_src)
-    ok = np.zeros(n, bool)
+    if len(q_src) == 0 or len(base_src) == 0 or tri_src.delaunay is None:
+        return np.zeros(len(q_src), bool)
     simplex = tri_src.find_simplex(q_src)
-    located = np.flatnonzero(simplex >= 0)
-    if len(located) == 0 or len(base_src) == 0:
-        return ok
-    w = tri_src.simplices[simplex[located]]  # (c, 3) rows into tri_src.points
-    n_kp = (w < tri_src.n_vertices).sum(axis=1)
-    corners = tri_src.points[w]
-    area = ((corners[:, 1, 0] - corners[:, 0, 0]) * (corners[:, 2, 1] - corners[:, 0, 1])
-            - (corners[:, 1, 1] - corners[:, 0, 1]) * (corners[:, 2, 0] - corners[:, 0, 0]))
-    orientation = np.sign(area)
-    ptr, order = _csr_by(base_vertex, tri_src.n_vertices)  # base matches collapsed onto each vertex
-    # Keypoint triangles: every partner triangle, by one CSR expansion per vertex.
-    full = np.flatnonzero(n_kp == 3)
-    if len(full):
-        combos = [np.arange(len(full))]
-        for k in range(3):
-            v = w[full[combos[0]], k]
-            rows, pos = expand_ranges(ptr[v], np.diff(ptr)[v])
-            combos = [c[rows] for c in combos] + [order[pos]]
-        cidx, ea, eb, ec = combos
-        c = full[cidx]
-        hit = _strictly_inside(q_dst[located[c]], base_dst[ea], base_dst[eb], base_dst[ec], orientation[c])
-        ok[located[c[hit]]] = True
-    # Triangles touching the boundary: translations by the base matches around the nearest keypoint vertex.
-    part = np.flatnonzero((n_kp == 1) | (n_kp == 2))
-    if len(part):
-        wp = w[part]
-        d2 = ((tri_src.points[wp] - q_src[located[part], None, :]) ** 2).sum(axis=2)
-        d2[wp >= tri_src.n_vertices] = np.inf
-        near = wp[np.arange(len(part)), np.argmin(d2, axis=1)]
-        r1, pos = expand_ranges(tri_src.indptr[near], np.diff(tri_src.indptr)[near])
-        nb = tri_src.indices[pos]
-        adjacent = nb != near[r1]
-        r1, nb = r1[adjacent], nb[adjacent]
-        r2, pos2 = expand_ranges(ptr[nb], np.diff(ptr)[nb])
-        c, e = part[r1[r2]], order[pos2]
-        moved = q_dst[located[c]] - base_dst[e] + base_src[e]
-        hit = _strictly_inside(moved, corners[c, 0], corners[c, 1], corners[c, 2], orientation[c])
-        ok[located[c[hit]]] = True
-    return ok
+    return transfer_test_kernel(simplex, np.ascontiguousarray(tri_src.simplices, np.int64),
+                                np.ascontiguousarray(tri_src.points, np.float64), tri_src.n_vertices,
+                                tri_src.indptr, tri_src.indices, *(np.ascontiguousarray(a, np.float64) for a in
+                                                                   (q_src, q_dst, base_src, base_dst)),
+                                np.asarray(base_vertex, np.int64))
 
 
 def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored, tris=None):
