@@ -102,3 +102,28 @@ def test_outputs_identical_under_every_openblas_kernel():
     first = results["default"]
     for core, res in results.items():
         assert res == first, core
+
+
+class _ShortLists(BlobContext):
+    margin = 0  # lists of `depth` entries only: most second-best searches fall back to whole lines
+
+
+@pytest.mark.parametrize("ties", [False, True])
+@pytest.mark.parametrize("t_o, kind", [(None, "px"), (12.0, "px"), (0.6, "overlap")])
+def test_whole_line_second_best_equals_the_dense_reference(ties, t_o, kind):
+    """The fallback beyond the sorted lists (float32 rows propose, exact distances decide) on every line."""
+    d1, d2, k1, k2 = planted(4, 220, 190, ties=ties)
+    rng = np.random.default_rng(5)
+    s1, s2 = rng.uniform(3, 15, len(d1)), rng.uniform(3, 15, len(d2))
+    kw = dict(kpts1=k1, kpts2=k2, shapes1=np.einsum("n,ij->nij", s1, np.eye(2)),
+              shapes2=np.einsum("n,ij->nij", s2, np.eye(2)), depth=2)
+    D = np.sqrt(((d1[:, None, :].astype(np.float64) - d2[None].astype(np.float64)) ** 2).sum(-1))
+    ctx, ref = _ShortLists(d1, d2, **kw), _ShortLists(distances=D, **kw)
+    matches, dist = ctx.candidates(2, "cup", 2)
+    i, j = matches[:, 0], matches[:, 1]
+    for geq in (False, True):
+        for side, (a, b) in enumerate(((i, j), (j, i))):
+            got = ctx.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
+            want = ref.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
+            assert np.array_equal(np.isinf(got), np.isinf(want))
+            assert np.allclose(got[np.isfinite(got)], want[np.isfinite(want)], rtol=1e-12, atol=1e-14)

@@ -23,8 +23,8 @@ from numba import njit
 
 from .._numba import user_cache
 
-__all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "exact_lines", "greedy_sorted", "greedy_dense",
-           "next_in_line", "first_allowed"]
+__all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense",
+           "next_in_line", "first_allowed", "min_allowed"]
 
 _U = 2.0**-24
 
@@ -302,14 +302,6 @@ with user_cache() as _cache:
         return work
 
     @njit(cache=_cache, nogil=True)
-    def exact_lines(A, which, B):
-        """Whole lines ``A[which]`` against every row of ``B``: exact distances, float64."""
-        out = np.empty((len(which), B.shape[0]))
-        for r in range(len(which)):
-            _exact_row(A, which[r], B, out[r])
-        return out
-
-    @njit(cache=_cache, nogil=True)
     def greedy_sorted(rows, cols, n, m, f_prime):
         """Step 2 on entries already sorted: accept while row and column counts stay <= f'."""
         rc = np.zeros(n, np.int64)
@@ -472,6 +464,25 @@ with user_cache() as _cache:
             i = anchors[r]
             d = dist[r] if geq else 0.0
             e, k = next_in_line(Dap[i], A, i, B, E_lines[i], d, -1, False, others[r], free, pts, t_o2)
+            out[r] = e
+        return out
+
+    @njit(cache=_cache, nogil=True)
+    def min_allowed(Dap, A, which, B, E_lines, dist, geq, ok):
+        """Second-best entries of whole lines (step 3's fallback) from approximate rows, decided exactly.
+
+        ``Dap[r]`` holds the float32 approximate squared distances of line ``which[r]`` of ``A`` against
+        ``B`` (within ``E_lines[which[r]]`` of the exact ones), ``ok[r]`` the entries the search may take
+        (the match itself and FGINN's exclusions already off). Returns per line the smallest exact distance
+        among allowed entries, restricted to ``>= dist[r]`` when ``geq``; ``inf`` when none qualifies. Exact
+        distances are computed only where the approximation cannot decide (:func:`next_in_line`).
+        """
+        out = np.empty(len(which))
+        dummy = np.zeros((1, 2))
+        for r in range(len(which)):
+            i = which[r]
+            d = dist[r] if geq else 0.0
+            e, k = next_in_line(Dap[r], A, i, B, E_lines[i], d, -1, False, -1, ok[r], dummy, 0.0)
             out[r] = e
         return out
 

@@ -257,6 +257,7 @@ class BlobContext:
         Kr, Kc = min(m, Tr + self.slack), min(n, Tc + self.slack)
         A32 = np.ascontiguousarray(X1, np.float32)
         B32 = np.ascontiguousarray(X2, np.float32)
+        self._X32 = (A32, B32)
         # Squared norms summed in float64 (fixed order), rounded once: part of the certified bound.
         nrm1 = np.einsum("ij,ij->i", X1.astype(np.float64), X1.astype(np.float64))
         nrm2 = np.einsum("ij,ij->i", X2.astype(np.float64), X2.astype(np.float64))
@@ -300,16 +301,21 @@ class BlobContext:
         """The float32 approximate squared distances of the L2 path (f = Ω), computed on demand."""
         if self._approx is None:
             self._check_dense(self.n * self.m * 4, "f='omega'")
-            X1, X2 = self._X
-            a, b = X1.astype(np.float32), X2.astype(np.float32)
-            n1, n2 = self._norms
-            with threadpool_limits(1):
-                g = a @ b.T
-            g *= np.float32(-2)
-            g += n1.astype(np.float32)[:, None]
-            g += n2.astype(np.float32)[None, :]
-            self._approx = g
+            self._approx = self._approx_lines(0, np.arange(self.n))
         return self._approx
+
+    def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
+        """Float32 approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
+        within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` on one BLAS thread."""
+        if self._approx is not None:
+            return self._approx[which] if side == 0 else self._approx[:, which].T
+        own, other = self._X32[side], self._X32[1 - side]
+        with threadpool_limits(1):
+            g = own[which] @ other.T
+        g *= np.float32(-2)
+        g += self._norms[side][which].astype(np.float32)[:, None]
+        g += self._norms[1 - side].astype(np.float32)[None, :]
+        return g
 
     # -- whole rows / columns, for the rare look-ups beyond the sorted lists ------------------------
     def _check_dense(self, nbytes: int, what: str) -> None:
@@ -337,11 +343,8 @@ class BlobContext:
         return dense
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
-        """Whole rows (side 0) or columns (side 1) of D as float64 distances."""
-        if self._exact:
-            X1, X2 = self._X
-            which = np.asarray(which, np.int64)
-            return _kernels.exact_lines(X1, which, X2) if side == 0 else _kernels.exact_lines(X2, which, X1)
+        """Whole rows (side 0) or columns (side 1) of D as float64 distances (precomputed D or a distance
+        hook; the L2 path never needs whole lines exactly, see :meth:`second_best`)."""
         if self._dense is not None:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
         elif self._metric is not None:
@@ -500,9 +503,17 @@ class BlobContext:
             step = max(1, (8 * _MiB) // (8 * size))
             for s in range(0, len(miss), step):
                 sel = miss[s : s + step]
-                line = self._lines(side, anchors[sel])
-                cand = np.broadcast_to(np.arange(size), line.shape)
+                cand = np.broadcast_to(np.arange(size), (len(sel), size))
                 ok = ~self._excluded(1 - side, cand, others[sel], t_o, t_o_kind)
+                if self._exact:
+                    # Float32 rows propose, exact distances decide where the rounding could (as in the scan).
+                    which = anchors[sel].astype(np.int64)
+                    X = self._X
+                    out[sel] = _kernels.min_allowed(
+                        self._approx_lines(side, which), X[side], which, X[1 - side], self._line_bounds(side),
+                        np.asarray(dist, np.float64)[sel], geq, np.ascontiguousarray(ok))
+                    continue
+                line = self._lines(side, anchors[sel])
                 if geq:
                     ok &= line >= dist[sel, None]
                 out[sel] = np.where(ok, line, np.inf).min(axis=1)
