@@ -247,7 +247,7 @@ def match_images(
     filters : sequence of str, str or None
         Registered filters (:data:`~ctxmatch_lib.filters.FILTERS`) applied one after the other, each to the
         output of the previous one; ``None``, ``()`` or ``"none"`` keeps the blob candidates.
-    model : {"none", "1sac", "ransac", "prosac"}
+    model : {"none", "1sac", "ransac", "prosac", "magsac"}
         Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`).
     model_kind : {"F", "H"}
         Fundamental matrix (any scene) or homography (planar scenes, pure rotations).

@@ -90,7 +90,7 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
     ax.set_yticks(range(len(t)), names)
     ax.set_ylim(-0.7, len(t) - 0.3)
     ax.set_xlim(0, 100)
-    ax.set_xlabel("AUC of the mean corner error (%)" if planar else "GT correspondences consistent with F (%)")
+    ax.set_xlabel("AUC of the mean corner error (%)" if planar else "GT points consistent with F (%)")
     ax.grid(True, axis="x", lw=0.4, alpha=0.5)
     if title:
         ax.set_title(title)
