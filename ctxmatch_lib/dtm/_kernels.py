@@ -29,7 +29,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "doubled_areas_kernel", "grid_nearest_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel", "transfer_test_kernel",
+           "contract_expand_kernel", "doubled_areas_kernel", "float32_exact_kernel", "grid_nearest_kernel", "integer_row_keys_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel", "sorted_unique_rows_kernel", "transfer_test_kernel",
            "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
@@ -53,30 +53,48 @@ with user_cache() as _cache:
             fill[keys[i]] += 1
         return start, order
 
+    @_jit(inline="always")
+    def _edge_ends(simplices, t, k):
+        """The two vertices of edge ``k`` of triangle ``t`` (the edge opposite vertex ``k``)."""
+        if k == 0:
+            return simplices[t, 1], simplices[t, 2]
+        if k == 1:
+            return simplices[t, 2], simplices[t, 0]
+        return simplices[t, 0], simplices[t, 1]
+
     @_jit
     def triangle_neighbors_kernel(simplices, n_points):
         """``neighbors[t, k]``: the triangle across edge ``k`` of ``t`` (the edge opposite vertex ``k``),
-        ``-1`` on the hull. Each edge (row ``3 t + k``) is listed under its smaller vertex; the two triangles
-        of an edge are the two entries of that list with the same larger vertex."""
+        ``-1`` on the hull. The edges (row ``3 t + k``), in increasing row order, go through an open-addressing
+        hash table of their vertex pairs: an edge meets the waiting twin with the same two vertices, and the
+        two become neighbours (a pair met once is closed, so a third copy, which no valid mesh has, stays
+        ``-1`` as the first two are paired)."""
         n_tri = simplices.shape[0]
-        lo = np.empty(3 * n_tri, np.int64)
-        hi = np.empty(3 * n_tri, np.int64)
+        bits = 4
+        while (1 << bits) < 6 * n_tri:
+            bits += 1
+        mask = (1 << bits) - 1
+        table = np.full(1 << bits, -1, np.int64)  # -1: empty; -2: a closed pair; else the waiting edge's row
+        out = np.full((n_tri, 3), -1, np.int64)
         for t in range(n_tri):
             for k in range(3):
-                a, b = simplices[t, (k + 1) % 3], simplices[t, (k + 2) % 3]
-                lo[3 * t + k], hi[3 * t + k] = min(a, b), max(a, b)
-        start, edge = _group_by(lo, n_points)
-        out = np.full(3 * n_tri, -1, np.int64)
-        for v in range(n_points):
-            for i in range(start[v], start[v + 1]):
-                if out[edge[i]] >= 0:
-                    continue
-                for j in range(i + 1, start[v + 1]):
-                    if hi[edge[j]] == hi[edge[i]]:
-                        out[edge[i]] = edge[j] // 3
-                        out[edge[j]] = edge[i] // 3
+                a, b = _edge_ends(simplices, t, k)
+                lo, hi = min(a, b), max(a, b)
+                h = ((lo * 1000003) ^ hi) * 2654435761 & mask
+                while True:
+                    e = table[h]
+                    if e == -1:
+                        table[h] = 3 * t + k
                         break
-        return out.reshape(n_tri, 3)
+                    if e >= 0:
+                        a2, b2 = _edge_ends(simplices, e // 3, e % 3)
+                        if min(a2, b2) == lo and max(a2, b2) == hi:
+                            out[t, k] = e // 3
+                            out[e // 3, e % 3] = t
+                            table[h] = -2
+                            break
+                    h = (h + 1) & mask
+        return out
 
     @_jit(inline="always")
     def _find(parent, x):
@@ -613,6 +631,51 @@ with user_cache() as _cache:
             x2, y2 = np.float64(tri[t, 4]), np.float64(tri[t, 5])
             out[t] = abs((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0))
         return out
+
+    @_jit
+    def integer_row_keys_kernel(points):
+        """``((x << 31) + y, True)`` of each ``(x, y)`` row when every value is an integer in ``(-2**30, 2**30)``
+        (what ``unique_rows`` checks with ``min``, ``max`` and ``astype(np.int64)``), else ``(_, False)``."""
+        n = points.shape[0]
+        key = np.empty(n, np.int64)
+        for i in range(n):
+            x, y = points[i, 0], points[i, 1]
+            if not (-2.0**30 < x < 2.0**30 and -2.0**30 < y < 2.0**30):
+                return key, False
+            xi, yi = np.int64(x), np.int64(y)
+            if np.float64(xi) != x or np.float64(yi) != y:
+                return key, False
+            key[i] = (xi << 31) + yi
+        return key, True
+
+    @_jit
+    def sorted_unique_rows_kernel(points, key, order):
+        """The rows of ``points`` at the first position of each run of equal ``key[order]``, and each row's run
+        (``unique_rows`` after its sort)."""
+        n = order.shape[0]
+        inverse = np.empty(n, np.int64)
+        first = np.empty(n, np.int64)
+        m = -1
+        for i in range(n):
+            if i == 0 or key[order[i]] != key[order[i - 1]]:
+                m += 1
+                first[m] = order[i]
+            inverse[order[i]] = m
+        out = np.empty((m + 1, 2))
+        for j in range(m + 1):
+            out[j, 0] = points[first[j], 0]
+            out[j, 1] = points[first[j], 1]
+        return out, inverse
+
+    @_jit
+    def float32_exact_kernel(points):
+        """Whether every value of ``points`` (float64) is a float32 value (``points.astype(np.float32) ==
+        points`` everywhere; NaN never is)."""
+        flat = points.reshape(-1)
+        for i in range(flat.shape[0]):
+            if np.float64(np.float32(flat[i])) != flat[i]:
+                return False
+        return True
 
     @_jit
     def key_rows_kernel(keys, queries):

@@ -22,7 +22,8 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import doubled_areas_kernel, grid_nearest_kernel, key_rows_kernel, locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
+from ._kernels import (doubled_areas_kernel, float32_exact_kernel, grid_nearest_kernel, integer_row_keys_kernel, key_rows_kernel, locate_kernel,
+                       sorted_unique_rows_kernel, triangle_neighbors_kernel, vertex_csr_kernel)
 
 __all__ = [
     "DelaunayMesh",
@@ -80,28 +81,25 @@ def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     collapsed vertices) or float32 values (the constructed boundary points), else a lexsort."""
     key = None
     if len(points) > 1 and points.dtype == np.float64:
-        lo, hi = points.min(), points.max()
-        if -2.0**30 < lo and hi < 2.0**30:
-            xy = points.astype(np.int64)
-            if np.array_equal(xy, points):
-                key = (xy[:, 0] << 31) + xy[:, 1]
-            else:
+        points = np.ascontiguousarray(points)
+        key, integer = integer_row_keys_kernel(points)
+        if not integer:
+            key = None
+            lo, hi = points.min(), points.max()
+            if -2.0**30 < lo and hi < 2.0**30:
                 p32 = points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0
                 if np.array_equal(p32, points):
                     # float32 bit patterns made monotone (negatives: all bits flipped; others: sign bit set)
                     bits = p32.view(np.uint32).astype(np.uint64)
                     mono = np.where(bits >> np.uint64(31), ~bits & np.uint64(0xFFFFFFFF), bits | np.uint64(1 << 31))
                     key = (mono[:, 0] << np.uint64(32)) | mono[:, 1]
-    new = np.ones(len(points), bool)
     if key is not None:
         order = np.argsort(key)  # equal rows are interchangeable here, so an unstable (SIMD) sort serves
-        ks = key[order]
-        new[1:] = ks[1:] != ks[:-1]
-    else:
-        order = np.lexsort((points[:, 1], points[:, 0]))
+        return sorted_unique_rows_kernel(points, key, order)
+    new = np.ones(len(points), bool)
+    order = np.lexsort((points[:, 1], points[:, 0]))
     srt = points[order]
-    if key is None:
-        new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
+    new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
     inverse = np.empty(len(points), np.int64)
     inverse[order] = np.cumsum(new) - 1
     return srt[new], inverse
@@ -169,8 +167,8 @@ class DelaunayMesh:
 
 
 def _float32_exact(points: np.ndarray) -> bool:
-    with np.errstate(over="ignore"):
-        return bool(np.array_equal(points.astype(np.float32), points))
+    """Whether ``points.astype(np.float32)`` holds the same values (compiled: one pass, no copies)."""
+    return bool(float32_exact_kernel(np.ascontiguousarray(points, np.float64)))
 
 
 class IncrementalDelaunay:
