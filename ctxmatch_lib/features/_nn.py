@@ -32,7 +32,9 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
     o, c, kh, kw = w.shape
     n, h, wd = x.shape[:3]
     ho, wo = (h - kh) // stride + 1, (wd - kw) // stride + 1
-    cols = np.empty((n, ho, wo, kh, kw, c), np.float32)
+    # Built in float64 at once (float32 -> float64 is exact): the product's float64 operand without a
+    # second copy of the im2col matrix.
+    cols = np.empty((n, ho, wo, kh, kw, c), np.float64)
     for i in range(kh):
         for j in range(kw):
             cols[:, :, :, i, j, :] = x[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride]
@@ -49,7 +51,7 @@ def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     up to 3e-6 and AffNet shapes up to 6e-5 apart on the same image); in float64 the kernels differ in the
     last bits of float64, which the rounding to float32 removes but for values on a float32 rounding
     boundary (about one in 10^8)."""
-    return (a.astype(np.float64) @ b.astype(np.float64)).astype(np.float32)
+    return (a.astype(np.float64, copy=False) @ b.astype(np.float64)).astype(np.float32)
 
 
 def _chunked(fn):

@@ -109,6 +109,7 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
         feats = _load_entry(path, _image_size(gray))
         if feats is not None:
             return feats
-    feats = _extract(gray, config)
+    # The steps shared by several blocks of an image (HarrisZ, OriNet) are kept beside the entries.
+    feats = _extract(gray, config, memo=path.parents[2] / "shared")
     _save_entry(path, feats)
     return feats

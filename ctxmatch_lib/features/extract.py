@@ -4,7 +4,9 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -16,7 +18,10 @@ from .sift import _extract_sift, _normalise, _shapes, _sift_detect
 __all__: list[str] = []
 
 
-def _extract(gray: np.ndarray, config: FeatureConfig) -> Features:
+def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) -> Features:
+    """The features of ``gray`` under ``config``. ``memo``: a folder where the steps that several blocks
+    share (HarrisZ detections, OriNet angles) are kept, so the blocks of one image compute them once
+    (:func:`_memo`); ``None``: nothing kept."""
     ori = config.resolved_orientation()
     metric = "sgloh2" if config.descriptor == "rootsgloh2" else "l2"
     dim = 256 if metric == "sgloh2" else 128
@@ -25,12 +30,73 @@ def _extract(gray: np.ndarray, config: FeatureConfig) -> Features:
     elif config.detector == "sift" and config.descriptor in ("rootsift", "sift") and ori in ("sift", "none"):
         feats = _extract_sift(gray, config, upright=ori == "none")
     else:
-        feats = _extract_patches(gray, config, ori, metric, dim)
+        feats = _extract_patches(gray, config, ori, metric, dim, memo)
     # Every detector path ends here: the size is set once, for empty results too.
     return replace(feats, image_size=_image_size(gray))
 
 
-def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: str, dim: int) -> Features:
+def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
+    """``compute()`` (a dict of arrays), or what an earlier call with the same ``what`` and ``parts`` stored.
+
+    The key hashes everything the step reads (``parts``: the gray pixels, the keypoints and frames it
+    starts from, its settings and, through ``what``, the version of the features), so a stored value is the
+    very result ``compute`` returns; ``check`` says whether a loaded value is whole. The file is written
+    atomically: concurrent workers at worst compute the same value twice.
+    """
+    if memo is None:
+        return compute()
+    from .._paths import atomic_path
+
+    h = hashlib.sha1(what.encode())
+    for part in parts:
+        h.update(np.ascontiguousarray(part).tobytes() if isinstance(part, np.ndarray) else repr(part).encode())
+        h.update(b"|")
+    path = Path(memo) / what / f"{h.hexdigest()}.npz"
+    if path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                hit = {k: z[k] for k in z.files}
+            if check(hit):
+                return hit
+        except Exception:  # a partial or foreign file: recompute and overwrite it
+            pass
+    out = compute()
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **out)
+    return out
+
+
+def _harrisz(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
+    """HarrisZ's (kpts, scales, responses, shapes), shared by the four HarrisZ blocks of an image."""
+    from .config import _CACHE_FORMAT
+    from .harrisz import harrisz
+
+    def compute():
+        hz = harrisz(gray, patch_radius=float(config.patch_radius), max_keypoints=int(config.max_keypoints))
+        return {"kpts": hz.kpts, "scales": hz.scales, "responses": hz.responses, "shapes": hz.shapes}
+
+    n_ok = lambda d: len({len(d[k]) for k in ("kpts", "scales", "responses", "shapes")}) == 1  # noqa: E731
+    out = _memo(memo, f"harrisz-v{_CACHE_FORMAT}-blas_independent",
+                (gray.shape, gray, float(config.patch_radius), int(config.max_keypoints)), compute, n_ok)
+    return out["kpts"], out["scales"], out["responses"], out["shapes"]
+
+
+def _orinet(gray: np.ndarray, pts: np.ndarray, base: np.ndarray, config: FeatureConfig, memo: Path | None):
+    """OriNet's angles of the frames ``base`` at ``pts``, shared by the HardNet2 and SOSNet blocks."""
+    from .deep import orinet_angles, weights_digest
+
+    def compute():
+        return {"angles": orinet_angles(gray, pts, base, weights=config.orinet_weights, support=config.support)}
+
+    if config.orinet_weights is None:  # kornia's published weights run in torch: not kept
+        memo = None
+    parts = (gray.shape, gray, np.asarray(pts, np.float64), np.asarray(base, np.float64), float(config.support),
+             weights_digest(config.orinet_weights, "orinet_weights"))
+    return _memo(memo, "orinet-angles", parts, compute, lambda d: d["angles"].shape == (len(pts),))["angles"]
+
+
+def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: str, dim: int,
+                     memo: Path | None = None) -> Features:
     """Any detector, orientation and descriptor through affine-normalised patches."""
     from .patches import dominant_orientation, rotation_shapes, sift_from_patches
 
@@ -44,19 +110,14 @@ def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: 
         angles = np.where(angles > np.pi, angles - 2 * np.pi, angles)
         base = _shapes(scales, np.zeros(len(pts)), float(config.patch_radius))
     else:
-        from .harrisz import harrisz
-
-        hz = harrisz(gray, patch_radius=float(config.patch_radius), max_keypoints=int(config.max_keypoints))
-        if len(hz) == 0:
+        pts, scales, resp, base = _harrisz(gray, config, memo)
+        if len(pts) == 0:
             return Features.empty(dim, metric)
-        pts, scales, resp, base = hz.kpts, hz.scales, hz.responses, hz.shapes
         angles = np.zeros(len(pts))
     if ori == "dominant":
         angles = dominant_orientation(gray, pts, base, support=config.support)
     elif ori == "orinet":
-        from .deep import orinet_angles
-
-        angles = orinet_angles(gray, pts, base, weights=config.orinet_weights, support=config.support)
+        angles = _orinet(gray, pts, base, config, memo)
     shapes = rotation_shapes(base, angles)
     if config.descriptor == "rootsgloh2":
         from .sgloh import sgloh_descriptors
