@@ -37,26 +37,7 @@ from .usac import (
     usac_settings,
 )
 
-__all__ = [
-    "MODEL_STEPS",
-    "ROBUST_STEPS",
-    "USAC_PRESETS",
-    "UsacSettings",
-    "usac_settings",
-    "MIN_SAMPLE",
-    "CONSISTENCY_THRESHOLD_PX",
-    "ModelFit",
-    "ModelKind",
-    "normalise_points",
-    "fit_homography",
-    "fit_fundamental",
-    "apply_homography",
-    "homography_transfer_errors",
-    "epipolar_distances",
-    "model_errors",
-    "top_ranked_sample",
-    "one_sac",
-    "ransac",
-    "apply_model_step",
-    "model_kind_for",
-]
+from . import models, usac
+
+# The package's names are its two modules' public names (and the model-kind type).
+__all__ = [*usac.__all__, *models.__all__, "ModelKind"]
