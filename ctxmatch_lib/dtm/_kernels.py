@@ -29,7 +29,7 @@ import numpy as np
 from .._numba import user_cache
 
 __all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "doubled_areas_kernel", "float32_exact_kernel", "grid_nearest_kernel", "integer_row_keys_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "single_ring_kernel", "sorted_unique_rows_kernel", "transfer_test_kernel",
+           "contract_expand_kernel", "doubled_areas_kernel", "float32_exact_kernel", "grid_nearest_kernel", "hull_edges_kernel", "integer_row_keys_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "sample_ring_kernel", "single_ring_kernel", "sorted_unique_rows_kernel", "transfer_test_kernel",
            "vertex_csr_kernel",
            "triangle_neighbors_kernel"]
 
@@ -676,6 +676,63 @@ with user_cache() as _cache:
             if np.float64(np.float32(flat[i])) != flat[i]:
                 return False
         return True
+
+    @_jit(error_model="numpy")
+    def sample_ring_kernel(ring, s):
+        """The samples of one closed ring (first point repeated) at ``0, L / n, ..., (n - 1) L / n`` of its length
+        ``L``, ``n = max(ceil(L / s - 1e-9), 3)`` (:func:`~ctxmatch_lib.dtm._samples._sample_rings`, which states
+        the rule): the NumPy version's arithmetic operation for operation (running length summed in ring
+        order, the first segment whose running length exceeds the distance, ``p0 + (p1 - p0) * frac``);
+        none for a ring of zero length."""
+        n_seg = ring.shape[0] - 1
+        seg = np.empty(max(n_seg, 0))
+        cum = np.empty(max(n_seg, 0))
+        total = 0.0
+        for i in range(n_seg):
+            dx = ring[i + 1, 0] - ring[i, 0]
+            dy = ring[i + 1, 1] - ring[i, 1]
+            seg[i] = math.sqrt(dx * dx + dy * dy)
+            total += seg[i]
+            cum[i] = total
+        length = cum[n_seg - 1] if n_seg > 0 else 0.0
+        if not length > 0:
+            return np.empty((0, 2))
+        n = max(int(math.ceil(length / s - 1e-9)), 3)
+        step = length / n
+        out = np.empty((n, 2))
+        for j in range(n):
+            t = j * step
+            lo, hi = 0, n_seg  # searchsorted(cum, t, side="right"): the first i with cum[i] > t
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if cum[mid] <= t:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            i = min(lo, n_seg - 1)
+            frac = (t - (cum[i - 1] if i > 0 else 0.0)) / seg[i]
+            for c in range(2):
+                p0, p1 = ring[i, c], ring[i + 1, c]
+                out[j, c] = p0 if frac <= 0 else (p1 if frac >= 1 else (p1 - p0) * frac + p0)
+        return out
+
+    @_jit
+    def hull_edges_kernel(simplices, neighbors):
+        """The edges ``(simplices[t, k + 1], simplices[t, k + 2])`` (indices mod 3) with no triangle across
+        (``neighbors[t, k] < 0``), in ``(t, k)`` order (``np.nonzero`` order)."""
+        n = 0
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                if neighbors[t, k] < 0:
+                    n += 1
+        out = np.empty((n, 2), np.int64)
+        e = 0
+        for t in range(simplices.shape[0]):
+            for k in range(3):
+                if neighbors[t, k] < 0:
+                    out[e, 0], out[e, 1] = _edge_ends(simplices, t, k)
+                    e += 1
+        return out
 
     @_jit
     def key_rows_kernel(keys, queries):

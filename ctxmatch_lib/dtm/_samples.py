@@ -5,13 +5,11 @@ vertices (Sec. 4, Fig. 2). Points are (x, y) pixels, origin at the centre of the
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from ._kernels import grid_nearest_kernel, single_ring_kernel
+from ._kernels import grid_nearest_kernel, sample_ring_kernel, single_ring_kernel
 from .triangulation import unique_rows
 
 _EMPTY2 = np.empty((0, 2))
@@ -63,23 +61,11 @@ def _sample_rings(rings: list, s: float) -> np.ndarray:
     The points are GEOS's ``line_interpolate_point`` at ``0, L / n, ..., (n - 1) L / n`` of the ring of
     length ``L`` (``n = max(ceil(L / s), 3)``), computed with its arithmetic in NumPy, bit for bit: segment
     lengths ``sqrt(dx² + dy²)`` summed in ring order, the point on the first segment whose running length
-    exceeds the distance, at ``p0 + (p1 - p0) * frac``.
+    exceeds the distance, at ``p0 + (p1 - p0) * frac`` (compiled,
+    :func:`~ctxmatch_lib.dtm._kernels.sample_ring_kernel`).
     """
-    out = []
-    for ring in rings:
-        d = np.diff(ring, axis=0)
-        seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-        cum = np.cumsum(seg)  # sequential, as GEOS's running total
-        length = float(cum[-1]) if len(cum) else 0.0
-        if length <= 0:
-            continue
-        n = max(math.ceil(length / s - 1e-9), 3)
-        t = np.arange(n) * (length / n)
-        i = np.minimum(np.searchsorted(cum, t, side="right"), len(seg) - 1)
-        frac = (t - np.where(i > 0, cum[i - 1], 0.0)) / seg[i]
-        p0, p1 = ring[i], ring[i + 1]
-        pt = (p1 - p0) * frac[:, None] + p0
-        out.append(np.where((frac <= 0)[:, None], p0, np.where((frac >= 1)[:, None], p1, pt)))
+    out = [sample_ring_kernel(np.ascontiguousarray(ring, np.float64), float(s)) for ring in rings]
+    out = [o for o in out if len(o)]
     return np.vstack(out) if out else _EMPTY2
 
 

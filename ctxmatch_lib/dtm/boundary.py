@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 
 from .._validation import as_image_size, as_points
-from ._kernels import alpha_shapes_kernel, circumradii_kernel, triangle_neighbors_kernel
+from ._kernels import alpha_shapes_kernel, circumradii_kernel, hull_edges_kernel, triangle_neighbors_kernel
 from ._samples import _fatten, _keep_clear, _nearest, _rings_from_edges, _sample_rings, _to_float32  # noqa: F401
 from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, round_half_away, unique_rows
 
@@ -242,9 +242,10 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
     for g in range(n_groups):
         ts = slice(t_off[g], t_off[g + 1])
         nb = neighbors[ts]
-        neighbors_list.append(np.where(nb >= 0, nb - t_off[g], -1))
-        shapes.append(AlphaShape(points_list[g], simplices[ts] - p_off[g], radii[ts], float(alphas[g]),
-                                 inside[ts], edges[e_off[g] : e_off[g + 1]] - p_off[g]))
+        neighbors_list.append(np.where(nb >= 0, nb - t_off[g], -1) if t_off[g] else nb)
+        ge = edges[e_off[g] : e_off[g + 1]]
+        shapes.append(AlphaShape(points_list[g], simplices[ts] - p_off[g] if p_off[g] else simplices[ts], radii[ts],
+                                 float(alphas[g]), inside[ts], ge - p_off[g] if p_off[g] else ge))
     return shapes, neighbors_list
 
 
@@ -521,9 +522,7 @@ def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alp
     out = []
     for v, s, inc, first, nb, fat, both, second in zip(vertices_list, steps, incs, firsts, neighbors, fattened,
                                                          boths, seconds):
-        hull_t, hull_k = np.nonzero(nb < 0)
-        hull_edges = np.stack([first.simplices[hull_t, (hull_k + 1) % 3], first.simplices[hull_t, (hull_k + 2) % 3]],
-                              axis=1)
+        hull_edges = hull_edges_kernel(np.ascontiguousarray(first.simplices, np.int64), nb)
         contour = _rings_from_edges(both, second.edges)
         pts = _outside_shape(*_keep_clear(_sample_rings(contour, s), v, s), v, first)
         inc.add(pts)
