@@ -66,33 +66,35 @@ with user_cache() as _cache:
     def triangle_neighbors_kernel(simplices, n_points):
         """``neighbors[t, k]``: the triangle across edge ``k`` of ``t`` (the edge opposite vertex ``k``),
         ``-1`` on the hull. The edges (row ``3 t + k``), in increasing row order, go through an open-addressing
-        hash table of their vertex pairs: an edge meets the waiting twin with the same two vertices, and the
-        two become neighbours (a pair met once is closed, so a third copy, which no valid mesh has, stays
+        hash table keyed by their vertex pair: an edge meets the waiting twin with the same two vertices, and
+        the two become neighbours (a pair met once is closed, so a third copy, which no valid mesh has, stays
         ``-1`` as the first two are paired)."""
         n_tri = simplices.shape[0]
         bits = 4
-        while (1 << bits) < 6 * n_tri:
+        while (1 << bits) < 3 * n_tri:
             bits += 1
         mask = (1 << bits) - 1
-        table = np.full(1 << bits, -1, np.int64)  # -1: empty; -2: a closed pair; else the waiting edge's row
+        shift = np.uint64(64 - bits)
+        fib = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing: the top bits of key * 2^64 / phi
+        keys = np.full(1 << bits, -1, np.int64)  # -1: empty slot
+        rows = np.empty(1 << bits, np.int64)  # the waiting edge's row, -1 once its pair is closed
         out = np.full((n_tri, 3), -1, np.int64)
         for t in range(n_tri):
             for k in range(3):
                 a, b = _edge_ends(simplices, t, k)
-                lo, hi = min(a, b), max(a, b)
-                h = ((lo * 1000003) ^ hi) * 2654435761 & mask
+                key = min(a, b) * n_points + max(a, b)
+                h = np.int64((np.uint64(key) * fib) >> shift)
                 while True:
-                    e = table[h]
-                    if e == -1:
-                        table[h] = 3 * t + k
+                    if keys[h] == -1:
+                        keys[h] = key
+                        rows[h] = 3 * t + k
                         break
-                    if e >= 0:
-                        a2, b2 = _edge_ends(simplices, e // 3, e % 3)
-                        if min(a2, b2) == lo and max(a2, b2) == hi:
-                            out[t, k] = e // 3
-                            out[e // 3, e % 3] = t
-                            table[h] = -2
-                            break
+                    if keys[h] == key and rows[h] >= 0:
+                        e = rows[h]
+                        out[t, k] = e // 3
+                        out[e // 3, e % 3] = t
+                        rows[h] = -1
+                        break
                     h = (h + 1) & mask
         return out
 
