@@ -24,7 +24,7 @@ from numba import njit
 from .._numba import user_cache
 
 __all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense",
-           "next_in_line", "first_allowed", "min_allowed"]
+           "next_in_line", "first_allowed", "next_allowed", "min_allowed"]
 
 _U = 2.0**-24
 
@@ -487,27 +487,41 @@ with user_cache() as _cache:
         return out
 
     @njit(cache=_cache, nogil=True)
-    def first_allowed(cand, vals, others, dist, geq, pts, t_o2):
-        """Second best on sorted lists: per row the first entry that is not the match itself, not below
-        ``dist`` (``geq``) and not within ``sqrt(t_o2)`` pixels of the matched keypoint (FGINN, ``t_o2 > 0``);
-        ``inf`` and ``found = False`` when none is."""
-        K, L = cand.shape
+    def first_allowed(idx, val, anchors, others, dist, geq, pts, t_o2):
+        """Second best on sorted lists: per anchor line ``idx[anchors[r]]`` the first entry that is not the
+        match itself, not below ``dist`` (``geq``) and not within ``sqrt(t_o2)`` pixels of the matched
+        keypoint (FGINN, ``t_o2 > 0``); ``inf`` and ``found = False`` when none is."""
+        K, L = len(anchors), idx.shape[1]
         out = np.full(K, np.inf)
         found = np.zeros(K, np.bool_)
         for r in range(K):
-            o = others[r]
+            a, o = anchors[r], others[r]
             for q in range(L):
-                k = cand[r, q]
+                k = idx[a, q]
                 if k == o:
                     continue
-                if geq and vals[r, q] < dist[r]:
+                if geq and val[a, q] < dist[r]:
                     continue
                 if t_o2 > 0:
                     dx = pts[k, 0] - pts[o, 0]
                     dy = pts[k, 1] - pts[o, 1]
                     if dx * dx + dy * dy < t_o2:
                         continue
-                out[r] = vals[r, q]
+                out[r] = val[a, q]
                 found[r] = True
                 break
         return out, found
+
+    @njit(cache=_cache, nogil=True)
+    def next_allowed(idx, val, anchors, others, dist, geq, pos):
+        """Per anchor line, the first position ``>= pos[r]`` of its sorted list that is not the match itself
+        and not below ``dist`` (``geq``); the list length when none is (FGINN by overlap checks the rest)."""
+        L = idx.shape[1]
+        out = np.empty(len(anchors), np.int64)
+        for r in range(len(anchors)):
+            a, o = anchors[r], others[r]
+            q = pos[r]
+            while q < L and (idx[a, q] == o or (geq and val[a, q] < dist[r])):
+                q += 1
+            out[r] = q
+        return out

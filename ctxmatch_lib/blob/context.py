@@ -473,19 +473,17 @@ class BlobContext:
         out = np.full(len(anchors), np.inf)
         if len(anchors) == 0:
             return out
-        cand, vals = lists.idx[anchors], lists.val[anchors]
+        anchors, others = np.asarray(anchors, np.int64), np.asarray(others, np.int64)
+        dist = np.asarray(dist, np.float64)
         if t_o is not None and t_o_kind == "overlap":
-            ok = cand != others[:, None]
-            if geq:
-                ok &= vals >= dist[:, None]
-            ok = self._first_not_overlapping(1 - side, cand, others, ok, t_o)
-            out[:] = np.where(ok, vals, np.inf).min(axis=1)
-            ok = ok.any(axis=1)
+            first = self._first_not_overlapping(1 - side, lists, anchors, others, dist, geq, t_o)
+            ok = first >= 0
+            out[ok] = lists.val[anchors[ok], first[ok]]
         else:
             pts = self.kpts[1 - side] if t_o is not None else None
             out[:], ok = _kernels.first_allowed(
-                np.ascontiguousarray(cand), np.ascontiguousarray(vals), np.asarray(others, np.int64),
-                np.asarray(dist, np.float64), geq, np.zeros((1, 2)) if pts is None else np.asarray(pts, np.float64),
+                lists.idx, lists.val, anchors, others, dist, geq,
+                np.zeros((1, 2)) if pts is None else np.asarray(pts, np.float64),
                 0.0 if t_o is None else float(t_o) * float(t_o))
         if not lists.complete:
             # Nothing qualified among the T best: scan the whole line (rare).
@@ -495,9 +493,8 @@ class BlobContext:
                 Dap = self._approx if side == 0 else self._approx.T
                 pts = self.kpts[1 - side] if t_o is not None else np.zeros((1, 2))
                 out[miss] = _kernels.second_best_dense(
-                    Dap, X[side], X[1 - side], anchors[miss].astype(np.int64), others[miss].astype(np.int64),
-                    np.asarray(dist, np.float64)[miss], self._line_bounds(side), geq,
-                    np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) * float(t_o))
+                    Dap, X[side], X[1 - side], anchors[miss], others[miss], dist[miss], self._line_bounds(side),
+                    geq, np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) * float(t_o))
                 return out
             size = self.m if side == 0 else self.n
             step = max(1, (8 * _MiB) // (8 * size))
@@ -507,11 +504,10 @@ class BlobContext:
                 ok = ~self._excluded(1 - side, cand, others[sel], t_o, t_o_kind)
                 if self._exact:
                     # Float32 rows propose, exact distances decide where the rounding could (as in the scan).
-                    which = anchors[sel].astype(np.int64)
-                    X = self._X
+                    which, X = anchors[sel], self._X
                     out[sel] = _kernels.min_allowed(
                         self._approx_lines(side, which), X[side], which, X[1 - side], self._line_bounds(side),
-                        np.asarray(dist, np.float64)[sel], geq, np.ascontiguousarray(ok))
+                        dist[sel], geq, np.ascontiguousarray(ok))
                     continue
                 line = self._lines(side, anchors[sel])
                 if geq:
@@ -519,31 +515,33 @@ class BlobContext:
                 out[sel] = np.where(ok, line, np.inf).min(axis=1)
         return out
 
-    def _first_not_overlapping(self, img: int, cand: np.ndarray, other: np.ndarray, allowed: np.ndarray,
-                               t_o: float) -> np.ndarray:
-        """FGINN by overlap on sorted lists, lazily: per row, the first ``allowed`` candidate whose overlap
-        error with ``other`` is above ``t_o``, marked True (all False when none is).
+    def _first_not_overlapping(self, img: int, lists: SortedLists, anchors: np.ndarray, others: np.ndarray,
+                               dist: np.ndarray, geq: bool, t_o: float) -> np.ndarray:
+        """FGINN by overlap on sorted lists, lazily: per anchor line, the position of the first entry that is
+        not the match, not below ``dist`` (``geq``) and whose overlap error with ``others`` is above ``t_o``;
+        ``-1`` when none is.
 
         The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
         candidates before it need their overlap error (one vectorised call per round), not the whole list.
         """
-        K, L = cand.shape
-        ok = np.zeros((K, L), bool)
+        K, L = len(anchors), lists.idx.shape[1]
+        first = np.full(K, -1, np.int64)
         pos = np.zeros(K, np.int64)
         active = np.arange(K)
-        cols = np.arange(L)
         while len(active):
-            nxt = np.where(allowed[active] & (cols[None, :] >= pos[active, None]), cols[None, :], L).min(axis=1)
+            nxt = _kernels.next_allowed(lists.idx, lists.val, anchors[active], others[active], dist[active], geq,
+                                        pos[active])
             has = nxt < L
             active, nxt = active[has], nxt[has]
             if not len(active):
                 break
-            err = np.asarray(self.overlap_errors(img, other[active], cand[active, nxt][:, None])).reshape(-1)
+            cand = lists.idx[anchors[active], nxt]
+            err = np.asarray(self.overlap_errors(img, others[active], cand[:, None])).reshape(-1)
             keep = err > t_o
-            ok[active[keep], nxt[keep]] = True
+            first[active[keep]] = nxt[keep]
             pos[active[~keep]] = nxt[~keep] + 1
             active = active[~keep]
-        return ok
+        return first
 
     def _excluded(self, img: int, cand: np.ndarray, other: np.ndarray, t_o, t_o_kind) -> np.ndarray:
         """Which candidates ``cand`` (K, L) of image ``img`` the second-best search skips for ``other``."""
