@@ -28,10 +28,29 @@ import numpy as np
 
 from .._numba import user_cache
 
-__all__ = ["alpha_shapes_kernel", "circumradii_kernel", "contraction_kernel", "locate_kernel", "neighbourhood_kernel",
-           "contract_expand_kernel", "doubled_areas_kernel", "float32_exact_kernel", "grid_nearest_kernel", "hull_edges_kernel", "integer_row_keys_kernel", "key_rows_kernel", "nearest_kernel", "row_counts_kernel", "sample_ring_kernel", "single_ring_kernel", "sorted_unique_rows_kernel", "transfer_test_kernel",
-           "vertex_csr_kernel",
-           "triangle_neighbors_kernel"]
+__all__ = [
+    "alpha_shapes_kernel",
+    "circumradii_kernel",
+    "contract_expand_kernel",
+    "contraction_kernel",
+    "doubled_areas_kernel",
+    "float32_exact_kernel",
+    "float32_row_keys_kernel",
+    "grid_nearest_kernel",
+    "hull_edges_kernel",
+    "integer_row_keys_kernel",
+    "key_rows_kernel",
+    "locate_kernel",
+    "nearest_kernel",
+    "neighbourhood_kernel",
+    "row_counts_kernel",
+    "sample_ring_kernel",
+    "single_ring_kernel",
+    "sorted_unique_rows_kernel",
+    "transfer_test_kernel",
+    "triangle_neighbors_kernel",
+    "vertex_csr_kernel",
+]
 
 
 with user_cache() as _cache:
@@ -648,6 +667,33 @@ with user_cache() as _cache:
             if np.float64(xi) != x or np.float64(yi) != y:
                 return key, False
             key[i] = (xi << 31) + yi
+        return key, True
+
+    @_jit
+    def float32_row_keys_kernel(points):
+        """``(key, True)`` with one uint64 per ``(x, y)`` row, ordered as the rows are lexicographically, when
+        every value is a float32 value in ``(-2**30, 2**30)``, else ``(_, False)``: the float32 bit patterns
+        (``-0.0`` taken as ``0.0``) made monotone (negatives: all bits flipped; others: sign bit set), ``x``'s
+        in the high half (what ``unique_rows`` computes with NumPy)."""
+        n = points.shape[0]
+        p32 = np.empty((n, 2), np.float32)
+        for i in range(n):
+            for c in range(2):
+                x = points[i, c]
+                if not (-2.0**30 < x < 2.0**30):
+                    return np.empty(0, np.uint64), False
+                f = np.float32(x)
+                if np.float64(f) != x:
+                    return np.empty(0, np.uint64), False
+                p32[i, c] = f + np.float32(0.0)
+        bits = p32.view(np.uint32)
+        key = np.empty(n, np.uint64)
+        for i in range(n):
+            m = np.empty(2, np.uint64)
+            for c in range(2):
+                b = np.uint64(bits[i, c])
+                m[c] = (~b & np.uint64(0xFFFFFFFF)) if b >> np.uint64(31) else (b | np.uint64(1 << 31))
+            key[i] = (m[0] << np.uint64(32)) | m[1]
         return key, True
 
     @_jit

@@ -22,8 +22,18 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import (doubled_areas_kernel, float32_exact_kernel, grid_nearest_kernel, integer_row_keys_kernel, key_rows_kernel, locate_kernel,
-                       sorted_unique_rows_kernel, triangle_neighbors_kernel, vertex_csr_kernel)
+from ._kernels import (
+    doubled_areas_kernel,
+    float32_exact_kernel,
+    float32_row_keys_kernel,
+    grid_nearest_kernel,
+    integer_row_keys_kernel,
+    key_rows_kernel,
+    locate_kernel,
+    sorted_unique_rows_kernel,
+    triangle_neighbors_kernel,
+    vertex_csr_kernel,
+)
 
 __all__ = [
     "DelaunayMesh",
@@ -84,15 +94,8 @@ def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         points = np.ascontiguousarray(points)
         key, integer = integer_row_keys_kernel(points)
         if not integer:
-            key = None
-            lo, hi = points.min(), points.max()
-            if -2.0**30 < lo and hi < 2.0**30:
-                p32 = points.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0
-                if np.array_equal(p32, points):
-                    # float32 bit patterns made monotone (negatives: all bits flipped; others: sign bit set)
-                    bits = p32.view(np.uint32).astype(np.uint64)
-                    mono = np.where(bits >> np.uint64(31), ~bits & np.uint64(0xFFFFFFFF), bits | np.uint64(1 << 31))
-                    key = (mono[:, 0] << np.uint64(32)) | mono[:, 1]
+            key, exact = float32_row_keys_kernel(points)
+            key = key if exact else None
     if key is not None:
         order = np.argsort(key)  # equal rows are interchangeable here, so an unstable (SIMD) sort serves
         return sorted_unique_rows_kernel(points, key, order)
