@@ -4,8 +4,12 @@
   adjacency and the MATLAB-``boundary`` alpha shapes (:mod:`ctxmatch_lib.dtm.boundary`);
 - :func:`locate_kernel`: the visibility walk of
   :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex` (DTM2's point location);
-- :func:`neighbourhood_kernel`, :func:`row_counts_kernel`, :func:`contract_expand_kernel` (and the older
-  :func:`contraction_kernel`): DTM1 steps 3-6 (:mod:`ctxmatch_lib.dtm.core`);
+- :func:`neighbourhood_kernel`, :func:`row_counts_kernel`, :func:`contract_expand_kernel`: DTM1 steps 3-6
+  (:mod:`ctxmatch_lib.dtm.core`); :func:`transfer_test_kernel`: DTM2 step 2;
+- :func:`vertex_csr_kernel`, :func:`hull_edges_kernel`: neighbourhoods and hull edges of a triangulation.
+
+The point-set kernels (row keys, nearest vertices, ring samples) are in :mod:`ctxmatch_lib.dtm._point_kernels`
+and re-exported here.
 
 These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
 can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
@@ -27,12 +31,24 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
+from ._point_kernels import (  # noqa: F401  (re-exported: the point-set kernels live there)
+    _group_by,
+    single_ring_kernel,
+    nearest_kernel,
+    grid_nearest_kernel,
+    doubled_areas_kernel,
+    integer_row_keys_kernel,
+    float32_row_keys_kernel,
+    sorted_unique_rows_kernel,
+    float32_exact_kernel,
+    sample_ring_kernel,
+    key_rows_kernel,
+)
 
 __all__ = [
     "alpha_shapes_kernel",
     "circumradii_kernel",
     "contract_expand_kernel",
-    "contraction_kernel",
     "doubled_areas_kernel",
     "float32_exact_kernel",
     "float32_row_keys_kernel",
@@ -55,22 +71,6 @@ __all__ = [
 
 with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
-
-    @_jit
-    def _group_by(keys, n_keys):
-        """Counting sort: ``(start, order)`` with group ``k`` at ``order[start[k]:start[k + 1]]``, the
-        positions of ``keys == k`` in increasing order."""
-        start = np.zeros(n_keys + 1, np.int64)
-        for i in range(keys.shape[0]):
-            start[keys[i] + 1] += 1
-        for k in range(n_keys):
-            start[k + 1] += start[k]
-        fill = start[:-1].copy()
-        order = np.empty(keys.shape[0], np.int64)
-        for i in range(keys.shape[0]):
-            order[fill[keys[i]]] = i
-            fill[keys[i]] += 1
-        return start, order
 
     @_jit(inline="always")
     def _edge_ends(simplices, t, k):
@@ -431,26 +431,6 @@ with user_cache() as _cache:
         return ok
 
     @_jit
-    def contraction_kernel(rank, conflicts_a, ptr_a, conflicts_b, ptr_b):
-        """DTM1 step 5: walk the matches in ``rank`` order; each one still alive is picked and kills its
-        conflicts ``conflicts_a[ptr_a[m]:ptr_a[m + 1]]`` and ``conflicts_b[ptr_b[m]:ptr_b[m + 1]]``.
-        Returns the picked matches in pick order."""
-        n = rank.shape[0]
-        alive = np.ones(n, np.bool_)
-        picked = np.empty(n, np.int64)
-        n_picked = 0
-        for i in range(n):
-            m = rank[i]
-            if alive[m]:
-                picked[n_picked] = m
-                n_picked += 1
-                for j in range(ptr_a[m], ptr_a[m + 1]):
-                    alive[conflicts_a[j]] = False
-                for j in range(ptr_b[m], ptr_b[m + 1]):
-                    alive[conflicts_b[j]] = False
-        return picked[:n_picked].copy()
-
-    @_jit
     def neighbourhood_kernel(indptr1, indices1, vertex1, indptr2, indices2, vertex2):
         """DTM1 step 3 seen from image 1: every pair ``(m, o)`` with the image-1 vertex of ``o`` adjacent to
         that of ``m`` (``vertex1``; ``indices1[indptr1[v]:indptr1[v + 1]]`` are the neighbours of ``v``,
@@ -490,281 +470,6 @@ with user_cache() as _cache:
         return rows, others, both
 
     @_jit
-    def single_ring_kernel(edges, n_points):
-        """The boundary ``edges`` (rows of point indices) as one closed ring, when they form exactly one simple
-        cycle (every endpoint on exactly two edges, all edges connected): the point indices from
-        ``edges[0, 1]`` to ``edges[0, 0]`` and on around the cycle, the first point repeated at the end (the ring
-        GEOS's polygonizer returns for such edges, see :func:`~ctxmatch_lib.dtm.boundary._rings_from_edges`).
-        Empty when the edges form anything else (several rings, pinched vertices, open chains)."""
-        n_edges = edges.shape[0]
-        fail = np.empty(0, np.int64)
-        if n_edges < 3:
-            return fail
-        degree = np.zeros(n_points, np.int64)
-        inc = np.full((n_points, 2), -1, np.int64)  # the two edges at each endpoint
-        for e in range(n_edges):
-            for side in range(2):
-                p = edges[e, side]
-                if degree[p] == 2:
-                    return fail
-                inc[p, degree[p]] = e
-                degree[p] += 1
-        for e in range(n_edges):
-            if degree[edges[e, 0]] != 2 or degree[edges[e, 1]] != 2 or edges[e, 0] == edges[e, 1]:
-                return fail
-        ring = np.empty(n_edges + 1, np.int64)
-        ring[0] = edges[0, 1]
-        ring[1] = edges[0, 0]
-        prev_edge = 0
-        for k in range(2, n_edges + 1):
-            v = ring[k - 1]
-            e = inc[v, 0] if inc[v, 0] != prev_edge else inc[v, 1]
-            ring[k] = edges[e, 0] if edges[e, 1] == v else edges[e, 1]
-            prev_edge = e
-            if ring[k] == ring[0] and k < n_edges:
-                return fail  # the cycle through edges[0] misses some edges: several rings
-        if ring[n_edges] != ring[0]:
-            return fail
-        return ring
-
-    @_jit
-    def nearest_kernel(queries, points):
-        """Nearest of ``points`` to each query by exhaustive search: the distance ``sqrt(dx² + dy²)`` (as
-        ``scipy.spatial.cKDTree.query`` computes it), the index, and whether any query has two nearest points
-        at exactly the same distance (then the index is a tie that a k-d tree may break otherwise)."""
-        n = queries.shape[0]
-        dist = np.empty(n)
-        index = np.empty(n, np.int64)
-        tie = False
-        for q in range(n):
-            qx, qy = queries[q, 0], queries[q, 1]
-            best = np.inf
-            arg = -1
-            again = False
-            for i in range(points.shape[0]):
-                dx = qx - points[i, 0]
-                dy = qy - points[i, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < best:
-                    best = d2
-                    arg = i
-                    again = False
-                elif d2 == best:
-                    again = True
-            tie = tie or again
-            dist[q] = math.sqrt(best)
-            index[q] = arg
-        return dist, index, tie
-
-    @_jit
-    def grid_nearest_kernel(queries, points):
-        """:func:`nearest_kernel` through a uniform grid over ``points`` (about two per cell): the same
-        distances, indices and tie flag, bit for bit. Each query visits the cells ring by ring around its own
-        and stops when every cell left lies farther than its nearest point so far (with a margin that
-        covers the rounding), so it still sees every point at the nearest distance, and the tie flag stays
-        exact."""
-        n, m = points.shape[0], queries.shape[0]
-        dist = np.full(m, np.inf)
-        index = np.full(m, -1, np.int64)
-        tie = False
-        if n == 0:
-            return dist, index, tie
-        x0, x1, y0, y1 = points[0, 0], points[0, 0], points[0, 1], points[0, 1]
-        for i in range(n):
-            x0, x1 = min(x0, points[i, 0]), max(x1, points[i, 0])
-            y0, y1 = min(y0, points[i, 1]), max(y1, points[i, 1])
-        w, h = x1 - x0, y1 - y0
-        cell = max(math.sqrt(2.0 * w * h / n), max(w, h) / n)
-        if not cell > 0:
-            cell = 1.0
-        nx, ny = min(int(w / cell) + 1, 4096), min(int(h / cell) + 1, 4096)
-        cell = max(cell, w / nx * (1 + 1e-12), h / ny * (1 + 1e-12))  # after capping: nx, ny cells cover the box
-        key = np.empty(n, np.int64)
-        for i in range(n):
-            cx = min(max(int((points[i, 0] - x0) / cell), 0), nx - 1)
-            cy = min(max(int((points[i, 1] - y0) / cell), 0), ny - 1)
-            key[i] = cy * nx + cx
-        start, at = _group_by(key, nx * ny)
-        margin = 1e-9 * cell
-        for q in range(m):
-            qx, qy = queries[q, 0], queries[q, 1]
-            fx, fy = (qx - x0) / cell, (qy - y0) / cell
-            cx = 0 if fx < 0 else min(int(fx), nx - 1)
-            cy = 0 if fy < 0 else min(int(fy), ny - 1)
-            best = np.inf
-            arg = -1
-            again = False
-            r = 0
-            while True:
-                if r > 0:
-                    # Cells left: outside the box of rings < r. Their points lie beyond the box's inner sides
-                    # (the sides on the grid's edge have nothing beyond them).
-                    lb = np.inf
-                    if cx - r >= 0:
-                        lb = min(lb, qx - (x0 + (cx - r + 1) * cell))
-                    if cx + r < nx:
-                        lb = min(lb, x0 + (cx + r) * cell - qx)
-                    if cy - r >= 0:
-                        lb = min(lb, qy - (y0 + (cy - r + 1) * cell))
-                    if cy + r < ny:
-                        lb = min(lb, y0 + (cy + r) * cell - qy)
-                    if lb == np.inf:
-                        break  # the box covers the grid
-                    lb -= margin
-                    if lb > 0 and lb * lb > best * (1.0 + 1e-9):
-                        break
-                for j in range(max(cy - r, 0), min(cy + r, ny - 1) + 1):
-                    edge_row = j == cy - r or j == cy + r
-                    step = 1 if edge_row else 2 * r
-                    i = cx - r
-                    while i <= cx + r:
-                        if 0 <= i < nx:
-                            c = j * nx + i
-                            for k in range(start[c], start[c + 1]):
-                                p = at[k]
-                                dx = qx - points[p, 0]
-                                dy = qy - points[p, 1]
-                                d2 = dx * dx + dy * dy
-                                if d2 < best:
-                                    best = d2
-                                    arg = p
-                                    again = False
-                                elif d2 == best:
-                                    again = True
-                        if r == 0:
-                            break
-                        i += step
-                r += 1
-            tie = tie or again
-            dist[q] = math.sqrt(best)
-            index[q] = arg
-        return dist, index, tie
-
-    @_jit
-    def doubled_areas_kernel(tri):
-        """``|cross|`` (twice the area) of each triangle ``(x0, y0, x1, y1, x2, y2)`` of a float32 ``(T, 6)``
-        triangle list, in float64 (exact inputs): ``(x1 - x0)(y2 - y0) - (y1 - y0)(x2 - x0)``, as NumPy computes it
-        on the float64 columns."""
-        out = np.empty(tri.shape[0])
-        for t in range(tri.shape[0]):
-            x0, y0 = np.float64(tri[t, 0]), np.float64(tri[t, 1])
-            x1, y1 = np.float64(tri[t, 2]), np.float64(tri[t, 3])
-            x2, y2 = np.float64(tri[t, 4]), np.float64(tri[t, 5])
-            out[t] = abs((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0))
-        return out
-
-    @_jit
-    def integer_row_keys_kernel(points):
-        """``((x << 31) + y, True)`` of each ``(x, y)`` row when every value is an integer in ``(-2**30, 2**30)``
-        (what ``unique_rows`` checks with ``min``, ``max`` and ``astype(np.int64)``), else ``(_, False)``."""
-        n = points.shape[0]
-        key = np.empty(n, np.int64)
-        for i in range(n):
-            x, y = points[i, 0], points[i, 1]
-            if not (-2.0**30 < x < 2.0**30 and -2.0**30 < y < 2.0**30):
-                return key, False
-            xi, yi = np.int64(x), np.int64(y)
-            if np.float64(xi) != x or np.float64(yi) != y:
-                return key, False
-            key[i] = (xi << 31) + yi
-        return key, True
-
-    @_jit
-    def float32_row_keys_kernel(points):
-        """``(key, True)`` with one uint64 per ``(x, y)`` row, ordered as the rows are lexicographically, when
-        every value is a float32 value in ``(-2**30, 2**30)``, else ``(_, False)``: the float32 bit patterns
-        (``-0.0`` taken as ``0.0``) made monotone (negatives: all bits flipped; others: sign bit set), ``x``'s
-        in the high half (what ``unique_rows`` computes with NumPy)."""
-        n = points.shape[0]
-        p32 = np.empty((n, 2), np.float32)
-        for i in range(n):
-            for c in range(2):
-                x = points[i, c]
-                if not (-2.0**30 < x < 2.0**30):
-                    return np.empty(0, np.uint64), False
-                f = np.float32(x)
-                if np.float64(f) != x:
-                    return np.empty(0, np.uint64), False
-                p32[i, c] = f + np.float32(0.0)
-        bits = p32.view(np.uint32)
-        key = np.empty(n, np.uint64)
-        for i in range(n):
-            m = np.empty(2, np.uint64)
-            for c in range(2):
-                b = np.uint64(bits[i, c])
-                m[c] = (~b & np.uint64(0xFFFFFFFF)) if b >> np.uint64(31) else (b | np.uint64(1 << 31))
-            key[i] = (m[0] << np.uint64(32)) | m[1]
-        return key, True
-
-    @_jit
-    def sorted_unique_rows_kernel(points, key, order):
-        """The rows of ``points`` at the first position of each run of equal ``key[order]``, and each row's run
-        (``unique_rows`` after its sort)."""
-        n = order.shape[0]
-        inverse = np.empty(n, np.int64)
-        first = np.empty(n, np.int64)
-        m = -1
-        for i in range(n):
-            if i == 0 or key[order[i]] != key[order[i - 1]]:
-                m += 1
-                first[m] = order[i]
-            inverse[order[i]] = m
-        out = np.empty((m + 1, 2))
-        for j in range(m + 1):
-            out[j, 0] = points[first[j], 0]
-            out[j, 1] = points[first[j], 1]
-        return out, inverse
-
-    @_jit
-    def float32_exact_kernel(points):
-        """Whether every value of ``points`` (float64) is a float32 value (``points.astype(np.float32) ==
-        points`` everywhere; NaN never is)."""
-        flat = points.reshape(-1)
-        for i in range(flat.shape[0]):
-            if np.float64(np.float32(flat[i])) != flat[i]:
-                return False
-        return True
-
-    @_jit(error_model="numpy")
-    def sample_ring_kernel(ring, s):
-        """The samples of one closed ring (first point repeated) at ``0, L / n, ..., (n - 1) L / n`` of its length
-        ``L``, ``n = max(ceil(L / s - 1e-9), 3)`` (:func:`~ctxmatch_lib.dtm._samples._sample_rings`, which states
-        the rule): the NumPy version's arithmetic operation for operation (running length summed in ring
-        order, the first segment whose running length exceeds the distance, ``p0 + (p1 - p0) * frac``);
-        none for a ring of zero length."""
-        n_seg = ring.shape[0] - 1
-        seg = np.empty(max(n_seg, 0))
-        cum = np.empty(max(n_seg, 0))
-        total = 0.0
-        for i in range(n_seg):
-            dx = ring[i + 1, 0] - ring[i, 0]
-            dy = ring[i + 1, 1] - ring[i, 1]
-            seg[i] = math.sqrt(dx * dx + dy * dy)
-            total += seg[i]
-            cum[i] = total
-        length = cum[n_seg - 1] if n_seg > 0 else 0.0
-        if not length > 0:
-            return np.empty((0, 2))
-        n = max(int(math.ceil(length / s - 1e-9)), 3)
-        step = length / n
-        out = np.empty((n, 2))
-        for j in range(n):
-            t = j * step
-            lo, hi = 0, n_seg  # searchsorted(cum, t, side="right"): the first i with cum[i] > t
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if cum[mid] <= t:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            i = min(lo, n_seg - 1)
-            frac = (t - (cum[i - 1] if i > 0 else 0.0)) / seg[i]
-            for c in range(2):
-                p0, p1 = ring[i, c], ring[i + 1, c]
-                out[j, c] = p0 if frac <= 0 else (p1 if frac >= 1 else (p1 - p0) * frac + p0)
-        return out
-
-    @_jit
     def hull_edges_kernel(simplices, neighbors):
         """The edges ``(simplices[t, k + 1], simplices[t, k + 2])`` (indices mod 3) with no triangle across
         (``neighbors[t, k] < 0``), in ``(t, k)`` order (``np.nonzero`` order)."""
@@ -781,45 +486,6 @@ with user_cache() as _cache:
                     out[e, 0], out[e, 1] = _edge_ends(simplices, t, k)
                     e += 1
         return out
-
-    @_jit
-    def key_rows_kernel(keys, queries):
-        """Row of each query among ``keys`` (int64, e.g. the bit patterns of float32 point pairs) through an
-        open-addressing hash table. Returns ``(rows, status)``: ``status`` 0 when every query is a key and every
-        key is some query's, 1 when ``keys`` hold duplicates, 2 when a query is no key, 3 when a key is no
-        query's (``rows`` then meaningless)."""
-        n = keys.shape[0]
-        bits = 4
-        while (1 << bits) < 4 * n:
-            bits += 1
-        mask = (1 << bits) - 1
-        shift = np.uint64(64 - bits)
-        fib = np.uint64(0x9E3779B97F4A7C15)
-        table = np.full(1 << bits, -1, np.int64)
-        rows = np.empty(queries.shape[0], np.int64)
-        for i in range(n):
-            h = np.int64((np.uint64(keys[i]) * fib) >> shift)
-            while table[h] >= 0:
-                if keys[table[h]] == keys[i]:
-                    return rows, 1
-                h = (h + 1) & mask
-            table[h] = i
-        seen = np.zeros(n, np.bool_)
-        for q in range(queries.shape[0]):
-            h = np.int64((np.uint64(queries[q]) * fib) >> shift)
-            while True:
-                r = table[h]
-                if r < 0:
-                    return rows, 2
-                if keys[r] == queries[q]:
-                    break
-                h = (h + 1) & mask
-            rows[q] = r
-            seen[r] = True
-        for i in range(n):
-            if not seen[i]:
-                return rows, 3
-        return rows, 0
 
     @_jit
     def vertex_csr_kernel(simplices, n):
@@ -896,8 +562,7 @@ with user_cache() as _cache:
         non-decreasing): walk the matches in ``rank`` order, pick each one still alive and kill the others of its
         pairs that are not flagged in either image's list (``(M_A1 ∪ M_A2) \\ (M_A1 ∩ M_A2)``); then keep the
         flagged others of image 1's pairs of every picked match (the union of ``M_A1 ∩ M_A2``). Returns the
-        picked matches in pick order and the kept flags (what :func:`contraction_kernel` and the NumPy
-        expansion give)."""
+        picked matches in pick order and the kept flags."""
         ptr_a = _row_ptr(rows_a, n)
         ptr_b = _row_ptr(rows_b, n)
         alive = np.ones(n, np.bool_)

@@ -9,7 +9,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from ._kernels import grid_nearest_kernel, sample_ring_kernel, single_ring_kernel
+from ._point_kernels import grid_nearest_kernel, sample_ring_kernel, single_ring_kernel
 from .triangulation import unique_rows
 
 _EMPTY2 = np.empty((0, 2))
@@ -38,7 +38,7 @@ def _rings_from_edges(points: np.ndarray, edges: np.ndarray) -> list:
 
     The rings are GEOS's (``shapely.polygonize``): their start and direction set where the boundary samples
     fall (:func:`_sample_rings`). The common case, edges forming one simple cycle, is traced by a compiled
-    walk (:func:`~ctxmatch_lib.dtm._kernels.single_ring_kernel`) that gives GEOS's ring for it (from
+    walk (:func:`~ctxmatch_lib.dtm._point_kernels.single_ring_kernel`) that gives GEOS's ring for it (from
     ``edges[0, 1]`` through ``edges[0, 0]``, clockwise); a traced ring that turns counter-clockwise, and
     every other edge set, goes to GEOS.
     """
@@ -62,7 +62,7 @@ def _sample_rings(rings: list, s: float) -> np.ndarray:
     length ``L`` (``n = max(ceil(L / s), 3)``), computed with its arithmetic in NumPy, bit for bit: segment
     lengths ``sqrt(dx² + dy²)`` summed in ring order, the point on the first segment whose running length
     exceeds the distance, at ``p0 + (p1 - p0) * frac`` (compiled,
-    :func:`~ctxmatch_lib.dtm._kernels.sample_ring_kernel`).
+    :func:`~ctxmatch_lib.dtm._point_kernels.sample_ring_kernel`).
     """
     out = [sample_ring_kernel(np.ascontiguousarray(ring, np.float64), float(s)) for ring in rings]
     out = [o for o in out if len(o)]
@@ -72,8 +72,8 @@ def _sample_rings(rings: list, s: float) -> np.ndarray:
 def _nearest(b: np.ndarray, vertices: np.ndarray, need_index: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Distance to and index of the nearest vertex of each point of ``b``, as ``cKDTree.query`` gives them.
 
-    A compiled grid search (:func:`~ctxmatch_lib.dtm._kernels.grid_nearest_kernel`, the distances of the
-    exhaustive :func:`~ctxmatch_lib.dtm._kernels.nearest_kernel` bit for bit); the k-d tree whenever an index
+    A compiled grid search (:func:`~ctxmatch_lib.dtm._point_kernels.grid_nearest_kernel`, the distances of the
+    exhaustive :func:`~ctxmatch_lib.dtm._point_kernels.nearest_kernel` bit for bit); the k-d tree whenever an index
     is needed and some point has two nearest vertices at exactly the same distance (a tie the tree breaks its
     own way)."""
     b = np.ascontiguousarray(b, np.float64)

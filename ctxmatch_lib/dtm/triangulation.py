@@ -22,17 +22,15 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._kernels import (
+from ._kernels import locate_kernel, triangle_neighbors_kernel, vertex_csr_kernel
+from ._point_kernels import (
     doubled_areas_kernel,
     float32_exact_kernel,
     float32_row_keys_kernel,
     grid_nearest_kernel,
     integer_row_keys_kernel,
     key_rows_kernel,
-    locate_kernel,
     sorted_unique_rows_kernel,
-    triangle_neighbors_kernel,
-    vertex_csr_kernel,
 )
 
 __all__ = [
@@ -381,7 +379,7 @@ class Triangulation:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
         A visibility walk (compiled, :func:`~ctxmatch_lib.dtm._kernels.locate_kernel`): each query starts in a
-        triangle around its nearest vertex (:func:`~ctxmatch_lib.dtm._kernels.grid_nearest_kernel`; the k-d
+        triangle around its nearest vertex (:func:`~ctxmatch_lib.dtm._point_kernels.grid_nearest_kernel`; the k-d
         tree's choice where two are nearest) (usually the one holding it) and crosses, while the point lies
         outside the current triangle, the edge that separates them most; on a Delaunay triangulation this
         terminates, in a few steps from there. Points on an edge count as inside (either triangle may be
