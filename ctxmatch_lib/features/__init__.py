@@ -16,7 +16,10 @@ Patch descriptors sample ``2 A`` (the 6σ reach of the SIFT descriptor around a 
 Extraction is cached per (OpenCV version, image content, extractor configuration) under
 ``ctxmatch_lib._paths.cache_dir("features")`` (``$CTXMATCH_CACHE/features``, else
 ``$XDG_CACHE_HOME/ctxmatch/features`` or ``~/.cache/ctxmatch/features``); every entry is written to a
-temporary file and renamed into place, so an interrupted run never leaves a corrupt entry.
+temporary file and renamed into place, so an interrupted run never leaves a corrupt entry. Steps that
+several blocks of an image share (the HarrisZ detections of the four HarrisZ blocks, the OriNet angles of
+HardNet2 and SOSNet on one detector) are kept beside the entries (``shared/``, keyed by everything they
+read), so a cold run computes each once per image; the features are the same either way.
 
 The package's public face; the code lives in one module per job: :mod:`.config` (:class:`FeatureConfig`,
 the presets), :mod:`.base` (:class:`Features`, :func:`descriptor_distance`), :mod:`.io` (images in),
