@@ -881,3 +881,90 @@ def test_vertex_csr_matches_sorted_edge_keys(seed):
     indptr, indices = vertex_csr_kernel(np.ascontiguousarray(s, np.int64), n)
     np.testing.assert_array_equal(indptr, np.r_[0, np.cumsum(np.bincount(key // n, minlength=n))])
     np.testing.assert_array_equal(indices, key % n)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "grid", "line", "clustered"])
+def test_grid_nearest_matches_the_exhaustive_search(kind):
+    """The grid search gives the exhaustive kernel's distances and tie flag bit for bit, and its indices
+    wherever no tie is reported, also for queries far outside the points' box."""
+    from ctxmatch_lib.dtm._point_kernels import grid_nearest_kernel, nearest_kernel
+
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        n = int(rng.integers(1, 300))
+        if kind == "uniform":
+            p = rng.uniform(0, 640, (n, 2))
+        elif kind == "grid":
+            p = np.floor(rng.uniform(0, 30, (n, 2)))
+        elif kind == "line":
+            p = np.c_[rng.uniform(0, 640, n), np.full(n, 3.0)]
+        else:
+            p = np.full((n, 2), 5.0) + (rng.uniform(size=(n, 2)) < 0.1)
+        q = np.floor(rng.uniform(-300, 900, (50, 2))) * 0.5
+        d0, j0, tie0 = nearest_kernel(q, p)
+        d1, j1, tie1 = grid_nearest_kernel(q, p)
+        np.testing.assert_array_equal(d1, d0)
+        assert tie1 == tie0
+        if not tie0:
+            np.testing.assert_array_equal(j1, j0)
+    d, j, tie = grid_nearest_kernel(np.zeros((3, 2)), np.empty((0, 2)))
+    assert np.isinf(d).all() and (j == -1).all() and not tie
+
+
+def test_triangle_neighbors_pair_twin_edges():
+    """Each interior edge joins its two triangles, hull edges have none (also with the triangles shuffled);
+    a third copy of an edge, which no valid mesh has, stays unpaired."""
+    from scipy.spatial import Delaunay
+
+    from ctxmatch_lib.dtm._kernels import triangle_neighbors_kernel
+    from ctxmatch_lib.dtm.triangulation import delaunay_simplices
+
+    rng = np.random.default_rng(1)
+    pts = np.unique(np.round(rng.uniform(0, 200, (300, 2))), axis=0)
+    s = delaunay_simplices(pts)[rng.permutation(len(delaunay_simplices(pts)))]
+    nb = triangle_neighbors_kernel(np.ascontiguousarray(s), len(pts))
+    ref = Delaunay(pts)
+    assert (nb < 0).sum() == len(ref.convex_hull)
+    for t, k in zip(*np.nonzero(nb >= 0)):
+        u = nb[t, k]
+        edge = set(s[t]) - {s[t, k]}
+        assert edge <= set(s[u]) and t in nb[u]
+    tri = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    nb3 = triangle_neighbors_kernel(tri, 5)
+    assert nb3[0, 2] == 1 and nb3[1, 2] == 0 and nb3[2, 2] == -1
+
+
+@pytest.mark.parametrize("kind", ["integer", "float32", "float64"])
+def test_unique_rows_is_numpys(kind):
+    from ctxmatch_lib.dtm.triangulation import unique_rows
+
+    rng = np.random.default_rng(2)
+    p = rng.uniform(-40, 40, (500, 2))
+    p = {"integer": np.floor(p), "float32": p.astype(np.float32).astype(np.float64), "float64": p}[kind]
+    p = np.vstack([p, p[:200]])
+    u, inv = unique_rows(p)
+    u_ref, inv_ref = np.unique(p, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(u, u_ref)
+    np.testing.assert_array_equal(inv, inv_ref.reshape(-1))
+
+
+def test_dtm_builds_each_vertex_set_once():
+    """A run's setup remembers each image's boundary and triangulation per vertex set: asked again, it returns
+    the same objects, equal to a fresh construction."""
+    from ctxmatch_lib.dtm.core import _Setup
+    from ctxmatch_lib.dtm.triangulation import collapse_vertices
+
+    p = planted_homography_matches(300, 0.5, rng=4)
+    v1 = collapse_vertices(p.kpts1[p.matches[:, 0]])[0]
+    v2 = collapse_vertices(p.kpts2[p.matches[:, 1]])[0]
+    setup = _Setup(p.image_size, p.image_size, "alpha", 0.5, None, None)
+    first = setup.triangulations(v1, v2)
+    again = setup.triangulations(v1.copy(), v2)
+    assert all(a is b for a, b in zip(first, again))
+    fresh = _Setup(p.image_size, p.image_size, "alpha", 0.5, None, None).triangulations(v1, v2)
+    for a, b in zip(first[2:], fresh[2:]):
+        np.testing.assert_array_equal(a.simplices, b.simplices)
+        np.testing.assert_array_equal(a.indices, b.indices)
+    np.testing.assert_array_equal(first[0].points, fresh[0].points)
+    swapped = setup.triangulations(v2, v1)  # image 1 gets v2: built for image 1, not taken from image 2's entry
+    assert swapped[2] is not first[3] and len(setup.built) == 4
