@@ -25,7 +25,7 @@ import numpy as np
 
 from .._numba import user_cache
 
-__all__ = ["weighted_gram", "weighted_gram_t", "matmul", "dot", "solve", "solve_batched"]
+__all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched"]
 
 
 with user_cache() as _cache:
@@ -60,15 +60,19 @@ with user_cache() as _cache:
         return out
 
     @_jit
-    def _matmul(A, B):
-        K, m = A.shape
+    def _matmul_t(AT, B):
+        # (AT' B)' for AT (m, K) and B (m, n): entry (k, j) sums A_ki B_ij over i in increasing order,
+        # updated across k side by side (vectorised); returned transposed, (n, K).
+        m, K = AT.shape
         n = B.shape[1]
-        out = np.zeros((K, n))
-        for k in range(K):
-            for i in range(m):
-                a = A[k, i]
-                for j in range(n):
-                    out[k, j] += a * B[i, j]
+        out = np.zeros((n, K))
+        for i in range(m):
+            a = AT[i]
+            for j in range(n):
+                b = B[i, j]
+                o = out[j]
+                for k in range(K):
+                    o[k] += a[k] * b
         return out
 
     @_jit
@@ -139,7 +143,12 @@ def weighted_gram_t(HT: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A @ B`` of ``A`` (K, m) and ``B`` (m, n), each entry summed over ``m`` in order."""
-    return _matmul(_f64(A), _f64(B))
+    return matmul_t(np.ascontiguousarray(np.asarray(A, np.float64).T), B)
+
+
+def matmul_t(AT: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """:func:`matmul` of ``AT.T`` given ``AT`` (m, K): the EM loops transpose their fixed matrix once."""
+    return _matmul_t(_f64(AT), _f64(B)).T
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> float:

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
-from ._em_kernels import dot, matmul, solve, solve_batched, weighted_gram_t
+from ._em_kernels import dot, matmul_t, solve, solve_batched, weighted_gram_t
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights", "m_step"]
@@ -242,6 +242,7 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
     G = np.ascontiguousarray(np.hstack([U, BU]))  # row i = [U_i, (BU)_i]
     Z = np.hstack([target, BX])
     HT = _stacked(G, Z)
+    GT = np.ascontiguousarray(G.reshape(2 * n, m).T)  # [U, BU] as (2K, m), transposed once for matmul_t
     C = np.zeros((m, 2))
     res, loc = target, BX  # y - x - U C and (I - W)(x + U C) at C = 0
     r2 = np.einsum("ij,ij->i", res, res)
@@ -264,7 +265,7 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
         # M-step for C (Sec. III-C), multiplied through by sigma^2:
         # (U' P U + lam sigma^2 (BU)' P (BU)) C = U' P (y - x) - lam sigma^2 (BU)' P (B x).
         C = _m_step(HT, pw, lam * sigma2, m)
-        F = matmul(G.reshape(2 * n, m), C).reshape(n, 2, 2)  # [U C, BU C] per row
+        F = matmul_t(GT, C).reshape(n, 2, 2)  # [U C, BU C] per row
         res, loc = target - F[:, 0], BX + F[:, 1]
         r2 = np.einsum("ij,ij->i", res, res)
         local = np.einsum("ij,ij->i", loc, loc)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._common import MatchSet, check_positive, match_filter, serial_blas, zero_mean_unit_rms
-from ._em_kernels import dot, matmul, solve, weighted_gram
+from ._em_kernels import dot, matmul, matmul_t, solve, weighted_gram_t
 
 __all__ = ["vfc_filter"]
 
@@ -170,7 +170,9 @@ def _vfc(x1, y1, beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng)
         # The products and the solve run in _em_kernels (fixed summation order, no BLAS): the EM amplifies
         # the last bits of each iteration, and the posteriors near tau must not follow the BLAS kernel.
         m = len(ctrl)
-        H = np.ascontiguousarray(np.hstack([U, motion]))  # one weighted Gram gives U' P U and U' P motion
+        # One weighted Gram of H = [U, motion] gives U' P U and U' P motion; the kernels take H transposed
+        # (made once here), whose first m rows are U' for the field U C.
+        HT = np.ascontiguousarray(np.hstack([U, motion]).T)
         for _ in range(max_iter):
             if change <= tol or sigma2 <= 1e-8:
                 break
@@ -182,9 +184,9 @@ def _vfc(x1, y1, beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng)
             change = abs((energy - old) / energy) if energy != 0 else 0.0
             pw = np.maximum(p, min_p)
             # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
-            A = weighted_gram(H, pw)
+            A = weighted_gram_t(HT, pw)
             C = solve(A[:m, :m] + lam * sigma2 * G, A[:m, m:])
-            field = matmul(U, C)
+            field = matmul_t(HT[:m], C)
             sigma2 = dot(pw, ((motion - field) ** 2).sum(1)) / (2 * pw.sum())
             gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
         return p > tau
