@@ -23,6 +23,7 @@ __all__ = [
     "integer_row_keys_kernel",
     "key_rows_kernel",
     "nearest_kernel",
+    "push_out_kernel",
     "sample_ring_kernel",
     "single_ring_kernel",
     "sorted_unique_rows_kernel",
@@ -198,6 +199,32 @@ with user_cache() as _cache:
             dist[q] = math.sqrt(best)
             index[q] = arg
         return dist, index, tie
+
+    @_jit
+    def push_out_kernel(b, vertices, d, j, s):
+        """The move of :func:`~ctxmatch_lib.dtm._samples._keep_clear`: samples closer than ``s`` to their
+        nearest vertex ``j`` (at ``d``; not on it) moved radially to ``v + (b - v) * (s / d)``, then the nearest
+        distances again (:func:`grid_nearest_kernel`) and only the samples at least ``s / 2`` away kept, with
+        those distances. The NumPy version's arithmetic, operation for operation."""
+        moved = b.copy()
+        for i in range(b.shape[0]):
+            if d[i] < s * (1 - 1e-9) and d[i] > 1e-9 * s:
+                f = s / d[i]
+                for c in range(2):
+                    moved[i, c] = vertices[j[i], c] + (b[i, c] - vertices[j[i], c]) * f
+        d2 = grid_nearest_kernel(moved, vertices)[0]
+        n = 0
+        for i in range(b.shape[0]):
+            if d2[i] >= 0.5 * s:
+                n += 1
+        out = np.empty((n, 2))
+        dist = np.empty(n)
+        k = 0
+        for i in range(b.shape[0]):
+            if d2[i] >= 0.5 * s:
+                out[k, 0], out[k, 1], dist[k] = moved[i, 0], moved[i, 1], d2[i]
+                k += 1
+        return out, dist
 
     @_jit
     def doubled_areas_kernel(tri):

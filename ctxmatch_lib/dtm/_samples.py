@@ -9,7 +9,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from ._point_kernels import grid_nearest_kernel, sample_ring_kernel, single_ring_kernel
+from ._point_kernels import grid_nearest_kernel, push_out_kernel, sample_ring_kernel, single_ring_kernel
 from .triangulation import unique_rows
 
 _EMPTY2 = np.empty((0, 2))
@@ -90,15 +90,11 @@ def _keep_clear(b: np.ndarray, vertices: np.ndarray, s: float) -> tuple[np.ndarr
     distinct samples (rounded to float32) and each one's distance to its nearest vertex before rounding."""
     if len(b) == 0 or len(vertices) == 0:
         return _to_float32(b), np.full(len(b), np.inf)
+    b = np.ascontiguousarray(b, np.float64)
+    vertices = np.ascontiguousarray(vertices, np.float64)
     d, j = _nearest(b, vertices)
-    close = d < s * (1 - 1e-9)
-    if close.any():
-        b = b.copy()
-        movable = close & (d > 1e-9 * s)
-        b[movable] = vertices[j[movable]] + (b[movable] - vertices[j[movable]]) * (s / d[movable, None])
-        d, _ = _nearest(b, vertices, need_index=False)
-        far = d >= 0.5 * s
-        b, d = b[far], d[far]
+    if (d < s * (1 - 1e-9)).any():
+        b, d = push_out_kernel(b, vertices, d, np.asarray(j, np.int64), float(s))  # compiled, same arithmetic
     pts, inverse = unique_rows(_to_float32(b))
     dist = np.empty(len(pts))
     dist[inverse] = d
