@@ -968,3 +968,31 @@ def test_dtm_builds_each_vertex_set_once():
     np.testing.assert_array_equal(first[0].points, fresh[0].points)
     swapped = setup.triangulations(v2, v1)  # image 1 gets v2: built for image 1, not taken from image 2's entry
     assert swapped[2] is not first[3] and len(setup.built) == 4
+
+
+def test_inside_ring_is_geos_when_certain():
+    """The compiled crossing-number test answers as GEOS's contains_xy whenever it says it is certain, and is
+    uncertain for points on the ring (vertices, edge midpoints)."""
+    import shapely
+
+    from ctxmatch_lib.dtm._point_kernels import inside_ring_kernel
+    from ctxmatch_lib.dtm._samples import _rings_from_edges
+    from ctxmatch_lib.dtm.boundary import alpha_shape
+
+    rng = np.random.default_rng(0)
+    checked = 0
+    for trial in range(60):
+        v = np.unique(np.floor(rng.uniform(0, 200 if trial % 2 else 40, (int(rng.integers(5, 300)), 2))), axis=0)
+        shape = alpha_shape(v)
+        rings = _rings_from_edges(v, shape.edges) if shape is not None else []
+        if len(rings) != 1:
+            continue
+        ring = np.ascontiguousarray(rings[0])
+        q = rng.uniform(-10, 210, (200, 2)).astype(np.float32).astype(np.float64)
+        inside, certain = inside_ring_kernel(ring, q)
+        if certain:
+            np.testing.assert_array_equal(inside, shapely.contains_xy(shapely.Polygon(ring), q[:, 0], q[:, 1]))
+            checked += 1
+        assert not inside_ring_kernel(ring, ring[:1])[1]
+        assert not inside_ring_kernel(ring, (ring[:1] + ring[1:2]) / 2)[1]
+    assert checked > 20

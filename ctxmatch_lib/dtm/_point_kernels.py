@@ -20,6 +20,7 @@ __all__ = [
     "float32_exact_kernel",
     "float32_row_keys_kernel",
     "grid_nearest_kernel",
+    "inside_ring_kernel",
     "integer_row_keys_kernel",
     "key_rows_kernel",
     "nearest_kernel",
@@ -225,6 +226,32 @@ with user_cache() as _cache:
                 out[k, 0], out[k, 1], dist[k] = moved[i, 0], moved[i, 1], d2[i]
                 k += 1
         return out, dist
+
+    @_jit
+    def inside_ring_kernel(ring, xy):
+        """Whether each point of ``xy`` lies inside the simple polygon of the closed ``ring`` (first point
+        repeated), by the crossing number, and whether every answer is certain: each point's orientation to
+        every edge line is computed in floating point and accepted only when it exceeds a bound on its
+        rounding error (Shewchuk's, widened a hundredfold), so a point on or next to an edge line makes the
+        whole answer uncertain (``False``). A certain answer is the exact one, hence GEOS's."""
+        n_edges = ring.shape[0] - 1
+        inside = np.zeros(xy.shape[0], np.bool_)
+        for q in range(xy.shape[0]):
+            px, py = xy[q, 0], xy[q, 1]
+            odd = False
+            for e in range(n_edges):
+                ax, ay, bx, by = ring[e, 0], ring[e, 1], ring[e + 1, 0], ring[e + 1, 1]
+                t1 = (bx - ax) * (py - ay)
+                t2 = (by - ay) * (px - ax)
+                det = t1 - t2
+                if abs(det) <= 1e-13 * (abs(t1) + abs(t2)) or det == 0:
+                    return inside, False
+                if (ay > py) != (by > py):  # the edge crosses the horizontal line through the point
+                    # it crosses right of the point when the point lies left of the upward edge
+                    if (det > 0) == (by > ay):
+                        odd = not odd
+            inside[q] = odd
+        return inside, True
 
     @_jit
     def doubled_areas_kernel(tri):

@@ -32,6 +32,7 @@ import shapely
 
 from .._validation import as_image_size, as_points
 from ._kernels import alpha_shapes_kernel, circumradii_kernel, hull_edges_kernel, triangle_neighbors_kernel
+from ._point_kernels import inside_ring_kernel
 from ._samples import _fatten, _keep_clear, _nearest, _rings_from_edges, _sample_rings, _to_float32  # noqa: F401
 from .triangulation import DelaunayMesh, IncrementalDelaunay, delaunay_or_none, round_half_away, unique_rows
 
@@ -263,9 +264,17 @@ def _outside_shape(b: np.ndarray, dist: np.ndarray, vertices: np.ndarray, shape:
     if len(near) == 0:
         return b
     rings = _rings_from_edges(vertices, shape.edges)
-    # One ring is one valid polygon already (edges of a triangulation, every vertex on two of them)
-    region = shapely.Polygon(rings[0]) if len(rings) == 1 else shapely.union_all([shapely.Polygon(r) for r in rings])
     inside = np.zeros(len(b), bool)
+    if len(rings) == 1:
+        # One ring is one simple polygon (edges of a triangulation, every vertex on two of them): a compiled
+        # crossing-number test, used when every orientation in it is certain (then it is GEOS's answer).
+        inside[near], certain = inside_ring_kernel(np.ascontiguousarray(rings[0], np.float64),
+                                                   np.ascontiguousarray(b[near], np.float64))
+        if certain:
+            return b[~inside]
+        region = shapely.Polygon(rings[0])
+    else:
+        region = shapely.union_all([shapely.Polygon(r) for r in rings])
     inside[near] = shapely.contains_xy(region, b[near, 0], b[near, 1])
     return b[~inside]
 
