@@ -24,6 +24,7 @@ triangle free of vertices with a frame point (:func:`keypoint_boundary`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -226,12 +227,11 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
     triangle adjacency of each mesh.
     """
     n_groups = len(points_list)
-    p_off = np.zeros(n_groups + 1, np.int64)
-    np.cumsum([len(p) for p in points_list], out=p_off[1:])
-    t_off = np.zeros(n_groups + 1, np.int64)
-    np.cumsum([len(s) for s in simplices_list], out=t_off[1:])
+    p_off = np.array([0, *itertools.accumulate(len(p) for p in points_list)], np.int64)
+    t_off = np.array([0, *itertools.accumulate(len(s) for s in simplices_list)], np.int64)
     points = np.vstack(points_list) if n_groups > 1 else points_list[0]
-    simplices = np.vstack([np.asarray(s, np.int64) + o for s, o in zip(simplices_list, p_off)])
+    simplices = np.vstack([np.asarray(s, np.int64) + o if o else np.asarray(s, np.int64)
+                           for s, o in zip(simplices_list, p_off)])
     if neighbors is None:
         neighbors = triangle_neighbors_kernel(simplices, len(points))
     neighbors = np.ascontiguousarray(neighbors, np.int64)
