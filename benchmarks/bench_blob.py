@@ -13,7 +13,7 @@ interleaved (round-robin, ``--repeat`` rounds, median of each):
 and prints each time with its ratio to the floor. Blob matching runs its GEMM tiles on one BLAS thread
 whatever ``--threads`` says (its float32 rounding must not depend on the thread count, although its
 decisions no longer do). Times are CPU process times by default (``--wall`` for wall-clock): on a shared
-machine they are skewed less by other processes. Then the peak RSS of ``paper-best`` at n = m = 20000 in a
+machine they are skewed less by other processes. First (before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a
 fresh process, and how fast f = Ω fails there.
 
 Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]``.
@@ -171,10 +171,12 @@ def main() -> None:
     if args.quick:
         speed(2000, args.threads, 2, clock, args.sgloh)
         return
+    if args.memory:
+        # First: Linux keeps a process's peak RSS across exec, so a child started after the timed runs would
+        # report this process's larger peak as its own.
+        memory(args.memory)
     for n in args.sizes:
         speed(n, args.threads, args.repeat, clock, args.sgloh)
-    if args.memory:
-        memory(args.memory)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,8 @@ thread (run with ``OMP_NUM_THREADS=1``), so that a loaded machine skews the rati
 
 Printed per filter: the summed time over the pairs, the ratio to DTM's summed time measured in the same run,
 the worst per-pair ratio, and ``> 5x`` where the summed ratio misses the target (``one pair > 5x`` where only
-some pair's ratio does). ``--save-masks DIR`` writes
+some pair's ratio does); the last line names every filter above the target on some pair (the target is per
+pair). ``--save-masks DIR`` writes
 each filter's keep masks (one ``.npz`` per filter, one array per pair); ``--check-against DIR`` compares this
 run's masks with such a folder and prints, per filter, whether every mask is identical (exit status 1 if not):
 the check that a speed-up left the output unchanged.
@@ -145,11 +146,11 @@ def main(argv=None) -> int:
         worst = float(np.max(t / np.maximum(dtm_t, 1e-9)))
         kept = 100 * np.mean([k.mean() for k in masks[name]])
         flag = (f"  > {TARGET:g}x" if ratio > TARGET else f"  one pair > {TARGET:g}x" if worst > TARGET else "")
-        if ratio > TARGET:
-            missing.append(name)
+        if worst > TARGET:  # the target holds on every pair (issue 33: the worst pair, not the sum)
+            missing.append(f"{name} ({worst:.2f}x on its worst pair)")
         print(f"{name:<9} {len(t):>5} {np.mean([len(k) for k in masks[name]]):>6.0f} {t.sum():>9.2f} "
               f"{ratio:>6.2f}x {worst:>9.2f}x {kept:>7.1f}{flag}")
-    print(f"\nabove {TARGET:g}x DTM: {', '.join(missing) if missing else 'none'}")
+    print(f"\nabove {TARGET:g}x DTM on some pair: {', '.join(missing) if missing else 'none'}")
 
     if args.save_masks is not None:
         args.save_masks.mkdir(parents=True, exist_ok=True)
