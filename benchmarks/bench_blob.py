@@ -16,7 +16,11 @@ decisions no longer do). Times are CPU process times by default (``--wall`` for 
 machine they are skewed less by other processes. First (before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a
 fresh process, and how fast f = Ω fails there.
 
-Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]``.
+With ``--breakdown``, one more call per preset and size with the GEMM tiles and each compiled stage timed (the
+numbers behind the analysis in docs/blob-matching.md).
+
+Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]
+[--breakdown]``.
 """
 
 from __future__ import annotations
@@ -108,6 +112,56 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
         sgloh_speed(n, threads, repeat, clock)
 
 
+#: The compiled stages of the L2 path timed by ``--breakdown`` (``ctxmatch_lib.blob._kernels``).
+STAGES = ("scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense", "first_allowed",
+          "next_allowed", "min_allowed", "second_best_dense")
+
+
+def breakdown(n: int, clock) -> None:
+    """Where blob matching's time goes: the GEMM tiles, each compiled stage and the rest (NumPy glue), per
+    preset, for one call after a warm-up (the stages are wrapped for the call, then restored)."""
+    from ctxmatch_lib.blob import BLOB_PRESETS, blob_matching
+    from ctxmatch_lib.blob import _kernels
+    from ctxmatch_lib.blob import context as blob_context
+
+    d1, d2, k1, k2 = rootsift_like(n, n)
+    s1, s2 = radii(n, 1), radii(n, 2)
+    spent: dict = {}
+
+    def timed_stage(name, fn):
+        def run(*args, **kwargs):
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[name] = spent.get(name, 0.0) + clock() - t0
+        return run
+
+    class _TimedNumpy:  # the context's `np`, with its matmul (the GEMM tiles) timed
+        def __getattr__(self, attr):
+            return timed_stage("GEMM tiles", np.matmul) if attr == "matmul" else getattr(np, attr)
+
+    print(f"n = m = {n}: where the time goes ({clock.__name__}, one call after a warm-up):")
+    for name in ("baseline", "paper-best", "paper-best-overlap"):
+        kw = dict(kpts1=k1, kpts2=k2, shapes1=s1, shapes2=s2, **BLOB_PRESETS[name].kwargs())
+        blob_matching(d1, d2, **kw)
+        saved = {stage: getattr(_kernels, stage) for stage in STAGES}
+        spent.clear()
+        try:
+            for stage, fn in saved.items():
+                setattr(_kernels, stage, timed_stage(stage, fn))
+            blob_context.np = _TimedNumpy()
+            t0 = clock()
+            blob_matching(d1, d2, **kw)
+            total = clock() - t0
+        finally:
+            blob_context.np = np
+            for stage, fn in saved.items():
+                setattr(_kernels, stage, fn)
+        parts = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in spent.items() if v * 1e3 >= 0.5)
+        print(f"  {name:20s} {total * 1e3:7.1f} ms: {parts}, the rest {(total - sum(spent.values())) * 1e3:.0f} (ms)")
+
+
 def sgloh_speed(n: int, threads: int, repeat: int, clock) -> None:
     from ctxmatch_lib.blob import BLOB_PRESETS, blob_matching
     from ctxmatch_lib.features.sgloh import SGLOH2Distance
@@ -166,6 +220,8 @@ def main() -> None:
     ap.add_argument("--sgloh", action="store_true", help="also RootsGLOH2's rotation distance vs its product")
     ap.add_argument("--memory", type=int, default=20000, help="n = m of the peak-RSS run (0: skip)")
     ap.add_argument("--quick", action="store_true", help="n = 2000, 2 rounds, no memory run")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the GEMM tiles and each compiled stage of one call per preset and size")
     args = ap.parse_args()
     clock = time.perf_counter if args.wall else time.process_time
     if args.quick:
@@ -177,6 +233,10 @@ def main() -> None:
         memory(args.memory)
     for n in args.sizes:
         speed(n, args.threads, args.repeat, clock, args.sgloh)
+    if args.breakdown:
+        with threadpool_limits(args.threads):
+            for n in args.sizes:
+                breakdown(n, clock)
 
 
 if __name__ == "__main__":
