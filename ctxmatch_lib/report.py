@@ -344,9 +344,11 @@ def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> p
 GEOMETRY_TIME_COLUMNS = ("geometry_time_s", "geometry_time_median_s")
 
 
-def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "") -> str:
+def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "",
+                      keep_times: bool = False) -> str:
     """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report (``geometry.md``), the
-    running times left out (:data:`GEOMETRY_TIME_COLUMNS`): the same numbers give the same bytes.
+    running times left out (:data:`GEOMETRY_TIME_COLUMNS`) unless ``keep_times``: the same numbers give the
+    same bytes.
 
     Parameters
     ----------
@@ -358,12 +360,16 @@ def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, note
         Printed on the provenance line.
     notes : str
         A paragraph under the provenance line.
+    keep_times : bool
+        Keep the running-time columns (seconds, 3 decimals): the report of the times themselves, which
+        changes from run to run (``executed/geometry_times.md``).
 
     Returns
     -------
     str
     """
-    t = table.drop(columns=[c for c in GEOMETRY_TIME_COLUMNS if c in table.columns]).dropna(axis=1, how="all")
+    dropped = () if keep_times else GEOMETRY_TIME_COLUMNS
+    t = table.drop(columns=[c for c in dropped if c in table.columns]).dropna(axis=1, how="all")
     names = list(t.index.names)
     labels = {"kind": KIND_LABELS, "model": MODEL_LABELS}
     lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
@@ -375,7 +381,8 @@ def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, note
         key = key if isinstance(key, tuple) else (key,)
         cells = [labels.get(n, {}).get(v, METHOD_LABELS.get(v, v)) if n in labels or n == "method" else str(v)
                  for n, v in zip(names, key)]
-        cells += ["" if pd.isna(v) else (f"{v:.0f}" if c in ("pairs", "no_model") else f"{v:.2f}")
+        cells += ["" if pd.isna(v) else (f"{v:.0f}" if c in ("pairs", "no_model") else
+                                         f"{v:.3f}" if c in GEOMETRY_TIME_COLUMNS else f"{v:.2f}")
                   for c, v in row.items()]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

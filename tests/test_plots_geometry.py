@@ -84,3 +84,18 @@ def test_geometry_markdown_leaves_the_times_out():
     text = geometry_markdown(table, title="t", provenance={"dataset": "d"})
     assert "geometry_time" not in text and "| planar | DTM | MAGSAC | 4 |" in text
     assert text == geometry_markdown(table, title="t", provenance={"dataset": "d"})
+
+
+def test_geometry_markdown_keeps_the_times_when_asked():
+    from ctxmatch_lib.report import GEOMETRY_TIME_COLUMNS, geometry_markdown
+
+    table = geometry_table(_rows(), by=("kind", "method", "model"))
+    times = table[["pairs", *GEOMETRY_TIME_COLUMNS]]
+    text = geometry_markdown(times, title="t", provenance={"dataset": "d"}, keep_times=True)
+    header = next(line for line in text.splitlines() if line.startswith("| kind"))
+    assert header == "| kind | method | model | pairs | geometry_time_s | geometry_time_median_s |"
+    row = next(line for line in text.splitlines() if line.startswith("| planar | DTM |"))
+    cells = row.strip("|").split("|")
+    assert len(cells) == 6 and cells[3].strip() == "4"
+    value = float(times.loc[("planar", "dtm", "magsac"), "geometry_time_s"])
+    assert cells[4].strip() == f"{value:.3f}"
