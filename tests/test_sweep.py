@@ -299,3 +299,18 @@ def test_units_without_filters_keep_their_key_when_a_filter_changes():
     filtered = plan_units(pairs, filters=("th",))[0]
     assert blob_only.salt == ev_cache.source_digest(filters=False)
     assert filtered.salt == ev_cache.source_digest() != blob_only.salt
+
+
+def test_every_candidate_set_counts_the_context_build_once():
+    """Each candidate key's seconds hold the context's build once (a standalone blob_matching would build it),
+    not twice for the first key and never for the others."""
+    from ctxmatch_lib.evaluation.cache import candidate_sets
+
+    class Instant:
+        def candidates(self, *key):
+            return np.zeros((1, 2), np.int64), np.zeros(1)
+
+    built = 100.0  # a declared build time, far above what a call here takes
+    out = candidate_sets(lambda: (Instant(), built), [(10, "cup", 5), (3, "cap", 1)], None, "f")
+    for _, _, seconds in out.values():
+        assert built <= seconds < 2 * built

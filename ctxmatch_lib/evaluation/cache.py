@@ -130,7 +130,7 @@ def engine_cache(cache_dir) -> Path:
 
 def candidate_sets(ctx_factory, keys, cache: Path | None, feats_digest: str, salt: str = ""):
     """G per candidate key, with the seconds it took (descriptor distances + the set), from the cache or
-    from the context (then cached)."""
+    from the context (then cached). ``ctx_factory()`` returns the context and the seconds its building took."""
     path = cache / "candidates" / f"{digest(FORMAT, feats_digest, salt)}.npz" if cache is not None else None
     stored = (load_npz(path) if path is not None else None) or {}
     out, added = {}, False
@@ -139,12 +139,13 @@ def candidate_sets(ctx_factory, keys, cache: Path | None, feats_digest: str, sal
         if f"m_{name}" in stored:
             out[key] = (stored[f"m_{name}"].astype(np.int64), stored[f"d_{name}"], float(stored[f"t_{name}"]))
             continue
-        t0 = time.perf_counter()
         ctx, t_ctx = ctx_factory()
+        t0 = time.perf_counter()
         matches, dist = ctx.candidates(*key)
-        # The context (all descriptor distances) serves every key; each key's time includes building it,
-        # as a standalone blob_matching call would.
-        t = time.perf_counter() - t0 + (t_ctx if t_ctx is not None else 0.0)
+        # The context (all descriptor distances) serves every key; each key's time includes building it once,
+        # as a standalone blob_matching call would (it was counted twice for the first key and not at all
+        # for the others before).
+        t = time.perf_counter() - t0 + t_ctx
         out[key] = (matches, dist, t)
         stored[f"m_{name}"] = matches.astype(np.int32)
         stored[f"d_{name}"] = dist
