@@ -189,3 +189,42 @@ def test_round_clusters_as_the_dense_definition_with_second_round_scales(seed):
     core = kth <= eps
     np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
     assert 0 < got.sum() < len(feats)
+
+
+@pytest.mark.parametrize("cells_per_member", [4.0, 0.01])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grid_counts_equal_a_plain_count_and_bracket_the_float32_one(seed, cells_per_member):
+    # The compiled grid counts (ctxmatch_lib.filters._rfm_kernels) against every pair in float64 (same
+    # formula, same float32-rounded points), and the filter's float32 count between their sure and possible
+    # counts; coarse grids (few cells per member) and queries outside the members' extent included.
+    from ctxmatch_lib.filters._rfm_kernels import MARGIN, MotionGrid, count_within
+
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, 1, (3, 6))
+    feats = np.vstack([c + rng.normal(0, 0.03, (50, 6)) for c in centres] + [rng.uniform(0, 1, (150, 6))])
+    space = _MotionSpace(np.clip(feats, 0, 1), 10.0)
+    members = np.flatnonzero(rng.random(space.n) < 0.5)
+    queries = np.arange(space.n)
+    qscale = np.where(rng.random(space.n) < 0.7, 1.0, 100.0)
+    f = space.f64
+    dx = np.hypot(f[:, None, 0] - f[None, members, 0], f[:, None, 1] - f[None, members, 1])
+    dy = np.hypot(f[:, None, 2] - f[None, members, 2], f[:, None, 3] - f[None, members, 3])
+    dv = np.hypot(f[:, None, 4] - f[None, members, 4], f[:, None, 5] - f[None, members, 5])
+    d = dx + dy + (1.0 + space.gamma32 * np.exp(-np.minimum(dx, dy))) * dv
+    d32 = space.dist(queries[:, None], members[None, :]).astype(np.float64)
+    for gscale in (1.0, 100.0):
+        eps = float(np.quantile(d, 0.05)) / gscale
+        t = d * gscale * qscale[:, None]
+        grid = MotionGrid(f, members, eps / gscale / qscale.min(), space.gamma32, cells_per_member)
+        never = np.full(space.n, 10**9)
+        sure, possible = count_within(grid, f, qscale, never, eps, space.gamma32, gscale=gscale)
+        np.testing.assert_array_equal(sure, (t <= eps * (1 - MARGIN)).sum(1))
+        np.testing.assert_array_equal(possible, (t <= eps * (1 + MARGIN)).sum(1))
+        exact = (d32 * np.float32(gscale) * qscale[:, None] <= eps).sum(1)
+        assert (sure <= exact).all() and (exact <= possible).all() and 0 < exact.sum() < d.size
+        # Stopped counts: the sure count stops at the target, the possible one with on_possible.
+        stop = rng.integers(0, 6, space.n)
+        sure_s, _ = count_within(grid, f, qscale, stop, eps, space.gamma32, gscale=gscale)
+        np.testing.assert_array_equal(sure_s, np.where(stop > 0, np.minimum(sure, stop), 0))
+        _, pos_s = count_within(grid, f, qscale, stop, eps, space.gamma32, gscale=gscale, on_possible=True)
+        np.testing.assert_array_equal(pos_s, np.where(stop > 0, np.minimum(possible, stop), 0))

@@ -25,7 +25,9 @@ No K x K matrix is built and the result is the dense computation's, bit for bit:
 distance (or L1 distance over sqrt(2)) never exceeds Eq. (3), and computed exactly in float32 with the dense
 formula; only the few matches far from everything (whose ``L_i`` can only matter as ``max L``) get whole rows
 of distances, to the second round's clustered matches only (the others, at 100 times their distance, are
-ball-searched within the bound).
+ball-searched within the bound). The core test counts neighbours on uniform grids over the keypoint in
+image 1 and the motion vector (:mod:`ctxmatch_lib.filters._rfm_kernels`, compiled, float64 with a relative
+margin); the few counts that the margin leaves open are settled by the exact float32 ball search.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._common import MatchSet, check_positive, match_filter
+from ._rfm_kernels import MotionGrid, count_within
 
 __all__ = ["rfm_scan_filter"]
 
@@ -58,8 +61,10 @@ class _MotionSpace:
 
     def __init__(self, feats: np.ndarray, gamma: float) -> None:
         self.f = feats.astype(np.float32)
+        self.f64 = self.f.astype(np.float64)  # the float32 points, for the compiled counts
         self.feats = feats
         self.gamma = float(gamma)
+        self.gamma32 = float(np.float32(gamma))
         self.n = len(feats)
         self._trees: dict = {}
 
@@ -151,21 +156,28 @@ class _Round:
         out[ok[good]] = kth[good]
         return out
 
-    def lower_count(self, queries: np.ndarray, radius: np.float64, p: int = 2) -> np.ndarray:
-        """For each query, ``min(MinPts, n)``-capped count of matches within ``radius`` (scaled) in the lower-bound
-        embedding (a k-NN search capped at ``radius``): fewer than ``MinPts`` there means fewer than ``MinPts``
-        matches within ``radius``."""
-        found = np.zeros(len(queries), np.int64)
+    def counts(self, queries: np.ndarray, radius: float, on_possible: bool = False):
+        """Matches surely / possibly within ``radius`` (scaled distances) of each query, counted on grids
+        until the sure count (the possible count with ``on_possible``) reaches ``MinPts``."""
+        sp = self.space
+        sure = np.zeros(len(queries), np.int64)
+        possible = np.zeros(len(queries), np.int64)
+        qf, ones, stop = sp.f64[queries], np.ones(len(queries)), np.full(len(queries), self.k, np.int64)
         for s, g in self.groups:
-            r = float(radius / s) * (1 + 1e-5) + 1e-6
-            level = float(np.exp2(np.ceil(np.log2(max(r, 1e-3)))))
-            m = min(self.k, len(g))
-            for b in range(0, len(queries), 4096):
-                q = queries[b : b + 4096]
-                dd, _ = self.space.tree(s, g, level).query(self.space.embed(q, level), k=m, p=p,
-                                                           distance_upper_bound=_P_SCALE[p] * r)
-                found[b : b + 4096] += np.isfinite(dd.reshape(len(q), m)).sum(1)
-        return found
+            grid = MotionGrid(sp.f64, g, float(radius) / float(s), sp.gamma32)
+            count_within(grid, qf, ones, stop, float(radius), sp.gamma32, gscale=float(s), sure=sure,
+                         possible=possible, on_possible=on_possible)
+        return sure, possible
+
+    def core(self, queries: np.ndarray, radius: float) -> np.ndarray:
+        """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances): the
+        grid counts, and where they do not settle it, :meth:`ball_core`."""
+        sure, possible = self.counts(queries, radius)
+        out = sure >= self.k
+        und = np.flatnonzero(~out & (possible >= self.k))
+        if len(und):
+            out[und] = self.ball_core(queries[und], radius, p=1)
+        return out
 
     def ball_core(self, queries: np.ndarray, radius: float, p: int = 2) -> np.ndarray:
         """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances).
@@ -221,17 +233,17 @@ class _Round:
 
         ``min L`` is found by a ball search of radius ``min upper`` (small), ``max L`` from whole rows of
         distances, taken from the largest upper bound down until no upper bound exceeds the largest ``L``
-        found (a few rows). A match is core when at least ``MinPts`` matches lie within ``eps`` (scaled),
-        and clustered when it is core or within ``eps`` of a core match (searched in a k-d tree of the
+        found (a few rows). A match is core when at least ``MinPts`` matches lie within ``eps`` (scaled;
+        counted on grids, see :meth:`core`), and clustered when it is core or within ``eps`` of a core match (searched in a k-d tree of the
         core matches).
         """
         n = self.space.n
         everyone = np.arange(n)
         upper = self.upper()
-        # min L: a ball search of radius min upper, where the lower bound finds k matches within it (elsewhere
-        # fewer than k matches lie within it, and the ball search would give NaN too)
+        # min L: a ball search of radius min upper, where the grid counts k matches possibly within it
+        # (elsewhere fewer than k matches lie within it, and the ball search would give NaN too)
         kth = np.full(n, np.nan, np.float32)
-        near = np.flatnonzero(self.lower_count(everyone, np.float64(upper.min())) >= self.k)
+        near = np.flatnonzero(self.counts(everyone, np.float64(upper.min()), on_possible=True)[1] >= self.k)
         if len(near):
             kth[near] = self.ball_kth(near, np.full(len(near), upper.min(), np.float64))
         rest = np.flatnonzero(np.isnan(kth))
@@ -244,17 +256,11 @@ class _Round:
             kth[batch] = self.dense_kth(batch, upper)
         lo, hi = np.nanmin(kth), np.nanmax(kth)
         eps = lo + np.float32(mu) * (hi - lo)
-        # Core: sure where the upper bound is within eps; impossible where fewer than k matches lie within
-        # eps even in the lower bound (a k-NN search capped at eps); a ball search of radius eps decides
-        # the rest.
+        # Core: sure where the upper bound is within eps; the grid counts decide the rest.
         core = upper <= eps
         todo = np.flatnonzero(~core)
-        todo = todo[self.lower_count(todo, np.float64(eps)) >= self.k]
-        # The L1 bound prunes the survivors further (its k-NN search is slower: survivors only), then decides
-        # by ball search.
-        todo = todo[self.lower_count(todo, np.float64(eps), p=1) >= self.k]
         if len(todo):
-            core[todo] = self.ball_core(todo, np.float64(eps), p=1)
+            core[todo] = self.core(todo, np.float64(eps))
         # Reached: a non-core match with a core match within eps (distance scaled by its own scale).
         reached = core.copy()
         core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
