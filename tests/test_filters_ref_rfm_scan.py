@@ -228,3 +228,27 @@ def test_grid_counts_equal_a_plain_count_and_bracket_the_float32_one(seed, cells
         np.testing.assert_array_equal(sure_s, np.where(stop > 0, np.minimum(sure, stop), 0))
         _, pos_s = count_within(grid, f, qscale, stop, eps, space.gamma32, gscale=gscale, on_possible=True)
         np.testing.assert_array_equal(pos_s, np.where(stop > 0, np.minimum(possible, stop), 0))
+
+
+@pytest.mark.parametrize("m", [8, 13])
+def test_upper_kth_bounds_the_float32_kth_and_equals_a_plain_float64_one(m):
+    # The compiled upper bound of L (ctxmatch_lib.filters._rfm_kernels.upper_kth) against numpy: the k-th
+    # smallest of the float64 distances times 1 + MARGIN, at least the filter's float32 k-th smallest.
+    from ctxmatch_lib.filters._rfm_kernels import MARGIN, upper_kth
+
+    rng = np.random.default_rng(m)
+    space = _MotionSpace(rng.uniform(0, 1, (200, 6)), 10.0)
+    rows = rng.choice(200, 50, replace=False)
+    cand = rng.integers(0, 200, (50, m))
+    cscale = np.where(rng.random((50, m)) < 0.8, 1.0, 100.0)
+    k = 8
+    got = upper_kth(space.f64, rows, cand, cscale, k, space.gamma32)
+    f = space.f64
+    dx = np.hypot(*(f[rows][:, None, :2] - f[cand][..., :2]).transpose(2, 0, 1))
+    dy = np.hypot(*(f[rows][:, None, 2:4] - f[cand][..., 2:4]).transpose(2, 0, 1))
+    dv = np.hypot(*(f[rows][:, None, 4:] - f[cand][..., 4:]).transpose(2, 0, 1))
+    d64 = (dx + dy + (1.0 + space.gamma32 * np.exp(-np.minimum(dx, dy))) * dv) * cscale
+    want = (np.sort(d64, 1)[:, k - 1] * (1 + MARGIN)).astype(np.float32)
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    d32 = space.dist(rows[:, None], cand) * cscale.astype(np.float32)
+    assert (got >= np.sort(d32, 1)[:, k - 1]).all()

@@ -26,7 +26,7 @@ import numpy as np
 
 from .._numba import user_cache
 
-__all__ = ["MARGIN", "MotionGrid", "count_within"]
+__all__ = ["MARGIN", "MotionGrid", "count_within", "upper_kth"]
 
 #: Relative margin between the float64 distances of the kernels and the caller's float32 ones.
 MARGIN = 1e-4
@@ -51,18 +51,20 @@ class MotionGrid:
     members : ndarray of shape (m,)
         Indices of the points in the grid.
     radius : float
-        The largest query radius (true distance) the grid serves; the cells are at least the box of
-        that radius (larger when that would make more than ``cells_per_member`` cells per member).
+        The query radius (true distance) the grid is sized for: cells of half the box of that radius per
+        coordinate (larger where that would make more than ``cells_per_member`` cells per member); any
+        radius can be queried.
     gamma : float
         Eq. (3)'s gamma (the float32 value the caller's distances use).
     """
 
     def __init__(self, feats: np.ndarray, members: np.ndarray, radius: float, gamma: float,
                  cells_per_member: float = 4.0) -> None:
-        pts = feats[members][:, _DIMS]
+        members = np.asarray(members, np.int64)
+        pts = np.ascontiguousarray(feats[members][:, _DIMS])
         self.origin = pts.min(0) if len(pts) else np.zeros(4)
         extent = pts.max(0) - self.origin if len(pts) else np.zeros(4)
-        size = np.maximum(_box_radii(radius * (1 + 2 * MARGIN), gamma), 1e-12)
+        size = np.maximum(0.5 * _box_radii(radius * (1 + 2 * MARGIN), gamma), 1e-12)
         budget = max(cells_per_member * len(pts), 1.0)
         while True:
             shape = np.floor(extent / size).astype(np.int64) + 1
@@ -70,78 +72,128 @@ class MotionGrid:
                 break
             size = size * max(1.05, (np.prod(shape.astype(np.float64)) / budget) ** 0.25)
         self.size, self.shape = size, shape
-        cell = np.minimum(np.floor((pts - self.origin) / size).astype(np.int64), shape - 1)
-        key = ((cell[:, 0] * shape[1] + cell[:, 1]) * shape[2] + cell[:, 2]) * shape[3] + cell[:, 3]
-        order = np.argsort(key, kind="stable")
+        order, self.starts = _sort_by_cell(pts, self.origin, size, shape)
         self.members = members[order]
-        self.feats = np.ascontiguousarray(feats[self.members])
-        self.starts = np.searchsorted(key[order], np.arange(int(np.prod(shape)) + 1)).astype(np.int64)
+        self.feats = np.ascontiguousarray(feats[self.members], np.float64)
 
 
 with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
     @_jit
+    def _sort_by_cell(pts, origin, size, shape):
+        # Counting sort of the points by cell (row-major over the four grid coordinates; ties: input order).
+        n = pts.shape[0]
+        ncell = shape[0] * shape[1] * shape[2] * shape[3]
+        key = np.empty(n, np.int64)
+        starts = np.zeros(ncell + 1, np.int64)
+        for i in range(n):
+            k = 0
+            for a in range(4):
+                c = min(np.int64(np.floor((pts[i, a] - origin[a]) / size[a])), shape[a] - 1)
+                k = k * shape[a] + max(c, 0)
+            key[i] = k
+            starts[k + 1] += 1
+        for c in range(ncell):
+            starts[c + 1] += starts[c]
+        fill = starts[:-1].copy()
+        order = np.empty(n, np.int64)
+        for i in range(n):
+            order[fill[key[i]]] = i
+            fill[key[i]] += 1
+        return order, starts
+
+    @_jit
+    def _kth_rows(f, rows, cand, cscale, k, gamma, out):
+        # out[r] = the k-th smallest d(rows[r], cand[r, c]) * cscale[r, c] over c (float64 Eq. (3)).
+        m = cand.shape[1]
+        buf = np.empty(m)
+        for r in range(rows.shape[0]):
+            i = rows[r]
+            top = 0.0
+            for c in range(m):
+                j = cand[r, c]
+                a = f[i, 0] - f[j, 0]
+                b = f[i, 1] - f[j, 1]
+                d1 = np.sqrt(a * a + b * b)
+                a = f[i, 2] - f[j, 2]
+                b = f[i, 3] - f[j, 3]
+                d2 = np.sqrt(a * a + b * b)
+                a = f[i, 4] - f[j, 4]
+                b = f[i, 5] - f[j, 5]
+                dv = np.sqrt(a * a + b * b)
+                buf[c] = (d1 + d2 + (1.0 + gamma * np.exp(-min(d1, d2))) * dv) * cscale[r, c]
+                top = max(top, buf[c])
+            if k == m:  # the k-th smallest of k: the largest
+                out[r] = top
+            else:
+                buf.sort()
+                out[r] = buf[k - 1]
+
+    @_jit
     def _count_within(qf, qscale, stop, on_possible, gf, gscale, starts, origin, size, shape, eps, gamma,
                       margin, sure, possible):
         # For each query q: the members j with t = d(q, j) * gscale * qscale[q] <= eps (1 -/+ margin), counted
-        # into sure[q] / possible[q], until sure[q] (possible[q] with on_possible) reaches stop[q].
+        # into sure[q] / possible[q], until sure[q] (possible[q] with on_possible) reaches stop[q]. The cells
+        # visited: those of x within the radius, and for each, the cells of v within what the distance of x
+        # to that cell leaves (over the least motion weight).
         lo_t = eps * (1.0 - margin)
         hi_t = eps * (1.0 + margin)
-        box = np.empty(4)
-        lo = np.empty(4, np.int64)
-        hi = np.empty(4, np.int64)
         for q in range(qf.shape[0]):
-            if stop[q] <= 0:
+            ns = sure[q]
+            npos = possible[q]
+            target = stop[q]
+            if target <= 0 or (ns if not on_possible else npos) >= target:
                 continue
             s = gscale * qscale[q]
             lo_d = lo_t / s
             hi_d = hi_t / s
+            box = hi_d * (1.0 + 1e-9) + 1e-12  # the cell geometry's rounding
             c_min = 1.0 + gamma * np.exp(-hi_d / 2.0)
-            box[0] = hi_d
-            box[1] = hi_d
-            box[2] = hi_d / c_min
-            box[3] = hi_d / c_min
-            empty = False
-            for a in range(4):
-                col = a if a < 2 else a + 2
-                lo[a] = max(np.int64(np.floor((qf[q, col] - box[a] - origin[a]) / size[a])), 0)
-                hi[a] = min(np.int64(np.floor((qf[q, col] + box[a] - origin[a]) / size[a])), shape[a] - 1)
-                if lo[a] > hi[a]:
-                    empty = True
-            if empty:
-                continue
-            ns = sure[q]
-            npos = possible[q]
-            target = stop[q]
-            if (ns if not on_possible else npos) >= target:
-                continue
-            done = False
             x0, x1, y0, y1, v0, v1 = qf[q, 0], qf[q, 1], qf[q, 2], qf[q, 3], qf[q, 4], qf[q, 5]
-            for i0 in range(lo[0], hi[0] + 1):
+            a0 = max(np.int64(np.floor((x0 - box - origin[0]) / size[0])), 0)
+            b0 = min(np.int64(np.floor((x0 + box - origin[0]) / size[0])), shape[0] - 1)
+            a1 = max(np.int64(np.floor((x1 - box - origin[1]) / size[1])), 0)
+            b1 = min(np.int64(np.floor((x1 + box - origin[1]) / size[1])), shape[1] - 1)
+            done = False
+            for i0 in range(a0, b0 + 1):
                 if done:
                     break
-                for i1 in range(lo[1], hi[1] + 1):
+                e0 = origin[0] + i0 * size[0]
+                g0 = max(e0 - x0, x0 - (e0 + size[0]), 0.0)
+                for i1 in range(a1, b1 + 1):
                     if done:
                         break
-                    for i2 in range(lo[2], hi[2] + 1):
+                    e1 = origin[1] + i1 * size[1]
+                    g1 = max(e1 - x1, x1 - (e1 + size[1]), 0.0)
+                    lx = np.sqrt(g0 * g0 + g1 * g1)
+                    if lx > box:
+                        continue
+                    vb = (box - lx) / c_min + 1e-12
+                    a2 = max(np.int64(np.floor((v0 - vb - origin[2]) / size[2])), 0)
+                    b2 = min(np.int64(np.floor((v0 + vb - origin[2]) / size[2])), shape[2] - 1)
+                    a3 = max(np.int64(np.floor((v1 - vb - origin[3]) / size[3])), 0)
+                    b3 = min(np.int64(np.floor((v1 + vb - origin[3]) / size[3])), shape[3] - 1)
+                    if a3 > b3:
+                        continue
+                    for i2 in range(a2, b2 + 1):
                         if done:
                             break
                         base = ((i0 * shape[1] + i1) * shape[2] + i2) * shape[3]
-                        for j in range(starts[base + lo[3]], starts[base + hi[3] + 1]):
+                        for j in range(starts[base + a3], starts[base + b3 + 1]):
+                            a = v0 - gf[j, 4]
+                            b = v1 - gf[j, 5]
+                            dv = np.sqrt(a * a + b * b)
+                            if c_min * dv > hi_d:
+                                continue
                             a = x0 - gf[j, 0]
                             b = x1 - gf[j, 1]
                             d1 = np.sqrt(a * a + b * b)
-                            if d1 > hi_d:
+                            if d1 + c_min * dv > hi_d:
                                 continue
                             a = y0 - gf[j, 2]
                             b = y1 - gf[j, 3]
                             d2 = np.sqrt(a * a + b * b)
-                            if d1 + d2 > hi_d:
-                                continue
-                            a = v0 - gf[j, 4]
-                            b = v1 - gf[j, 5]
-                            dv = np.sqrt(a * a + b * b)
                             if d1 + d2 + c_min * dv > hi_d:
                                 continue
                             d = d1 + d2 + (1.0 + gamma * np.exp(-min(d1, d2))) * dv
@@ -194,3 +246,36 @@ def count_within(grid: MotionGrid, qf: np.ndarray, qscale: np.ndarray, stop: np.
                       grid.starts, grid.origin, grid.size, grid.shape, float(eps), float(gamma), MARGIN,
                       sure, possible)
     return sure, possible
+
+
+def upper_kth(feats: np.ndarray, rows: np.ndarray, cand: np.ndarray, cscale: np.ndarray, k: int,
+              gamma: float) -> np.ndarray:
+    """An upper bound of the filter's float32 ``k``-th smallest of the given distances, per row.
+
+    Parameters
+    ----------
+    feats : ndarray of shape (n, 6)
+        Motion-space points (float64: the filter's float32 values).
+    rows : ndarray of shape (r,)
+        The points whose distances are taken.
+    cand : ndarray of shape (r, m)
+        For each, ``m >= k`` other points.
+    cscale : ndarray of shape (r, m)
+        Factor of each distance.
+    k : int
+        Which smallest.
+    gamma : float
+        Eq. (3)'s gamma.
+
+    Returns
+    -------
+    ndarray of shape (r,), float32
+        The ``k``-th smallest of the float64 distances, times ``1 + MARGIN``, in float32: at least the
+        ``k``-th smallest of the float32 ones.
+    """
+    out = np.empty(len(rows))
+    if len(rows):
+        _kth_rows(np.ascontiguousarray(feats, np.float64), np.ascontiguousarray(rows, np.int64),
+                  np.ascontiguousarray(cand, np.int64), np.ascontiguousarray(cscale, np.float64), int(k),
+                  float(gamma), out)
+    return (out * (1.0 + MARGIN)).astype(np.float32)

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._common import MatchSet, check_positive, match_filter
-from ._rfm_kernels import MotionGrid, count_within
+from ._rfm_kernels import MotionGrid, count_within, upper_kth
 
 __all__ = ["rfm_scan_filter"]
 
@@ -123,14 +123,15 @@ class _Round:
         multiplied by 100 rarely helps and any k true distances give an upper bound).
         """
         sp, everyone = self.space, np.arange(self.space.n)
-        cand = []
+        cand, cscale = [], []
         groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
         for s, g in groups:
             m = min(self.k, len(g))
             # Approximate neighbours (eps=1) suffice: any k true distances bound the k-th from above.
             _, nb = sp.tree(s, g, 0.0).query(sp.embed(everyone, 0.0), k=m, eps=1.0)
-            cand.append(sp.dist(everyone[:, None], g[nb.reshape(-1, m)]) * s)
-        return np.partition(np.hstack(cand), self.k - 1, axis=1)[:, self.k - 1]
+            cand.append(g[nb.reshape(-1, m)])
+            cscale.append(np.full(cand[-1].shape, float(s)))
+        return upper_kth(sp.f64, everyone, np.hstack(cand), np.hstack(cscale), self.k, sp.gamma32)
 
     def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
