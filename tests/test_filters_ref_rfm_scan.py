@@ -252,3 +252,30 @@ def test_upper_kth_bounds_the_float32_kth_and_equals_a_plain_float64_one(m):
     np.testing.assert_allclose(got, want, rtol=1e-6)
     d32 = space.dist(rows[:, None], cand) * cscale.astype(np.float32)
     assert (got >= np.sort(d32, 1)[:, k - 1]).all()
+
+
+@pytest.mark.parametrize("few_rows", [0, 1000])
+def test_round_settles_what_the_grid_counts_leave_open_as_the_dense_definition(monkeypatch, few_rows):
+    # A wide margin leaves many grid counts open: the exact float32 tests that settle them (whole rows for a
+    # few queries, ball searches for more) give the dense definition's clustered set.
+    from ctxmatch_lib.filters import _rfm_kernels
+
+    monkeypatch.setattr(_rfm_kernels, "MARGIN", 0.3)
+    monkeypatch.setattr(rfm_module, "_FEW_ROWS", few_rows)
+    rng = np.random.default_rng(7)
+    centres = rng.uniform(0, 1, (4, 6))
+    feats = np.vstack([c + rng.normal(0, 0.02, (60, 6)) for c in centres] + [rng.uniform(0, 1, (160, 6))])
+    scale = np.where(rng.random(len(feats)) < 0.6, 1.0, 100.0).astype(np.float32)
+    space = _MotionSpace(feats, 10.0)
+    k, mu = 12, 0.08
+    rnd = _Round(space, scale, k)
+    every = np.arange(len(feats))
+    sure, possible = rnd.counts(every, 0.3)
+    assert ((sure < k) & (possible >= k)).sum() > 0  # open counts
+    got = rnd.clustered(mu)
+    d = space.dist(every[:, None], every[None, :]) * scale[None, :]
+    kth = np.partition(d, k - 1, axis=1)[:, k - 1]
+    eps = kth.min() + np.float32(mu) * (kth.max() - kth.min())
+    core = kth <= eps
+    np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
+    assert 0 < got.sum() < len(feats)

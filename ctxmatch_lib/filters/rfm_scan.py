@@ -43,6 +43,9 @@ from ._rfm_kernels import MotionGrid, count_within, upper_kth
 
 __all__ = ["rfm_scan_filter"]
 
+#: Up to this many queries, an exact test the grid counts leave open takes whole rows of distances.
+_FEW_ROWS = 64
+
 #: Radius factor of the embedding ball per Minkowski p (see _MotionSpace).
 _P_SCALE = {2: 1.0, 1: float(np.sqrt(2.0))}
 
@@ -172,12 +175,17 @@ class _Round:
 
     def core(self, queries: np.ndarray, radius: float) -> np.ndarray:
         """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances): the
-        grid counts, and where they do not settle it, :meth:`ball_core`."""
+        grid counts, and where they do not settle it, the float32 distances (whole rows for a few queries,
+        :meth:`ball_core` for more)."""
         sure, possible = self.counts(queries, radius)
         out = sure >= self.k
         und = np.flatnonzero(~out & (possible >= self.k))
-        if len(und):
+        if len(und) > _FEW_ROWS:
             out[und] = self.ball_core(queries[und], radius, p=1)
+        elif len(und):
+            every = np.arange(self.space.n)[None, :]
+            d = self.space.dist(queries[und][:, None], every) * self.scale[None, :]
+            out[und] = (d <= radius).sum(1) >= self.k
         return out
 
     def ball_core(self, queries: np.ndarray, radius: float, p: int = 2) -> np.ndarray:
@@ -267,27 +275,23 @@ class _Round:
         core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
         if len(core_idx) == 0 or len(others) == 0:
             return reached
-        # The nearest core match in the lower-bound embedding, within the ball radius: none there, none within
-        # eps; reached when it is within eps in true distance; a ball search decides the rest.
-        radius = np.float64(eps) / self.scale[others]
-        r = radius * (1 + 1e-5) + 1e-6
-        levels = np.exp2(np.ceil(np.log2(np.maximum(r, 1e-3))))
-        undecided = []
-        for level in np.unique(levels):
-            sel = np.flatnonzero(levels == level)
-            tree = self.space.tree("core", core_idx, float(level))
-            dd, nb = tree.query(self.space.embed(others[sel], float(level)), k=1,
-                                distance_upper_bound=float(r[sel].max()))
-            has = dd <= r[sel]
-            sel, j = sel[has], others[sel[has]]
-            hit = self.space.dist(core_idx[nb[has]], j) * self.scale[j] <= eps
-            reached[j[hit]] = True
-            undecided.append(sel[~hit])
-        und = np.concatenate(undecided)
-        for sel, lens, i in self.space.ball("core", core_idx, others[und], radius[und]):
-            j = np.repeat(others[und][sel], lens)
-            hit = self.space.dist(i, j) * self.scale[j] <= eps
-            reached[j[hit]] = True
+        # A core match surely within eps on the grid: reached; none possibly: not; the exact float32 ball
+        # search decides the rest.
+        sp = self.space
+        qscale = self.scale[others].astype(np.float64)
+        grid = MotionGrid(sp.f64, core_idx, float(eps), sp.gamma32)
+        sure, possible = count_within(grid, sp.f64[others], qscale, np.ones(len(others), np.int64), float(eps),
+                                      sp.gamma32)
+        reached[others[sure >= 1]] = True
+        und = others[(sure < 1) & (possible >= 1)]
+        if 0 < len(und) <= _FEW_ROWS:
+            d = sp.dist(und[:, None], core_idx[None, :]) * self.scale[und][:, None]
+            reached[und[(d <= eps).any(1)]] = True
+        elif len(und):
+            for sel, lens, i in sp.ball("core", core_idx, und, np.float64(eps) / self.scale[und]):
+                j = np.repeat(und[sel], lens)
+                hit = sp.dist(i, j) * self.scale[j] <= eps
+                reached[j[hit]] = True
         return reached
 
 
