@@ -279,3 +279,33 @@ def test_round_settles_what_the_grid_counts_leave_open_as_the_dense_definition(m
     core = kth <= eps
     np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
     assert 0 < got.sum() < len(feats)
+
+
+def test_round_refines_coarse_bounds_that_do_not_prune_as_the_dense_definition(monkeypatch):
+    # Second-round coarse upper bounds of L above max L (valid bounds, too loose to prune): the search for
+    # max L replaces them by k-NN bounds and the round still clusters as the dense definition.
+    original, refined = _Round.coarse_upper, []
+
+    def loose(self):
+        out = original(self)
+        out[self.coarse] = np.float32(1e3)
+        return out
+
+    monkeypatch.setattr(_Round, "coarse_upper", loose)
+    refine = _Round.refine
+    monkeypatch.setattr(_Round, "refine", lambda self, upper: refined.append(self.coarse.sum()) or refine(self, upper))
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(0, 1, (4, 6))  # more than 512 matches: not every match is a seed
+    feats = np.vstack([c + rng.normal(0, 0.02, (200, 6)) for c in centres] + [rng.uniform(0, 1, (600, 6))])
+    scale = np.where(rng.random(len(feats)) < 0.6, 1.0, 100.0).astype(np.float32)
+    space = _MotionSpace(feats, 10.0)
+    k, mu = 12, 0.08
+    rnd = _Round(space, scale, k)
+    got = rnd.clustered(mu)
+    assert refined and refined[0] > 0 and not rnd.coarse.any()
+    every = np.arange(len(feats))
+    d = space.dist(every[:, None], every[None, :]) * scale[None, :]
+    kth = np.partition(d, k - 1, axis=1)[:, k - 1]
+    eps = kth.min() + np.float32(mu) * (kth.max() - kth.min())
+    core = kth <= eps
+    np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))

@@ -71,6 +71,7 @@ class _MotionSpace:
         self.n = len(feats)
         self._trees: dict = {}
         self.order = None  # the leaf order of a k-d tree over every point, once built (see _Round.upper)
+        self.prev_upper = None  # the previous round's upper bounds of L
 
     def dist(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """float32 distances between the matches ``i`` and ``j`` (broadcast together), Eq. (3)."""
@@ -124,28 +125,75 @@ class _Round:
         """An upper bound of every ``L_i``: the largest true distance to k (approximately) nearest matches.
 
         The neighbours come from the least-scaled group alone when it has enough matches (a distance
-        multiplied by 100 rarely helps and any k true distances give an upper bound).
+        multiplied by 100 rarely helps and any k true distances give an upper bound). In that case (the
+        second round), most matches get a coarse bound instead (see :meth:`coarse_upper`).
         """
+        sp = self.space
+        self.coarse = np.zeros(sp.n, bool)
+        if len(self.groups) > 1 and len(self.groups[0][1]) >= self.k:
+            return self.coarse_upper()
+        return self.tree_upper(np.arange(sp.n) if sp.order is None else sp.order)
+
+    def tree_upper(self, rows: np.ndarray) -> np.ndarray:
+        """The k-NN upper bound of ``L`` (see :meth:`upper`) of ``rows``, in their order."""
         sp, n = self.space, self.space.n
         groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
-        # Queries in the leaf order of a tree over every match (the first round's): neighbouring queries
-        # walk the same nodes (about 10 % faster than in row order; the same neighbours).
-        order = np.arange(n) if sp.order is None else sp.order
         cand, cscale = [], []
         for s, g in groups:
             m = min(self.k, len(g))
             tree = sp.tree(s, g, 0.0)
             if sp.order is None and len(g) == n:
-                sp.order = order = g[tree.indices]
+                # Queries in the leaf order of a tree over every match (the first round's) walk the same
+                # nodes one after another (about 10 % faster than in row order; the same neighbours).
+                sp.order = g[tree.indices]
+                if len(rows) == n:
+                    rows = sp.order
             # Approximate neighbours (eps=1) suffice: any k true distances bound the k-th from above.
-            _, nb = tree.query(sp.embed(order, 0.0), k=m, eps=1.0)
+            _, nb = tree.query(sp.embed(rows, 0.0), k=m, eps=1.0)
             cand.append(g[nb.reshape(-1, m)])
             cscale.append(np.full(cand[-1].shape, float(s)))
         cand = cand[0] if len(cand) == 1 else np.hstack(cand)
         cscale = cscale[0] if len(cscale) == 1 else np.hstack(cscale)
         out = np.empty(n, np.float32)
-        out[order] = upper_kth(sp.f64, order, cand, cscale, self.k, sp.gamma32)
+        out[rows] = upper_kth(sp.f64, rows, cand, cscale, self.k, sp.gamma32)
+        return out[rows] if len(rows) < n else out
+
+    def coarse_upper(self) -> np.ndarray:
+        """Upper bounds of ``L`` where the least-scaled group has ``MinPts`` matches or more (second round).
+
+        k-NN bounds (:meth:`tree_upper`) for seeds: the matches densest in the previous round (the smallest
+        ``L`` lie among them) and a spread sample. Every other match with ``MinPts`` matches surely within
+        ``R`` (just below the largest exact ``L`` of a few seeds; grid counts, cheap at that radius) gets
+        ``R`` (marked coarse: refined by :meth:`refine` should the search for ``max L`` reach them), the
+        rest k-NN bounds.
+        """
+        sp, n = self.space, self.space.n
+        out = np.empty(n, np.float32)
+        order = np.arange(n) if sp.order is None else sp.order
+        seeds = [order[:: max(1, n // 512)]]
+        if sp.prev_upper is not None:
+            seeds.append(np.argsort(sp.prev_upper, kind="stable")[:256])
+        seeds = np.unique(np.concatenate(seeds))
+        out[seeds] = self.tree_upper(seeds)
+        # R: just below the largest exact L of the seeds with the largest bounds (at most max L, so the
+        # search for max L passes the coarse bounds by)
+        top = seeds[np.argsort(-out[seeds], kind="stable")[:8]]
+        radius = np.float32(self.dense_kth(top, out).max() * np.float32(1 - 1e-3))
+        self.coarse = self.counts(np.arange(n), float(radius))[0] >= self.k
+        self.coarse[seeds] = False
+        out[self.coarse] = radius  # MinPts float32 distances within radius: L is at most radius
+        rest = np.flatnonzero(~self.coarse)
+        rest = rest[np.isin(rest, seeds, assume_unique=True, invert=True)]
+        if len(rest):
+            out[rest] = self.tree_upper(rest)
         return out
+
+    def refine(self, upper: np.ndarray) -> None:
+        """Replace the coarse upper bounds (see :meth:`coarse_upper`) by k-NN ones, in place."""
+        rows = np.flatnonzero(self.coarse)
+        if len(rows):
+            upper[rows] = self.tree_upper(rows)
+        self.coarse[:] = False
 
     def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
@@ -248,6 +296,17 @@ class _Round:
             out[b : b + step] = np.partition(both, k - 1, axis=1)[:, k - 1]
         return out
 
+    def max_search(self, rows: np.ndarray, upper: np.ndarray, kth: np.ndarray) -> None:
+        """Exact ``L`` (into ``kth``) of ``rows`` from the largest upper bound down, until no bound left
+        reaches the largest ``L`` in ``kth``: the largest ``L`` of ``rows`` is then in ``kth``."""
+        rows = rows[np.argsort(-upper[rows], kind="stable")]
+        for b in range(0, len(rows), 64):
+            batch = rows[b : b + 64]
+            batch = batch[upper[batch] >= np.nanmax(kth)]
+            if len(batch) == 0:
+                break
+            kth[batch] = self.dense_kth(batch, upper)
+
     def clustered(self, mu: float) -> np.ndarray:
         """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation.
 
@@ -266,14 +325,15 @@ class _Round:
         near = np.flatnonzero(self.counts(everyone, np.float64(upper.min()), on_possible=True)[1] >= self.k)
         if len(near):
             kth[near] = self.ball_kth(near, np.full(len(near), upper.min(), np.float64))
-        rest = np.flatnonzero(np.isnan(kth))
-        rest = rest[np.argsort(-upper[rest], kind="stable")]
-        for b in range(0, len(rest), 64):  # max L
-            batch = rest[b : b + 64]
-            batch = batch[upper[batch] >= np.nanmax(kth)]
-            if len(batch) == 0:
-                break
-            kth[batch] = self.dense_kth(batch, upper)
+        # max L: the matches with k-NN bounds, then the coarse ones (below max L as a rule; else their
+        # k-NN bounds, and the same search)
+        rest = np.isnan(kth)
+        self.max_search(np.flatnonzero(rest & ~self.coarse), upper, kth)
+        coarse = np.flatnonzero(rest & self.coarse)
+        if len(coarse) and upper[coarse].max() >= np.nanmax(kth):
+            self.refine(upper)
+            self.max_search(coarse, upper, kth)
+        self.space.prev_upper = upper
         lo, hi = np.nanmin(kth), np.nanmax(kth)
         eps = lo + np.float32(mu) * (hi - lo)
         # Core: sure where the upper bound is within eps; the grid counts decide the rest.
