@@ -20,14 +20,21 @@ never returned. Only the kept/rejected mask is needed, so DBSCAN's cluster label
 kept when it is a core point or is within ``eps`` of one, which is exactly the set DBSCAN assigns to some
 cluster.
 
-No K x K matrix is built and the result is the dense computation's, bit for bit: the distances that decide
-(``L_i``, ``eps``, core and reachability) are found with k-d trees under an embedding whose Euclidean
-distance (or L1 distance over sqrt(2)) never exceeds Eq. (3), and computed exactly in float32 with the dense
-formula; only the few matches far from everything (whose ``L_i`` can only matter as ``max L``) get whole rows
-of distances, to the second round's clustered matches only (the others, at 100 times their distance, are
-ball-searched within the bound). The core test counts neighbours on uniform grids over the keypoint in
-image 1 and the motion vector (:mod:`ctxmatch_lib.filters._rfm_kernels`, compiled, float64 with a relative
-margin); the few counts that the margin leaves open are settled by the exact float32 ball search.
+No K x K matrix is built and the result is the dense computation's, bit for bit. Only the exact ``min L``
+and ``max L`` (hence ``eps``), each match's core status and its reachability decide, and every decision is
+either taken on the float32 distances of the dense formula or proven from bounds:
+
+- upper bounds of ``L_i`` from k approximate nearest neighbours (a k-d tree over an embedding of the
+  points; any k distances bound the k-th), the distances in float64 times ``1 + margin``; in the second
+  round most matches get a coarse bound (``MinPts`` matches surely within a radius just below a known
+  ``L``), which the search for ``max L`` passes by;
+- ``min L``: a ball search of radius ``min upper`` where a grid count finds ``MinPts`` matches possibly
+  within it; ``max L``: whole rows of distances for the few matches with the largest bounds (to the second
+  round's clustered matches only; the others, at 100 times their distance, ball-searched within the bound);
+- core and reach: neighbours counted on uniform grids over the keypoint in image 1 and the motion vector
+  (:mod:`ctxmatch_lib.filters._rfm_kernels`, compiled, float64): a match is counted when surely within
+  ``eps`` (a relative margin below) or possibly (above); the rare counts the margin leaves open are
+  settled on the float32 distances (whole rows, or a ball search in the L1 embedding).
 """
 
 from __future__ import annotations
@@ -479,12 +486,11 @@ def rfm_scan_filter(
     Table 2 (as quoted there) 57.7 / 92.8 and 54.0 / 92.7. The non-planar recall gap (12 points) is the
     original's on our data.
 
-    Speed at real sizes (issue 22, item 5; ``OMP_NUM_THREADS=1 CTXMATCH_DATA=... python
-    benchmarks/bench_filters_real.py --pairs 3 --filters rfm_scan,dtm --repeat 3``; sift-rootsift,
-    paper-best-overlap, 8000 keypoints, 19 033 - 30 155 candidates): 3.71x DTM's time summed over the three
-    pairs, 4.87x on the worst pair (kusvod2/Brussels), with the same keep masks as before the speed-ups of
-    this change (3.81x / 5.26x before them, same run conditions; 4.32x / 5.57x at its start on a loaded
-    machine).
+    Speed at real sizes (issues 22 and 33; ``CTXMATCH_DATA=... python benchmarks/bench_filters_real.py
+    --pairs 3 --repeat 2 --filters rfm_scan``, process time; sift-rootsift, paper-best-overlap, 8000
+    keypoints, 19 033 - 30 155 candidates): 2.40x DTM's time summed over the three pairs, 2.50x on the worst
+    pair, with the same keep masks as before (4.85x / 6.25x before the grid counts and coarse bounds, same
+    machine and run conditions).
 
     References
     ----------
