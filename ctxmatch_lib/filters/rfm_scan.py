@@ -79,6 +79,7 @@ class _MotionSpace:
         self._trees: dict = {}
         self.order = None  # the leaf order of a k-d tree over every point, once built (see _Round.upper)
         self.prev_upper = None  # the previous round's upper bounds of L
+        self.prev_cand = None  # the matches (rows) and neighbours of its k-NN bounds of L
 
     def dist(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """float32 distances between the matches ``i`` and ``j`` (broadcast together), Eq. (3)."""
@@ -161,6 +162,8 @@ class _Round:
             cscale.append(np.full(cand[-1].shape, float(s)))
         cand = cand[0] if len(cand) == 1 else np.hstack(cand)
         cscale = cscale[0] if len(cscale) == 1 else np.hstack(cscale)
+        if len(rows) == n:
+            sp.prev_cand = rows, cand
         out = np.empty(n, np.float32)
         out[rows] = upper_kth(sp.f64, rows, cand, cscale, self.k, sp.gamma32)
         return out[rows] if len(rows) < n else out
@@ -193,13 +196,18 @@ class _Round:
         rest = rest[np.isin(rest, seeds, assume_unique=True, invert=True)]
         if len(rest):
             out[rest] = self.tree_upper(rest)
+        if sp.prev_cand is not None:
+            # The previous round's neighbours at this round's scales: as tight where they are all clustered.
+            rows, cand = sp.prev_cand
+            again = upper_kth(sp.f64, rows, cand, self.scale[cand].astype(np.float64), self.k, sp.gamma32)
+            out[rows] = np.minimum(out[rows], again)
         return out
 
     def refine(self, upper: np.ndarray) -> None:
         """Replace the coarse upper bounds (see :meth:`coarse_upper`) by k-NN ones, in place."""
         rows = np.flatnonzero(self.coarse)
         if len(rows):
-            upper[rows] = self.tree_upper(rows)
+            upper[rows] = np.minimum(upper[rows], self.tree_upper(rows))
         self.coarse[:] = False
 
     def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
