@@ -496,9 +496,10 @@ def rfm_scan_filter(
 
     Speed at real sizes (issues 22 and 33; ``CTXMATCH_DATA=... python benchmarks/bench_filters_real.py
     --pairs 3 --repeat 2 --filters rfm_scan``, process time; sift-rootsift, paper-best-overlap, 8000
-    keypoints, 19 033 - 30 155 candidates): 2.40x DTM's time summed over the three pairs, 2.50x on the worst
-    pair, with the same keep masks as before (4.85x / 6.25x before the grid counts and coarse bounds, same
-    machine and run conditions).
+    keypoints, 19 033 - 30 155 candidates): 2.33 - 2.38x DTM's time summed over the three pairs, 2.42 -
+    2.47x on the worst pair (three runs), with the same keep masks as before (4.85x / 6.25x before the grid
+    counts and coarse bounds; in one process, the earlier code 6.10x / 4.60x / 4.02x DTM on
+    kusvod2/Brussels / Leuven1 / hpatches v_wormhole 1-4, this one 2.44x / 2.40x / 2.19x).
 
     References
     ----------
