@@ -5,13 +5,15 @@ The motion-space points are rows ``[x, y, v]`` (six coordinates in [0, 1], the f
 et al. (TIP 2020), ``d = |dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``. A match within ``r`` of a
 query has ``|dx| <= r`` and, its motion weight being at least ``c(r) = 1 + gamma exp(-r / 2)`` (the smaller
 of two norms summing to at most ``r`` is at most ``r / 2``), ``|dv| <= r / c(r)``: the grid has cells of
-those sizes over ``(x, v)`` and a query visits the cells of that box.
+half those sizes over ``(x, v)``, and a query visits the cells of ``x`` within ``r`` and, for each, the cells
+of ``v`` within what the distance of ``x`` to that cell leaves.
 
 The kernels never decide alone. They compute Eq. (3) in float64 and count the members *surely* within the
 threshold (``t <= eps (1 - MARGIN)``) and those *possibly* within it (``t <= eps (1 + MARGIN)``); the
-filter's own float32 distances differ from these by a few float32 roundings, relative (every term of Eq. (3)
-is non-negative), far below ``MARGIN``. A count that the two do not settle is left to the exact float32 test
-of the caller.
+filter's own float32 distances differ from these by a few float32 roundings and the float32 ``exp``'s error,
+relative (every term of Eq. (3) is non-negative), far below ``MARGIN``. A count that the two do not settle
+is left to the exact float32 test of the caller. :func:`upper_kth` likewise returns upper bounds of the
+filter's k-th smallest float32 distances (float64 ones times ``1 + MARGIN``).
 
 Compiled code is cached on disk as for the other kernels (``$CTXMATCH_CACHE/numba`` unless
 ``NUMBA_CACHE_DIR``).

@@ -327,9 +327,9 @@ class _Round:
 
         ``min L`` is found by a ball search of radius ``min upper`` (small), ``max L`` from whole rows of
         distances, taken from the largest upper bound down until no upper bound exceeds the largest ``L``
-        found (a few rows). A match is core when at least ``MinPts`` matches lie within ``eps`` (scaled;
-        counted on grids, see :meth:`core`), and clustered when it is core or within ``eps`` of a core match (searched in a k-d tree of the
-        core matches).
+        found (a few rows; in the second round, the coarse bounds last). A match is core when at least
+        ``MinPts`` matches lie within ``eps`` (scaled; counted on grids, see :meth:`core`), and clustered
+        when it is core or within ``eps`` of a core match (counted on a grid of the core matches).
         """
         n = self.space.n
         everyone = np.arange(n)
@@ -361,8 +361,8 @@ class _Round:
         core_idx, others = np.flatnonzero(core), np.flatnonzero(~core)
         if len(core_idx) == 0 or len(others) == 0:
             return reached
-        # A core match surely within eps on the grid: reached; none possibly: not; the exact float32 ball
-        # search decides the rest.
+        # A core match surely within eps on the grid: reached; none possibly: not; the float32 distances
+        # decide the rest (whole rows for a few, else a ball search).
         sp = self.space
         qscale = self.scale[others].astype(np.float64)
         grid = MotionGrid(sp.f64, core_idx, float(eps), sp.gamma32)
