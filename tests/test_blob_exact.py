@@ -9,7 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from ctxmatch_lib.blob import BLOB_PRESETS, BlobConfig, BlobContext, blob_matching
+from ctxmatch_lib.blob import (BLOB_PRESETS, BlobConfig, BlobContext, blob_matching, ellipse_overlap_error,
+                               shapes_from_scale_angle)
+from ctxmatch_lib.blob.core import match_context
 
 SETUPS = [BLOB_PRESETS["paper-best"], BLOB_PRESETS["baseline"],
           BlobConfig(f=3, prefilter="cap", f_prime=3, ratio="D+>=", t_o=5.0, combine="max"),
@@ -121,9 +123,52 @@ def test_whole_line_second_best_equals_the_dense_reference(ties, t_o, kind):
     ctx, ref = _ShortLists(d1, d2, **kw), _ShortLists(distances=D, **kw)
     matches, dist = ctx.candidates(2, "cup", 2)
     i, j = matches[:, 0], matches[:, 1]
+    pts, shapes = (k1, k2), (kw["shapes1"], kw["shapes2"])
     for geq in (False, True):
         for side, (a, b) in enumerate(((i, j), (j, i))):
             got = ctx.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
             want = ref.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
-            assert np.array_equal(np.isinf(got), np.isinf(want))
-            assert np.allclose(got[np.isfinite(got)], want[np.isfinite(want)], rtol=1e-12, atol=1e-14)
+            # The definition (Eqs. 9, 13-14) on whole lines of D, every exclusion computed.
+            lines = D[a] if side == 0 else D.T[a]
+            other = np.arange(lines.shape[1])
+            allowed = other[None, :] != b[:, None]
+            if geq:
+                allowed &= lines >= dist[:, None]
+            if t_o is not None:
+                p, sh = pts[1 - side], shapes[1 - side]
+                if kind == "px":
+                    allowed &= ((p[None, :, :] - p[b][:, None, :]) ** 2).sum(-1) >= t_o**2
+                else:
+                    aa, oo = np.broadcast_arrays(b[:, None], other[None, :])
+                    err = ellipse_overlap_error(p[aa.ravel()], sh[aa.ravel()], p[oo.ravel()], sh[oo.ravel()])
+                    allowed &= err.reshape(aa.shape) > t_o
+            brute = np.where(allowed, lines, np.inf).min(axis=1)
+            assert np.isinf(brute).sum() < len(brute)
+            for res in (got, want):
+                assert np.array_equal(np.isinf(res), np.isinf(brute))
+                assert np.allclose(res[np.isfinite(res)], brute[np.isfinite(brute)], rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("margin", [-1, 2.5])
+def test_margin_must_be_a_non_negative_integer(margin):
+    d1, d2, k1, k2 = planted(1, 30, 30)
+    with pytest.raises(ValueError, match="margin"):
+        BlobContext(d1, d2, kpts1=k1, kpts2=k2, depth=2, margin=margin)
+
+
+@pytest.mark.parametrize("name", ["paper-best", "paper-best-overlap", "baseline"])
+def test_results_do_not_depend_on_the_margin(name):
+    """The margin sets how often the second best is looked for beyond the lists, not what it is."""
+    d1, d2, k1, k2 = planted(2, 260, 240)
+    rng = np.random.default_rng(2)
+    kw = dict(kpts1=k1, kpts2=k2, shapes1=shapes_from_scale_angle(rng.uniform(2, 12, len(d1))),
+              shapes2=shapes_from_scale_angle(rng.uniform(2, 12, len(d2))))
+    cfg = BLOB_PRESETS[name]
+    dense = cfg.f == "omega"
+    depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
+    outs = [match_context(BlobContext(d1, d2, depth=depth, margin=margin, keep_dense=dense, **kw), cfg)
+            for margin in (0, 2, 22)]
+    for out in outs[1:]:
+        assert np.array_equal(out.matches, outs[0].matches)
+        assert np.array_equal(out.scores, outs[0].scores)
+    assert len(outs[0]) > 0

@@ -24,7 +24,7 @@ from numba import njit
 from .._numba import user_cache
 
 __all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense",
-           "next_in_line", "first_allowed", "next_allowed", "min_allowed"]
+           "next_in_line", "next_in_lines", "first_allowed", "next_allowed"]
 
 _U = 2.0**-24
 
@@ -455,36 +455,22 @@ with user_cache() as _cache:
         return out_i[:K], out_j[:K], out_d[:K]
 
     @njit(cache=_cache, nogil=True)
-    def second_best_dense(Dap, A, B, anchors, others, dist, E_lines, geq, pts, t_o2):
-        """Second-best entries of whole lines (the fallback of step 3) on the approximate dense matrix."""
-        m = Dap.shape[1]
-        out = np.empty(len(anchors))
-        free = np.ones(m, np.bool_)
-        for r in range(len(anchors)):
-            i = anchors[r]
-            d = dist[r] if geq else 0.0
-            e, k = next_in_line(Dap[i], A, i, B, E_lines[i], d, -1, False, others[r], free, pts, t_o2)
-            out[r] = e
-        return out
-
-    @njit(cache=_cache, nogil=True)
-    def min_allowed(Dap, A, which, B, E_lines, dist, geq, ok):
-        """Second-best entries of whole lines (step 3's fallback) from approximate rows, decided exactly.
-
-        ``Dap[r]`` holds the float32 approximate squared distances of line ``which[r]`` of ``A`` against
-        ``B`` (within ``E_lines[which[r]]`` of the exact ones), ``ok[r]`` the entries the search may take
-        (the match itself and FGINN's exclusions already off). Returns per line the smallest exact distance
-        among allowed entries, restricted to ``>= dist[r]`` when ``geq``; ``inf`` when none qualifies. Exact
-        distances are computed only where the approximation cannot decide (:func:`next_in_line`).
-        """
-        out = np.empty(len(which))
-        dummy = np.zeros((1, 2))
-        for r in range(len(which)):
+    def next_in_lines(Dap, rows, A, which, B, E_lines, d, j, strict, skip, pts, t_o2):
+        """:func:`next_in_line` for several lines: line ``which[r]`` of ``A`` against ``B``, its approximate
+        squared distances in ``Dap[rows[r]]``, the entry after ``(d[r], j[r])`` (``strict[r]``) other than
+        ``skip[r]`` and, when ``t_o2 > 0``, not within ``sqrt(t_o2)`` pixels of it (FGINN). Returns the
+        exact distances and indices, ``inf`` and ``-1`` where none qualifies."""
+        L = len(which)
+        out_d = np.empty(L)
+        out_k = np.empty(L, np.int64)
+        free = np.ones(Dap.shape[1], np.bool_)
+        for r in range(L):
             i = which[r]
-            d = dist[r] if geq else 0.0
-            e, k = next_in_line(Dap[r], A, i, B, E_lines[i], d, -1, False, -1, ok[r], dummy, 0.0)
-            out[r] = e
-        return out
+            e, k = next_in_line(Dap[rows[r]], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], free, pts,
+                                t_o2)
+            out_d[r] = e
+            out_k[r] = k
+        return out_d, out_k
 
     @njit(cache=_cache, nogil=True)
     def first_allowed(idx, val, anchors, others, dist, geq, pts, t_o2):

@@ -124,18 +124,28 @@ class BlobContext:
         most 256 MiB.
     max_dense_bytes : int
         Above this size f = Ω fails fast with a ``MemoryError`` stating the memory it needs.
+    margin : int, optional
+        Entries kept per line beyond ``depth`` (default :attr:`margin`). The second best of step 3 is
+        looked for in these lists first and in the whole line only when none qualifies; the results do not
+        depend on it, the time does: each entry costs the one pass over D, each miss a line.
 
     Notes
     -----
     Inputs are assumed validated by :func:`ctxmatch_lib.blob.blob_matching`.
     """
 
-    margin = 22  # extra entries per line beyond `depth`, so FGINN and D≥ rarely need a whole line
+    #: Default entries per line beyond ``depth``, so that FGINN and D≥ rarely need a whole line.
+    margin = 22
 
     def __init__(self, desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=None, shapes1=None,
                  shapes2=None, depth: int = 10, keep_dense: bool | None = None,
-                 max_dense_bytes: int = 1024 * _MiB, block_bytes: int = 64 * _MiB, distance=None):
+                 max_dense_bytes: int = 1024 * _MiB, block_bytes: int = 64 * _MiB, distance=None,
+                 margin: int | None = None):
         self.kpts = (kpts1, kpts2)
+        if margin is not None:
+            if int(margin) != margin or margin < 0:
+                raise ValueError(f"margin must be a non-negative integer, got {margin!r}")
+            self.margin = int(margin)
         self.shapes = (shapes1, shapes2)
         self.max_dense_bytes = int(max_dense_bytes)
         self._metric = None
@@ -245,8 +255,9 @@ class BlobContext:
 
     #: GEMM tile (rows x columns): the tile, its row and column heaps stay in a 1-2 MiB L2 cache.
     tile = (256, 1024)
-    #: Heap entries per line beyond the T kept: room for the certified band of the float32 rounding.
-    slack = 8
+    #: Buffer entries per line beyond the T kept: room for the certified band of the float32 rounding
+    #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
+    slack = 4
 
     def _scan_exact(self, keep_dense: bool) -> None:
         """One pass over float32 GEMM tiles keeps each line's K smallest; exact float64 distances decide."""
@@ -486,33 +497,75 @@ class BlobContext:
                 np.zeros((1, 2)) if pts is None else np.asarray(pts, np.float64),
                 0.0 if t_o is None else float(t_o) * float(t_o))
         if not lists.complete:
-            # Nothing qualified among the T best: scan the whole line (rare).
+            # Nothing qualified among the T best: look beyond the sorted list.
             miss = np.flatnonzero(~ok)
-            if self._exact and self._approx is not None and (t_o is None or t_o_kind == "px") and len(miss):
-                X = self._X
-                Dap = self._approx if side == 0 else self._approx.T
-                pts = self.kpts[1 - side] if t_o is not None else np.zeros((1, 2))
-                out[miss] = _kernels.second_best_dense(
-                    Dap, X[side], X[1 - side], anchors[miss], others[miss], dist[miss], self._line_bounds(side),
-                    geq, np.asarray(pts, np.float64), 0.0 if t_o is None else float(t_o) * float(t_o))
-                return out
-            size = self.m if side == 0 else self.n
-            step = max(1, (8 * _MiB) // (8 * size))
-            for s in range(0, len(miss), step):
-                sel = miss[s : s + step]
-                cand = np.broadcast_to(np.arange(size), (len(sel), size))
-                ok = ~self._excluded(1 - side, cand, others[sel], t_o, t_o_kind)
-                if self._exact:
-                    # Float32 rows propose, exact distances decide where the rounding could (as in the scan).
-                    which, X = anchors[sel], self._X
-                    out[sel] = _kernels.min_allowed(
-                        self._approx_lines(side, which), X[side], which, X[1 - side], self._line_bounds(side),
-                        dist[sel], geq, np.ascontiguousarray(ok))
-                    continue
-                line = self._lines(side, anchors[sel])
-                if geq:
-                    ok &= line >= dist[sel, None]
-                out[sel] = np.where(ok, line, np.inf).min(axis=1)
+            if len(miss):
+                out[miss] = self._second_best_lines(side, anchors[miss], others[miss], dist[miss], geq, t_o,
+                                                    t_o_kind)
+        return out
+
+    def _second_best_lines(self, side: int, anchors: np.ndarray, others: np.ndarray, dist: np.ndarray,
+                           geq: bool, t_o, t_o_kind: str) -> np.ndarray:
+        """:meth:`second_best` on whole lines, for the anchors whose sorted list holds no qualifying entry.
+
+        Lines are taken in chunks of about 8 MiB. On the L2 path their float32 GEMM rows propose and exact
+        distances decide (:func:`._kernels.next_in_lines`): one call yields the entry FGINN by pixels
+        allows; FGINN by overlap takes the entries in (distance, index) order and computes the overlap
+        error of each until one is above ``t_o``, so only the few nearest entries need a patch overlap,
+        never the whole line. Precomputed D and distance hooks follow the same order on exact lines.
+        """
+        size = self.m if side == 0 else self.n
+        out = np.full(len(anchors), np.inf)
+        by_overlap = t_o is not None and t_o_kind == "overlap"
+        px2 = float(t_o) ** 2 if t_o is not None and not by_overlap else 0.0
+        pts = np.asarray(self.kpts[1 - side], np.float64) if px2 > 0 else np.zeros((1, 2))
+        step = max(1, (8 * _MiB) // (8 * size))
+        for s in range(0, len(anchors), step):
+            a, o = anchors[s : s + step], others[s : s + step]
+            d = dist[s : s + step] if geq else np.zeros(len(a))
+            if self._exact:
+                X, E = self._X, self._line_bounds(side)
+                Dap = self._approx_lines(side, a)
+                rows = np.arange(len(a))
+                e, k = _kernels.next_in_lines(Dap, rows, X[side], a, X[1 - side], E, d, np.full(len(a), -1),
+                                              np.zeros(len(a), np.bool_), o, pts, px2)
+                live = np.flatnonzero(k >= 0) if by_overlap else rows[:0]
+                while len(live):
+                    near = self.overlap_errors(1 - side, o[live], k[live, None]).reshape(-1) <= t_o
+                    live = live[near]
+                    if not len(live):
+                        break
+                    e[live], k[live] = _kernels.next_in_lines(
+                        Dap, live, X[side], a[live], X[1 - side], E, e[live], k[live],
+                        np.ones(len(live), np.bool_), o[live], pts, 0.0)
+                    live = live[k[live] >= 0]
+                out[s : s + step] = e
+                continue
+            line = self._lines(side, a)
+            allowed = np.ones(line.shape, bool)
+            allowed[np.arange(len(a)), o] = False
+            if geq:
+                allowed &= line >= d[:, None]
+            if px2 > 0:
+                allowed &= np.sum((pts[None, :, :] - pts[o][:, None, :]) ** 2, axis=-1) >= px2
+            line = np.where(allowed, line, np.inf)
+            if not by_overlap:
+                out[s : s + step] = line.min(axis=1)
+                continue
+            order = np.argsort(line, axis=1, kind="stable")  # (distance, index) order
+            pos = np.zeros(len(a), np.int64)
+            live = np.arange(len(a))
+            while len(live):
+                k = order[live, pos[live]]
+                val = line[live, k]
+                live, k, val = live[val < np.inf], k[val < np.inf], val[val < np.inf]
+                if not len(live):
+                    break
+                near = self.overlap_errors(1 - side, o[live], k[:, None]).reshape(-1) <= t_o
+                out[s + live[~near]] = val[~near]
+                live = live[near]
+                pos[live] += 1
+                live = live[pos[live] < size]
         return out
 
     def _first_not_overlapping(self, img: int, lists: SortedLists, anchors: np.ndarray, others: np.ndarray,
@@ -542,17 +595,6 @@ class BlobContext:
             pos[active[~keep]] = nxt[~keep] + 1
             active = active[~keep]
         return first
-
-    def _excluded(self, img: int, cand: np.ndarray, other: np.ndarray, t_o, t_o_kind) -> np.ndarray:
-        """Which candidates ``cand`` (K, L) of image ``img`` the second-best search skips for ``other``."""
-        same = cand == other[:, None]
-        if t_o is None:
-            return same
-        pts = self.kpts[img]
-        if t_o_kind == "px":
-            d2 = np.sum((pts[cand] - pts[other][:, None, :]) ** 2, axis=-1)
-            return same | (d2 < t_o * t_o)
-        return same | (self.overlap_errors(img, other, cand) <= t_o)
 
     def overlap_errors(self, img: int, other: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img``.

@@ -104,21 +104,11 @@ class TabulatedContext(BlobContext):
             return last[2]
         keys_t, err_t = self._tables[img]
         size = len(self.kpts[img])
-        if cand.shape[1] == size and len(keys_t):
-            # Whole lines (the rare fallback of second_best): fill each anchor's row from the table.
-            lo, hi = np.searchsorted(keys_t, other * size), np.searchsorted(keys_t, (other + 1) * size)
-            cnt = hi - lo
-            rows = np.repeat(np.arange(len(other)), cnt)
-            at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
-            full = np.ones((len(other), size))
-            full[rows, keys_t[at] % size] = err_t[at]
-            err = np.take_along_axis(full, cand, axis=1)
-        else:
-            keys = other[:, None] * size + cand
-            err = np.ones(keys.shape)
-            if len(keys_t):
-                pos = np.minimum(np.searchsorted(keys_t, keys), len(keys_t) - 1)
-                found = keys_t[pos] == keys
-                err[found] = err_t[pos[found]]
+        keys = other[:, None] * size + cand
+        err = np.ones(keys.shape)
+        if len(keys_t):
+            pos = np.minimum(np.searchsorted(keys_t, keys), len(keys_t) - 1)
+            found = keys_t[pos] == keys
+            err[found] = err_t[pos[found]]
         self._last[img] = (other, cand.copy(), err)
         return err
