@@ -318,8 +318,9 @@ class BlobContext:
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Float32 approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
         within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` on one BLAS thread."""
-        if self._approx is not None:
-            return self._approx[which] if side == 0 else self._approx[:, which].T
+        if self._approx is not None and side == 0:
+            return self._approx[which]
+        # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
         own, other = self._X32[side], self._X32[1 - side]
         with threadpool_limits(1):
             g = own[which] @ other.T
