@@ -175,20 +175,29 @@ def test_octave_reference_agrees_on_a_planted_case(bench):
 def test_round_clusters_as_the_dense_definition_with_second_round_scales(seed):
     # One round with the second round's column scales (1 / 100): the pruned searches (L1-bound core test,
     # nearest-core reach test) give the dense definition's clustered set.
+    space, scale, n = _clusters_with_scales(seed)
+    k, mu = 12, 0.08
+    _assert_dense_clustering(_Round(space, scale, k).clustered(mu), space, scale, n, k, mu)
+
+
+def _clusters_with_scales(seed):
+    """Four tight clusters and uniform clutter in 6-D, 60 % of the columns at scale 1 and the rest at 100."""
     rng = np.random.default_rng(seed)
     centres = rng.uniform(0, 1, (4, 6))
     feats = np.vstack([c + rng.normal(0, 0.02, (60, 6)) for c in centres] + [rng.uniform(0, 1, (160, 6))])
     scale = np.where(rng.random(len(feats)) < 0.6, 1.0, 100.0).astype(np.float32)
-    space = _MotionSpace(feats, 10.0)
-    k, mu = 12, 0.08
-    got = _Round(space, scale, k).clustered(mu)
-    every = np.arange(len(feats))
+    return _MotionSpace(feats, 10.0), scale, len(feats)
+
+
+def _assert_dense_clustering(got, space, scale, n, k, mu):
+    """``got`` is the round's clustered set by the dense definition: cores and what they reach."""
+    every = np.arange(n)
     d = space.dist(every[:, None], every[None, :]) * scale[None, :]
     kth = np.partition(d, k - 1, axis=1)[:, k - 1]
     eps = kth.min() + np.float32(mu) * (kth.max() - kth.min())
     core = kth <= eps
     np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
-    assert 0 < got.sum() < len(feats)
+    assert 0 < got.sum() < n
 
 
 @pytest.mark.parametrize("cells_per_member", [4.0, 0.01])
@@ -262,23 +271,12 @@ def test_round_settles_what_the_grid_counts_leave_open_as_the_dense_definition(m
 
     monkeypatch.setattr(_rfm_kernels, "MARGIN", 0.3)
     monkeypatch.setattr(rfm_module, "_FEW_ROWS", few_rows)
-    rng = np.random.default_rng(7)
-    centres = rng.uniform(0, 1, (4, 6))
-    feats = np.vstack([c + rng.normal(0, 0.02, (60, 6)) for c in centres] + [rng.uniform(0, 1, (160, 6))])
-    scale = np.where(rng.random(len(feats)) < 0.6, 1.0, 100.0).astype(np.float32)
-    space = _MotionSpace(feats, 10.0)
+    space, scale, n = _clusters_with_scales(7)
     k, mu = 12, 0.08
     rnd = _Round(space, scale, k)
-    every = np.arange(len(feats))
-    sure, possible = rnd.counts(every, 0.3)
+    sure, possible = rnd.counts(np.arange(n), 0.3)
     assert ((sure < k) & (possible >= k)).sum() > 0  # open counts
-    got = rnd.clustered(mu)
-    d = space.dist(every[:, None], every[None, :]) * scale[None, :]
-    kth = np.partition(d, k - 1, axis=1)[:, k - 1]
-    eps = kth.min() + np.float32(mu) * (kth.max() - kth.min())
-    core = kth <= eps
-    np.testing.assert_array_equal(got, core | (d[core] <= eps).any(0))
-    assert 0 < got.sum() < len(feats)
+    _assert_dense_clustering(rnd.clustered(mu), space, scale, n, k, mu)
 
 
 def test_round_refines_coarse_bounds_that_do_not_prune_as_the_dense_definition(monkeypatch):
