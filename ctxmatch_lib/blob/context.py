@@ -363,9 +363,8 @@ class BlobContext:
             # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
             with threadpool_limits(1):
                 raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
-        else:
-            with threadpool_limits(1):
-                raw = self._A[which] @ self._B.T if side == 0 else self._B[which] @ self._A.T
+        else:  # the L2 path proposes with float32 rows (_approx_lines) and decides on exact distances
+            raise RuntimeError("BlobContext._lines serves precomputed distances and distance hooks only")
         raw = np.asarray(raw, np.float64)
         return np.sqrt(np.maximum(raw, 0)) if self._squared else raw
 
