@@ -317,34 +317,73 @@ with user_cache() as _cache:
                 k += 1
         return acc[:k]
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _lower(Dap, pen, k, lo, m):
+        """``m`` lowered to entry ``k`` (``Dap[k] + pen[k]`` in float64) when that is ``>= lo`` and below it."""
+        a = np.float64(Dap[k]) + pen[k]
+        return a if (a >= lo) & (a < m) else m
+
     @njit(cache=_cache, nogil=True)
-    def next_in_line(Dap, A, line, B, E, d, j, strict, skip, free, pts, t_o2):
+    def _least_from(Dap, pen, lo):
+        """The least ``Dap[k] + pen[k]`` that is ``>= lo`` (``inf`` if none): eight running minima, which
+        neither branch nor chain on each other (a minimum does not depend on the order it is taken in)."""
+        m = Dap.shape[0]
+        m8 = m - m % 8
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = np.inf
+        for k in range(0, m8, 8):
+            a0 = _lower(Dap, pen, k, lo, a0)
+            a1 = _lower(Dap, pen, k + 1, lo, a1)
+            a2 = _lower(Dap, pen, k + 2, lo, a2)
+            a3 = _lower(Dap, pen, k + 3, lo, a3)
+            a4 = _lower(Dap, pen, k + 4, lo, a4)
+            a5 = _lower(Dap, pen, k + 5, lo, a5)
+            a6 = _lower(Dap, pen, k + 6, lo, a6)
+            a7 = _lower(Dap, pen, k + 7, lo, a7)
+        for k in range(m8, m):
+            a0 = _lower(Dap, pen, k, lo, a0)
+        return min(min(min(a0, a1), min(a2, a3)), min(min(a4, a5), min(a6, a7)))
+
+    @njit(cache=_cache, nogil=True)
+    def next_in_line(Dap, A, line, B, E, d, j, strict, skip, pen, pts, t_o2):
         """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
 
         ``Dap`` is the line's approximate squared distances (float32, within ``E`` of the exact ones).
-        Candidates: ``free[k]``, ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip`` (FGINN, when
-        ``t_o2 > 0``) and exact distance ``> d`` or ``== d`` with ``k > j`` (``strict``) / ``>= d`` (not
-        ``strict``, any ``k``). Exact distances are computed only for entries whose approximation cannot
-        rule them out. Returns ``(distance, index)``, ``(inf, -1)`` when none qualifies.
+        Candidates: ``pen[k] == 0`` (``inf`` takes entry ``k`` out; saturated columns of the greedy),
+        ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip`` (FGINN, when ``t_o2 > 0``) and exact
+        distance ``> d`` or ``== d`` with ``k > j`` (``strict``) / ``>= d`` (not ``strict``, any ``k``).
+        Exact distances are computed only for entries whose approximation cannot rule them out. Returns
+        ``(distance, index)``, ``(inf, -1)`` when none qualifies. ``pen[skip]`` is set to ``inf`` during
+        the call and restored.
         """
         m = Dap.shape[0]
+        held = 0.0
+        if skip >= 0:
+            held = pen[skip]
+            pen[skip] = np.inf
         lo = d * d - 2.0 * E  # below: certainly closer than d
-        floor = -np.inf  # entries with approx <= floor have been looked at
         best_d, best_k = np.inf, -1
         while True:
-            mu = np.inf
-            for k in range(m):
-                a = np.float64(Dap[k])
-                if a > floor and a >= lo and a < mu and free[k] and k != skip:
-                    mu = a
+            mu = _least_from(Dap, pen, lo)
             if mu == np.inf:
-                return best_d, best_k
+                break
             top = mu + 2.0 * E
             if best_k >= 0:
                 top = max(top, best_d * best_d + 2.0 * E)
-            for k in range(m):
-                a = np.float64(Dap[k])
-                if a > floor and a >= lo and a <= top and free[k] and k != skip:
+            m8 = m - m % 8
+            for k0 in range(0, m + 7 - (m + 7) % 8, 8):
+                hit = False  # the band is narrow: blocks of 8 without an entry in it are skipped whole
+                if k0 < m8:
+                    for q in range(8):
+                        a = np.float64(Dap[k0 + q]) + pen[k0 + q]
+                        hit |= (a >= lo) & (a <= top)
+                else:
+                    hit = True
+                if not hit:
+                    continue
+                for k in range(k0, min(m, k0 + 8)):
+                    a = np.float64(Dap[k]) + pen[k]
+                    if a < lo or a > top:
+                        continue
                     if t_o2 > 0:
                         dx = pts[k, 0] - pts[skip, 0]
                         dy = pts[k, 1] - pts[skip, 1]
@@ -355,10 +394,14 @@ with user_cache() as _cache:
                         continue
                     if e < best_d or (e == best_d and k < best_k):
                         best_d, best_k = e, k
-            floor = top
+            # Entries with approx <= top have been looked at.
+            lo = np.nextafter(top, np.inf)
             # Unseen entries have approx > top, so exact > top - E: certified once that exceeds best_d².
             if best_k >= 0 and top - E > best_d * best_d * (1.0 + 1e-12):
-                return best_d, best_k
+                break
+        if skip >= 0:
+            pen[skip] = held
+        return best_d, best_k
 
     @njit(cache=_cache, nogil=True)
     def _hpush(hv, hi, hj, size, v, i, j):
@@ -406,7 +449,7 @@ with user_cache() as _cache:
         T = lidx.shape[1]
         rc = np.zeros(n, np.int64)
         cc = np.zeros(m, np.int64)
-        free = np.ones(m, np.bool_)
+        pen = np.zeros(m)  # inf: a saturated column
         ptr = np.zeros(n, np.int64)
         hv = np.empty(n)
         hi = np.empty(n, np.int64)
@@ -428,7 +471,7 @@ with user_cache() as _cache:
                 rc[i] += 1
                 cc[j] += 1
                 if cc[j] == f_prime:
-                    free[j] = False
+                    pen[j] = np.inf
                     free_cols -= 1
             if rc[i] >= f_prime:
                 continue
@@ -449,7 +492,7 @@ with user_cache() as _cache:
                 d, j = lval[i, T - 1], lidx[i, T - 1]
             if T == m:
                 continue
-            e, k = next_in_line(Dap[i], A, i, B, E_rows[i], d, j, True, -1, free, dummy, 0.0)
+            e, k = next_in_line(Dap[i], A, i, B, E_rows[i], d, j, True, -1, pen, dummy, 0.0)
             if k >= 0:
                 size = _hpush(hv, hi, hj, size, e, i, k)
         return out_i[:K], out_j[:K], out_d[:K]
@@ -463,10 +506,10 @@ with user_cache() as _cache:
         L = len(which)
         out_d = np.empty(L)
         out_k = np.empty(L, np.int64)
-        free = np.ones(Dap.shape[1], np.bool_)
+        pen = np.zeros(Dap.shape[1])
         for r in range(L):
             i = which[r]
-            e, k = next_in_line(Dap[rows[r]], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], free, pts,
+            e, k = next_in_line(Dap[rows[r]], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], pen, pts,
                                 t_o2)
             out_d[r] = e
             out_k[r] = k
