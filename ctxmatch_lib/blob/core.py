@@ -157,7 +157,7 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     decision (the best entries of a row or column, the greedy order, the second best) is taken on float64
     distances computed in a fixed order without BLAS; the float32 GEMM only proposes candidates within a
     certified rounding bound, so the output is the same under any BLAS kernel or thread count. The memory
-    is O((n + m) f) plus one GEMM tile of D in float32 (1 MiB); no n×m matrix is built except the float32
+    is O((n + m) f) plus one GEMM tile of D in float32 (2 MiB); no n×m matrix is built except the float32
     one of f = Ω.
 
     References
