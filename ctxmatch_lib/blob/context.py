@@ -143,7 +143,7 @@ class BlobContext:
                  margin: int | None = None):
         self.kpts = (kpts1, kpts2)
         if margin is not None:
-            if int(margin) != margin or margin < 0:
+            if isinstance(margin, bool) or not isinstance(margin, (int, np.integer)) or margin < 0:
                 raise ValueError(f"margin must be a non-negative integer, got {margin!r}")
             self.margin = int(margin)
         self.shapes = (shapes1, shapes2)

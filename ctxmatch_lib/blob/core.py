@@ -225,7 +225,7 @@ def _margin(cfg: BlobConfig, dense: bool) -> int:
     the line unless FGINN excludes them, which is rare. D≥ and D+≥ take it among entries >= D_ij, which for a
     match from the other image's list lies beyond this line's list however long it is; a few more entries
     (and the greedy's walk of f = Ω) still save whole-line look-ups. Measured with ``bench_blob.py``'s
-    planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take 0.55-0.7x and 0.9x the time of 22.
+    planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take 0.55-0.6x and 0.85-0.9x the time of 22.
     """
     return 2 if cfg.ratio == "D+" and not dense else 8
 
