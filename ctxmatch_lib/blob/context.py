@@ -609,15 +609,3 @@ class BlobContext:
         anchor = np.broadcast_to(other[:, None], (K, L)).ravel()
         err = ellipse_overlap_error(pts[anchor], shapes[anchor], pts[cand.ravel()], shapes[cand.ravel()])
         return err.reshape(K, L)
-
-
-def _greedy(rows: np.ndarray, cols: np.ndarray, n: int, m: int, f_prime: int) -> np.ndarray:
-    """Step 2 of Sec. 3 on entries already sorted: accept while row and column counts stay <= f'."""
-    rc, cc = [0] * n, [0] * m
-    acc = []
-    for k, (i, j) in enumerate(zip(rows.tolist(), cols.tolist())):
-        if rc[i] < f_prime and cc[j] < f_prime:
-            rc[i] += 1
-            cc[j] += 1
-            acc.append(k)
-    return np.asarray(acc, np.int64)
