@@ -781,7 +781,7 @@ def test_contour_rings_are_geos_rings(seed):
     """The traced ring of a simple boundary cycle is GEOS's polygonize ring (start, direction, coordinates),
     for alpha-shape edges in their kernel order and for the same edges shuffled and flipped; several rings go
     to GEOS."""
-    from ctxmatch_lib.dtm._kernels import single_ring_kernel
+    from ctxmatch_lib.dtm._point_kernels import single_ring_kernel
     from ctxmatch_lib.dtm.boundary import _rings_from_edges
 
     rng = np.random.default_rng(seed)
@@ -832,7 +832,7 @@ def test_ring_samples_are_geos_interpolation(seed):
 def test_nearest_vertex_search_matches_the_kd_tree():
     """Distances bit for bit those of cKDTree; indices too except where a tie is reported (then the tree
     decides)."""
-    from ctxmatch_lib.dtm._kernels import nearest_kernel
+    from ctxmatch_lib.dtm._point_kernels import nearest_kernel
     from ctxmatch_lib.dtm.boundary import _nearest
 
     rng = np.random.default_rng(3)
@@ -851,7 +851,7 @@ def test_nearest_vertex_search_matches_the_kd_tree():
 
 
 def test_key_rows_kernel_statuses():
-    from ctxmatch_lib.dtm._kernels import key_rows_kernel
+    from ctxmatch_lib.dtm._point_kernels import key_rows_kernel
 
     rng = np.random.default_rng(0)
     keys = np.unique(rng.integers(-2**62, 2**62, 500))

@@ -8,8 +8,7 @@
   (:mod:`ctxmatch_lib.dtm.core`); :func:`transfer_test_kernel`: DTM2 step 2;
 - :func:`vertex_csr_kernel`, :func:`hull_edges_kernel`: neighbourhoods and hull edges of a triangulation.
 
-The point-set kernels (row keys, nearest vertices, ring samples) are in :mod:`ctxmatch_lib.dtm._point_kernels`
-and re-exported here.
+The point-set kernels (row keys, nearest vertices, ring samples) are in :mod:`ctxmatch_lib.dtm._point_kernels`.
 
 These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
 can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
@@ -31,38 +30,16 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
-from ._point_kernels import (  # noqa: F401  (re-exported: the point-set kernels live there)
-    _group_by,
-    single_ring_kernel,
-    nearest_kernel,
-    grid_nearest_kernel,
-    doubled_areas_kernel,
-    integer_row_keys_kernel,
-    float32_row_keys_kernel,
-    sorted_unique_rows_kernel,
-    float32_exact_kernel,
-    sample_ring_kernel,
-    key_rows_kernel,
-)
+from ._point_kernels import _group_by
 
 __all__ = [
     "alpha_shapes_kernel",
     "circumradii_kernel",
     "contract_expand_kernel",
-    "doubled_areas_kernel",
-    "float32_exact_kernel",
-    "float32_row_keys_kernel",
-    "grid_nearest_kernel",
     "hull_edges_kernel",
-    "integer_row_keys_kernel",
-    "key_rows_kernel",
     "locate_kernel",
-    "nearest_kernel",
     "neighbourhood_kernel",
     "row_counts_kernel",
-    "sample_ring_kernel",
-    "single_ring_kernel",
-    "sorted_unique_rows_kernel",
     "transfer_test_kernel",
     "triangle_neighbors_kernel",
     "vertex_csr_kernel",

@@ -88,6 +88,20 @@ with user_cache() as _cache:
             return fail
         return ring
 
+    @_jit(inline="always")
+    def _closer(qx, qy, points, p, best, arg, again):
+        """One step of the nearest-point search, shared by the exhaustive and the grid search so that they
+        stay bit for bit alike: point ``p`` at squared distance ``dx² + dy²`` replaces ``(best, arg)`` when
+        closer; at exactly ``best`` it only raises the tie flag ``again``."""
+        dx = qx - points[p, 0]
+        dy = qy - points[p, 1]
+        d2 = dx * dx + dy * dy
+        if d2 < best:
+            return d2, p, False
+        if d2 == best:
+            return best, arg, True
+        return best, arg, again
+
     @_jit
     def nearest_kernel(queries, points):
         """Nearest of ``points`` to each query by exhaustive search: the distance ``sqrt(dx² + dy²)`` (as
@@ -103,15 +117,7 @@ with user_cache() as _cache:
             arg = -1
             again = False
             for i in range(points.shape[0]):
-                dx = qx - points[i, 0]
-                dy = qy - points[i, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < best:
-                    best = d2
-                    arg = i
-                    again = False
-                elif d2 == best:
-                    again = True
+                best, arg, again = _closer(qx, qy, points, i, best, arg, again)
             tie = tie or again
             dist[q] = math.sqrt(best)
             index[q] = arg
@@ -182,16 +188,7 @@ with user_cache() as _cache:
                         if 0 <= i < nx:
                             c = j * nx + i
                             for k in range(start[c], start[c + 1]):
-                                p = at[k]
-                                dx = qx - points[p, 0]
-                                dy = qy - points[p, 1]
-                                d2 = dx * dx + dy * dy
-                                if d2 < best:
-                                    best = d2
-                                    arg = p
-                                    again = False
-                                elif d2 == best:
-                                    again = True
+                                best, arg, again = _closer(qx, qy, points, at[k], best, arg, again)
                         if r == 0:
                             break
                         i += step
