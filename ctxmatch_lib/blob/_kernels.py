@@ -356,6 +356,7 @@ with user_cache() as _cache:
         the call and restored.
         """
         m = Dap.shape[0]
+        m8 = m - m % 8
         held = 0.0
         if skip >= 0:
             held = pen[skip]
@@ -369,8 +370,7 @@ with user_cache() as _cache:
             top = mu + 2.0 * E
             if best_k >= 0:
                 top = max(top, best_d * best_d + 2.0 * E)
-            m8 = m - m % 8
-            for k0 in range(0, m + 7 - (m + 7) % 8, 8):
+            for k0 in range(0, m, 8):
                 hit = False  # the band is narrow: blocks of 8 without an entry in it are skipped whole
                 if k0 < m8:
                     for q in range(8):
