@@ -118,7 +118,7 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
 
 
 #: The compiled stages of the L2 path timed by ``--breakdown`` (``ctxmatch_lib.blob._kernels``).
-STAGES = ("scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense", "first_allowed",
+STAGES = ("scan_tile", "certify_lines", "greedy_sorted", "greedy_dense", "first_allowed",
           "next_allowed", "next_in_lines")
 
 

@@ -23,7 +23,7 @@ from numba import njit
 
 from .._numba import user_cache
 
-__all__ = ["error_scale", "scan_tile", "finish_lines", "certify_lines", "greedy_sorted", "greedy_dense",
+__all__ = ["error_scale", "scan_tile", "certify_lines", "greedy_sorted", "greedy_dense",
            "next_in_line", "next_in_lines", "first_allowed", "next_allowed"]
 
 _U = 2.0**-24
@@ -82,37 +82,6 @@ with user_cache() as _cache:
             out[j] = np.sqrt(_exact_sq(A, i, B, j))
 
     @njit(cache=_cache, nogil=True)
-    def _select(val, idx, line, cnt, K):
-        """Keep the K smallest of ``val[line, :cnt]`` in its first K slots (quickselect); returns the
-        largest kept value (the K-th smallest)."""
-        lo, hi = 0, cnt - 1
-        kth = K - 1
-        while lo < hi:
-            pivot = val[line, (lo + hi) >> 1]
-            a, b = lo, hi
-            while a <= b:
-                while val[line, a] < pivot:
-                    a += 1
-                while val[line, b] > pivot:
-                    b -= 1
-                if a <= b:
-                    val[line, a], val[line, b] = val[line, b], val[line, a]
-                    idx[line, a], idx[line, b] = idx[line, b], idx[line, a]
-                    a += 1
-                    b -= 1
-            if kth <= b:
-                hi = b
-            elif kth >= a:
-                lo = a
-            else:
-                break
-        top = val[line, 0]
-        for p in range(1, K):
-            if val[line, p] > top:
-                top = val[line, p]
-        return top
-
-    @njit(cache=_cache, nogil=True)
     def _kth(work, cnt, k):
         """The k-th smallest (0-based) of ``work[:cnt]`` (quickselect; reorders ``work``)."""
         lo, hi = 0, cnt - 1
@@ -137,46 +106,45 @@ with user_cache() as _cache:
         return work[k]
 
     @njit(cache=_cache, nogil=True, inline="always")
-    def _append(val, idx, cnt, thr, line, K, v, x):
-        """Append to the line's buffer; a full buffer (2K) keeps its K smallest and lowers the threshold."""
-        c = cnt[line]
-        val[line, c] = v
-        idx[line, c] = x
-        c += 1
-        if c == val.shape[1]:
-            thr[line] = _select(val, idx, line, c, K)
-            c = K
-        cnt[line] = c
+    def _insert(val, idx, thr, line, K, v, x):
+        """Insert ``(v, x)`` into the line's K entries, kept sorted by value (after equal values; +inf in
+        empty slots); the line's threshold becomes the K-th entry when that is lower."""
+        a = val[line]
+        b = idx[line]
+        pos = 0
+        for p in range(K):  # vectorised: no branch on the data
+            pos += a[p] <= v
+        for p in range(K - 1, pos, -1):
+            a[p] = a[p - 1]
+            b[p] = b[p - 1]
+        a[pos] = v
+        b[pos] = x
+        if a[K - 1] < thr[line]:
+            thr[line] = a[K - 1]
 
     @njit(cache=_cache, nogil=True)
-    def finish_lines(val, idx, cnt, K):
-        """Reduce every buffer to its K smallest (after the last tile)."""
-        for line in range(val.shape[0]):
-            if cnt[line] > K:
-                _select(val, idx, line, cnt[line], K)
-                cnt[line] = K
+    def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, dense, keep):
+        """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the rows' and columns' K best.
 
-    @njit(cache=_cache, nogil=True)
-    def scan_tile(G, r0, c0, n1, n2, rv, ri, rc, rthr, cv, ci, cc, cthr, Kr, Kc, dense, keep):
-        """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the row and column buffers.
-
-        ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is
-        flagged in a vectorisable pass, then appended to the line's buffer of 2K entries; a full buffer keeps
-        its K smallest and takes the K-th as its new threshold. With ``keep``, ``v`` is also written to
-        ``dense`` (f = Ω).
+        ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is flagged
+        in a vectorisable pass, then inserted into the line's K entries ``rv[i]`` / ``cv[j]`` (sorted by
+        value, +inf in empty slots; K = ``rv.shape[1]`` / ``cv.shape[1]``); a full line's threshold is
+        its K-th value, so only entries that enter the K best are inserted. With ``keep``, ``v`` is also
+        written to ``dense`` (f = Ω).
         """
         B, C = G.shape
+        Kr, Kc = rv.shape[1], cv.shape[1]
         buf = np.empty(C, np.float32)
         nw = (C + 7) // 8
         fl = np.zeros(8 * nw, np.uint8)
         words = fl.view(np.uint64)
         up = np.float32(np.inf)
         # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
-        # (which would pass the whole tile through the buffer): the K-th smallest of the minima of 2K
+        # (which would insert the tile's entries until K are in): the K-th smallest of the minima of 2K
         # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
         # and it costs one vectorised pass plus a selection among 2K values.
         ngc = min(B, 2 * Kc)
-        if B >= Kc and cc[c0] == 0 and cthr[c0] == np.inf:
+        if B >= Kc and cv[c0, 0] == np.inf and cthr[c0] == np.inf:
             gsz = B // ngc
             gm = np.full((ngc, C), np.inf, np.float32)
             for bi in range(ngc * gsz):
@@ -191,7 +159,7 @@ with user_cache() as _cache:
             colw = np.empty(ngc, np.float32)
             for jj in range(C):
                 j = c0 + jj
-                if cc[j] == 0 and cthr[j] == np.inf:
+                if cv[j, 0] == np.inf and cthr[j] == np.inf:
                     for q in range(ngc):
                         colw[q] = gm[q, jj]
                     cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), up)
@@ -207,7 +175,7 @@ with user_cache() as _cache:
             for jj in range(C):
                 g = grow[jj]
                 buf[jj] = (a + n2t[jj]) - (g + g)
-            if rc[i] == 0 and rthr[i] == np.inf and C >= Kr:
+            if rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr:
                 for q in range(ngr):
                     roww[q] = buf[q]
                 for q0 in range(ngr, C - ngr + 1, ngr):  # strided groups {q, q + 2K, q + 4K, ...}
@@ -234,9 +202,9 @@ with user_cache() as _cache:
                     v = buf[jj]
                     j = c0 + jj
                     if v < rthr[i]:
-                        _append(rv, ri, rc, rthr, i, Kr, v, j)
+                        _insert(rv, ri, rthr, i, Kr, v, j)
                     if v < cthr[j]:
-                        _append(cv, ci, cc, cthr, j, Kc, v, i)
+                        _insert(cv, ci, cthr, j, Kc, v, i)
 
     @njit(cache=_cache, nogil=True)
     def _sort_pairs(val, idx, count):

@@ -253,12 +253,12 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc, self._squared), complete=Tc == n)
 
-    #: GEMM tile (rows x columns), 2 MiB of float32. A column's buffer threshold starts from its first
-    #: tile's rows and a row's from its first tile's columns; the insertions after that grow with the log
-    #: of the lines' length over the tile's, so a taller tile saves column insertions: 1024 x 512 takes
+    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's
+    #: rows and a row's from its first tile's columns; the insertions after that grow with the log of the
+    #: lines' length over the tile's, so a taller tile saves column insertions: 1024 x 512 takes
     #: 0.93-0.95x the time of 256 x 1024 (bench_blob's planted sets at 5000 and 8000, paper-best).
     tile = (1024, 512)
-    #: Buffer entries per line beyond the T kept: room for the certified band of the float32 rounding
+    #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
     #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
     slack = 4
 
@@ -277,9 +277,10 @@ class BlobContext:
         nrm2 = np.einsum("ij,ij->i", X2.astype(np.float64), X2.astype(np.float64))
         self._scale = _kernels.error_scale(d)
         self._norms = (nrm1, nrm2)
-        rv, ri = np.empty((n, 2 * Kr), np.float32), np.empty((n, 2 * Kr), np.int64)
-        cv, ci = np.empty((m, 2 * Kc), np.float32), np.empty((m, 2 * Kc), np.int64)
-        rc, cc = np.zeros(n, np.int64), np.zeros(m, np.int64)
+        # Each line's K best so far, sorted by value; +inf marks an empty slot (no entry equals +inf: it
+        # would have to be below a threshold).
+        rv, ri = np.full((n, Kr), np.inf, np.float32), np.zeros((n, Kr), np.int64)
+        cv, ci = np.full((m, Kc), np.inf, np.float32), np.zeros((m, Kc), np.int64)
         rthr, cthr = np.full(n, np.inf, np.float32), np.full(m, np.inf, np.float32)
         dense = np.empty((n, m), np.float32) if keep_dense else np.empty((1, 1), np.float32)
         R, C = self.tile
@@ -291,10 +292,8 @@ class BlobContext:
                 b = B32[c0 : c0 + C]
                 G = buf[: len(a) * len(b)].reshape(len(a), len(b))
                 np.matmul(a, b.T, out=G)
-                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rc, rthr, cv, ci, cc, cthr, Kr, Kc, dense,
-                                   keep_dense)
-        _kernels.finish_lines(rv, ri, rc, Kr)
-        _kernels.finish_lines(cv, ci, cc, Kc)
+                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, dense, keep_dense)
+        rc, cc = np.count_nonzero(rv < np.inf, axis=1), np.count_nonzero(cv < np.inf, axis=1)
         if keep_dense:
             self._approx = dense
         E1 = float(nrm1.max())
