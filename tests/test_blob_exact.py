@@ -172,3 +172,54 @@ def test_results_do_not_depend_on_the_margin(name):
         assert np.array_equal(out.matches, outs[0].matches)
         assert np.array_equal(out.scores, outs[0].scores)
     assert len(outs[0]) > 0
+
+
+@pytest.mark.parametrize("size,levels", [(0, 1), (1, 1), (60, 3), (700, 2), (3000, 500)])
+def test_break_ties_orders_like_lexsort(size, levels):
+    """Runs of equal values, short (insertion) and long (a keyed sort), signed zeros included."""
+    from ctxmatch_lib.blob import _kernels
+
+    rng = np.random.default_rng(size)
+    vals = rng.integers(0, levels, size).astype(np.float64) / 7
+    vals[::9] *= -1.0  # -0.0 where the value is 0: equal to 0.0 for both sorts
+    pairs = rng.choice(40 * 1000, size, replace=False)
+    first, second = pairs // 1000, pairs % 1000
+    order = _kernels.break_ties(np.argsort(vals), vals, first, second)
+    np.testing.assert_array_equal(order, np.lexsort((second, first, vals)))
+
+
+@pytest.mark.parametrize("cup", [True, False])
+def test_prefilter_lists_is_the_union_or_intersection(cup):
+    """F∪ / F∩ from the sorted lists against the sets they define (Eqs. 10-11), values from the rows."""
+    from ctxmatch_lib.blob import _kernels
+
+    rng = np.random.default_rng(5)
+    n, m, T = 40, 30, 6
+    D = rng.integers(0, 9, (n, m)).astype(np.float64)
+    ridx = np.argsort(D, axis=1, kind="stable")[:, :T]
+    cidx = np.argsort(D.T, axis=1, kind="stable")[:, :T]
+    rval, cval = np.take_along_axis(D, ridx, 1), np.take_along_axis(D.T, cidx, 1)
+    for fr, fc in [(1, 1), (3, 5), (T, T)]:
+        rows, cols, vals = _kernels.prefilter_lists(ridx, rval, cidx, cval, fr, fc, cup)
+        got = sorted(zip(rows.tolist(), cols.tolist()))
+        in_rows = {(i, int(j)) for i in range(n) for j in ridx[i, :fr]}
+        in_cols = {(int(i), j) for j in range(m) for i in cidx[j, :fc]}
+        assert got == sorted(in_rows | in_cols if cup else in_rows & in_cols)
+        np.testing.assert_array_equal(vals, D[rows, cols])
+
+
+@pytest.mark.parametrize("d", [1, 7, 8, 128, 131])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_exact_distance_variants_agree_bit_for_bit(d, dtype):
+    """The vectorised exact distance (lines, certification) and the scalar one (look-ups) are one sum."""
+    from ctxmatch_lib.blob import _kernels
+
+    rng = np.random.default_rng(d)
+    A = (rng.random((20, d)) ** 3).astype(dtype)
+    B = rng.normal(size=(30, d)).astype(dtype)
+    sq = np.empty(d)
+    got = [_kernels._exact_sq_via(A, i, B, j, sq) for i in range(20) for j in range(30)]
+    ref = [_kernels._exact_sq(A, i, B, j) for i in range(20) for j in range(30)]
+    assert got == ref
+    np.testing.assert_allclose(got, ((A[:, None].astype(float) - B[None].astype(float)) ** 2).sum(-1).ravel(),
+                               rtol=1e-12)

@@ -23,8 +23,8 @@ from numba import njit
 
 from .._numba import user_cache
 
-__all__ = ["error_scale", "scan_tile", "certify_lines", "greedy_sorted", "greedy_dense",
-           "next_in_line", "next_in_lines", "first_allowed", "next_allowed"]
+__all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "prefilter_lists", "break_ties",
+           "greedy_sorted", "greedy_dense", "next_in_line", "next_in_lines", "first_allowed", "next_allowed"]
 
 _U = 2.0**-24
 
@@ -69,17 +69,66 @@ with user_cache() as _cache:
         return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
 
     @njit(cache=_cache, nogil=True)
+    def sq_norms(A):
+        """Squared norms of the rows of ``A`` in float64, summed like :func:`_exact_sq` (no copy of ``A``)."""
+        n, d = A.shape
+        out = np.empty(n)
+        d8 = d - d % 8
+        for i in range(n):
+            a = A[i]
+            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+            for k in range(0, d8, 8):
+                s0 += np.float64(a[k]) * np.float64(a[k])
+                s1 += np.float64(a[k + 1]) * np.float64(a[k + 1])
+                s2 += np.float64(a[k + 2]) * np.float64(a[k + 2])
+                s3 += np.float64(a[k + 3]) * np.float64(a[k + 3])
+                s4 += np.float64(a[k + 4]) * np.float64(a[k + 4])
+                s5 += np.float64(a[k + 5]) * np.float64(a[k + 5])
+                s6 += np.float64(a[k + 6]) * np.float64(a[k + 6])
+                s7 += np.float64(a[k + 7]) * np.float64(a[k + 7])
+            for k in range(d8, d):
+                t0 = np.float64(a[k])
+                s0 += t0 * t0
+            out[i] = ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+        return out
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_sq_via(A, i, B, j, sq):
+        """:func:`_exact_sq`, bit for bit, with the squared differences first stored in ``sq`` (a loop LLVM
+        vectorises; numba does not vectorise the eight running sums themselves), then summed alike."""
+        a, b = A[i], B[j]
+        d = a.shape[0]
+        for k in range(d):
+            t = np.float64(a[k]) - np.float64(b[k])
+            sq[k] = t * t
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+        d8 = d - d % 8
+        for k in range(0, d8, 8):
+            s0 += sq[k]
+            s1 += sq[k + 1]
+            s2 += sq[k + 2]
+            s3 += sq[k + 3]
+            s4 += sq[k + 4]
+            s5 += sq[k + 5]
+            s6 += sq[k + 6]
+            s7 += sq[k + 7]
+        for k in range(d8, d):
+            s0 += sq[k]
+        return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+
+    @njit(cache=_cache, nogil=True)
     def _exact_block(A, i, B, js, q, out):
         """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q."""
+        sq = np.empty(A.shape[1])
         for p in range(q):
-            out[p] = np.sqrt(_exact_sq(A, i, B, js[p]))
+            out[p] = np.sqrt(_exact_sq_via(A, i, B, js[p], sq))
 
     @njit(cache=_cache, nogil=True)
     def _exact_row(A, i, B, out):
         """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
-        m = B.shape[0]
-        for j in range(m):
-            out[j] = np.sqrt(_exact_sq(A, i, B, j))
+        sq = np.empty(A.shape[1])
+        for j in range(B.shape[0]):
+            out[j] = np.sqrt(_exact_sq_via(A, i, B, j, sq))
 
     @njit(cache=_cache, nogil=True)
     def _kth(work, cnt, k):
@@ -268,6 +317,73 @@ with user_cache() as _cache:
             else:
                 work += _full_line(A, line, B, T, out_idx, out_val)
         return work
+
+    @njit(cache=_cache, nogil=True)
+    def prefilter_lists(ridx, rval, cidx, cval, fr, fc, cup):
+        """Step 1 from the sorted lists: the entries of F∪ (Eq. 11, ``cup``) or F∩ (Eq. 10) as rows, columns
+        and values, unordered. An entry of both lists comes once, with its row's value (a distance is the
+        same bits seen from either image)."""
+        n, m = ridx.shape[0], cidx.shape[0]
+        size = n * fr + (m * fc if cup else 0)
+        rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+        k = 0
+        for i in range(n):
+            for t in range(fr):
+                j = ridx[i, t]
+                if not cup:
+                    u = 0
+                    while u < fc and cidx[j, u] != i:
+                        u += 1
+                    if u == fc:  # not among its column's f best
+                        continue
+                rows[k], cols[k], vals[k] = i, j, rval[i, t]
+                k += 1
+        if cup:
+            for j in range(m):
+                for u in range(fc):
+                    i = cidx[j, u]
+                    t = 0
+                    while t < fr and ridx[i, t] != j:
+                        t += 1
+                    if t < fr:  # already in as its row's
+                        continue
+                    rows[k], cols[k], vals[k] = i, j, cval[j, u]
+                    k += 1
+        return rows[:k], cols[:k], vals[:k]
+
+    @njit(cache=_cache, nogil=True)
+    def break_ties(order, vals, first, second):
+        """``order`` (an argsort of ``vals``) with every run of equal values reordered by (``first``,
+        ``second``): the order of ``np.lexsort((second, first, vals))`` when those pairs are distinct."""
+        N = len(order)
+        s = 0
+        while s < N:
+            v = vals[order[s]]
+            e = s + 1
+            while e < N and vals[order[e]] == v:
+                e += 1
+            if e - s > 16:
+                run = order[s:e].copy()
+                key = np.empty(e - s, np.int64)
+                top = 0
+                for p in range(e - s):
+                    top = max(top, second[run[p]] + 1)
+                for p in range(e - s):
+                    key[p] = first[run[p]] * top + second[run[p]]
+                sub = np.argsort(key)
+                for p in range(e - s):
+                    order[s + p] = run[sub[p]]
+            else:
+                for p in range(s + 1, e):
+                    x = order[p]
+                    q = p - 1
+                    while q >= s and (first[order[q]] > first[x]
+                                      or (first[order[q]] == first[x] and second[order[q]] > second[x])):
+                        order[q + 1] = order[q]
+                        q -= 1
+                    order[q + 1] = x
+            s = e
+        return order
 
     @njit(cache=_cache, nogil=True)
     def greedy_sorted(rows, cols, n, m, f_prime):

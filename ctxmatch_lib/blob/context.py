@@ -273,8 +273,7 @@ class BlobContext:
         B32 = np.ascontiguousarray(X2, np.float32)
         self._X32 = (A32, B32)
         # Squared norms summed in float64 (fixed order), rounded once: part of the certified bound.
-        nrm1 = np.einsum("ij,ij->i", X1.astype(np.float64), X1.astype(np.float64))
-        nrm2 = np.einsum("ij,ij->i", X2.astype(np.float64), X2.astype(np.float64))
+        nrm1, nrm2 = _kernels.sq_norms(X1), _kernels.sq_norms(X2)
         self._scale = _kernels.error_scale(d)
         self._norms = (nrm1, nrm2)
         # Each line's K best so far, sorted by value; +inf marks an empty slot (no entry equals +inf: it
@@ -389,24 +388,13 @@ class BlobContext:
         if f > self.depth:
             raise ValueError(f"f={f} exceeds the depth={self.depth} this BlobContext was built for")
         fr, fc = min(f, m), min(f, n)
-        ri = np.repeat(np.arange(n, dtype=np.int64), fr)
-        rj = self.rows.idx[:, :fr].ravel()
-        cj = np.repeat(np.arange(m, dtype=np.int64), fc)
-        ci = self.cols.idx[:, :fc].ravel()
-        rk, ck = ri * m + rj, ci * m + cj
-        if prefilter == "cup":
-            keys = np.concatenate([rk, ck])
-            vals = np.concatenate([self.rows.val[:, :fr].ravel(), self.cols.val[:, :fc].ravel()])
-            keys, first = np.unique(keys, return_index=True)
-            vals = vals[first]
-        else:
-            keys, pos, _ = np.intersect1d(rk, ck, assume_unique=True, return_indices=True)
-            vals = self.rows.val[:, :fr].ravel()[pos]
-        order = np.lexsort((keys, vals))  # by value, then row, then column
-        keys, vals = keys[order], vals[order]
-        accepted = _kernels.greedy_sorted(keys // m, keys % m, n, m, int(f_prime))
-        keys = keys[accepted]
-        return np.stack([keys // m, keys % m], axis=1), vals[accepted]
+        rows, cols, vals = _kernels.prefilter_lists(self.rows.idx, self.rows.val, self.cols.idx, self.cols.val,
+                                                    fr, fc, prefilter == "cup")
+        # By value, then row, then column.
+        order = _kernels.break_ties(np.argsort(vals), vals, rows, cols)
+        rows, cols, vals = rows[order], cols[order], vals[order]
+        accepted = _kernels.greedy_sorted(rows, cols, n, m, int(f_prime))
+        return np.stack([rows[accepted], cols[accepted]], axis=1), vals[accepted]
 
     def _greedy_dense(self, f_prime: int):
         """Greedy over all of D (f = Ω) without sorting D.
