@@ -27,6 +27,7 @@ Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 
 from __future__ import annotations
 
 import argparse
+import importlib
 import subprocess
 import sys
 import time
@@ -117,16 +118,16 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
         sgloh_speed(n, threads, repeat, clock)
 
 
-#: The compiled stages of the L2 path timed by ``--breakdown`` (``ctxmatch_lib.blob._kernels``).
-STAGES = ("scan_tile", "certify_lines", "greedy_sorted", "greedy_dense", "first_allowed",
-          "next_allowed", "next_in_lines")
+#: The compiled stages of the L2 path timed by ``--breakdown``: (module of ``ctxmatch_lib.blob``, name).
+STAGES = (("_kernels", "scan_tile"), ("_kernels", "certify_lines"), ("_select_kernels", "prefilter_lists"),
+          ("_select_kernels", "greedy_sorted"), ("_kernels", "greedy_dense"), ("_kernels", "first_allowed"),
+          ("_kernels", "next_allowed"), ("_kernels", "next_in_lines"))
 
 
 def breakdown(n: int, clock) -> None:
     """Where blob matching's time goes: the GEMM tiles, each compiled stage and the rest (NumPy glue), per
     preset, for one call after a warm-up (the stages are wrapped for the call, then restored)."""
     from ctxmatch_lib.blob import BLOB_PRESETS, blob_matching
-    from ctxmatch_lib.blob import _kernels
     from ctxmatch_lib.blob import context as blob_context
 
     d1, d2, k1, k2 = rootsift_like(n, n)
@@ -150,19 +151,20 @@ def breakdown(n: int, clock) -> None:
     for name in ("baseline", "paper-best", "paper-best-overlap"):
         kw = dict(kpts1=k1, kpts2=k2, shapes1=s1, shapes2=s2, **BLOB_PRESETS[name].kwargs())
         blob_matching(d1, d2, **kw)
-        saved = {stage: getattr(_kernels, stage) for stage in STAGES}
+        modules = {mod: importlib.import_module(f"ctxmatch_lib.blob.{mod}") for mod, _ in STAGES}
+        saved = {(mod, stage): getattr(modules[mod], stage) for mod, stage in STAGES}
         spent.clear()
         try:
-            for stage, fn in saved.items():
-                setattr(_kernels, stage, timed_stage(stage, fn))
+            for (mod, stage), fn in saved.items():
+                setattr(modules[mod], stage, timed_stage(stage, fn))
             blob_context.np = _TimedNumpy()
             t0 = clock()
             blob_matching(d1, d2, **kw)
             total = clock() - t0
         finally:
             blob_context.np = np
-            for stage, fn in saved.items():
-                setattr(_kernels, stage, fn)
+            for (mod, stage), fn in saved.items():
+                setattr(modules[mod], stage, fn)
         parts = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in spent.items() if v * 1e3 >= 0.5)
         print(f"  {name:20s} {total * 1e3:7.1f} ms: {parts}, the rest {(total - sum(spent.values())) * 1e3:.0f} (ms)")
 

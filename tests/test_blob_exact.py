@@ -177,21 +177,21 @@ def test_results_do_not_depend_on_the_margin(name):
 @pytest.mark.parametrize("size,levels", [(0, 1), (1, 1), (60, 3), (700, 2), (3000, 500)])
 def test_break_ties_orders_like_lexsort(size, levels):
     """Runs of equal values, short (insertion) and long (a keyed sort), signed zeros included."""
-    from ctxmatch_lib.blob import _kernels
+    from ctxmatch_lib.blob import _select_kernels
 
     rng = np.random.default_rng(size)
     vals = rng.integers(0, levels, size).astype(np.float64) / 7
     vals[::9] *= -1.0  # -0.0 where the value is 0: equal to 0.0 for both sorts
     pairs = rng.choice(40 * 1000, size, replace=False)
     first, second = pairs // 1000, pairs % 1000
-    order = _kernels.break_ties(np.argsort(vals), vals, first, second)
+    order = _select_kernels.break_ties(np.argsort(vals), vals, first, second)
     np.testing.assert_array_equal(order, np.lexsort((second, first, vals)))
 
 
 @pytest.mark.parametrize("cup", [True, False])
 def test_prefilter_lists_is_the_union_or_intersection(cup):
     """F∪ / F∩ from the sorted lists against the sets they define (Eqs. 10-11), values from the rows."""
-    from ctxmatch_lib.blob import _kernels
+    from ctxmatch_lib.blob import _select_kernels
 
     rng = np.random.default_rng(5)
     n, m, T = 40, 30, 6
@@ -200,7 +200,7 @@ def test_prefilter_lists_is_the_union_or_intersection(cup):
     cidx = np.argsort(D.T, axis=1, kind="stable")[:, :T]
     rval, cval = np.take_along_axis(D, ridx, 1), np.take_along_axis(D.T, cidx, 1)
     for fr, fc in [(1, 1), (3, 5), (T, T)]:
-        rows, cols, vals = _kernels.prefilter_lists(ridx, rval, cidx, cval, fr, fc, cup)
+        rows, cols, vals = _select_kernels.prefilter_lists(ridx, rval, cidx, cval, fr, fc, cup)
         got = sorted(zip(rows.tolist(), cols.tolist()))
         in_rows = {(i, int(j)) for i in range(n) for j in ridx[i, :fr]}
         in_cols = {(int(i), j) for j in range(m) for i in cidx[j, :fc]}

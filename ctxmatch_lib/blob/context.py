@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from . import _kernels
+from . import _kernels, _select_kernels
 from .overlap import ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
@@ -388,12 +388,12 @@ class BlobContext:
         if f > self.depth:
             raise ValueError(f"f={f} exceeds the depth={self.depth} this BlobContext was built for")
         fr, fc = min(f, m), min(f, n)
-        rows, cols, vals = _kernels.prefilter_lists(self.rows.idx, self.rows.val, self.cols.idx, self.cols.val,
-                                                    fr, fc, prefilter == "cup")
+        rows, cols, vals = _select_kernels.prefilter_lists(self.rows.idx, self.rows.val, self.cols.idx,
+                                                           self.cols.val, fr, fc, prefilter == "cup")
         # By value, then row, then column.
-        order = _kernels.break_ties(np.argsort(vals), vals, rows, cols)
+        order = _select_kernels.break_ties(np.argsort(vals), vals, rows, cols)
         rows, cols, vals = rows[order], cols[order], vals[order]
-        accepted = _kernels.greedy_sorted(rows, cols, n, m, int(f_prime))
+        accepted = _select_kernels.greedy_sorted(rows, cols, n, m, int(f_prime))
         return np.stack([rows[accepted], cols[accepted]], axis=1), vals[accepted]
 
     def _greedy_dense(self, f_prime: int):

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._scores import nnr_scores
 from .._validation import as_finite_matrix, as_points
-from . import _kernels
+from . import _select_kernels
 from .config import BlobConfig
 from .context import BlobContext
 from .overlap import as_shapes
@@ -90,7 +90,7 @@ def rank_candidates(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, *, 
 
 
 def _sorted(matches: np.ndarray, scores: np.ndarray, ratio: str) -> BlobMatches:
-    order = _kernels.break_ties(np.argsort(scores), scores, matches[:, 0], matches[:, 1])
+    order = _select_kernels.break_ties(np.argsort(scores), scores, matches[:, 0], matches[:, 1])
     # The scores say which ratio made them (their scale), for the filters that read thresholds on them.
     return BlobMatches(np.ascontiguousarray(matches[order]), nnr_scores(scores[order], ratio))
 
