@@ -28,6 +28,16 @@ __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "greedy_dens
 
 _U = 2.0**-24
 
+# Flag masks (scan_tile): (bytes of 0 / 1 as a uint64) * _GATHER >> 56 puts byte k's flag in bit k; the
+# index of a 64-bit mask's lowest set bit b is _DEBRUIJN_BIT[(b * _DEBRUIJN) >> 58].
+_GATHER = np.uint64(0x0102040810204080)
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_BIT = np.zeros(64, np.int64)
+for _bit in range(64):
+    _DEBRUIJN_BIT[((1 << _bit) * 0x03F79D71B4CB0A89 % 2**64) >> 58] = _bit
+del _bit
+_S56, _S58 = np.uint64(56), np.uint64(58)
+
 
 def error_scale(d: int) -> float:
     """Factor ``c`` with ``|approx − exact| <= c (|a|² + |b|²)`` for the float32 squared distance, doubled."""
@@ -184,8 +194,8 @@ with user_cache() as _cache:
         B, C = G.shape
         Kr, Kc = rv.shape[1], cv.shape[1]
         buf = np.empty(C, np.float32)
-        nw = (C + 7) // 8
-        fl = np.zeros(8 * nw, np.uint8)
+        ng = (C + 63) // 64  # groups of 64 flags, read as one bit mask each
+        fl = np.zeros(64 * ng, np.uint8)
         words = fl.view(np.uint64)
         up = np.float32(np.inf)
         # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
@@ -220,7 +230,7 @@ with user_cache() as _cache:
             i = r0 + bi
             a = n1[i]
             grow = G[bi]
-            # Vectorisable pass: values and a flag per entry; the scan below skips 8 flags at a time.
+            # Vectorisable pass: values and a flag per entry.
             for jj in range(C):
                 g = grow[jj]
                 buf[jj] = (a + n2t[jj]) - (g + g)
@@ -242,12 +252,17 @@ with user_cache() as _cache:
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
                     drow[jj] = buf[jj]
-            for w in range(nw):
-                if words[w] == 0:
-                    continue
-                for jj in range(8 * w, min(C, 8 * w + 8)):
-                    if fl[jj] == 0:
-                        continue
+            # The flagged entries in order, without a branch per entry: eight flag bytes (0 / 1) gather
+            # into eight bits by one multiplication, a group's 64 into a mask; its set bits are then
+            # taken lowest first (de Bruijn index of the lowest bit).
+            for g in range(ng):
+                mask = np.uint64(0)
+                for q in range(8):
+                    mask |= ((words[8 * g + q] * _GATHER) >> _S56) << np.uint64(8 * q)
+                while mask != np.uint64(0):
+                    low = mask & (~mask + np.uint64(1))
+                    mask ^= low
+                    jj = 64 * g + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
                     v = buf[jj]
                     j = c0 + jj
                     if v < rthr[i]:
