@@ -438,3 +438,14 @@ def test_omega_heap_greedy_matches_a_full_sort(f_prime):
             cc[b] += 1
             ref.add((a, b))
     assert pairs(out) == ref
+
+
+def test_largest_singular_value_closed_form():
+    """The bounding radius of the overlap error's ellipses against LAPACK's 2-norm (degenerate shapes too)."""
+    from ctxmatch_lib.blob.overlap import _largest_singular_value
+
+    rng = np.random.default_rng(8)
+    A = rng.normal(size=(5000, 2, 2)) * rng.uniform(0.01, 100, (5000, 1, 1))
+    A[:3] = [[[0, 0], [0, 0]], [[2, 4], [1, 2]], [[3, 0], [0, -3]]]  # zero, rank one, reflection
+    np.testing.assert_allclose(_largest_singular_value(A), np.linalg.norm(A, ord=2, axis=(1, 2)),
+                               rtol=1e-14, atol=1e-300)
