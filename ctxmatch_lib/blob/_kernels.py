@@ -165,21 +165,27 @@ with user_cache() as _cache:
         return work[k]
 
     @njit(cache=_cache, nogil=True, inline="always")
-    def _insert(val, idx, thr, line, K, v, x):
+    def _insert(val, idx, thr, line, K, v, x, tv, tx):
         """Insert ``(v, x)`` into the line's K entries, kept sorted by value (after equal values; +inf in
-        empty slots); the line's threshold becomes the K-th entry when that is lower."""
+        empty slots); the line's threshold becomes the K-th entry when that is lower. No branch on the data:
+        the position is a count, the shift a select over copies of the line in ``tv`` / ``tx`` (scratch of
+        K entries); a ``v`` at or above the K-th entry leaves the line as it was."""
         a = val[line]
         b = idx[line]
         pos = 0
-        for p in range(K):  # vectorised: no branch on the data
+        for p in range(K):
             pos += a[p] <= v
-        for p in range(K - 1, pos, -1):
-            a[p] = a[p - 1]
-            b[p] = b[p - 1]
-        a[pos] = v
-        b[pos] = x
-        if a[K - 1] < thr[line]:
-            thr[line] = a[K - 1]
+        for p in range(K):
+            tv[p] = a[p]
+            tx[p] = b[p]
+        for p in range(1, K):
+            a[p] = tv[p - 1] if p > pos else tv[p]
+            b[p] = tx[p - 1] if p > pos else tx[p]
+        q = pos if pos < K else K - 1
+        a[q] = v if pos < K else a[q]
+        b[q] = x if pos < K else b[q]
+        t = a[K - 1]
+        thr[line] = t if t < thr[line] else thr[line]
 
     @njit(cache=_cache, nogil=True)
     def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, dense, keep):
@@ -198,6 +204,7 @@ with user_cache() as _cache:
         fl = np.zeros(64 * ng, np.uint8)
         words = fl.view(np.uint64)
         up = np.float32(np.inf)
+        tv, tx = np.empty(max(Kr, Kc), np.float32), np.empty(max(Kr, Kc), np.int64)
         # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
         # (which would insert the tile's entries until K are in): the K-th smallest of the minima of 2K
         # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
@@ -266,9 +273,9 @@ with user_cache() as _cache:
                     v = buf[jj]
                     j = c0 + jj
                     if v < rthr[i]:
-                        _insert(rv, ri, rthr, i, Kr, v, j)
+                        _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
                     if v < cthr[j]:
-                        _insert(cv, ci, cthr, j, Kc, v, i)
+                        _insert(cv, ci, cthr, j, Kc, v, i, tv, tx)
 
     @njit(cache=_cache, nogil=True)
     def _sort_pairs(val, idx, count):
