@@ -449,3 +449,23 @@ def test_largest_singular_value_closed_form():
     A[:3] = [[[0, 0], [0, 0]], [[2, 4], [1, 2]], [[3, 0], [0, -3]]]  # zero, rank one, reflection
     np.testing.assert_allclose(_largest_singular_value(A), np.linalg.norm(A, ord=2, axis=(1, 2)),
                                rtol=1e-14, atol=1e-300)
+
+
+@pytest.mark.parametrize("combine", ["a", "b"])
+def test_one_reference_combination_equals_the_two_sided_one(combine):
+    """W = a or b computes one reference's second best only; the scores are those of both computed."""
+    from ctxmatch_lib.blob import combine_ratios, rank_candidates
+    from ctxmatch_lib.blob.core import _sorted
+
+    rng = np.random.default_rng(11)
+    d1, d2 = rng.random((120, 16)).astype(np.float32), rng.random((90, 16)).astype(np.float32)
+    k1, k2 = rng.uniform(0, 100, (120, 2)), rng.uniform(0, 100, (90, 2))
+    for cfg in [BlobConfig(f=4, f_prime=2, ratio="D>=", t_o=8.0, combine=combine),
+                BlobConfig(f="omega", f_prime=1, ratio="D+", t_o=None, combine=combine)]:
+        ctx = BlobContext(d1, d2, kpts1=k1, kpts2=k2)
+        got = blob_matching(d1, d2, kpts1=k1, kpts2=k2, **cfg.kwargs())
+        m, d = ctx.candidates(cfg.f, cfg.prefilter, cfg.f_prime)
+        both = rank_candidates(ctx, m, d, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
+        ref = _sorted(m, combine_ratios(*both, combine), cfg.ratio)
+        np.testing.assert_array_equal(got.matches, ref.matches)
+        np.testing.assert_array_equal(got.scores, ref.scores)

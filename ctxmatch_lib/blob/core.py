@@ -82,11 +82,15 @@ def rank_candidates(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, *, 
     With ``ratio`` in ``{"D>=", "D+>="}`` the second-best entry is restricted to values ``>= D_ij``
     (Eq. 13); FGINN (Eq. 9) skips keypoints near the matched one in the same image.
     """
-    geq = ratio != "D+"
-    i, j = matches[:, 0], matches[:, 1]
-    a = nnr_ratio(dist, ctx.second_best(0, i, j, dist, geq=geq, t_o=t_o, t_o_kind=t_o_kind), ratio)
-    b = nnr_ratio(dist, ctx.second_best(1, j, i, dist, geq=geq, t_o=t_o, t_o_kind=t_o_kind), ratio)
-    return a, b
+    return tuple(_side_ratio(ctx, matches, dist, side, ratio=ratio, t_o=t_o, t_o_kind=t_o_kind) for side in (0, 1))
+
+
+def _side_ratio(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, side: int, *, ratio: str,
+                t_o: float | None, t_o_kind: str) -> np.ndarray:
+    """Step 3 with image ``side + 1`` as the reference: ``a`` (side 0) or ``b`` (side 1) of Eq. (15)."""
+    anchors, others = matches[:, side], matches[:, 1 - side]
+    second = ctx.second_best(side, anchors, others, dist, geq=ratio != "D+", t_o=t_o, t_o_kind=t_o_kind)
+    return nnr_ratio(dist, second, ratio)
 
 
 def _sorted(matches: np.ndarray, scores: np.ndarray, ratio: str) -> BlobMatches:
@@ -236,5 +240,9 @@ def match_context(ctx: BlobContext, cfg: BlobConfig) -> BlobMatches:
     matches, dist = ctx.candidates(cfg.f, cfg.prefilter, cfg.f_prime)
     if len(matches) == 0:
         return BlobMatches.empty()
-    a, b = rank_candidates(ctx, matches, dist, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
-    return _sorted(matches, combine_ratios(a, b, cfg.combine), cfg.ratio)
+    step3 = dict(ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)
+    if cfg.combine in ("a", "b"):  # W reads one reference only: the other's second best is not needed
+        scores = _side_ratio(ctx, matches, dist, "ab".index(cfg.combine), **step3)
+    else:
+        scores = combine_ratios(*rank_candidates(ctx, matches, dist, **step3), cfg.combine)
+    return _sorted(matches, scores, cfg.ratio)
