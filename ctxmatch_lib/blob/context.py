@@ -515,8 +515,10 @@ class BlobContext:
             d = dist[s : s + step] if geq else np.zeros(len(a))
             if self._exact:
                 X, E = self._X, self._line_bounds(side)
-                Dap = self._approx_lines(side, a)
-                rows = np.arange(len(a))
+                if self._approx is not None and side == 0:  # rows of the dense matrix, read in place
+                    Dap, rows = self._approx, a
+                else:
+                    Dap, rows = self._approx_lines(side, a), np.arange(len(a))
                 e, k = _kernels.next_in_lines(Dap, rows, X[side], a, X[1 - side], E, d, np.full(len(a), -1),
                                               np.zeros(len(a), np.bool_), o, pts, px2)
                 live = np.flatnonzero(k >= 0) if by_overlap else rows[:0]
@@ -526,7 +528,7 @@ class BlobContext:
                     if not len(live):
                         break
                     e[live], k[live] = _kernels.next_in_lines(
-                        Dap, live, X[side], a[live], X[1 - side], E, e[live], k[live],
+                        Dap, rows[live], X[side], a[live], X[1 - side], E, e[live], k[live],
                         np.ones(len(live), np.bool_), o[live], pts, 0.0)
                     live = live[k[live] >= 0]
                 out[s : s + step] = e
