@@ -40,7 +40,7 @@ class SortedLists:
     complete: bool
 
 
-def _first_t(group, other, value, n_groups: int, n_other: int, T: int, squared: bool):
+def _first_t(group, other, value, n_groups: int, n_other: int, T: int):
     """From candidate entries (every group holds at least T), keep the T best per group.
 
     Within a group the order is by value, then by the other index (blob matching's tie-break).
@@ -62,8 +62,7 @@ def _first_t(group, other, value, n_groups: int, n_other: int, T: int, squared: 
     idx = np.empty((n_groups, T), np.int64)
     val = np.empty((n_groups, T), np.float64)
     idx[g[keep], pos[keep]] = o[keep]
-    vv = np.maximum(v[keep].astype(np.float64), 0)
-    val[g[keep], pos[keep]] = np.sqrt(vv) if squared else vv
+    val[g[keep], pos[keep]] = np.maximum(v[keep].astype(np.float64), 0)
     return idx, val
 
 
@@ -154,7 +153,6 @@ class BlobContext:
             if D.dtype not in (np.float32, np.float64):
                 D = D.astype(np.float64)
             self.n, self.m = D.shape
-            self._squared = False
             self._A = self._B = None
             self._dtype = D.dtype
             self._dense = D
@@ -166,7 +164,6 @@ class BlobContext:
             self._A = np.asarray(desc1, self._dtype)
             self._B = np.asarray(desc2, self._dtype)
             self.n, self.m = len(self._A), len(self._B)
-            self._squared = False
             self._dense = None
             dense_bytes = self.n * self.m * self._dtype.itemsize
             if keep_dense is None:
@@ -178,7 +175,6 @@ class BlobContext:
             dtype = np.result_type(desc1.dtype, desc2.dtype, np.float32)
             self._X = (np.ascontiguousarray(desc1, dtype), np.ascontiguousarray(desc2, dtype))
             self.n, self.m = len(self._X[0]), len(self._X[1])
-            self._squared = False
             self._A = self._B = None
             self._dtype = np.dtype(np.float32)
             self._dense = None
@@ -237,7 +233,7 @@ class BlobContext:
         if dense is not None:
             self._dense = dense
         self.rows = SortedLists(*_first_t(np.concatenate(r_g), np.concatenate(r_o), np.concatenate(r_v),
-                                          n, m, Tr, self._squared), complete=Tr == m)
+                                          n, m, Tr), complete=Tr == m)
         # Columns: thresholds from the group minima of all blocks, then a second look at each block.
         tau_c = (np.partition(np.vstack(col_min), Tc - 1, axis=0)[Tc - 1] if Tc < n
                  else np.full(m, np.inf))
@@ -251,7 +247,7 @@ class BlobContext:
             c_v.append(blk.ravel()[flat])
         g, o, v = np.concatenate(c_g), np.concatenate(c_o), np.concatenate(c_v)
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
-        self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc, self._squared), complete=Tc == n)
+        self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
     #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's
     #: rows and a row's from its first tile's columns; the insertions after that grow with the log of the
@@ -366,8 +362,7 @@ class BlobContext:
                 raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
         else:  # the L2 path proposes with float32 rows (_approx_lines) and decides on exact distances
             raise RuntimeError("BlobContext._lines serves precomputed distances and distance hooks only")
-        raw = np.asarray(raw, np.float64)
-        return np.sqrt(np.maximum(raw, 0)) if self._squared else raw
+        return np.asarray(raw, np.float64)
 
     # -- steps 1-2: candidate set G ------------------------------------------------------------------
     def candidates(self, f, prefilter: str = "cup", f_prime: int = 5) -> tuple[np.ndarray, np.ndarray]:
@@ -434,7 +429,6 @@ class BlobContext:
             if T == m:
                 return
             row = np.asarray(D[i], np.float64)
-            row = np.sqrt(np.maximum(row, 0)) if self._squared else row
             ok = ~col_full & ((row > d) | ((row == d) & (cols > j)))
             cand = np.flatnonzero(ok)
             if len(cand):

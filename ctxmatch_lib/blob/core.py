@@ -226,10 +226,10 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
 def _margin(cfg: BlobConfig, dense: bool) -> int:
     """Entries kept per line beyond the depth for one setup (speed only; the results do not depend on it).
 
-    D+ takes its second best among all entries of the line: with f' <= f it lies among the first f + 2 of
-    the line unless FGINN excludes them, which is rare. D≥ and D+≥ take it among entries >= D_ij, which for a
-    match from the other image's list lies beyond this line's list however long it is; a few more entries
-    (and the greedy's walk of f = Ω) still save whole-line look-ups. Measured with ``bench_blob.py``'s
+    D+ takes its second best among all entries of the line: the line's best or second-best entry, already in
+    the list, unless FGINN excludes them (rare); two more entries save some of those look-ups. D≥ and D+≥ take
+    it among entries >= D_ij, which for a match from the other image's list lies beyond this line's list
+    however long it is; a few more entries (and the greedy's walk of f = Ω) still save whole-line look-ups. Measured with ``bench_blob.py``'s
     planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take 0.55-0.6x and 0.85-0.9x the time of 22.
     """
     return 2 if cfg.ratio == "D+" and not dense else 8
