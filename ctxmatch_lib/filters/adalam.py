@@ -55,13 +55,10 @@ sorts by a float32 key; not verified further).
 
 from __future__ import annotations
 
-import math
-
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._numba import user_cache
+from ._adalam_kernels import beaten_by_neighbours, best_confident_maps
 from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["adalam_filter"]
@@ -118,87 +115,9 @@ def _residuals(A: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
     return np.sqrt(rx * rx + ry * ry)
 
 
-with user_cache() as _cache:
-    _jit = numba.njit(cache=_cache, nogil=True, error_model="numpy")  # count / 0 is inf, as in the reference
-
-    @_jit
-    def _half(x):
-        """``x >= 0`` rounded to the nearest half-precision value (ties to even; inf past the largest)."""
-        if x == 0.0:
-            return 0.0
-        if x >= 65520.0:
-            return np.inf
-        if x < 2.0 ** -14:  # subnormal: fixed spacing
-            ulp = 2.0 ** -24
-        else:
-            e = math.frexp(x)[1]
-            ulp = 2.0 ** (e - 11)
-        return np.rint(x / ulp) * ulp
-
-    @_jit
-    def _confidence_kernel(A, U, V, ns, usable, min_conf):
-        """For every map ``A[b, t]`` of neighbourhood ``b`` (its first ``ns[b]`` members in ``U``, ``V``): the
-        residual order, inlier count, confidence and number of near-exact residuals (see
-        :func:`_confident_inliers`)."""
-        B, T = A.shape[0], A.shape[1]
-        M = U.shape[1]
-        order = np.empty((B, T, M), np.int64)
-        count = np.zeros((B, T), np.int64)
-        conf = np.zeros((B, T))
-        near = np.zeros((B, T), np.int64)
-        res = np.empty(M)
-        w = np.empty(M)
-        for b in range(B):
-            n = ns[b]
-            for t in range(T):
-                a00, a01, a10, a11 = A[b, t, 0, 0], A[b, t, 0, 1], A[b, t, 1, 0], A[b, t, 1, 1]
-                for i in range(n):
-                    if usable[b, t]:
-                        rx = a00 * U[b, i, 0] + a01 * U[b, i, 1] - V[b, i, 0]
-                        ry = a10 * U[b, i, 0] + a11 * U[b, i, 1] - V[b, i, 1]
-                        res[i] = math.sqrt(rx * rx + ry * ry)
-                    else:
-                        res[i] = 2.0  # no map: outside the unit discs
-                    if res[i] <= 2.0 ** -12:
-                        near[b, t] += 1
-                o = np.argsort(res[:n], kind="mergesort")
-                for i in range(n):
-                    order[b, t, i] = o[i]
-                for i in range(n, M):
-                    order[b, t, i] = i
-                # Votes: runs of equal half-precision squared residuals (float32 squares, as the
-                # reference) share one; exact fits have none.
-                votes = 0.0
-                i = 0
-                while i < n:
-                    hi = _half(np.float32(res[o[i]] * res[o[i]]))
-                    j = i + 1
-                    while j < n and _half(np.float32(res[o[j]] * res[o[j]])) == hi:
-                        j += 1
-                    for k in range(i, j):
-                        x = res[o[k]]
-                        w[k] = 0.0 if x * x <= 1e-8 else 1.0 / (j - i)
-                        votes += w[k]
-                    i = j
-                if votes == 0.0:  # nothing but exact fits: no evidence
-                    continue
-                cum = 0.0
-                good = 0.0
-                for k in range(n):
-                    cum += w[k]
-                    x = res[o[k]]
-                    if x * x * min_conf <= cum / votes or x * x <= 1e-8:
-                        good += w[k]
-                c = int(math.floor(good + 1e-9))
-                count[b, t] = c
-                if c > 0:
-                    x = res[o[c - 1]]
-                    conf[b, t] = c / (votes * x * x)
-        return order, count, conf, near
-
-
 def _confident_inliers(A, usable, Ub, Vb, nb, min_conf: float):
-    """Confidence-based inlier selection of every map (Sec. 3.3), as the reference counts it.
+    """Confidence-based inlier selection of the best map of each neighbourhood (Sec. 3.3), as the reference
+    counts it.
 
     ``A`` (B, T, 2, 2) holds ``T`` maps per neighbourhood (``usable`` marks those that exist), ``Ub``, ``Vb``
     (B, m, 2) the members, ``nb`` how many. Along the residuals ``|A u - v|`` of a map sorted in increasing
@@ -209,10 +128,11 @@ def _confident_inliers(A, usable, Ub, Vb, nb, min_conf: float):
     the inliers are that many smallest residuals; the confidence is ``count / (votes * r_c^2)``, ``r_c`` the
     largest of them.
 
-    Returns ``(order, count, conf, near)``: the sorting permutation of each map's residuals, the counts, the
-    confidences and the numbers of residuals up to ``2^-12``.
+    Returns ``(count, conf, order, near)``: the count and confidence of the best map of each neighbourhood
+    (the first of the largest count), the sorting permutation of its residuals (B, m), and the numbers of
+    residuals up to ``2^-12`` of every map (B, T); see :func:`._adalam_kernels.best_confident_maps`.
     """
-    return _confidence_kernel(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
+    return best_confident_maps(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
                               np.ascontiguousarray(Vb, dtype=np.float64), np.ascontiguousarray(nb, dtype=np.int64),
                               np.ascontiguousarray(usable, dtype=np.bool_), float(min_conf))
 
@@ -321,13 +241,13 @@ def adalam_filter(
     # neighbourhood (step 3), equal scores in a seeded random order rather than by index.
     rank = np.empty(n, np.int64)
     rank[np.lexsort((rng.permutation(n), ms.scores))] = np.arange(n)
-    tree1 = cKDTree(ms.x)
-    seeds = _seeds(tree1, ms.scores, R1, seed_threshold)
+    locs = _Locations(ms.x)
+    seeds = _seeds(locs, ms.scores, R1, seed_threshold)
     if len(seeds) == 0:
         return keep
 
     # 2. Neighbourhoods, with the orientation and scale agreement of the seed when shapes are known.
-    hood = _neighbourhoods(ms, tree1, seeds, rank, lam * R1, lam * R2, min_inliers, orientation_threshold,
+    hood = _neighbourhoods(ms, locs, seeds, rank, lam * R1, lam * R2, min_inliers, orientation_threshold,
                            scale_rate_threshold, similarity)
     if hood is None:
         return keep
@@ -355,20 +275,41 @@ def adalam_filter(
     return keep
 
 
-def _seeds(tree1, s, R1: float, seed_threshold: float) -> np.ndarray:
+class _Locations:
+    """The distinct image-1 locations of the matches (a candidate set holds several matches per keypoint):
+    ``tree`` (a k-d tree over them), ``inv`` (each match's location), ``by_loc`` (the matches grouped by
+    location, in index order within a location) and ``starts`` (each group's start in ``by_loc``, then its
+    end). Distances between matches are those between their locations, computed alike."""
+
+    def __init__(self, x: np.ndarray):
+        loc, inv = np.unique(x, axis=0, return_inverse=True)
+        self.inv = inv.reshape(-1)
+        self.tree = cKDTree(loc)
+        self.by_loc = np.argsort(self.inv, kind="stable")
+        self.starts = np.r_[0, np.cumsum(np.bincount(self.inv, minlength=len(loc)))]
+
+    def members(self, lists) -> tuple[np.ndarray, np.ndarray]:
+        """Matches at the locations of each list of ``lists`` (location indices): ``(list id, match)`` per
+        member, list by list."""
+        lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
+        lid = np.repeat(np.arange(len(lists)), lens)
+        ll = np.concatenate([np.asarray(v, np.int64) for v in lists]) if len(lists) else np.zeros(0, np.int64)
+        cnt = self.starts[ll + 1] - self.starts[ll]
+        first = np.repeat(self.starts[ll] - np.r_[0, np.cumsum(cnt)[:-1]], cnt)
+        return np.repeat(lid, cnt), self.by_loc[first + np.arange(int(cnt.sum()))]
+
+
+def _seeds(locs: _Locations, s, R1: float, seed_threshold: float) -> np.ndarray:
     """Matches that no other match within ``R1`` in image 1 beats strictly (lower score) and that pass
-    ``seed_threshold``; equal scores do not beat each other (as in the reference)."""
-    n = len(s)
-    pairs = tree1.query_pairs(np.nextafter(R1, 0.0), output_type="ndarray")  # distance < R1
-    beaten = np.zeros(n, bool)
-    if len(pairs):
-        a, b = pairs[:, 0], pairs[:, 1]
-        beaten[a[s[a] > s[b]]] = True
-        beaten[b[s[b] > s[a]]] = True
+    ``seed_threshold``; equal scores do not beat each other (as in the reference). A match is beaten when its
+    score exceeds the best score at its own location or at a location closer than ``R1``."""
+    pairs = locs.tree.query_pairs(np.nextafter(R1, 0.0), output_type="ndarray")  # distance < R1
+    beaten = beaten_by_neighbours(np.ascontiguousarray(s, dtype=np.float64), locs.inv,
+                                  np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), len(locs.starts) - 1)
     return np.flatnonzero(~beaten & (s < seed_threshold))
 
 
-def _neighbourhoods(ms, tree1, seeds, rank, r1: float, r2: float, min_inliers, orientation_threshold,
+def _neighbourhoods(ms, locs: _Locations, seeds, rank, r1: float, r2: float, min_inliers, orientation_threshold,
                     scale_rate_threshold, similarity: str = "keypoints"):
     """The matches of each seed's neighbourhood (Sec. 3.2): within ``r1`` of the seed in image 1 and ``r2``
     in image 2, agreeing in orientation and scale when shapes are known; seeds with fewer than
@@ -378,10 +319,7 @@ def _neighbourhoods(ms, tree1, seeds, rank, r1: float, r2: float, min_inliers, o
     seed's index in ``seeds``, its match index and its position in its group (seed last, best first).
     """
     x, y = ms.x, ms.y
-    lists = tree1.query_ball_point(x[seeds], r1)
-    lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
-    sid = np.repeat(np.arange(len(seeds)), lens)
-    mid = np.concatenate([np.asarray(v, np.int64) for v in lists])
+    sid, mid = locs.members(locs.tree.query_ball_point(x[seeds], r1))
     ok = ((y[mid] - y[seeds[sid]]) ** 2).sum(1) < r2 ** 2
     if ms.A1 is not None:
         relative = _keypoint_similarity if similarity == "keypoints" else _relative_similarity
@@ -450,10 +388,8 @@ def _select(A, usable, valid, distinct, Ub, Vb, Pb, nb, min_inliers, min_conf: f
     """Inliers of the best map of each neighbourhood: the confidence-based selection, or the exact recovery
     where that finds more. Returns ``(inl (B, M), count, conf)``."""
     B, M = Pb.shape
-    order, count, conf, near = _confident_inliers(A, usable, Ub, Vb, nb, min_conf)
-    best = count.argmax(1)
+    count_b, conf_b, order_b, near = _confident_inliers(A, usable, Ub, Vb, nb, min_conf)
     rows = np.arange(B)
-    count_b, conf_b, order_b = count[rows, best], conf[rows, best], order[rows, best]
     inl = np.zeros((B, M), bool)
     np.put_along_axis(inl, order_b, np.arange(M)[None, :] < count_b[:, None], 1)
     if (near >= min_inliers + 3).any():  # some map fits enough members exactly

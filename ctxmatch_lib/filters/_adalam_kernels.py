@@ -1,0 +1,176 @@
+"""Compiled (numba) kernel of AdaLAM (see :mod:`.adalam`): the confidence-based inlier count of the local maps.
+
+The kernel evaluates the very expressions of the count it replaced (same residuals, same half-precision
+runs, same sums in the same order, no fast-math), so its decisions are bit-identical to it (tested against a
+plain implementation of the count in ``tests/test_filters_adalam_kernels.py``). It saves the work of the
+maps that cannot win: only the best map of each neighbourhood is used (the first of the largest count), and a
+map's count is at most the number of its members whose residual ``r`` is not an exact fit and satisfies
+``r^2 * min_conf <= 1``, so a map whose bound does not exceed the best count so far is not sorted nor counted.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .._numba import user_cache
+
+__all__ = ["beaten_by_neighbours", "best_confident_maps"]
+
+
+with user_cache() as _cache:
+    _jit = numba.njit(cache=_cache, nogil=True, error_model="numpy")  # count / 0 is inf, as in the reference
+
+    @_jit
+    def _half(x):  # pragma: no cover - compiled
+        """``x >= 0`` rounded to the nearest half-precision value (ties to even; inf past the largest)."""
+        if x == 0.0:
+            return 0.0
+        if x >= 65520.0:
+            return np.inf
+        if x < 2.0 ** -14:  # subnormal: fixed spacing
+            ulp = 2.0 ** -24
+        else:
+            e = math.frexp(x)[1]
+            ulp = 2.0 ** (e - 11)
+        return np.rint(x / ulp) * ulp
+
+    @_jit
+    def _count(sv, w, min_conf):  # pragma: no cover - compiled
+        """Inlier count and confidence of the residuals ``sv`` sorted in increasing order (``w`` scratch)."""
+        n = len(sv)
+        # Votes: runs of equal half-precision squared residuals (float32 squares, as the reference) share one;
+        # exact fits have none.
+        votes = 0.0
+        i = 0
+        while i < n:
+            hi = _half(np.float32(sv[i] * sv[i]))
+            j = i + 1
+            while j < n and _half(np.float32(sv[j] * sv[j])) == hi:
+                j += 1
+            for k in range(i, j):
+                x = sv[k]
+                w[k] = 0.0 if x * x <= 1e-8 else 1.0 / (j - i)
+                votes += w[k]
+            i = j
+        if votes == 0.0:  # nothing but exact fits: no evidence
+            return 0, 0.0
+        cum = 0.0
+        good = 0.0
+        for k in range(n):
+            cum += w[k]
+            x = sv[k]
+            if x * x * min_conf <= cum / votes or x * x <= 1e-8:
+                good += w[k]
+        c = int(math.floor(good + 1e-9))
+        if c == 0:
+            return 0, 0.0
+        x = sv[c - 1]
+        return c, c / (votes * x * x)
+
+    @_jit
+    def best_confident_maps(A, U, V, ns, usable, min_conf):  # pragma: no cover - compiled
+        """The best map of every neighbourhood under the confidence-based inlier count.
+
+        Parameters
+        ----------
+        A : ndarray of shape (B, T, 2, 2)
+            ``T`` maps per neighbourhood.
+        U, V : ndarray of shape (B, M, 2)
+            Members of each neighbourhood, its first ``ns[b]`` rows.
+        ns : ndarray of shape (B,), int64
+            Neighbourhood sizes.
+        usable : ndarray of shape (B, T), bool
+            Maps that exist; the others put every member at residual 2 (outside the unit disc).
+        min_conf : float
+            Confidence threshold.
+
+        Returns
+        -------
+        count, conf : ndarray of shape (B,)
+            Inlier count and confidence of the best map (the first of the largest count; count 0 and
+            confidence 0 where no map has an inlier).
+        order : ndarray of shape (B, M), int64
+            Stable sorting permutation of the best map's residuals (then the absent rows in order).
+        near : ndarray of shape (B, T), int64
+            Number of residuals up to ``2^-12`` of every map.
+        """
+        B, T = A.shape[0], A.shape[1]
+        M = U.shape[1]
+        order = np.empty((B, M), np.int64)
+        count = np.zeros(B, np.int64)
+        conf = np.zeros(B)
+        near = np.zeros((B, T), np.int64)
+        res = np.empty(M)
+        best_res = np.empty(M)
+        w = np.empty(M)
+        for b in range(B):
+            n = ns[b]
+            best_c = -1
+            for t in range(T):
+                a00, a01, a10, a11 = A[b, t, 0, 0], A[b, t, 0, 1], A[b, t, 1, 0], A[b, t, 1, 1]
+                bound = 0
+                for i in range(n):
+                    if usable[b, t]:
+                        rx = a00 * U[b, i, 0] + a01 * U[b, i, 1] - V[b, i, 0]
+                        ry = a10 * U[b, i, 0] + a11 * U[b, i, 1] - V[b, i, 1]
+                        res[i] = math.sqrt(rx * rx + ry * ry)
+                    else:
+                        res[i] = 2.0  # no map: outside the unit discs
+                    x = res[i]
+                    if x <= 2.0 ** -12:
+                        near[b, t] += 1
+                    if x * x > 1e-8 and x * x * min_conf <= 1.0:  # may count (cum / votes <= 1)
+                        bound += 1
+                if bound <= best_c:  # cannot beat the best so far (ties keep the first)
+                    continue
+                c, cf = 0, 0.0
+                if bound > 0:
+                    c, cf = _count(np.sort(res[:n]), w, min_conf)
+                if c > best_c:
+                    best_c = c
+                    count[b], conf[b] = c, cf
+                    best_res[:n] = res[:n]
+            o = np.argsort(best_res[:n], kind="mergesort")
+            for i in range(n):
+                order[b, i] = o[i]
+            for i in range(n, M):
+                order[b, i] = i
+        return count, conf, order, near
+
+    @_jit
+    def beaten_by_neighbours(s, inv, pairs, n_loc):  # pragma: no cover - compiled
+        """Matches whose score ``s`` exceeds the best score at their location or at a neighbouring one.
+
+        Parameters
+        ----------
+        s : ndarray of shape (K,)
+            Scores, lower is better (no NaN).
+        inv : ndarray of shape (K,), int64
+            Location of each match, in ``0 .. n_loc - 1``.
+        pairs : ndarray of shape (P, 2), int64
+            Pairs of neighbouring locations.
+        n_loc : int
+            Number of locations.
+
+        Returns
+        -------
+        beaten : ndarray of shape (K,), bool
+        """
+        best = np.full(n_loc, np.inf)
+        for i in range(len(s)):
+            if s[i] < best[inv[i]]:
+                best[inv[i]] = s[i]
+        low = best.copy()
+        for k in range(len(pairs)):
+            p, q = pairs[k, 0], pairs[k, 1]
+            if best[q] < low[p]:
+                low[p] = best[q]
+            if best[p] < low[q]:
+                low[q] = best[p]
+        beaten = np.empty(len(s), np.bool_)
+        for i in range(len(s)):
+            beaten[i] = s[i] > low[inv[i]]
+        return beaten
