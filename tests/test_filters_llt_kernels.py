@@ -1,0 +1,69 @@
+"""The compiled kernels behind LLT (and VFC) give the bits of their documented summation order.
+
+The EM of LLT amplifies the last bits of its products into decisions (issue 31), so its kernels are checked
+for exact equality against references written with numpy operations whose order is fixed: elementwise
+products, and ``np.cumsum`` (a running sum, one addition after the other).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from numba.core.errors import TypingError
+
+from ctxmatch_lib.filters._em_kernels import _load4, weighted_gram, weighted_gram_t
+
+
+def _running_sum(v: np.ndarray) -> float:
+    """``((v0 + v1) + v2) + ...`` (0.0 when empty)."""
+    return float(np.cumsum(v)[-1]) if len(v) else 0.0
+
+
+def _gram_reference(H: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``H' diag(w) H`` in the kernels' order: entry (i, j), i <= j, sums ``(w_k H_ki) H_kj`` in four running
+    sums over the rows k = 0, 1, 2, 3 mod 4 (the last K mod 4 rows appended to the first), then
+    ``(s0 + s1) + (s2 + s3)``; the lower triangle mirrors the upper."""
+    K, n = H.shape
+    K4 = K - K % 4
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            p = (w * H[:, i]) * H[:, j]
+            s = [_running_sum(p[r:K4:4]) for r in range(4)]
+            s[0] = _running_sum(np.r_[s[0], p[K4:]])
+            out[i, j] = out[j, i] = (s[0] + s[1]) + (s[2] + s[3])
+    return out
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8, 9])
+@pytest.mark.parametrize("K", [0, 1, 3, 4, 7, 1024, 1027, 2051])
+def test_weighted_gram_matches_its_summation_order(n, K):
+    rng = np.random.default_rng(10 * n + K)
+    # Columns of very different scales, so that another order of the same sums would round differently.
+    H = rng.normal(size=(K, n)) * 10.0 ** rng.integers(-4, 5, size=n)
+    w = rng.uniform(1e-5, 1.0, size=K)
+    ref = _gram_reference(H, w)
+    np.testing.assert_array_equal(weighted_gram(H, w), ref)
+    np.testing.assert_array_equal(weighted_gram_t(np.ascontiguousarray(H.T), w), ref)
+
+
+def test_weighted_gram_differs_from_a_plain_running_sum():
+    # The four interleaved sums are an order of their own: on these inputs a single running sum (another
+    # valid order) rounds differently, so the test above does tell orders apart.
+    rng = np.random.default_rng(3)
+    H = rng.normal(size=(2051, 4)) * 10.0 ** rng.integers(-4, 5, size=4)
+    w = rng.uniform(size=2051)
+    plain = np.array([[_running_sum((w * H[:, i]) * H[:, j]) for j in range(4)] for i in range(4)])
+    assert not np.array_equal(weighted_gram(H, w), plain)
+
+
+def test_lane_loads_need_a_contiguous_float64_array():
+    @numba.njit
+    def first_lanes(a):
+        return _load4(a, 0)
+
+    with pytest.raises(TypingError, match="contiguous 1-d float64"):
+        first_lanes(np.zeros(16)[::2])
+    with pytest.raises(TypingError, match="contiguous 1-d float64"):
+        first_lanes(np.zeros(8, np.float32))
