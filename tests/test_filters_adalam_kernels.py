@@ -62,14 +62,15 @@ def _maps_case(seed: int, B: int = 5, T: int = 24, M: int = 60):
     A[:, 3] = truth[:, 0]  # maps through the exact fits
     usable = rng.random((B, T)) < 0.9
     ns = rng.integers(8, M + 1, B)
-    return A, U, V, ns, usable
+    distinct = rng.random((B, M)) < 0.8
+    return A, U, V, ns, usable, distinct
 
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("min_conf", [200.0, 5.0])
 def test_best_confident_maps_match_every_map_counted(seed, min_conf):
-    A, U, V, ns, usable = _maps_case(seed)
-    count, conf, order, near = best_confident_maps(A, U, V, ns, usable, min_conf)
+    A, U, V, ns, usable, distinct = _maps_case(seed)
+    count, conf, order, near, near_distinct = best_confident_maps(A, U, V, ns, usable, distinct, min_conf)
     B, T, M = A.shape[0], A.shape[1], U.shape[1]
     for b in range(B):
         n = ns[b]
@@ -78,13 +79,15 @@ def test_best_confident_maps_match_every_map_counted(seed, min_conf):
             rx = A[b, t, 0, 0] * U[b, :n, 0] + A[b, t, 0, 1] * U[b, :n, 1] - V[b, :n, 0]
             ry = A[b, t, 1, 0] * U[b, :n, 0] + A[b, t, 1, 1] * U[b, :n, 1] - V[b, :n, 1]
             res = np.sqrt(rx * rx + ry * ry) if usable[b, t] else np.full(n, 2.0)
-            per_map.append(_count_plain(res, min_conf) + (int((res <= 2.0 ** -12).sum()),))
+            exact = res <= 2.0 ** -12
+            per_map.append(_count_plain(res, min_conf) + (int(exact.sum()), int((exact & distinct[b, :n]).sum())))
         counts = [p[0] for p in per_map]
         best = int(np.argmax(counts))
         assert count[b] == counts[best] and conf[b] == per_map[best][1]
         assert np.array_equal(order[b, :n], per_map[best][2]) and np.array_equal(order[b, n:], np.arange(n, M))
         assert np.array_equal(near[b], [p[3] for p in per_map])
-    assert count.max() > 0
+        assert np.array_equal(near_distinct[b], [p[4] for p in per_map])
+    assert count.max() > 0 and near_distinct.max() > 0
 
 
 def _pairs_beaten(x, s, R1):

@@ -71,7 +71,7 @@ with user_cache() as _cache:
         return c, c / (votes * x * x)
 
     @_jit
-    def best_confident_maps(A, U, V, ns, usable, min_conf):  # pragma: no cover - compiled
+    def best_confident_maps(A, U, V, ns, usable, distinct, min_conf):  # pragma: no cover - compiled
         """The best map of every neighbourhood under the confidence-based inlier count.
 
         Parameters
@@ -84,6 +84,8 @@ with user_cache() as _cache:
             Neighbourhood sizes.
         usable : ndarray of shape (B, T), bool
             Maps that exist; the others put every member at residual 2 (outside the unit disc).
+        distinct : ndarray of shape (B, M), bool
+            Members counted in ``near_distinct``.
         min_conf : float
             Confidence threshold.
 
@@ -94,8 +96,8 @@ with user_cache() as _cache:
             confidence 0 where no map has an inlier).
         order : ndarray of shape (B, M), int64
             Stable sorting permutation of the best map's residuals (then the absent rows in order).
-        near : ndarray of shape (B, T), int64
-            Number of residuals up to ``2^-12`` of every map.
+        near, near_distinct : ndarray of shape (B, T), int64
+            Number of residuals up to ``2^-12`` of every map, of all members and of the ``distinct`` ones.
         """
         B, T = A.shape[0], A.shape[1]
         M = U.shape[1]
@@ -103,6 +105,7 @@ with user_cache() as _cache:
         count = np.zeros(B, np.int64)
         conf = np.zeros(B)
         near = np.zeros((B, T), np.int64)
+        near_distinct = np.zeros((B, T), np.int64)
         res = np.empty(M)
         best_res = np.empty(M)
         w = np.empty(M)
@@ -122,6 +125,8 @@ with user_cache() as _cache:
                     x = res[i]
                     if x <= 2.0 ** -12:
                         near[b, t] += 1
+                        if distinct[b, i]:
+                            near_distinct[b, t] += 1
                     if x * x > 1e-8 and x * x * min_conf <= 1.0:  # may count (cum / votes <= 1)
                         bound += 1
                 if bound <= best_c:  # cannot beat the best so far (ties keep the first)
@@ -138,7 +143,7 @@ with user_cache() as _cache:
                 order[b, i] = o[i]
             for i in range(n, M):
                 order[b, i] = i
-        return count, conf, order, near
+        return count, conf, order, near, near_distinct
 
     @_jit
     def beaten_by_neighbours(s, inv, pairs, n_loc):  # pragma: no cover - compiled

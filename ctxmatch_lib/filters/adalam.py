@@ -115,7 +115,7 @@ def _residuals(A: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
     return np.sqrt(rx * rx + ry * ry)
 
 
-def _confident_inliers(A, usable, Ub, Vb, nb, min_conf: float):
+def _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf: float):
     """Confidence-based inlier selection of the best map of each neighbourhood (Sec. 3.3), as the reference
     counts it.
 
@@ -128,13 +128,15 @@ def _confident_inliers(A, usable, Ub, Vb, nb, min_conf: float):
     the inliers are that many smallest residuals; the confidence is ``count / (votes * r_c^2)``, ``r_c`` the
     largest of them.
 
-    Returns ``(count, conf, order, near)``: the count and confidence of the best map of each neighbourhood
-    (the first of the largest count), the sorting permutation of its residuals (B, m), and the numbers of
-    residuals up to ``2^-12`` of every map (B, T); see :func:`._adalam_kernels.best_confident_maps`.
+    Returns ``(count, conf, order, near, near_distinct)``: the count and confidence of the best map of each
+    neighbourhood (the first of the largest count), the sorting permutation of its residuals (B, m), and the
+    numbers of residuals up to ``2^-12`` of every map (B, T), of all members and of the ``distinct`` ones; see
+    :func:`._adalam_kernels.best_confident_maps`.
     """
     return best_confident_maps(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
                               np.ascontiguousarray(Vb, dtype=np.float64), np.ascontiguousarray(nb, dtype=np.int64),
-                              np.ascontiguousarray(usable, dtype=np.bool_), float(min_conf))
+                              np.ascontiguousarray(usable, dtype=np.bool_),
+                              np.ascontiguousarray(distinct, dtype=np.bool_), float(min_conf))
 
 
 @match_filter(label="AdaLAM", nnr=("seed_threshold",), shapes="both")
@@ -361,16 +363,15 @@ def _distinct_members(Ub, Vb, Pb) -> np.ndarray:
     return distinct
 
 
-def _exact_support(res, valid, distinct, Pb, nb, min_inliers, min_conf: float):
-    """Neighbourhoods fitted exactly by one of the maps of ``res`` (B, T, M) (the reference's recovery of
-    exact local affinities, which its confidence count would otherwise drop): residuals up to ``2^-12`` on at
-    least ``min_inliers + 3`` members, of which at least ``min_inliers`` distinct locations beyond the seed and
-    the sampled couple, with the confidence of a residual area of ``2^-24``. Returns ``(recover, best, raw,
-    conf)`` per neighbourhood: whether to recover it, the map index, the near-exact count and confidence."""
-    near = (res <= 2.0 ** -12) & Pb[:, None, :]
-    raw = near.sum(-1)
+def _exact_support(raw, raw_distinct, valid, nb, min_inliers, min_conf: float):
+    """Neighbourhoods fitted exactly by one of their maps (the reference's recovery of exact local
+    affinities, which its confidence count would otherwise drop): residuals up to ``2^-12`` on at least
+    ``min_inliers + 3`` members (``raw``, (B, T)), of which at least ``min_inliers`` distinct locations
+    (``raw_distinct``) beyond the seed and the sampled couple, with the confidence of a residual area of
+    ``2^-24``. Returns ``(recover, best, raw, conf)`` per neighbourhood: whether to recover it, the map index,
+    the near-exact count and confidence."""
     cand = (raw >= min_inliers + 3) & valid
-    support = np.where(cand, np.maximum((near & distinct[:, None, :]).sum(-1) - 3, 0), 0)
+    support = np.where(cand, np.maximum(raw_distinct - 3, 0), 0)
     best = support.argmax(1)
     rows = np.arange(len(nb))
     conf = support[rows, best] / (np.maximum(nb, 1) * 2.0 ** -24)
@@ -388,18 +389,18 @@ def _select(A, usable, valid, distinct, Ub, Vb, Pb, nb, min_inliers, min_conf: f
     """Inliers of the best map of each neighbourhood: the confidence-based selection, or the exact recovery
     where that finds more. Returns ``(inl (B, M), count, conf)``."""
     B, M = Pb.shape
-    count_b, conf_b, order_b, near = _confident_inliers(A, usable, Ub, Vb, nb, min_conf)
-    rows = np.arange(B)
+    count_b, conf_b, order_b, near, near_distinct = _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf)
     inl = np.zeros((B, M), bool)
     np.put_along_axis(inl, order_b, np.arange(M)[None, :] < count_b[:, None], 1)
     if (near >= min_inliers + 3).any():  # some map fits enough members exactly
-        res = np.where(usable[..., None], _residuals(A, Ub, Vb), 2.0)
-        recover, t, raw, exact_conf = _exact_support(res, valid, distinct, Pb, nb, min_inliers, min_conf)
+        recover, t, raw, exact_conf = _exact_support(near, near_distinct, valid, nb, min_inliers, min_conf)
         with np.errstate(divide="ignore", invalid="ignore"):
             accepted = (conf_b >= min_conf) & (count_b * (1.0 - 1.0 / conf_b) >= min_inliers)
         recover &= ~accepted | (raw > count_b)
         if recover.any():
-            inl[recover] = (res[rows, t] <= 2.0 ** -12)[recover] & Pb[recover]
+            r = np.flatnonzero(recover)
+            res = np.where(usable[r, t[r], None], _residuals(A[r, t[r], None], Ub[r], Vb[r])[:, 0], 2.0)
+            inl[r] = (res <= 2.0 ** -12) & Pb[r]
             count_b = np.where(recover, raw, count_b)
             conf_b = np.where(recover, exact_conf, conf_b)
     return inl, count_b, conf_b
