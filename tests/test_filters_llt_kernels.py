@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from numba.core.errors import TypingError
 
-from ctxmatch_lib.filters._em_kernels import _load4, weighted_gram, weighted_gram_t
+from ctxmatch_lib.filters._common import knn_without_self
+from ctxmatch_lib.filters._em_kernels import _load4, matmul_t, weighted_gram, weighted_gram_t
+from ctxmatch_lib.filters._llt_kernels import add_to_diagonal, em_residuals, local_grams
 
 
 def _running_sum(v: np.ndarray) -> float:
@@ -67,3 +69,44 @@ def test_lane_loads_need_a_contiguous_float64_array():
         first_lanes(np.zeros(16)[::2])
     with pytest.raises(TypingError, match="contiguous 1-d float64"):
         first_lanes(np.zeros(8, np.float32))
+
+
+def _points(n, seed):
+    """Points with coincident copies and a zero offset, so that signed zeros and equal rows occur."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, 2)) * 10.0 ** rng.integers(-3, 3, size=(n, 1))
+    x[n // 2:n // 2 + 5] = x[0]
+    x[-3:, 1] = x[1, 1]
+    return x
+
+
+@pytest.mark.parametrize("n, k", [(2, 15), (40, 3), (300, 15)])
+def test_local_grams_and_regulariser_are_numpys_bits(n, k):
+    x = _points(n, n)
+    nb = knn_without_self(x, np.arange(n), k)
+    kk = nb.shape[1]
+    z = x[nb] - x[:, None, :]
+    ref = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
+    gram = local_grams(x, nb)
+    np.testing.assert_array_equal(gram, ref)
+    assert np.array_equal(np.signbit(gram), np.signbit(ref))
+    t = 1e-5 * np.maximum(np.trace(ref, axis1=1, axis2=2), 1e-12)
+    ref += t[:, None, None] * np.eye(kk)
+    add_to_diagonal(gram, t)
+    np.testing.assert_array_equal(gram, ref)
+    assert np.array_equal(np.signbit(gram), np.signbit(ref))
+
+
+@pytest.mark.parametrize("n", [1, 7, 1024, 1025, 5000])
+def test_em_residuals_are_the_products_and_einsums_bits(n):
+    rng = np.random.default_rng(n)
+    m = 15
+    G = rng.normal(size=(n, 2 * m)) * 10.0 ** rng.integers(-3, 3, size=2 * m)
+    GT = np.ascontiguousarray(G.reshape(2 * n, m).T)
+    C = rng.normal(size=(m, 2)) * 10.0 ** rng.integers(-6, 2, size=(m, 1))
+    target, BX = rng.normal(size=(n, 2)), rng.normal(size=(n, 2)) * 1e-3
+    F = matmul_t(GT, C).reshape(n, 2, 2)
+    res, loc = target - F[:, 0], BX + F[:, 1]
+    r2, local = em_residuals(GT, C, target, BX)
+    np.testing.assert_array_equal(r2, np.einsum("ij,ij->i", res, res))
+    np.testing.assert_array_equal(local, np.einsum("ij,ij->i", loc, loc))

@@ -20,7 +20,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
-from ._em_kernels import dot, matmul_t, solve, solve_batched, weighted_gram_t
+from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
+from ._llt_kernels import add_to_diagonal, em_residuals, local_grams
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights", "m_step"]
@@ -40,12 +41,10 @@ def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     kk = nb.shape[1]
     if kk == 0:
         return sp.csr_matrix((n, n))
-    z = x[nb] - x[:, None, :]  # (n, kk, 2)
-    # Elementwise Gram matrices and a compiled solve (no BLAS / LAPACK, whose rounding follows the CPU's
-    # kernel; issue 31).
-    gram = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
-    trace = np.trace(gram, axis1=1, axis2=2)
-    gram += (reg * np.maximum(trace, 1e-12))[:, None, None] * np.eye(kk)
+    # Elementwise Gram matrices of the offsets x_j - x_i and a compiled solve (no BLAS / LAPACK, whose
+    # rounding follows the CPU's kernel; issue 31).
+    gram = local_grams(x, nb)
+    add_to_diagonal(gram, reg * np.maximum(np.trace(gram, axis1=1, axis2=2), 1e-12))
     w = solve_batched(gram, np.ones((n, kk, 1)))[..., 0]
     w /= w.sum(1, keepdims=True)
     rows = np.repeat(np.arange(n), kk)
@@ -236,13 +235,14 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
     ``U`` is the (K, m) kernel matrix of the control points, ``BU`` and ``BX`` its and the points' locally
     linear residuals ``(I - W) U`` and ``(I - W) x``. The products of one iteration share two matrix calls:
     ``[U, BU]`` (K, 2m) scaled by ``sqrt(P)`` gives both Gram blocks and both right-hand sides of the M-step,
-    and ``[U, BU]`` reshaped to (2K, m) times ``C`` gives the field ``U C`` and ``BU C`` together.
+    and ``[U, BU]`` reshaped to (2K, m) times ``C`` gives the field ``U C`` and ``BU C`` together, in one
+    compiled pass that also returns the squared residuals (:func:`~._llt_kernels.em_residuals`).
     """
     n, m = U.shape
     G = np.ascontiguousarray(np.hstack([U, BU]))  # row i = [U_i, (BU)_i]
     Z = np.hstack([target, BX])
     HT = _stacked(G, Z)
-    GT = np.ascontiguousarray(G.reshape(2 * n, m).T)  # [U, BU] as (2K, m), transposed once for matmul_t
+    GT = np.ascontiguousarray(G.reshape(2 * n, m).T)  # [U, BU] as (2K, m), transposed once for em_residuals
     C = np.zeros((m, 2))
     res, loc = target, BX  # y - x - U C and (I - W)(x + U C) at C = 0
     r2 = np.einsum("ij,ij->i", res, res)
@@ -265,10 +265,7 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
         # M-step for C (Sec. III-C), multiplied through by sigma^2:
         # (U' P U + lam sigma^2 (BU)' P (BU)) C = U' P (y - x) - lam sigma^2 (BU)' P (B x).
         C = _m_step(HT, pw, lam * sigma2, m)
-        F = matmul_t(GT, C).reshape(n, 2, 2)  # [U C, BU C] per row
-        res, loc = target - F[:, 0], BX + F[:, 1]
-        r2 = np.einsum("ij,ij->i", res, res)
-        local = np.einsum("ij,ij->i", loc, loc)
+        r2, local = em_residuals(GT, C, target, BX)  # |y - x - U C|^2 and |(I - W)(x + U C)|^2
         sigma2 = dot(pw, r2) / (2 * pw.sum())
         gamma = min(max(float((p > tau).mean()), 0.05), 0.95)
     return p > tau
