@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ctxmatch_lib.filters import adalam
-from ctxmatch_lib.filters._adalam_kernels import beaten_by_neighbours, best_confident_maps
+from ctxmatch_lib.filters._adalam_kernels import beaten_by_neighbours, best_confident_maps, half_keys
 
 
 def _half(x: float) -> float:
@@ -88,6 +88,24 @@ def test_best_confident_maps_match_every_map_counted(seed, min_conf):
         assert np.array_equal(near[b], [p[3] for p in per_map])
         assert np.array_equal(near_distinct[b], [p[4] for p in per_map])
     assert count.max() > 0 and near_distinct.max() > 0
+
+
+def test_half_keys_equal_exactly_when_float16_values_are():
+    rng = np.random.default_rng(3)
+    h = np.arange(0, 0x7C01, dtype=np.uint16).view(np.float16).astype(np.float32)  # every finite half and inf
+    mid = (h[:-1].astype(np.float64) + h[1:]) / 2  # the rounding boundaries
+    y = np.concatenate([h, np.float32(mid), np.nextafter(np.float32(mid), np.float32(0)),
+                        np.nextafter(np.float32(mid), np.float32(np.inf)), np.float32(rng.random(20000) ** 8),
+                        np.float32(np.exp(rng.uniform(-30, 15, 20000))), [np.float32(1e30), np.inf, np.nan]])
+    y = np.sort(y.astype(np.float32))
+    keys = np.empty(len(y), np.int64)
+    half_keys(y, keys)
+    with np.errstate(over="ignore"):
+        f16 = y.astype(np.float16).astype(np.float64)
+    same = f16[1:] == f16[:-1]  # NaN equal to nothing
+    assert np.array_equal(keys[1:] == keys[:-1], same) and same.any() and (~same).any()
+    finite = ~np.isnan(y)
+    assert (np.diff(keys[finite]) >= 0).all()
 
 
 def _pairs_beaten(x, s, R1):

@@ -17,38 +17,54 @@ import numpy as np
 
 from .._numba import user_cache
 
-__all__ = ["beaten_by_neighbours", "best_confident_maps"]
+__all__ = ["beaten_by_neighbours", "best_confident_maps", "half_keys"]
+
+_KEY_2M14 = (127 - 14) << 10  # float32 bit pattern of 2^-14, shifted right by 13
+_INF_KEY = 1 << 40
 
 
 with user_cache() as _cache:
     _jit = numba.njit(cache=_cache, nogil=True, error_model="numpy")  # count / 0 is inf, as in the reference
 
     @_jit
-    def _half(x):  # pragma: no cover - compiled
-        """``x >= 0`` rounded to the nearest half-precision value (ties to even; inf past the largest)."""
-        if x == 0.0:
-            return 0.0
-        if x >= 65520.0:
-            return np.inf
-        if x < 2.0 ** -14:  # subnormal: fixed spacing
-            ulp = 2.0 ** -24
-        else:
-            e = math.frexp(x)[1]
-            ulp = 2.0 ** (e - 11)
-        return np.rint(x / ulp) * ulp
+    def half_keys(y, keys):  # pragma: no cover - compiled
+        """Integer keys of the float32 values ``y >= 0`` (NaN allowed), nondecreasing in ``y``: two keys are
+        equal exactly when the two values round to the same half-precision value (nearest, ties to even, inf
+        from 65520 on, as the reference's float16 cast); NaN, equal to nothing, gets a key of its own. Written
+        to ``keys`` (int64, the length of ``y``).
+
+        Normal half-precision values keep the 10 leading fraction bits of the float32 ones: the float32 bit
+        pattern rounded to nearest even at bit 13 (a carry moves to the next binade, as the rounding does);
+        below ``2^-14`` the spacing is ``2^-24``; from 65520 on every value is inf.
+        """
+        bits = y.view(np.int32)
+        for k in range(len(y)):
+            v = y[k]
+            if v != v:
+                keys[k] = -1 - k
+            elif v >= 65520.0:
+                keys[k] = _INF_KEY
+            elif v < 2.0 ** -14:
+                keys[k] = int(np.rint(np.float64(v) * 2.0 ** 24))
+            else:
+                b = np.int64(bits[k])
+                keys[k] = ((b + 0xFFF + ((b >> 13) & 1)) >> 13) - _KEY_2M14 + 1024
 
     @_jit
-    def _count(sv, w, min_conf):  # pragma: no cover - compiled
-        """Inlier count and confidence of the residuals ``sv`` sorted in increasing order (``w`` scratch)."""
+    def _count(sv, w, y, keys, min_conf):  # pragma: no cover - compiled
+        """Inlier count and confidence of the residuals ``sv`` sorted in increasing order (``w``, ``y``,
+        ``keys``: scratch of at least that length)."""
         n = len(sv)
         # Votes: runs of equal half-precision squared residuals (float32 squares, as the reference) share one;
         # exact fits have none.
+        for k in range(n):
+            y[k] = np.float32(sv[k] * sv[k])
+        half_keys(y[:n], keys)
         votes = 0.0
         i = 0
         while i < n:
-            hi = _half(np.float32(sv[i] * sv[i]))
             j = i + 1
-            while j < n and _half(np.float32(sv[j] * sv[j])) == hi:
+            while j < n and keys[j] == keys[i]:
                 j += 1
             for k in range(i, j):
                 x = sv[k]
@@ -109,6 +125,8 @@ with user_cache() as _cache:
         res = np.empty(M)
         best_res = np.empty(M)
         w = np.empty(M)
+        y = np.empty(M, np.float32)
+        keys = np.empty(M, np.int64)
         for b in range(B):
             n = ns[b]
             best_c = -1
@@ -133,7 +151,7 @@ with user_cache() as _cache:
                     continue
                 c, cf = 0, 0.0
                 if bound > 0:
-                    c, cf = _count(np.sort(res[:n]), w, min_conf)
+                    c, cf = _count(np.sort(res[:n]), w, y, keys, min_conf)
                 if c > best_c:
                     best_c = c
                     count[b], conf[b] = c, cf
