@@ -46,15 +46,20 @@ def _count_plain(res: np.ndarray, min_conf: float):
         return c, float(np.float64(c) / (votes * sv[c - 1] * sv[c - 1])), o
 
 
-def _maps_case(seed: int, B: int = 5, T: int = 24, M: int = 60):
+def _maps_case(seed: int, B: int = 5, T: int = 24, M: int = 60, grid: float = 0.0):
     """Neighbourhoods of a common affinity with noise, outliers, duplicated members and exact fits; maps
-    near the true one, unrelated ones and unusable ones."""
+    near the true one, unrelated ones and unusable ones. With ``grid``, members on a grid of that step (many
+    equal residuals and half-precision runs on both sides of the ``r^2 * min_conf <= 1`` boundary)."""
     rng = np.random.default_rng(seed)
     U = rng.uniform(-1, 1, (B, M, 2))
+    if grid:
+        U = np.round(U / grid) * grid
     truth = np.eye(2) + rng.normal(0, 0.2, (B, 1, 2, 2))
     V = np.einsum("bij,bmj->bmi", truth[:, 0], U) + rng.normal(0, 1e-3, (B, M, 2))
     out = rng.random((B, M)) < 0.4
     V[out] = rng.uniform(-1, 1, (int(out.sum()), 2))
+    if grid:
+        V = np.round(V / grid) * grid
     V[:, :4] = np.einsum("bij,bmj->bmi", truth[:, 0], U[:, :4])  # exact fits
     U[:, 10:14], V[:, 10:14] = U[:, 20:24], V[:, 20:24]  # duplicated members
     A = truth + rng.normal(0, 1e-3, (B, T, 2, 2)) * (rng.random((B, T, 1, 1)) < 0.7)
@@ -66,10 +71,11 @@ def _maps_case(seed: int, B: int = 5, T: int = 24, M: int = 60):
     return A, U, V, ns, usable, distinct
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed, size", [(s, (24, 60, 0.0)) for s in range(6)]
+                         + [(6, (40, 300, 0.0)), (7, (40, 300, 1 / 64)), (8, (40, 300, 1 / 16))])
 @pytest.mark.parametrize("min_conf", [200.0, 5.0])
-def test_best_confident_maps_match_every_map_counted(seed, min_conf):
-    A, U, V, ns, usable, distinct = _maps_case(seed)
+def test_best_confident_maps_match_every_map_counted(seed, size, min_conf):
+    A, U, V, ns, usable, distinct = _maps_case(seed, T=size[0], M=size[1], grid=size[2])
     count, conf, order, near, near_distinct = best_confident_maps(A, U, V, ns, usable, distinct, min_conf)
     B, T, M = A.shape[0], A.shape[1], U.shape[1]
     for b in range(B):

@@ -1,11 +1,17 @@
-"""Compiled (numba) kernel of AdaLAM (see :mod:`.adalam`): the confidence-based inlier count of the local maps.
+"""Compiled (numba) kernels of AdaLAM (see :mod:`.adalam`): the confidence-based inlier count of the local
+maps, and the seed test over distinct locations.
 
-The kernel evaluates the very expressions of the count it replaced (same residuals, same half-precision
-runs, same sums in the same order, no fast-math), so its decisions are bit-identical to it (tested against a
-plain implementation of the count in ``tests/test_filters_adalam_kernels.py``). It saves the work of the
-maps that cannot win: only the best map of each neighbourhood is used (the first of the largest count), and a
-map's count is at most the number of its members whose residual ``r`` is not an exact fit and satisfies
-``r^2 * min_conf <= 1``, so a map whose bound does not exceed the best count so far is not sorted nor counted.
+The count evaluates the very expressions of the one it replaced (same residuals, same half-precision runs,
+same sums in the same order, no fast-math), so its decisions are bit-identical to it (tested against a plain
+implementation of the count in ``tests/test_filters_adalam_kernels.py``). It saves the work of the maps that
+cannot win, as only the best map of each neighbourhood is used (the first of the largest count):
+
+- a map's count is at most the number of its members that are not exact fits and have ``r^2 * min_conf <=
+  1`` (a good member needs ``r^2 * min_conf`` at most the share of votes so far); a map whose bound does not
+  exceed the best count so far is skipped;
+- otherwise those members (a prefix of the sorted residuals) are sorted alone and a tighter bound is read
+  from them and the number of distinct half-precision keys among the others (:func:`_count_bound`); only a
+  map that may still win has the others sorted and is counted in full.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from .._numba import user_cache
 __all__ = ["beaten_by_neighbours", "best_confident_maps", "half_keys"]
 
 _KEY_2M14 = (127 - 14) << 10  # float32 bit pattern of 2^-14, shifted right by 13
-_INF_KEY = 1 << 40
+_INF_KEY = 31744  # one past the key of 65504, the largest finite half-precision value
 
 
 with user_cache() as _cache:
@@ -87,6 +93,76 @@ with user_cache() as _cache:
         return c, c / (votes * x * x)
 
     @_jit
+    def _split(res, min_conf, sv, y, keys, marks, stamp):  # pragma: no cover - compiled
+        """Residuals that may be counted (``r^2 * min_conf <= 1`` or exact fits: a prefix of the sorted order)
+        sorted to the front of ``sv``, the others behind them unsorted, their half-precision keys marked
+        ``stamp`` in ``marks``. Returns ``(p, runs)``: how many may be counted, and the number of distinct keys
+        among the others (the runs they form in the sorted order, each a vote; NaN each a run of its own)."""
+        n = len(res)
+        p, q = 0, n
+        for i in range(n):
+            x = res[i]
+            if x * x * min_conf <= 1.0 or x * x <= 1e-8:
+                sv[p] = x
+                p += 1
+            else:
+                q -= 1
+                sv[q] = x
+        sv[:p].sort()
+        for k in range(p, n):
+            y[k] = np.float32(sv[k] * sv[k])
+        half_keys(y[p:n], keys[p:n])
+        runs = 0
+        for k in range(p, n):
+            if keys[k] < 0:
+                runs += 1
+            elif marks[keys[k]] != stamp:
+                marks[keys[k]] = stamp
+                runs += 1
+        return p, runs
+
+    @_jit
+    def _count_bound(sv, runs, w, y, keys, marks, stamp, min_conf):  # pragma: no cover - compiled
+        """An upper bound of the count of :func:`_count` from the sorted residuals that may be counted
+        (``sv``) and the ``runs`` of the others (see :func:`_split`).
+
+        The votes are at least those of the runs of ``sv`` but its last, plus one per run of the others, plus
+        the last run's when no other residual shares its key (each run beyond ``sv`` holds no exact fit, so
+        it adds one vote; the run across the boundary adds at least nothing). Counting the last run of ``sv``
+        as ending there overstates its members' votes, hence the votes so far. Slack of ``1e-9`` covers the
+        rounding of the sums.
+        """
+        p = len(sv)
+        for k in range(p):
+            y[k] = np.float32(sv[k] * sv[k])
+        half_keys(y[:p], keys[:p])
+        head = 0.0  # votes of the runs before the last
+        last = 0.0
+        i = 0
+        while i < p:
+            j = i + 1
+            while j < p and keys[j] == keys[i]:
+                j += 1
+            head += last
+            last = 0.0
+            for k in range(i, j):
+                w[k] = 0.0 if sv[k] * sv[k] <= 1e-8 else 1.0 / (j - i)
+                last += w[k]
+            i = j
+        shared = p > 0 and marks[keys[p - 1]] == stamp
+        low = (head + (runs - 1 if shared else runs + last)) * (1.0 - 1e-9)
+        if low <= 0.0:
+            return len(w)
+        cum = 0.0
+        good = 0.0
+        for k in range(p):
+            cum += w[k]
+            x = sv[k]
+            if x * x * min_conf <= cum / low * (1.0 + 1e-9):
+                good += w[k]
+        return int(math.floor(good * (1.0 + 1e-9) + 1e-6))
+
+    @_jit
     def best_confident_maps(A, U, V, ns, usable, distinct, min_conf):  # pragma: no cover - compiled
         """The best map of every neighbourhood under the confidence-based inlier count.
 
@@ -125,8 +201,11 @@ with user_cache() as _cache:
         res = np.empty(M)
         best_res = np.empty(M)
         w = np.empty(M)
+        sv = np.empty(M)
         y = np.empty(M, np.float32)
         keys = np.empty(M, np.int64)
+        marks = np.zeros(_INF_KEY + 1, np.int64)
+        stamp = 0
         for b in range(B):
             n = ns[b]
             best_c = -1
@@ -151,7 +230,11 @@ with user_cache() as _cache:
                     continue
                 c, cf = 0, 0.0
                 if bound > 0:
-                    c, cf = _count(np.sort(res[:n]), w, y, keys, min_conf)
+                    stamp += 1
+                    p, runs = _split(res[:n], min_conf, sv, y, keys, marks, stamp)
+                    if _count_bound(sv[:p], runs, w, y, keys, marks, stamp, min_conf) > best_c:
+                        sv[p:n].sort()  # sv[:n]: the residuals sorted
+                        c, cf = _count(sv[:n], w, y, keys, min_conf)
                 if c > best_c:
                     best_c = c
                     count[b], conf[b] = c, cf
