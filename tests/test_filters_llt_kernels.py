@@ -13,8 +13,9 @@ import pytest
 from numba.core.errors import TypingError
 
 from ctxmatch_lib.filters._common import knn_without_self
-from ctxmatch_lib.filters._em_kernels import _load4, matmul_t, weighted_gram, weighted_gram_t
-from ctxmatch_lib.filters._llt_kernels import add_to_diagonal, em_residuals, local_grams
+from ctxmatch_lib.filters._em_kernels import _load4, matmul_t, solve_batched, weighted_gram, weighted_gram_t
+from ctxmatch_lib.filters._llt_kernels import em_residuals, lle_solve, offset_norms
+from ctxmatch_lib.filters.llt import lle_weights
 
 
 def _running_sum(v: np.ndarray) -> float:
@@ -81,20 +82,30 @@ def _points(n, seed):
 
 
 @pytest.mark.parametrize("n, k", [(2, 15), (40, 3), (300, 15)])
-def test_local_grams_and_regulariser_are_numpys_bits(n, k):
+def test_lle_solve_is_numpys_gram_and_solve_batched(n, k):
     x = _points(n, n)
     nb = knn_without_self(x, np.arange(n), k)
     kk = nb.shape[1]
     z = x[nb] - x[:, None, :]
-    ref = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
-    gram = local_grams(x, nb)
-    np.testing.assert_array_equal(gram, ref)
-    assert np.array_equal(np.signbit(gram), np.signbit(ref))
-    t = 1e-5 * np.maximum(np.trace(ref, axis1=1, axis2=2), 1e-12)
-    ref += t[:, None, None] * np.eye(kk)
-    add_to_diagonal(gram, t)
-    np.testing.assert_array_equal(gram, ref)
-    assert np.array_equal(np.signbit(gram), np.signbit(ref))
+    gram = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
+    trace = np.trace(gram, axis1=1, axis2=2)
+    sq = offset_norms(x, nb)
+    np.testing.assert_array_equal(sq, np.diagonal(gram, axis1=1, axis2=2))
+    np.testing.assert_array_equal(sq.sum(1), trace)  # the trace as numpy sums it
+    t = 1e-5 * np.maximum(trace, 1e-12)
+    gram += t[:, None, None] * np.eye(kk)
+    w, ok = lle_solve(x, nb, t)
+    assert ok.all()
+    np.testing.assert_array_equal(w, solve_batched(gram, np.ones((n, kk, 1)))[..., 0])
+
+
+def test_lle_solve_flags_singular_systems():
+    # Four coincident points without a regulariser: their local Gram matrices are zero. The others have one.
+    x = np.r_[np.zeros((4, 2)), [[1.0, 0.0], [0.0, 2.0], [3.0, 1.0], [2.0, 2.0]]]
+    nb = knn_without_self(x, np.arange(8), 3)
+    w, ok = lle_solve(x, nb, np.r_[np.zeros(4), np.full(4, 1e-3)])
+    assert not ok[:4].any()
+    assert ok[4:].all() and np.isfinite(w[4:]).all()
 
 
 @pytest.mark.parametrize("n", [1, 7, 1024, 1025, 5000])
@@ -110,3 +121,17 @@ def test_em_residuals_are_the_products_and_einsums_bits(n):
     r2, local = em_residuals(GT, C, target, BX)
     np.testing.assert_array_equal(r2, np.einsum("ij,ij->i", res, res))
     np.testing.assert_array_equal(local, np.einsum("ij,ij->i", loc, loc))
+
+
+def test_lle_weights_match_the_numpy_steps_with_singular_neighbourhoods():
+    # Points on a line (collinear offsets: singular 2 x 2 Gram matrices without a regulariser) and others.
+    rng = np.random.default_rng(5)
+    x = np.r_[np.c_[np.arange(6.0), np.zeros(6)], rng.normal(size=(20, 2)) * 10]
+    nb = knn_without_self(x, np.arange(len(x)), 2)
+    z = x[nb] - x[:, None, :]
+    gram = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
+    ref = solve_batched(gram, np.ones((len(x), 2, 1)))[..., 0]
+    ref /= ref.sum(1, keepdims=True)
+    assert not lle_solve(x, nb, np.zeros(len(x)))[1][:6].all()  # the fallback is exercised
+    W = lle_weights(x, 2, reg=0.0).toarray()
+    np.testing.assert_array_equal(np.take_along_axis(W, nb, 1), ref)

@@ -1,5 +1,6 @@
-"""Compiled (numba) steps of LLT that numpy ran through large temporaries: the local Gram matrices of the
-locally linear reconstruction, and the residuals of one EM iteration.
+"""Compiled (numba) steps of LLT that numpy ran through large temporaries: the locally linear reconstruction
+weights (one small Gram matrix and solve per point instead of a (K, 15, 15) stack), and the residuals of one
+EM iteration.
 
 Each kernel performs the operations of the numpy expression it replaces, element by element and in the same
 order (one IEEE multiply or add at a time, no ``fastmath``: no reassociation, no fused multiply-add), so its
@@ -16,72 +17,94 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
+from ._em_kernels import _load4, _muladd4, _solve, _store4
 
-__all__ = ["local_grams", "add_to_diagonal", "em_residuals"]
-
-#: Rows of ``[U, BU]`` per tile of :func:`em_residuals` (two 16 kB output tiles stay in the L1 cache).
-_TILE = 2048
+__all__ = ["offset_norms", "lle_solve", "em_residuals"]
 
 with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
     @_jit
-    def _local_grams(x, nb):
+    def _offset_norms(x, nb):
+        n, kk = nb.shape
+        out = np.empty((n, kk))
+        for i in range(n):
+            for a in range(kk):
+                z0 = x[nb[i, a], 0] - x[i, 0]
+                z1 = x[nb[i, a], 1] - x[i, 1]
+                out[i, a] = z0 * z0 + z1 * z1
+        return out
+
+    @_jit
+    def _lle_solve(x, nb, t):
         n, kk = nb.shape
         z = np.empty((kk, 2))
-        gram = np.empty((n, kk, kk))
+        gram = np.empty((kk, kk))
+        ones = np.ones((kk, 1))
+        w = np.empty((n, kk))
+        ok = np.empty(n, np.bool_)
         for i in range(n):
             for a in range(kk):
                 z[a, 0] = x[nb[i, a], 0] - x[i, 0]
                 z[a, 1] = x[nb[i, a], 1] - x[i, 1]
             for a in range(kk):
                 for b in range(kk):
-                    gram[i, a, b] = z[a, 0] * z[b, 0] + z[a, 1] * z[b, 1]
-        return gram
-
-    @_jit
-    def _add_to_diagonal(gram, t):
-        n, kk, _ = gram.shape
-        for i in range(n):
+                    g = z[a, 0] * z[b, 0] + z[a, 1] * z[b, 1]
+                    g += t[i] * (1.0 if a == b else 0.0)
+                    gram[a, b] = g
+            X, ok[i] = _solve(gram, ones)
             for a in range(kk):
-                for b in range(kk):
-                    gram[i, a, b] += t[i] * (1.0 if a == b else 0.0)
+                w[i, a] = X[a, 0]
+                ok[i] = ok[i] and np.isfinite(X[a, 0])
+        return w, ok
 
     @_jit
     def _em_residuals(GT, C, target, BX):
+        # Four entries of F = matmul_t(GT, C) at a time per column of C (the lanes of a Vec4: rows 2p, 2p + 1,
+        # 2p + 2, 2p + 3 of [U C, BU C], i.e. U_p C, (BU)_p C and the next point's), each summed over the m
+        # rows of GT in order from 0.0 in registers; the last two entries (odd n) in scalars.
         m, n2 = GT.shape
         r2 = np.empty(n2 // 2)
         local = np.empty(n2 // 2)
-        f0 = np.empty(_TILE)
-        f1 = np.empty(_TILE)
-        for t0 in range(0, n2, _TILE):
-            L = min(_TILE, n2 - t0)
-            f0[:L] = 0.0
-            f1[:L] = 0.0
-            for i in range(m):
-                a = GT[i, t0:t0 + L]
-                b0 = C[i, 0]
-                b1 = C[i, 1]
-                for k in range(L):
-                    f0[k] += a[k] * b0
-                    f1[k] += a[k] * b1
-            for k in range(0, L, 2):  # rows 2p (U_p C) and 2p + 1 ((BU)_p C) of point p
-                p = (t0 + k) // 2
-                r0 = target[p, 0] - f0[k]
-                r1 = target[p, 1] - f1[k]
-                l0 = BX[p, 0] + f0[k + 1]
-                l1 = BX[p, 1] + f1[k + 1]
-                r2[p] = r0 * r0 + r1 * r1
-                local[p] = l0 * l0 + l1 * l1
+        c0 = np.empty((m, 4))  # C[i, 0] and C[i, 1] in every lane
+        c1 = np.empty((m, 4))
+        for i in range(m):
+            c0[i, :] = C[i, 0]
+            c1[i, :] = C[i, 1]
+        zero = np.zeros(4)
+        f0 = np.empty(4)
+        f1 = np.empty(4)
+        for k in range(0, n2, 4):
+            if k + 4 <= n2:
+                s0 = _load4(zero, 0)
+                s1 = s0
+                for i in range(m):
+                    a = _load4(GT[i], k)
+                    s0 = _muladd4(s0, a, _load4(c0[i], 0))
+                    s1 = _muladd4(s1, a, _load4(c1[i], 0))
+                _store4(f0, 0, s0)
+                _store4(f1, 0, s1)
+            else:
+                for q in range(2):
+                    f0[q] = 0.0
+                    f1[q] = 0.0
+                    for i in range(m):
+                        f0[q] += GT[i, k + q] * C[i, 0]
+                        f1[q] += GT[i, k + q] * C[i, 1]
+            for q in range(0, min(4, n2 - k), 2):
+                p = (k + q) // 2
+                res0 = target[p, 0] - f0[q]
+                res1 = target[p, 1] - f1[q]
+                loc0 = BX[p, 0] + f0[q + 1]
+                loc1 = BX[p, 1] + f1[q + 1]
+                r2[p] = res0 * res0 + res1 * res1
+                local[p] = loc0 * loc0 + loc1 * loc1
         return r2, local
 
 
-def local_grams(x: np.ndarray, nb: np.ndarray) -> np.ndarray:
-    """Gram matrices of every point's neighbour offsets: ``gram[i, a, b] = z_ia . z_ib`` with
-    ``z_ia = x[nb[i, a]] - x[i]``, shape (n, kk, kk).
-
-    The bits of numpy's ``z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]`` without
-    its four (n, kk, kk) temporaries.
+def offset_norms(x: np.ndarray, nb: np.ndarray) -> np.ndarray:
+    """Squared lengths ``|x[nb[i, a]] - x[i]|^2`` (n, kk): the diagonals of :func:`lle_solve`'s local Gram
+    matrices, bit for bit.
 
     Parameters
     ----------
@@ -90,13 +113,37 @@ def local_grams(x: np.ndarray, nb: np.ndarray) -> np.ndarray:
     nb : ndarray of shape (n, kk), int
         Neighbour indices into ``x``.
     """
-    return _local_grams(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64))
+    return _offset_norms(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64))
 
 
-def add_to_diagonal(gram: np.ndarray, t: np.ndarray) -> None:
-    """``gram += t[:, None, None] * np.eye(kk)`` in place, as numpy does it (``t_i * 0.0`` added off the
-    diagonal too), on a C-contiguous float64 ``gram`` (n, kk, kk) and ``t`` (n,)."""
-    _add_to_diagonal(gram, np.ascontiguousarray(t, np.float64))
+def lle_solve(x: np.ndarray, nb: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unnormalised locally linear reconstruction weights: ``(G_i + t_i I)^-1 1`` for every point ``i``.
+
+    ``G_i`` is the Gram matrix of the offsets ``z_a = x[nb[i, a]] - x[i]``, formed as numpy forms
+    ``z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]``, plus ``t_i`` on its
+    diagonal as ``+= t[:, None, None] * np.eye(kk)`` adds it (``t_i * 0.0`` off the diagonal), solved by
+    :func:`ctxmatch_lib.filters._em_kernels.solve`'s elimination: the bits of those numpy steps and
+    ``solve_batched`` without a (n, kk, kk) array.
+
+    Parameters
+    ----------
+    x : ndarray of shape (n, 2)
+        The points.
+    nb : ndarray of shape (n, kk), int
+        Neighbour indices into ``x``.
+    t : ndarray of shape (n,)
+        The regulariser of each point.
+
+    Returns
+    -------
+    w : ndarray of shape (n, kk)
+        The solutions.
+    ok : ndarray of shape (n,) bool
+        False where the elimination met an exactly singular or non-finite system, or gave a non-finite
+        weight: those rows of ``w`` are to be replaced (``solve_batched`` takes LAPACK's least squares).
+    """
+    return _lle_solve(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64),
+                      np.ascontiguousarray(t, np.float64))
 
 
 def em_residuals(GT: np.ndarray, C: np.ndarray, target: np.ndarray, BX: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +152,8 @@ def em_residuals(GT: np.ndarray, C: np.ndarray, target: np.ndarray, BX: np.ndarr
     With ``F = matmul_t(GT, C).reshape(n, 2, 2)`` (:func:`ctxmatch_lib.filters._em_kernels.matmul_t`: each
     entry summed over the ``m`` rows in order), ``res = target - F[:, 0]`` and ``loc = BX + F[:, 1]``, returns
     ``r2 = einsum("ij,ij->i", res, res)`` and ``local = einsum("ij,ij->i", loc, loc)``: the same operations in
-    the same order, one pass over ``GT`` instead of one per column of ``C``, and no (n, 2) temporaries.
+    the same order, the sums over ``m`` held in SIMD registers (one pass over ``GT``, no (2n,) running sums
+    stored and reloaded per row of ``GT``) and no (n, 2) temporaries.
 
     Parameters
     ----------

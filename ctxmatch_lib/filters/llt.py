@@ -21,7 +21,7 @@ import scipy.sparse as sp
 
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
 from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
-from ._llt_kernels import add_to_diagonal, em_residuals, local_grams
+from ._llt_kernels import em_residuals, lle_solve, offset_norms
 from .vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights", "m_step"]
@@ -42,10 +42,15 @@ def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     if kk == 0:
         return sp.csr_matrix((n, n))
     # Elementwise Gram matrices of the offsets x_j - x_i and a compiled solve (no BLAS / LAPACK, whose
-    # rounding follows the CPU's kernel; issue 31).
-    gram = local_grams(x, nb)
-    add_to_diagonal(gram, reg * np.maximum(np.trace(gram, axis1=1, axis2=2), 1e-12))
-    w = solve_batched(gram, np.ones((n, kk, 1)))[..., 0]
+    # rounding follows the CPU's kernel; issue 31); the trace is numpy's sum of the diagonal, as np.trace.
+    t = reg * np.maximum(offset_norms(x, nb).sum(1), 1e-12)
+    w, ok = lle_solve(x, nb, t)
+    bad = np.flatnonzero(~ok)
+    if len(bad):  # exactly singular: LAPACK's least squares, as solve_batched answers
+        z = x[nb[bad]] - x[bad, None, :]
+        gram = z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]
+        gram += t[bad, None, None] * np.eye(kk)
+        w[bad] = solve_batched(gram, np.ones((len(bad), kk, 1)))[..., 0]
     w /= w.sum(1, keepdims=True)
     rows = np.repeat(np.arange(n), kk)
     return sp.csr_matrix((w.ravel(), (rows, nb.ravel())), shape=(n, n))
