@@ -116,7 +116,6 @@ def _muladd4(typingctx, acc, a, b):
     return _vec4(_vec4, _vec4, _vec4), codegen
 
 
-
 with user_cache() as _cache:
     _jit = partial(numba.njit, cache=_cache, nogil=True)
 
@@ -284,8 +283,8 @@ def weighted_gram(H: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def weighted_gram_t(HT: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """:func:`weighted_gram` of ``HT.T`` given ``HT`` (n, K), C-contiguous float64 (no copy)."""
-    return _weighted_gram(HT, w)
+    """:func:`weighted_gram` of ``HT.T`` given ``HT`` (n, K) (no copy when C-contiguous float64)."""
+    return _weighted_gram(_f64(HT), _f64(w))
 
 
 def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:

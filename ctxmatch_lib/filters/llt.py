@@ -149,9 +149,10 @@ def llt_filter(
     reference keeps nothing at state 1. On those two pairs the EM does not converge, and even the rounding
     of an equivalent product order moves a match.
 
-    Speed (issue 22, item 5): ``OMP_NUM_THREADS=1 CTXMATCH_DATA=... .venv/bin/python
-    benchmarks/bench_filters_real.py --pairs 3 --filters llt``: 2.29x DTM summed, 2.75x on the worst pair
-    (19 000 - 30 000 candidates); 5.1x on the largest pair before the alignment (measured in one run).
+    Speed (issues 22 and 33): ``OMP_NUM_THREADS=1 CTXMATCH_DATA=... .venv/bin/python
+    benchmarks/bench_filters_real.py --pairs 3 --repeat 2 --filters llt``: 1.46-1.54x DTM summed, 1.65-1.79x
+    on the worst pair (19 000 - 30 000 candidates), against 3.94-4.08x and 4.77-5.01x before the compiled
+    Gram, residual and reconstruction kernels (two runs of each, alternating; identical keep masks).
 
     Distance from the paper's Table 2 row (baseline, planar, no model: P 40.3, R 39.9, 49 % failures): the
     authors' code on our candidates gives 44.0 / 44.3 and keeps nothing on 3 of the 6 pairs in every row,
