@@ -278,10 +278,27 @@ def adalam_filter(
 
 
 class _Locations:
-    """The distinct image-1 locations of the matches (a candidate set holds several matches per keypoint):
-    ``tree`` (a k-d tree over them), ``inv`` (each match's location), ``by_loc`` (the matches grouped by
-    location, in index order within a location) and ``starts`` (each group's start in ``by_loc``, then its
-    end). Distances between matches are those between their locations, computed alike."""
+    """The distinct image-1 locations of the matches (a candidate set holds several matches per keypoint).
+
+    Distances between matches are those between their locations, computed alike, so that searches over the
+    locations decide as searches over the matches would, with several times fewer points and pairs.
+
+    Parameters
+    ----------
+    x : ndarray of shape (K, 2)
+        Image-1 keypoint of each match.
+
+    Attributes
+    ----------
+    tree : scipy.spatial.cKDTree
+        k-d tree over the distinct locations.
+    inv : ndarray of shape (K,), int64
+        Location of each match.
+    by_loc : ndarray of shape (K,), int64
+        The matches grouped by location, in index order within a location.
+    starts : ndarray of shape (L + 1,), int64
+        Start of each location's group in ``by_loc``, then the end.
+    """
 
     def __init__(self, x: np.ndarray):
         loc, inv = np.unique(x, axis=0, return_inverse=True)
@@ -291,8 +308,18 @@ class _Locations:
         self.starts = np.r_[0, np.cumsum(np.bincount(self.inv, minlength=len(loc)))]
 
     def members(self, lists) -> tuple[np.ndarray, np.ndarray]:
-        """Matches at the locations of each list of ``lists`` (location indices): ``(list id, match)`` per
-        member, list by list."""
+        """The matches at the locations of each list.
+
+        Parameters
+        ----------
+        lists : sequence of sequences of int
+            Location indices (e.g. from ``tree.query_ball_point``).
+
+        Returns
+        -------
+        lid, mid : ndarray of shape (P,), int64
+            For every match at a location of a list, the list's index and the match's, list by list.
+        """
         lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
         lid = np.repeat(np.arange(len(lists)), lens)
         ll = np.concatenate([np.asarray(v, np.int64) for v in lists]) if len(lists) else np.zeros(0, np.int64)
