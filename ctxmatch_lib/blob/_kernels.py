@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
+from .._simd import add_sqdiff8, lanes8, zero8
 
 __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "greedy_dense", "next_in_line", "next_in_lines",
            "first_allowed", "next_allowed"]
@@ -49,30 +50,16 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _exact_sq(A, i, B, j):
-        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8), added
-        in a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction in numba
-        without fastmath."""
+        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8, the lanes
+        of one :class:`~ctxmatch_lib._simd.Vec8`), the last d mod 8 terms added to the first, then added in
+        a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction (no fast-math)."""
         a, b = A[i], B[j]
         d = a.shape[0]
-        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
         d8 = d - d % 8
+        acc = zero8()
         for k in range(0, d8, 8):
-            t0 = np.float64(a[k]) - np.float64(b[k])
-            t1 = np.float64(a[k + 1]) - np.float64(b[k + 1])
-            t2 = np.float64(a[k + 2]) - np.float64(b[k + 2])
-            t3 = np.float64(a[k + 3]) - np.float64(b[k + 3])
-            t4 = np.float64(a[k + 4]) - np.float64(b[k + 4])
-            t5 = np.float64(a[k + 5]) - np.float64(b[k + 5])
-            t6 = np.float64(a[k + 6]) - np.float64(b[k + 6])
-            t7 = np.float64(a[k + 7]) - np.float64(b[k + 7])
-            s0 += t0 * t0
-            s1 += t1 * t1
-            s2 += t2 * t2
-            s3 += t3 * t3
-            s4 += t4 * t4
-            s5 += t5 * t5
-            s6 += t6 * t6
-            s7 += t7 * t7
+            acc = add_sqdiff8(acc, a, b, k)
+        s0, s1, s2, s3, s4, s5, s6, s7 = lanes8(acc)
         for k in range(d8, d):
             t0 = np.float64(a[k]) - np.float64(b[k])
             s0 += t0 * t0
@@ -103,42 +90,16 @@ with user_cache() as _cache:
         return out
 
     @njit(cache=_cache, nogil=True)
-    def _exact_sq_via(A, i, B, j, sq):
-        """:func:`_exact_sq`, bit for bit, with the squared differences first stored in ``sq`` (a loop LLVM
-        vectorises; numba does not vectorise the eight running sums themselves), then summed alike."""
-        a, b = A[i], B[j]
-        d = a.shape[0]
-        for k in range(d):
-            t = np.float64(a[k]) - np.float64(b[k])
-            sq[k] = t * t
-        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
-        d8 = d - d % 8
-        for k in range(0, d8, 8):
-            s0 += sq[k]
-            s1 += sq[k + 1]
-            s2 += sq[k + 2]
-            s3 += sq[k + 3]
-            s4 += sq[k + 4]
-            s5 += sq[k + 5]
-            s6 += sq[k + 6]
-            s7 += sq[k + 7]
-        for k in range(d8, d):
-            s0 += sq[k]
-        return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
-
-    @njit(cache=_cache, nogil=True)
     def _exact_block(A, i, B, js, q, out):
         """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q."""
-        sq = np.empty(A.shape[1])
         for p in range(q):
-            out[p] = np.sqrt(_exact_sq_via(A, i, B, js[p], sq))
+            out[p] = np.sqrt(_exact_sq(A, i, B, js[p]))
 
     @njit(cache=_cache, nogil=True)
     def _exact_row(A, i, B, out):
         """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
-        sq = np.empty(A.shape[1])
         for j in range(B.shape[0]):
-            out[j] = np.sqrt(_exact_sq_via(A, i, B, j, sq))
+            out[j] = np.sqrt(_exact_sq(A, i, B, j))
 
     @njit(cache=_cache, nogil=True)
     def _kth(work, cnt, k):
