@@ -1,10 +1,15 @@
-"""Numba intrinsics for the fixed-order float64 sums of the exact distances (blob matching).
+"""Numba intrinsics for fixed-order float64 sums in SIMD registers.
 
-numba leaves LLVM's SLP vectoriser off, so eight running sums written as eight scalar variables stay eight
-scalar chains. Here they are the eight lanes of one LLVM ``<8 x double>`` value (:class:`Vec8`): a lane-wise
-subtract, multiply and add is the same IEEE operation as the scalar one (no fast-math flags, so no fused
-multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where the CPU has no 512-bit
-registers, LLVM splits the value into narrower ones, lane by lane.
+numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
+they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
+blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
+Gram matrices. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
+fast-math flags, so no fused multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where
+the CPU has narrower registers, LLVM splits the value lane by lane.
+
+numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
+whose kernels use these intrinsics (``blob/_kernels.py``, ``filters/_em_kernels.py``,
+``filters/_llt_kernels.py``) or clear ``$CTXMATCH_CACHE/numba``.
 """
 
 from __future__ import annotations
@@ -14,9 +19,10 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8"]
+__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
+_V4 = ir.VectorType(ir.DoubleType(), 4)
 
 
 class Vec8(types.Type):
@@ -87,3 +93,75 @@ def lanes8(typingctx, acc):
         return out
 
     return tup(_vec8), codegen
+
+
+class Vec4(types.Type):
+    """Four float64 lanes held as one LLVM ``<4 x double>`` (a SIMD register): the accumulators of the EM
+    filters' weighted Gram matrices (``filters/_em_kernels.py``). Only :func:`load4`, :func:`store4`,
+    :func:`mul4` and :func:`muladd4` make or use one."""
+
+    def __init__(self):
+        super().__init__(name="Vec4f64")
+
+
+_vec4 = Vec4()
+
+
+@register_model(Vec4)
+class _Vec4Model(models.PrimitiveModel):
+    def __init__(self, dmm, fe_type):
+        super().__init__(dmm, fe_type, _V4)
+
+
+def _lanes_pointer(context, builder, aryty, ary, k):
+    """``<4 x double>*`` to the elements ``k .. k + 3`` of a contiguous float64 array (no bounds check)."""
+    data = context.make_array(aryty)(context, builder, ary).data
+    return builder.bitcast(builder.gep(data, [k]), _V4.as_pointer())
+
+
+def _check_lanes_array(arr):
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and arr.dtype == types.float64):
+        raise TypingError(f"expected a contiguous 1-d float64 array, got {arr}")
+
+
+@intrinsic
+def load4(typingctx, arr, k):
+    """``arr[k:k + 4]`` as a :class:`Vec4` (the caller keeps ``k + 4 <= len(arr)``)."""
+    _check_lanes_array(arr)
+
+    def codegen(context, builder, sig, args):
+        return builder.load(_lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
+
+    return _vec4(arr, types.intp), codegen
+
+
+@intrinsic
+def store4(typingctx, arr, k, v):
+    """``arr[k:k + 4] = v`` for a :class:`Vec4` ``v``."""
+    _check_lanes_array(arr)
+
+    def codegen(context, builder, sig, args):
+        builder.store(args[2], _lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
+        return context.get_dummy_value()
+
+    return types.none(arr, types.intp, _vec4), codegen
+
+
+@intrinsic
+def mul4(typingctx, a, b):
+    """``a * b`` lane by lane."""
+
+    def codegen(context, builder, sig, args):
+        return builder.fmul(args[0], args[1])
+
+    return _vec4(_vec4, _vec4), codegen
+
+
+@intrinsic
+def muladd4(typingctx, acc, a, b):
+    """``acc + a * b`` lane by lane: a multiply, then an add (no fused multiply-add, no flags)."""
+
+    def codegen(context, builder, sig, args):
+        return builder.fadd(args[0], builder.fmul(args[1], args[2]))
+
+    return _vec4(_vec4, _vec4, _vec4), codegen

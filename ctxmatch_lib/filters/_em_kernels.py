@@ -13,7 +13,7 @@ multiply-add), and the small systems are solved by Gaussian elimination with par
 lowest row): the same operations in the same order on any x86-64 CPU. The ``(K, n)`` products cost O(K n^2)
 per iteration with n about 20, a few milliseconds at K = 30 000.
 
-The four partial sums of a Gram entry are the four lanes of one 4-wide vector (:class:`Vec4`, an LLVM
+The four partial sums of a Gram entry are the four lanes of one 4-wide vector (:class:`ctxmatch_lib._simd.Vec4`, an LLVM
 ``<4 x double>`` value): a lane-wise multiply and add is the same IEEE operation as the scalar one, so the
 vector kernel gives the scalar loop's bits. With 4 x 4 entries in registers and the weighted rows formed
 in registers, a (17, 30 155) Gram matrix takes 0.4 ms instead of the scalar loop's 1.9 ms (numba leaves
@@ -28,92 +28,16 @@ from functools import partial
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.core.errors import TypingError
-from numba.extending import intrinsic, models, register_model
 
 from .._numba import user_cache
+from .._simd import load4 as _load4, mul4 as _mul4, muladd4 as _muladd4, store4 as _store4
 
 __all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched"]
 
 
-_V4 = ir.VectorType(ir.DoubleType(), 4)
 #: Rows of H per tile of a Gram matrix (a multiple of 4): the tile's 18 columns, 18 x 8 kB, stay in the L2
 #: cache while its blocks run.
 _TILE = 1024
-
-
-class Vec4(types.Type):
-    """Four float64 lanes held as one LLVM ``<4 x double>`` (a SIMD register): the accumulators of
-    :func:`_weighted_gram`. Only :func:`_load4`, :func:`_store4`, :func:`_mul4` and :func:`_muladd4` make or
-    use one."""
-
-    def __init__(self):
-        super().__init__(name="Vec4f64")
-
-
-_vec4 = Vec4()
-
-
-@register_model(Vec4)
-class _Vec4Model(models.PrimitiveModel):
-    def __init__(self, dmm, fe_type):
-        super().__init__(dmm, fe_type, _V4)
-
-
-def _lanes_pointer(context, builder, aryty, ary, k):
-    """``<4 x double>*`` to the elements ``k .. k + 3`` of a contiguous float64 array (no bounds check)."""
-    data = context.make_array(aryty)(context, builder, ary).data
-    return builder.bitcast(builder.gep(data, [k]), _V4.as_pointer())
-
-
-def _check_lanes_array(arr):
-    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and arr.dtype == types.float64):
-        raise TypingError(f"expected a contiguous 1-d float64 array, got {arr}")
-
-
-@intrinsic
-def _load4(typingctx, arr, k):
-    """``arr[k:k + 4]`` as a :class:`Vec4` (the caller keeps ``k + 4 <= len(arr)``)."""
-    _check_lanes_array(arr)
-
-    def codegen(context, builder, sig, args):
-        return builder.load(_lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
-
-    return _vec4(arr, types.intp), codegen
-
-
-@intrinsic
-def _store4(typingctx, arr, k, v):
-    """``arr[k:k + 4] = v`` for a :class:`Vec4` ``v``."""
-    _check_lanes_array(arr)
-
-    def codegen(context, builder, sig, args):
-        builder.store(args[2], _lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
-        return context.get_dummy_value()
-
-    return types.none(arr, types.intp, _vec4), codegen
-
-
-@intrinsic
-def _mul4(typingctx, a, b):
-    """``a * b`` lane by lane."""
-
-    def codegen(context, builder, sig, args):
-        return builder.fmul(args[0], args[1])
-
-    return _vec4(_vec4, _vec4), codegen
-
-
-@intrinsic
-def _muladd4(typingctx, acc, a, b):
-    """``acc + a * b`` lane by lane: a multiply, then an add (no fused multiply-add, no flags)."""
-
-    def codegen(context, builder, sig, args):
-        return builder.fadd(args[0], builder.fmul(args[1], args[2]))
-
-    return _vec4(_vec4, _vec4, _vec4), codegen
 
 
 with user_cache() as _cache:

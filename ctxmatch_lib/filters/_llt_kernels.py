@@ -6,9 +6,9 @@ Each kernel performs the operations of the numpy expression it replaces, element
 order (one IEEE multiply or add at a time, no ``fastmath``: no reassociation, no fused multiply-add), so its
 results are the same bits; the sums that numpy orders by its own rules (``np.trace``, ``ndarray.sum``) stay
 in numpy. Compiled code is cached on disk as for the other kernels (``$CTXMATCH_CACHE/numba`` unless
-``NUMBA_CACHE_DIR``). The kernels here compile in the vector intrinsics and the elimination of
-:mod:`._em_kernels`; numba's cache checks the timestamp of this file only, so an edit there needs this file
-touched (or the cache cleared) to reach these kernels.
+``NUMBA_CACHE_DIR``). The kernels here compile in the vector intrinsics of :mod:`ctxmatch_lib._simd` and the
+elimination of :mod:`._em_kernels`; numba's cache checks the timestamp of this file only, so an edit there
+needs this file touched (or the cache cleared) to reach these kernels.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import numba
 import numpy as np
 
 from .._numba import user_cache
-from ._em_kernels import _load4, _muladd4, _solve, _store4
+from .._simd import load4 as _load4, muladd4 as _muladd4, store4 as _store4
+from ._em_kernels import _solve
 
 __all__ = ["offset_norms", "lle_solve", "em_residuals"]
 
