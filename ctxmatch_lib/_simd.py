@@ -42,19 +42,26 @@ class _Vec8Model(models.PrimitiveModel):
         super().__init__(dmm, fe_type, _V8)
 
 
-def _check(arr, name):
-    ok = isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C"
-    if not (ok and arr.dtype in (types.float32, types.float64)):
-        raise TypingError(f"{name} must be a contiguous 1-d float32 or float64 array, got {arr}")
+def _check(arr, name, dtypes=(types.float32, types.float64)):
+    """Typing-time check of an array operand: contiguous, 1-d, of one of ``dtypes``."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and arr.dtype in dtypes):
+        names = " or ".join(str(t) for t in dtypes)
+        raise TypingError(f"{name} must be a contiguous 1-d {names} array, got {arr}")
+
+
+def _lanes(context, builder, aryty, ary, k, n):
+    """Pointer to the ``n`` elements ``ary[k:k + n]`` as one LLVM vector of the array's type (no bounds
+    check)."""
+    data = context.make_array(aryty)(context, builder, ary).data
+    elem = ir.FloatType() if aryty.dtype == types.float32 else ir.DoubleType()
+    return builder.bitcast(builder.gep(data, [k]), ir.VectorType(elem, n).as_pointer())
 
 
 def _load8(context, builder, aryty, ary, k):
     """``ary[k:k + 8]`` as ``<8 x double>`` (float32 lanes widened exactly)."""
-    data = context.make_array(aryty)(context, builder, ary).data
-    elem = ir.FloatType() if aryty.dtype == types.float32 else ir.DoubleType()
-    ptr = builder.bitcast(builder.gep(data, [k]), ir.VectorType(elem, 8).as_pointer())
-    vec = builder.load(ptr, align=4 if aryty.dtype == types.float32 else 8)
-    return builder.fpext(vec, _V8) if aryty.dtype == types.float32 else vec
+    single = aryty.dtype == types.float32
+    vec = builder.load(_lanes(context, builder, aryty, ary, k, 8), align=4 if single else 8)
+    return builder.fpext(vec, _V8) if single else vec
 
 
 @intrinsic
@@ -113,24 +120,13 @@ class _Vec4Model(models.PrimitiveModel):
         super().__init__(dmm, fe_type, _V4)
 
 
-def _lanes_pointer(context, builder, aryty, ary, k):
-    """``<4 x double>*`` to the elements ``k .. k + 3`` of a contiguous float64 array (no bounds check)."""
-    data = context.make_array(aryty)(context, builder, ary).data
-    return builder.bitcast(builder.gep(data, [k]), _V4.as_pointer())
-
-
-def _check_lanes_array(arr):
-    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.layout == "C" and arr.dtype == types.float64):
-        raise TypingError(f"expected a contiguous 1-d float64 array, got {arr}")
-
-
 @intrinsic
 def load4(typingctx, arr, k):
     """``arr[k:k + 4]`` as a :class:`Vec4` (the caller keeps ``k + 4 <= len(arr)``)."""
-    _check_lanes_array(arr)
+    _check(arr, "arr", (types.float64,))
 
     def codegen(context, builder, sig, args):
-        return builder.load(_lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
+        return builder.load(_lanes(context, builder, sig.args[0], args[0], args[1], 4), align=8)
 
     return _vec4(arr, types.intp), codegen
 
@@ -138,10 +134,10 @@ def load4(typingctx, arr, k):
 @intrinsic
 def store4(typingctx, arr, k, v):
     """``arr[k:k + 4] = v`` for a :class:`Vec4` ``v``."""
-    _check_lanes_array(arr)
+    _check(arr, "arr", (types.float64,))
 
     def codegen(context, builder, sig, args):
-        builder.store(args[2], _lanes_pointer(context, builder, sig.args[0], args[0], args[1]), align=8)
+        builder.store(args[2], _lanes(context, builder, sig.args[0], args[0], args[1], 4), align=8)
         return context.get_dummy_value()
 
     return types.none(arr, types.intp, _vec4), codegen

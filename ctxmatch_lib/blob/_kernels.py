@@ -67,26 +67,12 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def sq_norms(A):
-        """Squared norms of the rows of ``A`` in float64, summed like :func:`_exact_sq` (no copy of ``A``)."""
-        n, d = A.shape
-        out = np.empty(n)
-        d8 = d - d % 8
-        for i in range(n):
-            a = A[i]
-            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
-            for k in range(0, d8, 8):
-                s0 += np.float64(a[k]) * np.float64(a[k])
-                s1 += np.float64(a[k + 1]) * np.float64(a[k + 1])
-                s2 += np.float64(a[k + 2]) * np.float64(a[k + 2])
-                s3 += np.float64(a[k + 3]) * np.float64(a[k + 3])
-                s4 += np.float64(a[k + 4]) * np.float64(a[k + 4])
-                s5 += np.float64(a[k + 5]) * np.float64(a[k + 5])
-                s6 += np.float64(a[k + 6]) * np.float64(a[k + 6])
-                s7 += np.float64(a[k + 7]) * np.float64(a[k + 7])
-            for k in range(d8, d):
-                t0 = np.float64(a[k])
-                s0 += t0 * t0
-            out[i] = ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+        """Squared norms of the rows of ``A`` in float64: :func:`_exact_sq` against a zero row (``a - 0`` is
+        ``a`` exactly), so summed alike, and no copy of ``A``."""
+        zero = np.zeros((1, A.shape[1]), A.dtype)
+        out = np.empty(A.shape[0])
+        for i in range(A.shape[0]):
+            out[i] = _exact_sq(A, i, zero, 0)
         return out
 
     @njit(cache=_cache, nogil=True)

@@ -82,7 +82,8 @@ def rank_candidates(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, *, 
     With ``ratio`` in ``{"D>=", "D+>="}`` the second-best entry is restricted to values ``>= D_ij``
     (Eq. 13); FGINN (Eq. 9) skips keypoints near the matched one in the same image.
     """
-    return tuple(_side_ratio(ctx, matches, dist, side, ratio=ratio, t_o=t_o, t_o_kind=t_o_kind) for side in (0, 1))
+    return tuple(_side_ratio(ctx, matches, dist, side, ratio=ratio, t_o=t_o, t_o_kind=t_o_kind)
+                 for side in (0, 1))
 
 
 def _side_ratio(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, side: int, *, ratio: str,
@@ -229,8 +230,9 @@ def _margin(cfg: BlobConfig, dense: bool) -> int:
     D+ takes its second best among all entries of the line: the line's best or second-best entry, already in
     the list, unless FGINN excludes them (rare); two more entries save some of those look-ups. D≥ and D+≥ take
     it among entries >= D_ij, which for a match from the other image's list lies beyond this line's list
-    however long it is; a few more entries (and the greedy's walk of f = Ω) still save whole-line look-ups. Measured with ``bench_blob.py``'s
-    planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take 0.55-0.6x and 0.85-0.9x the time of 22.
+    however long it is; a few more entries (and the greedy's walk of f = Ω) still save whole-line look-ups.
+    Measured with ``bench_blob.py``'s planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take
+    0.55-0.6x and 0.85-0.9x the time of 22.
     """
     return 2 if cfg.ratio == "D+" and not dense else 8
 
