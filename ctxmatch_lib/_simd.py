@@ -3,7 +3,8 @@
 numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
-Gram matrices. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
+Gram matrices; :class:`Vec16` (16 float32 or int64 lanes) holds a sorted line of blob matching's scan in
+registers. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
 fast-math flags, so no fused multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where
 the CPU has narrower registers, LLVM splits the value lane by lane.
 
@@ -19,7 +20,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4"]
+__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
+           "store16", "count16", "shift16", "lane16"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -161,3 +163,124 @@ def muladd4(typingctx, acc, a, b):
         return builder.fadd(args[0], builder.fmul(args[1], args[2]))
 
     return _vec4(_vec4, _vec4, _vec4), codegen
+
+
+# -- Sixteen lanes: a sorted line of blob matching's scan (``blob/_kernels.py``) ---------------------------
+_F16 = ir.VectorType(ir.FloatType(), 16)
+_I16 = ir.VectorType(ir.IntType(64), 16)
+_LANE = ir.Constant(ir.VectorType(ir.IntType(64), 16), list(range(16)))
+_I64 = ir.IntType(64)
+
+
+def _splat(builder, value, vty):
+    """``value`` in every lane of a vector of type ``vty``."""
+    one = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(one, ir.Constant(vty, ir.Undefined), ir.Constant(
+        ir.VectorType(ir.IntType(32), vty.count), [0] * vty.count))
+
+
+def _mask16(builder, bits):
+    """A ``<16 x i1>`` as the low 16 bits of an int64 (bit q = lane q)."""
+    return builder.zext(builder.bitcast(bits, ir.IntType(16)), _I64)
+
+
+def _row_lanes(context, builder, aryty, ary, line, k, n):
+    """Pointer to ``ary[line, k:k + n]`` of a C-contiguous 2-d array as one LLVM vector (no bounds check)."""
+    arr = context.make_array(aryty)(context, builder, ary)
+    row = builder.mul(line, builder.extract_value(arr.shape, 1))
+    elem = context.get_value_type(aryty.dtype)
+    return builder.bitcast(builder.gep(arr.data, [builder.add(row, k)]), ir.VectorType(elem, n).as_pointer())
+
+
+class Vec16(types.Type):
+    """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
+    registers while its row is walked (values and indices). Made and used by :func:`load16`,
+    :func:`store16`, :func:`count16`, :func:`shift16` and :func:`lane16` only."""
+
+    def __init__(self, dtype):
+        self.dtype = dtype
+        super().__init__(name=f"Vec16{dtype}")
+
+
+_vec16 = {types.float32: Vec16(types.float32), types.int64: Vec16(types.int64)}
+
+
+@register_model(Vec16)
+class _Vec16Model(models.PrimitiveModel):
+    def __init__(self, dmm, fe_type):
+        super().__init__(dmm, fe_type, _F16 if fe_type.dtype == types.float32 else _I16)
+
+
+def _vec16_of(arr, name):
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype in _vec16):
+        raise TypingError(f"{name} must be a C-contiguous 2-d float32 or int64 array, got {arr}")
+    return _vec16[arr.dtype]
+
+
+@intrinsic
+def load16(typingctx, arr, line, k):
+    """``arr[line, k:k + 16]`` as a :class:`Vec16` (``k + 16 <= arr.shape[1]``)."""
+    vty = _vec16_of(arr, "arr")
+
+    def codegen(context, builder, sig, args):
+        return builder.load(_row_lanes(context, builder, sig.args[0], args[0], args[1], args[2], 16), align=4)
+
+    return vty(arr, types.intp, types.intp), codegen
+
+
+@intrinsic
+def store16(typingctx, arr, line, k, vec):
+    """``arr[line, k:k + 16] = vec``."""
+    if _vec16_of(arr, "arr") != vec:
+        raise TypingError(f"vec must be a {_vec16_of(arr, 'arr')}, got {vec}")
+
+    def codegen(context, builder, sig, args):
+        builder.store(args[3], _row_lanes(context, builder, sig.args[0], args[0], args[1], args[2], 16), align=4)
+        return context.get_dummy_value()
+
+    return types.none(arr, types.intp, types.intp, vec), codegen
+
+
+@intrinsic
+def count16(typingctx, vec, v, lim):
+    """How many lanes ``q < lim`` of a float32 :class:`Vec16` are ``<= v``."""
+    if vec != _vec16[types.float32]:
+        raise TypingError(f"vec must be a float32 Vec16, got {vec}")
+
+    def codegen(context, builder, sig, args):
+        le = builder.fcmp_ordered("<=", args[0], _splat(builder, args[1], _F16))
+        inside = builder.icmp_signed("<", _LANE, _splat(builder, args[2], _LANE.type))
+        return builder.ctpop(_mask16(builder, builder.and_(le, inside)))
+
+    return types.int64(vec, types.float32, types.intp), codegen
+
+
+@intrinsic
+def shift16(typingctx, vec, p, v):
+    """``vec`` with ``v`` in lane ``p`` (``0 <= p < 16``), lanes after it shifted right by one, the last
+    dropped."""
+    if not isinstance(vec, Vec16):
+        raise TypingError(f"vec must be a Vec16, got {vec}")
+
+    def codegen(context, builder, sig, args):
+        vty = _F16 if sig.args[0].dtype == types.float32 else _I16
+        sv = _splat(builder, args[2], vty)
+        left = ir.Constant(ir.VectorType(ir.IntType(32), 16), [16] + list(range(15)))
+        pv = _splat(builder, args[1], _LANE.type)
+        shifted = builder.select(builder.icmp_signed("==", _LANE, pv), sv,
+                                 builder.shuffle_vector(args[0], sv, left))
+        return builder.select(builder.icmp_signed("<", _LANE, pv), args[0], shifted)
+
+    return vec(vec, types.intp, vec.dtype), codegen
+
+
+@intrinsic
+def lane16(typingctx, vec, q):
+    """Lane ``q`` of a :class:`Vec16`."""
+    if not isinstance(vec, Vec16):
+        raise TypingError(f"vec must be a Vec16, got {vec}")
+
+    def codegen(context, builder, sig, args):
+        return builder.extract_element(args[0], args[1])
+
+    return vec.dtype(vec, types.intp), codegen

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
-from .._simd import add_sqdiff8, lanes8, zero8
+from .._simd import add_sqdiff8, count16, lane16, lanes8, load16, shift16, store16, zero8
 
 __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "greedy_dense", "next_in_line", "next_in_lines",
            "first_allowed", "next_allowed"]
@@ -135,17 +135,40 @@ with user_cache() as _cache:
         thr[line] = t if t < thr[line] else thr[line]
 
     @njit(cache=_cache, nogil=True)
-    def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, dense, keep):
+    def _flush(val, idx, thr, line, K, pv, pi, q, cnt):
+        """Insert the pending entries ``(pv[q, :cnt], pi[q, :cnt])`` (in arrival order) into a line of at
+        most 16 entries (arrays padded to 16 columns), held in registers meanwhile."""
+        lv, lx, lt = load16(val, line, 0), load16(idx, line, 0), thr[line]
+        for p in range(cnt):
+            v = pv[q, p]
+            if v < lt:
+                pos = count16(lv, v, K)  # < K: v is below the K-th entry
+                lv, lx = shift16(lv, pos, v), shift16(lx, pos, pi[q, p])
+                kth = lane16(lv, K - 1)
+                lt = kth if kth < lt else lt
+        store16(val, line, 0, lv)
+        store16(idx, line, 0, lx)
+        thr[line] = lt
+
+    @njit(cache=_cache, nogil=True)
+    def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep):
         """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the rows' and columns' K best.
 
         ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is flagged
-        in a vectorisable pass, then inserted into the line's K entries ``rv[i]`` / ``cv[j]`` (sorted by
-        value, +inf in empty slots; K = ``rv.shape[1]`` / ``cv.shape[1]``); a full line's threshold is
-        its K-th value, so only entries that enter the K best are inserted. With ``keep``, ``v`` is also
-        written to ``dense`` (f = Ω).
+        in a vectorisable pass, then inserted into the line's K entries ``rv[i, :Kr]`` / ``cv[j, :Kc]``
+        (sorted by value, +inf in empty slots; with ``Kr <= 16``, ``rv`` and ``ri`` have 16 columns, the
+        rest padding); a full line's threshold is its K-th value, so only entries that enter the K best are
+        inserted. With ``keep``, ``v`` is also written to ``dense`` (f = Ω).
         """
         B, C = G.shape
-        Kr, Kc = rv.shape[1], cv.shape[1]
+        reg = Kr <= 16
+        # Columns of at most 16 entries: the entries below a column's threshold wait in a bucket of P and
+        # are inserted a bucket at a time, the line in registers (a column's entries come a row apart).
+        regc = Kc <= 16
+        P = 32
+        pv = np.empty((C, P), np.float32)
+        pi = np.empty((C, P), np.int64)
+        pc = np.zeros(C, np.int64)
         buf = np.empty(C, np.float32)
         ng = (C + 63) // 64  # groups of 64 flags, read as one bit mask each
         fl = np.zeros(64 * ng, np.uint8)
@@ -202,6 +225,9 @@ with user_cache() as _cache:
                 v = buf[jj]
                 c = ctt[jj]
                 fl[jj] = np.uint8(v < (t if t > c else c))
+            # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
+            # walked: the next insertion does not wait on the last one's stores.
+            lv, lx, lt = load16(rv, i, 0), load16(ri, i, 0), t
             if keep:
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
@@ -219,10 +245,32 @@ with user_cache() as _cache:
                     jj = 64 * g + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
                     v = buf[jj]
                     j = c0 + jj
-                    if v < rthr[i]:
-                        _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
+                    if not reg:
+                        if v < rthr[i]:
+                            _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
+                    elif v < lt:
+                        pos = count16(lv, v, Kr)  # < Kr: v is below the Kr-th entry
+                        lv, lx = shift16(lv, pos, v), shift16(lx, pos, j)
+                        kth = lane16(lv, Kr - 1)
+                        lt = kth if kth < lt else lt
                     if v < cthr[j]:
-                        _insert(cv, ci, cthr, j, Kc, v, i, tv, tx)
+                        if regc:
+                            q = pc[jj]
+                            pv[jj, q] = v
+                            pi[jj, q] = i
+                            pc[jj] = q + 1
+                            if q + 1 == P:
+                                _flush(cv, ci, cthr, j, Kc, pv, pi, jj, P)
+                                pc[jj] = 0
+                        else:
+                            _insert(cv, ci, cthr, j, Kc, v, i, tv, tx)
+            if reg:
+                store16(rv, i, 0, lv)
+                store16(ri, i, 0, lx)
+                rthr[i] = lt
+        for jj in range(C):
+            if pc[jj] > 0:
+                _flush(cv, ci, cthr, c0 + jj, Kc, pv, pi, jj, pc[jj])
 
     @njit(cache=_cache, nogil=True)
     def _sort_pairs(val, idx, count):

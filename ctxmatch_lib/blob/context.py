@@ -274,8 +274,10 @@ class BlobContext:
         self._norms = (nrm1, nrm2)
         # Each line's K best so far, sorted by value; +inf marks an empty slot (no entry equals +inf: it
         # would have to be below a threshold).
-        rv, ri = np.full((n, Kr), np.inf, np.float32), np.zeros((n, Kr), np.int64)
-        cv, ci = np.full((m, Kc), np.inf, np.float32), np.zeros((m, Kc), np.int64)
+        # Lines of at most 16 entries are padded to 16: the kernel keeps them in 16-lane registers.
+        Wr, Wc = max(Kr, 16), max(Kc, 16)
+        rv, ri = np.full((n, Wr), np.inf, np.float32), np.zeros((n, Wr), np.int64)
+        cv, ci = np.full((m, Wc), np.inf, np.float32), np.zeros((m, Wc), np.int64)
         rthr, cthr = np.full(n, np.inf, np.float32), np.full(m, np.inf, np.float32)
         dense = np.empty((n, m), np.float32) if keep_dense else np.empty((1, 1), np.float32)
         R, C = self.tile
@@ -287,8 +289,8 @@ class BlobContext:
                 b = B32[c0 : c0 + C]
                 G = buf[: len(a) * len(b)].reshape(len(a), len(b))
                 np.matmul(a, b.T, out=G)
-                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, dense, keep_dense)
-        rc, cc = np.count_nonzero(rv < np.inf, axis=1), np.count_nonzero(cv < np.inf, axis=1)
+                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense)
+        rc, cc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1), np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
         if keep_dense:
             self._approx = dense
         E1 = float(nrm1.max())
