@@ -134,21 +134,52 @@ with user_cache() as _cache:
         t = a[K - 1]
         thr[line] = t if t < thr[line] else thr[line]
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _insert16(lv, lx, lt, K, v, x):
+        """:func:`_insert` on a line of at most 16 entries held in registers (values ``lv``, indices ``lx``,
+        threshold ``lt``): returns them updated."""
+        if v < lt:
+            pos = count16(lv, v, K)  # < K: v is below the K-th entry
+            lv, lx = shift16(lv, pos, v), shift16(lx, pos, x)
+            kth = lane16(lv, K - 1)
+            lt = kth if kth < lt else lt
+        return lv, lx, lt
+
     @njit(cache=_cache, nogil=True)
     def _flush(val, idx, thr, line, K, pv, pi, q, cnt):
         """Insert the pending entries ``(pv[q, :cnt], pi[q, :cnt])`` (in arrival order) into a line of at
         most 16 entries (arrays padded to 16 columns), held in registers meanwhile."""
         lv, lx, lt = load16(val, line, 0), load16(idx, line, 0), thr[line]
         for p in range(cnt):
-            v = pv[q, p]
-            if v < lt:
-                pos = count16(lv, v, K)  # < K: v is below the K-th entry
-                lv, lx = shift16(lv, pos, v), shift16(lx, pos, pi[q, p])
-                kth = lane16(lv, K - 1)
-                lt = kth if kth < lt else lt
+            lv, lx, lt = _insert16(lv, lx, lt, K, pv[q, p], pi[q, p])
         store16(val, line, 0, lv)
         store16(idx, line, 0, lx)
         thr[line] = lt
+
+    @njit(cache=_cache, nogil=True)
+    def _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc):
+        """A fresh column's threshold from its first tile (see :func:`scan_tile`): the K-th smallest of the
+        minima of 2K groups of consecutive rows, nudged up by one float32 step."""
+        B, C = G.shape
+        ngc = min(B, 2 * Kc)
+        gsz = B // ngc
+        gm = np.full((ngc, C), np.inf, np.float32)
+        for bi in range(ngc * gsz):
+            grp = gm[bi // gsz]
+            grow = G[bi]
+            a = n1[r0 + bi]
+            for jj in range(C):
+                g = grow[jj]
+                v = (a + n2[c0 + jj]) - (g + g)
+                if v < grp[jj]:
+                    grp[jj] = v
+        colw = np.empty(ngc, np.float32)
+        for jj in range(C):
+            j = c0 + jj
+            if cv[j, 0] == np.inf and cthr[j] == np.inf:
+                for q in range(ngc):
+                    colw[q] = gm[q, jj]
+                cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), np.float32(np.inf))
 
     @njit(cache=_cache, nogil=True)
     def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep):
@@ -179,26 +210,8 @@ with user_cache() as _cache:
         # (which would insert the tile's entries until K are in): the K-th smallest of the minima of 2K
         # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
         # and it costs one vectorised pass plus a selection among 2K values.
-        ngc = min(B, 2 * Kc)
         if B >= Kc and cv[c0, 0] == np.inf and cthr[c0] == np.inf:
-            gsz = B // ngc
-            gm = np.full((ngc, C), np.inf, np.float32)
-            for bi in range(ngc * gsz):
-                grp = gm[bi // gsz]
-                grow = G[bi]
-                a = n1[r0 + bi]
-                for jj in range(C):
-                    g = grow[jj]
-                    v = (a + n2[c0 + jj]) - (g + g)
-                    if v < grp[jj]:
-                        grp[jj] = v
-            colw = np.empty(ngc, np.float32)
-            for jj in range(C):
-                j = c0 + jj
-                if cv[j, 0] == np.inf and cthr[j] == np.inf:
-                    for q in range(ngc):
-                        colw[q] = gm[q, jj]
-                    cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), up)
+            _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc)
         ngr = min(C, 2 * Kr)
         roww = np.empty(ngr, np.float32)
         n2t = n2[c0 : c0 + C]  # views: plain jj indices let LLVM vectorise the pass below
@@ -248,11 +261,8 @@ with user_cache() as _cache:
                     if not reg:
                         if v < rthr[i]:
                             _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
-                    elif v < lt:
-                        pos = count16(lv, v, Kr)  # < Kr: v is below the Kr-th entry
-                        lv, lx = shift16(lv, pos, v), shift16(lx, pos, j)
-                        kth = lane16(lv, Kr - 1)
-                        lt = kth if kth < lt else lt
+                    else:
+                        lv, lx, lt = _insert16(lv, lx, lt, Kr, v, j)
                     if v < cthr[j]:
                         if regc:
                             q = pc[jj]
