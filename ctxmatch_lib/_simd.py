@@ -21,7 +21,7 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "shift16", "lane16"]
+           "store16", "count16", "below16", "shift16", "lane16"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -195,7 +195,7 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 class Vec16(types.Type):
     """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
     registers while its row is walked (values and indices). Made and used by :func:`load16`,
-    :func:`store16`, :func:`count16`, :func:`shift16` and :func:`lane16` only."""
+    :func:`store16`, :func:`count16`, :func:`below16`, :func:`shift16` and :func:`lane16` only."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -241,18 +241,28 @@ def store16(typingctx, arr, line, k, vec):
     return types.none(arr, types.intp, types.intp, vec), codegen
 
 
-@intrinsic
-def count16(typingctx, vec, v, lim):
-    """How many lanes ``q < lim`` of a float32 :class:`Vec16` are ``<= v``."""
+def _count16(vec, v, lim, op):
     if vec != _vec16[types.float32]:
         raise TypingError(f"vec must be a float32 Vec16, got {vec}")
 
     def codegen(context, builder, sig, args):
-        le = builder.fcmp_ordered("<=", args[0], _splat(builder, args[1], _F16))
+        hit = builder.fcmp_ordered(op, args[0], _splat(builder, args[1], _F16))
         inside = builder.icmp_signed("<", _LANE, _splat(builder, args[2], _LANE.type))
-        return builder.ctpop(_mask16(builder, builder.and_(le, inside)))
+        return builder.ctpop(_mask16(builder, builder.and_(hit, inside)))
 
     return types.int64(vec, types.float32, types.intp), codegen
+
+
+@intrinsic
+def count16(typingctx, vec, v, lim):
+    """How many lanes ``q < lim`` of a float32 :class:`Vec16` are ``<= v``."""
+    return _count16(vec, v, lim, "<=")
+
+
+@intrinsic
+def below16(typingctx, vec, v, lim):
+    """How many lanes ``q < lim`` of a float32 :class:`Vec16` are ``< v``."""
+    return _count16(vec, v, lim, "<")
 
 
 @intrinsic

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
-from .._simd import add_sqdiff8, count16, lane16, lanes8, load16, shift16, store16, zero8
+from .._simd import add_sqdiff8, below16, count16, lane16, lanes8, load16, shift16, store16, zero8
 
 __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "greedy_dense", "next_in_line", "next_in_lines",
            "first_allowed", "next_allowed"]
@@ -134,16 +134,30 @@ with user_cache() as _cache:
         t = a[K - 1]
         thr[line] = t if t < thr[line] else thr[line]
 
+    @njit(cache=_cache, nogil=True)
+    def _kth_of(work, cnt, K):
+        """The K-th smallest (1-based) of ``work[0, :cnt]`` (a (1, 32) float32 array). For ``K <= 16``
+        (``cnt <= 32``) by ranks: the entry with fewer than K entries below it and at least K at or
+        below it, counted in two 16-lane registers without a branch on the data; else :func:`_kth`."""
+        if K > 16:
+            return _kth(work[0], cnt, K - 1)
+        lo, hi = load16(work, 0, 0), load16(work, 0, 16)
+        out = np.float32(np.inf)
+        for p in range(cnt):
+            v = work[0, p]
+            below = below16(lo, v, cnt) + below16(hi, v, cnt - 16)
+            upto = count16(lo, v, cnt) + count16(hi, v, cnt - 16)
+            out = v if (below < K) & (upto >= K) else out
+        return out
+
     @njit(cache=_cache, nogil=True, inline="always")
     def _insert16(lv, lx, lt, K, v, x):
         """:func:`_insert` on a line of at most 16 entries held in registers (values ``lv``, indices ``lx``,
         threshold ``lt``): returns them updated."""
-        if v < lt:
-            pos = count16(lv, v, K)  # < K: v is below the K-th entry
-            lv, lx = shift16(lv, pos, v), shift16(lx, pos, x)
-            kth = lane16(lv, K - 1)
-            lt = kth if kth < lt else lt
-        return lv, lx, lt
+        pos = count16(lv, v, K) if v < lt else 16  # < K when v is below the threshold; 16: no change
+        lv, lx = shift16(lv, pos, v), shift16(lx, pos, x)
+        kth = lane16(lv, K - 1)
+        return lv, lx, kth if kth < lt else lt
 
     @njit(cache=_cache, nogil=True)
     def _flush(val, idx, thr, line, K, pv, pi, q, cnt):
@@ -164,22 +178,22 @@ with user_cache() as _cache:
         ngc = min(B, 2 * Kc)
         gsz = B // ngc
         gm = np.full((ngc, C), np.inf, np.float32)
+        n2t = n2[c0 : c0 + C]
         for bi in range(ngc * gsz):
             grp = gm[bi // gsz]
             grow = G[bi]
             a = n1[r0 + bi]
             for jj in range(C):
                 g = grow[jj]
-                v = (a + n2[c0 + jj]) - (g + g)
-                if v < grp[jj]:
-                    grp[jj] = v
-        colw = np.empty(ngc, np.float32)
+                v = (a + n2t[jj]) - (g + g)
+                grp[jj] = v if v < grp[jj] else grp[jj]
+        colw = np.full((1, max(32, ngc)), np.inf, np.float32)
         for jj in range(C):
             j = c0 + jj
             if cv[j, 0] == np.inf and cthr[j] == np.inf:
                 for q in range(ngc):
-                    colw[q] = gm[q, jj]
-                cthr[j] = np.nextafter(_kth(colw, ngc, Kc - 1), np.float32(np.inf))
+                    colw[0, q] = gm[q, jj]
+                cthr[j] = np.nextafter(_kth_of(colw, ngc, Kc), np.float32(np.inf))
 
     @njit(cache=_cache, nogil=True)
     def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep):
@@ -213,7 +227,7 @@ with user_cache() as _cache:
         if B >= Kc and cv[c0, 0] == np.inf and cthr[c0] == np.inf:
             _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc)
         ngr = min(C, 2 * Kr)
-        roww = np.empty(ngr, np.float32)
+        roww = np.full((1, max(32, ngr)), np.inf, np.float32)
         n2t = n2[c0 : c0 + C]  # views: plain jj indices let LLVM vectorise the pass below
         ctt = cthr[c0 : c0 + C]
         for bi in range(B):
@@ -225,14 +239,14 @@ with user_cache() as _cache:
                 g = grow[jj]
                 buf[jj] = (a + n2t[jj]) - (g + g)
             if rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr:
+                rw = roww[0]
                 for q in range(ngr):
-                    roww[q] = buf[q]
+                    rw[q] = buf[q]
                 for q0 in range(ngr, C - ngr + 1, ngr):  # strided groups {q, q + 2K, q + 4K, ...}
                     for q in range(ngr):
                         v = buf[q0 + q]
-                        if v < roww[q]:
-                            roww[q] = v
-                rthr[i] = np.nextafter(_kth(roww, ngr, Kr - 1), up)
+                        rw[q] = v if v < rw[q] else rw[q]
+                rthr[i] = np.nextafter(_kth_of(roww, ngr, Kr), up)
             t = rthr[i]
             for jj in range(C):
                 v = buf[jj]
@@ -263,17 +277,17 @@ with user_cache() as _cache:
                             _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
                     else:
                         lv, lx, lt = _insert16(lv, lx, lt, Kr, v, j)
-                    if v < cthr[j]:
-                        if regc:
-                            q = pc[jj]
-                            pv[jj, q] = v
-                            pi[jj, q] = i
-                            pc[jj] = q + 1
-                            if q + 1 == P:
-                                _flush(cv, ci, cthr, j, Kc, pv, pi, jj, P)
-                                pc[jj] = 0
-                        else:
-                            _insert(cv, ci, cthr, j, Kc, v, i, tv, tx)
+                    if regc:  # no branch on the data: written, and kept if below the threshold
+                        q = pc[jj]
+                        pv[jj, q] = v
+                        pi[jj, q] = i
+                        q += v < cthr[j]
+                        pc[jj] = q
+                        if q == P:
+                            _flush(cv, ci, cthr, j, Kc, pv, pi, jj, P)
+                            pc[jj] = 0
+                    elif v < cthr[j]:
+                        _insert(cv, ci, cthr, j, Kc, v, i, tv, tx)
             if reg:
                 store16(rv, i, 0, lv)
                 store16(ri, i, 0, lx)
