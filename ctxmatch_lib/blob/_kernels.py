@@ -234,11 +234,20 @@ with user_cache() as _cache:
             i = r0 + bi
             a = n1[i]
             grow = G[bi]
-            # Vectorisable pass: values and a flag per entry.
-            for jj in range(C):
-                g = grow[jj]
-                buf[jj] = (a + n2t[jj]) - (g + g)
-            if rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr:
+            # Vectorisable passes: values and a flag per entry (one pass once the row has a threshold).
+            fresh = rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr
+            if not fresh:
+                t = rthr[i]
+                for jj in range(C):
+                    g = grow[jj]
+                    v = (a + n2t[jj]) - (g + g)
+                    buf[jj] = v
+                    c = ctt[jj]
+                    fl[jj] = np.uint8(v < (t if t > c else c))
+            else:
+                for jj in range(C):
+                    g = grow[jj]
+                    buf[jj] = (a + n2t[jj]) - (g + g)
                 rw = roww[0]
                 for q in range(ngr):
                     rw[q] = buf[q]
@@ -247,11 +256,11 @@ with user_cache() as _cache:
                         v = buf[q0 + q]
                         rw[q] = v if v < rw[q] else rw[q]
                 rthr[i] = np.nextafter(_kth_of(roww, ngr, Kr), up)
-            t = rthr[i]
-            for jj in range(C):
-                v = buf[jj]
-                c = ctt[jj]
-                fl[jj] = np.uint8(v < (t if t > c else c))
+                t = rthr[i]
+                for jj in range(C):
+                    v = buf[jj]
+                    c = ctt[jj]
+                    fl[jj] = np.uint8(v < (t if t > c else c))
             # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
             # walked: the next insertion does not wait on the last one's stores.
             lv, lx, lt = load16(rv, i, 0), load16(ri, i, 0), t

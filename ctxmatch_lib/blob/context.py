@@ -16,8 +16,8 @@ import heapq
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from .._blas import one_blas_thread
 from . import _kernels, _select_kernels
 from .overlap import ellipse_overlap_error
 
@@ -185,7 +185,7 @@ class BlobContext:
         self.depth = int(depth)
         # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count, and the candidates and
         # scores must not (the same tables on any machine setting).
-        with threadpool_limits(1):
+        with one_blas_thread():
             if self._exact:
                 self._scan_exact(bool(keep_dense))
             else:
@@ -321,7 +321,7 @@ class BlobContext:
             return self._approx[which]
         # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
         own, other = self._X32[side], self._X32[1 - side]
-        with threadpool_limits(1):
+        with one_blas_thread():
             g = own[which] @ other.T
         g *= np.float32(-2)
         g += self._norms[side][which].astype(np.float32)[:, None]
@@ -339,7 +339,7 @@ class BlobContext:
 
     def _ensure_dense(self) -> np.ndarray:
         if self._dense is None:
-            with threadpool_limits(1):
+            with one_blas_thread():
                 self._dense = self._dense_matrix()
         return self._dense
 
@@ -360,7 +360,7 @@ class BlobContext:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
         elif self._metric is not None:
             # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
-            with threadpool_limits(1):
+            with one_blas_thread():
                 raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
         else:  # the L2 path proposes with float32 rows (_approx_lines) and decides on exact distances
             raise RuntimeError("BlobContext._lines serves precomputed distances and distance hooks only")
