@@ -21,7 +21,7 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "below16", "shift16", "lane16"]
+           "store16", "count16", "below16", "shift16", "insert16", "lane16"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -195,7 +195,8 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 class Vec16(types.Type):
     """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
     registers while its row is walked (values and indices). Made and used by :func:`load16`,
-    :func:`store16`, :func:`count16`, :func:`below16`, :func:`shift16` and :func:`lane16` only."""
+    :func:`store16`, :func:`count16`, :func:`below16`, :func:`shift16`, :func:`insert16` and :func:`lane16`
+    only."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -282,6 +283,31 @@ def shift16(typingctx, vec, p, v):
         return builder.select(builder.icmp_signed("<", _LANE, pv), args[0], shifted)
 
     return vec(vec, types.intp, vec.dtype), codegen
+
+
+@intrinsic
+def insert16(typingctx, vals, idxs, v, x):
+    """Insert ``(v, x)`` into a line sorted by value, held as a float32 :class:`Vec16` of values and an
+    int64 one of indices: lane q keeps its entry when it is ``<= v`` (so ``v`` goes after equal values),
+    takes ``(v, x)`` when its left neighbour is ``<= v`` (or q = 0) and it is not, and its left neighbour's
+    entry otherwise; the last lane drops out. A ``v`` at or above the q-th value leaves lanes 0..q as they
+    were. Returns the two vectors; no lane's result depends on the lanes to its right."""
+    if vals != _vec16[types.float32] or idxs != _vec16[types.int64]:
+        raise TypingError(f"vals / idxs must be float32 / int64 Vec16, got {vals} / {idxs}")
+
+    def codegen(context, builder, sig, args):
+        left = ir.Constant(ir.VectorType(ir.IntType(32), 16), [16] + list(range(15)))
+        lv, lx = args[0], args[1]
+        sv, sx = _splat(builder, args[2], _F16), _splat(builder, args[3], _I16)
+        prev_v = builder.shuffle_vector(lv, ir.Constant(_F16, [float("-inf")] * 16), left)
+        prev_x = builder.shuffle_vector(lx, sx, left)
+        keep = builder.fcmp_ordered("<=", lv, sv)
+        here = builder.fcmp_ordered("<=", prev_v, sv)
+        out_v = builder.select(keep, lv, builder.select(here, sv, prev_v))
+        out_x = builder.select(keep, lx, builder.select(here, sx, prev_x))
+        return context.make_tuple(builder, sig.return_type, [out_v, out_x])
+
+    return types.Tuple((vals, idxs))(vals, idxs, types.float32, types.int64), codegen
 
 
 @intrinsic

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
-from .._simd import add_sqdiff8, below16, count16, lane16, lanes8, load16, shift16, store16, zero8
+from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, store16, zero8
 
 __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "greedy_dense", "next_in_line", "next_in_lines",
            "first_allowed", "next_allowed"]
@@ -150,25 +150,17 @@ with user_cache() as _cache:
             out = v if (below < K) & (upto >= K) else out
         return out
 
-    @njit(cache=_cache, nogil=True, inline="always")
-    def _insert16(lv, lx, lt, K, v, x):
-        """:func:`_insert` on a line of at most 16 entries held in registers (values ``lv``, indices ``lx``,
-        threshold ``lt``): returns them updated."""
-        pos = count16(lv, v, K) if v < lt else 16  # < K when v is below the threshold; 16: no change
-        lv, lx = shift16(lv, pos, v), shift16(lx, pos, x)
-        kth = lane16(lv, K - 1)
-        return lv, lx, kth if kth < lt else lt
-
     @njit(cache=_cache, nogil=True)
     def _flush(val, idx, thr, line, K, pv, pi, q, cnt):
         """Insert the pending entries ``(pv[q, :cnt], pi[q, :cnt])`` (in arrival order) into a line of at
         most 16 entries (arrays padded to 16 columns), held in registers meanwhile."""
-        lv, lx, lt = load16(val, line, 0), load16(idx, line, 0), thr[line]
+        lv, lx = load16(val, line, 0), load16(idx, line, 0)
         for p in range(cnt):
-            lv, lx, lt = _insert16(lv, lx, lt, K, pv[q, p], pi[q, p])
+            lv, lx = insert16(lv, lx, pv[q, p], pi[q, p])
         store16(val, line, 0, lv)
         store16(idx, line, 0, lx)
-        thr[line] = lt
+        kth = lane16(lv, K - 1)
+        thr[line] = kth if kth < thr[line] else thr[line]
 
     @njit(cache=_cache, nogil=True)
     def _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc):
@@ -263,7 +255,7 @@ with user_cache() as _cache:
                     fl[jj] = np.uint8(v < (t if t > c else c))
             # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
             # walked: the next insertion does not wait on the last one's stores.
-            lv, lx, lt = load16(rv, i, 0), load16(ri, i, 0), t
+            lv, lx = load16(rv, i, 0), load16(ri, i, 0)
             if keep:
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
@@ -285,7 +277,7 @@ with user_cache() as _cache:
                         if v < rthr[i]:
                             _insert(rv, ri, rthr, i, Kr, v, j, tv, tx)
                     else:
-                        lv, lx, lt = _insert16(lv, lx, lt, Kr, v, j)
+                        lv, lx = insert16(lv, lx, v, j)
                     if regc:  # no branch on the data: written, and kept if below the threshold
                         q = pc[jj]
                         pv[jj, q] = v
@@ -300,7 +292,8 @@ with user_cache() as _cache:
             if reg:
                 store16(rv, i, 0, lv)
                 store16(ri, i, 0, lx)
-                rthr[i] = lt
+                kth = lane16(lv, Kr - 1)
+                rthr[i] = kth if kth < t else t
         for jj in range(C):
             if pc[jj] > 0:
                 _flush(cv, ci, cthr, c0 + jj, Kc, pv, pi, jj, pc[jj])
