@@ -206,7 +206,6 @@ with user_cache() as _cache:
         pv = np.empty((C, P), np.float32)
         pi = np.empty((C, P), np.int64)
         pc = np.zeros(C, np.int64)
-        buf = np.empty(C, np.float32)
         ng = (C + 63) // 64  # groups of 64 flags, read as one bit mask each
         fl = np.zeros(64 * ng, np.uint8)
         words = fl.view(np.uint64)
@@ -226,40 +225,32 @@ with user_cache() as _cache:
             i = r0 + bi
             a = n1[i]
             grow = G[bi]
-            # Vectorisable passes: values and a flag per entry (one pass once the row has a threshold).
-            fresh = rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr
-            if not fresh:
-                t = rthr[i]
-                for jj in range(C):
-                    g = grow[jj]
-                    v = (a + n2t[jj]) - (g + g)
-                    buf[jj] = v
-                    c = ctt[jj]
-                    fl[jj] = np.uint8(v < (t if t > c else c))
-            else:
-                for jj in range(C):
-                    g = grow[jj]
-                    buf[jj] = (a + n2t[jj]) - (g + g)
+            if rv[i, 0] == np.inf and rthr[i] == np.inf and C >= Kr:  # a fresh row
                 rw = roww[0]
                 for q in range(ngr):
-                    rw[q] = buf[q]
+                    g = grow[q]
+                    rw[q] = (a + n2t[q]) - (g + g)
                 for q0 in range(ngr, C - ngr + 1, ngr):  # strided groups {q, q + 2K, q + 4K, ...}
                     for q in range(ngr):
-                        v = buf[q0 + q]
+                        g = grow[q0 + q]
+                        v = (a + n2t[q0 + q]) - (g + g)
                         rw[q] = v if v < rw[q] else rw[q]
                 rthr[i] = np.nextafter(_kth_of(roww, ngr, Kr), up)
-                t = rthr[i]
-                for jj in range(C):
-                    v = buf[jj]
-                    c = ctt[jj]
-                    fl[jj] = np.uint8(v < (t if t > c else c))
+            # Vectorisable pass: a flag per entry (the values are recomputed where needed, not stored).
+            t = rthr[i]
+            for jj in range(C):
+                g = grow[jj]
+                v = (a + n2t[jj]) - (g + g)
+                c = ctt[jj]
+                fl[jj] = np.uint8(v < (t if t > c else c))
             # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
             # walked: the next insertion does not wait on the last one's stores.
             lv, lx = load16(rv, i, 0), load16(ri, i, 0)
             if keep:
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
-                    drow[jj] = buf[jj]
+                    g = grow[jj]
+                    drow[jj] = (a + n2t[jj]) - (g + g)
             # The flagged entries in order, without a branch per entry: eight flag bytes (0 / 1) gather
             # into eight bits by one multiplication, a group's 64 into a mask; its set bits are then
             # taken lowest first (de Bruijn index of the lowest bit).
@@ -271,7 +262,8 @@ with user_cache() as _cache:
                     low = mask & (~mask + np.uint64(1))
                     mask ^= low
                     jj = 64 * g + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
-                    v = buf[jj]
+                    gv = grow[jj]
+                    v = (a + n2t[jj]) - (gv + gv)
                     j = c0 + jj
                     if not reg:
                         if v < rthr[i]:
