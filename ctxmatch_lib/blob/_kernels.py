@@ -578,15 +578,30 @@ with user_cache() as _cache:
         return out, found
 
     @njit(cache=_cache, nogil=True)
-    def next_allowed(idx, val, anchors, others, dist, geq, pos):
-        """Per anchor line, the first position ``>= pos[r]`` of its sorted list that is not the match itself
-        and not below ``dist`` (``geq``); the list length when none is (FGINN by overlap checks the rest)."""
+    def next_allowed(idx, val, anchors, others, dist, geq, pos, pts, radius, far_ok):
+        """Per anchor line, the first position ``>= pos[r]`` of its sorted list that is not the match
+        itself, not below ``dist`` (``geq``) and, for FGINN by overlap, either near the matched keypoint
+        ``others[r]`` (bounding circles of radius ``radius`` intersecting: its overlap error is to be
+        computed) or far from it and ``far_ok`` (overlap error exactly 1, above ``t_o``; far entries are
+        skipped when not ``far_ok``). Returns the positions (the list length when none) and whether each
+        is far (decided) rather than near (to be checked)."""
         L = idx.shape[1]
         out = np.empty(len(anchors), np.int64)
+        far = np.zeros(len(anchors), np.bool_)
         for r in range(len(anchors)):
             a, o = anchors[r], others[r]
             q = pos[r]
-            while q < L and (idx[a, q] == o or (geq and val[a, q] < dist[r])):
+            while q < L:
+                k = idx[a, q]
+                if k != o and not (geq and val[a, q] < dist[r]):
+                    dx = pts[k, 0] - pts[o, 0]
+                    dy = pts[k, 1] - pts[o, 1]
+                    rr = radius[k] + radius[o]
+                    if dx * dx + dy * dy < rr * rr:
+                        break
+                    if far_ok:
+                        far[r] = True
+                        break
                 q += 1
             out[r] = q
-        return out
+        return out, far

@@ -19,7 +19,7 @@ import numpy as np
 
 from .._blas import one_blas_thread
 from . import _kernels, _select_kernels
-from .overlap import ellipse_overlap_error
+from .overlap import _largest_singular_value, ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
 
@@ -146,6 +146,7 @@ class BlobContext:
                 raise ValueError(f"margin must be a non-negative integer, got {margin!r}")
             self.margin = int(margin)
         self.shapes = (shapes1, shapes2)
+        self._radii = [None, None]
         self.max_dense_bytes = int(max_dense_bytes)
         self._metric = None
         if distances is not None:
@@ -249,11 +250,12 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
-    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's
+    #: GEMM tile (rows x columns), 3 MiB of float32. A column's threshold starts from its first tile's
     #: rows and a row's from its first tile's columns; the insertions after that grow with the log of the
-    #: lines' length over the tile's, so a taller tile saves column insertions: 1024 x 512 takes
-    #: 0.93-0.95x the time of 256 x 1024 (bench_blob's planted sets at 5000 and 8000, paper-best).
-    tile = (1024, 512)
+    #: lines' length over the tile's. Whole blob calls, paper-best, bench_blob's planted sets at 5000 /
+    #: 8000, 7 alternating rounds: 1024 x 768 takes 1.51x / 1.39x the GEMM, 1024 x 512 1.60x / 1.46x,
+    #: 2048 x 512 1.52x / 1.40x, 1536 x 512 1.54x / 1.42x (``benchmarks/bench_blob.py --tiles``).
+    tile = (1024, 768)
     #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
     #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
     slack = 4
@@ -563,17 +565,22 @@ class BlobContext:
         ``-1`` when none is.
 
         The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
-        candidates before it need their overlap error (one vectorised call per round), not the whole list.
+        candidates before it need their overlap error, not the whole list. Of those, a candidate whose
+        bounding circle misses the match's has overlap error exactly 1 (as :func:`ellipse_overlap_error`
+        and the tabulated errors give it), decided in the kernel; the others are computed by
+        :meth:`overlap_errors`, one vectorised call per round.
         """
         K, L = len(anchors), lists.idx.shape[1]
         first = np.full(K, -1, np.int64)
         pos = np.zeros(K, np.int64)
         active = np.arange(K)
+        pts, radius = np.asarray(self.kpts[img], np.float64), self._radius(img)
         while len(active):
-            nxt = _kernels.next_allowed(lists.idx, lists.val, anchors[active], others[active], dist[active], geq,
-                                        pos[active])
-            has = nxt < L
-            active, nxt = active[has], nxt[has]
+            nxt, far = _kernels.next_allowed(lists.idx, lists.val, anchors[active], others[active], dist[active],
+                                             geq, pos[active], pts, radius, 1.0 > t_o)
+            first[active[far]] = nxt[far]  # bounding circles apart: overlap error 1 (as computed below)
+            near = ~far & (nxt < L)
+            active, nxt = active[near], nxt[near]
             if not len(active):
                 break
             cand = lists.idx[anchors[active], nxt]
@@ -583,6 +590,12 @@ class BlobContext:
             pos[active[~keep]] = nxt[~keep] + 1
             active = active[~keep]
         return first
+
+    def _radius(self, img: int) -> np.ndarray:
+        """Bounding radius of every patch of image ``img + 1`` (as :func:`ellipse_overlap_error` takes it)."""
+        if self._radii[img] is None:
+            self._radii[img] = _largest_singular_value(np.asarray(self.shapes[img], np.float64).reshape(-1, 2, 2))
+        return self._radii[img]
 
     def overlap_errors(self, img: int, other: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img``.
