@@ -250,12 +250,12 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
-    #: GEMM tile (rows x columns), 3 MiB of float32. A column's threshold starts from its first tile's
+    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's
     #: rows and a row's from its first tile's columns; the insertions after that grow with the log of the
-    #: lines' length over the tile's. Whole blob calls, paper-best, bench_blob's planted sets at 5000 /
-    #: 8000, 7 alternating rounds: 1024 x 768 takes 1.51x / 1.39x the GEMM, 1024 x 512 1.60x / 1.46x,
-    #: 2048 x 512 1.52x / 1.40x, 1536 x 512 1.54x / 1.42x (``benchmarks/bench_blob.py --tiles``).
-    tile = (1024, 768)
+    #: lines' length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within
+    #: 2 % (whole paper-best calls at 5000 and 8000, the shapes' order rotated between rounds: the first
+    #: call after the GEMM pays about 3 ms more, whichever shape it is).
+    tile = (1024, 512)
     #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
     #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
     slack = 4
