@@ -21,7 +21,7 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "below16", "shift16", "insert16", "lane16"]
+           "store16", "count16", "below16", "insert16", "lane16"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -195,8 +195,7 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 class Vec16(types.Type):
     """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
     registers while its row is walked (values and indices). Made and used by :func:`load16`,
-    :func:`store16`, :func:`count16`, :func:`below16`, :func:`shift16`, :func:`insert16` and :func:`lane16`
-    only."""
+    :func:`store16`, :func:`count16`, :func:`below16`, :func:`insert16` and :func:`lane16` only."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -264,25 +263,6 @@ def count16(typingctx, vec, v, lim):
 def below16(typingctx, vec, v, lim):
     """How many lanes ``q < lim`` of a float32 :class:`Vec16` are ``< v``."""
     return _count16(vec, v, lim, "<")
-
-
-@intrinsic
-def shift16(typingctx, vec, p, v):
-    """``vec`` with ``v`` in lane ``p`` (``0 <= p < 16``), lanes after it shifted right by one, the last
-    dropped."""
-    if not isinstance(vec, Vec16):
-        raise TypingError(f"vec must be a Vec16, got {vec}")
-
-    def codegen(context, builder, sig, args):
-        vty = _F16 if sig.args[0].dtype == types.float32 else _I16
-        sv = _splat(builder, args[2], vty)
-        left = ir.Constant(ir.VectorType(ir.IntType(32), 16), [16] + list(range(15)))
-        pv = _splat(builder, args[1], _LANE.type)
-        shifted = builder.select(builder.icmp_signed("==", _LANE, pv), sv,
-                                 builder.shuffle_vector(args[0], sv, left))
-        return builder.select(builder.icmp_signed("<", _LANE, pv), args[0], shifted)
-
-    return vec(vec, types.intp, vec.dtype), codegen
 
 
 @intrinsic

@@ -193,9 +193,16 @@ with user_cache() as _cache:
 
         ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is flagged
         in a vectorisable pass, then inserted into the line's K entries ``rv[i, :Kr]`` / ``cv[j, :Kc]``
-        (sorted by value, +inf in empty slots; with ``Kr <= 16``, ``rv`` and ``ri`` have 16 columns, the
-        rest padding); a full line's threshold is its K-th value, so only entries that enter the K best are
-        inserted. With ``keep``, ``v`` is also written to ``dense`` (f = Ω).
+        (sorted by value, +inf in empty slots); a full line's threshold is its K-th value, so only entries
+        that can enter the K best are flagged. With ``keep``, ``v`` is also written to ``dense`` (f = Ω).
+
+        A line of at most 16 entries (its arrays padded to 16 columns) is updated in 16-lane registers by
+        :func:`~ctxmatch_lib._simd.insert16`: a row while its flagged entries are walked, a column a bucket
+        of up to ``P`` pending entries at a time. Every flagged (pending) entry goes through ``insert16``
+        without a threshold test: one at or above the line's K-th value leaves it as it was, and one below
+        it but at or above a fresh line's estimated threshold (which is above the line's true K-th value)
+        is pushed out again by the K true best entries, which all come. The K entries are those of the
+        branchy insertion, in the same order.
         """
         B, C = G.shape
         reg = Kr <= 16
