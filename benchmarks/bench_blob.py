@@ -120,8 +120,8 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
 
 #: The compiled stages of the L2 path timed by ``--breakdown``: (module of ``ctxmatch_lib.blob``, name).
 STAGES = (("_kernels", "scan_tile"), ("_kernels", "certify_lines"), ("_select_kernels", "prefilter_lists"),
-          ("_select_kernels", "greedy_sorted"), ("_kernels", "greedy_dense"), ("_kernels", "first_allowed"),
-          ("_kernels", "next_allowed"), ("_kernels", "next_in_lines"))
+          ("_select_kernels", "greedy_sorted"), ("_walk_kernels", "greedy_dense"), ("_kernels", "first_allowed"),
+          ("_kernels", "next_allowed"), ("_walk_kernels", "next_in_lines"))
 
 
 def breakdown(n: int, clock) -> None:

@@ -4,7 +4,7 @@ numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variab
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
 Gram matrices; :class:`Vec16` (16 float32 or int64 lanes) holds a sorted line of blob matching's scan in
-registers. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
+registers, and the sixteen running minima of its look-ups beyond the sorted lists. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
 fast-math flags, so no fused multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where
 the CPU has narrower registers, LLVM splits the value lane by lane.
 
@@ -21,7 +21,7 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "below16", "insert16", "lane16"]
+           "store16", "count16", "below16", "insert16", "lane16", "splat16", "least16", "min16", "band16"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -194,8 +194,9 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 
 class Vec16(types.Type):
     """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
-    registers while its row is walked (values and indices). Made and used by :func:`load16`,
-    :func:`store16`, :func:`count16`, :func:`below16`, :func:`insert16` and :func:`lane16` only."""
+    registers while its row is walked (values and indices), or sixteen running minima. Made and used by
+    :func:`load16`, :func:`store16`, :func:`splat16`, :func:`count16`, :func:`below16`, :func:`insert16`,
+    :func:`lane16`, :func:`least16` and :func:`min16` only."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -300,3 +301,74 @@ def lane16(typingctx, vec, q):
         return builder.extract_element(args[0], args[1])
 
     return vec.dtype(vec, types.intp), codegen
+
+
+def _shifted_row(context, builder, aryty, ary, line, k, penty, pen):
+    """``ary[line, k:k + 16] + pen[k:k + 16]`` as a float32 ``<16 x float>`` (no bounds check)."""
+    row = builder.load(_row_lanes(context, builder, aryty, ary, line, k, 16), align=4)
+    return builder.fadd(row, builder.load(_lanes(context, builder, penty, pen, k, 16), align=4))
+
+
+def _check_row_pen(arr, pen):
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype == types.float32):
+        raise TypingError(f"arr must be a C-contiguous 2-d float32 array, got {arr}")
+    _check(pen, "pen", (types.float32,))
+
+
+@intrinsic
+def splat16(typingctx, v):
+    """A float32 :class:`Vec16` with ``v`` in every lane."""
+    def codegen(context, builder, sig, args):
+        return _splat(builder, args[0], _F16)
+
+    return _vec16[types.float32](types.float32), codegen
+
+
+@intrinsic
+def least16(typingctx, cur, arr, line, k, pen, lo):
+    """Lane-wise running minimum of the entries ``x = arr[line, k + q] + pen[k + q]`` that are ``>= lo``:
+    lane q of ``cur`` becomes ``x`` when ``lo <= x < cur[q]``. ``pen`` holds 0 or +inf (an entry taken
+    out), so ``x`` is the entry itself, exactly, or +inf, which never lowers a lane."""
+    if cur != _vec16[types.float32]:
+        raise TypingError(f"cur must be a float32 Vec16, got {cur}")
+    _check_row_pen(arr, pen)
+
+    def codegen(context, builder, sig, args):
+        x = _shifted_row(context, builder, sig.args[1], args[1], args[2], args[3], sig.args[4], args[4])
+        ok = builder.and_(builder.fcmp_ordered(">=", x, _splat(builder, args[5], _F16)),
+                          builder.fcmp_ordered("<", x, args[0]))
+        return builder.select(ok, x, args[0])
+
+    return cur(cur, arr, types.intp, types.intp, pen, types.float32), codegen
+
+
+@intrinsic
+def min16(typingctx, vec):
+    """The least lane of a float32 :class:`Vec16` (a minimum does not depend on the order it is taken in)."""
+    if vec != _vec16[types.float32]:
+        raise TypingError(f"vec must be a float32 Vec16, got {vec}")
+
+    def codegen(context, builder, sig, args):
+        v = args[0]
+        for half in (8, 4, 2, 1):
+            upper = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 16),
+                                                             [half + q if q < half else q for q in range(16)]))
+            v = builder.select(builder.fcmp_ordered("<", upper, v), upper, v)
+        return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
+
+    return types.float32(vec), codegen
+
+
+@intrinsic
+def band16(typingctx, arr, line, k, pen, lo, hi):
+    """Bit mask (bit q = lane q) of the entries ``x = arr[line, k + q] + pen[k + q]`` with
+    ``lo <= x <= hi``."""
+    _check_row_pen(arr, pen)
+
+    def codegen(context, builder, sig, args):
+        x = _shifted_row(context, builder, sig.args[0], args[0], args[1], args[2], sig.args[3], args[3])
+        ok = builder.and_(builder.fcmp_ordered(">=", x, _splat(builder, args[4], _F16)),
+                          builder.fcmp_ordered("<=", x, _splat(builder, args[5], _F16)))
+        return _mask16(builder, ok)
+
+    return types.int64(arr, types.intp, types.intp, pen, types.float32, types.float32), codegen

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ctxmatch_lib._simd import below16, count16, insert16, lane16, load16, store16
-from ctxmatch_lib.blob import _kernels
+from ctxmatch_lib._simd import band16, below16, count16, insert16, lane16, least16, load16, min16, splat16, store16
+from ctxmatch_lib.blob import _kernels, _walk_kernels
 
 
 @njit(cache=False)
@@ -72,3 +72,100 @@ def test_kth_of_is_the_order_statistic(K, cnt):
         work = np.full((1, max(32, cnt)), np.inf, np.float32)
         work[0, :cnt] = rng.integers(0, levels, cnt)
         assert _kernels._kth_of(work.copy(), cnt, K) == np.sort(work[0, :cnt])[K - 1]
+
+
+@njit(cache=False)
+def _band_masks(D, r, pen, lo, hi):
+    out = np.empty(D.shape[1] // 16, np.int64)
+    for b in range(len(out)):
+        out[b] = band16(D, r, 16 * b, pen, lo, hi)
+    return out
+
+
+@njit(cache=False)
+def _least_lanes(D, r, pen, lo):
+    acc = splat16(np.float32(np.inf))
+    for k in range(0, D.shape[1] - D.shape[1] % 16, 16):
+        acc = least16(acc, D, r, k, pen, lo)
+    return min16(acc)
+
+
+def _row_and_pen(m, seed):
+    rng = np.random.default_rng(seed)
+    D = rng.integers(-3, 40, (2, m)).astype(np.float32)
+    D[:, rng.random(m) < 0.1] = np.float32(-0.0)
+    pen = np.where(rng.random(m) < 0.3, np.inf, 0).astype(np.float32)
+    return D, pen
+
+
+@pytest.mark.parametrize("m", [16, 48, 160])
+@pytest.mark.parametrize("lo", [-np.inf, -1.0, 0.0, 7.0, 39.0, 40.0])
+def test_least16_band16_and_min16_against_numpy(m, lo):
+    """least16 / min16: the least non-excluded entry at or above lo; band16: the entries in [lo, hi]."""
+    D, pen = _row_and_pen(m, m)
+    x = D[1] + pen
+    ref = x[x >= lo].min(initial=np.inf)
+    lo32 = np.float32(lo)
+    assert _least_lanes(D, 1, pen, lo32) == ref
+    assert _walk_kernels._least_from(D, 1, pen, lo32) == ref
+    hi = np.float32(lo + 9)
+    bits = ((x >= lo32) & (x <= hi)).reshape(-1, 16) @ (1 << np.arange(16))
+    assert _band_masks(D, 1, pen, lo32, hi).tolist() == bits.tolist()
+
+
+def test_least_from_takes_the_tail_beyond_the_last_16():
+    D, pen = _row_and_pen(37, 5)
+    x = D[0] + pen
+    assert _walk_kernels._least_from(D, 0, pen, np.float32(5)) == x[x >= 5].min(initial=np.inf)
+
+
+def test_float32_bounds_decide_as_the_float64_comparison():
+    """For every float32 y near x: y >= _f32_at_least(x) iff y >= x, y <= _f32_at_most(x) iff y <= x."""
+    rng = np.random.default_rng(0)
+    xs = np.r_[rng.normal(0, 10, 300), rng.normal(0, 1e-30, 20), [0.0, -0.0, 1.5, 3e38, 4e38, -4e38]]
+    for x in xs:
+        with np.errstate(over="ignore"):
+            y0 = np.float32(x)  # +-inf beyond the float32 range
+        near = [y0]
+        for _ in range(3):
+            near = near + [np.nextafter(near[0], np.float32(-np.inf)), np.nextafter(near[-1], np.float32(np.inf))]
+        up, down = _walk_kernels._f32_at_least(float(x)), _walk_kernels._f32_at_most(float(x))
+        for y in near:
+            if np.isfinite(y):
+                assert (y >= up) == (float(y) >= x), (x, y, up)
+                assert (y <= down) == (float(y) <= x), (x, y, down)
+
+
+@pytest.mark.parametrize("strict", [True, False])
+@pytest.mark.parametrize("t_o2", [0.0, 400.0])
+def test_next_in_line_against_a_brute_force_walk(strict, t_o2):
+    """next_in_line (float32 band, exact distances deciding) is the brute-force successor of (d, j) in
+    (exact distance, index) order among the entries not taken out, on rows with tied distances."""
+    rng = np.random.default_rng(int(strict) + int(t_o2))
+    A = np.abs(rng.normal(size=(4, 24)))
+    B = np.abs(rng.normal(size=(70, 24)))
+    B[40:60] = B[rng.integers(0, 40, 20)]  # tied distances
+    pts = rng.uniform(0, 100, (70, 2))
+    scale = _kernels.error_scale(24)
+    A32, B32 = A.astype(np.float32), B.astype(np.float32)
+    A, B = A32.astype(np.float64), B32.astype(np.float64)
+    nb = _kernels.sq_norms(B)
+    for line in range(4):
+        e = np.array([np.sqrt(_kernels._exact_sq(A, line, B, k)) for k in range(70)])
+        na = _kernels._exact_sq(A, line, np.zeros((1, 24)), 0)
+        Dap = (np.float32(na) + nb.astype(np.float32) - 2 * (A32[line] @ B32.T)).astype(np.float32)[None]
+        E = scale * (na + nb.max())
+        pen = np.where(rng.random(70) < 0.2, np.inf, 0).astype(np.float32)
+        for start in (0, 3, 20):
+            order = sorted(range(70), key=lambda k: (e[k], k))
+            j = order[start]
+            d = e[j]
+            skip = order[start + 1]
+            ok = [k for k in range(70) if pen[k] == 0 and k != skip
+                  and (t_o2 == 0 or ((pts[k] - pts[skip]) ** 2).sum() >= t_o2)
+                  and (e[k] > d or (e[k] == d and (k > j if strict else True)))]
+            want = min(((e[k], k) for k in ok), default=(np.inf, -1))
+            held = pen.copy()
+            got = _walk_kernels.next_in_line(Dap, 0, A, line, B, E, d, j, strict, skip, pen, pts, t_o2)
+            assert got == want
+            assert pen.tobytes() == held.tobytes()  # pen[skip] restored

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._blas import one_blas_thread
-from . import _kernels, _select_kernels
+from . import _kernels, _select_kernels, _walk_kernels
 from .overlap import _largest_singular_value, ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
@@ -404,7 +404,7 @@ class BlobContext:
         """
         if self._exact:
             X1, X2 = self._X
-            gi, gj, gd = _kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
+            gi, gj, gd = _walk_kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
                                                self._line_bounds(0), int(f_prime))
             return np.stack([gi, gj], axis=1).reshape(-1, 2), gd
         D = self._ensure_dense()
@@ -497,7 +497,7 @@ class BlobContext:
         """:meth:`second_best` on whole lines, for the anchors whose sorted list holds no qualifying entry.
 
         Lines are taken in chunks of about 8 MiB. On the L2 path their float32 GEMM rows propose and exact
-        distances decide (:func:`._kernels.next_in_lines`): one call yields the entry FGINN by pixels
+        distances decide (:func:`._walk_kernels.next_in_lines`): one call yields the entry FGINN by pixels
         allows; FGINN by overlap takes the entries in (distance, index) order and computes the overlap
         error of each until one is above ``t_o``, so only the few nearest entries need a patch overlap,
         never the whole line. Precomputed D and distance hooks follow the same order on exact lines.
@@ -517,7 +517,7 @@ class BlobContext:
                     Dap, rows = self._approx, a
                 else:
                     Dap, rows = self._approx_lines(side, a), np.arange(len(a))
-                e, k = _kernels.next_in_lines(Dap, rows, X[side], a, X[1 - side], E, d, np.full(len(a), -1),
+                e, k = _walk_kernels.next_in_lines(Dap, rows, X[side], a, X[1 - side], E, d, np.full(len(a), -1),
                                               np.zeros(len(a), np.bool_), o, pts, px2)
                 live = np.flatnonzero(k >= 0) if by_overlap else rows[:0]
                 while len(live):
@@ -525,7 +525,7 @@ class BlobContext:
                     live = live[near]
                     if not len(live):
                         break
-                    e[live], k[live] = _kernels.next_in_lines(
+                    e[live], k[live] = _walk_kernels.next_in_lines(
                         Dap, rows[live], X[side], a[live], X[1 - side], E, e[live], k[live],
                         np.ones(len(live), np.bool_), o[live], pts, 0.0)
                     live = live[k[live] >= 0]
