@@ -4,7 +4,8 @@ numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variab
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
 Gram matrices; :class:`Vec16` (16 float32 or int64 lanes) holds a sorted line of blob matching's scan in
-registers, and the sixteen running minima of its look-ups beyond the sorted lists. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
+registers, and the sixteen running minima of its look-ups beyond the sorted lists. :func:`prefetch` asks
+for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
 fast-math flags, so no fused multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where
 the CPU has narrower registers, LLVM splits the value lane by lane.
 
@@ -21,7 +22,8 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "below16", "insert16", "lane16", "splat16", "least16", "min16", "band16"]
+           "store16", "count16", "below16", "insert16", "lane16", "splat16", "least16", "min16", "band16",
+           "prefetch"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -372,3 +374,23 @@ def band16(typingctx, arr, line, k, pen, lo, hi):
         return _mask16(builder, ok)
 
     return types.int64(arr, types.intp, types.intp, pen, types.float32, types.float32), codegen
+
+
+@intrinsic
+def prefetch(typingctx, arr, line, k):
+    """Hint the CPU to bring the cache line of ``arr[line, k]`` (a C-contiguous 2-d array) into its caches;
+    no effect on any result (``llvm.prefetch``, a read, all cache levels)."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C"):
+        raise TypingError(f"arr must be a C-contiguous 2-d array, got {arr}")
+
+    def codegen(context, builder, sig, args):
+        ptr = _row_lanes(context, builder, sig.args[0], args[0], args[1], args[2], 1)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        name = "llvm.prefetch.p0"
+        fn = builder.module.globals.get(name) or ir.Function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), name=name)
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return types.none(arr, types.intp, types.intp), codegen

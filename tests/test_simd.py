@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ctxmatch_lib._simd import band16, below16, count16, insert16, lane16, least16, load16, min16, splat16, store16
+from ctxmatch_lib._simd import (band16, below16, count16, insert16, lane16, least16, load16, min16, prefetch, splat16,
+                                store16)
 from ctxmatch_lib.blob import _kernels, _walk_kernels
 
 
@@ -169,3 +170,32 @@ def test_next_in_line_against_a_brute_force_walk(strict, t_o2):
             got = _walk_kernels.next_in_line(Dap, 0, A, line, B, E, d, j, strict, skip, pen, pts, t_o2)
             assert got == want
             assert pen.tobytes() == held.tobytes()  # pen[skip] restored
+
+
+@njit(cache=False)
+def _prefetched_sum(X, order):
+    s = 0.0
+    for p in range(len(order)):
+        if p + 1 < len(order):
+            for k in range(0, X.shape[1], 16):
+                prefetch(X, order[p + 1], k)
+        for k in range(X.shape[1]):
+            s += X[order[p], k]
+    return s
+
+
+def test_prefetch_changes_no_result_and_rejects_non_matrices():
+    X = np.random.default_rng(0).random((50, 40)).astype(np.float32)
+    order = np.random.default_rng(1).permutation(50)
+    expected = 0.0
+    for p in order:
+        for k in range(40):
+            expected += float(X[p, k])
+    assert _prefetched_sum(X, order) == expected
+
+    @njit(cache=False)
+    def bad(v):
+        prefetch(v, 0, 0)
+
+    with pytest.raises(Exception, match="2-d array"):
+        bad(np.zeros(4))

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
-from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, store16, zero8
+from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, prefetch, store16, zero8
 
 __all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "first_allowed", "next_allowed"]
 
@@ -330,7 +330,8 @@ with user_cache() as _cache:
         that (or the heap holds the whole line), those entries are all in the heap: they alone are recomputed.
         Otherwise the whole line is. Returns the number of exact distances computed.
         """
-        n, m = A.shape[0], B.shape[0]
+        n, m, d = A.shape[0], B.shape[0], B.shape[1]
+        step = max(1, 64 // B.itemsize)  # entries per 64-byte cache line
         val = np.empty(K)
         idx = np.empty(K, np.int64)
         ex = np.empty(K)
@@ -340,6 +341,8 @@ with user_cache() as _cache:
             for p in range(c):
                 val[p] = hv[line, p]
                 idx[p] = hi[line, p]
+                for k in range(0, d, step):  # the rows of B arrive while the line is sorted
+                    prefetch(B, idx[p], k)
             _sort_pairs(val, idx, c)
             E = scale * (norm_a[line] + max_norm_b)
             band = val[T - 1] + 2.0 * E
