@@ -1,16 +1,17 @@
-"""Numba intrinsics for fixed-order float64 sums in SIMD registers.
+"""Numba intrinsics for fixed-order float64 sums in SIMD registers, and blob matching's 16-lane work.
 
 numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
-Gram matrices; :class:`Vec16` (16 float32 or int64 lanes) holds a sorted line of blob matching's scan in
-registers, and the sixteen running minima of its look-ups beyond the sorted lists. :func:`prefetch` asks
-for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and add is the same IEEE operation as the scalar one (no
-fast-math flags, so no fused multiply-add), hence the same bits as the scalar loop on any x86-64 CPU; where
-the CPU has narrower registers, LLVM splits the value lane by lane.
+Gram matrices. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
+scan in registers, and the sixteen running minima of its look-ups beyond the sorted lists (16-bit codes).
+:func:`prefetch` asks for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and
+add is the same IEEE operation as the scalar one (no fast-math flags, so no fused multiply-add), hence the
+same bits as the scalar loop on any x86-64 CPU; where the CPU has narrower registers, LLVM splits the value
+lane by lane.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
-whose kernels use these intrinsics (``blob/_kernels.py``, ``filters/_em_kernels.py``,
+whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``, ``filters/_em_kernels.py``,
 ``filters/_llt_kernels.py``) or clear ``$CTXMATCH_CACHE/numba``.
 """
 
@@ -57,7 +58,7 @@ def _lanes(context, builder, aryty, ary, k, n):
     """Pointer to the ``n`` elements ``ary[k:k + n]`` as one LLVM vector of the array's type (no bounds
     check)."""
     data = context.make_array(aryty)(context, builder, ary).data
-    elem = ir.FloatType() if aryty.dtype == types.float32 else ir.DoubleType()
+    elem = context.get_value_type(aryty.dtype)
     return builder.bitcast(builder.gep(data, [k]), ir.VectorType(elem, n).as_pointer())
 
 
@@ -170,6 +171,7 @@ def muladd4(typingctx, acc, a, b):
 # -- Sixteen lanes: a sorted line of blob matching's scan (``blob/_kernels.py``) ---------------------------
 _F16 = ir.VectorType(ir.FloatType(), 16)
 _I16 = ir.VectorType(ir.IntType(64), 16)
+_U16 = ir.VectorType(ir.IntType(16), 16)
 _LANE = ir.Constant(ir.VectorType(ir.IntType(64), 16), list(range(16)))
 _I64 = ir.IntType(64)
 
@@ -195,8 +197,9 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 
 
 class Vec16(types.Type):
-    """Sixteen float32 or int64 lanes held as one LLVM vector: a sorted line of blob matching's scan kept in
-    registers while its row is walked (values and indices), or sixteen running minima. Made and used by
+    """Sixteen float32, int64 or uint16 lanes held as one LLVM vector: a sorted line of blob matching's scan
+    kept in registers while its row is walked (values and indices), or sixteen running minima of 16-bit
+    codes of approximate distances (its look-ups beyond the sorted lists). Made and used by
     :func:`load16`, :func:`store16`, :func:`splat16`, :func:`count16`, :func:`below16`, :func:`insert16`,
     :func:`lane16`, :func:`least16` and :func:`min16` only."""
 
@@ -205,18 +208,18 @@ class Vec16(types.Type):
         super().__init__(name=f"Vec16{dtype}")
 
 
-_vec16 = {types.float32: Vec16(types.float32), types.int64: Vec16(types.int64)}
+_vec16 = {t: Vec16(t) for t in (types.float32, types.int64, types.uint16)}
 
 
 @register_model(Vec16)
 class _Vec16Model(models.PrimitiveModel):
     def __init__(self, dmm, fe_type):
-        super().__init__(dmm, fe_type, _F16 if fe_type.dtype == types.float32 else _I16)
+        super().__init__(dmm, fe_type, {types.float32: _F16, types.int64: _I16, types.uint16: _U16}[fe_type.dtype])
 
 
 def _vec16_of(arr, name):
     if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype in _vec16):
-        raise TypingError(f"{name} must be a C-contiguous 2-d float32 or int64 array, got {arr}")
+        raise TypingError(f"{name} must be a C-contiguous 2-d float32, int64 or uint16 array, got {arr}")
     return _vec16[arr.dtype]
 
 
@@ -305,75 +308,79 @@ def lane16(typingctx, vec, q):
     return vec.dtype(vec, types.intp), codegen
 
 
-def _shifted_row(context, builder, aryty, ary, line, k, penty, pen):
-    """``ary[line, k:k + 16] + pen[k:k + 16]`` as a float32 ``<16 x float>`` (no bounds check)."""
-    row = builder.load(_row_lanes(context, builder, aryty, ary, line, k, 16), align=4)
-    return builder.fadd(row, builder.load(_lanes(context, builder, penty, pen, k, 16), align=4))
+def _coded_row(context, builder, aryty, ary, line, k, penty, pen):
+    """``ary[line, k:k + 16] | pen[k:k + 16]`` as a ``<16 x i16>`` (no bounds check): a code, or 0xFFFF
+    where ``pen`` takes the entry out."""
+    row = builder.load(_row_lanes(context, builder, aryty, ary, line, k, 16), align=2)
+    return builder.or_(row, builder.load(_lanes(context, builder, penty, pen, k, 16), align=2))
 
 
 def _check_row_pen(arr, pen):
-    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype == types.float32):
-        raise TypingError(f"arr must be a C-contiguous 2-d float32 array, got {arr}")
-    _check(pen, "pen", (types.float32,))
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype == types.uint16):
+        raise TypingError(f"arr must be a C-contiguous 2-d uint16 array, got {arr}")
+    _check(pen, "pen", (types.uint16,))
 
 
 @intrinsic
 def splat16(typingctx, v):
-    """A float32 :class:`Vec16` with ``v`` in every lane."""
-    def codegen(context, builder, sig, args):
-        return _splat(builder, args[0], _F16)
+    """A uint16 :class:`Vec16` with ``v`` in every lane."""
+    if v != types.uint16:
+        raise TypingError(f"v must be a uint16, got {v}")
 
-    return _vec16[types.float32](types.float32), codegen
+    def codegen(context, builder, sig, args):
+        return _splat(builder, args[0], _U16)
+
+    return _vec16[types.uint16](types.uint16), codegen
 
 
 @intrinsic
 def least16(typingctx, cur, arr, line, k, pen, lo):
-    """Lane-wise running minimum of the entries ``x = arr[line, k + q] + pen[k + q]`` that are ``>= lo``:
-    lane q of ``cur`` becomes ``x`` when ``lo <= x < cur[q]``. ``pen`` holds 0 or +inf (an entry taken
-    out), so ``x`` is the entry itself, exactly, or +inf, which never lowers a lane."""
-    if cur != _vec16[types.float32]:
-        raise TypingError(f"cur must be a float32 Vec16, got {cur}")
+    """Lane-wise running minimum of the codes ``x = arr[line, k + q] | pen[k + q]`` that are ``>= lo``
+    (uint16): lane q of ``cur`` becomes ``x`` when ``lo <= x < cur[q]``. ``pen`` holds 0 or 0xFFFF (an
+    entry taken out), so ``x`` is the code itself or 0xFFFF, which never lowers a lane."""
+    if cur != _vec16[types.uint16]:
+        raise TypingError(f"cur must be a uint16 Vec16, got {cur}")
     _check_row_pen(arr, pen)
 
     def codegen(context, builder, sig, args):
-        x = _shifted_row(context, builder, sig.args[1], args[1], args[2], args[3], sig.args[4], args[4])
-        ok = builder.and_(builder.fcmp_ordered(">=", x, _splat(builder, args[5], _F16)),
-                          builder.fcmp_ordered("<", x, args[0]))
+        x = _coded_row(context, builder, sig.args[1], args[1], args[2], args[3], sig.args[4], args[4])
+        ok = builder.and_(builder.icmp_unsigned(">=", x, _splat(builder, args[5], _U16)),
+                          builder.icmp_unsigned("<", x, args[0]))
         return builder.select(ok, x, args[0])
 
-    return cur(cur, arr, types.intp, types.intp, pen, types.float32), codegen
+    return cur(cur, arr, types.intp, types.intp, pen, types.uint16), codegen
 
 
 @intrinsic
 def min16(typingctx, vec):
-    """The least lane of a float32 :class:`Vec16` (a minimum does not depend on the order it is taken in)."""
-    if vec != _vec16[types.float32]:
-        raise TypingError(f"vec must be a float32 Vec16, got {vec}")
+    """The least lane of a uint16 :class:`Vec16`."""
+    if vec != _vec16[types.uint16]:
+        raise TypingError(f"vec must be a uint16 Vec16, got {vec}")
 
     def codegen(context, builder, sig, args):
         v = args[0]
         for half in (8, 4, 2, 1):
             upper = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 16),
                                                              [half + q if q < half else q for q in range(16)]))
-            v = builder.select(builder.fcmp_ordered("<", upper, v), upper, v)
+            v = builder.select(builder.icmp_unsigned("<", upper, v), upper, v)
         return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
 
-    return types.float32(vec), codegen
+    return types.uint16(vec), codegen
 
 
 @intrinsic
 def band16(typingctx, arr, line, k, pen, lo, hi):
-    """Bit mask (bit q = lane q) of the entries ``x = arr[line, k + q] + pen[k + q]`` with
-    ``lo <= x <= hi``."""
+    """Bit mask (bit q = lane q) of the codes ``x = arr[line, k + q] | pen[k + q]`` with ``lo <= x <= hi``
+    (uint16)."""
     _check_row_pen(arr, pen)
 
     def codegen(context, builder, sig, args):
-        x = _shifted_row(context, builder, sig.args[0], args[0], args[1], args[2], sig.args[3], args[3])
-        ok = builder.and_(builder.fcmp_ordered(">=", x, _splat(builder, args[4], _F16)),
-                          builder.fcmp_ordered("<=", x, _splat(builder, args[5], _F16)))
+        x = _coded_row(context, builder, sig.args[0], args[0], args[1], args[2], sig.args[3], args[3])
+        ok = builder.and_(builder.icmp_unsigned(">=", x, _splat(builder, args[4], _U16)),
+                          builder.icmp_unsigned("<=", x, _splat(builder, args[5], _U16)))
         return _mask16(builder, ok)
 
-    return types.int64(arr, types.intp, types.intp, pen, types.float32, types.float32), codegen
+    return types.int64(arr, types.intp, types.intp, pen, types.uint16, types.uint16), codegen
 
 
 @intrinsic

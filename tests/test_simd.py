@@ -76,87 +76,86 @@ def test_kth_of_is_the_order_statistic(K, cnt):
 
 
 @njit(cache=False)
-def _band_masks(D, r, pen, lo, hi):
-    out = np.empty(D.shape[1] // 16, np.int64)
+def _band_masks(Q, r, pen, lo, hi):
+    out = np.empty(Q.shape[1] // 16, np.int64)
     for b in range(len(out)):
-        out[b] = band16(D, r, 16 * b, pen, lo, hi)
+        out[b] = band16(Q, r, 16 * b, pen, lo, hi)
     return out
 
 
 @njit(cache=False)
-def _least_lanes(D, r, pen, lo):
-    acc = splat16(np.float32(np.inf))
-    for k in range(0, D.shape[1] - D.shape[1] % 16, 16):
-        acc = least16(acc, D, r, k, pen, lo)
+def _least_lanes(Q, r, pen, lo):
+    acc = splat16(np.uint16(0xFFFF))
+    for k in range(0, Q.shape[1] - Q.shape[1] % 16, 16):
+        acc = least16(acc, Q, r, k, pen, lo)
     return min16(acc)
 
 
-def _row_and_pen(m, seed):
+def _codes_and_pen(m, seed):
     rng = np.random.default_rng(seed)
-    D = rng.integers(-3, 40, (2, m)).astype(np.float32)
-    D[:, rng.random(m) < 0.1] = np.float32(-0.0)
-    pen = np.where(rng.random(m) < 0.3, np.inf, 0).astype(np.float32)
-    return D, pen
+    Q = rng.integers(0, 40, (2, m)).astype(np.uint16)
+    Q[:, rng.random(m) < 0.05] = 65534
+    pen = np.where(rng.random(m) < 0.3, 0xFFFF, 0).astype(np.uint16)
+    return Q, pen
 
 
 @pytest.mark.parametrize("m", [16, 48, 160])
-@pytest.mark.parametrize("lo", [-np.inf, -1.0, 0.0, 7.0, 39.0, 40.0])
+@pytest.mark.parametrize("lo", [0, 1, 7, 39, 40, 65534])
 def test_least16_band16_and_min16_against_numpy(m, lo):
-    """least16 / min16: the least non-excluded entry at or above lo; band16: the entries in [lo, hi]."""
-    D, pen = _row_and_pen(m, m)
-    x = D[1] + pen
-    ref = x[x >= lo].min(initial=np.inf)
-    lo32 = np.float32(lo)
-    assert _least_lanes(D, 1, pen, lo32) == ref
-    assert _walk_kernels._least_from(D, 1, pen, lo32) == ref
-    hi = np.float32(lo + 9)
-    bits = ((x >= lo32) & (x <= hi)).reshape(-1, 16) @ (1 << np.arange(16))
-    assert _band_masks(D, 1, pen, lo32, hi).tolist() == bits.tolist()
+    """least16 / min16: the least code at or above lo not taken out (0xFFFF if none); band16: the codes
+    in [lo, hi], taken-out entries (code | 0xFFFF) never in."""
+    Q, pen = _codes_and_pen(m, m)
+    x = (Q[1] | pen).astype(np.int64)
+    ref = x[(x >= lo) & (x < 0xFFFF)].min(initial=0xFFFF)
+    assert _least_lanes(Q, 1, pen, np.uint16(lo)) == ref
+    assert _walk_kernels._least_from(Q, 1, pen, np.uint16(lo)) == ref
+    hi = min(lo + 9, 65534)
+    bits = ((x >= lo) & (x <= hi)).reshape(-1, 16) @ (1 << np.arange(16))
+    assert _band_masks(Q, 1, pen, np.uint16(lo), np.uint16(hi)).tolist() == bits.tolist()
 
 
 def test_least_from_takes_the_tail_beyond_the_last_16():
-    D, pen = _row_and_pen(37, 5)
-    x = D[0] + pen
-    assert _walk_kernels._least_from(D, 0, pen, np.float32(5)) == x[x >= 5].min(initial=np.inf)
+    Q, pen = _codes_and_pen(37, 5)
+    x = (Q[0] | pen).astype(np.int64)
+    assert _walk_kernels._least_from(Q, 0, pen, np.uint16(5)) == x[(x >= 5) & (x < 0xFFFF)].min(initial=0xFFFF)
 
 
-def test_float32_bounds_decide_as_the_float64_comparison():
-    """For every float32 y near x: y >= _f32_at_least(x) iff y >= x, y <= _f32_at_most(x) iff y <= x."""
-    rng = np.random.default_rng(0)
-    xs = np.r_[rng.normal(0, 10, 300), rng.normal(0, 1e-30, 20), [0.0, -0.0, 1.5, 3e38, 4e38, -4e38]]
-    for x in xs:
-        with np.errstate(over="ignore"):
-            y0 = np.float32(x)  # +-inf beyond the float32 range
-        near = [y0]
-        for _ in range(3):
-            near = near + [np.nextafter(near[0], np.float32(-np.inf)), np.nextafter(near[-1], np.float32(np.inf))]
-        up, down = _walk_kernels._f32_at_least(float(x)), _walk_kernels._f32_at_most(float(x))
-        for y in near:
-            if np.isfinite(y):
-                assert (y >= up) == (float(y) >= x), (x, y, up)
-                assert (y <= down) == (float(y) <= x), (x, y, down)
+@pytest.mark.parametrize("lo, hi", [(-1e-6, 4.0), (-3.0, 2e5), (0.0, 0.0)])
+def test_codes_decode_within_half_a_step_and_keep_their_order(lo, hi):
+    """code_scale / code: qoff + q step is within 0.51 step of v over the whole range, codes never reach
+    TAKEN, and a larger v never gets a smaller code."""
+    qoff, qinv, step = _kernels.code_scale(lo, hi)
+    v = np.sort(np.r_[np.random.default_rng(0).uniform(lo, hi, 20000), lo, hi]).astype(np.float32)
+    v = v[(v >= lo) & (v <= hi)]
+    q = _kernels.encode(v[None], qoff, qinv)[0]
+    assert q.max() < _kernels.TAKEN and np.all(np.diff(q.astype(np.int64)) >= 0)
+    assert np.abs(float(qoff) + q * step - v.astype(np.float64)).max() <= 0.51 * step
 
 
 @pytest.mark.parametrize("strict", [True, False])
 @pytest.mark.parametrize("t_o2", [0.0, 400.0])
-def test_next_in_line_against_a_brute_force_walk(strict, t_o2):
-    """next_in_line (float32 band, exact distances deciding) is the brute-force successor of (d, j) in
-    (exact distance, index) order among the entries not taken out, on rows with tied distances."""
-    rng = np.random.default_rng(int(strict) + int(t_o2))
-    A = np.abs(rng.normal(size=(4, 24)))
-    B = np.abs(rng.normal(size=(70, 24)))
+@pytest.mark.parametrize("coarse", [False, True])
+def test_next_in_line_against_a_brute_force_walk(strict, t_o2, coarse):
+    """next_in_line (bands of 16-bit codes, exact distances deciding) is the brute-force successor of
+    (d, j) in (exact distance, index) order among the entries not taken out, on rows with tied distances;
+    coarse codes (a step wider than the gaps between distances) put many entries in each band."""
+    rng = np.random.default_rng(int(strict) + int(t_o2) + 2 * int(coarse))
+    A = np.abs(rng.normal(size=(4, 24))).astype(np.float32)
+    B = np.abs(rng.normal(size=(70, 24))).astype(np.float32)
     B[40:60] = B[rng.integers(0, 40, 20)]  # tied distances
     pts = rng.uniform(0, 100, (70, 2))
+    A64, B64 = A.astype(np.float64), B.astype(np.float64)
+    nb = _kernels.sq_norms(B64)
     scale = _kernels.error_scale(24)
-    A32, B32 = A.astype(np.float32), B.astype(np.float32)
-    A, B = A32.astype(np.float64), B32.astype(np.float64)
-    nb = _kernels.sq_norms(B)
+    top = (np.sqrt(_kernels.sq_norms(A64).max()) + np.sqrt(nb.max())) ** 2
+    qoff, qinv, step = _kernels.code_scale(-1e-3, top * (20000 if coarse else 1))
     for line in range(4):
-        e = np.array([np.sqrt(_kernels._exact_sq(A, line, B, k)) for k in range(70)])
-        na = _kernels._exact_sq(A, line, np.zeros((1, 24)), 0)
-        Dap = (np.float32(na) + nb.astype(np.float32) - 2 * (A32[line] @ B32.T)).astype(np.float32)[None]
-        E = scale * (na + nb.max())
-        pen = np.where(rng.random(70) < 0.2, np.inf, 0).astype(np.float32)
+        e = np.array([np.sqrt(_kernels._exact_sq(A64, line, B64, k)) for k in range(70)])
+        na = _kernels._exact_sq(A64, line, np.zeros((1, 24)), 0)
+        v = (np.float32(na) + nb.astype(np.float32) - 2 * (A[line] @ B.T)).astype(np.float32)
+        Q = _kernels.encode(v[None], qoff, qinv)
+        E = scale * (na + nb.max()) + step
+        pen = np.where(rng.random(70) < 0.2, 0xFFFF, 0).astype(np.uint16)
         for start in (0, 3, 20):
             order = sorted(range(70), key=lambda k: (e[k], k))
             j = order[start]
@@ -167,7 +166,8 @@ def test_next_in_line_against_a_brute_force_walk(strict, t_o2):
                   and (e[k] > d or (e[k] == d and (k > j if strict else True)))]
             want = min(((e[k], k) for k in ok), default=(np.inf, -1))
             held = pen.copy()
-            got = _walk_kernels.next_in_line(Dap, 0, A, line, B, E, d, j, strict, skip, pen, pts, t_o2)
+            got = _walk_kernels.next_in_line(Q, 0, A64, line, B64, E, d, j, strict, skip, pen, pts, t_o2, qoff,
+                                             step)
             assert got == want
             assert pen.tobytes() == held.tobytes()  # pen[skip] restored
 

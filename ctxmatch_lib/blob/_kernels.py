@@ -14,6 +14,10 @@ length ``d`` in any summation order, with or without FMA, is within ``γ_d |a||b
 ``|a|² + |b|² − 2 a·b`` add a few ``u (|a|² + |b|²)``. With ``2|a||b| <= |a|² + |b|²``, the approximation
 is within ``(2 γ_d + 8u)(|a|² + |b|²)`` (``+ 4u`` more for float64 descriptors rounded to float32);
 :func:`error_scale` doubles that.
+
+Look-ups beyond the sorted lists (f = Ω's greedy, a second best past the list) read whole lines of the
+approximations as 16-bit codes (:func:`code_scale`, :func:`code`): half the memory of float32, and a decoded
+code within ``E`` plus one code step of the exact squared distance.
 """
 
 from __future__ import annotations
@@ -24,9 +28,13 @@ from numba import njit
 from .._numba import user_cache
 from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, prefetch, store16, zero8
 
-__all__ = ["error_scale", "sq_norms", "scan_tile", "certify_lines", "first_allowed", "next_allowed"]
+__all__ = ["TAKEN", "code_scale", "code", "encode", "error_scale", "sq_norms", "scan_tile", "certify_lines",
+           "first_allowed", "next_allowed"]
 
 _U = 2.0**-24
+
+#: The code of an entry taken out of a line's look-up; approximate squared distances are coded 0 .. TAKEN - 1.
+TAKEN = 0xFFFF
 
 # Flag masks (scan_tile): (bytes of 0 / 1 as a uint64) * _GATHER >> 56 puts byte k's flag in bit k; the
 # index of a 64-bit mask's lowest set bit b is _DEBRUIJN_BIT[(b * _DEBRUIJN) >> 58].
@@ -37,6 +45,19 @@ for _bit in range(64):
     _DEBRUIJN_BIT[((1 << _bit) * 0x03F79D71B4CB0A89 % 2**64) >> 58] = _bit
 del _bit
 _S56, _S58 = np.uint64(56), np.uint64(58)
+
+
+def code_scale(lo: float, hi: float) -> tuple[np.float32, np.float32, float]:
+    """``(qoff, qinv, step)`` of the 16-bit codes of approximate squared distances in ``[lo, hi]``.
+
+    :func:`code` maps ``v`` to ``q = floor((v - qoff) qinv + 1/2)`` in float32, which is within 0.51 of the
+    real ``(v - qoff) qinv`` (three float32 roundings of values below 2^16 add at most 0.01), so
+    ``qoff + q step`` (``step = 1 / qinv``) is within ``0.51 step`` of ``v``: a look-up on codes adds
+    ``step`` to the bound of the approximation. ``qinv`` leaves two codes of headroom below :data:`TAKEN`.
+    """
+    qoff = np.nextafter(np.float32(lo), np.float32(-np.inf))
+    qinv = np.float32((TAKEN - 2) / max(hi - float(qoff), 1e-30))
+    return qoff, qinv, 1.0 / float(qinv)
 
 
 def error_scale(d: int) -> float:
@@ -85,6 +106,21 @@ with user_cache() as _cache:
         """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
         for j in range(B.shape[0]):
             out[j] = np.sqrt(_exact_sq(A, i, B, j))
+
+    @njit(cache=_cache, nogil=True, inline="always")
+    def code(v, qoff, qinv):
+        """The 16-bit code of an approximate squared distance ``v`` (see :func:`code_scale`)."""
+        x = (v - qoff) * qinv + np.float32(0.5)
+        return np.uint16(min(max(x, np.float32(0)), np.float32(TAKEN - 1)))
+
+    @njit(cache=_cache, nogil=True)
+    def encode(V, qoff, qinv):
+        """:func:`code` of every entry of a float32 matrix."""
+        out = np.empty(V.shape, np.uint16)
+        for r in range(V.shape[0]):
+            for k in range(V.shape[1]):
+                out[r, k] = code(V[r, k], qoff, qinv)
+        return out
 
     @njit(cache=_cache, nogil=True)
     def _kth(work, cnt, k):
@@ -187,13 +223,14 @@ with user_cache() as _cache:
                 cthr[j] = np.nextafter(_kth_of(colw, ngc, Kc), np.float32(np.inf))
 
     @njit(cache=_cache, nogil=True)
-    def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep):
+    def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv):
         """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the rows' and columns' K best.
 
         ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is flagged
         in a vectorisable pass, then inserted into the line's K entries ``rv[i, :Kr]`` / ``cv[j, :Kc]``
         (sorted by value, +inf in empty slots); a full line's threshold is its K-th value, so only entries
-        that can enter the K best are flagged. With ``keep``, ``v`` is also written to ``dense`` (f = Ω).
+        that can enter the K best are flagged. With ``keep``, the 16-bit :func:`code` of ``v`` is also
+        written to ``dense`` (f = Ω): half the memory of float32, the bound of the codes one step wider.
 
         A line of at most 16 entries (its arrays padded to 16 columns) is updated in 16-lane registers by
         :func:`~ctxmatch_lib._simd.insert16`: a row while its flagged entries are walked, a column a bucket
@@ -256,7 +293,7 @@ with user_cache() as _cache:
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
                     g = grow[jj]
-                    drow[jj] = (a + n2t[jj]) - (g + g)
+                    drow[jj] = code((a + n2t[jj]) - (g + g), qoff, qinv)
             # The flagged entries in order, without a branch per entry: eight flag bytes (0 / 1) gather
             # into eight bits by one multiplication, a group's 64 into a mask; its set bits are then
             # taken lowest first (de Bruijn index of the lowest bit).

@@ -2,8 +2,10 @@
 
 f = Ω's greedy (:func:`greedy_dense`) walks a row past its sorted list, and a ratio's second best
 (:func:`next_in_lines`) may lie past it. Both take the next entry of a line in (exact distance, index) order
-with :func:`next_in_line`: the float32 approximate squared distances (within the certified bound ``E`` of
-:mod:`._kernels`) propose, sixteen at a time, and float64 exact distances decide.
+with :func:`next_in_line`: 16-bit codes of the float32 approximate squared distances (within the certified
+bound ``E`` of :mod:`._kernels` plus the codes' step, :func:`._kernels.code_scale`) propose, sixteen at a
+time, and float64 exact distances decide. The codes take half the memory of float32: f = Ω's dense matrix
+is written and read twice as fast.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit of ``_kernels._exact_sq``
 or of ``ctxmatch_lib._simd``, touch this file (or clear ``$CTXMATCH_CACHE/numba``).
@@ -16,38 +18,26 @@ from numba import njit
 
 from .._numba import user_cache
 from .._simd import band16, least16, min16, splat16
-from ._kernels import _exact_sq
+from ._kernels import TAKEN, _exact_sq
 
 __all__ = ["next_in_line", "greedy_dense", "next_in_lines"]
 
 with user_cache() as _cache:
 
-    @njit(cache=_cache, nogil=True, inline="always")
-    def _f32_at_least(x):
-        """The least float32 ``>= x`` (a float64): for every float32 ``y``, ``y >= it`` iff ``y >= x``."""
-        y = np.float32(x)
-        return np.nextafter(y, np.float32(np.inf)) if np.float64(y) < x else y
-
-    @njit(cache=_cache, nogil=True, inline="always")
-    def _f32_at_most(x):
-        """The greatest float32 ``<= x`` (a float64): for every float32 ``y``, ``y <= it`` iff ``y <= x``."""
-        y = np.float32(x)
-        return np.nextafter(y, np.float32(-np.inf)) if np.float64(y) > x else y
-
     @njit(cache=_cache, nogil=True)
-    def _least_from(Dap, r, pen, lo):
-        """The least ``Dap[r, k] + pen[k]`` that is ``>= lo`` (``inf`` if none), in float32: sixteen running
-        minima in one register (a minimum does not depend on the order it is taken in)."""
-        m = Dap.shape[1]
+    def _least_from(Q, r, pen, lo):
+        """The least code ``Q[r, k] | pen[k]`` that is ``>= lo`` (``TAKEN`` if none): sixteen running minima
+        in one register."""
+        m = Q.shape[1]
         m16 = m - m % 16
-        acc = splat16(np.float32(np.inf))
+        acc = splat16(np.uint16(TAKEN))
         for k in range(0, m16, 16):
-            acc = least16(acc, Dap, r, k, pen, lo)
+            acc = least16(acc, Q, r, k, pen, lo)
         best = min16(acc)
         for k in range(m16, m):
-            a = Dap[r, k] + pen[k]
-            if a >= lo and a < best:
-                best = a
+            x = Q[r, k] | pen[k]
+            if x >= lo and x < best:
+                best = x
         return best
 
     @njit(cache=_cache, nogil=True, inline="always")
@@ -66,39 +56,51 @@ with user_cache() as _cache:
             return e, k
         return best_d, best_k
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _code_at_most(x, qoff, step):
+        """The greatest code ``q`` (clipped to ``[0, TAKEN]``) with ``qoff + q step <= x``, rounded down by one
+        more: every code below it decodes a whole step under ``x``."""
+        c = np.floor((x - qoff) / step) - 1.0
+        return np.int64(min(max(c, 0.0), float(TAKEN)))
+
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _code_at_least(x, qoff, step):
+        """The least code (clipped to ``[0, TAKEN]``) decoding above ``x``, rounded up by one more."""
+        c = np.ceil((x - qoff) / step) + 1.0
+        return np.int64(min(max(c, 0.0), float(TAKEN)))
+
     @njit(cache=_cache, nogil=True)
-    def next_in_line(Dap, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2):
+    def next_in_line(Q, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2, qoff, step):
         """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
 
-        ``Dap[r]`` is the line's approximate squared distances (float32, within ``E`` of the exact ones).
-        Candidates: ``pen[k] == 0`` (float32 ``inf`` takes entry ``k`` out; saturated columns of the greedy),
-        ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip`` (FGINN, when ``t_o2 > 0``) and exact
-        distance ``> d`` or ``== d`` with ``k > j`` (``strict``) / ``>= d`` (not ``strict``, any ``k``).
-        Exact distances are computed only for entries whose approximation cannot rule them out: the band
-        ``[lo, top]`` above the least approximation not yet seen. The float64 bounds are compared with the
-        float32 entries through the nearest float32 inside them, which decides each entry as the float64
-        comparison would, sixteen at a time. Returns ``(distance, index)``, ``(inf, -1)`` when none
-        qualifies. ``pen[skip]`` is set to ``inf`` during the call and restored.
+        ``Q[r]`` holds the line's 16-bit codes ``q`` of approximate squared distances: ``qoff + q step`` is
+        within ``E`` of the exact squared distance. Candidates: ``pen[k] == 0`` (0xFFFF takes entry ``k``
+        out; saturated columns of the greedy), ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip``
+        (FGINN, when ``t_o2 > 0``) and exact distance ``> d`` or ``== d`` with ``k > j`` (``strict``) /
+        ``>= d`` (not ``strict``, any ``k``). Exact distances are computed only for the entries whose code
+        cannot rule them out: the band of codes ``[lo, top]`` above the least code not yet seen, compared
+        sixteen at a time. Returns ``(distance, index)``, ``(inf, -1)`` when none qualifies. ``pen[skip]``
+        is set during the call and restored.
         """
-        m = Dap.shape[1]
+        m = Q.shape[1]
         m16 = m - m % 16
-        held = np.float32(0)
+        held = np.uint16(0)
         if skip >= 0:
             held = pen[skip]
-            pen[skip] = np.inf
-        lo = d * d - 2.0 * E  # below: certainly closer than d
+            pen[skip] = TAKEN
+        lo = _code_at_most(d * d - E, qoff, step)  # codes below: certainly closer than d
         best_d, best_k = np.inf, -1
-        while True:
-            lo32 = _f32_at_least(lo)
-            mu = _least_from(Dap, r, pen, lo32)
-            if mu == np.inf:
+        while lo < TAKEN:
+            mu = np.int64(_least_from(Q, r, pen, np.uint16(lo)))
+            if mu >= TAKEN:
                 break
-            top = np.float64(mu) + 2.0 * E
+            # Entries that can come before the one coded mu: exact <= qoff + mu step + E, so decoded <= that + E.
+            top = _code_at_least(qoff + mu * step + 2.0 * E, qoff, step)
             if best_k >= 0:
-                top = max(top, best_d * best_d + 2.0 * E)
-            top32 = _f32_at_most(top)
+                top = max(top, _code_at_least(best_d * best_d + E, qoff, step))
+            hi = np.uint16(min(top, TAKEN - 1))
             for k0 in range(0, m16, 16):  # the band is narrow: most blocks of 16 have no entry in it
-                mask = band16(Dap, r, k0, pen, lo32, top32)
+                mask = band16(Q, r, k0, pen, np.uint16(lo), hi)
                 if mask == 0:
                     continue
                 for q in range(16):
@@ -106,13 +108,12 @@ with user_cache() as _cache:
                         best_d, best_k = _consider(A, line, B, k0 + q, d, j, strict, skip, pts, t_o2, best_d,
                                                    best_k)
             for k in range(m16, m):
-                a = Dap[r, k] + pen[k]
-                if a >= lo32 and a <= top32:
+                x = Q[r, k] | pen[k]
+                if x >= lo and x <= hi:
                     best_d, best_k = _consider(A, line, B, k, d, j, strict, skip, pts, t_o2, best_d, best_k)
-            # Entries with approx <= top have been looked at.
-            lo = np.nextafter(top, np.inf)
-            # Unseen entries have approx > top, so exact > top - E: certified once that exceeds best_d².
-            if best_k >= 0 and top - E > best_d * best_d * (1.0 + 1e-12):
+            # Codes <= top have been looked at; unseen entries decode to at least qoff + (top + 1) step.
+            lo = top + 1
+            if best_k >= 0 and qoff + lo * step - E > best_d * best_d * (1.0 + 1e-12):
                 break
         if skip >= 0:
             pen[skip] = held
@@ -154,17 +155,17 @@ with user_cache() as _cache:
         return v, i, j, size
 
     @njit(cache=_cache, nogil=True)
-    def greedy_dense(Dap, A, B, lidx, lval, E_rows, f_prime):
+    def greedy_dense(Q, A, B, lidx, lval, E_rows, f_prime, qoff, step):
         """Step 2 over all of D (f = Ω): a heap holds each row's next entry in (distance, column) order.
 
         Rows walk their exact sorted lists first, then continue with :func:`next_in_line` on the
         approximate dense matrix (exact distances where the approximation cannot decide).
         """
-        n, m = Dap.shape
+        n, m = Q.shape
         T = lidx.shape[1]
         rc = np.zeros(n, np.int64)
         cc = np.zeros(m, np.int64)
-        pen = np.zeros(m, np.float32)  # inf: a saturated column
+        pen = np.zeros(m, np.uint16)  # TAKEN: a saturated column
         ptr = np.zeros(n, np.int64)
         hv = np.empty(n)
         hi = np.empty(n, np.int64)
@@ -186,7 +187,7 @@ with user_cache() as _cache:
                 rc[i] += 1
                 cc[j] += 1
                 if cc[j] == f_prime:
-                    pen[j] = np.inf
+                    pen[j] = TAKEN
                     free_cols -= 1
             if rc[i] >= f_prime:
                 continue
@@ -207,13 +208,13 @@ with user_cache() as _cache:
                 d, j = lval[i, T - 1], lidx[i, T - 1]
             if T == m:
                 continue
-            e, k = next_in_line(Dap, i, A, i, B, E_rows[i], d, j, True, -1, pen, dummy, 0.0)
+            e, k = next_in_line(Q, i, A, i, B, E_rows[i], d, j, True, -1, pen, dummy, 0.0, qoff, step)
             if k >= 0:
                 size = _hpush(hv, hi, hj, size, e, i, k)
         return out_i[:K], out_j[:K], out_d[:K]
 
     @njit(cache=_cache, nogil=True)
-    def next_in_lines(Dap, rows, A, which, B, E_lines, d, j, strict, skip, pts, t_o2):
+    def next_in_lines(Q, rows, A, which, B, E_lines, d, j, strict, skip, pts, t_o2, qoff, step):
         """:func:`next_in_line` for several lines: line ``which[r]`` of ``A`` against ``B``, its approximate
         squared distances in ``Dap[rows[r]]``, the entry after ``(d[r], j[r])`` (``strict[r]``) other than
         ``skip[r]`` and, when ``t_o2 > 0``, not within ``sqrt(t_o2)`` pixels of it (FGINN). Returns the
@@ -221,11 +222,11 @@ with user_cache() as _cache:
         L = len(which)
         out_d = np.empty(L)
         out_k = np.empty(L, np.int64)
-        pen = np.zeros(Dap.shape[1], np.float32)
+        pen = np.zeros(Q.shape[1], np.uint16)
         for r in range(L):
             i = which[r]
-            e, k = next_in_line(Dap, rows[r], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], pen, pts,
-                                t_o2)
+            e, k = next_in_line(Q, rows[r], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], pen, pts,
+                                t_o2, qoff, step)
             out_d[r] = e
             out_k[r] = k
         return out_d, out_k

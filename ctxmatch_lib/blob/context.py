@@ -120,9 +120,11 @@ class BlobContext:
         Largest ``f`` (and ``f'``) this context will serve.
     keep_dense : bool, optional
         Keep D in memory (needed by f = Ω, speeds up rare full-row look-ups). Default: when it takes at
-        most 256 MiB.
+        most 256 MiB. The L2 path keeps 16-bit codes of its float32 approximations (2 bytes an entry,
+        written by the one pass; exact distances still decide, see :mod:`._kernels`).
     max_dense_bytes : int
-        Above this size f = Ω fails fast with a ``MemoryError`` stating the memory it needs.
+        Above this size (of D, or of its codes on the L2 path) f = Ω fails fast with a ``MemoryError``
+        stating the memory it needs.
     margin : int, optional
         Entries kept per line beyond ``depth`` (default :attr:`margin`). The second best of step 3 is
         looked for in these lists first and in the whole line only when none qualifies; the results do not
@@ -180,7 +182,7 @@ class BlobContext:
             self._dtype = np.dtype(np.float32)
             self._dense = None
             if keep_dense:  # fail fast, before any work
-                self._check_dense(self.n * self.m * 4, "f='omega' (keep_dense=True)")
+                self._check_dense(self.n * self.m * 2, "f='omega' (keep_dense=True)")
         self._exact = distances is None and distance is None
         self._approx = None
         self.depth = int(depth)
@@ -281,17 +283,23 @@ class BlobContext:
         rv, ri = np.full((n, Wr), np.inf, np.float32), np.zeros((n, Wr), np.int64)
         cv, ci = np.full((m, Wc), np.inf, np.float32), np.zeros((m, Wc), np.int64)
         rthr, cthr = np.full(n, np.inf, np.float32), np.full(m, np.inf, np.float32)
-        dense = np.empty((n, m), np.float32) if keep_dense else np.empty((1, 1), np.float32)
+        dense = np.empty((n, m), np.uint16) if keep_dense else np.empty((1, 1), np.uint16)
         R, C = self.tile
         buf = np.empty(R * C, np.float32)
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
+        # 16-bit codes of the approximations for the look-ups beyond the lists: v is within E_max of an exact
+        # squared distance, which is in [0, (|a| + |b|)²].
+        E_max = self._scale * (float(nrm1.max()) + float(nrm2.max())) if n and m else 0.0
+        top = (np.sqrt(nrm1.max(initial=0.0)) + np.sqrt(nrm2.max(initial=0.0))) ** 2 + E_max
+        self._qoff, self._qinv, self._qstep = _kernels.code_scale(-E_max, float(top))
         for r0 in range(0, n, R):
             a = A32[r0 : r0 + R]
             for c0 in range(0, m, C):
                 b = B32[c0 : c0 + C]
                 G = buf[: len(a) * len(b)].reshape(len(a), len(b))
                 np.matmul(a, b.T, out=G)
-                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense)
+                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense,
+                                   self._qoff, self._qinv)
         rc, cc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1), np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
         if keep_dense:
             self._approx = dense
@@ -305,20 +313,22 @@ class BlobContext:
         self.cols = SortedLists(idx, val, complete=Tc == n)
 
     def _line_bounds(self, side: int) -> np.ndarray:
-        """Per line of ``side``, the bound E on |approx - exact| of its squared distances."""
+        """Per line of ``side``, the bound E on |decoded code - exact| of its squared distances: the float32
+        approximation's, plus the codes' step (:func:`._kernels.code_scale`)."""
         own, other = self._norms[side], self._norms[1 - side]
-        return self._scale * (own + other.max())
+        return self._scale * (own + other.max()) + self._qstep
 
     def _approx_dense(self) -> np.ndarray:
-        """The float32 approximate squared distances of the L2 path (f = Ω), computed on demand."""
+        """The coded approximate squared distances of the L2 path (f = Ω), computed on demand."""
         if self._approx is None:
-            self._check_dense(self.n * self.m * 4, "f='omega'")
+            self._check_dense(self.n * self.m * 2, "f='omega'")
             self._approx = self._approx_lines(0, np.arange(self.n))
         return self._approx
 
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
-        """Float32 approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
-        within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` on one BLAS thread."""
+        """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
+        decoding within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` in float32 on one
+        BLAS thread, then :func:`._kernels.code`."""
         if self._approx is not None and side == 0:
             return self._approx[which]
         # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
@@ -328,7 +338,7 @@ class BlobContext:
         g *= np.float32(-2)
         g += self._norms[side][which].astype(np.float32)[:, None]
         g += self._norms[1 - side].astype(np.float32)[None, :]
-        return g
+        return _kernels.encode(g, self._qoff, self._qinv)
 
     # -- whole rows / columns, for the rare look-ups beyond the sorted lists ------------------------
     def _check_dense(self, nbytes: int, what: str) -> None:
@@ -405,7 +415,7 @@ class BlobContext:
         if self._exact:
             X1, X2 = self._X
             gi, gj, gd = _walk_kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
-                                               self._line_bounds(0), int(f_prime))
+                                                    self._line_bounds(0), int(f_prime), self._qoff, self._qstep)
             return np.stack([gi, gj], axis=1).reshape(-1, 2), gd
         D = self._ensure_dense()
         n, m = self.n, self.m
@@ -518,7 +528,8 @@ class BlobContext:
                 else:
                     Dap, rows = self._approx_lines(side, a), np.arange(len(a))
                 e, k = _walk_kernels.next_in_lines(Dap, rows, X[side], a, X[1 - side], E, d, np.full(len(a), -1),
-                                              np.zeros(len(a), np.bool_), o, pts, px2)
+                                                   np.zeros(len(a), np.bool_), o, pts, px2, self._qoff,
+                                                   self._qstep)
                 live = np.flatnonzero(k >= 0) if by_overlap else rows[:0]
                 while len(live):
                     near = self.overlap_errors(1 - side, o[live], k[live, None]).reshape(-1) <= t_o
@@ -527,7 +538,7 @@ class BlobContext:
                         break
                     e[live], k[live] = _walk_kernels.next_in_lines(
                         Dap, rows[live], X[side], a[live], X[1 - side], E, e[live], k[live],
-                        np.ones(len(live), np.bool_), o[live], pts, 0.0)
+                        np.ones(len(live), np.bool_), o[live], pts, 0.0, self._qoff, self._qstep)
                     live = live[k[live] >= 0]
                 out[s : s + step] = e
                 continue
