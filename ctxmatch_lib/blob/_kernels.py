@@ -281,19 +281,23 @@ with user_cache() as _cache:
                 rthr[i] = np.nextafter(_kth_of(roww, ngr, Kr), up)
             # Vectorisable pass: a flag per entry (the values are recomputed where needed, not stored).
             t = rthr[i]
-            for jj in range(C):
-                g = grow[jj]
-                v = (a + n2t[jj]) - (g + g)
-                c = ctt[jj]
-                fl[jj] = np.uint8(v < (t if t > c else c))
-            # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
-            # walked: the next insertion does not wait on the last one's stores.
-            lv, lx = load16(rv, i, 0), load16(ri, i, 0)
-            if keep:
+            if keep:  # the same pass writes the row's codes
                 drow = dense[i, c0 : c0 + C]
                 for jj in range(C):
                     g = grow[jj]
-                    drow[jj] = code((a + n2t[jj]) - (g + g), qoff, qinv)
+                    v = (a + n2t[jj]) - (g + g)
+                    c = ctt[jj]
+                    fl[jj] = np.uint8(v < (t if t > c else c))
+                    drow[jj] = code(v, qoff, qinv)
+            else:
+                for jj in range(C):
+                    g = grow[jj]
+                    v = (a + n2t[jj]) - (g + g)
+                    c = ctt[jj]
+                    fl[jj] = np.uint8(v < (t if t > c else c))
+            # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
+            # walked: the next insertion does not wait on the last one's stores.
+            lv, lx = load16(rv, i, 0), load16(ri, i, 0)
             # The flagged entries in order, without a branch per entry: eight flag bytes (0 / 1) gather
             # into eight bits by one multiplication, a group's 64 into a mask; its set bits are then
             # taken lowest first (de Bruijn index of the lowest bit).
