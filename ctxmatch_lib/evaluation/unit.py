@@ -80,6 +80,9 @@ def _context_factory(unit: SweepUnit, f1, f2, cache):
     cand_keys = list(dict.fromkeys(c.candidate_key for c in blobs))
     needs_overlap = any(c.t_o is not None and c.t_o_kind == "overlap" for c in blobs)
     depth = max([k[0] for k in cand_keys if k[0] != "omega"] + [k[2] for k in cand_keys] + [1])
+    # f = Ω walks whole rows: kept by the one pass over D (on the L2 path its 16-bit codes, written as the
+    # tiles are scanned) rather than computed again by a second product when first needed.
+    keep_dense = True if any(k[0] == "omega" for k in cand_keys) else None
     state = {}
 
     def ctx():
@@ -89,7 +92,7 @@ def _context_factory(unit: SweepUnit, f1, f2, cache):
             tables = (overlap_table(f1, cache), overlap_table(f2, cache)) if needs_overlap else None
             state["ctx"] = TabulatedContext(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes,
                                             shapes2=f2.shapes, depth=depth, overlap_tables=tables,
-                                            distance=f1.distance())
+                                            distance=f1.distance(), keep_dense=keep_dense)
             state["seconds"] = time.perf_counter() - t0
         return state["ctx"], state["seconds"]
 
