@@ -12,7 +12,10 @@ lane by lane.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
 whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``, ``filters/_em_kernels.py``,
-``filters/_llt_kernels.py``) or clear ``$CTXMATCH_CACHE/numba``.
+``filters/_llt_kernels.py``) or clear ``$CTXMATCH_CACHE/numba``. Never rename or remove one of the types
+below: numba unpickles a cached index before it compares timestamps, and an index naming a type that is
+gone raises ``AttributeError`` instead of recompiling (seen when ``Vec4`` was renamed; checkouts at the same
+path share their cache folders).
 """
 
 from __future__ import annotations
