@@ -374,7 +374,7 @@ class BlobContext:
             # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
             with one_blas_thread():
                 raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
-        else:  # the L2 path proposes with float32 rows (_approx_lines) and decides on exact distances
+        else:  # the L2 path proposes with coded float32 rows (_approx_lines), decides on exact distances
             raise RuntimeError("BlobContext._lines serves precomputed distances and distance hooks only")
         return np.asarray(raw, np.float64)
 
@@ -506,7 +506,7 @@ class BlobContext:
                            geq: bool, t_o, t_o_kind: str) -> np.ndarray:
         """:meth:`second_best` on whole lines, for the anchors whose sorted list holds no qualifying entry.
 
-        Lines are taken in chunks of about 8 MiB. On the L2 path their float32 GEMM rows propose and exact
+        Lines are taken in chunks of about 8 MiB. On the L2 path their coded float32 GEMM rows propose and exact
         distances decide (:func:`._walk_kernels.next_in_lines`): one call yields the entry FGINN by pixels
         allows; FGINN by overlap takes the entries in (distance, index) order and computes the overlap
         error of each until one is above ``t_o``, so only the few nearest entries need a patch overlap,
