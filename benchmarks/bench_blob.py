@@ -63,13 +63,16 @@ def timed(clock):
     return run
 
 
-def interleaved(jobs: dict, repeat: int, clock) -> dict:
-    """Median time of each job, the jobs run round-robin so that a busy spell hits them alike."""
+def interleaved(jobs: dict, repeat: int, clock, spread: dict | None = None) -> dict:
+    """Median time of each job, the jobs run round-robin so that a busy spell hits them alike; ``spread``, when
+    given, receives each job's (fastest, slowest) round."""
     run = timed(clock)
     times = {name: [] for name in jobs}
     for _ in range(repeat):
         for name, fn in jobs.items():
             times[name].append(run(fn))
+    if spread is not None:
+        spread.update({name: (min(t), max(t)) for name, t in times.items()})
     return {name: float(np.median(t)) for name, t in times.items()}
 
 
@@ -105,16 +108,19 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
             def job(kw=kw, name=name):
                 sizes[name] = len(blob_matching(d1, d2, kpts1=k1, kpts2=k2, shapes1=s1, shapes2=s2, **kw))
             jobs[f"blob {name}"] = job
-        t = interleaved(jobs, repeat, clock)
+        spread: dict = {}
+        t = interleaved(jobs, repeat, clock, spread)
     floor = t["float32 GEMM d1 @ d2.T"]
-    print(f"n = m = {n}, d = 128, {threads} thread(s), median of {repeat} ({clock.__name__}):")
+    print(f"n = m = {n}, d = 128, {threads} thread(s), median of {repeat} ({clock.__name__}; the fastest and "
+          "slowest round in brackets):")
     for name, sec in t.items():
         extra = ""
         if name.startswith("blob "):
             extra = f"   {sizes[name[5:]]} candidates"
             if "OpenCV BFMatcher.knnMatch(k=2)" in t:
                 extra += f", {sec / t['OpenCV BFMatcher.knnMatch(k=2)']:.2f}x knnMatch"
-        print(f"  {name:34s} {sec * 1e3:9.1f} ms   {sec / floor:5.2f}x GEMM{extra}")
+        lo, hi = spread[name]
+        print(f"  {name:34s} {sec * 1e3:9.1f} ms [{lo * 1e3:.0f}-{hi * 1e3:.0f}]   {sec / floor:5.2f}x GEMM{extra}")
     if sgloh:
         sgloh_speed(n, threads, repeat, clock)
 
