@@ -252,11 +252,10 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
-    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's
-    #: rows and a row's from its first tile's columns; the insertions after that grow with the log of the
-    #: lines' length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within
-    #: 2 % (whole paper-best calls at 5000 and 8000, the shapes' order rotated between rounds: the first
-    #: call after the GEMM pays about 3 ms more, whichever shape it is).
+    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's rows
+    #: and a row's from its first tile's columns; the insertions after that grow with the log of the lines'
+    #: length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within 2 % (whole
+    #: paper-best calls at 5000 and 8000, the shapes' order rotated: the first after the GEMM pays ~3 ms).
     tile = (1024, 512)
     #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
     #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
@@ -287,8 +286,7 @@ class BlobContext:
         R, C = self.tile
         buf = np.empty(R * C, np.float32)
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
-        # 16-bit codes of the approximations for the look-ups beyond the lists: v is within E_max of an exact
-        # squared distance, which is in [0, (|a| + |b|)²].
+        # 16-bit codes for the look-ups beyond the lists: v is within E_max of an exact one, in [0, (|a| + |b|)²].
         E_max = self._scale * (float(nrm1.max()) + float(nrm2.max())) if n and m else 0.0
         top = (np.sqrt(nrm1.max(initial=0.0)) + np.sqrt(nrm2.max(initial=0.0))) ** 2 + E_max
         self._qoff, self._qinv, self._qstep = _kernels.code_scale(-E_max, float(top))
@@ -301,10 +299,8 @@ class BlobContext:
                 _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense,
                                    self._qoff, self._qinv)
         rc, cc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1), np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
-        if keep_dense:
-            self._approx = dense
-        E1 = float(nrm1.max())
-        E2 = float(nrm2.max())
+        self._approx = dense if keep_dense else None
+        E1, E2 = float(nrm1.max()), float(nrm2.max())
         idx, val = np.empty((n, Tr), np.int64), np.empty((n, Tr))
         self.work = _kernels.certify_lines(X1, X2, rv, ri, rc, Kr, Tr, nrm1, E2, self._scale, idx, val)
         self.rows = SortedLists(idx, val, complete=Tr == m)
@@ -328,17 +324,21 @@ class BlobContext:
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
         decoding within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` in float32 on one
-        BLAS thread, then :func:`._kernels.code`."""
+        BLAS thread, about 8 MiB of float32 at a time, then :func:`._kernels.code`."""
         if self._approx is not None and side == 0:
             return self._approx[which]
         # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
         own, other = self._X32[side], self._X32[1 - side]
-        with one_blas_thread():
-            g = own[which] @ other.T
-        g *= np.float32(-2)
-        g += self._norms[side][which].astype(np.float32)[:, None]
-        g += self._norms[1 - side].astype(np.float32)[None, :]
-        return _kernels.encode(g, self._qoff, self._qinv)
+        n_own, n_other = self._norms[side].astype(np.float32), self._norms[1 - side].astype(np.float32)
+        out, step = np.empty((len(which), len(other)), np.uint16), max(1, (8 * _MiB) // (4 * len(other)))
+        for s in range(0, len(which), step):
+            w = which[s : s + step]
+            with one_blas_thread():
+                g = own[w] @ other.T
+            g *= np.float32(-2)
+            g += n_own[w][:, None]
+            out[s : s + step] = _kernels.encode(g + n_other[None, :], self._qoff, self._qinv)
+        return out
 
     # -- whole rows / columns, for the rare look-ups beyond the sorted lists ------------------------
     def _check_dense(self, nbytes: int, what: str) -> None:
