@@ -57,6 +57,14 @@ def _check(arr, name, dtypes=(types.float32, types.float64)):
         raise TypingError(f"{name} must be a contiguous 1-d {names} array, got {arr}")
 
 
+def _check2(arr, name, dtypes=None):
+    """Typing-time check of a matrix operand: C-contiguous, 2-d, of one of ``dtypes`` (any when ``None``)."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C"
+            and (dtypes is None or arr.dtype in dtypes)):
+        names = "" if dtypes is None else " or ".join(str(t) for t in dtypes) + " "
+        raise TypingError(f"{name} must be a C-contiguous 2-d {names}array, got {arr}")
+
+
 def _lanes(context, builder, aryty, ary, k, n):
     """Pointer to the ``n`` elements ``ary[k:k + n]`` as one LLVM vector of the array's type (no bounds
     check)."""
@@ -171,7 +179,7 @@ def muladd4(typingctx, acc, a, b):
     return _vec4(_vec4, _vec4, _vec4), codegen
 
 
-# -- Sixteen lanes: a sorted line of blob matching's scan (``blob/_kernels.py``) ---------------------------
+# -- Sixteen lanes: blob matching's scan (``blob/_kernels.py``) and look-ups (``blob/_walk_kernels.py``) ------
 _F16 = ir.VectorType(ir.FloatType(), 16)
 _I16 = ir.VectorType(ir.IntType(64), 16)
 _U16 = ir.VectorType(ir.IntType(16), 16)
@@ -221,8 +229,7 @@ class _Vec16Model(models.PrimitiveModel):
 
 
 def _vec16_of(arr, name):
-    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype in _vec16):
-        raise TypingError(f"{name} must be a C-contiguous 2-d float32, int64 or uint16 array, got {arr}")
+    _check2(arr, name, tuple(_vec16))
     return _vec16[arr.dtype]
 
 
@@ -319,8 +326,7 @@ def _coded_row(context, builder, aryty, ary, line, k, penty, pen):
 
 
 def _check_row_pen(arr, pen):
-    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C" and arr.dtype == types.uint16):
-        raise TypingError(f"arr must be a C-contiguous 2-d uint16 array, got {arr}")
+    _check2(arr, "arr", (types.uint16,))
     _check(pen, "pen", (types.uint16,))
 
 
@@ -390,8 +396,7 @@ def band16(typingctx, arr, line, k, pen, lo, hi):
 def prefetch(typingctx, arr, line, k):
     """Hint the CPU to bring the cache line of ``arr[line, k]`` (a C-contiguous 2-d array) into its caches;
     no effect on any result (``llvm.prefetch``, a read, all cache levels)."""
-    if not (isinstance(arr, types.Array) and arr.ndim == 2 and arr.layout == "C"):
-        raise TypingError(f"arr must be a C-contiguous 2-d array, got {arr}")
+    _check2(arr, "arr")
 
     def codegen(context, builder, sig, args):
         ptr = _row_lanes(context, builder, sig.args[0], args[0], args[1], args[2], 1)

@@ -158,8 +158,8 @@ with user_cache() as _cache:
     def greedy_dense(Q, A, B, lidx, lval, E_rows, f_prime, qoff, step):
         """Step 2 over all of D (f = Ω): a heap holds each row's next entry in (distance, column) order.
 
-        Rows walk their exact sorted lists first, then continue with :func:`next_in_line` on the
-        approximate dense matrix (exact distances where the approximation cannot decide).
+        Rows walk their exact sorted lists first, then continue with :func:`next_in_line` on their row of
+        ``Q``, the coded approximate matrix (exact distances where the codes cannot decide).
         """
         n, m = Q.shape
         T = lidx.shape[1]
@@ -215,8 +215,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def next_in_lines(Q, rows, A, which, B, E_lines, d, j, strict, skip, pts, t_o2, qoff, step):
-        """:func:`next_in_line` for several lines: line ``which[r]`` of ``A`` against ``B``, its approximate
-        squared distances in ``Dap[rows[r]]``, the entry after ``(d[r], j[r])`` (``strict[r]``) other than
+        """:func:`next_in_line` for several lines: line ``which[r]`` of ``A`` against ``B``, the codes of its
+        approximate squared distances in ``Q[rows[r]]``, the entry after ``(d[r], j[r])`` (``strict[r]``) other than
         ``skip[r]`` and, when ``t_o2 > 0``, not within ``sqrt(t_o2)`` pixels of it (FGINN). Returns the
         exact distances and indices, ``inf`` and ``-1`` where none qualifies."""
         L = len(which)
