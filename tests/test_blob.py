@@ -422,6 +422,71 @@ def test_overlap_error_against_polygons():
     assert np.allclose(same, 0, atol=1e-9)
 
 
+def _circle_pairs(P, seed):
+    """Circular patches (radii 1-11, any angle) at centres up to 2000 px, the second near the first; the first
+    300 pairs at external tangency, internal tangency and on the same centre."""
+    from ctxmatch_lib.blob import shapes_from_scale_angle
+
+    rng = np.random.default_rng(seed)
+    r1, r2 = rng.uniform(1, 11, P), rng.uniform(1, 11, P)
+    c1 = rng.uniform(0, 2000, (P, 2))
+    c2 = c1 + rng.normal(0, 6, (P, 2))
+    c2[:100, 0], c2[:100, 1] = c1[:100, 0] + r1[:100] + r2[:100], c1[:100, 1]
+    c2[100:200, 0], c2[100:200, 1] = c1[100:200, 0] + np.abs(r1 - r2)[100:200], c1[100:200, 1]
+    c2[200:300] = c1[200:300]
+    return (c1, shapes_from_scale_angle(r1, rng.uniform(0, 7, P)), c2,
+            shapes_from_scale_angle(r2, rng.uniform(0, 7, P)))
+
+
+def test_circle_overlap_bounds_hold_and_are_tight():
+    from ctxmatch_lib.blob.overlap import circle_overlap_bounds
+
+    c1, A1, c2, A2 = _circle_pairs(20000, 3)
+    err = ellipse_overlap_error(c1, A1, c2, A2)
+    lo, hi = circle_overlap_bounds(c1, A1, c2, A2)
+    assert ((lo <= err) & (err <= hi)).all()
+    r1, r2 = np.hypot(A1[:, 0, 0], A1[:, 1, 0]), np.hypot(A2[:, 0, 0], A2[:, 1, 0])
+    far = np.sum((c1 - c2) ** 2, axis=1) >= (r1 + r2) ** 2 * (1 + 1e-9)
+    assert (err[far] == 1).all() and (lo[far] == 1).all() and far.sum() > 100  # decided exactly, as 1
+    assert (hi - lo).max() < 0.02
+    for t_o in (0.5, 0.75, 0.99):  # where FGINN must still compute the error: under 1 % of the near pairs
+        assert ((lo <= t_o) & (t_o < hi)).sum() < 0.01 * (~far).sum()
+    # ellipses that are not circles are not bounded
+    A3 = A1 * np.array([1.0, 2.0])[None, :, None]
+    lo3, hi3 = circle_overlap_bounds(c1[:500], A3[:500], c2[:500], A2[:500])
+    near3 = ellipse_overlap_error(c1[:500], A3[:500], c2[:500], A2[:500]) < 1
+    assert (lo3[near3] == 0).all() and (hi3[near3] == 1).all()
+
+
+@pytest.mark.parametrize("t_o", [0.5, 0.75, 0.99])
+def test_overlap_near_decides_as_the_errors(t_o):
+    """FGINN by overlap's test on circles (bounds), ellipses and disjoint pairs equals ``error <= t_o``."""
+    c1, A1, c2, A2 = _circle_pairs(3000, 4)
+    A1[::3] = A1[::3] * np.array([1.0, 1.7])[None, :, None]  # every third patch an ellipse
+    pts, shapes = np.vstack([c1, c2]), np.vstack([A1, A2])
+    ctx = BlobContext(distances=np.ones((2, 2)), kpts1=pts[:2], kpts2=pts, shapes2=shapes)
+    other, cand = np.arange(3000), np.arange(3000, 6000)
+    calls = []
+    errors = ctx.overlap_errors
+    ctx.overlap_errors = lambda img, o, c: calls.append(len(o)) or errors(img, o, c)
+    near = ctx.overlap_near(1, other, cand, t_o)
+    assert np.array_equal(near, ellipse_overlap_error(c1, A1, c2, A2) <= t_o)
+    assert sum(calls) < 1500  # the ellipse pairs and the few circles near t_o
+
+
+def test_radii_are_validated_like_shapes():
+    d = np.ones((3, 8), np.float32)
+    kw = dict(kpts1=np.zeros((3, 2)), kpts2=np.zeros((3, 2)), t_o=0.5, t_o_kind="overlap")
+    with pytest.raises(ValueError, match="shapes1 holds degenerate"):
+        blob_matching(d, d, shapes1=np.array([1.0, 0.0, 2.0]), shapes2=np.ones(3), **kw)
+    with pytest.raises(ValueError, match="shapes2 contains NaN"):
+        blob_matching(d, d, shapes1=np.ones(3), shapes2=np.array([1.0, np.nan, 2.0]), **kw)
+    with pytest.raises(ValueError, match="shapes1 holds degenerate"):
+        blob_matching(d, d, shapes1=np.zeros((3, 2, 2)), shapes2=np.ones(3), **kw)
+    # a negative radius is the same disk (r R(0) has determinant r²), as it always was
+    assert len(blob_matching(d, d, shapes1=-np.ones(3), shapes2=np.ones(3), **kw)) > 0
+
+
 @pytest.mark.parametrize("f_prime", [1, 2, 3])
 def test_omega_heap_greedy_matches_a_full_sort(f_prime):
     # Rows run past their sorted lists here, which exercises the vectorised continuation of the heap.

@@ -52,6 +52,45 @@ def test_descriptors_equal_the_dense_float64_reference(cfg, seed, n, m, ties):
     assert np.allclose(got.scores, ref.scores, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("tile", [(32, 48), (7, 20), (150, 130)])
+@pytest.mark.parametrize("cfg", SETUPS[:2], ids=lambda c: c.label)
+def test_many_small_tiles_give_the_reference(tile, cfg):
+    """Tiles smaller than D, with partial ones at the edges: each accumulates into the buffer the scan of the
+    one before left zeroed (``_blas.accumulate_product``), so any tile shape gives the same lists."""
+
+    class Tiled(BlobContext):
+        pass
+
+    Tiled.tile = tile
+    d1, d2, k1, k2 = planted(4, 150, 130)
+    dense = cfg.f == "omega"
+    depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
+    ctx = Tiled(d1, d2, kpts1=k1, kpts2=k2, depth=depth, margin=2, keep_dense=dense)
+    got = match_context(ctx, cfg)
+    ref = dense_reference(d1, d2, k1, k2, cfg)
+    assert np.array_equal(got.matches, ref.matches)
+    assert np.allclose(got.scores, ref.scores, rtol=1e-12, atol=1e-14)
+
+
+def test_scan_tile_leaves_the_tile_zeroed():
+    from ctxmatch_lib.blob import _kernels
+
+    rng = np.random.default_rng(5)
+    A, B = rng.random((40, 8), np.float32), rng.random((70, 8), np.float32)
+    G = A @ B.T
+    n1 = (A.astype(np.float64) ** 2).sum(1).astype(np.float32)
+    n2 = (B.astype(np.float64) ** 2).sum(1).astype(np.float32)
+    V = (n1[:, None] + n2[None]) - (G + G)
+    rv, ri = np.full((40, 16), np.inf, np.float32), np.zeros((40, 16), np.int64)
+    cv, ci = np.full((70, 16), np.inf, np.float32), np.zeros((70, 16), np.int64)
+    rthr, cthr = np.full(40, np.inf, np.float32), np.full(70, np.inf, np.float32)
+    _kernels.scan_tile(G, 0, 0, n1, n2, rv, ri, rthr, cv, ci, cthr, 6, 6, np.empty((1, 1), np.uint16), False,
+                       np.float32(0), np.float32(1))
+    assert not G.any()
+    np.testing.assert_array_equal(rv[:, :6], np.sort(V, axis=1)[:, :6])
+    np.testing.assert_array_equal(cv[:, :6], np.sort(V, axis=0)[:6].T)
+
+
 def test_sorted_lists_hold_the_exact_best_entries_with_ties_by_index():
     d1, d2, _, _ = planted(3, 200, 180, ties=True)
     ctx = BlobContext(d1, d2, depth=5)
@@ -232,6 +271,21 @@ def test_exact_distance_is_the_documented_sum_bit_for_bit(d, dtype):
 
     got = [_kernels._exact_sq(A, i, B, j) for i in range(12) for j in range(15)]
     assert got == [reference(A[i], B[j]) for i in range(12) for j in range(15)]
+    # four at a time (the re-ranking's blocks and whole lines), and against a row widened to float64
+    # beforehand (certify_lines): the same bits
+    four = [_kernels._exact_sq4(A, i, B, j, (j + 3) % 15, (j + 7) % 15, (j + 11) % 15) for i in range(12)
+            for j in range(15)]
+    assert four == [tuple(reference(A[i], B[k]) for k in (j, (j + 3) % 15, (j + 7) % 15, (j + 11) % 15))
+                    for i in range(12) for j in range(15)]
+    js = np.arange(15)[::-1].copy()
+    for q in (0, 3, 4, 9, 15):  # tails of 0-3 after the blocks of four
+        out = np.full(15, -1.0)
+        _kernels._exact_block(A.astype(np.float64), 5, B, js, q, out)
+        assert out[:q].tolist() == [np.sqrt(reference(A[5], B[k])) for k in js[:q]] and (out[q:] == -1).all()
+    for m in (13, 14, 15):
+        row = np.empty(m)
+        _kernels._exact_row(A, 2, B[:m], row)
+        assert row.tolist() == [np.sqrt(reference(A[2], B[k])) for k in range(m)]
     # a plain left-to-right sum rounds differently on these values: the comparison can tell orders apart
     plain = [sum((float(x) - float(y)) ** 2 for x, y in zip(A[i], B[j])) for i in range(12) for j in range(15)]
     assert got != plain or d < 16

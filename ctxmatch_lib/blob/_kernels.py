@@ -79,11 +79,7 @@ with user_cache() as _cache:
         acc = zero8()
         for k in range(0, d8, 8):
             acc = add_sqdiff8(acc, a, b, k)
-        s0, s1, s2, s3, s4, s5, s6, s7 = lanes8(acc)
-        for k in range(d8, d):
-            t0 = np.float64(a[k]) - np.float64(b[k])
-            s0 += t0 * t0
-        return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+        return _tree(acc, a, b, d8, d)
 
     @njit(cache=_cache, nogil=True)
     def sq_norms(A):
@@ -95,16 +91,51 @@ with user_cache() as _cache:
             out[i] = _exact_sq(A, i, zero, 0)
         return out
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _tree(acc, a, b, d8, d):
+        """The end of :func:`_exact_sq`: the last d mod 8 terms added to the first lane, the lanes summed in
+        its fixed tree."""
+        s0, s1, s2, s3, s4, s5, s6, s7 = lanes8(acc)
+        for k in range(d8, d):
+            t0 = np.float64(a[k]) - np.float64(b[k])
+            s0 += t0 * t0
+        return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+
+    @njit(cache=_cache, nogil=True)
+    def _exact_sq4(A, i, B, j0, j1, j2, j3):
+        """:func:`_exact_sq` of ``A[i]`` against four rows of ``B`` at once, each in its own registers and
+        with the same operations in the same order (so the same bits): four independent chains of additions
+        overlap."""
+        a, b0, b1, b2, b3 = A[i], B[j0], B[j1], B[j2], B[j3]
+        d = a.shape[0]
+        d8 = d - d % 8
+        c0, c1, c2, c3 = zero8(), zero8(), zero8(), zero8()
+        for k in range(0, d8, 8):
+            c0 = add_sqdiff8(c0, a, b0, k)
+            c1 = add_sqdiff8(c1, a, b1, k)
+            c2 = add_sqdiff8(c2, a, b2, k)
+            c3 = add_sqdiff8(c3, a, b3, k)
+        return _tree(c0, a, b0, d8, d), _tree(c1, a, b1, d8, d), _tree(c2, a, b2, d8, d), _tree(c3, a, b3, d8, d)
+
     @njit(cache=_cache, nogil=True)
     def _exact_block(A, i, B, js, q, out):
-        """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q."""
-        for p in range(q):
+        """``out[p] = sqrt(_exact_sq(A, i, B, js[p]))`` for p < q, four at a time (:func:`_exact_sq4`)."""
+        q4 = q - q % 4
+        for p in range(0, q4, 4):
+            e0, e1, e2, e3 = _exact_sq4(A, i, B, js[p], js[p + 1], js[p + 2], js[p + 3])
+            out[p], out[p + 1], out[p + 2], out[p + 3] = np.sqrt(e0), np.sqrt(e1), np.sqrt(e2), np.sqrt(e3)
+        for p in range(q4, q):
             out[p] = np.sqrt(_exact_sq(A, i, B, js[p]))
 
     @njit(cache=_cache, nogil=True)
     def _exact_row(A, i, B, out):
-        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j."""
-        for j in range(B.shape[0]):
+        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j, four at a time."""
+        m = B.shape[0]
+        m4 = m - m % 4
+        for j in range(0, m4, 4):
+            e0, e1, e2, e3 = _exact_sq4(A, i, B, j, j + 1, j + 2, j + 3)
+            out[j], out[j + 1], out[j + 2], out[j + 3] = np.sqrt(e0), np.sqrt(e1), np.sqrt(e2), np.sqrt(e3)
+        for j in range(m4, m):
             out[j] = np.sqrt(_exact_sq(A, i, B, j))
 
     @njit(cache=_cache, nogil=True, inline="always")
@@ -239,6 +270,9 @@ with user_cache() as _cache:
         it but at or above a fresh line's estimated threshold (which is above the line's true K-th value)
         is pushed out again by the K true best entries, which all come. The K entries are those of the
         branchy insertion, in the same order.
+
+        Each row of ``G`` is set to zero once read: the next tile is accumulated into it
+        (:func:`~ctxmatch_lib._blas.accumulate_product`).
         """
         B, C = G.shape
         reg = Kr <= 16
@@ -333,6 +367,8 @@ with user_cache() as _cache:
                 store16(ri, i, 0, lx)
                 kth = lane16(lv, Kr - 1)
                 rthr[i] = kth if kth < t else t
+            for jj in range(C):  # the next tile's GEMM accumulates into zeros (no zeroing pass of its own)
+                grow[jj] = 0
         for jj in range(C):
             if pc[jj] > 0:
                 _flush(cv, ci, cthr, c0 + jj, Kc, pv, pi, jj, pc[jj])
@@ -376,6 +412,7 @@ with user_cache() as _cache:
         val = np.empty(K)
         idx = np.empty(K, np.int64)
         ex = np.empty(K)
+        arow = np.empty((1, d))
         work = 0
         for line in range(n):
             c = cnt[line]
@@ -391,7 +428,9 @@ with user_cache() as _cache:
                 q = 0
                 while q < c and val[q] <= band:
                     q += 1
-                _exact_block(A, line, B, idx, q, ex)
+                for k in range(d):  # the line's own row widened once (exactly), not once per entry
+                    arow[0, k] = A[line, k]
+                _exact_block(arow, 0, B, idx, q, ex)
                 for p in range(q):
                     val[p] = ex[p]
                 work += q

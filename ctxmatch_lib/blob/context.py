@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._blas import one_blas_thread
+from .._blas import accumulate_product, one_blas_thread
 from . import _kernels, _select_kernels, _walk_kernels
-from .overlap import _largest_singular_value, ellipse_overlap_error
+from ._lists import _column_group_minima, _first_t, _group_size, _row_thresholds
+from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
 
@@ -38,61 +39,6 @@ class SortedLists:
     idx: np.ndarray  # (N, T) int64
     val: np.ndarray  # (N, T) float64
     complete: bool
-
-
-def _first_t(group, other, value, n_groups: int, n_other: int, T: int):
-    """From candidate entries (every group holds at least T), keep the T best per group.
-
-    Within a group the order is by value, then by the other index (blob matching's tie-break).
-    Returns ``idx`` (n_groups, T) int64 and ``val`` (n_groups, T) float64 distances.
-    """
-    gb, ob = max(1, int(n_groups - 1).bit_length()), max(1, int(n_other - 1).bit_length())
-    if value.dtype == np.float32 and gb + ob <= 32:
-        # One int64 sort: the bits of a non-negative float32 are monotone in its value (31 bits).
-        bits = (np.maximum(value, 0) + np.float32(0)).view(np.uint32).astype(np.int64)
-        key = np.sort((group.astype(np.int64) << (31 + ob)) | (bits << ob) | other)
-        g, o = key >> (31 + ob), key & ((1 << ob) - 1)
-        v = ((key >> ob) & 0x7FFFFFFF).astype(np.uint32).view(np.float32)
-    else:
-        order = np.lexsort((other, value, group))
-        g, o, v = group[order], other[order], value[order]
-    starts = np.searchsorted(g, np.arange(n_groups))
-    pos = np.arange(len(g)) - starts[g]
-    keep = pos < T
-    idx = np.empty((n_groups, T), np.int64)
-    val = np.empty((n_groups, T), np.float64)
-    idx[g[keep], pos[keep]] = o[keep]
-    val[g[keep], pos[keep]] = np.maximum(v[keep].astype(np.float64), 0)
-    return idx, val
-
-
-def _group_size(size: int, T: int) -> int:
-    return int(np.clip(size // (8 * T), 1, 16))
-
-
-def _row_thresholds(block: np.ndarray, T: int, G: int) -> np.ndarray:
-    """Per-row value ``tau`` with at least ``T`` entries ``<= tau``: the T-th smallest of group minima.
-
-    The columns are split into interleaved groups of ``G``; T distinct groups each have an entry no larger
-    than the T-th smallest group minimum, so the bound holds, and it is tight up to a few entries.
-    """
-    B, m = block.shape
-    if T >= m:
-        return np.full(B, np.inf)
-    mg = (m // G) * G
-    gmin = block[:, :mg].reshape(B, G, mg // G).min(axis=1) if G > 1 else block
-    if G > 1 and mg < m:
-        gmin = np.hstack([gmin, block[:, mg:]])
-    return np.partition(gmin, T - 1, axis=1)[:, T - 1]
-
-
-def _column_group_minima(block: np.ndarray, G: int) -> np.ndarray:
-    B = block.shape[0]
-    bg = (B // G) * G
-    parts = [block[:bg].reshape(bg // G, G, -1).min(axis=1)] if bg else []
-    if bg < B:
-        parts.append(block[bg:])
-    return np.vstack(parts)
 
 
 class BlobContext:
@@ -284,7 +230,7 @@ class BlobContext:
         rthr, cthr = np.full(n, np.inf, np.float32), np.full(m, np.inf, np.float32)
         dense = np.empty((n, m), np.uint16) if keep_dense else np.empty((1, 1), np.uint16)
         R, C = self.tile
-        buf = np.empty(R * C, np.float32)
+        buf = np.zeros(R * C, np.float32)  # zero between tiles: the scan clears what it has read
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
         # 16-bit codes for the look-ups beyond the lists: v is within E_max of an exact one, in [0, (|a| + |b|)²].
         E_max = self._scale * (float(nrm1.max()) + float(nrm2.max())) if n and m else 0.0
@@ -295,7 +241,7 @@ class BlobContext:
             for c0 in range(0, m, C):
                 b = B32[c0 : c0 + C]
                 G = buf[: len(a) * len(b)].reshape(len(a), len(b))
-                np.matmul(a, b.T, out=G)
+                accumulate_product(a, b, G)
                 _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense,
                                    self._qoff, self._qinv)
         rc, cc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1), np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
@@ -532,7 +478,7 @@ class BlobContext:
                                                    self._qstep)
                 live = np.flatnonzero(k >= 0) if by_overlap else rows[:0]
                 while len(live):
-                    near = self.overlap_errors(1 - side, o[live], k[live, None]).reshape(-1) <= t_o
+                    near = self.overlap_near(1 - side, o[live], k[live], t_o)
                     live = live[near]
                     if not len(live):
                         break
@@ -562,7 +508,7 @@ class BlobContext:
                 live, k, val = live[val < np.inf], k[val < np.inf], val[val < np.inf]
                 if not len(live):
                     break
-                near = self.overlap_errors(1 - side, o[live], k[:, None]).reshape(-1) <= t_o
+                near = self.overlap_near(1 - side, o[live], k, t_o)
                 out[s + live[~near]] = val[~near]
                 live = live[near]
                 pos[live] += 1
@@ -578,8 +524,8 @@ class BlobContext:
         The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
         candidates before it need their overlap error, not the whole list. Of those, a candidate whose
         bounding circle misses the match's has overlap error exactly 1 (as :func:`ellipse_overlap_error`
-        and the tabulated errors give it), decided in the kernel; the others are computed by
-        :meth:`overlap_errors`, one vectorised call per round.
+        and the tabulated errors give it), decided in the kernel; the others by :meth:`overlap_near`, one
+        vectorised call per round.
         """
         K, L = len(anchors), lists.idx.shape[1]
         first = np.full(K, -1, np.int64)
@@ -595,8 +541,7 @@ class BlobContext:
             if not len(active):
                 break
             cand = lists.idx[anchors[active], nxt]
-            err = np.asarray(self.overlap_errors(img, others[active], cand[:, None])).reshape(-1)
-            keep = err > t_o
+            keep = ~self.overlap_near(img, others[active], cand, t_o)
             first[active[keep]] = nxt[keep]
             pos[active[~keep]] = nxt[~keep] + 1
             active = active[~keep]
@@ -607,6 +552,19 @@ class BlobContext:
         if self._radii[img] is None:
             self._radii[img] = _largest_singular_value(np.asarray(self.shapes[img], np.float64).reshape(-1, 2, 2))
         return self._radii[img]
+
+    def overlap_near(self, img: int, other: np.ndarray, cand: np.ndarray, t_o: float) -> np.ndarray:
+        """Whether keypoint ``other[k]``'s and ``cand[k]``'s patches (image ``img``) overlap with error
+        ``<= t_o``. Circular patches are decided by :func:`circle_overlap_bounds` where ``t_o`` is outside
+        them (nearly always); :meth:`overlap_errors` gives the error of the others. The decisions are those
+        of the errors."""
+        pts, shapes = self.kpts[img], self.shapes[img]
+        lo, hi = circle_overlap_bounds(pts[other], shapes[other], pts[cand], shapes[cand])
+        near = hi <= t_o
+        open_ = np.flatnonzero((lo <= t_o) & ~near)
+        if len(open_):
+            near[open_] = self.overlap_errors(img, other[open_], cand[open_, None]).reshape(-1) <= t_o
+        return near
 
     def overlap_errors(self, img: int, other: np.ndarray, cand: np.ndarray) -> np.ndarray:
         """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img``.

@@ -93,6 +93,13 @@ class TabulatedContext(BlobContext):
         self._second[side] = (key, tuple(np.array(a, copy=True) for a in (anchors, others, dist)), out.copy())
         return out
 
+    def overlap_near(self, img, other, cand, t_o):
+        """Decided on the tabulated errors themselves (no bounds: a look-up is as cheap, and the grid's
+        repeated look-ups are reused)."""
+        if self._tables is None:
+            return super().overlap_near(img, other, cand, t_o)
+        return self.overlap_errors(img, other, cand[:, None]).reshape(-1) <= t_o
+
     def overlap_errors(self, img, other, cand):
         if self._tables is None:
             return super().overlap_errors(img, other, cand)
