@@ -13,10 +13,13 @@ interleaved (round-robin, ``--repeat`` rounds, median of each):
 
 and prints each time with its ratio to the floor. Blob matching runs its GEMM tiles on one BLAS thread
 whatever ``--threads`` says (its float32 rounding must not depend on the thread count, although its
-decisions no longer do). Times are CPU process times by default (``--wall`` for wall-clock): on a shared
-machine they are skewed less by other processes. First (before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a
-fresh process, and what f = Ω does there (the baseline, in the same process: it runs while the 16-bit codes of D
-fit in ``max_dense_bytes``, 1 GiB, up to n = m = 23 170, and fails fast above).
+decisions no longer do). Its tiles go through SciPy's ``sgemm`` with ``beta = 1`` into a buffer its scan
+zeroes as it reads (``ctxmatch_lib._blas.accumulate_product``); the floor, NumPy's ``matmul``, pays
+OpenBLAS's zeroing pass over its output (in the tiles at 5000, about 3 of 48 ms). Times are CPU process times
+by default (``--wall`` for wall-clock): on a shared machine they are skewed less by other processes. First
+(before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a fresh process, and what f = Ω
+does there (the baseline, in the same process: it runs while the 16-bit codes of D fit in
+``max_dense_bytes``, 1 GiB, up to n = m = 23 170, and fails fast above).
 
 With ``--breakdown``, one more call per preset and size with the GEMM tiles and each compiled stage timed (the
 numbers behind the analysis in docs/blob-matching.md).
@@ -150,9 +153,7 @@ def breakdown(n: int, clock) -> None:
                 spent[name] = spent.get(name, 0.0) + clock() - t0
         return run
 
-    class _TimedNumpy:  # the context's `np`, with its matmul (the GEMM tiles) timed
-        def __getattr__(self, attr):
-            return timed_stage("GEMM tiles", np.matmul) if attr == "matmul" else getattr(np, attr)
+    product = blob_context.accumulate_product  # the GEMM tiles (sgemm into the tile buffer)
 
     print(f"n = m = {n}: where the time goes ({clock.__name__}, one call after a warm-up):")
     for name in ("baseline", "paper-best", "paper-best-overlap"):
@@ -164,12 +165,12 @@ def breakdown(n: int, clock) -> None:
         try:
             for (mod, stage), fn in saved.items():
                 setattr(modules[mod], stage, timed_stage(stage, fn))
-            blob_context.np = _TimedNumpy()
+            blob_context.accumulate_product = timed_stage("GEMM tiles", product)
             t0 = clock()
             blob_matching(d1, d2, **kw)
             total = clock() - t0
         finally:
-            blob_context.np = np
+            blob_context.accumulate_product = product
             for (mod, stage), fn in saved.items():
                 setattr(modules[mod], stage, fn)
         parts = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in spent.items() if v * 1e3 >= 0.5)

@@ -72,6 +72,29 @@ def test_many_small_tiles_give_the_reference(tile, cfg):
     assert np.allclose(got.scores, ref.scores, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("precomputed", [False, True])
+def test_a_context_without_columns_serves_the_baseline_and_refuses_the_rest(precomputed):
+    """f = Ω with W = a reads rows only: ``columns=False`` (what blob_matching builds for it) gives the same
+    matches and scores; the pre-filter and image 2's ratio, which need the columns, say so."""
+    d1, d2, k1, k2 = planted(6, 160, 140)
+    cfg = BLOB_PRESETS["baseline"]
+    D = np.sqrt(((d1[:, None, :].astype(np.float64) - d2[None]) ** 2).sum(-1))
+
+    def make(columns):
+        if precomputed:
+            return BlobContext(distances=D, depth=1, margin=8, columns=columns)
+        return BlobContext(d1, d2, depth=1, margin=8, keep_dense=True, columns=columns)
+
+    rows_only, both = make(False), make(True)
+    assert rows_only.cols is None and np.array_equal(rows_only.rows.idx, both.rows.idx)
+    a, b = match_context(rows_only, cfg), match_context(both, cfg)
+    assert np.array_equal(a.matches, b.matches) and np.array_equal(a.scores, b.scores) and len(a) == 140
+    with pytest.raises(ValueError, match="columns=False"):
+        rows_only.candidates(1, "cup", 1)
+    with pytest.raises(ValueError, match="columns=False"):
+        rows_only.second_best(1, a.matches[:, 1], a.matches[:, 0], np.asarray(a.scores), geq=True, t_o=None)
+
+
 def test_scan_tile_leaves_the_tile_zeroed():
     from ctxmatch_lib.blob import _kernels
 

@@ -220,7 +220,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
     ctx = BlobContext(desc1, desc2, distances=D if distances is not None else None, kpts1=kpts1, kpts2=kpts2,
                       shapes1=shapes1, shapes2=shapes2, depth=depth, keep_dense=True if dense else None,
-                      max_dense_bytes=max_dense_bytes, distance=distance, margin=_margin(cfg, dense))
+                      max_dense_bytes=max_dense_bytes, distance=distance, margin=_margin(cfg, dense),
+                      columns=not (dense and cfg.combine == "a"))  # f = Ω with W = a reads rows only
     return match_context(ctx, cfg)
 
 
