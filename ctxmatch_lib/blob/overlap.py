@@ -37,7 +37,7 @@ def as_shapes(shapes, n: int, name: str) -> np.ndarray:
         arr = arr.reshape(-1)
         if not np.isfinite(arr).all():
             raise ValueError(f"{name} contains NaN or infinite values")
-        area = arr * arr  # the determinant of r R(0) (LU's, but for subnormal results)
+        area = arr * arr  # r R(0)'s determinant: zero for r = 0 (and where r² underflows, |r| < 1e-154)
         arr = shapes_from_scale_angle(arr)
     elif arr.shape != (n, 2, 2):
         raise ValueError(f"{name} must have shape ({n}, 2, 2) (affine shapes) or ({n},) (radii), got {arr.shape}")
