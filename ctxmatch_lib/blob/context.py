@@ -77,7 +77,8 @@ class BlobContext:
         depend on it, the time does: each entry costs the one pass over D, each miss a line.
     columns : bool, default True
         Keep the columns' sorted lists too. The pre-filter F (f < Ω) and image 2's ratio need them; f = Ω
-        with W = a reads rows only (the baseline), and without them the pass skips a third of its work.
+        with W = a reads rows only (the baseline): without them the pass inserts no entry into a column and
+        re-ranks no column (the baseline's call about 5 % faster at n = m = 5000).
 
     Notes
     -----

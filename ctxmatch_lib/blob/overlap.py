@@ -144,7 +144,8 @@ def circle_overlap_bounds(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
     :func:`shapes_from_scale_angle` makes them) each 32-gon lies between the circles of its inradius and its
     circumradius, so the intersection area lies between the two circles' lens areas, and ``e`` (decreasing
     in it) between the values they give. The bounds are widened by ``1e-6`` for the rounding of both
-    computations (the lens formula loses digits near tangency); they are about 0.01 apart. Pairs whose
+    computations (the lens formula loses digits near tangency); they are at most 0.02 apart (median 0.003
+    over 20 000 random overlapping pairs). Pairs whose
     bounding circles are disjoint get ``lo = hi = 1`` (the function's exact 1, decided alike); other shapes get
     ``(0, 1)``. FGINN by overlap compares ``e`` with ``t_o`` and computes it only where ``t_o`` falls
     between the bounds.
