@@ -129,14 +129,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _exact_row(A, i, B, out):
-        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j, four at a time."""
-        m = B.shape[0]
-        m4 = m - m % 4
-        for j in range(0, m4, 4):
-            e0, e1, e2, e3 = _exact_sq4(A, i, B, j, j + 1, j + 2, j + 3)
-            out[j], out[j + 1], out[j + 2], out[j + 3] = np.sqrt(e0), np.sqrt(e1), np.sqrt(e2), np.sqrt(e3)
-        for j in range(m4, m):
-            out[j] = np.sqrt(_exact_sq(A, i, B, j))
+        """``out[j]`` = exact distance of ``A[i]`` and ``B[j]`` for every j (:func:`_exact_block`)."""
+        _exact_block(A, i, B, np.arange(B.shape[0]), B.shape[0], out)
 
     @njit(cache=_cache, nogil=True, inline="always")
     def code(v, qoff, qinv):

@@ -242,8 +242,9 @@ class BlobContext:
         buf = np.zeros(R * C, np.float32)  # zero between tiles: the scan clears what it has read
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
         # 16-bit codes for the look-ups beyond the lists: v is within E_max of an exact one, in [0, (|a| + |b|)²].
-        E_max = self._scale * (float(nrm1.max()) + float(nrm2.max())) if n and m else 0.0
-        top = (np.sqrt(nrm1.max(initial=0.0)) + np.sqrt(nrm2.max(initial=0.0))) ** 2 + E_max
+        E1, E2 = float(nrm1.max(initial=0.0)), float(nrm2.max(initial=0.0))
+        E_max = self._scale * (E1 + E2) if n and m else 0.0
+        top = (np.sqrt(E1) + np.sqrt(E2)) ** 2 + E_max
         self._qoff, self._qinv, self._qstep = _kernels.code_scale(-E_max, float(top))
         for r0 in range(0, n, R):
             a = A32[r0 : r0 + R]
@@ -253,14 +254,14 @@ class BlobContext:
                 accumulate_product(a, b, G)
                 _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense,
                                    self._qoff, self._qinv)
-        rc, cc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1), np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
+        rc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1)
         self._approx = dense if keep_dense else None
-        E1, E2 = float(nrm1.max()), float(nrm2.max())
         idx, val = np.empty((n, Tr), np.int64), np.empty((n, Tr))
         self.work = _kernels.certify_lines(X1, X2, rv, ri, rc, Kr, Tr, nrm1, E2, self._scale, idx, val)
         self.rows = SortedLists(idx, val, complete=Tr == m)
         if not self.columns:
             return
+        cc = np.count_nonzero(cv[:, :Kc] < np.inf, axis=1)
         idx, val = np.empty((m, Tc), np.int64), np.empty((m, Tc))
         self.work += _kernels.certify_lines(X2, X1, cv, ci, cc, Kc, Tc, nrm2, E1, self._scale, idx, val)
         self.cols = SortedLists(idx, val, complete=Tc == n)

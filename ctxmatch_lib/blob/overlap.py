@@ -33,21 +33,28 @@ def as_shapes(shapes, n: int, name: str) -> np.ndarray:
     """Validate keypoint shapes: ``(N, 2, 2)`` affine shapes, or ``(N,)`` / ``(N, 1)`` radii."""
     arr = np.asarray(shapes, dtype=np.float64)
     radii = arr.ndim in (1, 2) and arr.shape[0] == n and (arr.ndim == 1 or arr.shape[1] == 1)
+    if not radii and arr.shape != (n, 2, 2):
+        raise ValueError(f"{name} must have shape ({n}, 2, 2) (affine shapes) or ({n},) (radii), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
     if radii:
         arr = arr.reshape(-1)
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} contains NaN or infinite values")
         area = arr * arr  # r R(0)'s determinant: zero for r = 0 (and where r² underflows, |r| < 1e-154)
         arr = shapes_from_scale_angle(arr)
-    elif arr.shape != (n, 2, 2):
-        raise ValueError(f"{name} must have shape ({n}, 2, 2) (affine shapes) or ({n},) (radii), got {arr.shape}")
-    elif not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or infinite values")
     else:
         area = np.abs(np.linalg.det(arr)) if n else np.empty(0)
     if not (area > 0).all():
         raise ValueError(f"{name} holds degenerate (zero-area) shapes")
     return arr
+
+
+def _bounding_circles(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
+    """Squared centre distances of the pairs, and whether their bounding circles (radius: the largest
+    singular value of A) intersect. A pair whose circles do not has overlap error exactly 1: the one test of
+    :func:`ellipse_overlap_error` and :func:`circle_overlap_bounds`, so both decide those pairs alike."""
+    r1, r2 = _largest_singular_value(A1), _largest_singular_value(A2)
+    d2 = np.sum((c1 - c2) ** 2, axis=1)
+    return d2, d2 < (r1 + r2) ** 2
 
 
 def _unit_polygon(k: int = 32) -> np.ndarray:
@@ -104,8 +111,7 @@ def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)
     out = np.ones(len(c1))
     # Bounding radius of an ellipse = its largest singular value.
-    r1, r2 = _largest_singular_value(A1), _largest_singular_value(A2)
-    near = np.flatnonzero(np.sum((c1 - c2) ** 2, axis=1) < (r1 + r2) ** 2)
+    near = np.flatnonzero(_bounding_circles(c1, A1, c2, A2)[1])
     for s in range(0, len(near), chunk):
         idx = near[s : s + chunk]
         p = shapely.polygons(c1[idx, None, :] + np.einsum("pij,sj->psi", A1[idx], _POLYGON))
@@ -153,9 +159,8 @@ def circle_overlap_bounds(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
     c1, c2 = np.asarray(c1, float).reshape(-1, 2), np.asarray(c2, float).reshape(-1, 2)
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)
     lo, hi = np.zeros(len(c1)), np.ones(len(c1))
-    r1, r2 = _largest_singular_value(A1), _largest_singular_value(A2)
-    d2 = np.sum((c1 - c2) ** 2, axis=1)
-    far = ~(d2 < (r1 + r2) ** 2)  # the function's own test, on the same values: exactly 1
+    d2, near = _bounding_circles(c1, A1, c2, A2)
+    far = ~near  # the function's own test, on the same values: exactly 1
     lo[far] = 1.0
     circle = ((A1[:, 0, 0] == A1[:, 1, 1]) & (A1[:, 0, 1] == -A1[:, 1, 0])
               & (A2[:, 0, 0] == A2[:, 1, 1]) & (A2[:, 0, 1] == -A2[:, 1, 0]))
