@@ -7,22 +7,24 @@ interleaved (round-robin, ``--repeat`` rounds, median of each):
   (into an output allocated once, so that only the product is timed, not the page faults of a new array);
 - OpenCV's ``BFMatcher(NORM_L2).knnMatch(k=2)`` with ``--threads`` OpenCV threads (when cv2 is installed);
 - blob matching with the ``baseline`` (f = Ω, f' = 1, D≥), ``paper-best`` (FGINN by pixels) and
-  ``paper-best-overlap`` (FGINN by overlap) presets;
+  ``paper-best-overlap`` (FGINN by overlap) presets, with the default pass (``BlobContext.product``:
+  on AVX-512 CPUs the compiled product fused with the scan) and, where that is the fused one, again with the
+  BLAS GEMM tiles (``[tiles]``, ``product="tiles"``), the same candidates;
 - with ``--sgloh``, blob matching with the RootsGLOH2 rotation distance (``SGLOH2Distance``, d = 256)
   against that distance's own product (the hook over the whole matrix), which is its floor.
 
-and prints each time with its ratio to the floor. Blob matching runs its GEMM tiles on one BLAS thread
-whatever ``--threads`` says (its float32 rounding must not depend on the thread count, although its
-decisions no longer do). Its tiles go through SciPy's ``sgemm`` with ``beta = 1`` into a buffer its scan
-zeroes as it reads (``ctxmatch_lib._blas.accumulate_product``); the floor, NumPy's ``matmul``, pays
-OpenBLAS's zeroing pass over its output (in the tiles at 5000, about 3 of 48 ms). Times are CPU process times
+and prints each time with its ratio to the floor. Blob matching runs on one thread whatever ``--threads``
+says (the fused product is single-threaded; the GEMM tiles run on one BLAS thread). The tiles go through
+SciPy's ``sgemm`` with ``beta = 1`` into a buffer the scan zeroes as it reads
+(``ctxmatch_lib._blas.accumulate_product``); the floor, NumPy's ``matmul``, pays OpenBLAS's zeroing pass over
+its output (in the tiles at 5000, about 3 of 48 ms). Times are CPU process times
 by default (``--wall`` for wall-clock): on a shared machine they are skewed less by other processes. First
 (before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a fresh process, and what f = Ω
 does there (the baseline, in the same process: it runs while the 16-bit codes of D fit in
 ``max_dense_bytes``, 1 GiB, up to n = m = 23 170, and fails fast above).
 
-With ``--breakdown``, one more call per preset and size with the GEMM tiles and each compiled stage timed (the
-numbers behind the analysis in docs/blob-matching.md).
+With ``--breakdown``, one more call per preset and size (default pass) with each compiled stage timed, the
+fused pass (``product_scan``) or the GEMM tiles and their scan (the numbers behind docs/blob-matching.md).
 
 Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]
 [--breakdown]``.
@@ -80,7 +82,8 @@ def interleaved(jobs: dict, repeat: int, clock, spread: dict | None = None) -> d
 
 
 def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
-    from ctxmatch_lib.blob import BLOB_PRESETS, blob_matching
+    from ctxmatch_lib.blob import BLOB_PRESETS, BlobContext, blob_matching
+    from ctxmatch_lib.blob._fused_kernels import fused_product_fast
 
     d1, d2, k1, k2 = rootsift_like(n, n)
     s1, s2 = radii(n, 1), radii(n, 2)
@@ -105,12 +108,18 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
         except ImportError:
             pass
         sizes = {}
+        # The default pass (BlobContext.product "auto": fused on AVX-512 CPUs), and the BLAS tiles beside it.
+        products = ("auto", "tiles") if fused_product_fast() else ("auto",)
         for name in presets:
             kw = BLOB_PRESETS[name].kwargs()
-
-            def job(kw=kw, name=name):
-                sizes[name] = len(blob_matching(d1, d2, kpts1=k1, kpts2=k2, shapes1=s1, shapes2=s2, **kw))
-            jobs[f"blob {name}"] = job
+            for prod in products:
+                def job(kw=kw, name=name, prod=prod):
+                    BlobContext.product = prod
+                    try:
+                        sizes[name] = len(blob_matching(d1, d2, kpts1=k1, kpts2=k2, shapes1=s1, shapes2=s2, **kw))
+                    finally:
+                        BlobContext.product = "auto"
+                jobs[f"blob {name}" + (" [tiles]" if prod == "tiles" else "")] = job
         spread: dict = {}
         t = interleaved(jobs, repeat, clock, spread)
     floor = t["float32 GEMM d1 @ d2.T"]
@@ -119,7 +128,7 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
     for name, sec in t.items():
         extra = ""
         if name.startswith("blob "):
-            extra = f"   {sizes[name[5:]]} candidates"
+            extra = f"   {sizes[name[5:].removesuffix(' [tiles]')]} candidates"
             if "OpenCV BFMatcher.knnMatch(k=2)" in t:
                 extra += f", {sec / t['OpenCV BFMatcher.knnMatch(k=2)']:.2f}x knnMatch"
         lo, hi = spread[name]
@@ -129,7 +138,8 @@ def speed(n: int, threads: int, repeat: int, clock, sgloh: bool) -> None:
 
 
 #: The compiled stages of the L2 path timed by ``--breakdown``: (module of ``ctxmatch_lib.blob``, name).
-STAGES = (("_kernels", "scan_tile"), ("_kernels", "certify_lines"), ("_select_kernels", "prefilter_lists"),
+STAGES = (("_fused_kernels", "product_scan"), ("_kernels", "scan_tile"), ("_kernels", "certify_lines"),
+          ("_select_kernels", "prefilter_lists"),
           ("_select_kernels", "greedy_sorted"), ("_walk_kernels", "greedy_dense"), ("_kernels", "first_allowed"),
           ("_kernels", "next_allowed"), ("_walk_kernels", "next_in_lines"))
 
@@ -138,7 +148,7 @@ def breakdown(n: int, clock) -> None:
     """Where blob matching's time goes: the GEMM tiles, each compiled stage and the rest (NumPy glue), per
     preset, for one call after a warm-up (the stages are wrapped for the call, then restored)."""
     from ctxmatch_lib.blob import BLOB_PRESETS, blob_matching
-    from ctxmatch_lib.blob import context as blob_context
+    from ctxmatch_lib.blob import _pass
 
     d1, d2, k1, k2 = rootsift_like(n, n)
     s1, s2 = radii(n, 1), radii(n, 2)
@@ -153,7 +163,7 @@ def breakdown(n: int, clock) -> None:
                 spent[name] = spent.get(name, 0.0) + clock() - t0
         return run
 
-    product = blob_context.accumulate_product  # the GEMM tiles (sgemm into the tile buffer)
+    product = _pass.accumulate_product  # the GEMM tiles (sgemm into the tile buffer) of product="tiles"
 
     print(f"n = m = {n}: where the time goes ({clock.__name__}, one call after a warm-up):")
     for name in ("baseline", "paper-best", "paper-best-overlap"):
@@ -165,12 +175,12 @@ def breakdown(n: int, clock) -> None:
         try:
             for (mod, stage), fn in saved.items():
                 setattr(modules[mod], stage, timed_stage(stage, fn))
-            blob_context.accumulate_product = timed_stage("GEMM tiles", product)
+            _pass.accumulate_product = timed_stage("GEMM tiles", product)
             t0 = clock()
             blob_matching(d1, d2, **kw)
             total = clock() - t0
         finally:
-            blob_context.accumulate_product = product
+            _pass.accumulate_product = product
             for (mod, stage), fn in saved.items():
                 setattr(modules[mod], stage, fn)
         parts = ", ".join(f"{k} {v * 1e3:.0f}" for k, v in spent.items() if v * 1e3 >= 0.5)

@@ -4,18 +4,20 @@ numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variab
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
 Gram matrices. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
-scan in registers, and the sixteen running minima of its look-ups beyond the sorted lists (16-bit codes).
+scan in registers, the sixteen running minima of its look-ups beyond the sorted lists (16-bit codes), and
+the accumulators of its fused float32 product (:func:`fma16`, :func:`row_flags`, :func:`row_reflag`,
+:func:`row_codes`; the product only proposes, so there a multiply-add fuses).
 :func:`prefetch` asks for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and
 add is the same IEEE operation as the scalar one (no fast-math flags, so no fused multiply-add), hence the
 same bits as the scalar loop on any x86-64 CPU; where the CPU has narrower registers, LLVM splits the value
 lane by lane.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
-whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``, ``filters/_em_kernels.py``,
-``filters/_llt_kernels.py``) or clear ``$CTXMATCH_CACHE/numba``. Never rename or remove one of the types
-below: numba unpickles a cached index before it compares timestamps, and an index naming a type that is
-gone raises ``AttributeError`` instead of recompiling (seen when ``Vec4`` was renamed; checkouts at the same
-path share their cache folders).
+whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``,
+``blob/_fused_kernels.py``, ``filters/_em_kernels.py``, ``filters/_llt_kernels.py``) or clear
+``$CTXMATCH_CACHE/numba``. Never rename or remove one of the types below: numba unpickles a cached index
+before it compares timestamps, and an index naming a type that is gone raises ``AttributeError`` instead of
+recompiling (seen when ``Vec4`` was renamed; checkouts at the same path share their cache folders).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
            "store16", "count16", "below16", "insert16", "lane16", "splat16", "least16", "min16", "band16",
-           "prefetch"]
+           "prefetch", "fill16", "fma16", "row_flags", "row_reflag", "row_codes"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _V4 = ir.VectorType(ir.DoubleType(), 4)
@@ -409,3 +411,121 @@ def prefetch(typingctx, arr, line, k):
         return context.get_dummy_value()
 
     return types.none(arr, types.intp, types.intp), codegen
+
+
+# -- the fused product and scan of blob matching (blob/_fused_kernels.py) -----------------------------------
+# The float32 GEMM there only proposes (any summation order, with or without FMA, is within the certified
+# bound of blob/_kernels.py), so fma16 fuses; the scan's formulas are those of scan_tile, lane by lane.
+
+
+@intrinsic
+def fill16(typingctx, v):
+    """A float32 :class:`Vec16` with ``v`` in every lane."""
+    if v != types.float32:
+        raise TypingError(f"v must be a float32, got {v}")
+
+    def codegen(context, builder, sig, args):
+        return _splat(builder, args[0], _F16)
+
+    return _vec16[types.float32](types.float32), codegen
+
+
+@intrinsic
+def fma16(typingctx, acc, b, s):
+    """``acc + b * s`` lane by lane with one rounding (``llvm.fma``) for float32 :class:`Vec16` ``acc``,
+    ``b`` and a float32 ``s``."""
+    if acc != _vec16[types.float32] or b != acc or s != types.float32:
+        raise TypingError(f"acc / b / s must be float32 Vec16 / Vec16 / scalar, got {acc} / {b} / {s}")
+
+    def codegen(context, builder, sig, args):
+        name = "llvm.fma.v16f32"
+        fn = builder.module.globals.get(name) or ir.Function(
+            builder.module, ir.FunctionType(_F16, [_F16, _F16, _F16]), name=name)
+        return builder.call(fn, [args[1], _splat(builder, args[2], _F16), args[0]])
+
+    return acc(acc, b, s), codegen
+
+
+@intrinsic
+def row_flags(typingctx, V, r, k, g0, g1, g2, g3, a, t, n2, cthr, j0):
+    """One row of a register block: ``V[r, k + 16 p + q] = v = (a + n2[j0 + 16 p + q]) - (g_p[q] + g_p[q])``
+    in float32 (as ``scan_tile``), and returns two bit masks (bit 16 p + q): of ``v < t``, the entries below
+    their row's threshold, and of ``v < cthr[j0 + 16 p + q]``, those below their column's. No bounds check."""
+    vec = _vec16[types.float32]
+    if (g0, g1, g2, g3) != (vec,) * 4 or a != types.float32 or t != types.float32:
+        raise TypingError(f"g0..g3 / a / t must be float32 Vec16 / float32 / float32, got {g0} / {a} / {t}")
+    _check2(V, "V", (types.float32,))
+    _check(n2, "n2", (types.float32,))
+    _check(cthr, "cthr", (types.float32,))
+
+    def codegen(context, builder, sig, args):
+        V, r, k0, g, (a, t, n2, cthr, j0) = args[0], args[1], args[2], args[3:7], args[7:]
+        sa, st = _splat(builder, a, _F16), _splat(builder, t, _F16)
+        rows, cols = ir.Constant(_I64, 0), ir.Constant(_I64, 0)
+        for p in range(4):
+            k = builder.add(j0, ir.Constant(_I64, 16 * p))
+            col = builder.load(_lanes(context, builder, sig.args[9], n2, k, 16), align=4)
+            v = builder.fsub(builder.fadd(sa, col), builder.fadd(g[p], g[p]))
+            kv = builder.add(k0, ir.Constant(_I64, 16 * p))
+            builder.store(v, _row_lanes(context, builder, sig.args[0], V, r, kv, 16), align=4)
+            ct = builder.load(_lanes(context, builder, sig.args[10], cthr, k, 16), align=4)
+            shift = ir.Constant(_I64, 16 * p)
+            rows = builder.or_(rows, builder.shl(_mask16(builder, builder.fcmp_ordered("<", v, st)), shift))
+            cols = builder.or_(cols, builder.shl(_mask16(builder, builder.fcmp_ordered("<", v, ct)), shift))
+        return context.make_tuple(builder, sig.return_type, [rows, cols])
+
+    sig = types.UniTuple(types.int64, 2)(V, types.intp, types.intp, g0, g1, g2, g3, a, t, n2, cthr, types.intp)
+    return sig, codegen
+
+
+@intrinsic
+def row_reflag(typingctx, V, r, k, t, cthr, j0):
+    """Bit mask (bit q) of ``V[r, k + q] < max(t, cthr[j0 + q])`` for q < 64, from the distances that
+    :func:`row_flags` stored: against a row's new threshold (``cthr`` of -inf), or the columns' (``t`` of
+    -inf)."""
+    if t != types.float32:
+        raise TypingError(f"t must be a float32, got {t}")
+    _check2(V, "V", (types.float32,))
+    _check(cthr, "cthr", (types.float32,))
+
+    def codegen(context, builder, sig, args):
+        V, r, k0, t, cthr, j0 = args
+        st = _splat(builder, t, _F16)
+        mask = ir.Constant(_I64, 0)
+        for p in range(4):
+            v = builder.load(_row_lanes(context, builder, sig.args[0], V, r, builder.add(k0, ir.Constant(_I64, 16 * p)),
+                                        16), align=4)
+            ct = builder.load(_lanes(context, builder, sig.args[4], cthr, builder.add(j0, ir.Constant(_I64, 16 * p)),
+                                     16), align=4)
+            lim = builder.select(builder.fcmp_ordered(">", st, ct), st, ct)
+            bits = _mask16(builder, builder.fcmp_ordered("<", v, lim))
+            mask = builder.or_(mask, builder.shl(bits, ir.Constant(_I64, 16 * p)))
+        return mask
+
+    return types.int64(V, types.intp, types.intp, t, cthr, types.intp), codegen
+
+
+@intrinsic
+def row_codes(typingctx, dense, i, j0, V, r, k, qoff, qinv, top):
+    """``dense[i, j0:j0 + 64]`` = the 16-bit codes of ``V[r, k:k + 64]``, as ``blob._kernels.code`` lane by lane:
+    ``(v - qoff) * qinv + 0.5`` clamped to ``[0, top]`` and truncated."""
+    _check2(dense, "dense", (types.uint16,))
+    _check2(V, "V", (types.float32,))
+    if (qoff, qinv, top) != (types.float32,) * 3:
+        raise TypingError(f"qoff / qinv / top must be float32, got {qoff}, {qinv}, {top}")
+
+    def codegen(context, builder, sig, args):
+        dense, i, j0, V, r, k0, qoff, qinv, top = args
+        soff, sinv, shi = _splat(builder, qoff, _F16), _splat(builder, qinv, _F16), _splat(builder, top, _F16)
+        zero, half = ir.Constant(_F16, [0.0] * 16), ir.Constant(_F16, [0.5] * 16)
+        for p in range(4):
+            kv = builder.add(k0, ir.Constant(_I64, 16 * p))
+            v = builder.load(_row_lanes(context, builder, sig.args[3], V, r, kv, 16), align=4)
+            x = builder.fadd(builder.fmul(builder.fsub(v, soff), sinv), half)
+            x = builder.select(builder.fcmp_ordered(">", x, zero), x, zero)
+            x = builder.select(builder.fcmp_ordered("<", x, shi), x, shi)
+            k = builder.add(j0, ir.Constant(_I64, 16 * p))
+            builder.store(builder.fptoui(x, _U16), _row_lanes(context, builder, sig.args[0], dense, i, k, 16), align=2)
+        return context.get_dummy_value()
+
+    return types.none(dense, types.intp, types.intp, V, types.intp, types.intp, qoff, qinv, top), codegen

@@ -61,7 +61,7 @@ def test_many_small_tiles_give_the_reference(tile, cfg):
     class Tiled(BlobContext):
         pass
 
-    Tiled.tile = tile
+    Tiled.tile, Tiled.product = tile, "tiles"
     d1, d2, k1, k2 = planted(4, 150, 130)
     dense = cfg.f == "omega"
     depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
@@ -70,6 +70,69 @@ def test_many_small_tiles_give_the_reference(tile, cfg):
     ref = dense_reference(d1, d2, k1, k2, cfg)
     assert np.array_equal(got.matches, ref.matches)
     assert np.allclose(got.scores, ref.scores, rtol=1e-12, atol=1e-14)
+
+
+def _with_product(product):
+    class Context(BlobContext):
+        pass
+
+    Context.product = product
+    return Context
+
+
+@pytest.mark.parametrize("cfg", SETUPS, ids=lambda c: c.label)
+@pytest.mark.parametrize("seed, n, m, d, ties, margin", [
+    (0, 1, 1, 8, False, None), (1, 2, 70, 8, False, None), (2, 70, 3, 16, False, None), (3, 131, 67, 32, False, 2),
+    (4, 257, 600, 32, True, None), (5, 600, 1100, 128, False, 22), (6, 400, 520, 64, True, 22)])
+def test_the_fused_product_keeps_the_tiles_lists(cfg, seed, n, m, d, ties, margin):
+    """The pass with the product in registers (``product="fused"``) keeps the lists of the BLAS tiles, bit for
+    bit, and so the same candidates and scores: ragged row groups and column blocks, fewer rows than the
+    fresh columns' start (FRESH_ROWS), lines of more than 16 entries (margin 22), ties, f = Ω's codes."""
+    d1, d2, k1, k2 = planted(seed, n, m, d=d, ties=ties)
+    dense = cfg.f == "omega"
+    depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)
+    kw = dict(kpts1=k1, kpts2=k2, depth=depth, margin=margin, keep_dense=dense, columns=not dense)
+    tiles, fused = _with_product("tiles")(d1, d2, **kw), _with_product("fused")(d1, d2, **kw)
+    for a, b in ((tiles.rows, fused.rows), (tiles.cols, fused.cols)):
+        assert (a is None) == (b is None)
+        assert a is None or (np.array_equal(a.idx, b.idx) and np.array_equal(a.val, b.val))
+    if dense:
+        assert np.array_equal(tiles._approx, fused._approx)
+    if not dense or cfg.combine == "a":  # a context without columns serves W = a only
+        x, y = match_context(tiles, cfg), match_context(fused, cfg)
+        assert np.array_equal(x.matches, y.matches) and np.array_equal(x.scores, y.scores)
+
+
+def test_the_product_is_named_and_checked():
+    """``product="auto"`` is the fused pass where the CPU has AVX-512 and numba compiles for it, the tiles
+    elsewhere; an unknown value is refused by name."""
+    from ctxmatch_lib.blob import _fused_kernels
+
+    assert BlobContext.product == "auto"
+    d1, d2, *_ = planted(0, 20, 30)
+    with pytest.raises(ValueError, match="product"):
+        _with_product("gemm")(d1, d2)
+    _fused_kernels.fused_product_fast.cache_clear()
+    try:
+        import numba
+
+        saved, numba.config.CPU_NAME = numba.config.CPU_NAME, "generic"
+        assert not _fused_kernels.fused_product_fast()
+    finally:
+        numba.config.CPU_NAME = saved
+        _fused_kernels.fused_product_fast.cache_clear()
+
+
+def test_pack_columns_layout():
+    from ctxmatch_lib.blob._fused_kernels import NR, pack_columns
+
+    B = np.arange(70 * 3, dtype=np.float32).reshape(70, 3)
+    Bp, n2p = pack_columns(B, np.arange(70, dtype=np.float32))
+    assert Bp.shape == (2, 3 * NR) and n2p.shape == (2 * NR,)
+    for j in (0, 5, 63, 64, 69):
+        assert [Bp[j // NR, k * NR + j % NR] for k in range(3)] == B[j].tolist()
+    assert not Bp[1, [k * NR + q for k in range(3) for q in range(6, NR)]].any()
+    assert np.array_equal(n2p[:70], np.arange(70)) and np.all(n2p[70:] == np.inf)
 
 
 @pytest.mark.parametrize("precomputed", [False, True])
@@ -138,7 +201,8 @@ import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_blob_exact import SETUPS, planted
-from ctxmatch_lib.blob import blob_matching
+from ctxmatch_lib.blob import BlobContext, blob_matching
+BlobContext.product = sys.argv[2]
 out = []
 for seed, n, m, ties in [(0, 700, 650, False), (2, 300, 280, True)]:
     d1, d2, k1, k2 = planted(seed, n, m, d=128, ties=ties)
@@ -152,7 +216,8 @@ print(json.dumps(out))
 @pytest.mark.slow
 @pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="OPENBLAS_CORETYPE names x86-64 kernels")
 def test_outputs_identical_under_every_openblas_kernel():
-    """The same candidates and scores, bit for bit, whichever SIMD kernels OpenBLAS picks."""
+    """The same candidates and scores, bit for bit, whichever SIMD kernels OpenBLAS picks, through the BLAS
+    tiles or the fused product (which uses BLAS only for the rare look-ups beyond the lists)."""
     here = os.path.dirname(__file__)
     results = {}
     for core in (None, "Haswell", "Nehalem", "Prescott"):
@@ -160,10 +225,11 @@ def test_outputs_identical_under_every_openblas_kernel():
         env.pop("OPENBLAS_CORETYPE", None)
         if core:
             env["OPENBLAS_CORETYPE"] = core
-        proc = subprocess.run([sys.executable, "-c", CHILD, here], env=env, capture_output=True, text=True,
-                              check=True)
-        results[core or "default"] = json.loads(proc.stdout)
-    first = results["default"]
+        for product in ("tiles", "fused"):
+            proc = subprocess.run([sys.executable, "-c", CHILD, here, product], env=env, capture_output=True,
+                                  text=True, check=True)
+            results[core or "default", product] = json.loads(proc.stdout)
+    first = results["default", "tiles"]
     for core, res in results.items():
         assert res == first, core
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ctxmatch_lib._simd import (band16, below16, count16, insert16, lane16, least16, load16, min16, prefetch, splat16,
-                                store16)
+from ctxmatch_lib._simd import (band16, below16, count16, fill16, fma16, insert16, lane16, least16, load16, min16,
+                                prefetch, row_codes, row_flags, row_reflag, splat16, store16)
 from ctxmatch_lib.blob import _kernels, _walk_kernels
 
 
@@ -199,3 +199,59 @@ def test_prefetch_changes_no_result_and_rejects_non_matrices():
 
     with pytest.raises(Exception, match="2-d array"):
         bad(np.zeros(4))
+
+
+@njit(cache=False)
+def _fused_row(Bt, a_row, a, t, n2, cthr, j0, k):
+    """The 64 dot products of ``a_row`` with the columns of ``Bt`` (d, 64) by fma16, then row_flags into a
+    (2, 128) V at column k; also row_reflag of the stored distances against -inf / the columns."""
+    g0 = g1 = g2 = g3 = fill16(np.float32(0))
+    for c in range(Bt.shape[0]):
+        s = a_row[c]
+        g0, g1 = fma16(g0, load16(Bt, c, 0), s), fma16(g1, load16(Bt, c, 16), s)
+        g2, g3 = fma16(g2, load16(Bt, c, 32), s), fma16(g3, load16(Bt, c, 48), s)
+    V = np.zeros((2, 128), np.float32)
+    rows, cols = row_flags(V, 1, k, g0, g1, g2, g3, a, t, n2, cthr, j0)
+    again = row_reflag(V, 1, k, np.float32(-np.inf), cthr, j0)
+    return V, rows, cols, again
+
+
+@njit(cache=False)
+def _codes(V, qoff, qinv, m):
+    dense = np.zeros((2, m), np.uint16)
+    row_codes(dense, 1, m - 64, V, 0, 3, qoff, qinv, np.float32(_kernels.TAKEN - 1))
+    return dense
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_row_flags_form_the_scans_distances_and_flags(seed):
+    """fma16 sums a·b with one rounding per term in the order of the coordinates; row_flags stores
+    v = (a + n2) - (g + g) as scan_tile forms it and flags v < t (row) and v < cthr (column) apart;
+    row_reflag flags the stored distances again."""
+    rng = np.random.default_rng(seed)
+    d, j0, k = 24, 10, 32
+    B = rng.random((64, d), dtype=np.float32)
+    a_row = rng.random(d, dtype=np.float32)
+    n2 = rng.random(100, dtype=np.float32) * 8
+    cthr = rng.random(100, dtype=np.float32) * 8
+    a, t = np.float32(2.5), np.float32(3.0)
+    V, rows, cols, again = _fused_row(np.ascontiguousarray(B.T), a_row, a, t, n2, cthr, j0, k)
+    g = np.zeros(64, np.float32)
+    for c in range(d):  # the product is exact in float64; one rounding to float32 (no double-rounding tie here)
+        g = (g.astype(np.float64) + B[:, c].astype(np.float64) * np.float64(a_row[c])).astype(np.float32)
+    v = (a + n2[j0 : j0 + 64]) - (g + g)
+    assert np.array_equal(V[1, k : k + 64], v) and not V[0].any() and not V[1, :k].any()
+    bits = 1 << np.arange(64, dtype=np.uint64)
+    as_bits = lambda mask: np.int64(mask).view(np.uint64)  # noqa: E731 (the masks are int64)
+    assert as_bits(rows) == np.bitwise_or.reduce(bits[v < t])
+    assert as_bits(cols) == np.bitwise_or.reduce(bits[v < cthr[j0 : j0 + 64]])
+    assert again == cols
+
+
+def test_row_codes_are_the_scalar_codes():
+    v = np.linspace(-0.5, 9.0, 128, dtype=np.float32).reshape(2, 64)
+    qoff, qinv, _ = _kernels.code_scale(-0.01, 8.0)
+    V = np.zeros((1, 80), np.float32)
+    V[0, 3:67] = v[0]
+    dense = _codes(V, qoff, qinv, 70)
+    assert np.array_equal(dense[1, 6:], _kernels.encode(v[:1], qoff, qinv)[0]) and not dense[0].any()

@@ -3,10 +3,12 @@
 Blob matching only ever looks at the few best entries of each row and column of the distance matrix
 (pre-filter of Eqs. 10-11, second-best search of Eqs. 13-14), plus, rarely, a whole row or column. A
 :class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, without
-ever holding D in float64 nor any n×n matrix. For L2 descriptors the pass runs over float32 GEMM tiles
-sized to the cache, keeps each line's candidates in a compiled kernel while the tile is in cache, and
-decides on exact float64 distances (:mod:`._kernels`): the candidates and scores do not depend on the BLAS
-kernel, its SIMD width or the thread count. Every setup of the grid of Sec. 5.2 then
+ever holding D in float64 nor any n×n matrix. For L2 descriptors the pass forms float32 distances, keeps
+each line's candidates in a compiled kernel, and decides on exact float64 distances (:mod:`._kernels`): the
+candidates and scores do not depend on the BLAS kernel, its SIMD width or the thread count. The float32
+products come from BLAS GEMM tiles sized to the cache, scanned while in cache, or, on AVX-512 CPUs, from a
+compiled product that keeps them in registers (:mod:`._fused_kernels`; :attr:`BlobContext.product`), with
+the same results. Every setup of the grid of Sec. 5.2 then
 reuses it: the candidate set G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
 """
 
@@ -17,8 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._blas import accumulate_product, one_blas_thread
+from .._blas import one_blas_thread
 from . import _kernels, _select_kernels, _walk_kernels
+from ._fused_kernels import fused_product_fast
+from ._pass import fused_pass, tile_pass
 from ._lists import _column_group_minima, _first_t, _group_size, _row_thresholds
 from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_overlap_error
 
@@ -48,8 +52,8 @@ class BlobContext:
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
         Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Proposed by
-        float32 GEMM tiles, decided on float64 distances computed without BLAS in a fixed order (the same
-        on any CPU).
+        float32 products (:attr:`product`), decided on float64 distances computed without BLAS in a fixed
+        order (the same on any CPU).
     distances : ndarray of shape (n, m), optional
         A precomputed distance matrix instead of descriptors.
     distance : callable, optional
@@ -126,7 +130,7 @@ class BlobContext:
             if keep_dense:
                 self._check_dense(dense_bytes, "f='omega' (keep_dense=True)")
         else:
-            # L2: float32 GEMM tiles propose, exact float64 distances decide (see _kernels).
+            # L2: float32 products propose, exact float64 distances decide (see _kernels).
             dtype = np.result_type(desc1.dtype, desc2.dtype, np.float32)
             self._X = (np.ascontiguousarray(desc1, dtype), np.ascontiguousarray(desc2, dtype))
             self.n, self.m = len(self._X[0]), len(self._X[1])
@@ -206,17 +210,23 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
-    #: GEMM tile (rows x columns), 2 MiB of float32. A column's threshold starts from its first tile's rows
-    #: and a row's from its first tile's columns; the insertions after that grow with the log of the lines'
-    #: length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within 2 % (whole
-    #: paper-best calls at 5000 and 8000, the shapes' order rotated: the first after the GEMM pays ~3 ms).
+    #: GEMM tile (rows x columns) of ``product="tiles"``, 2 MiB of float32. A column's threshold starts from
+    #: its first tile's rows and a row's from its first tile's columns; the insertions after that grow with the
+    #: log of the lines' length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within
+    #: 2 % (whole paper-best calls at 5000 and 8000, the shapes' order rotated: the first after the GEMM pays
+    #: ~3 ms).
     tile = (1024, 512)
     #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
     #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
     slack = 4
+    #: The pass's float32 product: ``"tiles"`` (BLAS GEMM tiles, each scanned while in cache), ``"fused"``
+    #: (a compiled product that keeps it in registers, fused with the scan, :mod:`._fused_kernels`), or
+    #: ``"auto"``: fused where the CPU has AVX-512 and numba compiles for it (:func:`fused_product_fast`),
+    #: else the tiles. The candidates and scores are the same either way (the product only proposes).
+    product = "auto"
 
     def _scan_exact(self, keep_dense: bool) -> None:
-        """One pass over float32 GEMM tiles keeps each line's K smallest; exact float64 distances decide."""
+        """One pass over the float32 products keeps each line's K smallest; exact float64 distances decide."""
         X1, X2 = self._X
         n, m = self.n, self.m
         d = X1.shape[1]
@@ -238,22 +248,17 @@ class BlobContext:
         rthr = np.full(n, np.inf, np.float32)
         cthr = np.full(m, np.inf if self.columns else -np.inf, np.float32)  # -inf: no entry enters a column
         dense = np.empty((n, m), np.uint16) if keep_dense else np.empty((1, 1), np.uint16)
-        R, C = self.tile
-        buf = np.zeros(R * C, np.float32)  # zero between tiles: the scan clears what it has read
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
         # 16-bit codes for the look-ups beyond the lists: v is within E_max of an exact one, in [0, (|a| + |b|)²].
         E1, E2 = float(nrm1.max(initial=0.0)), float(nrm2.max(initial=0.0))
         E_max = self._scale * (E1 + E2) if n and m else 0.0
         top = (np.sqrt(E1) + np.sqrt(E2)) ** 2 + E_max
         self._qoff, self._qinv, self._qstep = _kernels.code_scale(-E_max, float(top))
-        for r0 in range(0, n, R):
-            a = A32[r0 : r0 + R]
-            for c0 in range(0, m, C):
-                b = B32[c0 : c0 + C]
-                G = buf[: len(a) * len(b)].reshape(len(a), len(b))
-                accumulate_product(a, b, G)
-                _kernels.scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense,
-                                   self._qoff, self._qinv)
+        state = (rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep_dense, self._qoff, self._qinv)
+        if self._fused():
+            fused_pass(A32, B32, n1, n2, *state, columns=self.columns)
+        else:
+            tile_pass(A32, B32, n1, n2, *state, tile=self.tile)
         rc = np.count_nonzero(rv[:, :Kr] < np.inf, axis=1)
         self._approx = dense if keep_dense else None
         idx, val = np.empty((n, Tr), np.int64), np.empty((n, Tr))
@@ -265,6 +270,12 @@ class BlobContext:
         idx, val = np.empty((m, Tc), np.int64), np.empty((m, Tc))
         self.work += _kernels.certify_lines(X2, X1, cv, ci, cc, Kc, Tc, nrm2, E1, self._scale, idx, val)
         self.cols = SortedLists(idx, val, complete=Tc == n)
+
+    def _fused(self) -> bool:
+        """Whether the pass keeps the product in registers (:attr:`product`)."""
+        if self.product not in ("auto", "fused", "tiles"):
+            raise ValueError(f"BlobContext.product must be 'auto', 'fused' or 'tiles', got {self.product!r}")
+        return self.product == "fused" or (self.product == "auto" and fused_product_fast())
 
     def _line_bounds(self, side: int) -> np.ndarray:
         """Per line of ``side``, the bound E on |decoded code - exact| of its squared distances: the float32
