@@ -59,13 +59,23 @@ def fused_product_fast() -> bool:
 with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
+    def aligned_zeros(rows, cols):
+        """A float32 ``(rows, cols)`` array of zeros whose data starts on a 64-byte boundary (``cols`` a
+        multiple of 16, so every row does): a 16-lane load or store then never straddles two cache lines.
+        numba's own allocations are 32-byte aligned only, and the product ran up to 25 % slower on the half
+        of them that are not 64-byte aligned."""
+        buf = np.zeros(rows * cols + 16, np.float32)
+        off = ((64 - buf.ctypes.data % 64) % 64) // 4
+        return buf[off : off + rows * cols].reshape(rows, cols)
+
+    @njit(cache=_cache, nogil=True)
     def pack_columns(B, n2):
         """``B`` (m, d) packed for the register blocks, coordinate-major within blocks of :data:`NR` columns:
         ``Bp[blk, k * NR + q] = B[blk * NR + q, k]`` (zero past m), and the squared norms padded with +inf,
         so a padded column's distance is +inf and never flagged."""
         m, d = B.shape
         nb = (m + NR - 1) // NR
-        Bp = np.zeros((nb, d * NR), np.float32)
+        Bp = aligned_zeros(nb, d * NR)
         for j in range(m):
             blk, q = j // NR, j % NR
             for k in range(d):
@@ -241,12 +251,12 @@ with user_cache() as _cache:
         n, m = rv.shape[0], cv.shape[0]
         nb, W = Bp.shape[0], CHUNK * NR
         pv, pi, pc = np.empty((W, BUCKET), np.float32), np.empty((W, BUCKET), np.int64), np.zeros(W, np.int64)
-        V, M = np.empty((4, W), np.float32), np.zeros((2, 4, CHUNK), np.int64)
+        V, M = aligned_zeros(4, W), np.zeros((2, 4, CHUNK), np.int64)
         tv, tx = np.empty(max(Kr, Kc), np.float32), np.empty(max(Kr, Kc), np.int64)
         # The first R0 rows of a chunk go in with the columns' thresholds at -inf (out of the flags), their
         # distances kept in F, which then starts the columns (_fresh_columns).
         R0 = min(FRESH_ROWS, n - n % 4) if cols and min(FRESH_ROWS, n - n % 4) >= 2 * Kc else 0
-        F = np.empty((R0, W), np.float32)
+        F = aligned_zeros(R0, W)
         shut = np.full(len(cthr), -np.inf, np.float32)
         for b0 in range(0, nb, CHUNK):
             b1 = min(nb, b0 + CHUNK)
