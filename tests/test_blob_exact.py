@@ -133,6 +133,7 @@ def test_pack_columns_layout():
         assert [Bp[j // NR, k * NR + j % NR] for k in range(3)] == B[j].tolist()
     assert not Bp[1, [k * NR + q for k in range(3) for q in range(6, NR)]].any()
     assert np.array_equal(n2p[:70], np.arange(70)) and np.all(n2p[70:] == np.inf)
+    assert Bp.ctypes.data % 64 == 0  # 16-lane loads never straddle two cache lines
 
 
 @pytest.mark.parametrize("precomputed", [False, True])
