@@ -69,13 +69,17 @@ def timed(clock):
 
 
 def interleaved(jobs: dict, repeat: int, clock, spread: dict | None = None) -> dict:
-    """Median time of each job, the jobs run round-robin so that a busy spell hits them alike; ``spread``, when
-    given, receives each job's (fastest, slowest) round."""
+    """Median time of each job, the jobs run round-robin so that a busy spell hits them alike, each round
+    starting one job later (so that no job always follows the same one: the call after ``knnMatch`` paid up to
+    twice its time in page faults at 8000, whichever it was); ``spread``, when given, receives each job's
+    (fastest, slowest) round."""
     run = timed(clock)
-    times = {name: [] for name in jobs}
-    for _ in range(repeat):
-        for name, fn in jobs.items():
-            times[name].append(run(fn))
+    names = list(jobs)
+    times = {name: [] for name in names}
+    for r in range(repeat):
+        for k in range(len(names)):
+            name = names[(r + k) % len(names)]
+            times[name].append(run(jobs[name]))
     if spread is not None:
         spread.update({name: (min(t), max(t)) for name, t in times.items()})
     return {name: float(np.median(t)) for name, t in times.items()}

@@ -83,11 +83,13 @@ def _with_product(product):
 @pytest.mark.parametrize("cfg", SETUPS, ids=lambda c: c.label)
 @pytest.mark.parametrize("seed, n, m, d, ties, margin", [
     (0, 1, 1, 8, False, None), (1, 2, 70, 8, False, None), (2, 70, 3, 16, False, None), (3, 131, 67, 32, False, 2),
-    (4, 257, 600, 32, True, None), (5, 600, 1100, 128, False, 22), (6, 400, 520, 64, True, 22)])
+    (4, 257, 600, 32, True, None), (5, 600, 1100, 128, False, 22), (6, 400, 520, 64, True, 22),
+    (7, 1100, 300, 16, True, None)])
 def test_the_fused_product_keeps_the_tiles_lists(cfg, seed, n, m, d, ties, margin):
     """The pass with the product in registers (``product="fused"``) keeps the lists of the BLAS tiles, bit for
     bit, and so the same candidates and scores: ragged row groups and column blocks, fewer rows than the
-    fresh columns' start (FRESH_ROWS), lines of more than 16 entries (margin 22), ties, f = Ω's codes."""
+    fresh columns' start (FRESH_ROWS), lines of more than 16 entries (margin 22), ties, f = Ω's codes (over
+    more rows than a ROW_BLOCK: the columns' buckets then outlive a chunk's sweep)."""
     d1, d2, k1, k2 = planted(seed, n, m, d=d, ties=ties)
     dense = cfg.f == "omega"
     depth = cfg.f_prime if dense else max(cfg.f_prime, cfg.f)

@@ -43,6 +43,8 @@ CHUNK = 8
 FRESH_ROWS = 128
 #: Entries waiting per column before they are inserted together (as ``scan_tile``'s buckets).
 BUCKET = 32
+#: Rows per sweep of the chunks when f = Ω's 16-bit codes are written (see :func:`product_scan`).
+ROW_BLOCK = 1024
 
 
 @cache
@@ -249,8 +251,14 @@ with user_cache() as _cache:
         ``scan_tile``'s, ``cols`` False when no column keeps entries (thresholds of -inf).
         """
         n, m = rv.shape[0], cv.shape[0]
-        nb, W = Bp.shape[0], CHUNK * NR
-        pv, pi, pc = np.empty((W, BUCKET), np.float32), np.empty((W, BUCKET), np.int64), np.zeros(W, np.int64)
+        n4, nb, W = A.shape[0], Bp.shape[0], CHUNK * NR
+        # With f = Ω's codes, rows go in blocks of ROW_BLOCK, each swept over every chunk: a chunk's sweep of
+        # all rows would write one page of codes per row, past what the TLB holds. The columns' buckets then
+        # outlive a chunk's sweep: one per column.
+        RB = ROW_BLOCK if keep else n4
+        nbk = nb * NR if RB < n4 else W
+        pv_all, pi_all = np.empty((nbk, BUCKET), np.float32), np.empty((nbk, BUCKET), np.int64)
+        pc_all = np.zeros(nbk, np.int64)
         V, M = aligned_zeros(4, W), np.zeros((2, 4, CHUNK), np.int64)
         tv, tx = np.empty(max(Kr, Kc), np.float32), np.empty(max(Kr, Kc), np.int64)
         # The first R0 rows of a chunk go in with the columns' thresholds at -inf (out of the flags), their
@@ -258,15 +266,22 @@ with user_cache() as _cache:
         R0 = min(FRESH_ROWS, n - n % 4) if cols and min(FRESH_ROWS, n - n % 4) >= 2 * Kc else 0
         F = aligned_zeros(R0, W)
         shut = np.full(len(cthr), -np.inf, np.float32)
-        for b0 in range(0, nb, CHUNK):
-            b1 = min(nb, b0 + CHUNK)
-            if R0:
-                _sweep(A, Bp, b0, b1, 0, R0, n1, n2p, F, True, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols, M,
+        for r0 in range(0, n4, RB):
+            r1 = min(n4, r0 + RB)
+            for b0 in range(0, nb, CHUNK):
+                b1, k0 = min(nb, b0 + CHUNK), b0 * NR if RB < n4 else 0
+                pv, pi, pc = pv_all[k0 : k0 + W], pi_all[k0 : k0 + W], pc_all[k0 : k0 + W]
+                lo = r0
+                if r0 == 0 and R0:
+                    _sweep(A, Bp, b0, b1, 0, R0, n1, n2p, F, True, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols,
+                           M, dense, keep, qoff, qinv, pv, pi, pc, tv, tx)
+                    _fresh_columns(F, R0, b1 - b0, b0, rv, ri, rthr, cv, ci, cthr, Kr, Kc, pv, pi, pc, tv, tx)
+                    lo = R0
+                _sweep(A, Bp, b0, b1, lo, r1, n1, n2p, V, False, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols, M,
                        dense, keep, qoff, qinv, pv, pi, pc, tv, tx)
-                _fresh_columns(F, R0, b1 - b0, b0, rv, ri, rthr, cv, ci, cthr, Kr, Kc, pv, pi, pc, tv, tx)
-            _sweep(A, Bp, b0, b1, R0, A.shape[0], n1, n2p, V, False, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols,
-                   M, dense, keep, qoff, qinv, pv, pi, pc, tv, tx)
-            for jj in range(min(W, m - b0 * NR)):
-                if pc[jj] > 0:
-                    _flush(cv, ci, cthr, b0 * NR + jj, Kc, pv, pi, jj, pc[jj])
-                    pc[jj] = 0
+                if r1 < n4:
+                    continue
+                for jj in range(min(W, m - b0 * NR)):  # the chunk's last sweep: its pending entries go in
+                    if pc[jj] > 0:
+                        _flush(cv, ci, cthr, b0 * NR + jj, Kc, pv, pi, jj, pc[jj])
+                        pc[jj] = 0
