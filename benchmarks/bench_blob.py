@@ -26,14 +26,22 @@ does there (the baseline, in the same process: it runs while the 16-bit codes of
 With ``--breakdown``, one more call per preset and size (default pass) with each compiled stage timed, the
 fused pass (``product_scan``) or the GEMM tiles and their scan (the numbers behind docs/blob-matching.md).
 
+With ``--warm-malloc``, the script runs again with glibc keeping freed memory mapped
+(``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``), so that blob matching's arrays cost no page faults,
+as the floor's output allocated once costs none. The baseline writes 16-bit codes of all of D into a fresh
+array each call (50 MB at 5000, 128 MB at 8000); in the virtual machine these numbers come from, faulting
+those pages in cost up to 300 ms more in some rounds and not in others (the host takes freed guest memory
+back), so that its median there depends on the rounds it hit.
+
 Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]
-[--breakdown]``.
+[--breakdown] [--warm-malloc]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import subprocess
 import sys
 import time
@@ -241,6 +249,11 @@ def memory(n: int) -> None:
     print(f"  f = Ω at this size: {second}")
 
 
+#: glibc settings of ``--warm-malloc``: allocations from the heap (not one ``mmap`` each), and the heap never
+#: trimmed, so that a call's large arrays reuse pages already mapped.
+_WARM = {"MALLOC_MMAP_THRESHOLD_": str(2**32), "MALLOC_TRIM_THRESHOLD_": str(2**34)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[5000, 8000], help="n = m values (default 5000 8000)")
@@ -252,7 +265,15 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="n = 2000, 2 rounds, no memory run")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time the GEMM tiles and each compiled stage of one call per preset and size")
+    ap.add_argument("--warm-malloc", action="store_true",
+                    help="run with glibc keeping freed memory mapped (see the module docstring)")
     args = ap.parse_args()
+    if args.warm_malloc and os.environ.get("MALLOC_MMAP_THRESHOLD_") != _WARM["MALLOC_MMAP_THRESHOLD_"]:
+        # glibc reads these once, at start-up: run again with them set.
+        argv = [sys.executable, *sys.argv]
+        os.execve(sys.executable, argv, {**os.environ, **_WARM})
+    if args.warm_malloc:
+        print("--warm-malloc: glibc keeps freed memory mapped (" + ", ".join(f"{k}={v}" for k, v in _WARM.items()) + ")")
     clock = time.perf_counter if args.wall else time.process_time
     if args.quick:
         speed(2000, args.threads, 2, clock, args.sgloh)
