@@ -273,7 +273,8 @@ def main() -> None:
         argv = [sys.executable, *sys.argv]
         os.execve(sys.executable, argv, {**os.environ, **_WARM})
     if args.warm_malloc:
-        print("--warm-malloc: glibc keeps freed memory mapped (" + ", ".join(f"{k}={v}" for k, v in _WARM.items()) + ")")
+        settings = ", ".join(f"{k}={v}" for k, v in _WARM.items())
+        print(f"--warm-malloc: glibc keeps freed memory mapped ({settings})")
     clock = time.perf_counter if args.wall else time.process_time
     if args.quick:
         speed(2000, args.threads, 2, clock, args.sgloh)
