@@ -125,6 +125,22 @@ def test_the_product_is_named_and_checked():
         _fused_kernels.fused_product_fast.cache_clear()
 
 
+def test_a_cpu_llvm_cannot_describe_keeps_the_tiles(monkeypatch):
+    from llvmlite import binding
+
+    from ctxmatch_lib.blob import _fused_kernels
+
+    def cannot_tell():
+        raise RuntimeError("no host CPU features")
+
+    monkeypatch.setattr(binding, "get_host_cpu_features", cannot_tell)
+    _fused_kernels.fused_product_fast.cache_clear()
+    try:
+        assert not _fused_kernels.fused_product_fast()
+    finally:
+        _fused_kernels.fused_product_fast.cache_clear()
+
+
 def test_pack_columns_layout():
     from ctxmatch_lib.blob._fused_kernels import NR, pack_columns
 

@@ -13,7 +13,8 @@ distances afterwards, so the candidates and scores are those of the tile path, b
 reach the lines in the same order (a row's columns ascending, a column's rows ascending).
 
 Columns go in chunks of :data:`CHUNK` blocks (512 columns, 256 KiB of packed ``d2`` in the L2 cache), each
-swept by every row, four rows at a time. A row's flagged entries in a chunk are walked together, its line in
+swept by every row, four rows at a time (with f = Ω's 16-bit codes, by blocks of :data:`ROW_BLOCK` rows, each
+over every chunk). A row's flagged entries in a chunk are walked together, its line in
 registers, as a row of ``scan_tile``'s tile. Fresh lines start from thresholds estimated on their first
 entries, as ``scan_tile``'s: a row from its first chunk, a chunk's columns from its first
 :data:`FRESH_ROWS` rows, whose distances are kept for that.
@@ -33,7 +34,7 @@ from .._numba import user_cache
 from .._simd import fill16, fma16, insert16, lane16, load16, row_codes, row_flags, row_reflag, store16
 from ._kernels import _DEBRUIJN, _DEBRUIJN_BIT, _S58, TAKEN, _flush, _insert, _kth_of, code
 
-__all__ = ["CHUNK", "FRESH_ROWS", "NR", "fused_product_fast", "pack_columns", "product_scan"]
+__all__ = ["CHUNK", "FRESH_ROWS", "NR", "ROW_BLOCK", "fused_product_fast", "pack_columns", "product_scan"]
 
 #: Columns per register block: four 16-lane registers per row.
 NR = 64
@@ -55,7 +56,10 @@ def fused_product_fast() -> bool:
         return False
     from llvmlite import binding
 
-    return bool(binding.get_host_cpu_features().get("avx512f", False))
+    try:  # llvmlite documents a RuntimeError where LLVM cannot tell (0.50 returns an empty map instead)
+        return bool(binding.get_host_cpu_features().get("avx512f", False))
+    except RuntimeError:
+        return False
 
 
 with user_cache() as _cache:
