@@ -7,6 +7,7 @@
 from .config import BLOB_PRESETS, BlobConfig, blob_grid
 from .context import BlobContext
 from .core import BlobMatches, blob_matching, combine_ratios, match_context, nnr_ratio, rank_candidates
+from ._workspace import free_workspace
 from .overlap import ellipse_overlap_error, shapes_from_scale_angle
 
 __all__ = [
@@ -18,6 +19,7 @@ __all__ = [
     "blob_matching",
     "combine_ratios",
     "ellipse_overlap_error",
+    "free_workspace",
     "match_context",
     "nnr_ratio",
     "rank_candidates",

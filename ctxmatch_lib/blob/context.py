@@ -23,6 +23,7 @@ from .._blas import one_blas_thread
 from . import _kernels, _select_kernels, _walk_kernels
 from ._fused_kernels import fused_product_fast
 from ._pass import fused_pass, tile_pass
+from ._workspace import give_back, take_codes
 from ._lists import _column_group_minima, _first_t, _group_size, _row_thresholds
 from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_overlap_error
 
@@ -71,7 +72,8 @@ class BlobContext:
     keep_dense : bool, optional
         Keep D in memory (needed by f = Ω, speeds up rare full-row look-ups). Default: when it takes at
         most 256 MiB. The L2 path keeps 16-bit codes of its float32 approximations (2 bytes an entry,
-        written by the one pass; exact distances still decide, see :mod:`._kernels`).
+        written by the one pass; exact distances still decide, see :mod:`._kernels`), in the buffer the
+        last :meth:`release` handed back when it is large enough (:mod:`._workspace`).
     max_dense_bytes : int
         Above this size (of D, or of its codes on the L2 path) f = Ω fails fast with a ``MemoryError``
         stating the memory it needs.
@@ -140,7 +142,7 @@ class BlobContext:
             if keep_dense:  # fail fast, before any work
                 self._check_dense(self.n * self.m * 2, "f='omega' (keep_dense=True)")
         self._exact = distances is None and distance is None
-        self._approx = None
+        self._approx = self._codes = None
         self.depth = int(depth)
         # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count, and the candidates and
         # scores must not (the same tables on any machine setting).
@@ -247,7 +249,7 @@ class BlobContext:
         cv, ci = np.full((m, Wc), np.inf, np.float32), np.zeros((m, Wc), np.int64)
         rthr = np.full(n, np.inf, np.float32)
         cthr = np.full(m, np.inf if self.columns else -np.inf, np.float32)  # -inf: no entry enters a column
-        dense = np.empty((n, m), np.uint16) if keep_dense else np.empty((1, 1), np.uint16)
+        dense, self._codes = take_codes(n, m) if keep_dense else (np.empty((1, 1), np.uint16), None)
         n1, n2 = nrm1.astype(np.float32), nrm2.astype(np.float32)
         # 16-bit codes for the look-ups beyond the lists: v is within E_max of an exact one, in [0, (|a| + |b|)²].
         E1, E2 = float(nrm1.max(initial=0.0)), float(nrm2.max(initial=0.0))
@@ -270,6 +272,13 @@ class BlobContext:
         idx, val = np.empty((m, Tc), np.int64), np.empty((m, Tc))
         self.work += _kernels.certify_lines(X2, X1, cv, ci, cc, Kc, Tc, nrm2, E1, self._scale, idx, val)
         self.cols = SortedLists(idx, val, complete=Tc == n)
+
+    def release(self) -> None:
+        """Hand f = Ω's codes of D back for the next call to reuse (:mod:`._workspace`); the context stays
+        usable and recomputes them if asked."""
+        if self._codes is not None:
+            self._approx, codes, self._codes = None, self._codes, None
+            give_back(codes)
 
     def _fused(self) -> bool:
         """Whether the pass keeps the product in registers (:attr:`product`)."""
@@ -494,11 +503,12 @@ class BlobContext:
         px2 = float(t_o) ** 2 if t_o is not None and not by_overlap else 0.0
         pts = np.asarray(self.kpts[1 - side], np.float64) if px2 > 0 else np.zeros((1, 2))
         step = max(1, (8 * _MiB) // (8 * size))
+        E = self._line_bounds(side) if self._exact else None
         for s in range(0, len(anchors), step):
             a, o = anchors[s : s + step], others[s : s + step]
             d = dist[s : s + step] if geq else np.zeros(len(a))
             if self._exact:
-                X, E = self._X, self._line_bounds(side)
+                X = self._X
                 if self._approx is not None and side == 0:  # rows of the dense matrix, read in place
                     Dap, rows = self._approx, a
                 else:

@@ -144,7 +144,10 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     combine : {"harmonic", "a", "b", "min", "max"}, default "harmonic"
         W(a, b) of Eq. (15).
     max_dense_bytes : int
-        f = Ω needs the whole D; above this size it raises ``MemoryError`` stating the memory needed.
+        f = Ω needs the whole D; above this size it raises ``MemoryError`` stating the memory needed. On the
+        L2 path D is held as 16-bit codes, and their buffer (up to 128 MiB, n = m = 8192) is kept for the
+        next call, as a GEMM's caller keeps its output: fresh pages cost as much as writing the codes.
+        :func:`free_workspace` drops it.
     distance : callable, optional
         The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)`` non-negative array
         (e.g. RootsGLOH2's rotation-min distance, ``Features.distance()``); default L2. Evaluated in row
@@ -222,7 +225,10 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
                       shapes1=shapes1, shapes2=shapes2, depth=depth, keep_dense=True if dense else None,
                       max_dense_bytes=max_dense_bytes, distance=distance, margin=_margin(cfg, dense),
                       columns=not (dense and cfg.combine == "a"))  # f = Ω with W = a reads rows only
-    return match_context(ctx, cfg)
+    try:
+        return match_context(ctx, cfg)
+    finally:
+        ctx.release()  # f = Ω's codes of D serve the next call (blob._workspace)
 
 
 def _margin(cfg: BlobConfig, dense: bool) -> int:
