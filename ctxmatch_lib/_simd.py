@@ -4,9 +4,10 @@ numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variab
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
 Gram matrices. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
-scan in registers, the sixteen running minima of its look-ups beyond the sorted lists (16-bit codes), and
-the accumulators of its fused float32 product (:func:`fma16`, :func:`row_flags`, :func:`row_reflag`,
-:func:`row_codes`; the product only proposes, so there a multiply-add fuses).
+scan in registers; :func:`band16` compares sixteen 16-bit codes of its look-ups beyond the sorted lists
+at once; 16-lane vectors hold the accumulators of its fused float32 product (:func:`fma16`,
+:func:`row_flags`, :func:`row_reflag`, :func:`row_codes`; the product only proposes, so there a
+multiply-add fuses).
 :func:`prefetch` asks for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and
 add is the same IEEE operation as the scalar one (no fast-math flags, so no fused multiply-add), hence the
 same bits as the scalar loop on any x86-64 CPU; where the CPU has narrower registers, LLVM splits the value
@@ -28,7 +29,7 @@ from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
-           "store16", "count16", "below16", "insert16", "lane16", "splat16", "least16", "min16", "band16",
+           "store16", "count16", "below16", "insert16", "lane16", "band16",
            "prefetch", "fill16", "fma16", "row_flags", "row_reflag", "row_codes"]
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
@@ -211,10 +212,9 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 
 class Vec16(types.Type):
     """Sixteen float32, int64 or uint16 lanes held as one LLVM vector: a sorted line of blob matching's scan
-    kept in registers while its row is walked (values and indices), or sixteen running minima of 16-bit
-    codes of approximate distances (its look-ups beyond the sorted lists). Made and used by
-    :func:`load16`, :func:`store16`, :func:`splat16`, :func:`count16`, :func:`below16`, :func:`insert16`,
-    :func:`lane16`, :func:`least16` and :func:`min16` only."""
+    kept in registers while its row is walked (values and indices). Made and used by
+    :func:`load16`, :func:`store16`, :func:`count16`, :func:`below16`, :func:`insert16` and :func:`lane16`
+    only (the uint16 lanes are kept for numba's on-disk cache, whose type names must not change)."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -330,53 +330,6 @@ def _coded_row(context, builder, aryty, ary, line, k, penty, pen):
 def _check_row_pen(arr, pen):
     _check2(arr, "arr", (types.uint16,))
     _check(pen, "pen", (types.uint16,))
-
-
-@intrinsic
-def splat16(typingctx, v):
-    """A uint16 :class:`Vec16` with ``v`` in every lane."""
-    if v != types.uint16:
-        raise TypingError(f"v must be a uint16, got {v}")
-
-    def codegen(context, builder, sig, args):
-        return _splat(builder, args[0], _U16)
-
-    return _vec16[types.uint16](types.uint16), codegen
-
-
-@intrinsic
-def least16(typingctx, cur, arr, line, k, pen, lo):
-    """Lane-wise running minimum of the codes ``x = arr[line, k + q] | pen[k + q]`` that are ``>= lo``
-    (uint16): lane q of ``cur`` becomes ``x`` when ``lo <= x < cur[q]``. ``pen`` holds 0 or 0xFFFF (an
-    entry taken out), so ``x`` is the code itself or 0xFFFF, which never lowers a lane."""
-    if cur != _vec16[types.uint16]:
-        raise TypingError(f"cur must be a uint16 Vec16, got {cur}")
-    _check_row_pen(arr, pen)
-
-    def codegen(context, builder, sig, args):
-        x = _coded_row(context, builder, sig.args[1], args[1], args[2], args[3], sig.args[4], args[4])
-        ok = builder.and_(builder.icmp_unsigned(">=", x, _splat(builder, args[5], _U16)),
-                          builder.icmp_unsigned("<", x, args[0]))
-        return builder.select(ok, x, args[0])
-
-    return cur(cur, arr, types.intp, types.intp, pen, types.uint16), codegen
-
-
-@intrinsic
-def min16(typingctx, vec):
-    """The least lane of a uint16 :class:`Vec16`."""
-    if vec != _vec16[types.uint16]:
-        raise TypingError(f"vec must be a uint16 Vec16, got {vec}")
-
-    def codegen(context, builder, sig, args):
-        v = args[0]
-        for half in (8, 4, 2, 1):
-            upper = builder.shuffle_vector(v, v, ir.Constant(ir.VectorType(ir.IntType(32), 16),
-                                                             [half + q if q < half else q for q in range(16)]))
-            v = builder.select(builder.icmp_unsigned("<", upper, v), upper, v)
-        return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
-
-    return types.uint16(vec), codegen
 
 
 @intrinsic

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ctxmatch_lib._simd import (band16, below16, count16, fill16, fma16, insert16, lane16, least16, load16, min16,
-                                prefetch, row_codes, row_flags, row_reflag, splat16, store16)
+from ctxmatch_lib._simd import (band16, below16, count16, fill16, fma16, insert16, lane16, load16, prefetch,
+                                row_codes, row_flags, row_reflag, store16)
 from ctxmatch_lib.blob import _kernels, _walk_kernels
 
 
@@ -83,14 +83,6 @@ def _band_masks(Q, r, pen, lo, hi):
     return out
 
 
-@njit(cache=False)
-def _least_lanes(Q, r, pen, lo):
-    acc = splat16(np.uint16(0xFFFF))
-    for k in range(0, Q.shape[1] - Q.shape[1] % 16, 16):
-        acc = least16(acc, Q, r, k, pen, lo)
-    return min16(acc)
-
-
 def _codes_and_pen(m, seed):
     rng = np.random.default_rng(seed)
     Q = rng.integers(0, 40, (2, m)).astype(np.uint16)
@@ -101,23 +93,36 @@ def _codes_and_pen(m, seed):
 
 @pytest.mark.parametrize("m", [16, 48, 160])
 @pytest.mark.parametrize("lo", [0, 1, 7, 39, 40, 65534])
-def test_least16_band16_and_min16_against_numpy(m, lo):
-    """least16 / min16: the least code at or above lo not taken out (0xFFFF if none); band16: the codes
-    in [lo, hi], taken-out entries (code | 0xFFFF) never in."""
+def test_band16_against_numpy(m, lo):
+    """band16: the codes in [lo, hi], taken-out entries (code | 0xFFFF) never in."""
     Q, pen = _codes_and_pen(m, m)
     x = (Q[1] | pen).astype(np.int64)
-    ref = x[(x >= lo) & (x < 0xFFFF)].min(initial=0xFFFF)
-    assert _least_lanes(Q, 1, pen, np.uint16(lo)) == ref
-    assert _walk_kernels._least_from(Q, 1, pen, np.uint16(lo)) == ref
     hi = min(lo + 9, 65534)
     bits = ((x >= lo) & (x <= hi)).reshape(-1, 16) @ (1 << np.arange(16))
     assert _band_masks(Q, 1, pen, np.uint16(lo), np.uint16(hi)).tolist() == bits.tolist()
 
 
-def test_least_from_takes_the_tail_beyond_the_last_16():
-    Q, pen = _codes_and_pen(37, 5)
+@pytest.mark.parametrize("m", [16, 37, 160])
+@pytest.mark.parametrize("lo", [0, 1, 7, 39, 40, 65534])
+@pytest.mark.parametrize("descending", [False, True])
+def test_band_from_finds_the_least_code_and_its_whole_band_in_one_pass(m, lo, descending):
+    """_band_from: the least code >= lo not taken out (0xFFFF if none), and every entry of its band
+    [lo, top] listed once, in column order (a few more are allowed: met before the least code, above it);
+    codes falling along the row (a new least code at each entry) and the tail beyond the last 16 too."""
+    Q, pen = _codes_and_pen(m, m)
+    if descending:
+        Q[0] = np.sort(Q[0])[::-1]
     x = (Q[0] | pen).astype(np.int64)
-    assert _walk_kernels._least_from(Q, 0, pen, np.uint16(5)) == x[(x >= 5) & (x < 0xFFFF)].min(initial=0xFFFF)
+    want = x[(x >= lo) & (x < 0xFFFF)].min(initial=0xFFFF)
+    E, qoff, step, top_best = 1.0, 0.0, 1.0, 3
+    band = np.full(m, -1, np.int64)
+    mu, count = _walk_kernels._band_from(Q, 0, pen, lo, top_best, E, qoff, step, band)
+    assert mu == want
+    listed = band[:count]
+    assert np.all(np.diff(listed) > 0) and np.all((x[listed] >= lo) & (x[listed] < 0xFFFF))
+    if mu < 0xFFFF:
+        top = min(_walk_kernels._band_top(mu, top_best, E, qoff, step), 65534)
+        assert set(np.flatnonzero((x >= lo) & (x <= top))) <= set(listed.tolist())
 
 
 @pytest.mark.parametrize("lo, hi", [(-1e-6, 4.0), (-3.0, 2e5), (0.0, 0.0)])
@@ -167,7 +172,7 @@ def test_next_in_line_against_a_brute_force_walk(strict, t_o2, coarse):
             want = min(((e[k], k) for k in ok), default=(np.inf, -1))
             held = pen.copy()
             got = _walk_kernels.next_in_line(Q, 0, A64, line, B64, E, d, j, strict, skip, pen, pts, t_o2, qoff,
-                                             step)
+                                             step, np.empty(70, np.int64))
             assert got == want
             assert pen.tobytes() == held.tobytes()  # pen[skip] restored
 

@@ -17,28 +17,15 @@ import numpy as np
 from numba import njit
 
 from .._numba import user_cache
-from .._simd import band16, least16, min16, splat16
+from .._simd import band16, prefetch
 from ._kernels import TAKEN, _exact_sq
 
 __all__ = ["next_in_line", "greedy_dense", "next_in_lines"]
 
-with user_cache() as _cache:
+#: Lines of codes asked for ahead of their look-up in :func:`next_in_lines` (a hint; no effect on results).
+AHEAD = 2
 
-    @njit(cache=_cache, nogil=True)
-    def _least_from(Q, r, pen, lo):
-        """The least code ``Q[r, k] | pen[k]`` that is ``>= lo`` (``TAKEN`` if none): sixteen running minima
-        in one register."""
-        m = Q.shape[1]
-        m16 = m - m % 16
-        acc = splat16(np.uint16(TAKEN))
-        for k in range(0, m16, 16):
-            acc = least16(acc, Q, r, k, pen, lo)
-        best = min16(acc)
-        for k in range(m16, m):
-            x = Q[r, k] | pen[k]
-            if x >= lo and x < best:
-                best = x
-        return best
+with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _consider(A, line, B, k, d, j, strict, skip, pts, t_o2, best_d, best_k):
@@ -69,8 +56,51 @@ with user_cache() as _cache:
         c = np.ceil((x - qoff) / step) + 1.0
         return np.int64(min(max(c, 0.0), float(TAKEN)))
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _band_top(mu, top_best, E, qoff, step):
+        """The last code of the band of least code ``mu``: entries coded up to it may come before the one coded
+        ``mu`` (exact <= qoff + mu step + E, so decoded <= that + E), or before the best so far (``top_best``)."""
+        return max(_code_at_least(qoff + mu * step + 2.0 * E, qoff, step), top_best)
+
     @njit(cache=_cache, nogil=True)
-    def next_in_line(Q, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2, qoff, step):
+    def _band_from(Q, r, pen, lo, top_best, E, qoff, step, band):
+        """One pass over line ``r`` of ``Q``: the least code ``mu >= lo`` not taken out, and in
+        ``band[:count]`` (column order) every entry coded in ``[lo, hi]`` with ``hi`` the band's last code
+        (:func:`_band_top`) for the least code met so far: the band of ``mu``, plus a few entries met before
+        ``mu`` that lie above it. Returns ``(mu, count)``; ``mu`` is ``TAKEN`` when no entry is left.
+
+        ``hi`` only falls, so an entry of the final band is kept whenever it is met: one pass finds the least
+        code and its band, sixteen codes at a time.
+        """
+        m = Q.shape[1]
+        m16 = m - m % 16
+        mu = np.int64(TAKEN)
+        hi = np.int64(TAKEN - 1)
+        count = 0
+        for k0 in range(0, m16, 16):
+            mask = band16(Q, r, k0, pen, np.uint16(lo), np.uint16(hi))
+            if mask == 0:
+                continue
+            for q in range(16):
+                if (mask >> q) & 1:
+                    band[count] = k0 + q
+                    count += 1
+                    x = np.int64(Q[r, k0 + q])  # not taken out: pen is 0 here
+                    if x < mu:
+                        mu = x
+                        hi = min(_band_top(mu, top_best, E, qoff, step), TAKEN - 1)
+        for k in range(m16, m):
+            x = np.int64(Q[r, k] | pen[k])
+            if x >= lo and x <= hi:
+                band[count] = k
+                count += 1
+                if x < mu:
+                    mu = x
+                    hi = min(_band_top(mu, top_best, E, qoff, step), TAKEN - 1)
+        return mu, count
+
+    @njit(cache=_cache, nogil=True)
+    def next_in_line(Q, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2, qoff, step, band):
         """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
 
         ``Q[r]`` holds the line's 16-bit codes ``q`` of approximate squared distances: ``qoff + q step`` is
@@ -78,12 +108,11 @@ with user_cache() as _cache:
         out; saturated columns of the greedy), ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip``
         (FGINN, when ``t_o2 > 0``) and exact distance ``> d`` or ``== d`` with ``k > j`` (``strict``) /
         ``>= d`` (not ``strict``, any ``k``). Exact distances are computed only for the entries whose code
-        cannot rule them out: the band of codes ``[lo, top]`` above the least code not yet seen, compared
-        sixteen at a time. Returns ``(distance, index)``, ``(inf, -1)`` when none qualifies. ``pen[skip]``
-        is set during the call and restored.
+        cannot rule them out: the band of codes ``[lo, top]`` above the least code not yet seen, found in one
+        pass (:func:`_band_from`, into ``band``, an int64 buffer of at least ``Q.shape[1]`` entries). Returns
+        ``(distance, index)``, ``(inf, -1)`` when none qualifies. ``pen[skip]`` is set during the call and
+        restored.
         """
-        m = Q.shape[1]
-        m16 = m - m % 16
         held = np.uint16(0)
         if skip >= 0:
             held = pen[skip]
@@ -91,25 +120,15 @@ with user_cache() as _cache:
         lo = _code_at_most(d * d - E, qoff, step)  # codes below: certainly closer than d
         best_d, best_k = np.inf, -1
         while lo < TAKEN:
-            mu = np.int64(_least_from(Q, r, pen, np.uint16(lo)))
+            top_best = _code_at_least(best_d * best_d + E, qoff, step) if best_k >= 0 else np.int64(0)
+            mu, count = _band_from(Q, r, pen, lo, top_best, E, qoff, step, band)
             if mu >= TAKEN:
                 break
-            # Entries that can come before the one coded mu: exact <= qoff + mu step + E, so decoded <= that + E.
-            top = _code_at_least(qoff + mu * step + 2.0 * E, qoff, step)
-            if best_k >= 0:
-                top = max(top, _code_at_least(best_d * best_d + E, qoff, step))
-            hi = np.uint16(min(top, TAKEN - 1))
-            for k0 in range(0, m16, 16):  # the band is narrow: most blocks of 16 have no entry in it
-                mask = band16(Q, r, k0, pen, np.uint16(lo), hi)
-                if mask == 0:
-                    continue
-                for q in range(16):
-                    if (mask >> q) & 1:
-                        best_d, best_k = _consider(A, line, B, k0 + q, d, j, strict, skip, pts, t_o2, best_d,
-                                                   best_k)
-            for k in range(m16, m):
-                x = Q[r, k] | pen[k]
-                if x >= lo and x <= hi:
+            top = _band_top(mu, top_best, E, qoff, step)
+            hi = min(top, TAKEN - 1)
+            for c in range(count):  # the band's entries, in column order
+                k = band[c]
+                if (Q[r, k] | pen[k]) <= hi:
                     best_d, best_k = _consider(A, line, B, k, d, j, strict, skip, pts, t_o2, best_d, best_k)
             # Codes <= top have been looked at; unseen entries decode to at least qoff + (top + 1) step.
             lo = top + 1
@@ -118,6 +137,13 @@ with user_cache() as _cache:
         if skip >= 0:
             pen[skip] = held
         return best_d, best_k
+
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _prefetch_line(Q, r):
+        """Start bringing line ``r`` of ``Q`` into the caches (a hint: no effect on any result). The look-ups
+        read whole lines of codes from memory, one after the other; a line asked for ahead arrives meanwhile."""
+        for k in range(0, Q.shape[1], 32):  # 32 codes: one 64-byte cache line
+            prefetch(Q, r, k)
 
     @njit(cache=_cache, nogil=True)
     def _hpush(hv, hi, hj, size, v, i, j):
@@ -179,6 +205,7 @@ with user_cache() as _cache:
         K = 0
         free_cols = m
         dummy = np.zeros((1, 2))
+        band = np.empty(m, np.int64)
         while size > 0 and free_cols > 0:
             d, i, j, size = _hpop(hv, hi, hj, size)
             if cc[j] < f_prime:
@@ -208,7 +235,9 @@ with user_cache() as _cache:
                 d, j = lval[i, T - 1], lidx[i, T - 1]
             if T == m:
                 continue
-            e, k = next_in_line(Q, i, A, i, B, E_rows[i], d, j, True, -1, pen, dummy, 0.0, qoff, step)
+            # (d, j) is an entry of the row (exact distance d): j cannot come after itself, and skipping it
+            # keeps its code out of the band (else nearly every walk needs a second one).
+            e, k = next_in_line(Q, i, A, i, B, E_rows[i], d, j, True, j, pen, dummy, 0.0, qoff, step, band)
             if k >= 0:
                 size = _hpush(hv, hi, hj, size, e, i, k)
         return out_i[:K], out_j[:K], out_d[:K]
@@ -223,10 +252,15 @@ with user_cache() as _cache:
         out_d = np.empty(L)
         out_k = np.empty(L, np.int64)
         pen = np.zeros(Q.shape[1], np.uint16)
+        band = np.empty(Q.shape[1], np.int64)
+        for r in range(min(AHEAD, L)):
+            _prefetch_line(Q, rows[r])
         for r in range(L):
+            if r + AHEAD < L:
+                _prefetch_line(Q, rows[r + AHEAD])
             i = which[r]
             e, k = next_in_line(Q, rows[r], A, i, B, E_lines[i], d[r], j[r], strict[r], skip[r], pen, pts,
-                                t_o2, qoff, step)
+                                t_o2, qoff, step, band)
             out_d[r] = e
             out_k[r] = k
         return out_d, out_k
