@@ -32,7 +32,7 @@ from numba import config, literal_unroll, njit
 
 from .._numba import user_cache
 from .._simd import fill16, fma16, insert16, lane16, load16, row_codes, row_flags, row_reflag, store16
-from ._kernels import _DEBRUIJN, _DEBRUIJN_BIT, _S58, TAKEN, _flush, _insert, _kth_of, code
+from ._kernels import TAKEN, _flush, _insert, _kth_of, _lowest_bit, code
 
 __all__ = ["CHUNK", "FRESH_ROWS", "NR", "ROW_BLOCK", "fused_product_fast", "pack_columns", "product_scan"]
 
@@ -178,9 +178,8 @@ with user_cache() as _cache:
                 for b in range(nblk):
                     mask = np.uint64(M[0, r, b])
                     while mask != np.uint64(0):
-                        low = mask & (~mask + np.uint64(1))
-                        mask ^= low
-                        jj = b * NR + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
+                        mask, bit = _lowest_bit(mask)
+                        jj = b * NR + bit
                         if Kr > 16:
                             if X[vr + r, jj] < rthr[i]:
                                 _insert(rv, ri, rthr, i, Kr, X[vr + r, jj], c0 + jj, tv, tx)
@@ -201,9 +200,8 @@ with user_cache() as _cache:
         for b in range(nblk):
             mask = np.uint64(M[1, r, b])
             while mask != np.uint64(0):
-                low = mask & (~mask + np.uint64(1))
-                mask ^= low
-                jj = b * NR + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
+                mask, bit = _lowest_bit(mask)
+                jj = b * NR + bit
                 v, j = X[xr, jj], c0 + jj
                 if Kc <= 16:  # no branch on the data: written, and kept if below the threshold
                     q = pc[jj]

@@ -68,6 +68,13 @@ def error_scale(d: int) -> float:
 
 with user_cache() as _cache:
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def _lowest_bit(mask):
+        """A 64-bit mask without its lowest set bit, and that bit's index (de Bruijn, above): the walks over
+        flagged entries take their bits lowest first, without a branch per bit."""
+        low = mask & (~mask + np.uint64(1))
+        return mask ^ low, _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
+
     @njit(cache=_cache, nogil=True)
     def _exact_sq(A, i, B, j):
         """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8, the lanes
@@ -334,9 +341,8 @@ with user_cache() as _cache:
                 for q in range(8):
                     mask |= ((words[8 * g + q] * _GATHER) >> _S56) << np.uint64(8 * q)
                 while mask != np.uint64(0):
-                    low = mask & (~mask + np.uint64(1))
-                    mask ^= low
-                    jj = 64 * g + _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
+                    mask, bit = _lowest_bit(mask)
+                    jj = 64 * g + bit
                     gv = grow[jj]
                     v = (a + n2t[jj]) - (gv + gv)
                     j = c0 + jj

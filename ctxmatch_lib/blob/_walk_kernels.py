@@ -18,7 +18,7 @@ from numba import njit
 
 from .._numba import user_cache
 from .._simd import band16, prefetch
-from ._kernels import TAKEN, _exact_sq
+from ._kernels import TAKEN, _exact_sq, _lowest_bit
 
 __all__ = ["next_in_line", "greedy_dense", "next_in_lines"]
 
@@ -78,17 +78,15 @@ with user_cache() as _cache:
         hi = np.int64(TAKEN - 1)
         count = 0
         for k0 in range(0, m16, 16):
-            mask = band16(Q, r, k0, pen, np.uint16(lo), np.uint16(hi))
-            if mask == 0:
-                continue
-            for q in range(16):
-                if (mask >> q) & 1:
-                    band[count] = k0 + q
-                    count += 1
-                    x = np.int64(Q[r, k0 + q])  # not taken out: pen is 0 here
-                    if x < mu:
-                        mu = x
-                        hi = min(_band_top(mu, top_best, E, qoff, step), TAKEN - 1)
+            mask = np.uint64(band16(Q, r, k0, pen, np.uint16(lo), np.uint16(hi)))
+            while mask != np.uint64(0):
+                mask, bit = _lowest_bit(mask)
+                band[count] = k0 + bit
+                count += 1
+                x = np.int64(Q[r, k0 + bit])  # not taken out: pen is 0 here
+                if x < mu:
+                    mu = x
+                    hi = min(_band_top(mu, top_best, E, qoff, step), TAKEN - 1)
         for k in range(m16, m):
             x = np.int64(Q[r, k] | pen[k])
             if x >= lo and x <= hi:
