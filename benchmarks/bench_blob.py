@@ -28,10 +28,12 @@ fused pass (``product_scan``) or the GEMM tiles and their scan (the numbers behi
 
 With ``--warm-malloc``, the script runs again with glibc keeping freed memory mapped
 (``MALLOC_MMAP_THRESHOLD_`` / ``MALLOC_TRIM_THRESHOLD_``), so that blob matching's arrays cost no page faults,
-as the floor's output allocated once costs none. The baseline writes 16-bit codes of all of D into a fresh
-array each call (50 MB at 5000, 128 MB at 8000); in the virtual machine these numbers come from, faulting
-those pages in cost up to 300 ms more in some rounds and not in others (the host takes freed guest memory
-back), so that its median there depends on the rounds it hit.
+as the floor's output allocated once costs none. The baseline writes 16-bit codes of all of D (50 MB at
+5000, 128 MB at 8000) into a buffer blob matching keeps from one call to the next
+(``ctxmatch_lib.blob.free_workspace`` drops it), so only its first call (the slowest round) faults those
+pages in: in the virtual machine these numbers come from, that cost up to 300 ms more in some runs than in
+others (the host takes freed guest memory back). Before that buffer, every call paid it, and the
+baseline's median depended on the rounds it hit.
 
 Run: ``.venv/bin/python benchmarks/bench_blob.py [--sizes 5000 8000] [--threads 1] [--repeat 5] [--quick]
 [--breakdown] [--warm-malloc]``.
