@@ -7,8 +7,9 @@ bound ``E`` of :mod:`._kernels` plus the codes' step, :func:`._kernels.code_scal
 time, and float64 exact distances decide. The codes take half the memory of float32: f = Ω's dense matrix
 is written and read twice as fast.
 
-numba's disk cache checks the timestamp of a kernel's own file only: after an edit of ``_kernels._exact_sq``
-or of ``ctxmatch_lib._simd``, touch this file (or clear ``$CTXMATCH_CACHE/numba``).
+numba's disk cache checks the timestamp of a kernel's own file only: after an edit of the ``_kernels`` it
+uses (``_exact_sq``, ``_lowest_bit``) or of ``ctxmatch_lib._simd``, touch this file (or clear
+``$CTXMATCH_CACHE/numba``).
 """
 
 from __future__ import annotations
@@ -233,8 +234,8 @@ with user_cache() as _cache:
                 d, j = lval[i, T - 1], lidx[i, T - 1]
             if T == m:
                 continue
-            # (d, j) is an entry of the row (exact distance d): j cannot come after itself, and skipping it
-            # keeps its code out of the band (else nearly every walk needs a second one).
+            # (d, j) is an entry of the row (exact distance d), so j cannot come after itself: skipped, its
+            # code stays out of the band, which otherwise takes it, and a second pass, while j's column is free.
             e, k = next_in_line(Q, i, A, i, B, E_rows[i], d, j, True, j, pen, dummy, 0.0, qoff, step, band)
             if k >= 0:
                 size = _hpush(hv, hi, hj, size, e, i, k)
