@@ -1,4 +1,5 @@
-"""One BLAS thread around the float32 products whose rounding must not depend on the thread count, and the
+"""One BLAS thread around the float32 products whose rounding must not depend on the thread count and around
+the filters' loops of skinny products (VFC, LLT, PFM: threads cost more than they give there), and the
 product blob matching's scan accumulates into its tile."""
 
 from __future__ import annotations

@@ -18,7 +18,6 @@ import re
 import types
 import warnings
 from collections.abc import Callable
-from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +26,7 @@ from scipy.spatial import cKDTree
 from .._scores import _check_ratio, nnr_threshold, score_ratio
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive", "serial_blas",
+__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive",
            "coincident_groups", "merge_coincident", "first_of_pair", "match_filter", "compose_doc", "DOCS"]
 
 
@@ -183,20 +182,6 @@ def zero_mean_unit_rms(p: np.ndarray) -> np.ndarray:
     c = p - p.mean(axis=0)
     scale = np.sqrt((c**2).sum() / max(len(p), 1))
     return c / scale if scale > 1e-12 else c
-
-
-def serial_blas():
-    """Context manager running BLAS single-threaded (a no-op without ``threadpoolctl``).
-
-    The EM filters (VFC, LLT) multiply skinny ``(K, m)`` matrices hundreds of times; a multi-threaded
-    BLAS spends more time waking and synchronising its threads than computing (5x slower on a loaded
-    2-core machine), so those loops run serially. ``threadpoolctl`` comes with scikit-learn.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - scikit-learn depends on it
-        return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def coincident_groups(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas, zero_mean_unit_rms
+from .._blas import one_blas_thread
+from ._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
 from ._llt_kernels import em_residuals, lle_solve, offset_norms
 from .vfc import control_points, gaussian_kernel, posterior
@@ -195,7 +196,7 @@ def llt_filter(
     n = len(ms)
     if n == 0:
         return np.zeros(0, bool)
-    with serial_blas():  # skinny products in a loop: threads cost more than they give
+    with one_blas_thread():  # skinny products in a loop: threads cost more than they give
         x = zero_mean_unit_rms(ms.x)
         y = zero_mean_unit_rms(ms.y)
         target = y - x  # T(x) = x + U C, so the kernel part fits the motion

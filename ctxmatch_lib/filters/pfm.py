@@ -41,7 +41,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
-from ._common import MatchSet, check_positive, knn_without_self, match_filter, serial_blas
+from .._blas import one_blas_thread
+from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["pfm_filter", "local_affines"]
 
@@ -299,7 +300,7 @@ def pfm_filter(
     if n < 3:
         return np.zeros(n, bool)
     # Qhull's barycentric transforms call LAPACK once per triangle: threads only slow that down.
-    with serial_blas():
+    with one_blas_thread():
         return _pfm(ms, sigma, t, lam, beta, seed_fraction, k)
 
 

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import MatchSet, check_positive, match_filter, serial_blas, zero_mean_unit_rms
+from .._blas import one_blas_thread
+from ._common import MatchSet, check_positive, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, matmul_t, solve, weighted_gram_t
 
 __all__ = ["vfc_filter"]
@@ -153,7 +154,7 @@ def vfc_filter(
 def _vfc(x1, y1, beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng) -> np.ndarray:
     """The EM of :func:`vfc_filter` on the keypoints ``x1``, ``y1`` (K, 2) of the matches: the inlier mask."""
     n = len(x1)
-    with serial_blas():  # skinny products in a loop: threads cost more than they give
+    with one_blas_thread():  # skinny products in a loop: threads cost more than they give
         x = zero_mean_unit_rms(x1)
         motion = zero_mean_unit_rms(y1) - x
         ctrl = control_points(x, n_control, rng)
