@@ -23,13 +23,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind
+from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind, PoseGT
 from .custom import read_custom_dataset, write_custom_dataset
 from .embedded import embedded_root
 from .real import REAL_LOADERS
 
 __all__ = [
-    "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS",
+    "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS", "PoseGT",
     "DEFAULT_DATASET", "load_dataset", "list_datasets", "read_custom_dataset", "write_custom_dataset",
 ]
 

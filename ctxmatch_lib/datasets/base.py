@@ -12,10 +12,11 @@ from typing import Iterator, Literal, Union
 
 import numpy as np
 
-__all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "GroundTruth", "Pair", "PairKind", "Dataset", "PAIR_KINDS"]
+__all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "PoseGT", "GroundTruth", "Pair", "PairKind", "Dataset",
+           "PAIR_KINDS"]
 
-PairKind = Literal["planar", "nonplanar", "depth"]
-PAIR_KINDS = ("planar", "nonplanar", "depth")
+PairKind = Literal["planar", "nonplanar", "depth", "calibrated"]
+PAIR_KINDS = ("planar", "nonplanar", "depth", "calibrated")
 
 # Relative size of the smallest singular value below which a 3x3 ground-truth matrix counts as losing a
 # rank: far beneath the conditioning of any real homography (about 1e-5 for a 1000 px translation) and far
@@ -125,15 +126,131 @@ class FlowGT:
             raise ValueError("flow12 has no known pixel (all NaN or empty): no ground truth")
 
 
-GroundTruth = Union[HomographyGT, EpipolarGT, FlowGT]
+# PoseGT's rotation must be orthonormal to 1e-6. A rotation read from a text file with 6 significant digits
+# is orthonormal only to about 1e-6 (1.07e-6 on the Strecha cameras), so the readers accept up to
+# ROTATION_TEXT_TOL and then project onto the nearest rotation (:func:`nearest_rotation`); anything further
+# off is not a rotation (a scale, a shear, a transposed or mistyped matrix).
+_ROTATION_TOL = 1e-6
+ROTATION_TEXT_TOL = 1e-4
+
+
+def _skew(t: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+
+
+def _check_intrinsics(K, name: str) -> np.ndarray:
+    K = np.asarray(K)
+    if K.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 matrix, got shape {K.shape}")
+    if not np.issubdtype(K.dtype, np.number) or not np.isfinite(K).all():
+        raise ValueError(f"{name} must hold finite numbers, got {K.tolist()}")
+    K = K.astype(np.float64)
+    if K[0, 0] == 0 or K[1, 1] == 0:
+        raise ValueError(f"{name} has a zero focal length (fx = {K[0, 0]:g}, fy = {K[1, 1]:g})")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] == 0:
+        raise ValueError(f"{name} must be upper triangular with a non-zero K[2, 2], got {K.tolist()}")
+    return K / K[2, 2]
+
+
+def nearest_rotation(R) -> np.ndarray:
+    """The rotation closest to ``R`` in the Frobenius norm (``U V^T`` of its SVD), for a matrix read as text."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, np.float64))
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+
+def _check_rotation(R, name: str = "R", tol: float = _ROTATION_TOL) -> np.ndarray:
+    R = np.asarray(R)
+    if R.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 matrix, got shape {R.shape}")
+    if not np.issubdtype(R.dtype, np.number) or not np.isfinite(R).all():
+        raise ValueError(f"{name} must hold finite numbers, got {R.tolist()}")
+    R = R.astype(np.float64)
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > tol:
+        raise ValueError(f"{name} is not a rotation: R^T R differs from the identity by {err:.3g}")
+    det = float(np.linalg.det(R))
+    if det < 0:
+        raise ValueError(f"{name} is not a rotation: its determinant is {det:.6g} (a reflection)")
+    return R
+
+
+@dataclass(frozen=True, eq=False)
+class PoseGT:
+    """Calibrated two-view ground truth: intrinsics and the relative pose of camera 2 w.r.t. camera 1.
+
+    A point ``X1`` in camera-1 coordinates is ``X2 = R @ X1 + t`` in camera-2 coordinates (SuperGlue's and
+    LoFTR's ``T_0to1``); pixels are ``x ~ K @ X``, with the package's convention (x right, y down, (0, 0)
+    the centre of the top-left pixel).
+
+    Parameters
+    ----------
+    K1, K2 : ndarray of shape (3, 3)
+        Intrinsics of image 1 and image 2 (upper triangular, non-zero focals; stored divided by ``K[2, 2]``).
+    R : ndarray of shape (3, 3)
+        Rotation (``R^T R = I`` within 1e-6, determinant +1).
+    t : ndarray of shape (3,)
+        Translation, non-zero; any unit, only its direction enters the pose error.
+    threshold_scale : float
+        Factor on the paper's pixel thresholds for this pair (its 15 px were set on images about 1000 px
+        wide, Sec. 5.1); the Strecha loader sets ``max(width, height) / 1024``.
+    difficulty : str
+        The pair's difficulty band (``"easy"``, ``"medium"``, ``"hard"``; ``""`` when unknown), see
+        :mod:`ctxmatch_lib.datasets.strecha`.
+
+    Raises
+    ------
+    ValueError
+        A field of the wrong shape, not finite, a zero focal, a non-rotation ``R``, a zero ``t`` or a
+        non-positive ``threshold_scale``; the message names the field.
+    """
+
+    K1: np.ndarray
+    K2: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    threshold_scale: float = 1.0
+    difficulty: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "K1", _check_intrinsics(self.K1, "K1"))
+        object.__setattr__(self, "K2", _check_intrinsics(self.K2, "K2"))
+        object.__setattr__(self, "R", _check_rotation(self.R, "R"))
+        t = np.asarray(self.t)
+        if t.shape not in ((3,), (3, 1)):
+            raise ValueError(f"t must have shape (3,), got {t.shape}")
+        if not np.issubdtype(t.dtype, np.number) or not np.isfinite(t).all():
+            raise ValueError(f"t must hold finite numbers, got {t.ravel().tolist()}")
+        t = t.astype(np.float64).reshape(3)
+        if not np.any(t):
+            raise ValueError("t is zero: a pure rotation has no epipolar geometry")
+        object.__setattr__(self, "t", t)
+        scale = self.threshold_scale
+        if not (isinstance(scale, (int, float, np.number)) and np.isfinite(scale) and scale > 0):
+            raise ValueError(f"threshold_scale must be a positive number, got {scale!r}")
+        object.__setattr__(self, "threshold_scale", float(scale))
+
+    @property
+    def E(self) -> np.ndarray:
+        """Essential matrix ``[t]x R`` (3, 3): ``X2^T E X1 = 0`` for normalised camera coordinates."""
+        return _skew(self.t) @ self.R
+
+    @property
+    def F(self) -> np.ndarray:
+        """Fundamental matrix ``K2^-T [t]x R K1^-1`` (3, 3), ``x2^T F x1 = 0`` on pixels, Frobenius norm 1."""
+        F = np.linalg.inv(self.K2).T @ self.E @ np.linalg.inv(self.K1)
+        return F / np.linalg.norm(F)
+
+
+GroundTruth = Union[HomographyGT, EpipolarGT, FlowGT, PoseGT]
 
 
 @dataclass(frozen=True)
 class Pair:
     """One image pair of a dataset.
 
-    ``image_size1``/``image_size2`` are (width, height). ``kind`` is ``"planar"``, ``"nonplanar"`` or
-    ``"depth"``; ``gt`` holds the matching ground-truth object.
+    ``image_size1``/``image_size2`` are (width, height). ``kind`` is ``"planar"`` (``HomographyGT``),
+    ``"nonplanar"`` (``EpipolarGT``), ``"depth"`` (``FlowGT``) or ``"calibrated"`` (``PoseGT``); ``gt``
+    holds the matching ground-truth object.
     """
 
     pair_id: str
@@ -172,7 +289,7 @@ class Dataset:
         return f"Dataset({self.name!r}, {len(self.pairs)} pairs{': ' + counts if counts else ''})"
 
     def by_kind(self, kind: str) -> "Dataset":
-        """The sub-dataset of the pairs of one kind (``"planar"``, ``"nonplanar"`` or ``"depth"``)."""
+        """The sub-dataset of the pairs of one kind (one of :data:`PAIR_KINDS`)."""
         if kind not in PAIR_KINDS:
             raise ValueError(f"kind must be one of {PAIR_KINDS}, got {kind!r}")
         return Dataset(f"{self.name}[{kind}]", [p for p in self.pairs if p.kind == kind], self.root)
