@@ -6,38 +6,17 @@ Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the
 pixel. ``H`` maps image-1 points to image 2 (``x2 ~ H x1``); ``F`` satisfies ``x2^T F x1 = 0``.
 """
 
-from .models import (
-    CONSISTENCY_THRESHOLD_PX,
-    MIN_SAMPLE,
-    ModelFit,
-    ModelKind,
-    _dlt_design,  # noqa: F401  (the DTM and the ground truth share these kernels)
-    _dlt_normal_matrix,  # noqa: F401
-    _epipolar,  # noqa: F401
-    _normalise,  # noqa: F401
-    _transfer_errors,  # noqa: F401
-    apply_homography,
-    epipolar_distances,
-    fit_fundamental,
-    fit_homography,
-    homography_transfer_errors,
-    model_errors,
-    normalise_points,
-    one_sac,
-    top_ranked_sample,
-)
-from .usac import (
-    MODEL_STEPS,
-    ROBUST_STEPS,
-    USAC_PRESETS,
-    UsacSettings,
-    apply_model_step,
-    model_kind_for,
-    ransac,
-    usac_settings,
-)
-
+# The public names are listed once, in each module's ``__all__``; the star imports re-export them.
 from . import models, usac
+from .models import *  # noqa: F403
+from .models import (  # noqa: F401  (the DTM, the ground truth and the learned filters' data share these kernels)
+    ModelKind,
+    _dlt_design,
+    _dlt_normal_matrix,
+    _epipolar,
+    _normalise,
+    _transfer_errors,
+)
+from .usac import *  # noqa: F403
 
-# The package's names are its two modules' public names (and the model-kind type).
 __all__ = [*usac.__all__, *models.__all__, "ModelKind"]

@@ -98,6 +98,12 @@ def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
 # each other inside 1SAC, RANSAC and the pipeline) take clean float64 arrays and skip the checks.
 
 
+def _point_pair(pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
+    """``pts1`` and ``pts2`` validated as corresponding ``(N, 2)`` point arrays."""
+    pts1 = as_points(pts1, "pts1")
+    return pts1, as_points(pts2, "pts2", n=len(pts1))
+
+
 def _normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(pts) == 0:
         return pts.copy(), np.eye(3)
@@ -147,8 +153,7 @@ def fit_homography(pts1, pts2) -> np.ndarray | None:
            [0., 2., 5.],
            [0., 0., 1.]])
     """
-    pts1 = as_points(pts1, "pts1")
-    return _fit_homography(pts1, as_points(pts2, "pts2", n=len(pts1)))
+    return _fit_homography(*_point_pair(pts1, pts2))
 
 
 def _dlt_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
@@ -190,15 +195,24 @@ def _dlt_normal_matrix(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     return m
 
 
-def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
-    if len(pts1) < 4:
+def _normalised_solve(pts1: np.ndarray, pts2: np.ndarray, kind: ModelKind):
+    """The null vector of ``kind``'s design matrix built on Hartley-normalised points, as a 3 x 3 matrix in
+    normalised coordinates, with the two normalising similarities ``T1`` and ``T2`` to undo; ``None`` for
+    fewer points than the minimal sample or a degenerate configuration."""
+    if len(pts1) < MIN_SAMPLE[kind]:
         return None
     n1, T1 = _normalise(pts1)
     n2, T2 = _normalise(pts2)
-    h = _null_vector(_dlt_design(n1, n2))
-    if h is None:
+    m = _null_vector(_dlt_design(n1, n2) if kind == "H" else _eight_point_design(n1, n2))
+    return None if m is None else (m.reshape(3, 3), T1, T2)
+
+
+def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
+    solved = _normalised_solve(pts1, pts2, "H")
+    if solved is None:
         return None
-    H = np.linalg.solve(T2, h.reshape(3, 3) @ T1)
+    h, T1, T2 = solved
+    H = np.linalg.solve(T2, h @ T1)
     if abs(np.linalg.det(H)) < 1e-12 * np.abs(H).max() ** 3:
         return None
     if abs(H[2, 2]) > 1e-12 * np.abs(H).max():
@@ -222,22 +236,23 @@ def fit_fundamental(pts1, pts2) -> np.ndarray | None:
         Rank-2 matrix with ``x2^T F x1 = 0``, unit Frobenius norm; ``None`` for fewer than 8 points or a
         degenerate configuration.
     """
-    pts1 = as_points(pts1, "pts1")
-    return _fit_fundamental(pts1, as_points(pts2, "pts2", n=len(pts1)))
+    return _fit_fundamental(*_point_pair(pts1, pts2))
+
+
+def _eight_point_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """The ``(N, 9)`` 8-point design matrix from normalised points ``n1`` to ``n2``: its null vector is
+    ``F`` row by row (Hartley & Zisserman, Alg. 11.1), one row ``x2^T F x1 = 0`` per pair."""
+    x, y = n1[:, 0], n1[:, 1]
+    u, v = n2[:, 0], n2[:, 1]
+    return np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], axis=1)
 
 
 def _fit_fundamental(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
-    if len(pts1) < 8:
+    solved = _normalised_solve(pts1, pts2, "F")
+    if solved is None:
         return None
-    n1, T1 = _normalise(pts1)
-    n2, T2 = _normalise(pts2)
-    x, y = n1[:, 0], n1[:, 1]
-    u, v = n2[:, 0], n2[:, 1]
-    A = np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], axis=1)
-    f = _null_vector(A)
-    if f is None:
-        return None
-    U, s, Vt = np.linalg.svd(f.reshape(3, 3))
+    f, T1, T2 = solved
+    U, s, Vt = np.linalg.svd(f)
     F = U @ np.diag([s[0], s[1], 0.0]) @ Vt
     F = T2.T @ F @ T1
     nrm = np.linalg.norm(F)
@@ -275,8 +290,7 @@ def homography_transfer_errors(H, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
     backward : ndarray of shape (N,)
         ``||H^-1 x2 - x1||`` in image-1 pixels (``inf`` everywhere when ``H`` is singular).
     """
-    pts1 = as_points(pts1, "pts1")
-    return _transfer_errors(np.asarray(H, dtype=np.float64), pts1, as_points(pts2, "pts2", n=len(pts1)))
+    return _transfer_errors(np.asarray(H, dtype=np.float64), *_point_pair(pts1, pts2))
 
 
 def _transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,8 +321,7 @@ def epipolar_distances(F, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
         Distance in image 1 of ``x1`` from the epipolar line ``F^T x2``.
         A degenerate line (``x`` at an epipole) gives ``inf``.
     """
-    pts1 = as_points(pts1, "pts1")
-    return _epipolar(np.asarray(F, dtype=np.float64), pts1, as_points(pts2, "pts2", n=len(pts1)))
+    return _epipolar(np.asarray(F, dtype=np.float64), *_point_pair(pts1, pts2))
 
 
 def _epipolar(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -332,8 +345,7 @@ def model_errors(model, kind: ModelKind, pts1, pts2) -> np.ndarray:
     of the two point-to-epipolar-line distances, in pixels.
     """
     kind = _check_kind(kind)
-    pts1 = as_points(pts1, "pts1")
-    return _model_errors(np.asarray(model, np.float64), kind, pts1, as_points(pts2, "pts2", n=len(pts1)))
+    return _model_errors(np.asarray(model, np.float64), kind, *_point_pair(pts1, pts2))
 
 
 def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ ROBUST_STEPS = ("ransac", "prosac", "magsac")
 
 @dataclass(frozen=True)
 class UsacSettings:
-    """Settings of one USAC estimator.
+    """Settings of one USAC estimator; the defaults are the ``ransac`` model step's, and :func:`ransac`'s.
 
     Attributes
     ----------
@@ -61,9 +61,9 @@ class UsacSettings:
 #: ``randomGeneratorState`` 0 it returns the same model as ``cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.0,
 #: 0.9999, 100000)`` (checked on OpenCV 5.0.0).
 USAC_PRESETS = {
-    "ransac": UsacSettings("uniform", 3.0, 0.999, 100_000),
-    "prosac": UsacSettings("prosac", 3.0, 0.999, 100_000),
-    "magsac": UsacSettings("uniform", 1.0, 0.9999, 100_000),
+    "ransac": UsacSettings(),
+    "prosac": UsacSettings(sampler="prosac"),
+    "magsac": UsacSettings(threshold=1.0, confidence=0.9999),
 }
 
 
@@ -102,10 +102,10 @@ def ransac(
     *,
     kind: ModelKind = "H",
     threshold: float = CONSISTENCY_THRESHOLD_PX,
-    magsac_threshold: float = 3.0,
-    confidence: float = 0.999,
-    max_iters: int = 100_000,
-    sampler: str = "uniform",
+    magsac_threshold: float = UsacSettings.threshold,
+    confidence: float = UsacSettings.confidence,
+    max_iters: int = UsacSettings.max_iters,
+    sampler: str = UsacSettings.sampler,
     rng=None,
 ) -> ModelFit:
     """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
@@ -141,12 +141,11 @@ def ransac(
     kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if sampler not in ("uniform", "prosac"):
         raise ValueError(f"sampler must be 'uniform' or 'prosac', got {sampler!r}")
-    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, magsac_threshold=magsac_threshold,
-                   confidence=confidence, max_iters=max_iters, sampler=sampler, rng=rng)
+    return _ransac(kpts1, kpts2, matches, scores, kind, threshold,
+                   UsacSettings(sampler, magsac_threshold, confidence, max_iters), rng)
 
 
-def _ransac(kpts1, kpts2, matches, scores, kind, threshold, *, magsac_threshold=3.0, confidence=0.999,
-            max_iters=100_000, sampler="uniform", rng=None) -> ModelFit:
+def _ransac(kpts1, kpts2, matches, scores, kind, threshold, settings: UsacSettings, rng) -> ModelFit:
     import cv2
 
     k = len(matches)
@@ -155,11 +154,11 @@ def _ransac(kpts1, kpts2, matches, scores, kind, threshold, *, magsac_threshold=
         return _failed(k, kind)
     seed = int(np.random.default_rng(rng).integers(0, 2**31 - 1))
     params = cv2.UsacParams()
-    params.threshold = float(magsac_threshold)
-    params.confidence = float(confidence)
-    params.maxIterations = int(max_iters)
+    params.threshold = float(settings.threshold)
+    params.confidence = float(settings.confidence)
+    params.maxIterations = int(settings.max_iters)
     params.randomGeneratorState = seed
-    params.sampler = cv2.SAMPLING_UNIFORM if sampler == "uniform" else cv2.SAMPLING_PROSAC
+    params.sampler = cv2.SAMPLING_UNIFORM if settings.sampler == "uniform" else cv2.SAMPLING_PROSAC
     params.score = cv2.SCORE_METHOD_MAGSAC
     params.loMethod = cv2.LOCAL_OPTIM_SIGMA
     params.final_polisher = cv2.MAGSAC
@@ -220,6 +219,4 @@ def apply_model_step(
     kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if name == "1sac":
         return _one_sac(kpts1, kpts2, matches, scores, kind, threshold)
-    s = usac_settings(name, estimator)
-    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, rng=rng, sampler=s.sampler,
-                   magsac_threshold=s.threshold, confidence=s.confidence, max_iters=s.max_iters)
+    return _ransac(kpts1, kpts2, matches, scores, kind, threshold, usac_settings(name, estimator), rng)
