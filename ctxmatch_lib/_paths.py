@@ -11,14 +11,40 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "build_info", "cache_dir", "check_writable", "data_root", "repo_root",
-           "write_parquet_atomic"]
+__all__ = ["CACHE_MARKER", "CACHE_SUBFOLDERS", "atomic_path", "build_info", "cache_dir", "cache_root",
+           "check_writable", "data_root", "is_marked_cache", "mark_cache", "repo_root", "write_parquet_atomic"]
+
+#: The file that marks a folder as ctxmatch's cache, written when the cache creates its folder; in the Cache
+#: Directory Tagging format (https://bford.info/cachedir/), so backup tools skip the folder too.
+CACHE_MARKER = "CACHEDIR.TAG"
+_CACHEDIR_SIGNATURE = "Signature: 8a477f597d28d172789f06886806bc55"
+_MARKER_TEXT = (f"{_CACHEDIR_SIGNATURE}\n# This file is a cache directory tag created by ctxmatch.\n"
+                "# Everything in this folder can be recomputed; `ctxmatch cache` shows and clears it.\n")
+
+#: The sub-folders the package creates in its cache (the library, the command line and the benchmarks).
+CACHE_SUBFOLDERS = ("ablation", "data", "datasets", "features", "learned-eval", "learned-sets", "numba", "sweep",
+                    "weights")
+
+# Folders already marked or found foreign in this process: cache_dir checks each once.
+_CHECKED: set[str] = set()
 
 
 def repo_root() -> Path | None:
     """The checkout this package runs from (editable install), or ``None`` for a plain install."""
     root = Path(__file__).resolve().parents[1]
     return root if (root / "pyproject.toml").exists() else None
+
+
+def cache_root() -> Path:
+    """Where the cache folder is, without creating it: ``$CTXMATCH_CACHE`` if set, else
+    ``$XDG_CACHE_HOME/ctxmatch`` (``~/.cache/ctxmatch`` when ``XDG_CACHE_HOME`` is unset)."""
+    env = os.environ.get("CTXMATCH_CACHE")
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    # The XDG spec: a relative XDG_CACHE_HOME is invalid and ignored.
+    root = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return root / "ctxmatch"
 
 
 def cache_dir(sub: str | None = None) -> Path:
@@ -28,19 +54,59 @@ def cache_dir(sub: str | None = None) -> Path:
     Never the checkout unless ``CTXMATCH_CACHE`` says so. ``sub`` names a sub-folder (created on demand):
     ``features`` (extracted keypoints and descriptors), ``sweep`` (the evaluation cache of ``ctxmatch
     eval``, ``ctxmatch sweep`` and the report notebooks: result parts and intermediates), ``weights`` (what
-    ``ctxmatch train`` writes without ``--output``).
+    ``ctxmatch train`` writes without ``--output``). The folder gets the cache's marker (:func:`mark_cache`)
+    when it is created, or when it holds nothing but the cache's own sub-folders.
     """
-    env = os.environ.get("CTXMATCH_CACHE")
-    if env:
-        base = Path(env).expanduser()
-    else:
-        xdg = os.environ.get("XDG_CACHE_HOME")
-        # The XDG spec: a relative XDG_CACHE_HOME is invalid and ignored.
-        root = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
-        base = root / "ctxmatch"
+    base = cache_root()
+    base.mkdir(parents=True, exist_ok=True)
+    if str(base) not in _CHECKED:
+        mark_cache(base)
+        _CHECKED.add(str(base))
     path = base / sub if sub else base
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def is_marked_cache(folder) -> bool:
+    """Whether ``folder`` holds the marker of a ctxmatch cache (:data:`CACHE_MARKER`, a regular file, not a
+    link, that ctxmatch wrote)."""
+    marker = Path(folder) / CACHE_MARKER
+    try:
+        if not marker.is_file() or marker.is_symlink():
+            return False
+        head = marker.read_text(encoding="utf-8", errors="replace")[:1000]
+    except OSError:
+        return False
+    return head.startswith(_CACHEDIR_SIGNATURE) and "ctxmatch" in head
+
+
+def mark_cache(folder) -> bool:
+    """Write the cache's marker into ``folder`` when the folder is clearly the cache's; return whether it is
+    marked.
+
+    A folder is the cache's when it is empty (the cache has just created it) or holds nothing but the
+    sub-folders the package creates there (:data:`CACHE_SUBFOLDERS`, real folders, not links): a cache made
+    before the marker existed. A folder holding anything else is left unmarked, and ``ctxmatch cache clear``
+    refuses to delete in it.
+    """
+    folder = Path(folder)
+    if is_marked_cache(folder):
+        return True
+    try:
+        with os.scandir(folder) as it:
+            # A concurrent process may be writing the marker (atomic_path's hidden temporary file).
+            ours = all((e.name in CACHE_SUBFOLDERS and e.is_dir(follow_symlinks=False))
+                       or (e.name.startswith(f".{CACHE_MARKER}.") and e.name.endswith(".tmp")) for e in it)
+    except OSError:
+        return False
+    if not ours:
+        return False
+    try:
+        with atomic_path(folder / CACHE_MARKER) as tmp:
+            tmp.write_text(_MARKER_TEXT, encoding="utf-8")
+    except OSError:  # a read-only cache still serves what it holds
+        return False
+    return True
 
 
 def data_root(required: bool = False) -> Path | None:

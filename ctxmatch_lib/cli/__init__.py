@@ -11,7 +11,7 @@ import importlib
 import sys
 
 # Sub-command modules, in the order shown by --help.
-_COMMANDS = ["match", "eval", "sweep", "figures", "data", "train"]
+_COMMANDS = ["match", "eval", "sweep", "figures", "data", "train", "cache"]
 
 
 def build_parser() -> argparse.ArgumentParser:
