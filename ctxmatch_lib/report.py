@@ -209,18 +209,35 @@ def gt_counts(df: pd.DataFrame) -> pd.DataFrame:
     return d.groupby("kind", sort=False)[["n_gt", "n_gt_star"]].mean()
 
 
-def _fmt(value, fmt: str) -> str:
+def _fmt(value, fmt: str, missing: str = "–") -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "–"
+        return missing
     return value if isinstance(value, str) else format(value, fmt)
 
 
-def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True) -> str:
+def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True, blank_repeats: bool = True,
+                   missing: str = "–") -> str:
     """Render a :func:`method_table` (or any frame with a (kind, model, method) index) as a Markdown table.
 
-    ``formats`` maps column -> format spec (default: 2 decimals for %, 0 for counts, 1 for failures, 3 for
-    time). With ``labels`` the kind, model and method names are the paper's display names; repeated
-    kind/model cells are left blank, as in the paper's tables.
+    Parameters
+    ----------
+    table : DataFrame
+        One row per table row; every index level becomes a left-aligned column, every column a right-aligned
+        one.
+    formats : dict, optional
+        Column -> format spec (default: 2 decimals for %, 0 for counts, 3 significant digits for failures,
+        3 decimals for time, ``.4g`` for any other column).
+    labels : bool
+        Show the kind, model and method names as the paper's display names.
+    blank_repeats : bool
+        Leave an index cell blank where it repeats the row above (every level but the last), as in the
+        paper's tables.
+    missing : str
+        The cell of a missing (NaN) value.
+
+    Returns
+    -------
+    str
     """
     fmts = {"precision (%)": ".2f", "recall (%)": ".2f", "recall* (%)": ".2f", "correct": ".0f", "output": ".0f",
             "failures": ".3g", "empty": ".3g", "time (s)": ".3f", "pairs": ".0f", "n": ".0f"}
@@ -233,14 +250,15 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True) ->
         idx = idx if isinstance(idx, tuple) else (idx,)
         shown = []
         for lvl, (name, value) in enumerate(zip(names, idx)):
+            repeated = blank_repeats and idx[: lvl + 1] == prev[: lvl + 1] and lvl < len(names) - 1
             text = value
             if labels:
                 text = {"kind": KIND_LABELS, "model": MODEL_LABELS}.get(name, {}).get(value, value)
                 if name == "method":
                     text = method_label(value).replace("$_1$", "<sub>1</sub>").replace("$_2$", "<sub>2</sub>")
-            shown.append("" if idx[: lvl + 1] == prev[: lvl + 1] and lvl < len(names) - 1 else str(text))
+            shown.append("" if repeated else str(text))
         prev = idx
-        cells = [_fmt(row[c], fmts.get(c, ".4g")) for c in table.columns]
+        cells = [_fmt(row[c], fmts.get(c, ".4g"), missing) for c in table.columns]
         lines.append("| " + " | ".join(shown + cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -370,19 +388,15 @@ def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, note
     """
     dropped = () if keep_times else GEOMETRY_TIME_COLUMNS
     t = table.drop(columns=[c for c in dropped if c in table.columns]).dropna(axis=1, how="all")
-    names = list(t.index.names)
-    labels = {"kind": KIND_LABELS, "model": MODEL_LABELS}
+    # Each line names its setup, kind, method and model in full, so that a line read alone (grep, diff) says
+    # what it is.
+    for level, names in (("kind", KIND_LABELS), ("model", MODEL_LABELS), ("method", METHOD_LABELS)):
+        if level in t.index.names:
+            t = t.rename(index=names, level=level)
+    formats = {c: ".0f" if c in ("pairs", "no_model") else ".3f" if c in GEOMETRY_TIME_COLUMNS else ".2f"
+               for c in t.columns}
     lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
     if notes:
         lines.append(notes + "\n")
-    lines += ["| " + " | ".join(names + list(t.columns)) + " |",
-              "|" + "|".join([":--"] * len(names) + ["--:"] * len(t.columns)) + "|"]
-    for key, row in t.iterrows():
-        key = key if isinstance(key, tuple) else (key,)
-        cells = [labels.get(n, {}).get(v, METHOD_LABELS.get(v, v)) if n in labels or n == "method" else str(v)
-                 for n, v in zip(names, key)]
-        cells += ["" if pd.isna(v) else (f"{v:.0f}" if c in ("pairs", "no_model") else
-                                         f"{v:.3f}" if c in GEOMETRY_TIME_COLUMNS else f"{v:.2f}")
-                  for c, v in row.items()]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + markdown_table(t, formats=formats, labels=False, blank_repeats=False,
+                                                     missing="")

@@ -143,6 +143,13 @@ def test_markdown_table(frame):
         "| planar | no model | blob | 15 |")
 
 
+def test_markdown_table_rows_in_full(frame):
+    t = report.method_table(report.setup_rows(frame, "best"))
+    lines = report.markdown_table(t, blank_repeats=False, missing="").strip().splitlines()
+    assert lines[3].startswith("| planar | no model | DTM<sub>1</sub> |")
+    assert "–" not in "".join(lines) and "|  |" in "".join(lines)  # the NaN times
+
+
 def test_paper_table():
     all_tables = report.paper_table()
     assert len(all_tables) == 3 * 2 * 2 * 18
