@@ -77,7 +77,8 @@ def embedded(tmp_path_factory):
 
 def test_registered_names():
     assert list_datasets() == ["embedded", "embedded-planar", "embedded-nonplanar", "embedded-depth",
-                               "hpatches", "oxford", "homogr", "kusvod2", "planar", "nonplanar"]
+                               "hpatches", "oxford", "homogr", "kusvod2", "strecha", "planar", "nonplanar",
+                               "calibrated"]
 
 
 def test_embedded_contents(embedded):

@@ -6,6 +6,8 @@ Examples::
     ctxmatch data embedded
     ctxmatch data download hpatches --root ~/data/ctxmatch
     ctxmatch data download kusvod2 --url file:///mirror/Lebeda-2012-kusvod2.tar.gz --sha256 <64 hex>
+    ctxmatch data strecha --root ~/data/ctxmatch
+    ctxmatch data strecha --scenes fountain-P11 castle-P19 --url file:///mirror/Benchmarking_Camera_Calibration_2008
 """
 
 from __future__ import annotations
@@ -45,6 +47,22 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace a dataset folder that already exists")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
     p.set_defaults(func=_download)
+
+    from ..datasets.strecha import STRECHA_SCENES
+
+    p = sub.add_parser(
+        "strecha", help="download the six calibrated Strecha scenes (pinned commit, SHA-256 per file)",
+        description="Download the Strecha scenes from openMVG/SfM_quality_evaluation at a pinned commit into "
+                    "<root>/calibrated/strecha/<scene>, checking every file against its pinned SHA-256.",
+    )
+    p.add_argument("--root", help="data root to fill (default: $CTXMATCH_DATA, else the cache)")
+    p.add_argument("--scenes", nargs="+", choices=STRECHA_SCENES, metavar="SCENE",
+                   help=f"scenes to fetch (default: all six: {', '.join(STRECHA_SCENES)})")
+    p.add_argument("--url", help="base URL of a mirror of Benchmarking_Camera_Calibration_2008 (http, https, "
+                                 "ftp or file://); every file is still checked against its pinned hash")
+    p.add_argument("--force", action="store_true", help="replace a scene folder that already exists")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.set_defaults(func=_strecha, sha256=None, allow_unpinned=False)
 
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
     return parser
@@ -90,14 +108,30 @@ def _embedded(args) -> int:
     return 0
 
 
-def _download(args) -> int:
+def _strecha(args) -> int:
+    """Each scene in turn (the group ``strecha`` when all six); a mirror's base URL holds the scene folders."""
+    if not args.scenes:
+        return _download(_with(args, name="strecha"), command="strecha")
+    for scene in args.scenes:
+        url = args.url and f"{args.url.rstrip('/')}/{scene}"
+        code = _download(_with(args, name=f"strecha-{scene}", url=url), command="strecha")
+        if code:
+            return code
+    return 0
+
+
+def _with(args, **changes):
+    return argparse.Namespace(**{**vars(args), **changes})
+
+
+def _download(args, command: str = "download") -> int:
     from ..datasets.download import download_dataset
 
-    problem = _check_root(args, "download")
+    problem = _check_root(args, command)
     if args.sha256 is not None and not re.fullmatch(r"[0-9a-fA-F]{64}", args.sha256):
-        problem = f"ctxmatch data download: error: --sha256 must be 64 hexadecimal digits, got {args.sha256!r}"
+        problem = f"ctxmatch data {command}: error: --sha256 must be 64 hexadecimal digits, got {args.sha256!r}"
     if args.url is not None and not re.match(r"(https?|ftp|file)://", args.url):
-        problem = ("ctxmatch data download: error: --url must start with http://, https://, ftp:// or file://, "
+        problem = (f"ctxmatch data {command}: error: --url must start with http://, https://, ftp:// or file://, "
                    f"got {args.url!r}")
     if problem:
         print(problem, file=sys.stderr)
@@ -108,7 +142,7 @@ def _download(args) -> int:
             force=args.force, progress=args.progress,
         )
     except (ValueError, OSError) as exc:  # OSError: also the network errors (requests' derive from it)
-        print(f"ctxmatch data download: error: {exc}", file=sys.stderr)
+        print(f"ctxmatch data {command}: error: {exc}", file=sys.stderr)
         return 1
     for p in paths:
         print(p)

@@ -1,7 +1,9 @@
 """Datasets: image pairs with ground truth (embedded offline default, real loaders, custom folders).
 
-``load_dataset(name_or_path)`` accepts a registered name (see :func:`list_datasets`) or a folder holding
-``pairs.csv`` in the custom format (:mod:`ctxmatch_lib.datasets.custom`).
+``load_dataset(name_or_path)`` accepts a registered name (see :func:`list_datasets`), a folder holding
+``pairs.csv`` in the custom format (:mod:`ctxmatch_lib.datasets.custom`), a pairs-with-ground-truth text file
+or a folder holding ``pairs_with_gt.txt`` (calibrated pairs, :mod:`ctxmatch_lib.datasets.posefile`), or a
+scene / folder of scenes in the Strecha layout (:mod:`ctxmatch_lib.datasets.strecha`).
 
 =====================  ============================================================================
 name                   pairs
@@ -14,8 +16,10 @@ hpatches               HPatches sequences under ``$CTXMATCH_DATA/planar/hpatches
 oxford                 Oxford affine sequences under ``$CTXMATCH_DATA/planar/oxford``
 homogr                 Lebeda homogr pairs under ``$CTXMATCH_DATA/planar/homogr``
 kusvod2                Lebeda kusvod2 pairs under ``$CTXMATCH_DATA/nonplanar/kusvod2``
+strecha                Strecha calibrated scenes under ``$CTXMATCH_DATA/calibrated/strecha`` (pose ground truth)
 planar                 hpatches + oxford + homogr
 nonplanar              kusvod2
+calibrated             strecha
 =====================  ============================================================================
 """
 
@@ -26,18 +30,31 @@ from pathlib import Path
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind, PoseGT
 from .custom import read_custom_dataset, write_custom_dataset
 from .embedded import embedded_root
-from .real import REAL_LOADERS
+from .posefile import read_pairs_with_gt, write_pairs_with_gt
+from .real import REAL_LOADERS, _resolve
+from .strecha import DIFFICULTY_BANDS, load_strecha_folder, pose_difficulty, strecha_scenes
 
 __all__ = [
     "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS", "PoseGT",
     "DEFAULT_DATASET", "load_dataset", "list_datasets", "read_custom_dataset", "write_custom_dataset",
+    "load_strecha", "read_pairs_with_gt", "write_pairs_with_gt", "pose_difficulty", "DIFFICULTY_BANDS",
 ]
 
 DEFAULT_DATASET = "embedded"
 
 _EMBEDDED = {"embedded": None, "embedded-planar": "planar", "embedded-nonplanar": "nonplanar",
              "embedded-depth": "depth"}
-_GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "nonplanar": ("kusvod2",)}
+_GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "nonplanar": ("kusvod2",), "calibrated": ("strecha",)}
+
+
+def load_strecha(root=None, **kwargs) -> list:
+    """The Strecha calibrated pairs under ``root`` (the data root, its ``calibrated/strecha`` folder, a
+    folder of scenes or one scene; default ``$CTXMATCH_DATA``), see :func:`.strecha.load_strecha_folder`."""
+    folder = _resolve(root, "calibrated/strecha", lambda d: bool(strecha_scenes(d)))
+    return load_strecha_folder(folder, **kwargs)
+
+
+_LOADERS = {**REAL_LOADERS, "strecha": load_strecha}
 
 
 def list_datasets() -> list[str]:
@@ -48,7 +65,7 @@ def list_datasets() -> list[str]:
     >>> list_datasets()[:2]
     ['embedded', 'embedded-planar']
     """
-    return [*_EMBEDDED, *REAL_LOADERS, *_GROUPS]
+    return [*_EMBEDDED, *_LOADERS, *_GROUPS]
 
 
 def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
@@ -57,7 +74,9 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
     Parameters
     ----------
     name_or_path : str or Path
-        A name from :func:`list_datasets`, or a folder holding ``pairs.csv``.
+        A name from :func:`list_datasets`; a folder holding ``pairs.csv``; a pairs-with-ground-truth
+        ``.txt`` file or a folder holding ``pairs_with_gt.txt`` (images relative to it); a scene folder
+        or a folder of scenes in the Strecha layout.
     root : str or Path, optional
         For real datasets, the data root (default ``$CTXMATCH_DATA``, see ``ctxmatch_lib._paths.data_root``)
         or the dataset folder itself; for the embedded ones, the parent folder the dataset is generated into
@@ -87,16 +106,25 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
         kind = _EMBEDDED[name_or_path]
         pairs = [p for p in ds.pairs if kind is None or p.kind == kind]
         return Dataset(name_or_path, pairs, folder)
-    if isinstance(name_or_path, str) and name_or_path in REAL_LOADERS:
-        return Dataset(name_or_path, REAL_LOADERS[name_or_path](root), Path(root) if root else None)
+    if isinstance(name_or_path, str) and name_or_path in _LOADERS:
+        return Dataset(name_or_path, _LOADERS[name_or_path](root), Path(root) if root else None)
     if isinstance(name_or_path, str) and name_or_path in _GROUPS:
-        pairs = [p for sub in _GROUPS[name_or_path] for p in REAL_LOADERS[sub](root)]
+        pairs = [p for sub in _GROUPS[name_or_path] for p in _LOADERS[sub](root)]
         return Dataset(name_or_path, pairs, Path(root) if root else None)
-    path = Path(name_or_path)
+    path = Path(name_or_path).expanduser()
+    if path.is_dir() and not (path / "pairs.csv").is_file():
+        if (path / "pairs_with_gt.txt").is_file():
+            return read_pairs_with_gt(path / "pairs_with_gt.txt")
+        if strecha_scenes(path):
+            folder = path.resolve()
+            return Dataset(folder.name, load_strecha_folder(folder, dataset=folder.name), folder)
     if path.is_dir():
         return read_custom_dataset(path)
     if path.is_file() and path.name == "pairs.csv":
         return read_custom_dataset(path.parent)
+    if path.is_file() and path.suffix.lower() == ".txt":
+        return read_pairs_with_gt(path)
     raise ValueError(
-        f"name_or_path must be one of {list_datasets()} or a folder holding pairs.csv, got {str(name_or_path)!r}"
+        f"name_or_path must be one of {list_datasets()}, a folder holding pairs.csv or pairs_with_gt.txt, a "
+        f"pairs-with-ground-truth .txt file or a folder in the Strecha layout, got {str(name_or_path)!r}"
     )

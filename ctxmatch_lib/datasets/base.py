@@ -195,7 +195,10 @@ class PoseGT:
         wide, Sec. 5.1); the Strecha loader sets ``max(width, height) / 1024``.
     difficulty : str
         The pair's difficulty band (``"easy"``, ``"medium"``, ``"hard"``; ``""`` when unknown), see
-        :mod:`ctxmatch_lib.datasets.strecha`.
+        :mod:`ctxmatch_lib.datasets.strecha`; :func:`ctxmatch_lib.datasets.pose_difficulty` reads it.
+    rotations : tuple of int
+        Quarter turns ``(rot0, rot1)`` of a pairs-with-ground-truth line (:mod:`.posefile`), kept for writing
+        it back; the geometry always refers to the images as stored.
 
     Raises
     ------
@@ -210,6 +213,7 @@ class PoseGT:
     t: np.ndarray
     threshold_scale: float = 1.0
     difficulty: str = ""
+    rotations: tuple[int, int] = (0, 0)
 
     def __post_init__(self):
         object.__setattr__(self, "K1", _check_intrinsics(self.K1, "K1"))

@@ -10,6 +10,9 @@ column; paths are relative to the folder (absolute paths work too). Pixel conven
 - ``nonplanar``: ``gt`` is an N×4 text file of hand-taken correspondences ``x1 y1 x2 y2`` (N >= 7); the
   fundamental matrix is fitted from them (normalised 8-point) unless the ``F`` column names a 3×3 text
   file with ``x2^T F x1 = 0``.
+- ``calibrated``: ``gt`` is a text file with the 36 numbers ``rot0 rot1 K1(9) K2(9) T_0to1(16)`` of a
+  SuperGlue / LoFTR pairs-with-ground-truth line without its two image names (see
+  :mod:`~ctxmatch_lib.datasets.posefile`, which also reads and writes whole pairs-with-GT files).
 - any kind, including ``depth``: ``gt`` may be a ``.npz`` file with a dense ``flow12`` array (H1, W1, 2)
   and optionally ``flow21`` (see :class:`~ctxmatch_lib.datasets.base.FlowGT`; NaN where unknown or
   occluded).
@@ -32,7 +35,7 @@ import numpy as np
 from .._paths import atomic_path
 
 from ._io import epipolar_gt, fitted_epipolar_gt, flow_gt, homography_gt, image_size, read_matrix
-from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair
+from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, PoseGT
 
 __all__ = ["read_custom_dataset", "write_custom_dataset", "read_flow", "write_flow", "REQUIRED_COLUMNS"]
 
@@ -101,7 +104,23 @@ def _read_gt(folder: Path, row: dict, csv_path: Path, line: int):
         if len(pts) < 7:
             raise ValueError(f"{gt_path}: fitting F needs at least 7 correspondences, got {len(pts)}")
         return kind, fitted_epipolar_gt(pts[:, :2], pts[:, 2:], gt_path)
+    if kind == "calibrated":
+        return kind, _read_pose(gt_path)
     raise ValueError(f"kind 'depth' needs a dense .npz ground truth, got {gt_name!r}")
+
+
+def _read_pose(path: Path) -> PoseGT:
+    from .posefile import parse_pose_tokens
+
+    if not path.is_file():
+        raise FileNotFoundError(f"ground-truth file not found: {path}")
+    lines = [(k, ln) for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    tokens = [t for _, ln in lines for t in ln.split()]
+    try:
+        return parse_pose_tokens(tokens)
+    except ValueError as exc:
+        raise ValueError(f"{path}{f', line {lines[0][0]}' if len(lines) == 1 else ''}: {exc}") from None
 
 
 def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
@@ -162,6 +181,11 @@ def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
                 raise ValueError(
                     f"{folder / row['gt'].strip()}: flow12 has shape {gt.flow12.shape[:2]} but image1 is {h}x{w}"
                 )
+        if isinstance(gt, PoseGT):  # the pixel thresholds scale with the images (see posefile)
+            from .strecha import threshold_scale_for
+
+            gt = PoseGT(gt.K1, gt.K2, gt.R, gt.t, threshold_scale=threshold_scale_for((*sizes[0], *sizes[1])),
+                        difficulty=gt.difficulty, rotations=gt.rotations)
         pairs.append(Pair(pair_id, images[0], images[1], sizes[0], sizes[1], kind, gt, dataset=name))
     return Dataset(name, pairs, folder)
 
@@ -177,7 +201,8 @@ def write_custom_dataset(dataset, folder) -> Path:
     """Write ``dataset`` (a :class:`Dataset` or a list of pairs) as a custom-format folder.
 
     Images are referenced, not copied (relative paths from ``folder``). Ground truth goes to ``gt/``:
-    homographies and F as 3×3 text, hand points as N×4 text, dense flows as ``.npz``. Returns the path
+    homographies and F as 3×3 text, hand points as N×4 text, dense flows as ``.npz``, calibrated poses as
+    one pairs-with-ground-truth line without its names. Returns the path
     of the written ``pairs.csv``. :func:`read_custom_dataset` reads it back.
     """
     folder = Path(folder)
@@ -199,6 +224,11 @@ def write_custom_dataset(dataset, folder) -> Path:
             np.savetxt(folder / gt_rel, np.c_[p.gt.pts1, p.gt.pts2], fmt="%.17g")
             f_rel = f"gt/{stem}_F.txt"
             np.savetxt(folder / f_rel, p.gt.F, fmt="%.17g")
+        elif isinstance(p.gt, PoseGT):
+            from .posefile import format_pose_tokens
+
+            gt_rel = f"gt/{stem}_pose.txt"
+            (folder / gt_rel).write_text(" ".join(format_pose_tokens(p.gt)) + "\n", encoding="utf-8")
         else:
             raise ValueError(f"pair {p.pair_id!r}: unsupported ground truth {type(p.gt).__name__}")
         lines.append([p.pair_id, _rel(p.image1, folder), _rel(p.image2, folder), p.kind, gt_rel, f_rel])

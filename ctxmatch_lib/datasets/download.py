@@ -4,6 +4,10 @@ Archives are fetched with pooch and checked against pinned SHA-256 hashes, then 
 safe) into ``<root>/planar/<name>`` or ``<root>/nonplanar/<name>`` through a temporary folder renamed into
 place, so an interrupted download never leaves a half-extracted dataset behind.
 
+Datasets kept as plain files in a git repository (the Strecha scenes, :class:`FileSet`) are fetched file by
+file from the repository at a pinned commit, each checked against its own SHA-256, into a temporary folder
+renamed into place (``<root>/calibrated/strecha/<scene>``).
+
 Hashes: the ones pinned below were published by independent third parties for the same URL; an archive
 with no pinned hash is refused unless the caller passes its hash (``sha256=``) or ``allow_unpinned=True``,
 in which case the hash of what was downloaded is reported so that it can be pinned here.
@@ -22,7 +26,10 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 from urllib.request import url2pathname
 
-__all__ = ["Source", "SOURCES", "DOWNLOAD_GROUPS", "download_dataset", "download_names"]
+from ._strecha_manifest import STRECHA_COMMIT, STRECHA_FILES, STRECHA_PREFIX, STRECHA_REPOSITORY
+
+__all__ = ["Source", "FileSet", "SOURCES", "DOWNLOAD_GROUPS", "STRECHA_BASE_URL", "download_dataset",
+           "download_names"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +42,31 @@ class Source:
     strip_single_top: bool = True  # an archive whose entries share one top folder is unpacked without it
 
 
+@dataclass(frozen=True)
+class FileSet:
+    """Plain files under one base URL: ``files`` is ``((relative path, sha256), ...)``, written under ``dest``."""
+
+    base_url: str
+    files: tuple[tuple[str, str], ...]
+    dest: str  # relative to the data root
+
+
+#: Raw files of openMVG/SfM_quality_evaluation at the pinned commit; a mirror replaces it (``url=``).
+STRECHA_BASE_URL = (f"https://raw.githubusercontent.com/{STRECHA_REPOSITORY}/{STRECHA_COMMIT}/{STRECHA_PREFIX}")
+
+
+def _strecha_sets() -> dict[str, FileSet]:
+    by_scene: dict[str, list[tuple[str, str]]] = {}
+    for line in STRECHA_FILES.splitlines():
+        digest, _size, path = line.split()
+        scene, rel = path.split("/", 1)
+        by_scene.setdefault(scene, []).append((rel, digest))
+    return {f"strecha-{scene}": FileSet(f"{STRECHA_BASE_URL}/{scene}", tuple(files), f"calibrated/strecha/{scene}")
+            for scene, files in by_scene.items()}
+
+
+_STRECHA = _strecha_sets()
+
 _OXFORD = "https://www.robots.ox.ac.uk/~vgg/research/affine/det_eval_files/{}.tar.gz"
 _OXFORD_SHA256 = {
     # Published SHA-256 of the Oxford archives (two independent public benchmark scripts agree on graf).
@@ -44,7 +76,7 @@ _OXFORD_SHA256 = {
 
 _OXFORD_SEQUENCES = ("graf", "boat", "bark", "bikes", "leuven", "trees", "ubc", "wall")
 
-SOURCES: dict[str, tuple[Source, ...]] = {
+SOURCES: dict[str, tuple[Source, ...] | FileSet] = {
     "hpatches": (
         Source("http://icvl.ee.ic.ac.uk/vbalnt/hpatches/hpatches-sequences-release.tar.gz", None,
                "planar/hpatches"),
@@ -60,10 +92,13 @@ SOURCES: dict[str, tuple[Source, ...]] = {
         Source("http://cmp.felk.cvut.cz/data/geometry2view/Lebeda-2012-kusvod2.tar.gz", None,
                "nonplanar/kusvod2"),
     ),
+    **_STRECHA,
 }
 _OXFORD_ALL = tuple(f"oxford-{seq}" for seq in _OXFORD_SEQUENCES)
+_STRECHA_ALL = tuple(_STRECHA)
 DOWNLOAD_GROUPS = {"oxford": _OXFORD_ALL, "planar": ("hpatches", *_OXFORD_ALL, "homogr"),
-                   "nonplanar": ("kusvod2",), "all": ("hpatches", *_OXFORD_ALL, "homogr", "kusvod2")}
+                   "nonplanar": ("kusvod2",), "strecha": _STRECHA_ALL, "calibrated": _STRECHA_ALL,
+                   "all": ("hpatches", *_OXFORD_ALL, "homogr", "kusvod2", *_STRECHA_ALL)}
 
 
 def download_names() -> list[str]:
@@ -129,6 +164,48 @@ def _strip_top(folder: Path) -> Path:
     return folder
 
 
+def _data_root(root) -> Path:
+    if root is None:
+        from .._paths import cache_dir, data_root
+
+        root = data_root() or cache_dir("data")
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
+def _download_files(name: str, fs: FileSet, root: Path, *, force: bool, progress: bool, log) -> Path:
+    """Fetch every file of ``fs`` (each checked against its SHA-256) into ``root / fs.dest``, atomically."""
+    import pooch
+
+    dest = root / fs.dest
+    if dest.is_dir() and any(dest.iterdir()) and not force:
+        log(f"{name}: {dest} already present (use --force to replace)")
+        return dest
+    downloader = _file_downloader if fs.base_url.startswith("file:") else None
+    log(f"{name}: fetching {len(fs.files)} files from {fs.base_url}")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
+    try:
+        for rel, digest in fs.files:
+            target = (tmp / rel).resolve()
+            if tmp.resolve() not in target.parents:
+                raise ValueError(f"{name}: file {rel!r} lies outside the dataset folder")
+            try:
+                pooch.retrieve(f"{fs.base_url}/{rel}", known_hash=f"sha256:{digest}", fname=target.name,
+                               path=target.parent, downloader=downloader, progressbar=progress)
+            except ValueError as exc:  # pooch's hash mismatch: name the file
+                raise ValueError(f"{name}: {rel}: {exc}") from None
+        if dest.exists():
+            shutil.rmtree(dest)
+        os.replace(tmp, dest)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    log(f"{name}: written into {dest}")
+    return dest
+
+
 def download_dataset(name: str, *, root=None, url: str | None = None, sha256: str | None = None,
                      allow_unpinned: bool = False, force: bool = False, progress: bool = False,
                      log=print) -> list[Path]:
@@ -138,14 +215,18 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
     ----------
     name : str
         One of :func:`download_names`: ``hpatches``, ``oxford-<sequence>`` (graf, boat, bark, bikes,
-        leuven, trees, ubc, wall), ``homogr``, ``kusvod2`` or the groups ``oxford`` (all eight sequences),
-        ``planar``, ``nonplanar``, ``all``.
+        leuven, trees, ubc, wall), ``homogr``, ``kusvod2``, ``strecha-<scene>`` (fountain-P11,
+        Herz-Jesus-P8, castle-P19, entry-P10, Herz-Jesus-P25, castle-P30) or the groups ``oxford`` (all eight
+        sequences), ``planar``, ``nonplanar``, ``strecha`` (= ``calibrated``, the six scenes), ``all``.
     root : str or Path, optional
-        Data root to fill (``planar/…``, ``nonplanar/…`` under it); default ``$CTXMATCH_DATA`` when set,
+        Data root to fill (``planar/…``, ``nonplanar/…``, ``calibrated/…`` under it); default ``$CTXMATCH_DATA`` when set,
         else ``ctxmatch_lib._paths.cache_dir("data")``.
     url, sha256 : str, optional
         Override the archive URL (``http(s)://``, ``ftp://`` or ``file://``) and its SHA-256; only for a
-        dataset with a single archive. A mirror is trusted only through the hash.
+        dataset with a single archive. A mirror is trusted only through the hash. For the Strecha scenes
+        ``url`` is the base URL of a mirror of the repository's ``Benchmarking_Camera_Calibration_2008``
+        folder (``<url>/<scene>/images/0000.jpg``; ``<url>/images/0000.jpg`` for one scene); every file is
+        checked against its pinned hash, and ``sha256`` does not apply.
     allow_unpinned : bool
         Accept an archive with no pinned hash; the hash of what was downloaded is reported.
     force : bool
@@ -163,26 +244,29 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
     import pooch
 
     if name in DOWNLOAD_GROUPS:
-        if url or sha256:
+        members = DOWNLOAD_GROUPS[name]
+        file_sets = all(isinstance(SOURCES[sub], FileSet) for sub in members)
+        if sha256 or (url and not file_sets):
             raise ValueError(f"url and sha256 apply to a single dataset, not to the group {name!r}")
-        return [p for sub in DOWNLOAD_GROUPS[name]
+        return [p for sub in members
                 for p in download_dataset(sub, root=root, allow_unpinned=allow_unpinned, force=force,
-                                          progress=progress, log=log)]
+                                          progress=progress, log=log,
+                                          url=url and f"{url.rstrip('/')}/{Path(SOURCES[sub].dest).name}")]
     if name not in SOURCES:
         raise ValueError(f"name must be one of {download_names()}, got {name!r}")
     sources = SOURCES[name]
+    if isinstance(sources, FileSet):
+        if sha256:
+            raise ValueError(f"{name!r} is checked file by file against pinned hashes; sha256 does not apply")
+        fs = FileSet(url.rstrip("/"), sources.files, sources.dest) if url else sources
+        return [_download_files(name, fs, _data_root(root), force=force, progress=progress, log=log)]
     if url or sha256:
         if len(sources) != 1:
             raise ValueError(f"{name!r} has {len(sources)} archives; url/sha256 overrides need a single one")
         sources = (Source(url or sources[0].url, sha256 or None, sources[0].dest, sources[0].strip_single_top),)
     if sha256 is not None and (len(sha256) != 64 or any(c not in "0123456789abcdefABCDEF" for c in sha256)):
         raise ValueError(f"sha256 must be 64 hexadecimal digits, got {sha256!r}")
-    if root is None:
-        from .._paths import cache_dir, data_root
-
-        root = data_root() or cache_dir("data")
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
+    root = _data_root(root)
     archives = root / ".downloads"
     written = []
     for src in sources:

@@ -10,6 +10,12 @@ The four methods the paper compares, all selected by :func:`label_matches` (``me
   (:mod:`~ctxmatch_lib.groundtruth.regions`);
 * ``"C"``: B and the centre distance (reprojection, epipolar or flow transfer) at most 30 px.
 
+Calibrated pairs (:class:`~ctxmatch_lib.datasets.PoseGT`) follow the paper's SUN3D rule when no depth is
+available (Sec. 5.1, end of "Ground truth"): a match is correct when the larger of its two epipolar
+distances, to the lines of the ground-truth ``F = K2^-T [t]x R K1^-1``, is at most the threshold times the
+pair's ``threshold_scale``; methods A and D coincide there (no hand-taken points to localise against), and
+B and C are refused (no local affine map without depth).
+
 Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
 pixel; ``matches`` is ``(K, 2)`` int64 into them.
 """
@@ -18,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
+from ..datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .core import (
     GT_THRESHOLD_PX,
     LOCALISATION_RATIO,
@@ -92,13 +98,15 @@ def label_matches(
         (x, y) pixels, origin at the centre of the top-left pixel.
     matches : array_like of shape (K, 2), int
         Indices into ``kpts1``/``kpts2`` (many-to-many allowed).
-    gt : HomographyGT, EpipolarGT or FlowGT
+    gt : HomographyGT, EpipolarGT, FlowGT or PoseGT
         The pair's ground truth.
     method : {"D", "A", "B", "C"}
         Method D (the paper's), A (epipolar distance only, for ``EpipolarGT``), B (overlap of the support
         regions) or C (B and centre distance).
     threshold : float
-        Pixels (15 in the paper) of methods A and D; B and C ignore it (see ``centre_threshold``).
+        Pixels (15 in the paper) of methods A and D; B and C ignore it (see ``centre_threshold``). On a
+        :class:`PoseGT` it is multiplied by ``gt.threshold_scale`` (the pair's image size relative to the
+        paper's, e.g. 3 for the 3072 px Strecha views).
     ratio : float
         Localisation radius ratio (:func:`localisation_check`).
     shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2), optional
@@ -119,6 +127,10 @@ def label_matches(
         raise ValueError(f"method must be one of {GT_METHODS}, got {method!r}")
     if threshold <= 0:
         raise ValueError(f"threshold must be positive, got {threshold}")
+    if method in ("B", "C") and isinstance(gt, PoseGT):
+        raise ValueError(f"method {method!r} needs a local affine map between the images (a homography, "
+                         "hand-taken points or a dense flow); a calibrated pair (PoseGT) has none without "
+                         "depth: use method 'D' (or 'A', the same rule there)")
     if method in ("B", "C"):
         return label_regions(kpts1, kpts2, matches, gt, shapes1, shapes2, method=method, overlap=overlap,
                              centre_threshold=centre_threshold, shape_scale=shape_scale)
@@ -138,4 +150,7 @@ def label_matches(
         )
     if isinstance(gt, FlowGT):
         return label_flow(kpts1, kpts2, matches, gt.flow12, gt.flow21, threshold=threshold)
-    raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
+    if isinstance(gt, PoseGT):  # Sec. 5.1, SUN3D without depth: the larger epipolar distance
+        return label_epipolar(kpts1, kpts2, matches, gt.F, threshold=threshold * gt.threshold_scale,
+                              localise=False)
+    raise TypeError(f"gt must be HomographyGT, EpipolarGT, FlowGT or PoseGT, got {type(gt).__name__}")

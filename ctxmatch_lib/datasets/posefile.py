@@ -1,0 +1,172 @@
+"""Calibrated pairs as text: the pairs-with-ground-truth format of SuperGlue and LoFTR, read and written.
+
+One pair per line, 38 whitespace-separated tokens::
+
+    name0 name1 rot0 rot1 K0(9) K1(9) T_0to1(16)
+
+``name0``/``name1`` are image paths relative to the image folder (default: the folder of the text file;
+absolute paths work too); ``K0``/``K1`` the 3x3 intrinsics row by row; ``T_0to1`` the 4x4 rigid transform
+row by row that takes camera-0 coordinates to camera-1 coordinates (``X1 = R X0 + t``, last row
+``0 0 0 1``). ``rot0``/``rot1`` (0-3) are the quarter turns (``np.rot90``, counter-clockwise) that SuperGlue
+applies to an image before matching, updating its intrinsics and pose with it: ``K`` and ``T_0to1`` in the
+file describe the images **as stored**. The package matches the stored images, so the rotations are kept
+(and written back) but change nothing. Pixel convention: (0, 0) the centre of the top-left pixel, as in
+SuperGlue (its rotated principal point is ``w - 1 - cx``) and in the package. Blank lines and lines
+starting with ``#`` are skipped.
+
+Each pair becomes ``kind="calibrated"`` with a :class:`~ctxmatch_lib.datasets.PoseGT` whose
+``threshold_scale`` is ``max(width, height) / 1024`` of the larger image (the paper's pixel thresholds,
+Sec. 5.1, refer to images about 1000 px wide) and whose ``difficulty`` is the band of its rotation angle
+(:func:`~ctxmatch_lib.datasets.strecha.rotation_band`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .._paths import atomic_path
+from ._io import image_size
+from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, _check_rotation, nearest_rotation
+from .strecha import rotation_band, threshold_scale_for
+
+__all__ = ["POSE_LINE_TOKENS", "parse_pose_tokens", "format_pose_tokens", "read_pairs_with_gt",
+           "write_pairs_with_gt"]
+
+#: Tokens per line: two names, two rotations, 9 + 9 intrinsics, 16 for ``T_0to1``.
+POSE_LINE_TOKENS = 38
+
+
+def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = None) -> PoseGT:
+    """A :class:`PoseGT` from the 36 numeric tokens ``rot0 rot1 K0(9) K1(9) T_0to1(16)``.
+
+    Raises
+    ------
+    ValueError
+        Not 36 tokens, a non-number, a rotation outside 0-3, a bad last row of ``T_0to1``, a non-rotation,
+        a zero focal or a zero translation (the message names the field; callers prefix the file and line).
+    """
+    if len(tokens) != POSE_LINE_TOKENS - 2:
+        raise ValueError(f"expected {POSE_LINE_TOKENS - 2} numbers 'rot0 rot1 K0(9) K1(9) T_0to1(16)', "
+                         f"got {len(tokens)}")
+    try:
+        values = np.array([float(v) for v in tokens], np.float64)
+    except ValueError:
+        bad = next(v for v in tokens if not _is_float(v))
+        raise ValueError(f"not a number: {bad!r}") from None
+    if not np.isfinite(values).all():
+        raise ValueError("NaN or infinite value")
+    rots = values[:2]
+    if np.any(rots != np.round(rots)) or np.any((rots < 0) | (rots > 3)):
+        raise ValueError(f"rot0 and rot1 must be integers 0-3 (quarter turns), got {tokens[0]} {tokens[1]}")
+    K0, K1, T = values[2:11].reshape(3, 3), values[11:20].reshape(3, 3), values[20:].reshape(4, 4)
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise ValueError(f"T_0to1 must end with the row 0 0 0 1, got {T[3].tolist()}")
+    R = nearest_rotation(_check_rotation(T[:3, :3] / T[3, 3], "the rotation of T_0to1", ROTATION_TEXT_TOL))
+    t = T[:3, 3] / T[3, 3]
+    if difficulty is None:
+        difficulty = rotation_band(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))))
+    for name, K in (("K0", K0), ("K1", K1)):
+        if K[0, 0] == 0 or K[1, 1] == 0:
+            raise ValueError(f"{name} has a zero focal length (fx = {K[0, 0]:g}, fy = {K[1, 1]:g})")
+    return PoseGT(K0, K1, R, t, threshold_scale=scale, difficulty=difficulty,
+                  rotations=(int(rots[0]), int(rots[1])))
+
+
+def _is_float(v: str) -> bool:
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def format_pose_tokens(gt: PoseGT) -> list[str]:
+    """The 36 numeric tokens of ``gt`` (inverse of :func:`parse_pose_tokens`), shortest exact repr."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = gt.R, gt.t
+    return [str(r) for r in gt.rotations] + [repr(float(v)) for v in (*gt.K1.ravel(), *gt.K2.ravel(), *T.ravel())]
+
+
+def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Dataset:
+    """Read a pairs-with-ground-truth text file (module docstring) as a dataset of calibrated pairs.
+
+    Parameters
+    ----------
+    path : str or Path
+        The text file.
+    image_dir : str or Path, optional
+        Folder the image names are relative to; default the folder of ``path``.
+    name : str, optional
+        Dataset name (pair ids are ``<name>/<stem0>-<stem1>``); default the name of the image folder.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file, or a listed image is missing (the message names it).
+    ValueError
+        A line with the wrong number of tokens or invalid geometry (the message names the file and line),
+        a duplicate pair, or no pair at all.
+    """
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise FileNotFoundError(f"pairs-with-ground-truth file not found: {path}")
+    path = path.resolve()
+    folder = Path(image_dir).expanduser().resolve() if image_dir is not None else path.parent
+    name = name or folder.name
+    pairs, seen = [], set()
+    for line_no, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        where = f"{path}, line {line_no}"
+        if len(tokens) != POSE_LINE_TOKENS:
+            raise ValueError(f"{where}: expected {POSE_LINE_TOKENS} tokens 'name0 name1 rot0 rot1 K0(9) K1(9) "
+                             f"T_0to1(16)', got {len(tokens)}")
+        images = [folder / tokens[0], folder / tokens[1]]
+        try:
+            sizes = [image_size(p) for p in images]
+        except (FileNotFoundError, ValueError) as exc:
+            raise type(exc)(f"{where}: {exc}") from None
+        try:
+            gt = parse_pose_tokens(tokens[2:], scale=threshold_scale_for((*sizes[0], *sizes[1])))
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        pair_id = f"{name}/{Path(tokens[0]).with_suffix('').as_posix()}-{Path(tokens[1]).stem}"
+        if pair_id in seen:
+            raise ValueError(f"{where}: duplicate pair {tokens[0]} {tokens[1]}")
+        seen.add(pair_id)
+        pairs.append(Pair(pair_id, images[0], images[1], sizes[0], sizes[1], "calibrated", gt, dataset=name))
+    if not pairs:
+        raise ValueError(f"{path} lists no pairs: one line per pair, {POSE_LINE_TOKENS} tokens")
+    return Dataset(name, pairs, folder)
+
+
+def write_pairs_with_gt(dataset, path, *, image_dir=None) -> Path:
+    """Write the calibrated pairs of ``dataset`` (a :class:`Dataset` or a list of pairs) as a
+    pairs-with-ground-truth text file, atomically; :func:`read_pairs_with_gt` reads it back.
+
+    Image names are written relative to ``image_dir`` (default the folder of ``path``) when the images
+    lie under it, else as absolute paths. A pair whose ground truth is not a :class:`PoseGT` is an error.
+    """
+    import os
+
+    path = Path(path)
+    folder = Path(image_dir if image_dir is not None else path.parent).resolve()
+    lines = []
+    for p in dataset:
+        if not isinstance(p.gt, PoseGT):
+            raise ValueError(f"pair {p.pair_id!r}: only calibrated pairs (PoseGT) can be written, "
+                             f"got {type(p.gt).__name__}")
+        names = []
+        for img in (p.image1, p.image2):
+            rel = Path(os.path.relpath(Path(img).resolve(), folder))
+            names.append((Path(img).resolve() if rel.parts[:1] == ("..",) else rel).as_posix())
+        if any(len(n.split()) != 1 for n in names):
+            raise ValueError(f"pair {p.pair_id!r}: image paths with white space cannot be written: {names}")
+        lines.append(" ".join([*names, *format_pose_tokens(p.gt)]))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+    return path
