@@ -9,9 +9,9 @@ Parquet part of result rows per (pair, feature setup, evaluation settings), shar
 and ``ctxmatch sweep``; its key includes a digest of the library source that produces the numbers, so
 editing a filter invalidates its results instead of serving stale ones.
 
-``dtm1`` (DTM1 only) and ``dtm2`` (DTM1 + DTM2, the same as ``dtm``) are filter names everywhere
-(:func:`~ctxmatch_lib.evaluation.steps.register_dtm_stages`), so that Tables 1-3 can list both as the
-paper does.
+``dtm1`` (DTM1 only) and ``dtm2`` (DTM1 + DTM2, the same as ``dtm``) are filter names everywhere (built-in
+names of :data:`~ctxmatch_lib.filters.FILTERS`), so that Tables 1-3 can list both as the paper does;
+``register_dtm_stages`` is kept as a no-op.
 """
 
 from __future__ import annotations

@@ -99,21 +99,12 @@ def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: 
 
 
 def register_dtm_stages() -> None:
-    """Register ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as
-    ``dtm``) in :data:`~ctxmatch_lib.filters.FILTERS`, so that Tables 1-3 can list both as the paper does.
+    """Do nothing; kept so that code written against older versions keeps running.
 
-    Called by :func:`check_filters` and :func:`run_filter`, so the names work everywhere, worker
-    processes included.
+    ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as ``dtm``) are
+    built-in names of :data:`~ctxmatch_lib.filters.FILTERS` in every process, worker processes included, so
+    Tables 1-3 list both as the paper does without a call to this function.
     """
-    import functools
-
-    from ..filters import FILTERS, register_filter
-
-    for name, stages in (("dtm1", 1), ("dtm2", 2)):
-        if name not in FILTERS._loaded:
-            from ..dtm import dtm_filter
-
-            register_filter(name, functools.partial(dtm_filter, stages=stages))
 
 
 def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
@@ -121,7 +112,6 @@ def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
     listing the known ones."""
     from ..filters import FILTERS
 
-    register_dtm_stages()
     if isinstance(filters, str):
         filters = [filters]
     names = tuple(filters)
@@ -189,7 +179,6 @@ def resolve_filters(filters="all") -> tuple[str, ...]:
     """
     from ..filters import FILTERS
 
-    register_dtm_stages()
     if isinstance(filters, str) and filters == "all":
         # The learned filters run in numpy (no torch needed): "all" is every registered filter.
         names = [n for n in FILTERS if n != "dtm"]
@@ -283,8 +272,6 @@ def run_filter(
     """
     from ..filters import FILTERS
 
-    if name in ("dtm1", "dtm2"):
-        register_dtm_stages()
     func: Callable = FILTERS[name]
     if blob_ratio is not None and getattr(func, "uses_blob_ratio", False):
         params.setdefault("ratio", blob_ratio)
