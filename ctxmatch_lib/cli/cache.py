@@ -13,6 +13,11 @@ Clearing never follows a link (a link is removed as a link, its target untouched
 folder, and refuses a folder that holds no ctxmatch marker (CACHEDIR.TAG) and more than the cache's own
 sub-folders. Temporary files younger than an hour are kept: a running process may be writing them."""
 
+CLEAR_DESCRIPTION = """\
+Remove the named parts of the cache (or --all), or only their files not modified for --older-than; with
+--older-than and no part, every part. The parts' own folders stay, emptied. Exit status: 0 done, 2 a bad
+argument, 1 a cache folder refused (no ctxmatch marker, and more than the cache's own sub-folders)."""
+
 EXAMPLE = """\
 examples:
   ctxmatch cache                                   # size per part
@@ -32,9 +37,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="cache_command")
     p = sub.add_parser(
         "clear", help="remove parts of the cache, or their files older than an age",
-        description="Remove the named parts of the cache (or --all), or only their files last modified longer "
-                    "ago than --older-than; with --older-than and no part, every part. The parts' own folders "
-                    "stay.", epilog=EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=CLEAR_DESCRIPTION, epilog=EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("parts", nargs="*", metavar="PART", help=f"parts to clear: {', '.join(CACHE_PARTS)}")
     p.add_argument("--all", action="store_true", help="every part: the whole cache but its marker")
