@@ -21,6 +21,7 @@ from typing import Literal
 import numpy as np
 
 from .._validation import as_matches, as_points, as_scores, cumulative_distinct
+from .pose import _fundamental_from_essential, check_intrinsics
 
 __all__ = [
     "MIN_SAMPLE",
@@ -37,10 +38,11 @@ __all__ = [
     "one_sac",
 ]
 
-ModelKind = Literal["H", "F"]
+ModelKind = Literal["H", "F", "E"]
 
-#: Minimal sample size ``q`` of each model (Sec. 5.1, footnote).
-MIN_SAMPLE = {"H": 4, "F": 8}
+#: Minimal sample size ``q`` of each model (Sec. 5.1, footnote); ``E`` (the five-point solver of the ``essential``
+#: model step, which 1SAC and :func:`~ctxmatch_lib.geometry.ransac` do not fit) needs five.
+MIN_SAMPLE = {"H": 4, "F": 8, "E": 5}
 
 #: Default consistency threshold of the model step, in pixels. It equals the method-D ground-truth
 #: tolerance (15 px, Sec. 5.1): a correct model then keeps what the ground truth would call correct, so
@@ -57,8 +59,9 @@ class ModelFit:
     keep : ndarray of shape (K,), bool
         Matches consistent with the model (all ``False`` when no model could be fitted).
     model : ndarray of shape (3, 3) or None
-        The fitted ``H`` (image 1 -> image 2) or ``F`` (``x2^T F x1 = 0``); ``None`` on failure.
-    kind : {"H", "F"}
+        The fitted ``H`` (image 1 -> image 2), ``F`` (``x2^T F x1 = 0``) or ``E`` (``x2n^T E x1n = 0`` on
+        points normalised by the intrinsics; the ``essential`` step); ``None`` on failure.
+    kind : {"H", "F", "E"}
         Which model was fitted.
     sample : ndarray of shape (S,), int64
         Indices (into the matches given) of the sample the model was fitted on; for RANSAC, its inliers.
@@ -338,14 +341,20 @@ def _epipolar(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.nda
     return d2, d1
 
 
-def model_errors(model, kind: ModelKind, pts1, pts2) -> np.ndarray:
+def model_errors(model, kind: ModelKind, pts1, pts2, *, K1=None, K2=None) -> np.ndarray:
     """Symmetric error of each correspondence against ``model``: the larger of the two directions.
 
     For ``kind="H"`` the larger of the forward and backward reprojection errors, for ``kind="F"`` the larger
-    of the two point-to-epipolar-line distances, in pixels.
+    of the two point-to-epipolar-line distances, in pixels; for ``kind="E"`` the same distances to
+    ``F = K2^-T E K1^-1``, so an essential matrix is judged in pixels like a fundamental one (``K1`` and ``K2``,
+    the intrinsics of images 1 and 2, are required then and ignored otherwise).
     """
-    kind = _check_kind(kind)
-    return _model_errors(np.asarray(model, np.float64), kind, *_point_pair(pts1, pts2))
+    kind = _check_kind(kind, MIN_SAMPLE)
+    model = np.asarray(model, np.float64)
+    if kind == "E":
+        model = _fundamental_from_essential(model, check_intrinsics(K1, "K1"), check_intrinsics(K2, "K2"))
+        kind = "F"
+    return _model_errors(model, kind, *_point_pair(pts1, pts2))
 
 
 def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray:
@@ -405,9 +414,10 @@ def _fit(kind: ModelKind, p1: np.ndarray, p2: np.ndarray) -> np.ndarray | None:
     return _fit_homography(p1, p2) if kind == "H" else _fit_fundamental(p1, p2)
 
 
-def _check_kind(kind) -> ModelKind:
-    if kind not in MIN_SAMPLE:
-        raise ValueError(f"kind must be 'H' or 'F', got {kind!r}")
+def _check_kind(kind, kinds=("H", "F")) -> ModelKind:
+    """``kind`` if among ``kinds``: 1SAC and :func:`~ctxmatch_lib.geometry.ransac` fit ``H`` and ``F`` only."""
+    if kind not in kinds:
+        raise ValueError(f"kind must be {' or '.join(map(repr, kinds))}, got {kind!r}")
     return kind
 
 
