@@ -17,8 +17,8 @@ and, as a check that copies of a *correct* candidate are all kept, one correct c
 coincident copies. The correct candidates must be kept as without the copies, up to ``TOL`` of them (a
 filter that decides by global statistics, e.g. a density threshold or a robust scale, may move a few
 borderline ones when rows are added; the filters that group coincident candidates reproduce the decision
-without copies exactly). PGM's output is one-to-one, so of a repeated row (same keypoint indices) it outputs
-at most one copy. The filters not fixed here run too, for the record: where they fail, the case is an expected
+without copies exactly). A row repeated with its score is the same candidate given twice: every filter keeps
+all its copies or none (PGM's one-to-one output too). The filters not fixed here run too, for the record: where they fail, the case is an expected
 failure (``strict=False``) with the reason.
 """
 
@@ -130,13 +130,9 @@ def test_copies_decided_as_the_single_candidate(name, case, size):
     others = np.setdiff1d(np.arange(n), [row, wrong])
     if name in FIXED and size == 300 and not case.startswith("correct"):
         assert not single[wrong], f"{name} keeps the wrong correspondence alone: the case proves nothing"
-    if name == "pgm" and case.startswith("repeated"):
-        # PGM's output is one-to-one: of a repeated keypoint pair at most one row, the first copy, is output.
-        assert keep[copies].sum() == single[row] and keep[row] == single[row]
-    else:
-        # Every copy decided as the single candidate.
-        assert (keep[copies] == single[row]).all(), (f"{name}: single candidate kept={bool(single[row])}, "
-                                                     f"copies kept {int(keep[copies].sum())}/{len(copies)}")
+    # Every copy decided as the single candidate.
+    assert (keep[copies] == single[row]).all(), (f"{name}: single candidate kept={bool(single[row])}, "
+                                                 f"copies kept {int(keep[copies].sum())}/{len(copies)}")
     # The other candidates as without the copies (up to TOL changed decisions; the filters fixed here: none).
     changed = int((keep[others] != single[others]).sum())
     assert changed <= TOL, f"{name}: {changed} other candidates decided differently with the copies"

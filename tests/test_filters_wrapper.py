@@ -4,7 +4,7 @@ public signatures and docstrings are composed from the shared parts, and the sco
 The reference for the filters that merge coincident rows is written out here by hand: the distinct
 (x1, y1, x2, y2) rows found with a Python dict in input order, each standing with its best-scored copy (the
 first on ties), the core run on those rows, and the decision copied to every row of the group (for PGM, only
-the first of the rows that repeat one keypoint pair). The real-data counterpart, every registered filter's
+the first of the rows that repeat one keypoint pair; a row given twice, same score, is kept twice or not at all). The real-data counterpart, every registered filter's
 masks before and after a change on the real candidate sets, is ``benchmarks/check_filter_masks.py``.
 """
 
@@ -80,6 +80,12 @@ def _reference(name, k1, k2, m, s, **params):
         one = np.zeros(len(m), bool)
         one[list(first_pair.values())] = True
         keep &= one
+        # The same row given twice (same keypoints, same score) is one candidate: kept if any copy is.
+        key = list(zip(map(tuple, m.tolist()), ms.scores.tolist()))
+        any_copy: dict[tuple, bool] = {}
+        for k, kept in zip(key, keep):
+            any_copy[k] = any_copy.get(k, False) or bool(kept)
+        keep = np.array([any_copy[k] for k in key])
     return keep
 
 

@@ -579,11 +579,20 @@ def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, 
 
     Keypoints are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel. ``shapes1`` and
     ``shapes2`` are ignored (DTM uses keypoint positions only); ``params`` go to :func:`dtm`
-    (``stages``, ``boundary``, ``shrink``, ``dtm2_boundary``).
+    (``stages``, ``boundary``, ``shrink``, ``dtm2_boundary``). As every registered filter, it decides on the
+    rows in their canonical order (:func:`ctxmatch_lib.filters._common.canonical_order`), so a repeated row
+    gets one decision and the mask does not depend on the order of the rows.
 
     Returns
     -------
     ndarray of shape (K,) bool
         The keep mask, ``matches[keep]``.
     """
-    return dtm(kpts1, kpts2, matches, scores, image_size1=image_size1, image_size2=image_size2, **params).keep
+    from ..filters._common import canonical_order, spread_back
+
+    kp1, kp2 = as_points(kpts1, "kpts1"), as_points(kpts2, "kpts2")
+    m = as_matches(matches, len(kp1), len(kp2))
+    s = as_scores(scores, len(m))
+    order, twins = canonical_order(kp1[m[:, 0]], kp2[m[:, 1]], m, s)
+    res = dtm(kp1, kp2, m[order], s[order], image_size1=image_size1, image_size2=image_size2, **params)
+    return spread_back(res.keep, order, twins)

@@ -6,7 +6,8 @@ A filter module writes its method as a *core*, ``core(ms, *, **params) -> keep``
 The wrapper validates the common arguments (:func:`prepare`, with the helpers of
 :mod:`ctxmatch_lib._validation`), maps the thresholds the core reads on the NNR scale to the scale of the
 scores (:mod:`ctxmatch_lib._scores`), merges coincident rows once where the filter asks for it
-(:func:`merge_coincident`), calls the core and spreads its decisions back to every row. The parameters every
+(:func:`merge_coincident`), puts the rows in their canonical order (:func:`canonical_order`), calls the core on
+them and spreads its decisions back to every row in the order given. The parameters every
 filter shares are documented once here (:data:`DOCS`) and composed into each docstring (:func:`compose_doc`).
 Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel.
 """
@@ -27,7 +28,8 @@ from .._scores import _check_ratio, nnr_threshold, score_ratio
 from .._validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive",
-           "coincident_groups", "merge_coincident", "first_of_pair", "match_filter", "compose_doc", "DOCS"]
+           "coincident_groups", "merge_coincident", "first_of_pair", "canonical_order", "spread_back",
+           "match_filter", "compose_doc", "DOCS"]
 
 
 @dataclass(frozen=True)
@@ -243,6 +245,71 @@ def first_of_pair(ms: MatchSet) -> np.ndarray:
     return first
 
 
+def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | None]:
+    """The order of candidate rows a filter decides in, which depends only on the set of rows.
+
+    The rows are sorted (``np.lexsort``, in float64) by score, then the image-1 keypoint (x, then y), the
+    image-2 keypoint (x, then y), the image-1 keypoint index and the image-2 keypoint index. Two rows equal in
+    every key are the same candidate given twice (they hold the same keypoints, and so the same shapes):
+    their relative order is the only thing left to the input order, and :func:`spread_back` gives them one
+    decision, so no decision depends on it.
+
+    Parameters
+    ----------
+    x, y : ndarray of shape (K, 2)
+        Image-1 and image-2 keypoint of each row, (x, y) pixels, origin at the centre of the top-left pixel.
+    matches : ndarray of shape (K, 2)
+        Keypoint indices of each row.
+    scores : ndarray of shape (K,)
+        Score of each row (lower is better; zeros when none were given).
+
+    Returns
+    -------
+    order : ndarray of shape (K,) int64
+        The rows in canonical order: row ``order[j]`` of the input is row ``j`` of the sorted set.
+    twins : ndarray of shape (K,) int64, or None
+        None when no two rows are equal in every key; else the group of each *sorted* row, numbered
+        ``0, 1, ...`` in order, equal rows sharing a group.
+
+    Examples
+    --------
+    >>> x = np.array([[5.0, 5.0], [1.0, 2.0], [5.0, 5.0]])
+    >>> m = np.array([[2, 0], [1, 1], [2, 0]])
+    >>> order, twins = canonical_order(x, x, m, np.array([0.5, 0.5, 0.5]))
+    >>> order.tolist(), twins.tolist()
+    ([1, 0, 2], [0, 1, 1])
+    """
+    n = len(matches)
+    keys = np.empty((7, n), np.float64)
+    keys[0] = scores
+    keys[1:3] = np.asarray(x, np.float64).T
+    keys[3:5] = np.asarray(y, np.float64).T
+    keys[5:7] = np.asarray(matches).T
+    order = np.lexsort(keys[::-1])  # the last key is the primary one
+    if n < 2:
+        return order, None
+    k = keys[:, order]
+    same = (k[:, 1:] == k[:, :-1]).all(axis=0)
+    if not same.any():
+        return order, None
+    return order, np.r_[0, np.cumsum(~same)]
+
+
+def spread_back(keep: np.ndarray, order: np.ndarray, twins: np.ndarray | None) -> np.ndarray:
+    """The decisions ``keep`` made on the rows in canonical order (:func:`canonical_order`), in input order.
+
+    Rows equal in every key (``twins``) are one candidate: all of them are kept when any of them is (a core
+    that keeps one copy of a repeated row, such as a one-to-one output, keeps the candidate), so the mask
+    never depends on the input order.
+    """
+    keep = np.asarray(keep, bool)
+    if twins is not None:
+        keep = (np.bincount(twins, weights=keep) > 0)[twins]
+    out = np.empty(len(order), bool)
+    out[order] = keep
+    return out
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Shared documentation, composed into the filters' docstrings (one way of scipy's ``_lib/doccer``).
 
@@ -349,11 +416,15 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
        the scores carry (:func:`ctxmatch_lib._scores.score_ratio`), else ``"D>="``, with a ``UserWarning``
        where that default keeps every row although every score lies in the D+ range (at most 1/2); a
        ratio given that contradicts the scores' own is a ``ValueError``;
-    3. merges coincident rows (:func:`merge_coincident`) when ``merge`` is True, or when the public boolean
+    3. sorts the rows into their canonical order (:func:`canonical_order`: score, keypoint coordinates, keypoint
+       indices), so that the core sees the same rows in the same order whatever order they were given in;
+    4. merges coincident rows (:func:`merge_coincident`) when ``merge`` is True, or when the public boolean
        parameter named by ``merge`` (default True) is; the core then decides the distinct rows and every
        copy gets the decision of its group; with ``one_to_one`` only the first of the rows that repeat one
        keypoint pair (:func:`first_of_pair`) is kept, so that a one-to-one output stays one-to-one;
-    4. returns the core's mask over the rows given.
+    5. returns the core's mask over the rows given, in their order (:func:`spread_back`; rows equal in every
+       key of the canonical order get one decision). Every filter is thus equivariant: permuting the rows
+       permutes the mask, and changes nothing else.
 
     ``shapes``: ``"match"`` (checked and gathered per match for the core, ``ms.A1`` / ``ms.A2``), ``"check"``
     (checked only, for a core that reads none) or ``"both"`` (as ``"match"``, and one without the other is a
@@ -400,12 +471,16 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
                 ratio = _scale(a["scores"], ms, a[ratio_param] if ratio_param else None, ratio_param, checked,
                                name)
                 params.update({k: nnr_threshold(v, ratio) for k, v in checked.items()})
+            order, twins = canonical_order(ms.x, ms.y, ms.matches, ms.scores)
+            ms = ms.take(order)  # scores were read for their scale above; the core sees the canonical order
             merged = merge_coincident(ms) if (a[merge] if isinstance(merge, str) else merge) else None
             if merged is None:
-                return core(ms, **params)
-            rows, group = merged
-            keep = core(ms.take(rows), **params)[group]
-            return keep & first_of_pair(ms) if one_to_one else keep
+                keep = core(ms, **params)
+            else:
+                rows, group = merged
+                keep = core(ms.take(rows), **params)[group]
+                keep = keep & first_of_pair(ms) if one_to_one else keep
+            return spread_back(keep, order, twins)
 
         def public(*args, **kwargs):  # refers to no global: it runs in the core's module (see below)
             return run(args, kwargs)

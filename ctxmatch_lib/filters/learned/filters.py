@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._common import prepare
+from .._common import canonical_order, prepare, spread_back
 
 __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
            "shipped_weights", "require_torch", "TORCH_HINT"]
@@ -154,9 +154,13 @@ def learned_logits(arch: str, kpts1, kpts2, matches, scores=None, *, image_size1
 def _filter(arch, kpts1, kpts2, matches, scores, image_size1, image_size2, weights, threshold, normalization):
     if not np.isscalar(threshold) or not np.isfinite(threshold):
         raise ValueError(f"threshold must be a finite number, got {threshold!r}")
-    logits = learned_logits(arch, kpts1, kpts2, matches, scores, image_size1=image_size1,
-                            image_size2=image_size2, weights=weights, normalization=normalization)
-    return logits > threshold
+    # The rows in their canonical order (as every registered filter), the decisions spread back.
+    ms = prepare(kpts1, kpts2, matches, scores, image_size1, image_size2)
+    order, twins = canonical_order(ms.x, ms.y, ms.matches, ms.scores)
+    logits = learned_logits(arch, kpts1, kpts2, ms.matches[order], None if scores is None else ms.scores[order],
+                            image_size1=image_size1, image_size2=image_size2, weights=weights,
+                            normalization=normalization)
+    return spread_back(logits > threshold, order, twins)
 
 
 def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None,
