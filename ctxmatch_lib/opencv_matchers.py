@@ -102,12 +102,13 @@ def opencv_mnn_matches(desc1, desc2) -> tuple[np.ndarray, np.ndarray]:
 
     Examples
     --------
+    Descriptor 1 of image 1 is nearest to descriptor 0 of image 2, whose own nearest is descriptor 0: not
+    mutual, so only (0, 0) is kept.
+
     >>> import numpy as np
-    >>> d1 = np.array([[0.0, 0.0], [5.0, 5.0]])
-    >>> d2 = np.array([[0.0, 0.1], [5.0, 4.0], [5.0, 5.9]])
-    >>> opencv_mnn_matches(d1, d2)[0]
-    array([[0, 0],
-           [1, 2]])
+    >>> matches, scores = opencv_mnn_matches([[0.0, 0.0], [1.0, 0.0]], [[0.2, 0.0], [5.0, 5.0]])
+    >>> matches, scores.round(2)
+    (array([[0, 0]]), array([0.2]))
     """
     d1, d2 = _descriptors(desc1, desc2)
     if len(d1) == 0 or len(d2) == 0:

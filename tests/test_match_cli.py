@@ -67,6 +67,9 @@ def test_match_cli_filters_model_and_errors(pair, tmp_path, capsys):
                  "--filter", "dtm,gms", "--model", "1sac", "--model-kind", "H"]) == 0
     d = load_result(out)
     assert d["settings"]["filters"] == ["dtm", "gms"] and d["settings"]["model"] == "1sac" and "model" in d
+    assert main(["match", str(pair[0]), str(pair[1]), "--out", str(out), "--max-keypoints", "400", "--no-cache",
+                 "--filter", "none", "--model", "magsac", "--model-kind", "H"]) == 0
+    assert load_result(out)["settings"]["model"] == "magsac"
     assert main(["match", str(pair[0]), "--out", str(out)]) == 2
     assert main(["match", str(pair[0]), str(pair[1]), "--filter", "nope"]) == 2
     assert main(["match", str(pair[0]), str(pair[1]), "--blob", "paper-best:zz=1"]) == 2

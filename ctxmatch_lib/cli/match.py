@@ -8,10 +8,11 @@ from pathlib import Path
 
 DESCRIPTION = """\
 Match two images with the paper's pipeline: SIFT features -> blob matching (Sec. 3) -> spatial filter(s)
-(DTM by default, Sec. 4) -> optional model step (1SAC / RANSAC, Sec. 5.1). Image sizes are read from the
-images. --out writes an .npz with kpts1, kpts2 ((N, 2) x, y pixels, origin at the centre of the top-left
-pixel), shapes1, shapes2, matches ((K, 2) int64 rows into kpts1/kpts2), scores ((K,), lower is better),
-image_size1, image_size2 (width, height) and settings (JSON). --plot draws the kept matches.
+(DTM by default, Sec. 4) -> optional model step (1SAC, Sec. 5.1, or OpenCV's USAC: ransac, prosac, magsac).
+Image sizes are read from the images. --out writes an .npz with kpts1, kpts2 ((N, 2) x, y pixels, origin at
+the centre of the top-left pixel), shapes1, shapes2, matches ((K, 2) int64 rows into kpts1/kpts2), scores
+((K,), lower is better), image_size1, image_size2 (width, height) and settings (JSON). --plot draws the kept
+matches.
 
 Folder mode: --pairs pairs.txt --images DIR (one "name1 name2" per line, hloc's convention) writes one .npz
 per pair into --out (a folder); it is resumable: finished pairs are skipped on a re-run, a killed run
@@ -52,8 +53,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--filter", action="append", default=None, dest="filters",
                    help="spatial filter, repeatable or comma-separated, applied in order; 'none' for the blob "
                         "candidates (default: dtm)")
-    p.add_argument("--model", default="none", choices=["none", "1sac", "ransac", "prosac"],
-                   help="model step on the filtered matches (default: none)")
+    p.add_argument("--model", default="none", choices=["none", "1sac", "ransac", "prosac", "magsac"],
+                   help="model step on the filtered matches: 1sac (the paper's), ransac (USAC_MAGSAC, 3 px), prosac "
+                        "(the same with PROSAC sampling by score), magsac (USAC_MAGSAC with fb82/MiHo's 1 px, "
+                        "0.9999, 100000) (default: none)")
     p.add_argument("--model-kind", default="F", choices=["F", "H"],
                    help="F (any scene, default) or H (planar scene, pure rotation)")
     p.add_argument("--model-threshold", type=float, default=None, help="model step threshold in px (default: 15)")
