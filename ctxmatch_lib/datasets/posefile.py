@@ -133,7 +133,8 @@ def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Data
             gt = parse_pose_tokens(tokens[2:], scale=threshold_scale_for((*sizes[0], *sizes[1])))
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
-        pair_id = f"{name}/{Path(tokens[0]).with_suffix('').as_posix()}-{Path(tokens[1]).stem}"
+        stem0 = Path(tokens[0]).stem if Path(tokens[0]).is_absolute() else Path(tokens[0]).with_suffix("").as_posix()
+        pair_id = f"{name}/{stem0}-{Path(tokens[1]).stem}"
         if pair_id in seen:
             raise ValueError(f"{where}: duplicate pair {tokens[0]} {tokens[1]}")
         seen.add(pair_id)

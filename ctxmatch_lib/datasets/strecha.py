@@ -27,7 +27,7 @@ package's convention (origin at the centre of the top-left pixel).
 3. per scene and band, at most :data:`MAX_PAIRS_PER_BAND` pairs, taken evenly over the band's qualifying
    pairs sorted by angle (so each band spans its range and each scene weighs the same).
 
-On the three scenes in ``calibrated/strecha`` this gives 48 pairs: 14 easy, 16 medium, 18 hard.
+On the three scenes in ``calibrated/strecha`` this gives 52 pairs: 17 easy, 18 medium, 17 hard.
 
 **Threshold scale.** The paper's 15 px (Sec. 5.1) were set on images about 1000 px wide; a pair's
 :attr:`~ctxmatch_lib.datasets.PoseGT.threshold_scale` is ``max(width, height) / 1024`` (3 for the
