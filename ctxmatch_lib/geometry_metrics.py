@@ -25,12 +25,13 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import as_points
-from .datasets.base import EpipolarGT, FlowGT, HomographyGT
+from .datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .geometry import apply_homography, epipolar_distances
 
 __all__ = [
     "EPIPOLAR_THRESHOLDS_PX",
     "CORNER_AUC_THRESHOLDS_PX",
+    "POSE_AUC_THRESHOLDS_DEG",
     "FLOW_SAMPLE_POINTS",
     "image_corners",
     "homography_corner_error",
@@ -49,6 +50,9 @@ EPIPOLAR_THRESHOLDS_PX = np.arange(1, 20, dtype=np.float64)
 #: The thresholds of the AUC of the corner error that glue-factory's HPatches evaluation reports (1, 3, 5 px),
 #: and 10 px.
 CORNER_AUC_THRESHOLDS_PX = (1.0, 3.0, 5.0, 10.0)
+
+#: The thresholds of the AUC of the pose error (degrees) that SuperGlue, LoFTR, glue-factory and fb82/MiHo report.
+POSE_AUC_THRESHOLDS_DEG = (5.0, 10.0, 20.0)
 
 #: How many correspondences :func:`gt_correspondences` samples from a dense ground truth.
 FLOW_SAMPLE_POINTS = 2000
@@ -197,7 +201,8 @@ def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
 
     ``EpipolarGT``: its hand-taken points. ``FlowGT``: up to ``max_points`` pixels of image 1 with a known
     displacement, evenly spaced in row-major order (deterministic), each with its target ``x + flow12``.
-    ``HomographyGT``: ``None`` (planar pairs are scored by the corner error).
+    ``HomographyGT``: ``None`` (planar pairs are scored by the corner error); ``PoseGT``: ``None`` (calibrated
+    pairs are scored by the relative pose).
 
     Returns
     -------
@@ -205,7 +210,7 @@ def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
     """
     if isinstance(gt, EpipolarGT):
         return np.asarray(gt.pts1, np.float64), np.asarray(gt.pts2, np.float64)
-    if isinstance(gt, HomographyGT):
+    if isinstance(gt, (HomographyGT, PoseGT)):
         return None
     if not isinstance(gt, FlowGT):
         raise TypeError(f"gt must be HomographyGT, EpipolarGT or FlowGT, got {type(gt).__name__}")
@@ -288,9 +293,11 @@ def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn"))
     return total.where(rows["model"] != "none")
 
 
-def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX):
+def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX,
+                   pose_thresholds=POSE_AUC_THRESHOLDS_DEG):
     """The model's accuracy over pairs, per group: the AUC of the corner error (planar rows), the mean
-    epipolar consistency (other rows), pairs left without a model, the mean time to geometry.
+    epipolar consistency (other rows), the AUC of the pose error (calibrated rows), pairs left without a
+    model, the mean time to geometry.
 
     Parameters
     ----------
@@ -299,14 +306,17 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
     by : sequence of str
         Grouping columns.
     thresholds : sequence of float
-        Of the AUC (:func:`pose_auc`), in pixels.
+        Of the AUC (:func:`pose_auc`) of the corner error, in pixels.
+    pose_thresholds : sequence of float
+        Of the AUC of the pose error, in degrees.
 
     Returns
     -------
     pandas.DataFrame
         Indexed by ``by``: ``pairs``, ``auc_<t>px_pct`` (planar: :func:`pose_auc` of ``corner_error`` in %,
         pairs without a model at infinity), ``epi_share_mean_pct`` and ``epi_share_<t>_pct`` (other kinds: means
-        over pairs in %), ``no_model`` (pairs where the estimator returned no model), ``geometry_time_s`` and
+        over pairs in %), ``auc_<t>deg_pct`` (calibrated: :func:`pose_auc` of ``pose_err`` in %, pairs without
+        a pose at infinity), ``no_model`` (pairs where the estimator returned no model), ``geometry_time_s`` and
         ``geometry_time_median_s`` (mean and median :func:`time_to_geometry`: the mean carries any one-off cost,
         such as compiling kernels on a cold cache, charged to the first pair).
     """
@@ -325,10 +335,15 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
             np.full(len(thresholds), np.nan)
         rec.update({f"auc_{t:g}px_pct": 100 * a for t, a in zip(thresholds, aucs)})
         rec.update({f"{c}_pct": 100 * g.loc[~planar, c].mean() for c in share_cols})
+        posed = g["pose_err"].notna() if "pose_err" in g.columns else pd.Series(False, index=g.index)
+        aucs = pose_auc(g.loc[posed, "pose_err"].to_numpy(), pose_thresholds) if posed.any() else \
+            np.full(len(pose_thresholds), np.nan)
+        rec.update({f"auc_{t:g}deg_pct": 100 * a for t, a in zip(pose_thresholds, aucs)})
         rec["no_model"] = int((g["model_inliers"] == 0).sum())
         rec["geometry_time_s"] = g["_t"].mean()
         rec["geometry_time_median_s"] = g["_t"].median()
         out.append(rec)
-    cols = [*by, "pairs", *(f"auc_{t:g}px_pct" for t in thresholds), *(f"{c}_pct" for c in share_cols), "no_model",
+    cols = [*by, "pairs", *(f"auc_{t:g}px_pct" for t in thresholds), *(f"{c}_pct" for c in share_cols),
+            *(f"auc_{t:g}deg_pct" for t in pose_thresholds), "no_model",
             "geometry_time_s", "geometry_time_median_s"]
     return pd.DataFrame(out, columns=cols).set_index(by)

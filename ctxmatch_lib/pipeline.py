@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datasets.base import Dataset, Pair
+from .datasets.base import Dataset, Pair, PoseGT
 from .evaluation.plan import plan_units
 from .evaluation.run import run_units
 from .evaluation.steps import (BLOB_METHOD, blob_candidates, check_filters, check_models, check_pair_keypoints,
@@ -235,7 +235,8 @@ def evaluate_pair(
         for method, keep in stage.keeps.items():
             for model in models:
                 fit, t = run_model(model, f1, f2, matches[keep], scores[keep], pair_kind=pair.kind,
-                                   threshold=model_threshold, rng=rng_seed)
+                                   threshold=model_threshold, rng=rng_seed,
+                                   intrinsics=(pair.gt.K1, pair.gt.K2) if isinstance(pair.gt, PoseGT) else None)
                 stage.fits[(method, model)], stage.model_times[(method, model)] = fit, t
         stages[bname] = stage
     evaluation = PairEvaluation(pair, (f1, f2), stages, gt_method)

@@ -64,8 +64,9 @@ FEATURE_LABELS = {
     "sift-sosnet": "SIFT+SOSNet (stand-in)", "harrisz-hardnet2": "HarrisZ+HardNet2 (stand-in)",
     "harrisz-sosnet": "HarrisZ+SOSNet (stand-in)",
 }
-KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (stereo)"}
-MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC", "magsac": "MAGSAC"}
+KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (stereo)", "calibrated": "calibrated"}
+MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC", "magsac": "MAGSAC",
+                "essential": "MAGSAC on E"}
 
 #: Row selections of the paper's three configurations (Sec. 5.3, Tables 1-3): column -> required value (or a
 #: tuple of accepted values). "global" pools every evaluated feature block under the two blob setups the

@@ -77,8 +77,8 @@ def embedded(tmp_path_factory):
 
 def test_registered_names():
     assert list_datasets() == ["embedded", "embedded-planar", "embedded-nonplanar", "embedded-depth",
-                               "hpatches", "oxford", "homogr", "kusvod2", "strecha", "planar", "nonplanar",
-                               "calibrated"]
+                               "hpatches", "oxford", "homogr", "kusvod2", "strecha", "strecha-half", "planar",
+                               "nonplanar", "calibrated"]
 
 
 def test_embedded_contents(embedded):

@@ -13,9 +13,10 @@ from ._engine_args import add_engine_arguments, error, plan, resolve_args
 
 DESCRIPTION = """\
 Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac/
-magsac) -> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as method
-'blob', --matchers adds OpenCV's matchers (opencv_ratio, opencv_mnn) as methods on the same descriptors;
-the model is H for planar pairs, F for non-planar and depth pairs; time_s is the method's own running time,
+magsac/essential) -> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as
+method 'blob', --matchers adds OpenCV's matchers (opencv_ratio, opencv_mnn) as methods on the same descriptors;
+the model is H for planar pairs, F for non-planar, depth and calibrated pairs, E for the 'essential' step
+(calibrated pairs only: points normalised by the intrinsics, MAGSAC, threshold in px over the focal); time_s is the method's own running time,
 model_time_s the model step's. Parquet columns (fractions in [0, 1] for precision, recall, recall_star, ap, ap_star):
 dataset, pair_id, kind, features, blob (+ its fields), method, model, precision, recall, recall_star, ap,
 ap_star, correct, correct_norm, output, failure (output without a correct match), empty_output (no output),
@@ -23,7 +24,9 @@ time_s, model_time_s, the model's accuracy (NaN for model none): model_inliers (
 corner_error (planar: mean distance in px of the image-1 corners mapped by the estimated and the true H;
 inf without a model), epi_share_mean, epi_share_1/3/5/10 (other kinds: share of the ground-truth
 correspondences within 1..19 px, resp. t px, of the estimated F by the symmetric epipolar distance of the
-WxBS benchmark; 0 without a model), n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error
+WxBS benchmark; 0 without a model), pose_err_R, pose_err_t, pose_err (calibrated pairs: rotation,
+translation-direction and pose error, their maximum, of the relative pose recovered from the model and its
+inliers, in degrees; 180 without a pose), n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error
 (why a pair could not be evaluated, else empty). Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image)
 against the correct blob candidates of the same setup; recall_star against their union over all --blob
 setups. The printed table shows means in percent (*_pct columns).
@@ -37,6 +40,7 @@ example:
   ctxmatch eval --dataset embedded --blob paper-best --filters dtm --model none,1sac --out results.parquet
   ctxmatch eval --filters dtm --matchers opencv_ratio,opencv_mnn --model magsac --out geometry.parquet
   CTXMATCH_DATA=/path/to/data ctxmatch eval --dataset planar,nonplanar --filters all --jobs 2
+  ctxmatch eval --dataset strecha --filters dtm,adalam --matchers opencv_ratio --model magsac,essential
 """
 
 
@@ -139,9 +143,10 @@ def _print_summary(df, args, out, n_pairs: int, summary_table) -> None:
             print("\nthe model's accuracy over pairs: auc_*px_pct (planar): AUC of the mean corner error up to t px "
                   "in % (pairs without a model count as failures); epi_share_*_pct (other kinds): ground-truth "
                   "correspondences consistent with the estimated F, mean over 1..19 px and at t px, in %; "
-                  "no_model: pairs without a model; geometry_time_(median_)s: blob (or matcher) + filter + model "
+                  "auc_*deg_pct (calibrated): AUC of the pose error up to t degrees in % (F: pose through "
+                  "E = K2^T F K1, MiHo's AUC^F; essential: E on normalised points, its AUC^E); no_model: pairs without a model; geometry_time_(median_)s: blob (or matcher) + filter + model "
                   "step, mean (median) per pair")
-            print(geometry_table(df).to_string(formatters={c: "{:.4f}".format
+            print(geometry_table(df).dropna(axis=1, how="all").to_string(formatters={c: "{:.4f}".format
                                                            for c in ("geometry_time_s", "geometry_time_median_s")}))
     if n_failed:
         print(f"\n{n_failed} of {n_pairs} pairs could not be fully evaluated (rows kept, 'error' column):",

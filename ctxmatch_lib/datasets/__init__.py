@@ -17,6 +17,7 @@ oxford                 Oxford affine sequences under ``$CTXMATCH_DATA/planar/oxf
 homogr                 Lebeda homogr pairs under ``$CTXMATCH_DATA/planar/homogr``
 kusvod2                Lebeda kusvod2 pairs under ``$CTXMATCH_DATA/nonplanar/kusvod2``
 strecha                Strecha calibrated scenes under ``$CTXMATCH_DATA/calibrated/strecha`` (pose ground truth)
+strecha-half           the same pairs at half resolution (1536 × 1024, :mod:`ctxmatch_lib.datasets.downscaled`)
 planar                 hpatches + oxford + homogr
 nonplanar              kusvod2
 calibrated             strecha
@@ -29,6 +30,7 @@ from pathlib import Path
 
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind, PoseGT
 from .custom import read_custom_dataset, write_custom_dataset
+from .downscaled import downscale_pairs
 from .embedded import embedded_root
 from .posefile import read_pairs_with_gt, write_pairs_with_gt
 from .real import REAL_LOADERS, _resolve
@@ -37,7 +39,7 @@ from .strecha import DIFFICULTY_BANDS, load_strecha_folder, pose_difficulty, str
 __all__ = [
     "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS", "PoseGT",
     "DEFAULT_DATASET", "load_dataset", "list_datasets", "read_custom_dataset", "write_custom_dataset",
-    "load_strecha", "read_pairs_with_gt", "write_pairs_with_gt", "pose_difficulty", "DIFFICULTY_BANDS",
+    "load_strecha", "load_strecha_half", "downscale_pairs", "read_pairs_with_gt", "write_pairs_with_gt", "pose_difficulty", "DIFFICULTY_BANDS",
 ]
 
 DEFAULT_DATASET = "embedded"
@@ -54,7 +56,13 @@ def load_strecha(root=None, **kwargs) -> list:
     return load_strecha_folder(folder, **kwargs)
 
 
-_LOADERS = {**REAL_LOADERS, "strecha": load_strecha}
+def load_strecha_half(root=None, **kwargs) -> list:
+    """:func:`load_strecha` at half resolution: images downscaled by 2 into the dataset cache, ``K`` to match
+    (:func:`.downscaled.downscale_pairs`), the scale of the paper's images (about 1000 px wide)."""
+    return downscale_pairs(load_strecha(root, **kwargs), 2)
+
+
+_LOADERS = {**REAL_LOADERS, "strecha": load_strecha, "strecha-half": load_strecha_half}
 
 
 def list_datasets() -> list[str]:

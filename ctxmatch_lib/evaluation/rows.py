@@ -9,7 +9,9 @@ The geometry columns (:data:`GEOMETRY_COLUMNS`, issue 30) say how good the model
 :func:`~ctxmatch_lib.evaluation.steps.model_accuracy`): ``model_inliers`` (the estimator's inlier count),
 ``corner_error`` (planar: mean corner error of ``H`` in px, ``inf`` without a model), ``epi_share_mean`` and
 ``epi_share_<t>`` (other kinds: share of ground-truth correspondences within 1 ... 19 px, resp. ``t`` px,
-of the estimated ``F``; 0 without a model). The time to geometry of a row is its ``model_time_s`` plus its
+of the estimated ``F``; 0 without a model); ``pose_err_R``, ``pose_err_t`` and ``pose_err`` (calibrated pairs:
+rotation, translation-direction and pose error of the relative pose in degrees, 180 without a pose). The
+time to geometry of a row is its ``model_time_s`` plus its
 ``time_s``, plus the ``time_s`` of the blob row of its setup for a filter
 (:func:`~ctxmatch_lib.geometry_metrics.time_to_geometry`).
 """
@@ -20,13 +22,14 @@ import numpy as np
 
 from ..blob import BlobConfig
 from ..metrics import ranked_area
-from .steps import EPI_SHARE_AT_PX
+from .steps import EPI_SHARE_AT_PX, POSE_COLUMNS
 
 __all__ = ["SWEEP_COLUMNS", "GEOMETRY_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame",
            "ranked_ap", "ranked_aps"]
 
 #: The columns of the model's accuracy (issue 30), in :data:`SWEEP_COLUMNS` after ``model_time_s``.
-GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_share_{t}" for t in EPI_SHARE_AT_PX))
+GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_share_{t}" for t in EPI_SHARE_AT_PX),
+                    *POSE_COLUMNS)
 
 #: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
 SWEEP_COLUMNS = (

@@ -18,9 +18,10 @@ from collections.abc import Callable, Iterable, Mapping
 import numpy as np
 
 from .._scores import nnr_scores, score_ratio
-from ..datasets.base import Pair
+from ..datasets.base import Pair, PoseGT
 from ..features import FeatureConfig, Features, extract_features
-from ..geometry import CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, ModelFit, apply_model_step, model_kind_for
+from ..geometry import (CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, ModelFit, apply_model_step, model_kind_for,
+                        pose_from_model, relative_pose_error)
 from ..geometry_metrics import EPIPOLAR_THRESHOLDS_PX, epipolar_consistency, homography_corner_error
 from ..groundtruth import GT_THRESHOLD_PX, label_matches
 
@@ -43,12 +44,17 @@ __all__ = [
     "run_matcher",
     "model_accuracy",
     "EPI_SHARE_AT_PX",
+    "POSE_COLUMNS",
     "label_candidates",
 ]
 
 #: The thresholds (px) whose share of consistent ground-truth correspondences gets its own column
 #: (``epi_share_<t>``), beside the mean over 1 ... 19 px (``epi_share_mean``).
 EPI_SHARE_AT_PX = (1, 3, 5, 10)
+
+#: The pose columns of a calibrated pair's row (degrees): rotation error, translation-direction error, and
+#: their maximum, the pose error of SuperGlue and MiHo.
+POSE_COLUMNS = ("pose_err_R", "pose_err_t", "pose_err")
 
 #: Method name of the unfiltered blob candidates.
 BLOB_METHOD = "blob"
@@ -306,15 +312,19 @@ def run_model(
     threshold: float = CONSISTENCY_THRESHOLD_PX,
     rng=None,
     estimator=None,
+    intrinsics=None,
 ) -> tuple[ModelFit, float]:
-    """Model step ``name`` (``none``, ``1sac``, ``ransac``, ``prosac``, ``magsac``) on a match set.
+    """Model step ``name`` (one of :data:`~ctxmatch_lib.geometry.MODEL_STEPS`) on a match set.
 
-    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`);
-    ``estimator`` overrides the USAC settings of the robust steps (:func:`check_estimator`).
+    ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`), ``E`` for
+    the ``essential`` step, which needs ``intrinsics`` = ``(K1, K2)`` (a calibrated pair's
+    :class:`~ctxmatch_lib.datasets.PoseGT` gives them); ``estimator`` overrides the USAC settings of the
+    robust steps (:func:`check_estimator`).
     """
+    extra = {} if intrinsics is None else {"K1": intrinsics[0], "K2": intrinsics[1]}
     t0 = time.perf_counter()
     fit = apply_model_step(name, f1.kpts, f2.kpts, matches, scores, kind=model_kind_for(pair_kind),
-                           threshold=threshold, rng=rng, estimator=dict(estimator or ()))
+                           threshold=threshold, rng=rng, estimator=dict(estimator or ()), **extra)
     return fit, time.perf_counter() - t0
 
 
@@ -328,7 +338,7 @@ def run_matcher(name: str, f1: Features, f2: Features) -> tuple[np.ndarray, np.n
     return matches, scores, time.perf_counter() - t0
 
 
-def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr) -> dict:
+def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr, pts=None) -> dict:
     """The geometry columns of a row: how good the model of step ``model`` is against the pair's ground truth.
 
     ``inliers``: the estimator's inliers (USAC's inlier mask; for 1SAC the matches within its threshold);
@@ -336,18 +346,27 @@ def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr) -> dict:
     estimated ``H`` (``inf`` without a model); ``epi_share_*``: other pairs with ground-truth correspondences
     ``corr`` (:func:`~ctxmatch_lib.geometry_metrics.gt_correspondences`), the share consistent with the
     estimated ``F`` (:func:`~ctxmatch_lib.geometry_metrics.epipolar_consistency`; 0 without a model), its mean
-    over 1 ... 19 px and at :data:`EPI_SHARE_AT_PX`. NaN where a column does not apply (model ``none``).
+    over 1 ... 19 px and at :data:`EPI_SHARE_AT_PX`; ``pose_err_R``, ``pose_err_t``, ``pose_err``: calibrated
+    pairs (:class:`~ctxmatch_lib.datasets.PoseGT`), the rotation and translation-direction errors in degrees
+    of the relative pose recovered from the model and its inliers ``pts`` = ``(pts1, pts2)``, the matched
+    points given to the model step (:func:`~ctxmatch_lib.geometry.pose_from_model`: ``F`` through
+    ``E = K2^T F K1``, MiHo's AUC^F; ``E`` directly, its AUC^E), and their maximum (SuperGlue's pose error);
+    180° (:data:`~ctxmatch_lib.geometry.POSE_FAILURE_DEG`) without a model or a pose. NaN where a column does not apply (model ``none``).
     """
     nan = float("nan")
     out = {"model_inliers": nan, "corner_error": nan, "epi_share_mean": nan,
-           **{f"epi_share_{t}": nan for t in EPI_SHARE_AT_PX}}
+           **{f"epi_share_{t}": nan for t in EPI_SHARE_AT_PX}, **{c: nan for c in POSE_COLUMNS}}
     if model == "none" or fit is None:
         return out
     if fit.model is not None:
-        out["model_inliers"] = float(len(fit.sample) if model in ROBUST_STEPS else fit.keep.sum())
+        inliers = fit.sample if model in ROBUST_STEPS else np.flatnonzero(fit.keep)
+        out["model_inliers"] = float(len(inliers))
     else:
+        inliers = np.empty(0, np.int64)
         out["model_inliers"] = 0.0
-    if fit.kind == "H":
+    if isinstance(pair.gt, PoseGT):
+        out.update(_pose_columns(fit, inliers, pair.gt, pts))
+    elif fit.kind == "H":
         H_gt = getattr(pair.gt, "H", None)
         if H_gt is not None:
             out["corner_error"] = homography_corner_error(fit.model, H_gt, pair.image_size1)
@@ -358,6 +377,16 @@ def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr) -> dict:
         for t in EPI_SHARE_AT_PX:
             out[f"epi_share_{t}"] = float(share[np.flatnonzero(th == t)[0]])
     return out
+
+
+def _pose_columns(fit: ModelFit, inliers: np.ndarray, gt: PoseGT, pts) -> dict:
+    """The pose columns of :func:`model_accuracy`: errors in degrees, 180 without a model or a pose."""
+    pose = None
+    if fit.model is not None and pts is not None and len(inliers):
+        pose = pose_from_model(fit.model, fit.kind, pts[0][inliers], pts[1][inliers], gt.K1, gt.K2)
+    # Without a pose both errors are POSE_FAILURE_DEG (180°): a failure at every AUC threshold.
+    err_R, err_t = relative_pose_error(*(pose or (None, None)), gt.R, gt.t)
+    return {"pose_err_R": float(err_R), "pose_err_t": float(err_t), "pose_err": float(max(err_R, err_t))}
 
 
 def label_candidates(

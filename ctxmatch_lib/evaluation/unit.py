@@ -21,6 +21,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..blob import combine_ratios, rank_candidates
+from ..datasets.base import PoseGT
 from ..geometry_metrics import gt_correspondences
 from ..metrics import average_precision, evaluate_matches, normalised_count
 from .cache import FORMAT, candidate_sets, digest, engine_cache, features_digest, load_npz, save_npz
@@ -191,7 +192,8 @@ def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> li
                          "ap_star": average_precision(cm[final], cl[final], cs[final], d.ref_star),
                          "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
                          "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
-                         "model_time_s": t_model, **model_accuracy(model, fit, unit.pair, d.corr)})
+                         "model_time_s": t_model,
+                         **model_accuracy(model, fit, unit.pair, d.corr, _points(d, cm[keep]))})
     return rows
 
 
@@ -200,11 +202,21 @@ def _fit(d: _PairData, method: str, model: str, matches, scores, shared: bool):
     if shared and (method, model) in d.fits:
         return d.fits[method, model]
     unit = d.unit
+    gt = unit.pair.gt
     out = run_model(model, d.f1, d.f2, matches, scores, pair_kind=unit.pair.kind, threshold=unit.model_threshold,
-                    rng=d.rng_seed, estimator=unit.estimator)
+                    rng=d.rng_seed, estimator=unit.estimator,
+                    intrinsics=(gt.K1, gt.K2) if isinstance(gt, PoseGT) else None)
     if shared:
         d.fits[method, model] = out
     return out
+
+
+def _points(d: _PairData, matches: np.ndarray):
+    """The matched points ``(pts1, pts2)`` of ``matches`` (the relative pose of a calibrated pair needs
+    them), or ``None`` for other pairs."""
+    if not isinstance(d.unit.pair.gt, PoseGT):
+        return None
+    return d.f1.kpts[matches[:, 0]], d.f2.kpts[matches[:, 1]]
 
 
 def _matcher_sets(d: _PairData) -> dict:

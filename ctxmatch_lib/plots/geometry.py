@@ -11,11 +11,29 @@ import numpy as np
 
 from .eval import _label, method_style
 
-__all__ = ["MATCHER_LABELS", "method_name", "accuracy_column", "plot_accuracy_by_method", "plot_accuracy_vs_time",
-           "plot_cumulative_errors", "geometry_legend", "threshold_legend"]
+__all__ = ["MATCHER_LABELS", "MATCHER_STYLES", "method_name", "geometry_style", "accuracy_column",
+           "plot_accuracy_by_method", "plot_accuracy_vs_time", "plot_cumulative_errors", "geometry_legend",
+           "threshold_legend"]
 
 #: Display names of the OpenCV matchers (:mod:`ctxmatch_lib.opencv_matchers`).
 MATCHER_LABELS = {"opencv_ratio": "OpenCV ratio 0.8", "opencv_mnn": "OpenCV MNN"}
+#: Colour and marker of the OpenCV matchers: a grey that no filter wears (:data:`~ctxmatch_lib.plots.eval.
+#: METHOD_COLORS` has none), so the matcher a user would pick instead never looks like one of the filters it is
+#: compared with.
+MATCHER_STYLES = {"opencv_ratio": ("#8C8C8C", "X"), "opencv_mnn": ("#8C8C8C", "P")}
+
+
+def geometry_style(name: str) -> tuple[str, str]:
+    """``(colour, marker)`` of a method in the geometry figures: :data:`MATCHER_STYLES` for the OpenCV
+    matchers, the method's style of every other figure (:func:`~ctxmatch_lib.plots.eval.method_style`) for
+    the rest.
+
+    Examples
+    --------
+    >>> geometry_style("opencv_ratio") != geometry_style("dtm2")
+    True
+    """
+    return MATCHER_STYLES.get(name) or method_style(name)
 
 
 def method_name(name: str) -> str:
@@ -41,26 +59,33 @@ def accuracy_column(kind: str, auc_px: float = 5.0) -> tuple[str, str]:
     """
     if kind == "planar":
         return f"auc_{auc_px:g}px_pct", f"AUC of the corner error at {auc_px:g} px (%)"
+    if kind == "calibrated":
+        return "auc_5deg_pct", "AUC of the pose error at 5° (%)"
     return "epi_share_mean_pct", "GT correspondences consistent with F, mean 1-19 px (%)"
 
 
 #: Marker of each AUC threshold (px) in :func:`plot_accuracy_by_method`, and of the epipolar shares.
 THRESHOLD_MARKERS = {1: "|", 3: "o", 5: "s", 10: "D"}
+#: Marker of each AUC threshold of the pose error (degrees), calibrated pairs.
+POSE_MARKERS = {5: "^", 10: "v", 20: "*"}
 
 
 def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | None = None) -> list:
     """The model's accuracy per method, one row per method, best on top: for planar pairs the AUC of the
     corner error at 1, 3, 5 and 10 px (one marker per threshold, :data:`THRESHOLD_MARKERS`, on a line in the
-    method's colour), sorted by the AUC at 5 px; for other kinds the share of ground-truth correspondences
-    consistent with F at 1, 3, 5, 10 px and its mean over 1-19 px (the bar), sorted by the mean. Pairs left
-    without a model are written after the method's name. Nothing here depends on running times.
+    method's colour), sorted by the AUC at 5 px; for calibrated pairs the AUC of the pose error at 5, 10 and
+    20° (:data:`POSE_MARKERS`), sorted by the AUC at 5° then 10°; for other kinds the share of ground-truth
+    correspondences consistent with F at 1, 3, 5, 10 px and its mean over 1-19 px (the bar), sorted by the
+    mean. The method's own marker (:func:`geometry_style`) stands left of its row, so two methods of one colour
+    stay apart; pairs left without a model are written after the method's name. Nothing here depends on
+    running times.
 
     Parameters
     ----------
     ax : matplotlib Axes
     table : DataFrame
         :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model).
-    kind : {"planar", "nonplanar", "depth"}
+    kind : {"planar", "nonplanar", "depth", "calibrated"}
     model : str
         The model step whose rows are drawn.
     title : str, optional
@@ -71,35 +96,47 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
         The methods, top to bottom.
     """
     t = table.xs((kind, model), level=("kind", "model"))
-    planar = kind == "planar"
-    cols = {px: (f"auc_{px}px_pct" if planar else f"epi_share_{px}_pct") for px in THRESHOLD_MARKERS}
-    key = "auc_5px_pct" if planar else "epi_share_mean_pct"
-    t = t[t[key].notna()].sort_values(key, kind="stable")
+    planar, posed = kind == "planar", kind == "calibrated"
+    if posed:
+        markers = POSE_MARKERS
+        cols = {deg: f"auc_{deg}deg_pct" for deg in POSE_MARKERS}
+        keys = ["auc_5deg_pct", "auc_10deg_pct"]
+    else:
+        markers = THRESHOLD_MARKERS
+        cols = {px: (f"auc_{px}px_pct" if planar else f"epi_share_{px}_pct") for px in THRESHOLD_MARKERS}
+        keys = ["auc_5px_pct" if planar else "epi_share_mean_pct"]
+    t = t[t[keys[0]].notna()].sort_values(keys, kind="stable")
     for y, (method, row) in enumerate(t.iterrows()):
-        colour, _ = method_style(method)
+        colour, marker = geometry_style(method)
         vals = [row[c] for c in cols.values() if c in row.index and np.isfinite(row[c])]
-        if not planar:
-            ax.barh(y, row[key], height=0.55, color=colour, alpha=0.35, lw=0)
+        if not (planar or posed):
+            ax.barh(y, row[keys[0]], height=0.55, color=colour, alpha=0.35, lw=0)
         if vals:
             ax.plot([min(vals), max(vals)], [y, y], color=colour, lw=1.0, zorder=2)
-        for px, c in cols.items():
+        for th, c in cols.items():
             if c in row.index and np.isfinite(row[c]):
-                ax.plot(row[c], y, marker=THRESHOLD_MARKERS[px], ms=3.5, color=colour, mec=colour, ls="none",
-                        mfc="white" if px == 3 else colour, zorder=3)
+                ax.plot(row[c], y, marker=markers[th], ms=3.5, color=colour, mec=colour, ls="none",
+                        mfc="white" if th in (3, 10) else colour, zorder=3)
+        # The method's own marker, just left of the axis (transform: x in axes fraction, y in data).
+        ax.plot(-0.025, y, marker=marker, ms=3.2, color=colour, mec=colour, ls="none", clip_on=False,
+                transform=ax.get_yaxis_transform(), zorder=3)
     names = [method_name(m) + (f" ({int(r['no_model'])} w/o model)" if r["no_model"] else "") for m, r in t.iterrows()]
     ax.set_yticks(range(len(t)), names)
+    ax.tick_params(axis="y", pad=7)
     ax.set_ylim(-0.7, len(t) - 0.3)
     ax.set_xlim(0, 100)
-    ax.set_xlabel("AUC of the mean corner error (%)" if planar else "GT points consistent with F (%)")
+    ax.set_xlabel("AUC of the mean corner error (%)" if planar else
+                  "AUC of the pose error (%)" if posed else "GT points consistent with F (%)")
     ax.grid(True, axis="x", lw=0.4, alpha=0.5)
     if title:
         ax.set_title(title)
     return list(t.index)[::-1]
 
 
-def threshold_legend(fig_or_ax, **kwargs):
+def threshold_legend(fig_or_ax, *, pose: bool = False, **kwargs):
     """The key of :func:`plot_accuracy_by_method`'s markers: the threshold (px) of an AUC (planar) or of a
-    share (F), and the bar of the mean share over 1-19 px."""
+    share (F), the bar of the mean share over 1-19 px, and with ``pose`` the thresholds (degrees) of the
+    AUC of the pose error."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -108,6 +145,10 @@ def threshold_legend(fig_or_ax, **kwargs):
     labels = [f"at {px} px" for px in THRESHOLD_MARKERS]
     handles.append(Patch(color="0.2", alpha=0.35, lw=0))
     labels.append("F: mean share over 1-19 px")
+    if pose:
+        handles += [Line2D([], [], ls="none", marker=m, ms=4, color="0.2", mfc="white" if deg == 10 else "0.2")
+                    for deg, m in POSE_MARKERS.items()]
+        labels += [f"pose at {deg}°" for deg in POSE_MARKERS]
     return fig_or_ax.legend(handles, labels, **kwargs)
 
 
@@ -142,7 +183,7 @@ def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5
         x, y = float(row["geometry_time_s"]), float(row[col])
         if not (np.isfinite(x) and np.isfinite(y) and x > 0):
             continue
-        colour, marker = method_style(method)
+        colour, marker = geometry_style(method)
         ax.scatter(x, y, marker=marker, s=ms, c=[colour], edgecolors=colour, linewidths=0.3, zorder=3)
         pts.append((method, x, y))
     ax.set_xscale("log")
@@ -176,11 +217,13 @@ def plot_cumulative_errors(ax, rows, methods, *, model: str, max_px: float = 10.
         e = np.sort(rows.loc[(rows["method"] == method) & (rows["model"] == model), "corner_error"].to_numpy())
         if len(e) == 0:
             continue
-        colour, _ = method_style(method)
+        colour, marker = geometry_style(method)
         inside = e[e < max_px]
         x = np.r_[0.0, inside, max_px]
         y = np.r_[0.0, np.arange(1, len(inside) + 1), len(inside)] / len(e)
-        ax.plot(x, 100 * y, color=colour, lw=1.0, label=method_name(method))
+        # The method's marker at the curve's end: two methods of one colour stay apart.
+        ax.plot(x, 100 * y, color=colour, lw=1.0, label=method_name(method), marker=marker, ms=3.5,
+                markevery=[len(x) - 1], clip_on=False)
         out[method] = len(inside) / len(e)
     ax.set_xlim(0, max_px)
     ax.set_ylim(0, 100)
@@ -198,7 +241,7 @@ def geometry_legend(fig_or_ax, methods, ms: float = 5, **kwargs):
 
     handles, labels = [], []
     for m in methods:
-        colour, marker = method_style(m)
+        colour, marker = geometry_style(m)
         handles.append(Line2D([], [], ls="-", lw=1.0, color=colour, marker=marker, ms=ms, mfc=colour, mec=colour))
         labels.append(method_name(m))
     return fig_or_ax.legend(handles, labels, **kwargs)

@@ -1,0 +1,158 @@
+"""Calibrated pairs at a lower resolution: images downscaled by an integer factor, intrinsics to match.
+
+The paper's pixel thresholds (15 px for the ground truth, the filters' own radii) were set on images about
+1000 px wide (Sec. 5.1), and SIFT's cost grows with the pixel count. :func:`downscale_pairs` turns pairs with
+:class:`~ctxmatch_lib.datasets.base.PoseGT` at, e.g., Strecha's 3072 × 2048 into the same pairs at
+1536 × 1024 (``factor=2``): each image is reduced once by averaging ``factor × factor`` blocks of its grey
+levels in integer arithmetic (exact, so the same bytes on every machine and CPU) and written as PNG into
+the ``datasets`` cache; the pose is unchanged and ``K`` is mapped to the new pixel grid. The pixel
+convention is kept: (0, 0) is the centre of the top-left pixel, so an image-1 point ``x`` becomes
+``(x + 0.5) / factor - 0.5``.
+
+The registered dataset ``strecha-half`` (:func:`~ctxmatch_lib.datasets.load_dataset`) is Strecha's
+calibrated pairs at half resolution; the paper-scale gallery evaluates it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .base import Pair, PoseGT
+
+__all__ = ["downscale_image", "downscale_intrinsics", "downscale_pairs"]
+
+#: The image width the paper's pixel thresholds were set on (Sec. 5.1: images about 1000 px wide).
+PAPER_IMAGE_SIDE = 1024
+
+
+def downscale_image(img: np.ndarray, factor: int) -> np.ndarray:
+    """Mean of each ``factor × factor`` block of a uint8 image, rounded half up, in integer arithmetic.
+
+    Rows and columns beyond the last whole block are dropped.
+
+    Parameters
+    ----------
+    img : ndarray of shape (H, W), uint8
+    factor : int
+        At least 1.
+
+    Returns
+    -------
+    ndarray of shape (H // factor, W // factor), uint8
+
+    Examples
+    --------
+    >>> downscale_image(np.array([[0, 1, 10, 10], [2, 3, 10, 11]], np.uint8), 2)
+    array([[ 2, 10]], dtype=uint8)
+    """
+    img = np.asarray(img)
+    if img.ndim != 2 or img.dtype != np.uint8:
+        raise ValueError(f"img must be a 2-D uint8 image, got {img.dtype} {img.shape}")
+    _check_factor(factor)
+    h, w = img.shape[0] // factor, img.shape[1] // factor
+    if h == 0 or w == 0:
+        raise ValueError(f"img of {img.shape[1]} x {img.shape[0]} px is smaller than factor {factor}")
+    blocks = img[: h * factor, : w * factor].astype(np.int64).reshape(h, factor, w, factor).sum(axis=(1, 3))
+    n = factor * factor
+    return ((blocks + n // 2) // n).astype(np.uint8)
+
+
+def downscale_intrinsics(K, factor: int) -> np.ndarray:
+    """``K`` of an image downscaled by ``factor`` (:func:`downscale_image`), pixel centres at integers.
+
+    A point ``x`` of the original image is ``(x + 0.5) / factor - 0.5`` in the downscaled one, so
+    ``K' = A K`` with ``A = [[1/f, 0, (1/f - 1)/2], [0, 1/f, (1/f - 1)/2], [0, 0, 1]]``.
+
+    Examples
+    --------
+    >>> downscale_intrinsics(np.array([[100.0, 0, 49.5], [0, 100, 29.5], [0, 0, 1]]), 2)
+    array([[50. ,  0. , 24.5],
+           [ 0. , 50. , 14.5],
+           [ 0. ,  0. ,  1. ]])
+    """
+    _check_factor(factor)
+    s = 1.0 / factor
+    A = np.array([[s, 0.0, (s - 1.0) / 2], [0.0, s, (s - 1.0) / 2], [0.0, 0.0, 1.0]])
+    return A @ np.asarray(K, np.float64)
+
+
+def _check_factor(factor) -> None:
+    if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
+        raise ValueError(f"factor must be a positive integer, got {factor!r}")
+
+
+def _downscaled_file(image: Path, factor: int, folder: Path) -> Path:
+    """The downscaled copy of ``image`` in ``folder``, written on first use (atomically)."""
+    from ..features import load_image
+
+    # Named by the source path and size, so two scenes with the same file names never collide and an edited
+    # source gets a new copy.
+    st = image.stat()
+    key = hashlib.sha256(f"{image.resolve()}|{st.st_size}|{factor}".encode()).hexdigest()[:16]
+    out = folder / f"{image.stem}-{key}.png"
+    if out.is_file():
+        return out
+    import cv2
+
+    small = downscale_image(load_image(image, gray=True), factor)
+    ok, buf = cv2.imencode(".png", small)
+    if not ok:
+        raise ValueError(f"cannot encode the downscaled copy of {image}")
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".png")
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(buf.tobytes())
+    os.replace(tmp, out)
+    return out
+
+
+def downscale_pairs(pairs, factor: int = 2, *, folder=None, suffix: str = "half") -> list[Pair]:
+    """Calibrated pairs with their images downscaled by ``factor`` and their intrinsics mapped to match.
+
+    Parameters
+    ----------
+    pairs : iterable of Pair
+        Pairs whose ground truth is :class:`~ctxmatch_lib.datasets.base.PoseGT`.
+    factor : int
+        Integer downscaling factor (2: 3072 × 2048 -> 1536 × 1024).
+    folder : str or Path, optional
+        Where the downscaled images go (default: ``<cache>/datasets/downscaled-<factor>``).
+    suffix : str
+        Appended to each pair's dataset name (``strecha`` -> ``strecha-half``), so the rows of both
+        resolutions never mix.
+
+    Returns
+    -------
+    list of Pair
+        The same pairs and ids, images in ``folder``, ``K1``/``K2`` by :func:`downscale_intrinsics`,
+        ``threshold_scale`` = the longer side / :data:`PAPER_IMAGE_SIDE`.
+
+    Raises
+    ------
+    ValueError
+        A pair without :class:`PoseGT` (a homography or a flow field would need rescaling too), or a bad
+        ``factor``.
+    """
+    from .._paths import cache_dir
+
+    _check_factor(factor)
+    folder = Path(folder) if folder is not None else cache_dir("datasets") / f"downscaled-{factor}"
+    out = []
+    for p in pairs:
+        if not isinstance(p.gt, PoseGT):
+            raise ValueError(f"pairs: {p.pair_id} has {type(p.gt).__name__}, only PoseGT pairs can be downscaled")
+        im1, im2 = (_downscaled_file(Path(im), factor, folder) for im in (p.image1, p.image2))
+        size1 = (p.image_size1[0] // factor, p.image_size1[1] // factor)
+        size2 = (p.image_size2[0] // factor, p.image_size2[1] // factor)
+        gt = dataclasses.replace(p.gt, K1=downscale_intrinsics(p.gt.K1, factor),
+                                 K2=downscale_intrinsics(p.gt.K2, factor),
+                                 threshold_scale=max(*size1, *size2) / PAPER_IMAGE_SIDE)
+        out.append(dataclasses.replace(p, image1=im1, image2=im2, image_size1=size1, image_size2=size2, gt=gt,
+                                       dataset=f"{p.dataset}-{suffix}" if p.dataset else suffix))
+    return out
