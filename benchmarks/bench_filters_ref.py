@@ -5,7 +5,10 @@ on the SAME blob candidates of the shared real pairs (``CTXMATCH_DATA``; dataset
 ``--pairs N`` pairs evenly spread over each by :func:`ctxmatch_lib.evaluation.select_pairs`). Configurations
 (``--configs``): ``baseline`` = SIFT + RootSIFT features with the ``baseline`` blob preset, ``best`` = HarrisZ +
 SOSNet (stand-in) with ``paper-best-overlap``, both at ``--max-keypoints paper`` (1500). Labels are the library's
-ground truth (method D, :func:`~ctxmatch_lib.evaluation.steps.label_candidates`).
+ground truth (method D, :func:`~ctxmatch_lib.evaluation.steps.label_candidates`). Both sides get the candidate rows
+in their canonical order (:func:`ctxmatch_lib.filters._common.canonical_order`: score, keypoint coordinates,
+keypoint indices), the order our filters decide in whatever order they are given, so a reference that depends on
+the order of its rows sees the rows as our filter's core sees them.
 
 References (each runs in its own process, with its own interpreter, through a small driver written to a temp
 dir; inputs and outputs travel as ``.npz``; the reference is never imported here and never a dependency):
@@ -510,6 +513,7 @@ def _inputs(dataset: str, config: str, n_pairs: int, max_keypoints):
     from ctxmatch_lib.evaluation import select_pairs
     from ctxmatch_lib.evaluation.steps import blob_candidates, label_candidates, pair_features
     from ctxmatch_lib.features import FEATURE_PRESETS, keypoint_budget
+    from ctxmatch_lib.filters._common import canonical_order
 
     feat, blob = CONFIGS[config]
     fcfg = FEATURE_PRESETS[feat]
@@ -519,6 +523,9 @@ def _inputs(dataset: str, config: str, n_pairs: int, max_keypoints):
     for pair in select_pairs(dataset, select=n_pairs):
         f1, f2 = pair_features(pair, fcfg)
         matches, scores, _ = blob_candidates(f1, f2, BLOB_PRESETS[blob])
+        # The canonical order of the rows (the order our filters decide in) for both sides.
+        order, _ = canonical_order(f1.kpts[matches[:, 0], :2], f2.kpts[matches[:, 1], :2], matches, scores)
+        matches, scores = matches[order], scores[order]  # the scores keep their blob ratio
         labels = label_candidates(pair, f1, f2, matches)
         yield pair, f1, f2, matches, scores, labels
 

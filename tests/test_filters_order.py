@@ -181,3 +181,61 @@ def test_canonical_order_depends_on_the_set_only():
     back = spread_back(keep, order, twins)
     np.testing.assert_array_equal(back[order], (np.bincount(twins, weights=keep) > 0)[twins])
     assert canonical_order(np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.int64), np.empty(0))[1] is None
+
+
+# ----- no silent empty mask without the keypoint shapes --------------------------------------------------
+
+
+def _quiet_call(name: str, d: dict, *, shapes: bool):
+    """``(keep or None, messages)``: the mask (None when a ValueError was raised) and every warning's or the
+    error's message."""
+    f = FILTERS[name]
+    params = {"ratio": d["ratio"]} if "ratio" in d and getattr(f, "uses_blob_ratio", False) else {}
+    sh = dict(shapes1=d.get("shapes1"), shapes2=d.get("shapes2")) if shapes else {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            keep = f(d["kpts1"], d["kpts2"], d["matches"], d["scores"], image_size1=d["image_size1"],
+                     image_size2=d["image_size2"], **sh, **params)
+        except ValueError as exc:
+            return None, [str(exc)]
+    return keep, [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("key", [k for k in REAL_KEYS if k.endswith("@paper-best")])
+@pytest.mark.parametrize("name", NAMES)
+def test_without_shapes_a_filter_decides_or_names_them(name, key, real_sets):
+    """Called as the README calls DTM (no shapes), a filter keeps something, or keeps nothing as it does with
+    the shapes, or says that it needs them: never an empty mask that reads as a verdict."""
+    d = real_sets[key]
+    bare, said = _quiet_call(name, d, shapes=False)
+    if bare is not None and bare.any():
+        return
+    if any("shapes1" in m for m in said):
+        return
+    keep, _ = _quiet_call(name, d, shapes=True)
+    assert not keep.any(), (f"{name} keeps nothing of {key} without shapes1 / shapes2 ({int(keep.sum())} with "
+                            "them) and says nothing")
+
+
+def _many_to_many(seed: int = 0, n: int = 400, partners: int = 3):
+    """Planted one-to-one candidates, and every image-1 keypoint matched to ``partners`` more random image-2
+    keypoints (as blob matching's many-to-many candidates)."""
+    pm = planted_homography_matches(n, 0.6, informative_scores=True, image_size=SIZE, rng=seed)
+    rng = np.random.default_rng(seed)
+    extra = np.c_[np.repeat(pm.matches[:, 0], partners), rng.integers(0, len(pm.kpts2), partners * n)]
+    return pm, np.vstack([pm.matches, extra]), np.r_[pm.scores, rng.uniform(size=len(extra))]
+
+
+def test_pfm_without_shapes_on_many_to_many_candidates_warns_naming_them():
+    pm, m, s = _many_to_many()
+    rng = np.random.default_rng(1)
+    sh1, sh2 = _shapes(len(pm.kpts1), rng), _shapes(len(pm.kpts2), rng)
+    with pytest.warns(UserWarning, match="shapes1 / shapes2"):
+        FILTERS["pfm"](pm.kpts1, pm.kpts2, m, s, image_size1=SIZE, image_size2=SIZE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        FILTERS["pfm"](pm.kpts1, pm.kpts2, m, s, image_size1=SIZE, image_size2=SIZE, shapes1=sh1, shapes2=sh2)
+        # One-to-one candidates: the maps fitted to shared neighbours decide, without a warning.
+        keep = FILTERS["pfm"](pm.kpts1, pm.kpts2, pm.matches, pm.scores, image_size1=SIZE, image_size2=SIZE)
+    assert pm.is_inlier[keep].mean() > 0.9 and keep[pm.is_inlier].mean() > 0.8
