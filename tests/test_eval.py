@@ -333,7 +333,7 @@ def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
     (["--jobs", "2", "--dask", "tcp://localhost:8786"], "--dask"),
     (["--filters", "all,nope"], "--filters: 'all' and 'none' stand alone"),
     (["--pairs", "no-such-pair"], "--pairs: unknown pair ids"),
-    (["--kind", "planar,flat"], "--kind must be among planar, nonplanar, depth, got flat"),
+    (["--kind", "planar,flat"], "--kind must be among planar, nonplanar, depth, calibrated, got flat"),
     (["--gt", "Z"], None),
 ])
 def test_cli_eval_validates_before_any_work(tiny_dataset, tmp_path, monkeypatch, capsys, argv, message):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 
+from ..datasets.base import PAIR_KINDS
 from ..evaluation.frontends import check_output
 
 
@@ -46,7 +47,8 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--model", default=model,
                    help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC, 3 px), prosac (MAGSAC++ "
                         "with PROSAC sampling by score, 3 px), magsac (USAC_MAGSAC with fb82/MiHo's 1 px, 0.9999, "
-                        f"100000 iterations); rows with a model carry its accuracy (default: {model})")
+                        "100000 iterations), essential (the same on E, points normalised by K: calibrated pairs "
+                        f"only); rows with a model carry its accuracy (default: {model})")
     p.add_argument("--matchers", default="none",
                    help="comma-separated alternative matchers evaluated as methods on the same descriptors: "
                         "opencv_ratio (BFMatcher.knnMatch + Lowe's 0.8 ratio), opencv_mnn (mutual nearest "
@@ -59,7 +61,8 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
                    help="USAC iteration cap of the ransac/prosac/magsac steps (default: each step's preset)")
     p.add_argument("--pairs", default=None,
                    help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
-    p.add_argument("--kind", default=None, help="comma-separated pair kinds to keep: planar, nonplanar, depth")
+    p.add_argument("--kind", default=None,
+                   help="comma-separated pair kinds to keep: planar, nonplanar, depth, calibrated")
     p.add_argument("--gt", default="D", choices=list(GT_METHODS), help="ground-truth method (default: D)")
     p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px for --gt D and A (default: 15)")
     p.add_argument("--model-threshold", type=float, default=15.0,
@@ -155,9 +158,9 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         if pairs == 0:
             return None, "--pairs must be a positive number of pairs or pair ids, got 0"
     kinds = csv(args.kind) if args.kind else None
-    unknown = sorted(set(kinds or ()) - {"planar", "nonplanar", "depth"})
+    unknown = sorted(set(kinds or ()) - set(PAIR_KINDS))
     if unknown:
-        return None, f"--kind must be among planar, nonplanar, depth, got {', '.join(unknown)}"
+        return None, f"--kind must be among {', '.join(PAIR_KINDS)}, got {', '.join(unknown)}"
     for cfg in out["--features"].values():
         try:
             cfg.key()  # a deep preset fails here, before any work, if its weights are missing
