@@ -204,7 +204,7 @@ def test_cache_is_config_keyed(tmp_path, gray):
             FeatureConfig(patch_radius=2.0).key()}
     assert len(keys) == 5
     # Stable across calls and processes (no id() or hash randomisation inside).
-    assert FeatureConfig().key() == FeatureConfig().key() == "sift-rootsift-k8000-v1-441d0e9b"
+    assert FeatureConfig().key() == FeatureConfig().key() == "sift-rootsift-k8000-v2-441d0e9b"
     assert all(ch.isalnum() or ch in "-_." for ch in FeatureConfig(upright=True).key())
 
 
@@ -326,7 +326,7 @@ def test_default_cache_is_the_users_cache_dir(tmp_path, monkeypatch):
 
 def test_new_fields_keep_the_old_keys_and_validate():
     # The SIFT keys (and so their cache entries) do not change with the fields added for the other presets.
-    assert FeatureConfig().key() == "sift-rootsift-k8000-v1-441d0e9b"
+    assert FeatureConfig().key() == "sift-rootsift-k8000-v2-441d0e9b"
     assert FeatureConfig(orientation="none").key() != FeatureConfig().key()
     assert FeatureConfig(detector="harrisz").resolved_orientation() == "dominant"
     assert FeatureConfig(descriptor="rootsgloh2").resolved_orientation() == "none"

@@ -14,9 +14,17 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from threadpoolctl import threadpool_limits
 
+from .. import _fixedmath
+
 __all__ = ["conv2d", "tfeat", "hardtfeat", "orinet", "pyramid_patches", "NETS"]
 
 _F32 = np.float32
+
+
+def _tanh(x: np.ndarray) -> np.ndarray:
+    """float32 ``tanh`` computed in float64 by :func:`ctxmatch_lib._fixedmath.tanh` and rounded once:
+    numpy's float32 ``tanh`` follows its SIMD loop (AVX-512, AVX2 and baseline loops differ in the last bit)."""
+    return _fixedmath.tanh(x).astype(_F32)
 
 
 # ------------------------------------------------------------------------------------------- layers
@@ -114,10 +122,10 @@ def tfeat(p: dict, patches: np.ndarray) -> np.ndarray:
     Instance normalisation of the patch, 7×7 conv + tanh, 2×2 max pool, 6×6 conv + tanh, linear + tanh.
     """
     x = _standardise(patches, 1e-5, unbiased=False, inside=True)
-    x = np.tanh(_max_pool2(conv2d(x, p["features.1.weight"], p["features.1.bias"])))  # tanh is monotonic
-    x = np.tanh(conv2d(x, p["features.4.weight"], p["features.4.bias"]))
+    x = _tanh(_max_pool2(conv2d(x, p["features.1.weight"], p["features.1.bias"])))  # tanh is monotonic
+    x = _tanh(conv2d(x, p["features.4.weight"], p["features.4.bias"]))
     flat = x.transpose(0, 3, 1, 2).reshape(len(x), -1)  # torch's (C, H, W) flattening
-    return np.tanh(_product(flat, p["descr.0.weight"].T) + p["descr.0.bias"])
+    return _tanh(_product(flat, p["descr.0.weight"].T) + p["descr.0.bias"])
 
 
 @_chunked
@@ -128,9 +136,9 @@ def hardtfeat(p: dict, patches: np.ndarray) -> np.ndarray:
     then an 8×8 convolution to 128 channels and tanh (the authors' ``HardTFeatNet``).
     """
     x = _standardise(patches, 1e-7, unbiased=True, inside=False)
-    x = np.tanh(_max_pool2(conv2d(x, p["features.0.weight"], p["features.0.bias"])))  # tanh is monotonic
-    x = np.tanh(conv2d(x, p["features.3.weight"], p["features.3.bias"]))
-    return np.tanh(conv2d(x, p["classifier.1.weight"], p["classifier.1.bias"]).reshape(len(x), -1))
+    x = _tanh(_max_pool2(conv2d(x, p["features.0.weight"], p["features.0.bias"])))  # tanh is monotonic
+    x = _tanh(conv2d(x, p["features.3.weight"], p["features.3.bias"]))
+    return _tanh(conv2d(x, p["classifier.1.weight"], p["classifier.1.bias"]).reshape(len(x), -1))
 
 
 #: (conv index, stride) of OriNet's six conv + batch norm + ReLU layers (3×3, padding 1, no bias).
@@ -148,8 +156,8 @@ def orinet(p: dict, patches: np.ndarray) -> np.ndarray:
     for i, stride in _ORINET_LAYERS:
         x = conv2d(x, p[f"features.{i}.weight"], stride=stride, padding=1)
         x = np.maximum(_batch_norm(p, f"features.{i + 1}", x), _F32(0))
-    xy = np.tanh(conv2d(x, p["features.19.weight"], p["features.19.bias"], padding=1)).mean(axis=(1, 2))
-    return np.arctan2(xy[:, 0] + _F32(1e-8), xy[:, 1] + _F32(1e-8))
+    xy = _tanh(conv2d(x, p["features.19.weight"], p["features.19.bias"], padding=1)).mean(axis=(1, 2))
+    return _fixedmath.atan2(xy[:, 0] + _F32(1e-8), xy[:, 1] + _F32(1e-8)).astype(_F32)
 
 
 NETS = {"tfeat": tfeat, "hardtfeat": hardtfeat, "orinet": orinet}
@@ -227,9 +235,12 @@ def pyramid_patches(img: np.ndarray, kpts: np.ndarray, A: np.ndarray, ps: int = 
     px = kpts[:, 0, None, None] + A[:, 0, 0, None, None] * u[None, None, :] + A[:, 0, 1, None, None] * u[None, :, None]
     py = kpts[:, 1, None, None] + A[:, 1, 0, None, None] * u[None, None, :] + A[:, 1, 1, None, None] * u[None, :, None]
     sizes = _levels(h, w, ps)
-    scale = np.sqrt(np.abs(np.linalg.det(A)) + 1e-10)
-    with np.errstate(divide="ignore"):
-        level = np.clip(np.floor(np.log2(2 * scale / ps)), 0, len(sizes) - 1).astype(np.int64)
+    # The determinant written out (LAPACK's rounds by BLAS kernel) and the level from the binary exponent,
+    # exactly (np.log2's last bit follows numpy's SIMD loop); a non-finite frame gets level 0.
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    scale = np.sqrt(np.abs(det) + 1e-10)
+    arg = 2 * scale / ps
+    level = np.clip(_fixedmath.floor_log2(np.where(np.isfinite(arg), arg, 1.0)), 0, len(sizes) - 1)
     out = np.zeros((len(kpts), ps, ps), np.float32)
     ok = np.isfinite(px).all(axis=(1, 2)) & np.isfinite(py).all(axis=(1, 2))  # a non-finite frame: zero patch
     cur = img

@@ -18,8 +18,9 @@ __all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FE
 
 
 # Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
-# every cache keyed on it (features, sweep units) is then recomputed.
-_CACHE_FORMAT = 1
+# every cache keyed on it (features, sweep units) is then recomputed. 2: frames, orientations and descriptors
+# computed with CPU-independent elementary functions (``ctxmatch_lib._fixedmath``).
+_CACHE_FORMAT = 2
 
 
 _DETECTORS = ("sift", "harrisz")
@@ -141,7 +142,7 @@ class FeatureConfig:
         Examples
         --------
         >>> FeatureConfig().key()
-        'sift-rootsift-k8000-v1-441d0e9b'
+        'sift-rootsift-k8000-v2-441d0e9b'
         """
         items = sorted((k, v) for k, v in asdict(self).items() if not (k in _NEW_FIELDS and v == _NEW_FIELDS[k]))
         # The weights enter by content: another file under the same name is another configuration.

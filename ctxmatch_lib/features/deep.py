@@ -303,6 +303,7 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
     if n == 0:
         return np.empty(0)
     if _use_numpy(backend, weights, "orinet"):
+        from .. import _fixedmath
         from . import _nn
 
         _, params = load_numpy_net(weights, "orinet")
@@ -313,7 +314,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
             patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
             a = _nn.orinet(params, patches).astype(np.float64)
             # kornia turns the LAF by R_k(a) = [[cos, sin], [-sin, cos]], i.e. R(-a) in our convention.
-            out[s : s + batch] = np.arctan2(-np.sin(a), np.cos(a))
+            sin, cos = _fixedmath.sincos(a)  # not numpy's sin / cos / arctan2: their last bit follows the CPU
+            out[s : s + batch] = _fixedmath.atan2(-sin, cos)
         return out
     _require_torch()
     import torch

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._fixedmath import opencv_baseline
 from .base import Features
 from .config import _DEEP, FeatureConfig
 from .io import _image_size
@@ -25,12 +26,14 @@ def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) 
     ori = config.resolved_orientation()
     metric = "sgloh2" if config.descriptor == "rootsgloh2" else "l2"
     dim = 256 if metric == "sgloh2" else 128
-    if gray.size == 0 or min(gray.shape) < 8:
-        feats = Features.empty(dim, metric)
-    elif config.detector == "sift" and config.descriptor in ("rootsift", "sift") and ori in ("sift", "none"):
-        feats = _extract_sift(gray, config, upright=ori == "none")
-    else:
-        feats = _extract_patches(gray, config, ori, metric, dim, memo)
+    # OpenCV's baseline code on every CPU: its SIMD builds and IPP move SIFT's keypoints and descriptors.
+    with opencv_baseline():
+        if gray.size == 0 or min(gray.shape) < 8:
+            feats = Features.empty(dim, metric)
+        elif config.detector == "sift" and config.descriptor in ("rootsift", "sift") and ori in ("sift", "none"):
+            feats = _extract_sift(gray, config, upright=ori == "none")
+        else:
+            feats = _extract_patches(gray, config, ori, metric, dim, memo)
     # Every detector path ends here: the size is set once, for empty results too.
     return replace(feats, image_size=_image_size(gray))
 

@@ -127,19 +127,23 @@ def _subpixel(resp: np.ndarray, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarra
 
 def _ellipses(mxx, myy, mxy, major: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Symmetric affine shapes ∝ M^{-1/2} with major semi-axis ``major``; also sqrt(λ_min / λ_max)."""
-    # The 2x2 eigen decomposition in closed form, elementwise (LAPACK's eigh and a batched matmul go through
-    # BLAS, whose kernel changes the last bits with the CPU; issue 31): eigenvalues t -/+ r, the larger one's
-    # eigenvector at the angle phi, the smaller one's perpendicular to it.
+    # The 2x2 eigen decomposition in closed form, elementwise and without trigonometry: LAPACK's eigh and a
+    # batched matmul go through BLAS, whose kernel rounds by CPU, and numpy's arctan2 / cos / sin by its
+    # SIMD loop. The eigenvalues are t -/+ r; the larger one's eigenvector (c, s) makes the angle phi with
+    # cos 2phi = (mxx - myy) / 2r and sin 2phi = mxy / r, so c², s² and cs follow from half-angle identities.
+    half_diff = 0.5 * (mxx - myy)
     t = 0.5 * (mxx + myy)
-    r = np.hypot(0.5 * (mxx - myy), mxy)
+    r = np.sqrt(half_diff * half_diff + mxy * mxy)
     lam_min, lam_max = np.maximum(t - r, 1e-300), np.maximum(t + r, 1e-300)
     ratio = np.sqrt(lam_min / lam_max)
-    phi = 0.5 * np.arctan2(2.0 * mxy, mxx - myy)
-    c, s = np.cos(phi), np.sin(phi)
+    iso = r == 0  # a circle: any axes (phi = 0)
+    rr = np.where(iso, 1.0, r)
+    cos2, sin2 = np.where(iso, 1.0, half_diff / rr), np.where(iso, 0.0, mxy / rr)
+    cc, ss, cs = 0.5 * (1.0 + cos2), 0.5 * (1.0 - cos2), 0.5 * sin2
     # A = major (v_min v_min' + ratio v_max v_max') with v_max = (c, s), v_min = (-s, c).
-    a_xx = major * (s * s + ratio * (c * c))
-    a_yy = major * (c * c + ratio * (s * s))
-    a_xy = major * ((ratio - 1.0) * (c * s))
+    a_xx = major * (ss + ratio * cc)
+    a_yy = major * (cc + ratio * ss)
+    a_xy = major * ((ratio - 1.0) * cs)
     A = np.stack([np.stack([a_xx, a_xy], -1), np.stack([a_xy, a_yy], -1)], -2)
     return A, ratio
 

@@ -12,14 +12,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._fixedmath import atan2, exp, floor_log2, hypot, sincos
+
 __all__ = ["extract_patches", "rotation_shapes", "dominant_orientation", "sift_from_patches"]
 
 
 def rotation_shapes(shapes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """``A @ R(θ)``: the same ellipses with their first axis turned by ``θ`` (radians, image frame)."""
-    c, s = np.cos(angles), np.sin(angles)
+    s, c = sincos(angles)  # not np.sin / np.cos, whose last bit follows numpy's SIMD loop
     A = np.asarray(shapes, np.float64)
-    # Elementwise, not a batched matmul: BLAS would round by its CPU kernel (issue 31).
+    # Elementwise, not a batched matmul: BLAS would round by its CPU kernel.
     col0 = A[..., 0] * c[..., None] + A[..., 1] * s[..., None]
     col1 = A[..., 1] * c[..., None] - A[..., 0] * s[..., None]
     return np.stack([col0, col1], -1)
@@ -85,10 +87,11 @@ def extract_patches(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, size
     T = support * shapes
     # Sampling step in image pixels per patch pixel: the larger singular value of T, over radius.
     fro = np.sum(T * T, axis=(1, 2))
-    det = np.linalg.det(T)
+    det = T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]  # not LAPACK's, which rounds by BLAS kernel
     smax = np.sqrt(np.maximum(0.5 * (fro + np.sqrt(np.maximum(fro * fro - 4 * det * det, 0))), 0))
     step = smax / float(radius)
-    level = np.clip(np.floor(np.log2(np.maximum(step, 1e-12))), 0, 30).astype(np.int64)
+    # The pyramid level from the binary exponent, exactly (np.log2's last bit follows numpy's SIMD loop).
+    level = np.clip(floor_log2(np.maximum(step, 1e-12)), 0, 30)
     pyr = _pyramid(img, int(level.max()))
     level = np.minimum(level, len(pyr) - 1)
     for lv in np.unique(level):
@@ -139,9 +142,11 @@ def dominant_orientation(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray,
     off = np.arange(size - 2) - (size - 3) / 2
     ux, uy = np.meshgrid(off, off)
     r2 = (ux ** 2 + uy ** 2) / rad ** 2
-    w = np.exp(-r2 / (2 * (1 / 8 * 2) ** 2)) * (r2 <= (3 / 8 * 2) ** 2)  # σ_w = 0.25, reach 0.75 in u
-    mag = np.hypot(gx, gy) * w
-    pos = (np.arctan2(gy, gx) % (2 * np.pi)) * (n_bins / (2 * np.pi))
+    # Weights, magnitudes and angles from CPU-independent functions (_fixedmath): the angles are binned
+    # and the histogram's peak decides, so their last bits must not follow numpy's SIMD loops.
+    w = exp(-r2 / (2 * (1 / 8 * 2) ** 2)) * (r2 <= (3 / 8 * 2) ** 2)  # σ_w = 0.25, reach 0.75 in u
+    mag = hypot(gx, gy) * w
+    pos = (atan2(gy, gx) % (2 * np.pi)) * (n_bins / (2 * np.pi))
     lo = np.floor(pos).astype(np.int64)
     frac = pos - lo
     hist = np.zeros((n, n_bins))

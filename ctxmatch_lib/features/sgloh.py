@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._fixedmath import atan2, exp, hypot
+
 __all__ = [
     "SGLOH_DIM", "sgloh_descriptors", "sgloh_from_patches", "sgloh_rotate", "SGLOH2Distance",
     "sgloh_distance_matrix",
@@ -43,23 +45,28 @@ def _region_maps() -> tuple[np.ndarray, np.ndarray]:
 
     Computed on one quadrant and rotated, so a 90° turn of the grid is an exact relabelling
     (sector + 2 for both halves) even for pixels on the sector boundaries; the centre pixel belongs to no
-    sector (it cannot follow a rotation).
+    sector (it cannot follow a rotation). Rings and sectors are decided in integers (no ``hypot`` or
+    ``arctan2``, whose last bit follows the CPU, on the 45° diagonal where φ / s is exactly 1).
     """
     R = _PATCH_RADIUS
     off = np.arange(-R, R + 1)
     x, y = np.meshgrid(off, off)  # x along columns, y along rows (down)
-    rho = np.hypot(x, y)
+    rho2 = x * x + y * y
     ring = np.full(x.shape, -1, np.int64)
     for i in reversed(range(len(_RINGS))):
-        ring[rho <= _RINGS[i]] = i
+        ring[rho2 <= int(_RINGS[i]) ** 2] = i
     ring[R, R] = -1
-    s = 2 * np.pi / _M
     sector = np.zeros((2,) + x.shape, np.int64)
     q = (x > 0) & (y >= 0)  # quadrant of φ in [0, π/2)
-    phi = np.arctan2(y[q], x[q])
+    xq, yq = x[q], y[q]
+    # Half 0: φ >= π/4 iff y >= x. Half 1 (boundaries at π/8 and 3π/8, tan = √2 ∓ 1): φ >= π/8 iff
+    # (x + y)² >= 2x², φ >= 3π/8 iff y - x >= 0 and (y - x)² >= 2x²; integers never sit on those lines.
+    labels = [(yq >= xq).astype(np.int64),
+              np.where((yq - xq >= 0) & ((yq - xq) ** 2 >= 2 * xq * xq), 1,
+                       np.where((xq + yq) ** 2 >= 2 * xq * xq, 0, _M - 1))]
     for k in range(2):
-        lab = np.floor(phi / s - k / 2).astype(np.int64) % _M
-        xs, ys = x[q], y[q]
+        lab = labels[k]
+        xs, ys = xq, yq
         for t in range(4):  # (x, y) -> (-y, x) turns φ by +π/2, i.e. two sectors
             sector[k, ys + R, xs + R] = (lab + 2 * t) % _M
             xs, ys = -ys, xs
@@ -108,16 +115,18 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
         for r in range(n_reg):
             c = np.arange(_M) + (r % _M) + k / 2
             d = np.mod(f_pos[:, None] - c[None, :] + _M / 2, _M) - _M / 2
-            kern[k, r] = np.exp(-(d * d) / (2 * _BIN_SIGMA ** 2))
+            kern[k, r] = exp(-(d * d) / (2 * _BIN_SIGMA ** 2))  # not np.exp: its last bit follows the CPU
     s = 2 * np.pi / _M
     for c0 in range(0, n, chunk):
         q = p[c0 : c0 + chunk]
         gx = (q[:, 1:-1, 2:] - q[:, 1:-1, :-2])[:, inside]  # (B, P)
         gy = (q[:, 2:, 1:-1] - q[:, :-2, 1:-1])[:, inside]
         B, P = gx.shape
-        mag = np.hypot(gx, gy)
+        # Magnitude and angle from CPU-independent functions rounded to float32 (numpy's float32 hypot and
+        # arctan2 follow its SIMD loop, and the angle picks the bins).
+        mag = hypot(gx, gy).astype(np.float32)
         # Fine position in [0, fine): fine is a power of two, so the wrap is a bit mask.
-        pos = np.arctan2(gy, gx) * np.float32(fine / (2 * np.pi)) + np.float32(fine)
+        pos = atan2(gy, gx).astype(np.float32) * np.float32(fine / (2 * np.pi)) + np.float32(fine)
         lo = pos.astype(np.int64)  # truncation = floor: pos > 0
         frac = pos - lo
         lo &= fine - 1

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._fixedmath import sincos
 from .base import Features
 from .config import FeatureConfig
 
@@ -14,7 +15,7 @@ __all__: list[str] = []
 
 
 def _shapes(scales: np.ndarray, angles: np.ndarray, radius: float) -> np.ndarray:
-    c, s = np.cos(angles), np.sin(angles)
+    s, c = sincos(angles)  # not np.sin / np.cos, whose last bit follows numpy's SIMD loop
     rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (N, 2, 2), columns = patch axes
     return rot * (radius * scales)[:, None, None]
 
