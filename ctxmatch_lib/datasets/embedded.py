@@ -36,12 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .._fixedmath import opencv_baseline, sincos
 from .base import FlowGT
 
 __all__ = ["EMBEDDED_VERSION", "embedded_root", "generate_embedded", "motorcycle_flows"]
 
 # Bump whenever the generated images or ground truth change: a new cache folder is generated.
-EMBEDDED_VERSION = 1
+EMBEDDED_VERSION = 2  # 2: generated with CPU-independent sines and OpenCV baseline code
 
 VIEW_W, VIEW_H = 640, 480
 _SS = 2  # supersampling factor of the renderer
@@ -85,8 +86,8 @@ def _translate(tx, ty):
 
 
 def _similarity(scale, angle_deg):
-    a = np.deg2rad(angle_deg)
-    c, s = np.cos(a) * scale, np.sin(a) * scale
+    s, c = sincos(np.deg2rad(angle_deg))  # np.sin / np.cos round by CPU
+    c, s = c * scale, s * scale
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
 
@@ -103,8 +104,8 @@ def _quad(center, size, angle_deg, tilt, tilt_axis="x"):
         c[[1, 2], 1] *= 1 + tilt
     else:
         c[[2, 3], 0] *= 1 + tilt
-    a = np.deg2rad(angle_deg)
-    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    s, co = sincos(np.deg2rad(angle_deg))  # np.sin / np.cos round by CPU
+    R = np.array([[co, -s], [s, co]])
     return c @ R.T + np.asarray(center, np.float64)
 
 
@@ -244,7 +245,8 @@ def _star_mask(h, w, spikes=5):
 
     ang = np.linspace(0, 2 * np.pi, 2 * spikes, endpoint=False) - np.pi / 2
     rad = np.where(np.arange(2 * spikes) % 2 == 0, 0.5, 0.22)
-    pts = np.c_[(w - 1) / 2 + rad * w * np.cos(ang), (h - 1) / 2 + rad * h * np.sin(ang)]
+    s, c = sincos(ang)  # np.sin / np.cos round by CPU
+    pts = np.c_[(w - 1) / 2 + rad * w * c, (h - 1) / 2 + rad * h * s]
     m = np.zeros((h, w), np.uint8)
     cv2.fillPoly(m, [np.round(pts * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
     return m.astype(np.float32)
@@ -452,7 +454,7 @@ def _write_depth(folder: Path, rows: list) -> None:
 def generate_embedded(folder) -> Path:
     """Generate the embedded dataset into ``folder`` (created; files overwritten) and return it.
 
-    Deterministic: the same scikit-image photos give bit-identical images and ground truth.
+    Deterministic: the same scikit-image photos give bit-identical images and ground truth, on any x86-64 CPU.
     """
     import csv
 
@@ -460,9 +462,10 @@ def generate_embedded(folder) -> Path:
     (folder / "images").mkdir(parents=True, exist_ok=True)
     (folder / "gt").mkdir(parents=True, exist_ok=True)
     rows: list = []
-    _write_planar(folder, rows)
-    _write_nonplanar(folder, rows)
-    _write_depth(folder, rows)
+    with opencv_baseline():  # OpenCV's warps and resizes round by CPU in their SIMD builds
+        _write_planar(folder, rows)
+        _write_nonplanar(folder, rows)
+        _write_depth(folder, rows)
     with open(folder / "pairs.csv", "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(["pair_id", "image1", "image2", "kind", "gt"])
