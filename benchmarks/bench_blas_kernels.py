@@ -1,31 +1,39 @@
-"""Which decisions move with the BLAS kernel: the same computation under several ``OPENBLAS_CORETYPE`` values (issue 31).
+"""Which decisions move with the CPU: the same computation under several emulated x86-64 generations.
 
-numpy's OpenBLAS (a ``DYNAMIC_ARCH`` build) picks its SIMD kernels from the CPU; ``OPENBLAS_CORETYPE`` forces
-others (``Prescott``: SSE3, ``Nehalem``: SSE4, ``Sandybridge``: AVX, ``Haswell``: AVX2/FMA, ``SkylakeX``:
-AVX-512). Each kernel sums a product in its own order, so float results differ in their last bits; a
-decision (keep / reject, a nearest neighbour, a sort with ties) must not follow them. Every computation here
-runs in a fresh subprocess per core type (the variable is read when OpenBLAS loads), with one BLAS thread.
+Four libraries pick code by CPU at run time, and their float results differ in the last bits: numpy's ufunc
+loops (``NPY_DISABLE_CPU_FEATURES``: AVX-512, AVX2 or baseline), the C library's elementary functions that
+numpy's baseline loops and numba call (glibc's FMA or plain variants, ``GLIBC_TUNABLES``), numba's code
+generation (``NUMBA_CPU_NAME``), OpenCV's SIMD builds and Intel IPP (``OPENCV_CPU_DISABLE``, ``OPENCV_IPP``) and
+OpenBLAS's kernels (``OPENBLAS_CORETYPE``). A generation (:data:`GENERATIONS`) sets all of them as a CPU of
+that family would (``default``: nothing forced; ``avx2``: Haswell; ``sse4``: Nehalem; ``sse3``: Core 2 /
+Prescott, numpy at its x86-64-v2 floor); any other name is one ``OPENBLAS_CORETYPE`` alone (``SkylakeX``,
+``Haswell``, ``Sandybridge``, ``Nehalem``, ``Prescott``). A decision (keep / reject, a nearest neighbour, a
+sort with ties) must not follow them. Every computation runs in a fresh subprocess per generation (the
+variables are read when the libraries load), with one BLAS thread.
 
-Two checks (``--what``):
+Three checks (``--what``):
 
 ``rows``
     The embedded evaluation rows as ``notebooks/tables.ipynb`` computes them (``--features``, default the
     three embedded feature setups; blobs ``baseline`` and ``paper-best-overlap``; every filter; models
     ``none`` and ``1sac``; every ``--pair-step``-th embedded pair), from an empty cache (features included)
-    in each subprocess. Printed: per core type, the rows whose numbers differ from the first core type's
+    in each subprocess. Printed: per generation, the rows whose numbers differ from the first one's
     (features, blob, pair, method, model and the columns that moved).
+``features``
+    Keypoints, frames, orientations and descriptor bytes of the same pairs, from an empty cache.
 ``masks``
     Per-filter keep masks on real candidate sets (``CTXMATCH_DATA``; the pairs of ``bench_filters_real.py``,
-    ``--pairs N``): the candidate sets are computed once, under the first core type, and every core type's
-    subprocess filters the same arrays, so only the filters' own decisions can move. Also printed: whether
-    the blob candidate sets themselves differ between core types (computed in each subprocess).
+    ``--pairs N``): the candidate sets are computed once, under the first generation, and every
+    generation's subprocess filters the same arrays, so only the filters' own decisions can move. Also
+    printed: whether the blob candidate sets themselves differ between generations.
 
 Run::
 
-    CTXMATCH_DATA=/work/shared/data .venv/bin/python benchmarks/bench_blas_kernels.py --what masks --pairs 2
+    .venv/bin/python benchmarks/bench_blas_kernels.py --what features --generations default,sse4 --max-pairs 2
     .venv/bin/python benchmarks/bench_blas_kernels.py --what rows --pair-step 2
+    CTXMATCH_DATA=/work/shared/data .venv/bin/python benchmarks/bench_blas_kernels.py --what masks --pairs 2
 
-The exit status is 1 when anything differs between core types.
+The exit status is 1 when anything differs between generations.
 """
 
 from __future__ import annotations
@@ -44,6 +52,27 @@ CORETYPES = ("SkylakeX", "Haswell", "Sandybridge", "Nehalem", "Prescott")
 ROW_KEYS = ["features", "blob", "pair_id", "method", "model"]
 ROW_VALUES = ["precision", "recall", "recall_star", "ap", "ap_star", "correct", "correct_norm", "output",
               "failure", "empty_output", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "error"]
+_NPY_AVX512 = "X86_V4 AVX512_ICL AVX512_SPR"
+#: Emulated CPU generations: the run-time switch of each library that dispatches by CPU, as a CPU of that
+#: family would set it. numpy 2.4's wheels need x86-64-v2 (SSE4.2), so ``sse3`` keeps numpy's baseline loops.
+#: OpenCV's names are filtered by :func:`generation_env` to those the host has (it warns about others).
+GENERATIONS = {
+    "default": {},
+    "avx2": {"NPY_DISABLE_CPU_FEATURES": _NPY_AVX512, "NUMBA_CPU_NAME": "haswell", "OPENBLAS_CORETYPE": "Haswell",
+             "OPENCV_CPU_DISABLE": "AVX512F,AVX512-SKX", "OPENCV_IPP": "avx2"},
+    "sse4": {"NPY_DISABLE_CPU_FEATURES": "X86_V3 " + _NPY_AVX512, "NUMBA_CPU_NAME": "nehalem",
+             "OPENBLAS_CORETYPE": "Nehalem", "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX,-AVX2,-FMA,-AVX512F",
+             "OPENCV_CPU_DISABLE": "FP16,AVX,AVX2,FMA3,AVX512F,AVX512-SKX", "OPENCV_IPP": "sse42"},
+    "sse3": {"NPY_DISABLE_CPU_FEATURES": "X86_V3 " + _NPY_AVX512, "NUMBA_CPU_NAME": "core2",
+             "OPENBLAS_CORETYPE": "Prescott", "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX,-AVX2,-FMA,-AVX512F",
+             "OPENCV_CPU_DISABLE": "SSSE3,SSE4.1,SSE4.2,POPCNT,FP16,AVX,AVX2,FMA3,AVX512F,AVX512-SKX",
+             "OPENCV_IPP": "disabled"},
+}
+#: The /proc/cpuinfo flag behind each OpenCV feature name of :data:`GENERATIONS`.
+_CV_FLAGS = {"SSSE3": "ssse3", "SSE4.1": "sse4_1", "SSE4.2": "sse4_2", "POPCNT": "popcnt", "FP16": "f16c",
+             "AVX": "avx", "AVX2": "avx2", "FMA3": "fma", "AVX512F": "avx512f", "AVX512-SKX": "avx512bw"}
+#: What a generation needs of the host (a CPU cannot emulate a newer one).
+_NEEDS = {"avx2": ("avx2", "fma")}
 EMBEDDED_FEATURES = ("sift-rootsift", "harrisz-rootsgloh2", "harrisz-sosnet")
 
 
@@ -57,21 +86,43 @@ def blas_architecture() -> str | None:
     return None
 
 
-def _env(coretype: str | None, cache: str, numba_cache: str) -> dict:
-    # numba's machine code does not depend on the BLAS kernel: one cache for every subprocess saves compiling.
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", CTXMATCH_CACHE=cache,
-               PYTHONHASHSEED="0")
+def cpu_flags() -> set[str]:
+    """The host's CPU flags (``/proc/cpuinfo``; empty where there is none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return set()
+    line = next((ln for ln in text.splitlines() if ln.startswith("flags")), "")
+    return set(line.split(":", 1)[-1].split())
+
+
+def runnable(generation: str) -> bool:
+    """Whether this host can emulate ``generation`` (an AVX2 one needs AVX2 and FMA)."""
+    flags = cpu_flags()
+    return all(f in flags for f in _NEEDS.get(generation, ()))
+
+
+def generation_env(generation: str | None, cache: str, numba_cache: str, base: dict | None = None) -> dict:
+    """The environment of a subprocess under ``generation`` (a key of :data:`GENERATIONS`, or one
+    ``OPENBLAS_CORETYPE``), with an empty ctxmatch cache at ``cache`` and one BLAS thread.
+
+    ``numba_cache``: numba's machine code is keyed by CPU name, so one folder serves every generation.
+    """
+    env = dict(os.environ if base is None else base, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+               CTXMATCH_CACHE=cache, PYTHONHASHSEED="0")
     env.setdefault("NUMBA_CACHE_DIR", numba_cache)
-    env.pop("OPENBLAS_CORETYPE", None)
-    if coretype and "+" in coretype:
-        # "Haswell+npy-avx2": also numpy's own SIMD dispatch without AVX-512 (NPY_DISABLE_CPU_FEATURES), as
-        # on an AVX2 machine; "+npy-base": without AVX2 either. numpy's float64 exp/log/power and float32
-        # exp/tanh differ in their last bit between these (not a BLAS matter; issue 31 notes).
-        coretype, npy = coretype.split("+", 1)
-        env["NPY_DISABLE_CPU_FEATURES"] = {"npy-avx2": "X86_V4 AVX512_ICL AVX512_SPR",
-                                           "npy-base": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}[npy]
-    if coretype:
-        env["OPENBLAS_CORETYPE"] = coretype
+    for k in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "NUMBA_CPU_NAME", "GLIBC_TUNABLES",
+              "OPENCV_CPU_DISABLE", "OPENCV_IPP"):
+        env.pop(k, None)
+    if generation in GENERATIONS:
+        switches = dict(GENERATIONS[generation])
+        if "OPENCV_CPU_DISABLE" in switches:
+            flags = cpu_flags()
+            switches["OPENCV_CPU_DISABLE"] = ",".join(n for n in switches["OPENCV_CPU_DISABLE"].split(",")
+                                                      if _CV_FLAGS[n] in flags)
+        env.update({k: v for k, v in switches.items() if v})
+    elif generation:
+        env["OPENBLAS_CORETYPE"] = generation
     return env
 
 
@@ -87,18 +138,38 @@ def worker_rows(out: Path, features, pair_step: int, filters: str, pairs: int) -
     df[ROW_KEYS + ROW_VALUES].to_parquet(out)
 
 
-def worker_features(out: Path, features, pair_step: int, pairs: int) -> None:
-    from ctxmatch_lib.evaluation import select_pairs
+def feature_arrays(pairs, features) -> dict:
+    """``{"preset|pair|side|field": array}``: keypoints, frames, angles and descriptors of ``pairs``."""
     from ctxmatch_lib.evaluation.steps import pair_features
     from ctxmatch_lib.features import FEATURE_PRESETS
 
     arrays = {}
-    for pair in select_pairs("embedded", step=pair_step)[:pairs or None]:
+    for pair in pairs:
         for name in features:
             for side, f in zip((1, 2), pair_features(pair, FEATURE_PRESETS[name])):
-                for field in ("kpts", "desc", "shapes"):
+                for field in ("kpts", "desc", "shapes", "angles"):
                     arrays[f"{name}|{pair.pair_id}|{side}|{field}"] = np.asarray(getattr(f, field))
-    np.savez(out, **arrays)
+    return arrays
+
+
+def diff_arrays(a, b) -> list[str]:
+    """One line per array of the mappings ``a`` and ``b`` that differs in shape or in any value."""
+    lines = []
+    for k in sorted(set(a) | set(b)):
+        if k not in a or k not in b:
+            lines.append(f"  {k}: only in one run")
+        elif a[k].shape != b[k].shape:
+            lines.append(f"  {k}: shape {a[k].shape} vs {b[k].shape}")
+        elif not np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"):
+            x, y = a[k].astype(float), b[k].astype(float)
+            lines.append(f"  {k}: {int((x != y).sum())} values, max |diff| {np.nanmax(np.abs(x - y)):.3g}")
+    return lines
+
+
+def worker_features(out: Path, features, pair_step: int, pairs: int) -> None:
+    from ctxmatch_lib.evaluation import select_pairs
+
+    np.savez(out, **feature_arrays(select_pairs("embedded", step=pair_step)[:pairs or None], features))
 
 
 def worker_inputs(out: Path, pairs: int) -> None:
@@ -134,15 +205,18 @@ def worker_masks(inputs: Path, out: Path, filters: str) -> None:
 # --- driver ------------------------------------------------------------------------------------------------------
 
 def _run(args_list, coretype, cache, numba_cache) -> str:
-    env = _env(coretype, cache, numba_cache)
+    env = generation_env(coretype, cache, numba_cache)
     probe = subprocess.run([sys.executable, __file__, "--probe"], env=env, capture_output=True, text=True)
     proc = subprocess.run([sys.executable, __file__] + args_list, env=env, capture_output=True, text=True)
     if proc.returncode:
-        raise RuntimeError(f"worker under OPENBLAS_CORETYPE={coretype} failed:\n{proc.stderr[-4000:]}")
+        raise RuntimeError(f"worker under {coretype or 'default'} failed:\n{proc.stderr[-4000:]}")
     return probe.stdout.strip()
 
 
 def diff_rows(a, b) -> list[str]:
+    """One line per row of ``a`` and ``b`` (frames with :data:`ROW_KEYS` and :data:`ROW_VALUES`) that is in
+    one only or whose values differ (NaN equals NaN): ``"  features / blob / pair / method / model: column
+    a -> b; ..."``. Empty when the frames hold the same rows."""
     import pandas as pd
 
     merged = pd.merge(a, b, on=ROW_KEYS, how="outer", suffixes=("_a", "_b"), indicator=True)
@@ -164,9 +238,10 @@ def diff_rows(a, b) -> list[str]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--what", choices=["rows", "masks", "features"], default="masks")
-    parser.add_argument("--coretypes", default=",".join(CORETYPES),
-                        help="comma-separated OPENBLAS_CORETYPE values; 'default' = unset (first is the reference); "
-                        "'Haswell+npy-avx2' / 'Nehalem+npy-base' also turn off numpy's AVX-512 / AVX2 dispatch")
+    parser.add_argument("--generations", "--coretypes", dest="coretypes",
+                        default=",".join(g for g in GENERATIONS if runnable(g)),
+                        help="comma-separated generations (default, avx2, sse4, sse3) or single OPENBLAS_CORETYPE "
+                        "values (SkylakeX, Haswell, Sandybridge, Nehalem, Prescott); the first is the reference")
     parser.add_argument("--features", default=",".join(EMBEDDED_FEATURES), help="rows: feature setups")
     parser.add_argument("--pair-step", type=int, default=2, help="rows: every n-th embedded pair (default 2)")
     parser.add_argument("--max-pairs", type=int, default=0, help="rows: at most this many pairs (0: all)")
@@ -210,18 +285,14 @@ def main(argv=None) -> int:
                          str(args.pair_step), "--max-pairs", str(args.max_pairs)],
                         c, str(tmp / f"fcache_{c or 'default'}"), str(tmp / "numba"))
             feats[c] = np.load(out)
-            print(f"OPENBLAS_CORETYPE={c or '(unset)'}: OpenBLAS core {arch}", flush=True)
+            print(f"{c or 'default'}: OpenBLAS core {arch}", flush=True)
         ref = coretypes[0]
         for c in coretypes[1:]:
             a, b = feats[ref], feats[c]
-            moved = [k for k in a.files if a[k].shape != b[k].shape or not np.array_equal(a[k], b[k])]
-            print(f"\nfeatures {ref or 'default'} vs {c or 'default'}: {len(moved)} of {len(a.files)} arrays differ")
-            for k in moved:
-                x, y = a[k], b[k]
-                what = (f"max |diff| {np.abs(x.astype(float) - y.astype(float)).max():.3g}, "
-                        f"{int((x != y).sum())} values" if x.shape == y.shape else f"shape {x.shape} vs {y.shape}")
-                print(f"  {k}: {what}")
-            status = status or bool(moved)
+            lines = diff_arrays({k: a[k] for k in a.files}, {k: b[k] for k in b.files})
+            print(f"\nfeatures {ref or 'default'} vs {c or 'default'}: {len(lines)} of {len(a.files)} arrays differ")
+            print("\n".join(lines))
+            status = status or bool(lines)
     elif args.what == "rows":
         import pandas as pd
 
@@ -232,7 +303,7 @@ def main(argv=None) -> int:
                          str(args.pair_step), "--filters", args.filters, "--max-pairs", str(args.max_pairs)],
                         c, str(tmp / f"cache_{c or 'default'}"), str(tmp / "numba"))
             frames[c] = pd.read_parquet(out)
-            print(f"OPENBLAS_CORETYPE={c or '(unset)'}: OpenBLAS core {arch}, {len(frames[c])} rows", flush=True)
+            print(f"{c or 'default'}: OpenBLAS core {arch}, {len(frames[c])} rows", flush=True)
         ref = coretypes[0]
         for c in coretypes[1:]:
             lines = diff_rows(frames[ref], frames[c])
@@ -268,7 +339,7 @@ def main(argv=None) -> int:
             arch = _run(["--worker", "masks", "--inputs", str(inputs[ref]), "--out", str(out), "--filters",
                          args.filters], c, cache, str(tmp / "numba"))
             masks[c] = np.load(out)
-            print(f"OPENBLAS_CORETYPE={c or '(unset)'}: OpenBLAS core {arch}", flush=True)
+            print(f"{c or 'default'}: OpenBLAS core {arch}", flush=True)
         for c in coretypes[1:]:
             print(f"\nkeep masks {ref or 'default'} vs {c or 'default'} (same candidate sets):")
             differ = 0
