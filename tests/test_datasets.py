@@ -77,7 +77,7 @@ def embedded(tmp_path_factory):
 
 def test_registered_names():
     assert list_datasets() == ["embedded", "embedded-planar", "embedded-nonplanar", "embedded-depth",
-                               "hpatches", "oxford", "homogr", "kusvod2", "strecha", "strecha-half", "planar",
+                               "embedded-calibrated", "hpatches", "oxford", "homogr", "kusvod2", "strecha", "strecha-half", "planar",
                                "nonplanar", "calibrated"]
 
 

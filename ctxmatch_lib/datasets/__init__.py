@@ -12,6 +12,7 @@ embedded               the whole offline default (planar + nonplanar + depth), t
 embedded-planar        its 3 planar sequences (15 pairs, homographies)
 embedded-nonplanar     its 4 layered synthetic scenes (dense exact flow with occlusion)
 embedded-depth         the Middlebury motorcycle stereo pair (disparity as dense flow)
+embedded-calibrated    the same pair with its calibration (rectified: R = I), a calibrated pair (pose)
 hpatches               HPatches sequences under ``$CTXMATCH_DATA/planar/hpatches``
 oxford                 Oxford affine sequences under ``$CTXMATCH_DATA/planar/oxford``
 homogr                 Lebeda homogr pairs under ``$CTXMATCH_DATA/planar/homogr``
@@ -26,12 +27,13 @@ calibrated             strecha
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, GroundTruth, HomographyGT, Pair, PairKind, PoseGT
 from .custom import read_custom_dataset, write_custom_dataset
 from .downscaled import downscale_pairs
-from .embedded import embedded_root
+from .embedded import embedded_root, motorcycle_pose_gt
 from .posefile import read_pairs_with_gt, write_pairs_with_gt
 from .real import REAL_LOADERS, _resolve
 from .strecha import DIFFICULTY_BANDS, load_strecha_folder, pose_difficulty, strecha_scenes
@@ -73,7 +75,7 @@ def list_datasets() -> list[str]:
     >>> list_datasets()[:2]
     ['embedded', 'embedded-planar']
     """
-    return [*_EMBEDDED, *_LOADERS, *_GROUPS]
+    return [*_EMBEDDED, "embedded-calibrated", *_LOADERS, *_GROUPS]
 
 
 def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
@@ -108,6 +110,13 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
     >>> len(ds), ds[0].kind
     (15, 'planar')
     """
+    if name_or_path == "embedded-calibrated":
+        # The motorcycle pair again, with its calibration instead of the dense disparity: a calibrated pair.
+        folder = embedded_root(root)
+        depth = [p for p in read_custom_dataset(folder, name="embedded").pairs if p.pair_id == "depth/motorcycle"]
+        pairs = [dataclasses.replace(p, pair_id="calibrated/motorcycle", kind="calibrated", gt=motorcycle_pose_gt())
+                 for p in depth]
+        return Dataset(name_or_path, pairs, folder)
     if isinstance(name_or_path, str) and name_or_path in _EMBEDDED:
         folder = embedded_root(root)
         ds = read_custom_dataset(folder, name="embedded")

@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from .._fixedmath import opencv_baseline, sincos
-from .base import FlowGT
+from .base import FlowGT, PoseGT
 
-__all__ = ["EMBEDDED_VERSION", "embedded_root", "generate_embedded", "motorcycle_flows"]
+__all__ = ["EMBEDDED_VERSION", "MOTORCYCLE_CALIBRATION", "embedded_root", "generate_embedded", "motorcycle_flows",
+           "motorcycle_pose_gt"]
 
 # Bump whenever the generated images or ground truth change: a new cache folder is generated.
 EMBEDDED_VERSION = 2  # 2: generated with CPU-independent sines and OpenCV baseline code
@@ -434,6 +435,26 @@ def motorcycle_flows(disp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         flow21[cand_r[win], cand_x[win], 0] = cand_d[win]
         flow21[cand_r[win], cand_x[win], 1] = 0.0
     return flow12, flow21
+
+
+#: The calibration scikit-image gives for its (4x downsampled) motorcycle pair (``stereo_motorcycle``'s docstring):
+#: focal length and left principal point in pixels, the right principal point ``dx`` further right, the baseline.
+MOTORCYCLE_CALIBRATION = {"f": 994.978, "cx": 311.193, "cy": 254.877, "dx": 31.086, "baseline_mm": 193.001}
+
+
+def motorcycle_pose_gt() -> PoseGT:
+    """The motorcycle pair as a calibrated pair: :data:`MOTORCYCLE_CALIBRATION` as ``K1``, ``K2`` and the pose.
+
+    The pair is rectified: both cameras share their orientation (``R = I``) and the right one sits one
+    baseline to the right, so a left-camera point ``X`` is ``X - (B, 0, 0)`` in the right camera (``t`` in
+    millimetres; only its direction enters the pose error). The right principal point is ``dx`` to the right
+    of the left one (Middlebury's ``doffs``), consistent with the disparity: ``d = f B / Z - dx``.
+    """
+    c = MOTORCYCLE_CALIBRATION
+    K1 = np.array([[c["f"], 0.0, c["cx"]], [0.0, c["f"], c["cy"]], [0.0, 0.0, 1.0]])
+    K2 = K1.copy()
+    K2[0, 2] += c["dx"]
+    return PoseGT(K1, K2, np.eye(3), np.array([-c["baseline_mm"], 0.0, 0.0]), threshold_scale=741 / 1024)
 
 
 def _write_depth(folder: Path, rows: list) -> None:

@@ -70,7 +70,7 @@ THRESHOLD_MARKERS = {1: "|", 3: "o", 5: "s", 10: "D"}
 POSE_MARKERS = {5: "^", 10: "v", 20: "*"}
 
 
-def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | None = None) -> list:
+def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | None = None, order=None) -> list:
     """The model's accuracy per method, one row per method, best on top: for planar pairs the AUC of the
     corner error at 1, 3, 5 and 10 px (one marker per threshold, :data:`THRESHOLD_MARKERS`, on a line in the
     method's colour), sorted by the AUC at 5 px; for calibrated pairs the AUC of the pose error at 5, 10 and
@@ -89,6 +89,9 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
     model : str
         The model step whose rows are drawn.
     title : str, optional
+    order : sequence of str, optional
+        The methods top to bottom, instead of sorting by accuracy (panels side by side then share their rows);
+        methods of ``order`` without a value get an empty row.
 
     Returns
     -------
@@ -105,7 +108,7 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
         markers = THRESHOLD_MARKERS
         cols = {px: (f"auc_{px}px_pct" if planar else f"epi_share_{px}_pct") for px in THRESHOLD_MARKERS}
         keys = ["auc_5px_pct" if planar else "epi_share_mean_pct"]
-    t = t[t[keys[0]].notna()].sort_values(keys, kind="stable")
+    t = t[t[keys[0]].notna()].sort_values(keys, kind="stable") if order is None else t.reindex(list(order)[::-1])
     for y, (method, row) in enumerate(t.iterrows()):
         colour, marker = geometry_style(method)
         vals = [row[c] for c in cols.values() if c in row.index and np.isfinite(row[c])]
@@ -118,11 +121,12 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
                 ax.plot(row[c], y, marker=markers[th], ms=3.5, color=colour, mec=colour, ls="none",
                         mfc="white" if th in (3, 10) else colour, zorder=3)
         # The method's own marker, just left of the axis (transform: x in axes fraction, y in data).
-        ax.plot(-0.025, y, marker=marker, ms=3.2, color=colour, mec=colour, ls="none", clip_on=False,
+        ax.plot(-0.06, y, marker=marker, ms=3.2, color=colour, mec=colour, ls="none", clip_on=False,
                 transform=ax.get_yaxis_transform(), zorder=3)
-    names = [method_name(m) + (f" ({int(r['no_model'])} w/o model)" if r["no_model"] else "") for m, r in t.iterrows()]
+    names = [method_name(m) + (f" ({int(r['no_model'])} w/o model)" if r["no_model"] > 0 else "")
+             for m, r in t.iterrows()]
     ax.set_yticks(range(len(t)), names)
-    ax.tick_params(axis="y", pad=7)
+    ax.tick_params(axis="y", pad=10)
     ax.set_ylim(-0.7, len(t) - 0.3)
     ax.set_xlim(0, 100)
     ax.set_xlabel("AUC of the mean corner error (%)" if planar else
@@ -133,18 +137,20 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
     return list(t.index)[::-1]
 
 
-def threshold_legend(fig_or_ax, *, pose: bool = False, **kwargs):
-    """The key of :func:`plot_accuracy_by_method`'s markers: the threshold (px) of an AUC (planar) or of a
-    share (F), the bar of the mean share over 1-19 px, and with ``pose`` the thresholds (degrees) of the
-    AUC of the pose error."""
+def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kwargs):
+    """The key of :func:`plot_accuracy_by_method`'s markers: with ``pixels`` the threshold (px) of an AUC
+    (planar) or of a share (F) and the bar of the mean share over 1-19 px; with ``pose`` the thresholds
+    (degrees) of the AUC of the pose error."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    handles = [Line2D([], [], ls="none", marker=m, ms=4, color="0.2", mfc="white" if px == 3 else "0.2")
-               for px, m in THRESHOLD_MARKERS.items()]
-    labels = [f"at {px} px" for px in THRESHOLD_MARKERS]
-    handles.append(Patch(color="0.2", alpha=0.35, lw=0))
-    labels.append("F: mean share over 1-19 px")
+    handles, labels = [], []
+    if pixels:
+        handles = [Line2D([], [], ls="none", marker=m, ms=4, color="0.2", mfc="white" if px == 3 else "0.2")
+                   for px, m in THRESHOLD_MARKERS.items()]
+        labels = [f"at {px} px" for px in THRESHOLD_MARKERS]
+        handles.append(Patch(color="0.2", alpha=0.35, lw=0))
+        labels.append("F: mean share over 1-19 px")
     if pose:
         handles += [Line2D([], [], ls="none", marker=m, ms=4, color="0.2", mfc="white" if deg == 10 else "0.2")
                     for deg, m in POSE_MARKERS.items()]
@@ -221,9 +227,9 @@ def plot_cumulative_errors(ax, rows, methods, *, model: str, max_px: float = 10.
         inside = e[e < max_px]
         x = np.r_[0.0, inside, max_px]
         y = np.r_[0.0, np.arange(1, len(inside) + 1), len(inside)] / len(e)
-        # The method's marker at the curve's end: two methods of one colour stay apart.
+        # The method's marker at its largest error below max_px: two methods of one colour stay apart.
         ax.plot(x, 100 * y, color=colour, lw=1.0, label=method_name(method), marker=marker, ms=3.5,
-                markevery=[len(x) - 1], clip_on=False)
+                markevery=[len(inside)] if len(inside) else [])
         out[method] = len(inside) / len(e)
     ax.set_xlim(0, max_px)
     ax.set_ylim(0, 100)
