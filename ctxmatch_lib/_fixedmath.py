@@ -1,4 +1,4 @@
-"""Elementary functions whose bits do not depend on the CPU: ``exp``, ``tanh``, ``sin``/``cos``, ``atan2``.
+"""Elementary functions whose bits do not depend on the CPU: ``exp``, ``log``, ``tanh``, ``sin``/``cos``, ``atan2``.
 
 numpy dispatches its transcendental ufuncs (``np.exp``, ``np.sin``, ``np.arctan2``, ``np.tanh``, ``np.log2``, …)
 at run time to AVX-512, AVX2 or baseline loops, and its baseline loops call the C library, which picks FMA or
@@ -23,7 +23,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["atan2", "cos", "exp", "floor_log2", "hypot", "opencv_baseline", "sin", "sincos", "tanh"]
+__all__ = ["atan", "atan2", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "sin", "sincos", "tanh"]
 
 _CV_LOCK = threading.Lock()
 _CV_USERS = [0, True, 1]  # blocks inside opencv_baseline; the settings to restore when the last one leaves
@@ -83,6 +83,11 @@ _LN2LO = 1.90821492927058770002e-10
 _INVLN2 = 1.44269504088896338700e+00
 _P = (1.66666666666666019037e-01, -2.77777777770155933842e-03, 6.61375632143793436117e-05,
       -1.65339022054652515390e-06, 4.13813679705723846039e-08)
+# fdlibm's log: the remez coefficients of (log(1 + s) - log(1 - s) - 2 s) / s on [0, 0.1716], and the
+# reduction bound: the double whose high word is 0x3fe6a09e (just below sqrt(2) / 2), as fdlibm tests it.
+_LG = (6.666666666666735130e-01, 3.999999999940941908e-01, 2.857142874366239149e-01, 2.222219843214978396e-01,
+       1.818357216161805012e-01, 1.531383769920937332e-01, 1.479819860511658591e-01)
+_SQRT_HALF_HI = float(np.array(0x3FE6A09E << 32, np.uint64).view(np.float64))
 
 
 def _f64(x) -> np.ndarray:
@@ -177,6 +182,21 @@ def _atan_pos(x: np.ndarray) -> np.ndarray:
     return np.where(big, _ATANHI[3] + _ATANLO[3], np.where(idx < 0, near, far))
 
 
+def atan(x) -> np.ndarray:
+    """``atan x`` in ``[-pi/2, pi/2]`` (float64), the same bits on any CPU (fdlibm's ``atan``); NaN stays NaN.
+
+    Examples
+    --------
+    >>> np.round(atan([0.0, 1.0, -np.sqrt(3.0), np.inf]) / np.pi, 12).tolist()
+    [0.0, 0.25, -0.333333333333, 0.5]
+    """
+    x = _f64(x)
+    a = np.abs(x)
+    with np.errstate(invalid="ignore"):
+        out = np.copysign(_atan_pos(np.where(np.isnan(a), 0.0, a)), x)
+    return np.where(np.isnan(x), np.nan, out)
+
+
 def atan2(y, x) -> np.ndarray:
     """The angle of the vector ``(x, y)``, in ``[-pi, pi]``, the same bits on any CPU (fdlibm's ``atan2``).
 
@@ -232,6 +252,49 @@ def exp(x) -> np.ndarray:
         half = np.trunc(k / 2)
         out = np.ldexp(np.ldexp(y, half.astype(np.int64)), (k - half).astype(np.int64))
     return np.where(x > 709.782712893384, np.inf, np.where(x < -745.1332191019412, 0.0, out))
+
+
+def log(x) -> np.ndarray:
+    """Natural logarithm (float64), the same bits on any CPU (fdlibm's ``log``).
+
+    ``x = 2 ** k (1 + f)`` with ``sqrt(2) / 2 <= 1 + f < sqrt(2)`` (exact, from the binary exponent), then
+    ``log(1 + f) = f - f^2 / 2 + s (f^2 / 2 + R(s^2))`` with ``s = f / (2 + f)`` and fdlibm's minimax ``R``,
+    and ``k ln 2`` added in two parts. Error below one unit in the last place.
+
+    Parameters
+    ----------
+    x : array_like
+        Non-negative values (subnormals included); float32 inputs are widened exactly.
+
+    Returns
+    -------
+    ndarray
+        float64: ``log 0 = -inf``, ``log inf = inf``, NaN for negative inputs and NaN.
+
+    Examples
+    --------
+    >>> np.round(log([1.0, np.e, 0.5, 1e-300]), 12).tolist()
+    [0.0, 1.0, -0.69314718056, -690.775527898214]
+    >>> log([0.0, np.inf, -1.0]).tolist()
+    [-inf, inf, nan]
+    """
+    x = _f64(x)
+    pos = np.isfinite(x) & (x > 0)
+    m, e = np.frexp(np.where(pos, x, 1.0))  # x = m 2^e, 0.5 <= m < 1, exact (subnormals too)
+    low = m < _SQRT_HALF_HI
+    y = np.where(low, 2.0 * m, m)
+    k = (e - low).astype(np.float64)
+    f = y - 1.0
+    hfsq = 0.5 * f * f
+    s = f / (2.0 + f)
+    z = s * s
+    w = z * z
+    t1 = w * _horner(w, _LG[1::2])
+    t2 = z * _horner(w, _LG[0::2])
+    r = t2 + t1
+    out = s * (hfsq + r) + k * _LN2LO - hfsq + f + k * _LN2HI
+    special = np.where(x == 0, -np.inf, np.where(x == np.inf, np.inf, np.nan))
+    return np.where(pos, out, special)
 
 
 def tanh(x) -> np.ndarray:
