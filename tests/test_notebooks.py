@@ -185,7 +185,7 @@ def test_paper_scale_runs_share_one_keypoint_budget():
     from ctxmatch_lib.features import KEYPOINT_BUDGETS, keypoint_budget
 
     evaluations = ["fig_blob_heatmap", "fig_blob_bands", "fig_gt_methods", "fig_pr_scatter", "fig_inlier_hist",
-                   "tables", "fig_match_examples", "fig_agreement", "fig_geometry"]
+                   "tables", "fig_match_examples", "fig_agreement", "fig_geometry", "fig_gt_calibrated"]
     for stem in evaluations:
         params = yaml.safe_load((ROOT / "notebooks" / "params" / f"{stem}.yaml").read_text())
         assert keypoint_budget(params["max_keypoints"]) == KEYPOINT_BUDGETS["paper"], stem
