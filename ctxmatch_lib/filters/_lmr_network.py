@@ -14,17 +14,19 @@ with the toolbox's transfer functions by their definitions.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-#: Transfer functions of the Deep Learning Toolbox, by their documented definitions.
+from .._fixedmath import atan, exp
+
+#: Transfer functions of the Deep Learning Toolbox, by their documented definitions (the exponential is
+#: ``_fixedmath``'s, the same bits on any CPU: the outputs are compared with each other).
 TRANSFER = {
-    "tansig": lambda n: 2.0 / (1.0 + np.exp(-2.0 * n)) - 1.0,
-    "logsig": lambda n: 1.0 / (1.0 + np.exp(-n)),
+    "tansig": lambda n: 2.0 / (1.0 + exp(-2.0 * n)) - 1.0,
+    "logsig": lambda n: 1.0 / (1.0 + exp(-n)),
     "purelin": lambda n: n,
 }
 
@@ -36,8 +38,9 @@ MPC_DV = 1e-7
 
 
 def gaussmf(x: np.ndarray, sigma: float, c: float) -> np.ndarray:
-    """The Fuzzy Logic Toolbox's ``gaussmf(x, [sigma c])`` = ``exp(-(x - c)^2 / (2 sigma^2))``."""
-    return np.exp(-((x - c) ** 2) / (2.0 * sigma**2))
+    """The Fuzzy Logic Toolbox's ``gaussmf(x, [sigma c])`` = ``exp(-(x - c)^2 / (2 sigma^2))`` (NaN stays
+    NaN; ``_fixedmath.exp``, the same bits on any CPU)."""
+    return exp(-((x - c) ** 2) / (2.0 * sigma**2))
 
 
 def mpc_motion(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -45,7 +48,8 @@ def mpc_motion(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     ``vec = y - x + dv``; ``d2 = |vec|^2``; the direction is ``atan((vec_y + dv) / (vec_x + dv))`` moved to
     ``[0, 2 pi)`` by ``MPC.m``'s three quadrant rules (tested on ``vec_y`` and the angle, in that order).
-    The arctangent is the C library's (``math.atan``), so the bits do not depend on NumPy's SIMD variants.
+    The arctangent is ``_fixedmath.atan``, so the bits depend neither on NumPy's SIMD loops nor on the C
+    library's FMA variants.
 
     Parameters
     ----------
@@ -60,7 +64,7 @@ def mpc_motion(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     d2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = (vec[:, 1] + MPC_DV) / (vec[:, 0] + MPC_DV)
-    theta = np.array([math.atan(t) if not math.isnan(t) else math.nan for t in ratio.tolist()])
+    theta = atan(ratio)
     below = vec[:, 1] <= 0
     q3 = (theta >= 0) & below
     theta[q3] += np.pi

@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._blas import one_blas_thread
+from .._fixedmath import log
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
 from ._llt_kernels import em_residuals, lle_solve, offset_norms
@@ -266,7 +267,9 @@ def _em(target, U, BU, BX, lam, tau, gamma, a, max_iter, tol, min_p) -> np.ndarr
         # Eq. (8) as the authors' code evaluates it: the mixture's complete-data energy plus lam / 2 times
         # the (unsquared) Frobenius norm of the P-weighted locally linear residual.
         old, ps = energy, p.sum()
-        energy = (dot(p, r2) / (2 * sigma2) + ps * np.log(sigma2) - np.log(gamma) * ps - np.log(1 - gamma) * (n - ps)
+        # The logarithms are _fixedmath's: the stopping rule reads the energy's relative change.
+        energy = (dot(p, r2) / (2 * sigma2) + ps * float(log(sigma2)) - float(log(gamma)) * ps
+                  - float(log(1 - gamma)) * (n - ps)
                   + lam / 2 * np.sqrt(dot(pw, local)))
         change = (energy - old) / energy if energy != 0 else 0.0
         # M-step for C (Sec. III-C), multiplied through by sigma^2:

@@ -13,8 +13,8 @@ squared motion length ``|v_i|^2`` with the mean over the shared neighbours (rati
 two quotients) and of the motion direction with their mean direction, ``v = y - x``. ``MPC.m`` maps the last
 two by Gaussians (``gaussmf`` of ``r - 1`` and of the angle); here by ``1 / (1 + u^2)``, monotone in ``|u|``
 as the Gaussian, so a tree splits them alike, and made of correctly rounded operations only; the direction
-comes from the C library's ``atan2`` (``math.atan2``), not from NumPy's vectorised one, whose SIMD variants
-may differ between CPUs. One pass, as the authors' code.
+comes from ``_fixedmath.atan2`` (correctly rounded operations too), not from NumPy's or the C library's
+``atan2``, whose SIMD and FMA variants differ between CPUs. One pass, as the authors' code.
 
 The former reading, ``features="lpm"``, built on the neighbourhoods of LPM (Ma et al. IJCV 2019): for every
 match ``i`` and every scale ``k`` in ``SCALES = (4, 8, 12, 16, 20)``, with ``N_x`` and ``N_y`` the ``k``
@@ -47,7 +47,6 @@ from the OpenCV build, which would tie the model's bits to it.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from functools import lru_cache
@@ -56,6 +55,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._fixedmath import atan2, exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._lmr_network import ANGLE_GAUSSMF, LENGTH_GAUSSMF, gaussmf, load_network, mpc_motion
 
@@ -167,8 +167,8 @@ def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.nda
     else:
         v = y - x
         d2 = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]
-        # Motion direction in [0, 2 pi); math.atan2 (the C library's) keeps the bits the same from run to run.
-        theta = np.array([math.atan2(b, a) for a, b in v.tolist()]) % (2 * np.pi)
+        # Motion direction in [0, 2 pi), the same bits on any CPU (the trees split on the angle consistency).
+        theta = atan2(v[:, 1], v[:, 0]) % (2 * np.pi)
     nx0 = _knn_among(x, idx, MPC_SCALES[-1] + 1)
     ny0 = _knn_among(y, idx, MPC_SCALES[-1] + 1)
     ns = len(MPC_SCALES)
@@ -229,7 +229,7 @@ class LMRModel:
             child = np.where(go_left, left, a["right"][node])
             node = np.where(leaf, node, child + off[:-1][None, :])
         raw = float(a["init"]) + float(a["learning_rate"]) * a["value"][node].sum(1)
-        return 1.0 / (1.0 + np.exp(-raw))
+        return 1.0 / (1.0 + exp(-raw))  # _fixedmath's: the probability meets the threshold
 
     def save(self, path) -> None:
         """Write the arrays as a compressed ``.npz`` (file mode from the umask)."""

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _fixedmath
 from .._blas import one_blas_thread
 from ._common import MatchSet, check_positive, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, matmul_t, solve, weighted_gram_t
@@ -26,9 +27,10 @@ __all__ = ["vfc_filter"]
 
 
 def gaussian_kernel(a: np.ndarray, b: np.ndarray, beta: float) -> np.ndarray:
-    """``exp(-beta * |a_i - b_j|^2)`` of shape (len(a), len(b))."""
+    """``exp(-beta * |a_i - b_j|^2)`` of shape (len(a), len(b)); the exponential is ``_fixedmath.exp``,
+    the same bits on any CPU (the EM amplifies last-bit differences up to the posterior threshold)."""
     d2 = ((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)
-    return np.exp(-beta * d2)
+    return _fixedmath.exp(-beta * d2)
 
 
 def control_points(x: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
@@ -40,9 +42,11 @@ def control_points(x: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarra
 
 
 def posterior(residual2: np.ndarray, sigma2: float, gamma: float, a: float, dim: int = 2) -> np.ndarray:
-    """E-step of VFC, Eq. (9): inlier posterior of every sample."""
-    inl = np.exp(-residual2 / (2.0 * sigma2))
-    out = (2.0 * np.pi * sigma2) ** (dim / 2.0) * (1.0 - gamma) / (gamma * a)
+    """E-step of VFC, Eq. (9): inlier posterior of every sample (the exponential and the power evaluated the
+    same way on any CPU: they decide ``p_n > tau``)."""
+    inl = _fixedmath.exp(-residual2 / (2.0 * sigma2))
+    # A Python float's power (the C library's pow): exact for dim = 2, x ** 1.0 = x in any C library.
+    out = float(2.0 * np.pi * sigma2) ** (dim / 2.0) * (1.0 - gamma) / (gamma * a)
     return inl / (inl + out)
 
 
@@ -181,7 +185,8 @@ def _vfc(x1, y1, beta, lam, tau, gamma, a, n_control, max_iter, tol, min_p, rng)
             p = posterior(r2, sigma2, gamma, a)
             # Eq. (12): the expected complete-data energy, plus the regulariser.
             old = energy
-            energy = dot(p, r2) / (2 * sigma2) + p.sum() * np.log(sigma2) + lam / 2 * float((C * matmul(G, C)).sum())
+            energy = (dot(p, r2) / (2 * sigma2) + p.sum() * float(_fixedmath.log(sigma2))
+                      + lam / 2 * float((C * matmul(G, C)).sum()))
             change = abs((energy - old) / energy) if energy != 0 else 0.0
             pw = np.maximum(p, min_p)
             # Sparse M-step: (U' P U + lam sigma^2 G) C = U' P motion.
