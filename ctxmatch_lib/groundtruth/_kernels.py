@@ -39,11 +39,12 @@ with user_cache() as _cache:
         k = (-d + 1.0 + r) * (d + 1.0 - r) * (d - 1.0 + r) * (d + 1.0 + r)
         return math.acos(c1) + r * r * math.acos(c2) - 0.5 * math.sqrt(max(k, 0.0))
 
-    @numba.njit(cache=_cache, nogil=True, error_model="numpy", fastmath={"reassoc", "contract", "arcp", "nsz"})
+    @numba.njit(cache=_cache, nogil=True, error_model="numpy")
     def _ray_sum(px, py, q1, n00, n01, n11, nvx, nvy, q2, cos_t, sin_t):
-        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2``. Vectorised (SIMD):
-        ``error_model="numpy"`` drops the division-by-zero check that blocks it (``a > 0``: ``N`` is positive
-        definite), fastmath without ``nnan``/``ninf`` lets the sum be reordered (last bits only)."""
+        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2``, one IEEE operation at
+        a time in a fixed order (no ``fastmath``: a fused multiply-add or a sum reordered for the CPU's vector
+        width would move the overlap error, which a threshold reads, with the CPU). ``error_model="numpy"``
+        drops numba's division-by-zero check (``a > 0``: ``N`` is positive definite)."""
         acc = 0.0
         for j in range(cos_t.shape[0]):
             c, s = cos_t[j], sin_t[j]

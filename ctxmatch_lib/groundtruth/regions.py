@@ -63,6 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._fixedmath import sincos
 from .._validation import as_matches, as_points
 from ..blob.overlap import as_shapes, ellipse_overlap_error
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
@@ -91,9 +92,9 @@ SHAPE_SCALE = 2.0
 #: Angles of the ray integration of the intersection area.
 N_ANGLES = 64
 
-# The kernel takes the first half of the angles: each ray is integrated with its opposite.
-_COS = np.cos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
-_SIN = np.sin(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
+# The kernel takes the first half of the angles: each ray is integrated with its opposite. The tables come
+# from _fixedmath (the same bits on any CPU), as the overlap errors that a threshold reads.
+_SIN, _COS = sincos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
 #: Methods B and C skip the integration where a lower bound of the overlap error exceeds the threshold by
 #: more than this (the integration's own error is below 5e-3), so the labels are those of the full computation.
 _REJECT_MARGIN = 0.01
