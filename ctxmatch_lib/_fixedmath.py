@@ -208,7 +208,7 @@ def atan2(y, x) -> np.ndarray:
     Returns
     -------
     ndarray
-        float64, ``atan2(±0, +0) = ±0`` and ``atan2(±0, -0) = ±pi`` as in C.
+        float64, ``atan2(±0, +0) = ±0`` and ``atan2(±0, -0) = ±pi`` as in C; NaN where either is NaN.
 
     Examples
     --------
@@ -227,7 +227,7 @@ def atan2(y, x) -> np.ndarray:
     out = np.where(neg_x, _PI - (z - _PI_LO), z)
     out = np.where(steep & (ay > 0), _ATANHI[3] + _ATANLO[3], out)
     out = np.where((ay == 0) & ~neg_x, 0.0, out)
-    return np.copysign(out, y)
+    return np.where(np.isnan(x) | np.isnan(y), np.nan, np.copysign(out, y))
 
 
 def exp(x) -> np.ndarray:

@@ -62,3 +62,8 @@ def test_atan_special_values():
     out = fm.atan([0.0, -0.0, np.inf, -np.inf, np.nan])
     assert out[2:4].tolist() == [math.pi / 2, -math.pi / 2] and np.isnan(out[4])
     assert out[0] == 0.0 and not np.signbit(out[0]) and np.signbit(out[1])
+
+
+def test_atan2_propagates_nan():
+    out = fm.atan2([np.nan, 1.0, np.nan, 1.0], [1.0, np.nan, np.nan, 1.0])
+    assert np.isnan(out[:3]).all() and out[3] == math.pi / 4
