@@ -128,10 +128,10 @@ def generation_env(generation: str | None, cache: str, numba_cache: str, base: d
 
 # --- workers (run in the subprocesses) -------------------------------------------------------------------------
 
-def worker_rows(out: Path, features, pair_step: int, filters: str, pairs: int) -> None:
+def worker_rows(out: Path, features, pair_step: int, filters: str, pairs: int, pair_ids=None) -> None:
     from ctxmatch_lib.evaluation import evaluate_cached, select_pairs
 
-    sel = select_pairs("embedded", step=pair_step)[:pairs or None]
+    sel = select_pairs("embedded", step=pair_step, pair_ids=pair_ids)[:pairs or None]
     df = evaluate_cached(sel, features=list(features), blobs=["baseline", "paper-best-overlap"],
                          filters=filters.split(",") if filters != "all" else "all", models=("none", "1sac"),
                          cache=False, progress=False)
@@ -245,6 +245,7 @@ def main(argv=None) -> int:
     parser.add_argument("--features", default=",".join(EMBEDDED_FEATURES), help="rows: feature setups")
     parser.add_argument("--pair-step", type=int, default=2, help="rows: every n-th embedded pair (default 2)")
     parser.add_argument("--max-pairs", type=int, default=0, help="rows: at most this many pairs (0: all)")
+    parser.add_argument("--pair-ids", default="", help="rows: comma-separated embedded pair ids (default: by --pair-step)")
     parser.add_argument("--filters", default="all", help="comma-separated filters (default all)")
     parser.add_argument("--pairs", type=int, default=2, help="masks: real pairs of bench_filters_real (default 2)")
     parser.add_argument("--keep", type=Path, help="write the per-core-type outputs into this folder")
@@ -261,7 +262,8 @@ def main(argv=None) -> int:
         print(blas_architecture())
         return 0
     if args.worker == "rows":
-        worker_rows(args.out, args.features.split(","), args.pair_step, args.filters, args.max_pairs)
+        worker_rows(args.out, args.features.split(","), args.pair_step, args.filters, args.max_pairs,
+                    args.pair_ids.split(",") if args.pair_ids else None)
         return 0
     if args.worker == "features":
         worker_features(args.out, args.features.split(","), args.pair_step, args.max_pairs)
@@ -300,7 +302,8 @@ def main(argv=None) -> int:
         for c in coretypes:
             out = tmp / f"rows_{c or 'default'}.parquet"
             arch = _run(["--worker", "rows", "--out", str(out), "--features", args.features, "--pair-step",
-                         str(args.pair_step), "--filters", args.filters, "--max-pairs", str(args.max_pairs)],
+                         str(args.pair_step), "--filters", args.filters, "--max-pairs", str(args.max_pairs),
+                         "--pair-ids", args.pair_ids],
                         c, str(tmp / f"cache_{c or 'default'}"), str(tmp / "numba"))
             frames[c] = pd.read_parquet(out)
             print(f"{c or 'default'}: OpenBLAS core {arch}, {len(frames[c])} rows", flush=True)
