@@ -61,6 +61,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._fixedmath import atan2
 from ._adalam_kernels import beaten_by_neighbours, best_confident_maps
 from ._common import MatchSet, check_positive, match_filter
 
@@ -88,7 +89,7 @@ def _relative_similarity(A1: np.ndarray, A2: np.ndarray):
     inv1 = np.stack([np.stack([A1[:, 1, 1], -A1[:, 0, 1]], -1), np.stack([-A1[:, 1, 0], A1[:, 0, 0]], -1)], 1)
     inv1 = inv1 / np.where(ok, det1, 1.0)[:, None, None]
     L = A2 @ inv1
-    angle = np.degrees(np.arctan2(L[:, 1, 0] - L[:, 0, 1], L[:, 0, 0] + L[:, 1, 1]))
+    angle = np.degrees(atan2(L[:, 1, 0] - L[:, 0, 1], L[:, 0, 0] + L[:, 1, 1]))  # _fixedmath's
     scale = np.sqrt(np.abs(L[:, 0, 0] * L[:, 1, 1] - L[:, 0, 1] * L[:, 1, 0]))
     angle[~ok] = np.nan
     scale[~ok | (scale <= 0)] = np.nan
@@ -100,7 +101,7 @@ def _keypoint_similarity(A1: np.ndarray, A2: np.ndarray):
     orientation the angle of the rotation closest to its shape ``A`` (polar decomposition) and its scale
     ``sqrt(|det A|)``; NaN where a shape is singular."""
     def orient_scale(A):
-        return (np.degrees(np.arctan2(A[:, 1, 0] - A[:, 0, 1], A[:, 0, 0] + A[:, 1, 1])),
+        return (np.degrees(atan2(A[:, 1, 0] - A[:, 0, 1], A[:, 0, 0] + A[:, 1, 1])),
                 np.sqrt(np.abs(A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])))
 
     (o1, s1), (o2, s2) = orient_scale(A1), orient_scale(A2)

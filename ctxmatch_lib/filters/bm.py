@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d
 
+from .._fixedmath import exp, hypot
 from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["bm_filter"]
@@ -227,8 +228,9 @@ def bm_filter(
     w = np.ones(n)
     for _ in range(n_iter):
         mass, f = _local_affine_fit(flat, shape, u, v_r, w, ridge)
-        r = np.hypot(*(v_r - f).T)
+        # _fixedmath's hypot and exp: the weights and the r <= tau test are the same on any CPU.
+        r = hypot(*(v_r - f).T)
         r = np.where(mass > 1e-12, r, np.inf)
-        w = np.exp(-0.5 * (r / tau) ** 2)  # Welsch weights
+        w = exp(-0.5 * (r / tau) ** 2)  # Welsch weights
     support = mass / _CENTRE
     return (r <= tau) & (support >= support_floor)

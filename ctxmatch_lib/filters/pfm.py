@@ -44,6 +44,7 @@ from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from .._blas import one_blas_thread
+from .._fixedmath import exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["pfm_filter", "local_affines"]
@@ -104,7 +105,7 @@ def _edge_consistency(x, y, A, i, j, sigma: float) -> np.ndarray:
     d1, d2 = np.isfinite(r1), np.isfinite(r2)
     s = np.where(d1, r1**2, 0.0) + np.where(d2, r2**2, 0.0)
     s = np.where(d1 & d2, s, 2.0 * s)  # one direction only: count it for both
-    return np.where(d1 | d2, np.exp(-s / (2.0 * sigma**2)), 0.0)
+    return np.where(d1 | d2, exp(-s / (2.0 * sigma**2)), 0.0)  # _fixedmath's: CPU-independent
 
 
 def _point_groups(x: np.ndarray, members: np.ndarray):

@@ -43,6 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from .._fixedmath import exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._pgm_kernels import pair_affinity as _pair_affinity
 from ._pgm_kernels import sinkhorn as _pgm_sinkhorn
@@ -163,7 +164,7 @@ def rrwm(
         if total > 0:
             s /= total
         top = s.max()
-        jump = np.exp(amp_max * s / top) if top > 0 else np.ones(n)
+        jump = exp(amp_max * s / top) if top > 0 else np.ones(n)
         jump = _sinkhorn(jump, g1, g2, sinkhorn_tol, sinkhorn_iter)
         jump /= jump.sum()
         diff = min(((s - x) ** 2).sum(), ((s - x_prev) ** 2).sum())

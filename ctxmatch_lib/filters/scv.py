@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._fixedmath import log
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["scv_filter", "SCV_GROWTH"]
@@ -153,7 +154,8 @@ def scv_filter(
     n1 = knn_without_self(ms.x, everyone, sizes[-1])
     n2 = knn_without_self(ms.y, everyone, sizes[-1])
     shared = _shared_counts(n1, n2, sizes)
-    upper, lower = np.log((1 - beta) / alpha), np.log(beta / (1 - alpha))
+    # _fixedmath's logarithm: the likelihood ratios meet their bounds the same way on any CPU.
+    upper, lower = float(log((1 - beta) / alpha)), float(log(beta / (1 - alpha)))
     llr = np.zeros(n)
     decided = np.zeros(n, bool)
     keep = np.zeros(n, bool)
@@ -166,7 +168,7 @@ def scv_filter(
         # The matches entering the region at this step; the count can exceed them by the earlier entrants
         # of the image-1 region that only now entered the image-2 one, so it is capped at the trials.
         success = np.minimum(shared[:, t] - prev_shared, trials)
-        step = success * np.log(p1 / chance) + (trials - success) * np.log((1 - p1) / (1 - chance))
+        step = success * float(log(p1 / chance)) + (trials - success) * float(log((1 - p1) / (1 - chance)))
         llr = np.where(decided, llr, llr + step)
         accept = ~decided & (llr >= upper)
         reject = ~decided & (llr <= lower)
