@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._fixedmath import hypot, sincos
+
 __all__ = ["as_shapes", "shapes_from_scale_angle", "ellipse_overlap_error", "circle_overlap_bounds"]
 
 
@@ -24,7 +26,7 @@ def shapes_from_scale_angle(scale, angle=None) -> np.ndarray:
     """
     scale = np.asarray(scale, dtype=np.float64).reshape(-1)
     angle = np.zeros_like(scale) if angle is None else np.asarray(angle, dtype=np.float64).reshape(-1)
-    c, s = np.cos(angle), np.sin(angle)
+    s, c = sincos(angle)  # _fixedmath's: the same shapes on any CPU
     rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
     return scale[:, None, None] * rot
 
@@ -60,8 +62,11 @@ def _bounding_circles(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
 def _unit_polygon(k: int = 32) -> np.ndarray:
     """Vertices of a regular ``k``-gon with the area of the unit disk (radius scaled up from 1)."""
     t = np.linspace(0.0, 2.0 * np.pi, k, endpoint=False)
-    scale = np.sqrt(2.0 * np.pi / (k * np.sin(2.0 * np.pi / k)))
-    return scale * np.stack([np.cos(t), np.sin(t)], axis=1)
+    # _fixedmath's sines: the polygon, and the overlap errors that FGINN and methods B/C threshold, are the
+    # same on any CPU.
+    scale = np.sqrt(2.0 * np.pi / (k * float(sincos(2.0 * np.pi / k)[0])))
+    s, c = sincos(t)
+    return scale * np.stack([c, s], axis=1)
 
 
 _POLYGON = _unit_polygon()
@@ -125,8 +130,8 @@ def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
 
 #: Circumradius of :data:`_POLYGON` (the 32-gon of :func:`ellipse_overlap_error` for the unit disk) and the
 #: ratio of its inradius to it: the polygon of a circle of radius r lies between the circles r * these.
-_OUTER = float(np.hypot(*_POLYGON[0]))
-_INNER = _OUTER * float(np.cos(np.pi / len(_POLYGON)))
+_OUTER = float(hypot(*_POLYGON[0]))
+_INNER = _OUTER * float(sincos(np.pi / len(_POLYGON))[1])
 
 
 def _lens_area(r1: np.ndarray, r2: np.ndarray, dist: np.ndarray) -> np.ndarray:
