@@ -11,6 +11,7 @@ import pytest
 
 from ctxmatch_lib.blob import (BLOB_PRESETS, BlobConfig, BlobContext, blob_matching, ellipse_overlap_error,
                                shapes_from_scale_angle)
+from ctxmatch_lib.blob._kernels import outside_px
 from ctxmatch_lib.blob.core import match_context
 
 SETUPS = [BLOB_PRESETS["paper-best"], BLOB_PRESETS["baseline"],
@@ -294,6 +295,15 @@ def test_whole_line_second_best_equals_the_dense_reference(ties, t_o, kind):
             for res in (got, want):
                 assert np.array_equal(np.isinf(res), np.isinf(brute))
                 assert np.allclose(res[np.isfinite(res)], brute[np.isfinite(brute)], rtol=1e-12, atol=1e-14)
+
+
+def test_fginn_by_pixels_keeps_keypoints_t_o_or_farther():
+    """FGINN by pixels (Eq. 9), the rule all three second-best searches share: a keypoint closer than
+    ``t_o`` to the match is excluded (the match itself too), one exactly ``t_o`` away is kept."""
+    pts = np.array([[0.0, 0.0], [3.0, 4.0], [2.9, 4.0], [10.0, 0.0]])  # (x, y) pixels
+    got = outside_px(pts, np.array([0, 3]), 5.0**2)
+    assert got.tolist() == [[False, True, False, True], [True, True, True, False]]
+    assert outside_px(pts, np.empty(0, np.int64), 25.0).shape == (0, 4)
 
 
 @pytest.mark.parametrize("margin", [-1, 2.5])

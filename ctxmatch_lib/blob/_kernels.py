@@ -29,7 +29,7 @@ from .._numba import user_cache
 from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, prefetch, store16, zero8
 
 __all__ = ["TAKEN", "code_scale", "code", "encode", "error_scale", "sq_norms", "scan_tile", "certify_lines",
-           "first_allowed", "next_allowed"]
+           "first_allowed", "next_allowed", "outside_px"]
 
 _U = 2.0**-24
 
@@ -442,6 +442,27 @@ with user_cache() as _cache:
                 work += _full_line(A, line, B, T, out_idx, out_val)
         return work
 
+    @njit(cache=_cache, nogil=True, inline="always")
+    def within_px(pts, k, o, t_o2):
+        """FGINN by pixels (Eq. (9), Sec. 3): whether keypoint ``k`` lies less than ``sqrt(t_o2)`` pixels from
+        the matched keypoint ``o`` (rows of ``pts``, (x, y) pixels), which excludes it from the second best.
+        The rule's one definition: the sorted lists (:func:`first_allowed`), the L2 path's whole lines
+        (:func:`._walk_kernels.next_in_line`) and exact whole lines (:func:`outside_px`) apply it."""
+        dx = pts[k, 0] - pts[o, 0]
+        dy = pts[k, 1] - pts[o, 1]
+        return dx * dx + dy * dy < t_o2
+
+    @njit(cache=_cache, nogil=True)
+    def outside_px(pts, others, t_o2):
+        """``(K, N)`` mask of the keypoints ``k`` of ``pts`` (shape ``(N, 2)``, (x, y) pixels) that FGINN by
+        pixels leaves to the line of match ``others[r]``: not :func:`within_px` of it."""
+        out = np.empty((len(others), pts.shape[0]), np.bool_)
+        for r in range(len(others)):
+            o = others[r]
+            for k in range(pts.shape[0]):
+                out[r, k] = not within_px(pts, k, o, t_o2)
+        return out
+
     @njit(cache=_cache, nogil=True)
     def first_allowed(idx, val, anchors, others, dist, geq, pts, t_o2):
         """Second best on sorted lists: per anchor line ``idx[anchors[r]]`` the first entry that is not the
@@ -458,11 +479,8 @@ with user_cache() as _cache:
                     continue
                 if geq and val[a, q] < dist[r]:
                     continue
-                if t_o2 > 0:
-                    dx = pts[k, 0] - pts[o, 0]
-                    dy = pts[k, 1] - pts[o, 1]
-                    if dx * dx + dy * dy < t_o2:
-                        continue
+                if t_o2 > 0 and within_px(pts, k, o, t_o2):
+                    continue
                 out[r] = val[a, q]
                 found[r] = True
                 break

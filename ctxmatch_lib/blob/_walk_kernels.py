@@ -8,7 +8,7 @@ time, and float64 exact distances decide. The codes take half the memory of floa
 is written and read twice as fast.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit of the ``_kernels`` it
-uses (``_exact_sq``, ``_lowest_bit``) or of ``ctxmatch_lib._simd``, touch this file (or clear
+uses (``_exact_sq``, ``_lowest_bit``, ``within_px``) or of ``ctxmatch_lib._simd``, touch this file (or clear
 ``$CTXMATCH_CACHE/numba``).
 """
 
@@ -19,7 +19,7 @@ from numba import njit
 
 from .._numba import user_cache
 from .._simd import band16, prefetch
-from ._kernels import TAKEN, _exact_sq, _lowest_bit
+from ._kernels import TAKEN, _exact_sq, _lowest_bit, within_px
 
 __all__ = ["next_in_line", "greedy_dense", "next_in_lines"]
 
@@ -32,11 +32,8 @@ with user_cache() as _cache:
     def _consider(A, line, B, k, d, j, strict, skip, pts, t_o2, best_d, best_k):
         """Entry ``k`` of the band of :func:`next_in_line`: its exact distance, if FGINN keeps it and it is
         after ``(d, j)``, against the best so far in (distance, index) order."""
-        if t_o2 > 0:
-            dx = pts[k, 0] - pts[skip, 0]
-            dy = pts[k, 1] - pts[skip, 1]
-            if dx * dx + dy * dy < t_o2:
-                return best_d, best_k
+        if t_o2 > 0 and within_px(pts, k, skip, t_o2):
+            return best_d, best_k
         e = np.sqrt(_exact_sq(A, line, B, k))
         if e < d or (strict and e == d and k <= j):
             return best_d, best_k

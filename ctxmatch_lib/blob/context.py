@@ -534,7 +534,7 @@ class BlobContext:
             if geq:
                 allowed &= line >= d[:, None]
             if px2 > 0:
-                allowed &= np.sum((pts[None, :, :] - pts[o][:, None, :]) ** 2, axis=-1) >= px2
+                allowed &= _kernels.outside_px(pts, o, px2)
             line = np.where(allowed, line, np.inf)
             if not by_overlap:
                 out[s : s + step] = line.min(axis=1)
