@@ -100,7 +100,12 @@ def test_the_fused_product_keeps_the_tiles_lists(cfg, seed, n, m, d, ties, margi
         assert (a is None) == (b is None)
         assert a is None or (np.array_equal(a.idx, b.idx) and np.array_equal(a.val, b.val))
     if dense:
-        assert np.array_equal(tiles._approx, fused._approx)
+        # f = Ω's 16-bit codes of the float32 product only propose (the certified bound holds for any summation
+        # order): they equal the tiles' where the BLAS kernel sums as fma16 does (OpenBLAS's SkylakeX kernel)
+        # and differ by one code where another kernel rounds a float32 sum the other way (Haswell / Zen); the
+        # candidates and scores below are the same either way.
+        gap = np.abs(tiles._approx.astype(np.int64) - fused._approx.astype(np.int64))
+        assert gap.max(initial=0) <= 1 and (gap > 0).mean() < 1e-3
     if not dense or cfg.combine == "a":  # a context without columns serves W = a only
         x, y = match_context(tiles, cfg), match_context(fused, cfg)
         assert np.array_equal(x.matches, y.matches) and np.array_equal(x.scores, y.scores)
