@@ -541,7 +541,10 @@ def test_engine_rows_identical_to_before_the_refactor():
     were rewritten once, when AdaLAM's defaults were aligned with kornia's AdaLAM (issue 22), and the AP of 5
     rows once, when blob matching's scores became exact float64 distances instead of float32 GEMM values (issue
     31: the AP ranks by score, and scores moved by under 1e-5, reordering near ties; AP moved by under 6e-6,
-    every other column stayed bit for bit); every other value is still the one written before the refactor.
+    every other column stayed bit for bit). Every row was rewritten once more when the features and the
+    embedded dataset were made the same on any CPU (dataset version 2: new images; features from IEEE basic
+    operations and OpenCV's baseline build): the inputs changed, the engine did not, and the rows are again
+    compared bit for bit.
     """
     import io
 
