@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Presets", "as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix", "check_inside",
-           "cumulative_distinct"]
+__all__ = ["Presets", "as_points", "as_matches", "as_scores", "as_image_size", "as_finite_matrix", "as_matrix3",
+           "as_vector3", "as_intrinsics", "as_rotation", "check_inside", "cumulative_distinct"]
 
 
 class Presets(dict):
@@ -56,6 +56,68 @@ def as_finite_matrix(x, name: str, *, ndim: int = 2, dtype=None) -> np.ndarray:
         raise ValueError(f"{name} must be numeric, got dtype {arr.dtype}")
     if arr.size and not np.isfinite(arr).all():
         raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def as_matrix3(M, name: str) -> np.ndarray:
+    """``M`` as a finite float64 ``(3, 3)`` matrix; the error names ``name``."""
+    if M is None:
+        raise ValueError(f"{name} is required (a (3, 3) matrix), got None")
+    arr = np.asarray(M)
+    if arr.shape != (3, 3) or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be a (3, 3) numeric matrix, got shape {arr.shape}")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def as_vector3(v, name: str) -> np.ndarray:
+    """``v`` (shape ``(3,)`` or ``(3, 1)``) as a finite float64 ``(3,)`` vector; the error names ``name``."""
+    arr = np.asarray(v)
+    if arr.shape not in ((3,), (3, 1)) or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
+    arr = arr.astype(np.float64).reshape(3)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def as_intrinsics(K, name: str = "K") -> np.ndarray:
+    """``K`` as a float64 upper-triangular ``(3, 3)`` intrinsic matrix with non-zero focals, divided by
+    ``K[2, 2]``; the single check behind :func:`ctxmatch_lib.geometry.pose.check_intrinsics` and the
+    calibrated datasets. The error names ``name``.
+
+    Examples
+    --------
+    >>> as_intrinsics([[500, 0, 320], [0, 500, 240], [0, 0, 2]], "K1")[0].tolist()
+    [250.0, 0.0, 160.0]
+    >>> as_intrinsics([[0, 0, 320], [0, 500, 240], [0, 0, 1]], "K1")
+    Traceback (most recent call last):
+    ...
+    ValueError: K1 has a zero focal length (fx = 0, fy = 500)
+    """
+    if K is None:
+        raise ValueError(f"{name} is required (a (3, 3) intrinsic matrix), got None")
+    arr = as_matrix3(K, name)
+    if arr[2, 2] == 0 or arr[1, 0] != 0 or arr[2, 0] != 0 or arr[2, 1] != 0:
+        raise ValueError(f"{name} must be upper triangular with K[2, 2] != 0, got {arr.tolist()}")
+    arr = arr / arr[2, 2]
+    if arr[0, 0] == 0 or arr[1, 1] == 0:
+        raise ValueError(f"{name} has a zero focal length (fx = {arr[0, 0]:g}, fy = {arr[1, 1]:g})")
+    return arr
+
+
+def as_rotation(R, name: str = "R", tol: float = 1e-6) -> np.ndarray:
+    """``R`` as a float64 rotation matrix: ``R^T R`` within ``tol`` of the identity (largest entry) and a
+    positive determinant; the error names ``name`` (a scale, a shear, a reflection)."""
+    arr = as_matrix3(R, name)
+    err = float(np.abs(arr.T @ arr - np.eye(3)).max())
+    if err > tol:
+        raise ValueError(f"{name} is not a rotation: R^T R differs from the identity by {err:.3g}")
+    det = float(np.linalg.det(arr))
+    if det < 0:
+        raise ValueError(f"{name} is not a rotation: its determinant is {det:.6g} (a reflection)")
     return arr
 
 

@@ -12,6 +12,8 @@ from typing import Iterator, Literal, Union
 
 import numpy as np
 
+from .._validation import as_intrinsics, as_rotation, as_vector3
+
 __all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "PoseGT", "GroundTruth", "Pair", "PairKind", "Dataset",
            "PAIR_KINDS"]
 
@@ -138,40 +140,10 @@ def _skew(t: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
 
 
-def _check_intrinsics(K, name: str) -> np.ndarray:
-    K = np.asarray(K)
-    if K.shape != (3, 3):
-        raise ValueError(f"{name} must be a 3x3 matrix, got shape {K.shape}")
-    if not np.issubdtype(K.dtype, np.number) or not np.isfinite(K).all():
-        raise ValueError(f"{name} must hold finite numbers, got {K.tolist()}")
-    K = K.astype(np.float64)
-    if K[0, 0] == 0 or K[1, 1] == 0:
-        raise ValueError(f"{name} has a zero focal length (fx = {K[0, 0]:g}, fy = {K[1, 1]:g})")
-    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] == 0:
-        raise ValueError(f"{name} must be upper triangular with a non-zero K[2, 2], got {K.tolist()}")
-    return K / K[2, 2]
-
-
 def nearest_rotation(R) -> np.ndarray:
     """The rotation closest to ``R`` in the Frobenius norm (``U V^T`` of its SVD), for a matrix read as text."""
     U, _, Vt = np.linalg.svd(np.asarray(R, np.float64))
     return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-
-
-def _check_rotation(R, name: str = "R", tol: float = _ROTATION_TOL) -> np.ndarray:
-    R = np.asarray(R)
-    if R.shape != (3, 3):
-        raise ValueError(f"{name} must be a 3x3 matrix, got shape {R.shape}")
-    if not np.issubdtype(R.dtype, np.number) or not np.isfinite(R).all():
-        raise ValueError(f"{name} must hold finite numbers, got {R.tolist()}")
-    R = R.astype(np.float64)
-    err = float(np.abs(R.T @ R - np.eye(3)).max())
-    if err > tol:
-        raise ValueError(f"{name} is not a rotation: R^T R differs from the identity by {err:.3g}")
-    det = float(np.linalg.det(R))
-    if det < 0:
-        raise ValueError(f"{name} is not a rotation: its determinant is {det:.6g} (a reflection)")
-    return R
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,15 +188,10 @@ class PoseGT:
     rotations: tuple[int, int] = (0, 0)
 
     def __post_init__(self):
-        object.__setattr__(self, "K1", _check_intrinsics(self.K1, "K1"))
-        object.__setattr__(self, "K2", _check_intrinsics(self.K2, "K2"))
-        object.__setattr__(self, "R", _check_rotation(self.R, "R"))
-        t = np.asarray(self.t)
-        if t.shape not in ((3,), (3, 1)):
-            raise ValueError(f"t must have shape (3,), got {t.shape}")
-        if not np.issubdtype(t.dtype, np.number) or not np.isfinite(t).all():
-            raise ValueError(f"t must hold finite numbers, got {t.ravel().tolist()}")
-        t = t.astype(np.float64).reshape(3)
+        object.__setattr__(self, "K1", as_intrinsics(self.K1, "K1"))
+        object.__setattr__(self, "K2", as_intrinsics(self.K2, "K2"))
+        object.__setattr__(self, "R", as_rotation(self.R, "R", _ROTATION_TOL))
+        t = as_vector3(self.t, "t")
         if not np.any(t):
             raise ValueError("t is zero: a pure rotation has no epipolar geometry")
         object.__setattr__(self, "t", t)

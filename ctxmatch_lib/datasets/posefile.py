@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from .._paths import atomic_path
+from .._validation import as_rotation
 from ._io import image_size
-from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, _check_rotation, nearest_rotation
+from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, nearest_rotation
 from .strecha import rotation_band, threshold_scale_for
 
 __all__ = ["POSE_LINE_TOKENS", "parse_pose_tokens", "format_pose_tokens", "read_pairs_with_gt",
@@ -63,7 +64,7 @@ def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = No
     K0, K1, T = values[2:11].reshape(3, 3), values[11:20].reshape(3, 3), values[20:].reshape(4, 4)
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
         raise ValueError(f"T_0to1 must end with the row 0 0 0 1, got {T[3].tolist()}")
-    R = nearest_rotation(_check_rotation(T[:3, :3] / T[3, 3], "the rotation of T_0to1", ROTATION_TEXT_TOL))
+    R = nearest_rotation(as_rotation(T[:3, :3] / T[3, 3], "the rotation of T_0to1", ROTATION_TEXT_TOL))
     t = T[:3, 3] / T[3, 3]
     if difficulty is None:
         difficulty = rotation_band(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))))

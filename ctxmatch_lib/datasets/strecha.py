@@ -41,8 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import as_intrinsics, as_rotation
 from ._io import IMAGE_SUFFIXES, image_size
-from .base import ROTATION_TEXT_TOL, Pair, PoseGT, _check_intrinsics, _check_rotation, nearest_rotation
+from .base import ROTATION_TEXT_TOL, Pair, PoseGT, nearest_rotation
 
 __all__ = [
     "STRECHA_SCENES", "DIFFICULTY_BANDS", "MAX_PAIRS_PER_BAND", "MAX_ROTATION_DEG", "MIN_BASELINE_RATIO",
@@ -135,13 +136,13 @@ def read_strecha_camera(path) -> Camera:
     C = _numbers(lines, 7, 8, 3, path)[0]
     size = _numbers(lines, 8, 9, 2, path)[0]
     try:
-        K = _check_intrinsics(K, "K")
+        K = as_intrinsics(K, "K")
     except ValueError as exc:
         raise ValueError(f"{path}, lines 1-3: {exc}") from None
     if np.any(dist):
         raise ValueError(f"{path}, line 4: non-zero distortion {dist[0].tolist()}; the images must be undistorted")
     try:
-        R = nearest_rotation(_check_rotation(R, "R", ROTATION_TEXT_TOL))
+        R = nearest_rotation(as_rotation(R, "R", ROTATION_TEXT_TOL))
     except ValueError as exc:
         raise ValueError(f"{path}, lines 5-7: {exc}") from None
     if np.any(size <= 0) or np.any(size != np.round(size)):

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_points
+from .._validation import as_intrinsics, as_matrix3, as_points, as_vector3
 
 __all__ = [
     "POSE_FAILURE_DEG",
@@ -83,40 +83,7 @@ def check_intrinsics(K, name: str = "K") -> np.ndarray:
     >>> check_intrinsics([[500, 0, 320], [0, 500, 240], [0, 0, 1]], "K1")[0].tolist()
     [500.0, 0.0, 320.0]
     """
-    if K is None:
-        raise ValueError(f"{name} is required (a (3, 3) intrinsic matrix), got None")
-    arr = np.asarray(K)
-    if arr.shape != (3, 3) or not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"{name} must be a (3, 3) numeric matrix, got shape {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or infinite values")
-    if arr[2, 2] == 0 or arr[1, 0] != 0 or arr[2, 0] != 0 or arr[2, 1] != 0:
-        raise ValueError(f"{name} must be upper triangular with K[2, 2] != 0, got {arr.tolist()}")
-    arr = arr / arr[2, 2]
-    if arr[0, 0] == 0 or arr[1, 1] == 0:
-        raise ValueError(f"{name} has a zero focal length (fx = {arr[0, 0]:g}, fy = {arr[1, 1]:g})")
-    return arr
-
-
-def _check_matrix(M, name: str) -> np.ndarray:
-    arr = np.asarray(M)
-    if arr.shape != (3, 3) or not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"{name} must be a (3, 3) numeric matrix, got shape {arr.shape}")
-    arr = arr.astype(np.float64)
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or infinite values")
-    return arr
-
-
-def _check_vector(v, name: str) -> np.ndarray:
-    arr = np.asarray(v)
-    if arr.shape not in ((3,), (3, 1)) or not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
-    arr = arr.astype(np.float64).reshape(3)
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contains NaN or infinite values")
-    return arr
+    return as_intrinsics(K, name)
 
 
 def normalise_by_intrinsics(pts, K) -> np.ndarray:
@@ -168,7 +135,7 @@ def essential_from_fundamental(F, K1, K2) -> np.ndarray:
     ----------
     Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., Eq. (9.12).
     """
-    F = _check_matrix(F, "F")
+    F = as_matrix3(F, "F")
     return check_intrinsics(K2, "K2").T @ F @ check_intrinsics(K1, "K1")
 
 
@@ -190,7 +157,7 @@ def fundamental_from_essential(E, K1, K2) -> np.ndarray:
     ndarray of shape (3, 3)
         Unit Frobenius norm (all zeros when ``E`` is).
     """
-    return _fundamental_from_essential(_check_matrix(E, "E"), check_intrinsics(K1, "K1"),
+    return _fundamental_from_essential(as_matrix3(E, "E"), check_intrinsics(K1, "K1"),
                                        check_intrinsics(K2, "K2"))
 
 
@@ -248,7 +215,7 @@ def recover_relative_pose(E, pts1, pts2, K1, K2) -> tuple[np.ndarray, np.ndarray
     >>> np.allclose(R, np.eye(3)), np.allclose(t_est, t), n
     (True, True, 20)
     """
-    E = _check_matrix(E, "E")
+    E = as_matrix3(E, "E")
     pts1 = as_points(pts1, "pts1")
     pts2 = as_points(pts2, "pts2", n=len(pts1))
     K1 = check_intrinsics(K1, "K1")
@@ -306,7 +273,7 @@ def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, n
         raise ValueError(f"kind must be 'F' or 'E' (a homography has no unique relative pose), got {kind!r}")
     if model is None:
         return None
-    E = essential_from_fundamental(model, K1, K2) if kind == "F" else _check_matrix(model, "model")
+    E = essential_from_fundamental(model, K1, K2) if kind == "F" else as_matrix3(model, "model")
     pose = recover_relative_pose(E, pts1, pts2, K1, K2)
     return None if pose is None else pose[:2]
 
@@ -370,8 +337,8 @@ def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
     >>> [round(e, 9) for e in relative_pose_error(Rz, [-2.0, 0, 0], np.eye(3), [1.0, 0, 0])]
     [10.0, 0.0]
     """
-    R_gt = _check_matrix(R_gt, "R_gt")
-    t_gt = _check_vector(t_gt, "t_gt")
+    R_gt = as_matrix3(R_gt, "R_gt")
+    t_gt = as_vector3(t_gt, "t_gt")
     if not np.any(t_gt):
         raise ValueError("t_gt is zero: a pure rotation has no translation direction")
     if R_est is None or t_est is None:
