@@ -3,7 +3,7 @@
 numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
-Gram matrices. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
+Gram matrices and for four output channels of the patch networks' direct convolution. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
 scan in registers; :func:`band16` compares sixteen 16-bit codes of its look-ups beyond the sorted lists
 at once; 16-lane vectors hold the accumulators of its fused float32 product (:func:`fma16`,
 :func:`row_flags`, :func:`row_reflag`, :func:`row_codes`; the product only proposes, so there a
@@ -15,7 +15,8 @@ lane by lane.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
 whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``,
-``blob/_fused_kernels.py``, ``filters/_em_kernels.py``, ``filters/_llt_kernels.py``) or clear
+``blob/_fused_kernels.py``, ``filters/_em_kernels.py``, ``filters/_llt_kernels.py``,
+``features/_conv_kernels.py``) or clear
 ``$CTXMATCH_CACHE/numba``. Never rename or remove one of the types below: numba unpickles a cached index
 before it compares timestamps, and an index naming a type that is gone raises ``AttributeError`` instead of
 recompiling (seen when ``Vec4`` was renamed; checkouts at the same path share their cache folders).
@@ -28,7 +29,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "Vec16", "load16",
+__all__ = ["Vec8", "zero8", "add_sqdiff8", "lanes8", "Vec4", "load4", "store4", "mul4", "muladd4", "splat4", "zero4",
+           "Vec16", "load16",
            "store16", "count16", "below16", "insert16", "lane16", "band16",
            "prefetch", "fill16", "fma16", "row_flags", "row_reflag", "row_codes"]
 
@@ -123,8 +125,9 @@ def lanes8(typingctx, acc):
 
 class Vec4(types.Type):
     """Four float64 lanes held as one LLVM ``<4 x double>`` (a SIMD register): the accumulators of the EM
-    filters' weighted Gram matrices (``filters/_em_kernels.py``). Only :func:`load4`, :func:`store4`,
-    :func:`mul4` and :func:`muladd4` make or use one."""
+    filters' weighted Gram matrices (``filters/_em_kernels.py``) and of the patch networks' convolutions
+    (``features/_conv_kernels.py``). Only :func:`load4`, :func:`store4`, :func:`mul4`, :func:`muladd4`,
+    :func:`splat4` and :func:`zero4` make or use one."""
 
     def __init__(self):
         super().__init__(name="Vec4f64")
@@ -170,6 +173,32 @@ def mul4(typingctx, a, b):
         return builder.fmul(args[0], args[1])
 
     return _vec4(_vec4, _vec4), codegen
+
+
+@intrinsic
+def splat4(typingctx, arr, k):
+    """A :class:`Vec4` with ``arr[k]`` in every lane (float32 widened exactly; no bounds check)."""
+    _check(arr, "arr")
+
+    def codegen(context, builder, sig, args):
+        aryty = sig.args[0]
+        data = context.make_array(aryty)(context, builder, args[0]).data
+        x = builder.load(builder.gep(data, [args[1]]))
+        if aryty.dtype == types.float32:
+            x = builder.fpext(x, ir.DoubleType())
+        return _splat(builder, x, _V4)
+
+    return _vec4(arr, types.intp), codegen
+
+
+@intrinsic
+def zero4(typingctx):
+    """A :class:`Vec4` of four +0.0."""
+
+    def codegen(context, builder, sig, args):
+        return ir.Constant(_V4, [0.0] * 4)
+
+    return _vec4(), codegen
 
 
 @intrinsic

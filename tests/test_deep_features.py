@@ -263,3 +263,31 @@ def test_shared_steps_kept_for_the_next_block_give_the_same_features(tmp_path):
         g = extract_features(img, c, cache_dir=False)
         for name in ("kpts", "shapes", "desc", "scales", "angles", "responses"):
             assert getattr(f, name).tobytes() == getattr(g, name).tobytes(), (c.descriptor, name)
+
+
+@pytest.mark.parametrize("shape,stride", [((3, 10, 9, 16, 16), 1), ((2, 11, 12, 16, 32), 2), ((2, 7, 7, 1, 8), 1)])
+def test_direct_conv2d_sums_in_i_j_c_order(shape, stride):
+    """The compiled convolution of the few-channel layers (OriNet's first three) forms each output as the
+    float64 sum over (i, j, c) in that order, from +0.0, rounded once to float32: the same bits as that sum
+    written out in numpy (elementwise float64 operations, the same on any CPU), odd widths (the tail loop)
+    included; the patch networks' conv2d takes it for those layers."""
+    from ctxmatch_lib.features import _nn
+    from ctxmatch_lib.features._conv_kernels import direct_conv2d
+
+    n, h, wd, c, o = shape
+    rng = np.random.default_rng(sum(shape))
+    x = rng.standard_normal((n, h, wd, c)).astype(np.float32)
+    w = (rng.standard_normal((o, c, 3, 3)) * 0.3).astype(np.float32)
+    ho, wo = (h - 3) // stride + 1, (wd - 3) // stride + 1
+    acc = np.zeros((n, ho, wo, o))
+    for i in range(3):
+        for j in range(3):
+            win = x[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride].astype(np.float64)
+            for ci in range(c):
+                acc = acc + win[..., ci, None] * w[:, ci, i, j].astype(np.float64)
+    ref = acc.astype(np.float32)
+    assert np.array_equal(direct_conv2d(x, w, stride=stride).view(np.int32), ref.view(np.int32))
+    b = rng.standard_normal(o).astype(np.float32)
+    assert np.array_equal(_nn.conv2d(x, w, b, stride=stride), ref + b)
+    with pytest.raises(ValueError, match="multiple of 8"):
+        direct_conv2d(x, w[:6], stride=stride)

@@ -67,3 +67,40 @@ def test_atan_special_values():
 def test_atan2_propagates_nan():
     out = fm.atan2([np.nan, 1.0, np.nan, 1.0], [1.0, np.nan, np.nan, 1.0])
     assert np.isnan(out[:3]).all() and out[3] == math.pi / 4
+
+
+def _exp_tanh_inputs() -> np.ndarray:
+    rng = np.random.default_rng(5)
+    scales = (1e-3, 2.0 ** -5, 0.5, 3.0, 30.0, 300.0)
+    return np.concatenate([
+        *(rng.standard_normal(20000) * s for s in scales),
+        rng.uniform(-800.0, 800.0, 20000),  # overflow, every binary exponent, the subnormal range
+        (rng.standard_normal(20000) * 4).astype(np.float32),  # the patch networks' activations
+        [0.0, -0.0, 2.0 ** -5, -(2.0 ** -5), np.nextafter(2.0 ** -5, 0.0), 40.0, -40.0, 709.782712893384, 709.79,
+         -745.1332191019412, -745.2, -744.9, -708.5, -1e300, 1e300, 5e-324, -5e-324, 1e-310, np.inf, -np.inf],
+    ])
+
+
+@pytest.mark.parametrize("name", ["exp", "tanh"])
+def test_compiled_exp_and_tanh_give_the_ufunc_forms_bits(name):
+    """exp and tanh run a compiled loop (_fixedmath_kernels); its bits are those of the same formula written
+    one numpy ufunc per operation, on every binary exponent, both tanh branches and the special values."""
+    x = _exp_tanh_inputs()
+    with np.errstate(all="ignore"):
+        ref = getattr(fm, f"_{name}_ufuncs")(x)
+    got = getattr(fm, name)(x)
+    assert got.dtype == np.float64 and got.shape == x.shape
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+    assert np.isnan(getattr(fm, name)([np.nan])).all()
+    # Shapes are kept, 0-d included.
+    assert getattr(fm, name)(np.zeros((2, 3))).shape == (2, 3) and getattr(fm, name)(1.0).shape == ()
+
+
+def test_tanh_f32_rounds_the_float64_tanh_once():
+    from ctxmatch_lib._fixedmath_kernels import tanh_f32
+
+    x = (np.random.default_rng(6).standard_normal((50, 40)) * 3).astype(np.float32)
+    got = tanh_f32(x)
+    assert got.dtype == np.float32 and got.shape == x.shape
+    with np.errstate(all="ignore"):
+        assert np.array_equal(got.view(np.int32), fm._tanh_ufuncs(x).astype(np.float32).view(np.int32))

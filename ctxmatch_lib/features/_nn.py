@@ -14,7 +14,8 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from threadpoolctl import threadpool_limits
 
-from .. import _fixedmath
+from .. import _fixedmath, _fixedmath_kernels
+from ._conv_kernels import direct_conv2d
 
 __all__ = ["conv2d", "tfeat", "hardtfeat", "orinet", "pyramid_patches", "NETS"]
 
@@ -24,7 +25,7 @@ _F32 = np.float32
 def _tanh(x: np.ndarray) -> np.ndarray:
     """float32 ``tanh`` computed in float64 by :func:`ctxmatch_lib._fixedmath.tanh` and rounded once:
     numpy's float32 ``tanh`` follows its SIMD loop (AVX-512, AVX2 and baseline loops differ in the last bit)."""
-    return _fixedmath.tanh(x).astype(_F32)
+    return _fixedmath_kernels.tanh_f32(x)
 
 
 # ------------------------------------------------------------------------------------------- layers
@@ -38,6 +39,12 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
     if padding:
         x = np.pad(x, ((0, 0), (padding, padding), (padding, padding), (0, 0)))
     o, c, kh, kw = w.shape
+    if c <= 16 and kh * kw <= 9 and o % 8 == 0:
+        # Few input channels: the im2col matrix costs more than its product; summed in registers instead.
+        out = direct_conv2d(x, w, stride=stride)
+        if b is not None:
+            out += b
+        return out
     n, h, wd = x.shape[:3]
     ho, wo = (h - kh) // stride + 1, (wd - kw) // stride + 1
     # Built in float64 at once (float32 -> float64 is exact): the product's float64 operand without a

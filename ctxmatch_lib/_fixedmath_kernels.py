@@ -1,0 +1,108 @@
+"""Compiled (numba) loops behind :func:`ctxmatch_lib._fixedmath.exp` and :func:`~ctxmatch_lib._fixedmath.tanh`.
+
+The numpy versions spend one ufunc, one full pass over memory and one temporary array per operation: about
+20 ns per value for ``tanh``, which was a third of the patch networks' time (:mod:`ctxmatch_lib.features._nn`
+evaluates it on every activation of TFeat and HardTFeat). Here each value goes through the same operations,
+in the same order, with the same constants, in one loop: the same IEEE operations (``+ − × ÷``, ``rint``,
+``trunc``, scalings by powers of two, comparisons) give the same bits (``tests/test_fixedmath.py`` compares
+them value for value with the ufunc forms ``_fixedmath._exp_ufuncs`` and ``_tanh_ufuncs``),
+and without ``fastmath`` LLVM neither reassociates nor fuses a multiply with an add, so every x86-64 CPU
+computes the same result (``tests/test_blas_kernels.py`` runs the features under emulated CPU generations).
+
+Compiled code is cached on disk as for the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import numba
+import numpy as np
+
+from . import _fixedmath as _fm
+from ._numba import user_cache
+
+__all__ = ["exp", "tanh", "tanh_f32"]
+
+_LN2HI, _LN2LO, _INVLN2 = _fm._LN2HI, _fm._LN2LO, _fm._INVLN2
+_P1, _P2, _P3, _P4, _P5 = _fm._P
+_TINY = 2.0 ** -5
+# 2 ** m for |m| <= 800 (exact powers of two; _exp1's scalings need |m| <= 794).
+_POW2_BIAS = 800
+_POW2 = np.ldexp(1.0, np.arange(-_POW2_BIAS, _POW2_BIAS + 1))
+
+with user_cache() as _cache:
+    _jit = partial(numba.njit, cache=_cache, nogil=True)
+
+    @_jit
+    def _exp1(x):
+        # _fixedmath.exp on one value, operation for operation (NaN gives NaN). Written without branches and
+        # calls, so that LLVM can vectorise the loops below: both scalings by 2 ** m (|m| <= 794, so 2 ** m
+        # is a normal number) are multiplications by table entries, exactly what ldexp computes (the first
+        # is exact, the second rounds once, into the subnormal range too).
+        xc = min(max(x, -1100.0), 1100.0)
+        k = np.rint(xc * _INVLN2)
+        hi = x - k * _LN2HI
+        lo = k * _LN2LO
+        r = hi - lo
+        rr = r * r
+        # _horner(rr, _P): the innermost coefficient first, one rounding per operation.
+        acc = _P5
+        acc = acc * rr + _P4
+        acc = acc * rr + _P3
+        acc = acc * rr + _P2
+        acc = acc * rr + _P1
+        c = r - rr * acc
+        y = 1.0 + ((r * c) / (2.0 - c) - lo + hi)
+        half = np.trunc(k / 2)
+        out = (y * _POW2[int(half) + _POW2_BIAS]) * _POW2[int(k - half) + _POW2_BIAS]
+        out = np.inf if x > 709.782712893384 else out
+        out = 0.0 if x < -745.1332191019412 else out
+        return x if x != x else out
+
+    @_jit
+    def _tanh1(x):
+        # _fixedmath.tanh on one value: both branches evaluated, one selected (vectorisable, as _exp1).
+        a = abs(x)
+        z = a * a
+        small = a + a * (z * (-1 / 3 + z * (2 / 15 + z * (-17 / 315 + z * (62 / 2835)))))
+        e = _exp1(-2.0 * min(a, 40.0))
+        big = (1.0 - e) / (1.0 + e)
+        t = small if a < _TINY else big
+        return x if x != x else math.copysign(t, x)
+
+    @_jit
+    def _exp_loop(x, out):
+        for i in range(x.size):
+            out[i] = _exp1(x[i])
+
+    @_jit
+    def _tanh_loop(x, out):
+        for i in range(x.size):
+            out[i] = _tanh1(np.float64(x[i]))
+
+
+def exp(x) -> np.ndarray:
+    """``_fixedmath._exp_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
+    x = np.asarray(x, np.float64)
+    out = np.empty(x.shape)
+    _exp_loop(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
+    return out
+
+
+def tanh(x) -> np.ndarray:
+    """``_fixedmath._tanh_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
+    x = np.asarray(x, np.float64)
+    out = np.empty(x.shape)
+    _tanh_loop(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
+    return out
+
+
+def tanh_f32(x: np.ndarray) -> np.ndarray:
+    """``tanh`` of a float32 array evaluated in float64 (:func:`tanh`) and rounded once to float32, as
+    ``_fixedmath.tanh(x).astype(np.float32)``, without the float64 array in between."""
+    x = np.ascontiguousarray(x, np.float32)
+    out = np.empty_like(x)
+    _tanh_loop(x.reshape(-1), out.reshape(-1))
+    return out
