@@ -155,6 +155,48 @@ def test_figures_status_line_has_no_time_left_without_previous_durations():
     assert "left" in status.line() and "(last run 10 s)" in status.line()
 
 
+def test_figures_schedule_waits_for_the_notebooks_whose_results_it_reads():
+    """Two notebooks at once: a reader of fig_agreement's results never runs beside it or before it, the others
+    fill the second slot in PRIORITY order, never more than ``jobs`` run at once, and a failed notebook still
+    releases its readers."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ctxmatch_lib.cli import main
+    from ctxmatch_lib.cli.figures import AFTER, PRIORITY, _schedule
+
+    stems = sorted(PRIORITY)
+    events, lock, live = [], threading.Lock(), set()
+    peak = [0]
+
+    def work(stem):
+        with lock:
+            live.add(stem)
+            peak[0] = max(peak[0], len(live))
+            events.append(("start", stem, frozenset(live)))
+        threading.Event().wait(0.01 if stem != "fig_agreement" else 0.05)
+        with lock:
+            live.discard(stem)
+            events.append(("end", stem, None))
+        if stem == "fig_agreement":
+            raise RuntimeError("broken")
+
+    finished = []
+    with ThreadPoolExecutor(2) as pool:
+        _schedule(stems, 2, lambda stem: pool.submit(work, stem), lambda stem, fut: finished.append(stem))
+    assert sorted(finished) == stems and peak[0] == 2
+    ends = [stem for kind, stem, _ in events if kind == "end"]
+    for kind, stem, beside in events:
+        if kind == "start":
+            for dep in AFTER.get(stem, ()):
+                assert dep in ends[: ends.index(stem)] and dep not in beside
+    starts = [stem for kind, stem, _ in events if kind == "start"]
+    assert starts[:2] == ["fig_agreement", "fig_geometry"]
+    with pytest.raises(SystemExit):
+        main(["figures", "--jobs", "x"])
+    assert main(["figures", "--only", "tables", "--jobs", "0"]) == 2
+
+
 def test_paper_parameters_never_write_the_embedded_gallery(tmp_path):
     """`make figures-paper` (``--params paper``) writes figures/paper/, `make figures` figures/."""
     from ctxmatch_lib.cli.figures import output_dir

@@ -7,6 +7,13 @@ running time, the time elapsed and the time left, estimated from the previous ru
 run) gives no estimate: the line shows the time elapsed and how many notebooks are done instead of a "time left"
 that a mean of unlike notebooks would make jump.
 
+Two notebooks run at once by default (``--jobs``): a notebook that plots spends minutes on one core (kernel
+start, tables, figures) while the evaluations keep two busy, so a second one fills the gaps. Notebooks that
+read what another computes (:data:`AFTER`: the shared evaluation and feature caches) start when it has
+finished, so no two kernels compute the same features or units at once; the others start in the order of
+:data:`PRIORITY`, the longest first. Every notebook gets the same parameters and writes the same bytes
+whatever runs beside it.
+
 A rerun that computes the same numbers writes byte-identical figures and tables: their provenance names the
 source commit and library version (:func:`ctxmatch_lib.plots.base.provenance`), never the clock, and running
 times go to the untracked ``executed/`` folder.
@@ -33,6 +40,26 @@ KERNEL_ARGUMENTS = [
 ]
 
 
+#: Notebook -> the notebooks whose cached results it reads (started only after they finish, when selected).
+#: fig_agreement's evaluation (the eight blocks' features, every filter) is what fig_pr_scatter, tables and
+#: fig_inlier_hist show and whose features fig_blob_bands' sweep and fig_match_examples start from;
+#: fig_blob_heatmap reads fig_blob_bands' sweep.
+AFTER = {
+    "fig_blob_bands": ("fig_agreement",),
+    "fig_blob_heatmap": ("fig_blob_bands",),
+    "fig_inlier_hist": ("fig_agreement",),
+    "fig_match_examples": ("fig_agreement",),
+    "fig_pr_scatter": ("fig_agreement",),
+    "tables": ("fig_agreement",),
+}
+
+#: Start order among the notebooks that may start: the long evaluation first, then those that need none of
+#: its results (they fill the other core meanwhile), then its readers; a notebook not listed comes last.
+PRIORITY = ("fig_agreement", "fig_geometry", "fig_gt_methods", "fig_gt_calibrated", "fig_dtm_steps", "fig_boundary",
+            "fig_blob_toy", "fig_blob_bands", "fig_blob_heatmap", "fig_pr_scatter", "tables", "fig_inlier_hist",
+            "fig_match_examples")
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser("figures", help="regenerate the paper's figures and tables by running the notebooks",
                        description="Execute notebooks/*.ipynb with papermill; figures (PNG + PDF) and tables go to "
@@ -48,6 +75,9 @@ def add_parser(sub) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
                    help="set a notebook parameter (VALUE is read as YAML: 2, [a, b], null), after --params; "
                         "repeatable, given to every notebook run that has the parameter")
+    p.add_argument("--jobs", type=int, default=2,
+                   help="notebooks run at once (default 2; each evaluation runs its own worker processes too); "
+                        "1 runs them one after the other. The figures do not depend on it")
     p.add_argument("--no-progress", action="store_true", help="no status line, only one line per notebook")
     p.set_defaults(func=run)
 
@@ -70,15 +100,18 @@ def _fmt(seconds: float) -> str:
 
 
 class _Status:
-    """One status line, refreshed every second (every 30 s when stderr is not a terminal): the notebook in
-    progress, its running time, the time elapsed and either the time left (every remaining notebook has a
-    previous duration) or the number of notebooks done (no estimate to go on)."""
+    """One status line, refreshed every second (every 30 s when stderr is not a terminal): the notebooks in
+    progress and their running times, the time elapsed and either the time left (every remaining notebook has
+    a previous duration) or the number of notebooks done (no estimate to go on)."""
 
-    def __init__(self, stems, expected: dict, enabled: bool):
+    def __init__(self, stems, expected: dict, enabled: bool, jobs: int = 1):
         self.stems, self.expected, self.done = list(stems), dict(expected), {}
-        self.current, self.t0, self.start = None, 0.0, time.perf_counter()
+        self.running: dict[str, float] = {}  # stem -> start time
+        self.jobs = max(1, int(jobs))
+        self.start = time.perf_counter()
         self.tty = sys.stderr.isatty()
         self.enabled = enabled
+        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = None
         self._width = 0
@@ -91,18 +124,20 @@ class _Status:
         # is no estimate of those to come.
         if any(s not in self.expected for s in todo):
             return None
-        est = {s: self.expected[s] for s in todo}
-        running = now - self.t0 if self.current else 0.0
-        return sum(est.values()) - (min(running, est[self.current]) if self.current in est else 0.0)
+        rest = {s: self.expected[s] - min(now - self.running[s], self.expected[s]) if s in self.running
+                else self.expected[s] for s in todo}
+        # With several at once: the work left shared by the slots, but no less than the longest notebook left.
+        return max(max(rest.values()), sum(rest.values()) / self.jobs)
 
     def line(self) -> str:
         now = time.perf_counter()
-        k = len(self.done) + (1 if self.current else 0)
+        with self._lock:
+            running = dict(self.running)
+        k = len(self.done) + len(running)
+        parts = [f"[{k}/{len(self.stems)}] " + ", ".join(
+            f"{stem} {_fmt(now - t0)}" + (f" (last run {_fmt(self.expected[stem])})" if stem in self.expected else "")
+            for stem, t0 in running.items())]
         left = self._left(now)
-        parts = [f"[{k}/{len(self.stems)}] {self.current or ''}"]
-        if self.current:
-            parts.append(f"{_fmt(now - self.t0)}" + (f" (last run {_fmt(self.expected[self.current])})"
-                                                      if self.current in self.expected else ""))
         elapsed = f"{_fmt(now - self.start)} elapsed"
         if left is not None:
             parts.append(f"{elapsed}, about {_fmt(left)} left")
@@ -126,7 +161,8 @@ class _Status:
             self._show()
 
     def begin(self, stem: str) -> None:
-        self.current, self.t0 = stem, time.perf_counter()
+        with self._lock:
+            self.running[stem] = time.perf_counter()
         if self.enabled:
             self._show()
             if self._thread is None:
@@ -135,8 +171,9 @@ class _Status:
 
     def end(self, stem: str, message) -> float:
         """Close ``stem``'s line with ``message(took)``, ``took`` its running time in seconds."""
-        took = time.perf_counter() - self.t0
-        self.done[stem], self.current = took, None
+        with self._lock:
+            took = time.perf_counter() - self.running.pop(stem)
+            self.done[stem] = took
         if self.enabled and self.tty:
             sys.stderr.write("\r" + " " * self._width + "\r")
             self._width = 0
@@ -147,6 +184,40 @@ class _Status:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+
+
+def _execute(src: str, out: str, params: dict, cwd: str) -> str | None:
+    """Run one notebook (in a worker process); ``None``, or why it failed (its last error line)."""
+    import papermill as pm
+
+    try:
+        pm.execute_notebook(src, out, parameters=params, cwd=cwd, progress_bar=False, kernel_name="python3",
+                            extra_arguments=KERNEL_ARGUMENTS)
+    except Exception as exc:  # keep going: one broken notebook should not hide the others
+        first = (str(exc).strip().splitlines() or [""])[-1][:200]
+        return f"{type(exc).__name__}: {first}"  # may hold braces: never a format template
+    return None
+
+
+def _schedule(stems, jobs: int, start, finished) -> None:
+    """Run ``stems`` with at most ``jobs`` at once: ``start(stem)`` returns a future, ``finished(stem, future)``
+    is called as each completes. A notebook starts when the selected notebooks it reads (:data:`AFTER`) are
+    done (whether they succeeded or not), in the order of :data:`PRIORITY`."""
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    rank = {stem: i for i, stem in enumerate(PRIORITY)}
+    pending = sorted(stems, key=lambda s: (rank.get(s, len(rank)), s))
+    running: dict = {}
+    while pending or running:
+        for stem in list(pending):
+            if len(running) >= jobs:
+                break
+            if not any(dep in pending or dep in running.values() for dep in AFTER.get(stem, ())):
+                pending.remove(stem)
+                running[start(stem)] = stem
+        done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+        for fut in done:
+            finished(running.pop(fut), fut)
 
 
 def output_dir(params: str, output, root: Path) -> Path:
@@ -171,6 +242,9 @@ def run(args: argparse.Namespace) -> int:
         overrides = _parse_params(args.param)
     except ValueError as exc:
         print(f"ctxmatch figures: {exc}", file=sys.stderr)
+        return 2
+    if args.jobs < 1:
+        print(f"ctxmatch figures: --jobs must be a positive integer, got {args.jobs}", file=sys.stderr)
         return 2
     nb_dir = root / "notebooks"
     out_dir = output_dir(args.params, args.output, root)
@@ -200,30 +274,42 @@ def run(args: argparse.Namespace) -> int:
     # thread count, and the gallery must not; the engine parallelises over pairs instead.
     saved_env = {var: os.environ.get(var) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
     os.environ.update(dict.fromkeys(saved_env, "1"))
-    status = _Status(stems, expected, enabled=not args.no_progress)
+    status = _Status(stems, expected, enabled=not args.no_progress, jobs=args.jobs)
     failed = []
+
+    def params_of(stem: str) -> dict:
+        params = {"output_dir": str(out_dir)}
+        if args.params == "paper":
+            yml = nb_dir / "params" / f"{stem}.yaml"
+            if yml.exists():
+                params.update(yaml.safe_load(yml.read_text()) or {})
+        params.update({k: v for k, v in overrides.items() if k in known[stem]})
+        return params
+
+    def start(stem: str):
+        status.begin(stem)
+        return pool.submit(_execute, str(nb_dir / f"{stem}.ipynb"), str(out_dir / "executed" / f"{stem}.ipynb"),
+                           params_of(stem), str(nb_dir))
+
+    def finished(stem: str, fut) -> None:
+        try:
+            why = fut.result()
+        except Exception as exc:  # the worker process itself died
+            why = f"{type(exc).__name__}: {exc}"
+        if why is not None:
+            failed.append(stem)
+            status.end(stem, lambda took: f"{stem}: FAILED after {took:.1f} s ({why})")
+        else:
+            took = status.end(stem, lambda took: f"{stem}: ok in {took:.1f} s")
+            durations.setdefault(args.params, {})[stem] = round(took, 1)
+
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
     try:
-        for stem in stems:
-            src = nb_dir / f"{stem}.ipynb"
-            params = {"output_dir": str(out_dir)}
-            if args.params == "paper":
-                yml = nb_dir / "params" / f"{stem}.yaml"
-                if yml.exists():
-                    params.update(yaml.safe_load(yml.read_text()) or {})
-            params.update({k: v for k, v in overrides.items() if k in known[stem]})
-            status.begin(stem)
-            try:
-                pm.execute_notebook(str(src), str(out_dir / "executed" / f"{stem}.ipynb"), parameters=params,
-                                    cwd=str(nb_dir), progress_bar=False, kernel_name="python3",
-                                    extra_arguments=KERNEL_ARGUMENTS)
-            except Exception as exc:  # keep going: one broken notebook should not hide the others
-                failed.append(stem)
-                first = (str(exc).strip().splitlines() or [""])[-1][:200]
-                why = f"{type(exc).__name__}: {first}"  # may hold braces: never a format template
-                status.end(stem, lambda took: f"{stem}: FAILED after {took:.1f} s ({why})")
-            else:
-                took = status.end(stem, lambda took: f"{stem}: ok in {took:.1f} s")
-                durations.setdefault(args.params, {})[stem] = round(took, 1)
+        # Fresh interpreters (spawn), not forks of this one and its status thread; they inherit the environment.
+        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            _schedule(stems, args.jobs, start, finished)
     finally:
         status.close()
         for var, value in saved_env.items():
