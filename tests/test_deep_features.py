@@ -248,17 +248,20 @@ def test_deep_presets_extract(name, tmp_path):
 
 def test_shared_steps_kept_for_the_next_block_give_the_same_features(tmp_path):
     # A cold cache: the HarrisZ detections and OriNet angles of harrisz-hardnet2 are kept and read back by
-    # harrisz-sosnet and harrisz-rootsift (issue 33); every block equals its extraction without any cache.
+    # harrisz-sosnet and harrisz-rootsift (issue 33), SIFT's merged detections and OriNet angles of sift-hardnet2
+    # by sift-sosnet and sift-rootsgloh2; every block equals its extraction without any cache.
     from skimage.data import camera
 
     from ctxmatch_lib.features import extract_features
 
     img = camera()[::2, ::2]
-    names = ["harrisz-hardnet2", "harrisz-sosnet", "harrisz-rootsift"]
+    names = ["harrisz-hardnet2", "harrisz-sosnet", "harrisz-rootsift", "sift-hardnet2", "sift-sosnet",
+             "sift-rootsgloh2"]
     cfgs = [FeatureConfig(**{**FEATURE_PRESETS[n].__dict__, "max_keypoints": 120}) for n in names]
     cached = [extract_features(img, c, cache_dir=tmp_path) for c in cfgs]
     kept = sorted(p.parent.name.split("-v")[0] for p in tmp_path.rglob("shared/*/*.npz"))
-    assert kept == ["harrisz", "orinet-angles"], kept  # one of each: the later blocks read them back
+    # One of each per detector: the later blocks read them back (SIFT's merged detections too).
+    assert kept == ["harrisz", "orinet-angles", "orinet-angles", "sift-merged"], kept
     for c, f in zip(cfgs, cached):
         g = extract_features(img, c, cache_dir=False)
         for name in ("kpts", "shapes", "desc", "scales", "angles", "responses"):

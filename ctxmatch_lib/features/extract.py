@@ -21,7 +21,7 @@ __all__: list[str] = []
 
 def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) -> Features:
     """The features of ``gray`` under ``config``. ``memo``: a folder where the steps that several blocks
-    share (HarrisZ detections, OriNet angles) are kept, so the blocks of one image compute them once
+    share (SIFT and HarrisZ detections, OriNet angles) are kept, so the blocks of one image compute them once
     (:func:`_memo`); ``None``: nothing kept."""
     ori = config.resolved_orientation()
     metric = "sgloh2" if config.descriptor == "rootsgloh2" else "l2"
@@ -84,6 +84,28 @@ def _harrisz(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
     return out["kpts"], out["scales"], out["responses"], out["shapes"]
 
 
+_DETECTION = ("pts", "size", "ang", "resp", "octave")
+
+
+def _sift_merged(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
+    """SIFT's detections with the orientation duplicates merged (:func:`._sift_detect` with ``merge=True``),
+    shared by the SIFT blocks described from patches (RootsGLOH2, HardNet2, SOSNet) of an image."""
+    from .config import _CACHE_FORMAT
+
+    def compute():
+        _, det = _sift_detect(gray, config, merge=True)
+        if det is None:
+            return {"pts": np.empty((0, 2)), "size": np.empty(0), "ang": np.empty(0), "resp": np.empty(0),
+                    "octave": np.empty(0, np.int64)}
+        return dict(zip(_DETECTION, det))
+
+    parts = (gray.shape, gray, int(config.n_octave_layers), float(config.contrast_threshold),
+             float(config.edge_threshold), float(config.sigma), bool(config.precise_upscale), config.max_keypoints)
+    n_ok = lambda d: len({len(d[k]) for k in _DETECTION}) == 1  # noqa: E731
+    out = _memo(memo, f"sift-merged-v{_CACHE_FORMAT}", parts, compute, n_ok)
+    return tuple(out[k] for k in _DETECTION) if len(out["pts"]) else None
+
+
 def _orinet(gray: np.ndarray, pts: np.ndarray, base: np.ndarray, config: FeatureConfig, memo: Path | None):
     """OriNet's angles of the frames ``base`` at ``pts``, shared by the HardNet2 and SOSNet blocks."""
     from .deep import orinet_angles, weights_digest
@@ -104,7 +126,7 @@ def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: 
     from .patches import dominant_orientation, rotation_shapes, sift_from_patches
 
     if config.detector == "sift":
-        _, det = _sift_detect(gray, config, merge=ori != "sift")
+        det = _sift_detect(gray, config, merge=False)[1] if ori == "sift" else _sift_merged(gray, config, memo)
         if det is None:
             return Features.empty(dim, metric)
         pts, size, ang, resp, _ = det
