@@ -191,7 +191,7 @@ def test_figures_schedule_waits_for_the_notebooks_whose_results_it_reads():
             for dep in AFTER.get(stem, ()):
                 assert dep in ends[: ends.index(stem)] and dep not in beside
     starts = [stem for kind, stem, _ in events if kind == "start"]
-    assert starts[:2] == ["fig_agreement", "fig_geometry"]
+    assert starts[:2] == ["fig_agreement", "fig_gt_calibrated"]
     with pytest.raises(SystemExit):
         main(["figures", "--jobs", "x"])
     assert main(["figures", "--only", "tables", "--jobs", "0"]) == 2

@@ -8,10 +8,10 @@ run) gives no estimate: the line shows the time elapsed and how many notebooks a
 that a mean of unlike notebooks would make jump.
 
 Two notebooks run at once by default (``--jobs``): a notebook that plots spends minutes on one core (kernel
-start, tables, figures) while the evaluations keep two busy, so a second one fills the gaps. Notebooks that
+start, tables, figures) while an evaluation keeps two busy, so a second one fills the gaps. Notebooks that
 read what another computes (:data:`AFTER`: the shared evaluation and feature caches) start when it has
-finished, so no two kernels compute the same features or units at once; the others start in the order of
-:data:`PRIORITY`, the longest first. Every notebook gets the same parameters and writes the same bytes
+finished, so no two kernels compute the same features or filter masks at once; the others start in the order
+of :data:`PRIORITY`. Every notebook gets the same parameters and writes the same bytes
 whatever runs beside it.
 
 A rerun that computes the same numbers writes byte-identical figures and tables: their provenance names the
@@ -41,23 +41,27 @@ KERNEL_ARGUMENTS = [
 
 
 #: Notebook -> the notebooks whose cached results it reads (started only after they finish, when selected).
-#: fig_agreement's evaluation (the eight blocks' features, every filter) is what fig_pr_scatter, tables and
-#: fig_inlier_hist show and whose features fig_blob_bands' sweep and fig_match_examples start from;
-#: fig_blob_heatmap reads fig_blob_bands' sweep.
+#: fig_agreement's evaluation (the eight blocks' features, every filter's masks) is what fig_pr_scatter, tables
+#: and fig_inlier_hist show and what fig_blob_bands' sweep, fig_geometry, fig_gt_methods and fig_match_examples
+#: start from (features and filter masks are cached per pair whatever the blob setups or models asked for);
+#: fig_geometry's pose panels start from fig_gt_calibrated's calibrated features, fig_pr_scatter's calibrated
+#: row from fig_geometry's masks, fig_blob_heatmap from fig_blob_bands' sweep.
 AFTER = {
     "fig_blob_bands": ("fig_agreement",),
     "fig_blob_heatmap": ("fig_blob_bands",),
+    "fig_geometry": ("fig_agreement", "fig_gt_calibrated"),
+    "fig_gt_methods": ("fig_agreement",),
     "fig_inlier_hist": ("fig_agreement",),
     "fig_match_examples": ("fig_agreement",),
-    "fig_pr_scatter": ("fig_agreement",),
+    "fig_pr_scatter": ("fig_agreement", "fig_geometry"),
     "tables": ("fig_agreement",),
 }
 
-#: Start order among the notebooks that may start: the long evaluation first, then those that need none of
-#: its results (they fill the other core meanwhile), then its readers; a notebook not listed comes last.
-PRIORITY = ("fig_agreement", "fig_geometry", "fig_gt_methods", "fig_gt_calibrated", "fig_dtm_steps", "fig_boundary",
-            "fig_blob_toy", "fig_blob_bands", "fig_blob_heatmap", "fig_pr_scatter", "tables", "fig_inlier_hist",
-            "fig_match_examples")
+#: Start order among the notebooks that may start: the long evaluation first, the small ones that need none of
+#: its results beside it, then the rest, the longest first; a notebook not listed comes last.
+PRIORITY = ("fig_agreement", "fig_gt_calibrated", "fig_dtm_steps", "fig_boundary", "fig_blob_toy", "fig_blob_bands",
+            "fig_geometry", "fig_gt_methods", "fig_match_examples", "fig_pr_scatter", "tables", "fig_inlier_hist",
+            "fig_blob_heatmap")
 
 
 def add_parser(sub) -> None:
