@@ -24,6 +24,9 @@ from contextlib import contextmanager
 
 import numpy as np
 
+# fdlibm's exp constants, shared with the compiled loop (_fixedmath_kernels) that exp and tanh call.
+from ._fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
+
 __all__ = ["atan", "atan2", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "sin", "sincos", "tanh"]
 
 _CV_LOCK = threading.Lock()
@@ -78,12 +81,6 @@ _AT = (3.33333333333329318027e-01, -1.99999999998764832476e-01, 1.42857142725034
        -3.65315727442169155270e-02, 1.62858201153657823623e-02)
 _PI = 3.1415926535897931160e+00
 _PI_LO = 1.2246467991473531772e-16
-# fdlibm's exp: ln 2 in two parts (n * _LN2HI exact for |n| < 2^11) and the remez coefficients.
-_LN2HI = 6.93147180369123816490e-01
-_LN2LO = 1.90821492927058770002e-10
-_INVLN2 = 1.44269504088896338700e+00
-_P = (1.66666666666666019037e-01, -2.77777777770155933842e-03, 6.61375632143793436117e-05,
-      -1.65339022054652515390e-06, 4.13813679705723846039e-08)
 # fdlibm's log: the remez coefficients of (log(1 + s) - log(1 - s) - 2 s) / s on [0, 0.1716], and the
 # reduction bound: the double whose high word is 0x3fe6a09e (just below sqrt(2) / 2), as fdlibm tests it.
 _LG = (6.666666666666735130e-01, 3.999999999940941908e-01, 2.857142874366239149e-01, 2.222219843214978396e-01,

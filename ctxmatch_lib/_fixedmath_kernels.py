@@ -20,13 +20,12 @@ from functools import partial
 import numba
 import numpy as np
 
-from . import _fixedmath as _fm
+from ._fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
 from ._numba import user_cache
 
 __all__ = ["exp", "tanh", "tanh_f32"]
 
-_LN2HI, _LN2LO, _INVLN2 = _fm._LN2HI, _fm._LN2LO, _fm._INVLN2
-_P1, _P2, _P3, _P4, _P5 = _fm._P
+_P1, _P2, _P3, _P4, _P5 = _P
 _TINY = 2.0 ** -5
 # 2 ** m for |m| <= 800 (exact powers of two; _exp1's scalings need |m| <= 794).
 _POW2_BIAS = 800
