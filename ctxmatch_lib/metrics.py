@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ._metrics_kernels import area_terms
 from ._validation import as_matches, as_scores, cumulative_distinct
 
 __all__ = [
@@ -198,42 +199,18 @@ def average_precision(matches, is_correct, scores, reference) -> float:
     return float(ranked_area(m[:, 0], m[:, 1], lab, s) / den)
 
 
-def _member(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
-    """``values`` found in the sorted, non-empty ``sorted_set`` (equality of floats, as ``==``)."""
-    at = np.minimum(np.searchsorted(sorted_set, values), len(sorted_set) - 1)
-    return sorted_set[at] == values
-
-
-def _stable_order(scores: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The entries ``idx`` (increasing) of ``scores`` in their stable ascending order, and where each stands
-    in the stable ascending order of all of ``scores`` (ties in index order).
-
-    The same as reading ``np.argsort(scores, kind="stable")`` at ``idx``, from plain value sorts and a binary
-    search: a sorted array of values does not depend on the sorting algorithm, and ties are put in index
-    order explicitly, so the result is exact whatever sort the CPU runs.
-    """
-    sv = scores[idx]
-    o = np.argsort(sv)
-    svs = sv[o]
-    if len(o) > 1 and np.any(svs[1:] == svs[:-1]):
-        # Runs of equal values: order each by index (o is an index into idx, which is increasing).
-        run = np.r_[0, np.cumsum(svs[1:] != svs[:-1])]
-        o = o[np.argsort(run * len(o) + o)]
-        svs = sv[o]
-    srt = np.sort(scores)
-    pos = np.searchsorted(srt, svs, "left")
-    rep = srt[1:] == srt[:-1]
-    if rep.any():
-        tied = _member(svs, np.unique(srt[1:][rep]))
-        if tied.any():
-            # Entries sharing a repeated value (correct or not), in index order: their rank within the value.
-            where = np.flatnonzero(_member(scores, np.unique(svs[tied])))
-            sub = scores[where]
-            so = np.argsort(sub, kind="stable")
-            within = np.empty(len(so), np.int64)
-            within[so] = np.arange(len(so)) - np.searchsorted(sub[so], sub[so], "left")
-            pos[tied] += within[np.searchsorted(where, idx[o[tied]])]
-    return idx[o], pos
+def _area_terms_numpy(rows, cols, lab, scores) -> np.ndarray:
+    """The terms of :func:`ranked_area` at their ranks, the direct way (any scores, NaN ranked last)."""
+    order = np.argsort(scores, kind="stable")
+    pos = np.flatnonzero(lab[order])
+    ranked = order[pos]
+    r, c = np.asarray(rows)[ranked], np.asarray(cols)[ranked]
+    # N_k counts the correct matches only: cumulative distinct keypoints among the correct ones so far.
+    n = np.maximum.accumulate(np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64))
+    terms = np.zeros(len(lab))
+    # P_k at the j-th correct candidate (rank pos + 1) is j / (pos + 1); wrong ones add 0 * P_k = +0.0.
+    terms[pos] = np.arange(1, len(pos) + 1) / (pos + 1) * np.diff(np.r_[0, n])
+    return terms
 
 
 def ranked_area(rows, cols, lab, scores) -> np.float64:
@@ -241,27 +218,18 @@ def ranked_area(rows, cols, lab, scores) -> np.float64:
     their ``rows``, ``cols`` (int arrays), labels ``lab`` (bool) and float64 ``scores`` (lower first, ties in
     the given order); divide by the reference size for the AP.
 
-    Only the correct candidates add area, so only their positions in the ranking are looked up
-    (:func:`_stable_order`), not the whole ranking: the terms and the summed array are the same numbers
-    in the same places as the direct definition's, so the sum is bit-identical to it (tested).
+    The terms (``P_k`` times the step of ``N_k`` at each correct candidate's rank, +0.0 elsewhere) come from
+    one compiled pass (:func:`ctxmatch_lib._metrics_kernels.area_terms`; scores with NaN the direct way):
+    the same numbers in the same places as the direct definition's, summed by numpy, so the sum is
+    bit-identical to it (tested).
     """
-    k = len(lab)
-    idx = np.flatnonzero(lab)
-    if len(idx) == 0:
-        return np.zeros(k).sum()
-    if np.isnan(scores).any():  # NaN has no place in a value search: rank the direct way
-        order = np.argsort(scores, kind="stable")
-        pos = np.flatnonzero(lab[order])
-        ranked = order[pos]
-    else:
-        ranked, pos = _stable_order(scores, idx)
-    r, c = np.asarray(rows)[ranked], np.asarray(cols)[ranked]
-    # N_k counts the correct matches only: cumulative distinct keypoints among the correct ones so far.
-    n = np.maximum.accumulate(np.minimum(cumulative_distinct(r), cumulative_distinct(c)).astype(np.int64))
-    terms = np.zeros(k)
-    # P_k at the j-th correct candidate (rank pos + 1) is j / (pos + 1); wrong ones add 0 * P_k = +0.0.
-    terms[pos] = np.arange(1, len(pos) + 1) / (pos + 1) * np.diff(np.r_[0, n])
-    return terms.sum()
+    lab = np.asarray(lab, bool)
+    scores = np.asarray(scores, np.float64)
+    if not lab.any():
+        return np.zeros(len(lab)).sum()
+    if np.isnan(scores).any():
+        return _area_terms_numpy(rows, cols, lab, scores).sum()
+    return area_terms(rows, cols, lab, scores).sum()
 
 
 def mean_average_precision(aps) -> float:

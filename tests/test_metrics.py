@@ -175,3 +175,26 @@ def test_average_precision_bit_identical_to_the_whole_ranking(seed):
         expected = _direct_ap(m, lab, s, den) if den else float("nan")
         got = average_precision(m, lab, s, ref)
         assert (math.isnan(expected) and math.isnan(got)) or got == expected, (seed, trial)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_area_terms_equal_the_direct_ones(seed):
+    # The compiled pass behind ranked_area places the same float64 terms at the same ranks as the numpy
+    # definition (bit for bit, signs of zero included), with ties (integers, +0.0 beside -0.0) or without.
+    from ctxmatch_lib._metrics_kernels import area_terms
+    from ctxmatch_lib.metrics import _area_terms_numpy
+
+    rng = np.random.default_rng(seed)
+    for trial in range(200):
+        k = int(rng.integers(0, 50 if trial % 5 else 4000))
+        rows, cols = rng.integers(0, max(1, k // 2), k), rng.integers(0, max(1, k // 3), k)
+        lab = rng.random(k) < rng.random()
+        if trial % 3 == 0:
+            s = rng.random(k)
+        elif trial % 3 == 1:
+            s = rng.integers(0, 9, k).astype(float)
+        else:
+            s = np.where(rng.random(k) < 0.5, 0.0, -0.0)
+        expected, got = _area_terms_numpy(rows, cols, lab, s), area_terms(rows, cols, lab, s)
+        assert got.dtype == np.float64 and got.shape == (k,)
+        assert np.array_equal(got.view(np.int64), expected.view(np.int64)), (seed, trial)
