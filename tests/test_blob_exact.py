@@ -281,6 +281,8 @@ def test_whole_line_second_best_equals_the_dense_reference(ties, t_o, kind):
         for side, (a, b) in enumerate(((i, j), (j, i))):
             got = ctx.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
             want = ref.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind)
+            # Asked again, the lines come from the context's memo: the same answer.
+            assert np.array_equal(ctx.second_best(side, a, b, dist, geq=geq, t_o=t_o, t_o_kind=kind), got)
             # The definition (Eqs. 9, 13-14) on whole lines of D, every exclusion computed.
             lines = D[a] if side == 0 else D.T[a]
             other = np.arange(lines.shape[1])

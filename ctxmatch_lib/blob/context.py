@@ -30,6 +30,9 @@ from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_ove
 __all__ = ["BlobContext", "SortedLists"]
 
 _MiB = 1 << 20
+#: The most memory per side that :meth:`BlobContext._approx_lines` keeps computed lines in (4.3 MiB at 1500 x
+#: 1500 keypoints, 122 MiB at 8000 x 8000: then lines are recomputed when asked again).
+_LINE_MEMO_BYTES = 32 * _MiB
 
 
 @dataclass(frozen=True)
@@ -107,6 +110,7 @@ class BlobContext:
             self.margin = int(margin)
         self.shapes = (shapes1, shapes2)
         self._radii = [None, None]
+        self._line_memo: list = [None, None]
         self.max_dense_bytes = int(max_dense_bytes)
         self._metric = None
         if distances is not None:
@@ -296,15 +300,34 @@ class BlobContext:
         """The coded approximate squared distances of the L2 path (f = Ω), computed on demand."""
         if self._approx is None:
             self._check_dense(self.n * self.m * 2, "f='omega'")
-            self._approx = self._approx_lines(0, np.arange(self.n))
+            self._approx = self._compute_lines(0, np.arange(self.n))
         return self._approx
 
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
         decoding within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` in float32 on one
-        BLAS thread, about 8 MiB of float32 at a time, then :func:`._kernels.code`."""
+        BLAS thread, about 8 MiB of float32 at a time, then :func:`._kernels.code`.
+
+        Lines once computed are kept (up to :data:`_LINE_MEMO_BYTES` per side) and copied out again: a sweep
+        asks the same context for the same lines under every setup. The codes only propose; exact distances
+        decide, so which batch a line was computed in changes no result."""
         if self._approx is not None and side == 0:
             return self._approx[which]
+        which = np.asarray(which, np.int64)
+        size_own, size_other = (self.n, self.m) if side == 0 else (self.m, self.n)
+        if self._line_memo[side] is None and size_own * size_other * 2 <= _LINE_MEMO_BYTES:
+            self._line_memo[side] = (np.empty((size_own, size_other), np.uint16), np.zeros(size_own, bool))
+        if self._line_memo[side] is None:
+            return self._compute_lines(side, which)
+        codes, have = self._line_memo[side]
+        need = np.unique(which[~have[which]])
+        if len(need):
+            codes[need] = self._compute_lines(side, need)
+            have[need] = True
+        return codes[which]
+
+    def _compute_lines(self, side: int, which: np.ndarray) -> np.ndarray:
+        """:meth:`_approx_lines` computed, ``which`` in chunks of about 8 MiB of float32."""
         # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
         own, other = self._X32[side], self._X32[1 - side]
         n_own, n_other = self._norms[side].astype(np.float32), self._norms[1 - side].astype(np.float32)
@@ -539,20 +562,21 @@ class BlobContext:
             if not by_overlap:
                 out[s : s + step] = line.min(axis=1)
                 continue
-            order = np.argsort(line, axis=1, kind="stable")  # (distance, index) order
-            pos = np.zeros(len(a), np.int64)
+            # The entries in (distance, index) order, one round per entry: a line's first minimum is its
+            # next entry in that order, and an entry met is taken out (inf). Most lines end in a round or
+            # two, so no line is sorted whole. NaN (never output) ends a line as inf does.
+            line[np.isnan(line)] = np.inf
             live = np.arange(len(a))
             while len(live):
-                k = order[live, pos[live]]
+                k = np.argmin(line[live], axis=1)
                 val = line[live, k]
                 live, k, val = live[val < np.inf], k[val < np.inf], val[val < np.inf]
                 if not len(live):
                     break
                 near = self.overlap_near(1 - side, o[live], k, t_o)
                 out[s + live[~near]] = val[~near]
-                live = live[near]
-                pos[live] += 1
-                live = live[pos[live] < size]
+                live, k = live[near], k[near]
+                line[live, k] = np.inf
         return out
 
     def _first_not_overlapping(self, img: int, lists: SortedLists, anchors: np.ndarray, others: np.ndarray,

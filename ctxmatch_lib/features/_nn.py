@@ -1,8 +1,9 @@
 """numpy inference of the small patch networks (TFeat, HardTFeat, OriNet) and kornia-compatible patch sampling.
 
 The deep presets' stand-in networks (:mod:`.deep`) run here, in float32, without torch: a convolution is an
-``im2col`` matrix product (``sliding_window_view`` then one BLAS ``@``), on ``(N, H, W, C)`` arrays. The
-parameters are the torch ``state_dict`` arrays (same names), read from the ``.npz`` files shipped in
+``im2col`` matrix product (the shifted views copied side by side, then one float64 BLAS ``@`` rounded once to
+float32), or, with few input channels, a direct sum in registers (:func:`._conv_kernels.direct_conv2d`), on
+``(N, H, W, C)`` arrays. The parameters are the torch ``state_dict`` arrays (same names), read from the ``.npz`` files shipped in
 ``features/weights``. :func:`pyramid_patches` samples the patches the way kornia's
 ``extract_patches_from_pyramid`` does (its documented convention), so the numbers agree with the torch path
 to float32 rounding.
@@ -11,10 +12,9 @@ to float32 rounding.
 from __future__ import annotations
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
-from threadpoolctl import threadpool_limits
 
 from .. import _fixedmath, _fixedmath_kernels
+from .._blas import one_blas_thread
 from ._conv_kernels import direct_conv2d
 
 __all__ = ["conv2d", "tfeat", "hardtfeat", "orinet", "pyramid_patches", "NETS"]
@@ -34,7 +34,9 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
     """2-D cross-correlation of ``x`` (N, H, W, C) with torch-layout weights ``w`` (O, C, kh, kw) -> (N, H', W', O).
 
     ``im2col``: the ``kh × kw`` shifted views are copied side by side (channels innermost) and multiplied
-    once by the weights; callers pass small batches so that the copy stays in cache.
+    once by the weights; callers pass small batches so that the copy stays in cache. With at most 16 input
+    channels, a kernel of at most 3×3 and a multiple of 8 outputs (OriNet's first layers) the sums run in
+    registers instead (:func:`._conv_kernels.direct_conv2d`): there the copy cost more than its product.
     """
     if padding:
         x = np.pad(x, ((0, 0), (padding, padding), (padding, padding), (0, 0)))
@@ -81,7 +83,7 @@ def _chunked(fn):
             return fn(p, patches)
         buf = np.zeros((chunk, *patches.shape[1:]), np.float32)
         out = []
-        with threadpool_limits(1):
+        with one_blas_thread():
             for s in range(0, len(patches), chunk):
                 part = patches[s : s + chunk]
                 buf[: len(part)] = part

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from ..._blas import one_blas_thread
 from .configs import ACNeConfig, OANetConfig
 
 __all__ = ["NumpyModel", "oanet_logits", "acne_logits", "weighted_eight_point", "epipolar_residual",
@@ -220,7 +220,7 @@ class NumpyModel:
         differently under each OpenBLAS kernel and thread count, and the keep masks must not follow them.
         BLAS runs on one thread."""
         params = self._float64_params()
-        with threadpool_limits(1):
+        with one_blas_thread():
             if self.arch == "oanet":
                 return oanet_logits(params, x)[-1]
             return acne_logits(params, x, groups=int(self.config.get("groups", 32)))
