@@ -8,8 +8,9 @@ the CPU. The functions here are evaluated with the correctly rounded IEEE operat
 ``rint``, ``floor``, ``ldexp``, comparisons), one numpy ufunc per operation: every SIMD width computes each
 of those to the same bits and no step can fuse a multiply with an add, so the result is the same on any
 CPU. ``exp`` and ``tanh``, the hot ones (patch networks, EM filters), run the same operations in a compiled
-loop (:mod:`ctxmatch_lib._fixedmath_kernels`, no ``fastmath``), tested bit for bit against the ufunc form. The algorithms are fdlibm's (Sun Microsystems, as in musl): argument reduction and minimax polynomials
-with an error below one unit in the last place.
+loop (:mod:`ctxmatch_lib._fixedmath_kernels`, no ``fastmath``), tested bit for bit against the ufunc form.
+The algorithms are fdlibm's (Sun Microsystems, as in musl): argument reduction and minimax polynomials with
+an error below one unit in the last place.
 
 Inputs are float64 (float32 is widened exactly); finite inputs are expected (non-finite ones give NaN).
 

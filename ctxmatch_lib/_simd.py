@@ -3,11 +3,11 @@
 numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
 they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
 blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
-Gram matrices and for four output channels of the patch networks' direct convolution. :class:`Vec16` (16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's
-scan in registers; :func:`band16` compares sixteen 16-bit codes of its look-ups beyond the sorted lists
-at once; 16-lane vectors hold the accumulators of its fused float32 product (:func:`fma16`,
-:func:`row_flags`, :func:`row_reflag`, :func:`row_codes`; the product only proposes, so there a
-multiply-add fuses).
+Gram matrices and for four output channels of the patch networks' direct convolution. :class:`Vec16`
+(16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's scan in registers; :func:`band16`
+compares sixteen 16-bit codes of its look-ups beyond the sorted lists at once; 16-lane vectors hold the
+accumulators of its fused float32 product (:func:`fma16`, :func:`row_flags`, :func:`row_reflag`,
+:func:`row_codes`; the product only proposes, so there a multiply-add fuses).
 :func:`prefetch` asks for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and
 add is the same IEEE operation as the scalar one (no fast-math flags, so no fused multiply-add), hence the
 same bits as the scalar loop on any x86-64 CPU; where the CPU has narrower registers, LLVM splits the value

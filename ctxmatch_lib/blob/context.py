@@ -24,15 +24,13 @@ from . import _kernels, _select_kernels, _walk_kernels
 from ._fused_kernels import fused_product_fast
 from ._pass import fused_pass, tile_pass
 from ._workspace import give_back, take_codes
+from ._lines import LineMemo, coded_lines
 from ._lists import _column_group_minima, _first_t, _group_size, _row_thresholds
 from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
 
 _MiB = 1 << 20
-#: The most memory per side that :meth:`BlobContext._approx_lines` keeps computed lines in (4.3 MiB at 1500 x
-#: 1500 keypoints, 122 MiB at 8000 x 8000: then lines are recomputed when asked again).
-_LINE_MEMO_BYTES = 32 * _MiB
 
 
 @dataclass(frozen=True)
@@ -110,7 +108,7 @@ class BlobContext:
             self.margin = int(margin)
         self.shapes = (shapes1, shapes2)
         self._radii = [None, None]
-        self._line_memo: list = [None, None]
+        self._line_memo: list = [None, None]  # LineMemo per side, made with the first whole-line look-up
         self.max_dense_bytes = int(max_dense_bytes)
         self._metric = None
         if distances is not None:
@@ -305,41 +303,19 @@ class BlobContext:
 
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
-        decoding within :meth:`_line_bounds` of the exact value: ``|a|² + |b|² − 2 a·b`` in float32 on one
-        BLAS thread, about 8 MiB of float32 at a time, then :func:`._kernels.code`.
-
-        Lines once computed are kept (up to :data:`_LINE_MEMO_BYTES` per side) and copied out again: a sweep
-        asks the same context for the same lines under every setup. The codes only propose; exact distances
-        decide, so which batch a line was computed in changes no result."""
+        decoding within :meth:`_line_bounds` of the exact value (:func:`._lines.coded_lines`). Lines once
+        computed are kept (:class:`._lines.LineMemo`): the codes only propose and exact distances decide, so
+        which batch a line was computed in changes no result."""
         if self._approx is not None and side == 0:
             return self._approx[which]
-        which = np.asarray(which, np.int64)
-        size_own, size_other = (self.n, self.m) if side == 0 else (self.m, self.n)
-        if self._line_memo[side] is None and size_own * size_other * 2 <= _LINE_MEMO_BYTES:
-            self._line_memo[side] = (np.empty((size_own, size_other), np.uint16), np.zeros(size_own, bool))
         if self._line_memo[side] is None:
-            return self._compute_lines(side, which)
-        codes, have = self._line_memo[side]
-        need = np.unique(which[~have[which]])
-        if len(need):
-            codes[need] = self._compute_lines(side, need)
-            have[need] = True
-        return codes[which]
+            self._line_memo[side] = LineMemo(*((self.n, self.m) if side == 0 else (self.m, self.n)))
+        return self._line_memo[side].get(which, lambda w: self._compute_lines(side, w))
 
     def _compute_lines(self, side: int, which: np.ndarray) -> np.ndarray:
-        """:meth:`_approx_lines` computed, ``which`` in chunks of about 8 MiB of float32."""
         # Columns by their own GEMM rows: gathering them from the dense matrix reads all of it per chunk.
-        own, other = self._X32[side], self._X32[1 - side]
-        n_own, n_other = self._norms[side].astype(np.float32), self._norms[1 - side].astype(np.float32)
-        out, step = np.empty((len(which), len(other)), np.uint16), max(1, (8 * _MiB) // (4 * len(other)))
-        for s in range(0, len(which), step):
-            w = which[s : s + step]
-            with one_blas_thread():
-                g = own[w] @ other.T
-            g *= np.float32(-2)
-            g += n_own[w][:, None]
-            out[s : s + step] = _kernels.encode(g + n_other[None, :], self._qoff, self._qinv)
-        return out
+        return coded_lines(self._X32[side], self._X32[1 - side], self._norms[side].astype(np.float32),
+                           self._norms[1 - side].astype(np.float32), which, self._qoff, self._qinv)
 
     # -- whole rows / columns, for the rare look-ups beyond the sorted lists ------------------------
     def _check_dense(self, nbytes: int, what: str) -> None:

@@ -3,8 +3,8 @@
 The deep presets' stand-in networks (:mod:`.deep`) run here, in float32, without torch: a convolution is an
 ``im2col`` matrix product (the shifted views copied side by side, then one float64 BLAS ``@`` rounded once to
 float32), or, with few input channels, a direct sum in registers (:func:`._conv_kernels.direct_conv2d`), on
-``(N, H, W, C)`` arrays. The parameters are the torch ``state_dict`` arrays (same names), read from the ``.npz`` files shipped in
-``features/weights``. :func:`pyramid_patches` samples the patches the way kornia's
+``(N, H, W, C)`` arrays. The parameters are the torch ``state_dict`` arrays (same names), read from the ``.npz``
+files shipped in ``features/weights``. :func:`pyramid_patches` samples the patches the way kornia's
 ``extract_patches_from_pyramid`` does (its documented convention), so the numbers agree with the torch path
 to float32 rounding.
 """
@@ -54,7 +54,8 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
     cols = np.empty((n, ho, wo, kh, kw, c), np.float64)
     for i in range(kh):
         for j in range(kw):
-            cols[:, :, :, i, j, :] = x[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride]
+            rows, cols_j = slice(i, i + stride * (ho - 1) + 1, stride), slice(j, j + stride * (wo - 1) + 1, stride)
+            cols[:, :, :, i, j, :] = x[:, rows, cols_j]
     out = _product(cols.reshape(n * ho * wo, kh * kw * c), w.transpose(0, 2, 3, 1).reshape(o, -1).T)
     if b is not None:
         out += b

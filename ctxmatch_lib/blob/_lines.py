@@ -1,0 +1,54 @@
+"""Helpers of :class:`~ctxmatch_lib.blob.context.BlobContext`'s look-ups beyond the sorted lists on the L2 path:
+whole lines of D as coded float32 approximations, computed in chunks and kept for the next ask."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._blas import one_blas_thread
+from . import _kernels
+
+_MiB = 1 << 20
+
+#: The most memory per side that :class:`LineMemo` keeps computed lines in (4.3 MiB at 1500 x 1500 keypoints,
+#: 122 MiB at 8000 x 8000: then lines are recomputed when asked again).
+LINE_MEMO_BYTES = 32 * _MiB
+
+
+def coded_lines(own: np.ndarray, other: np.ndarray, n_own: np.ndarray, n_other: np.ndarray, which: np.ndarray,
+                qoff, qinv) -> np.ndarray:
+    """Coded approximate squared distances ``|a|² + |b|² − 2 a·b`` of the float32 rows ``own[which]`` to every
+    row of ``other`` (``n_*``: float32 squared norms): one BLAS thread, about 8 MiB of float32 at a time, then
+    :func:`._kernels.encode` with the offset and scale ``qoff``, ``qinv``."""
+    out, step = np.empty((len(which), len(other)), np.uint16), max(1, (8 * _MiB) // (4 * len(other)))
+    for s in range(0, len(which), step):
+        w = which[s : s + step]
+        with one_blas_thread():
+            g = own[w] @ other.T
+        g *= np.float32(-2)
+        g += n_own[w][:, None]
+        out[s : s + step] = _kernels.encode(g + n_other[None, :], qoff, qinv)
+    return out
+
+
+class LineMemo:
+    """The lines of one side computed so far: :meth:`get` computes the missing ones (one call of
+    ``compute(which)``) and returns copies, so that a caller may mark entries in them. A context asked for the
+    same lines under every setup of a sweep computes each once. Beyond :data:`LINE_MEMO_BYTES` nothing is kept."""
+
+    def __init__(self, n_lines: int, line_len: int):
+        self.keep = n_lines * line_len * 2 <= LINE_MEMO_BYTES
+        self._shape = (n_lines, line_len)
+        self._codes = self._have = None
+
+    def get(self, which: np.ndarray, compute) -> np.ndarray:
+        which = np.asarray(which, np.int64)
+        if not self.keep:
+            return compute(which)
+        if self._codes is None:
+            self._codes, self._have = np.empty(self._shape, np.uint16), np.zeros(self._shape[0], bool)
+        need = np.unique(which[~self._have[which]])
+        if len(need):
+            self._codes[need] = compute(need)
+            self._have[need] = True
+        return self._codes[which]
