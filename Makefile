@@ -53,7 +53,7 @@ bench: $(STAMP)
 # and every public module and subpackage (pdoc alone follows only the submodules named in __all__, like dtm).
 DOC_MODULES := ctxmatch_lib \
 	$(subst /,.,$(patsubst %.py,%,$(filter-out ctxmatch_lib/_%,$(wildcard ctxmatch_lib/*.py)))) \
-	$(filter-out ctxmatch_lib.dtm,$(subst /,.,$(patsubst %/__init__.py,%,$(wildcard ctxmatch_lib/*/__init__.py))))
+	$(filter-out ctxmatch_lib.dtm ctxmatch_lib._numerics,$(subst /,.,$(patsubst %/__init__.py,%,$(wildcard ctxmatch_lib/*/__init__.py))))
 
 docs: $(STAMP)
 	$(BIN)/python -m pip install -q "pdoc>=14"

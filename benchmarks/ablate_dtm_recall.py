@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ctxmatch_lib._paths import cache_dir
+from ctxmatch_lib.cache import cache_dir
 from ctxmatch_lib.blob import BLOB_PRESETS
 from ctxmatch_lib.datasets.base import EpipolarGT, HomographyGT, Pair
 from ctxmatch_lib.evaluation import evaluate_cached, select_pairs

@@ -16,7 +16,7 @@ interleaved (round-robin, ``--repeat`` rounds, median of each):
 and prints each time with its ratio to the floor. Blob matching runs on one thread whatever ``--threads``
 says (the fused product is single-threaded; the GEMM tiles run on one BLAS thread). The tiles go through
 SciPy's ``sgemm`` with ``beta = 1`` into a buffer the scan zeroes as it reads
-(``ctxmatch_lib._blas.accumulate_product``); the floor, NumPy's ``matmul``, pays OpenBLAS's zeroing pass over
+(``ctxmatch_lib._numerics.blas.accumulate_product``); the floor, NumPy's ``matmul``, pays OpenBLAS's zeroing pass over
 its output (in the tiles at 5000, about 3 of 48 ms). Times are CPU process times
 by default (``--wall`` for wall-clock): on a shared machine they are skewed less by other processes. First
 (before the timed runs) the peak RSS of ``paper-best`` at n = m = 20000 in a fresh process, and what f = Ω

@@ -28,7 +28,7 @@ import numpy as np
 from ctxmatch_lib.dtm import boundary as _boundary
 from ctxmatch_lib.dtm import dtm
 from ctxmatch_lib.dtm import triangulation as _triangulation
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 SIZES = (1500, 5000)
 SEEDS = (0, 1, 2)

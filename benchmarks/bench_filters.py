@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 DEFAULT_SIZES = (600, 2000, 6000, 16000)
 LARGE = 16000

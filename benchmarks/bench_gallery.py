@@ -35,7 +35,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import ctxmatch_lib
-    from ctxmatch_lib._paths import data_root
+    from ctxmatch_lib.cache import data_root
     from ctxmatch_lib.evaluation import plan_sweep
     from ctxmatch_lib.evaluation.unit import run_unit
     from ctxmatch_lib.features import extract_features, paper_feature_blocks

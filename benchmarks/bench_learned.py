@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 LEARNED = ["oanet", "acne"]
 

@@ -28,12 +28,12 @@ def main(argv=None) -> int:
     ap.add_argument("--max-keypoints", type=int, default=8000, help="keypoints per image (default: 8000)")
     args = ap.parse_args(argv)
 
-    from ctxmatch_lib._paths import data_root
+    from ctxmatch_lib.cache import data_root
     from ctxmatch_lib.blob import BLOB_PRESETS
     from ctxmatch_lib.features import FeatureConfig
     from ctxmatch_lib.evaluation.steps import pair_features
     from ctxmatch_lib.evaluation import plan_sweep, run_sweep
-    from ctxmatch_lib.report_blob import blob_map
+    from ctxmatch_lib.report.blob import blob_map
 
     if data_root() is None and "embedded" not in args.dataset:
         print("bench_sweep: set CTXMATCH_DATA to the folder holding planar/ and nonplanar/", file=sys.stderr)

@@ -10,7 +10,7 @@ The candidate sets are
 - real: the blob candidates of ``--features`` (default ``sift-rootsift``) at ``--max-keypoints`` (default
   ``paper``, the paper's budget) under each ``--blobs`` setup (default ``paper-best baseline``) on the first
   ``--pairs`` shared pairs (``CTXMATCH_DATA``; planar and non-planar, every ``--step``-th pair);
-- planted: :func:`ctxmatch_lib.synthetic.planted_homography_matches` cases (several seeds, inlier ratios and
+- planted: :func:`ctxmatch_lib.testing.planted_homography_matches` cases (several seeds, inlier ratios and
   sizes), each also with coincident copies of some rows (new keypoint indices at the same coordinates) and
   with repeated rows, so that the coincident-row merging of the filters that ask for it is exercised.
 
@@ -42,7 +42,7 @@ import numpy as np
 
 def planted_sets():
     """Planted candidate sets: name -> dict of filter inputs (keypoints, matches, scores, sizes)."""
-    from ctxmatch_lib.synthetic import planted_homography_matches
+    from ctxmatch_lib.testing import planted_homography_matches
 
     out = {}
     for seed, (n, inl) in enumerate([(300, 0.5), (800, 0.3), (1500, 0.4), (120, 0.8), (2000, 0.15)]):

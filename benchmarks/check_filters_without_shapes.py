@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     if not os.environ.get("CTXMATCH_DATA"):
         print("CTXMATCH_DATA is not set: nothing to check", file=sys.stderr)
         return 2
-    from ctxmatch_lib._scores import score_ratio
+    from ctxmatch_lib._numerics.scores import score_ratio
     from ctxmatch_lib.blob import BLOB_PRESETS
     from ctxmatch_lib.evaluation import select_pairs
     from ctxmatch_lib.evaluation.steps import blob_candidates, pair_features

@@ -25,7 +25,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from ctxmatch_lib._paths import atomic_path, cache_dir
+from ctxmatch_lib.cache import atomic_path, cache_dir
 from ctxmatch_lib.blob import BLOB_PRESETS
 from ctxmatch_lib.datasets import load_dataset
 from ctxmatch_lib.evaluation.cache import digest, pair_digest

@@ -27,7 +27,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from ctxmatch_lib._paths import cache_dir
+from ctxmatch_lib.cache import cache_dir
 from ctxmatch_lib.filters.learned import train_learned_filter
 from ctxmatch_lib.training import train_on_blob_candidates
 

@@ -5,8 +5,8 @@ Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels with the origi
 top-left pixel.
 
 ``ctxmatch_lib.dtm`` is the DTM subpackage (``ctxmatch_lib.dtm.boundary``, ``.core``, ``.triangulation``);
-the function is ``ctxmatch_lib.dtm.dtm``. Glue for OpenCV and kornia is in :mod:`ctxmatch_lib.interop`,
-hloc and COLMAP exports in :mod:`ctxmatch_lib.export`, two images to filtered matches in
+the function is ``ctxmatch_lib.dtm.dtm``. Glue for OpenCV and kornia is in :mod:`ctxmatch_lib.io.interop`,
+hloc and COLMAP exports in :mod:`ctxmatch_lib.io.export`, two images to filtered matches in
 :func:`ctxmatch_lib.match.match_images` (``ctxmatch match`` on the command line).
 """
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_points
+from ._numerics.validation import as_points
 from .datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .geometry import apply_homography, epipolar_distances
 

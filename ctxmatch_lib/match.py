@@ -205,10 +205,10 @@ def _threshold(value) -> float:
 
 def _read(image, name: str):
     """The gray image for the features of a path or an array; errors name the argument."""
-    from .features import _as_gray_uint8
+    from .features import as_gray_uint8
 
     try:
-        gray = _as_gray_uint8(image)
+        gray = as_gray_uint8(image)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{name}: {exc}") from None
     except ValueError as exc:
@@ -357,7 +357,7 @@ def save_result(result: MatchResult, path, **extra) -> Path:
     -------
     Path
     """
-    from ._paths import atomic_path
+    from .cache import atomic_path
 
     path = Path(path)
     arrays = {
@@ -431,7 +431,7 @@ def save_plot(fig, path, *, dpi: int = 150) -> Path:
     """Write a figure to exactly ``path`` (format from the suffix), atomically, and close it."""
     import matplotlib.pyplot as plt
 
-    from ._paths import atomic_path
+    from .cache import atomic_path
 
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -550,7 +550,7 @@ def match_pairs(
     if len(set(files.values())) != len(files):
         raise ValueError("two different pairs map to the same output file name (names that differ only by '/' "
                          "and '-'); rename the images")
-    from ._paths import check_writable
+    from .cache import check_writable
 
     check_writable(out_dir, "out_dir", folder=True)
     taken = [f for f in files.values() if f.is_dir()]

@@ -31,8 +31,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ._metrics_kernels import area_terms
-from ._validation import as_matches, as_scores, cumulative_distinct
+from ._numerics.ranking import area_terms
+from ._numerics.validation import as_matches, as_scores, cumulative_distinct
 
 __all__ = [
     "MatchMetrics",
@@ -219,7 +219,7 @@ def ranked_area(rows, cols, lab, scores) -> np.float64:
     the given order); divide by the reference size for the AP.
 
     The terms (``P_k`` times the step of ``N_k`` at each correct candidate's rank, +0.0 elsewhere) come from
-    one compiled pass (:func:`ctxmatch_lib._metrics_kernels.area_terms`; scores with NaN the direct way):
+    one compiled pass (:func:`ctxmatch_lib._numerics.ranking.area_terms`; scores with NaN the direct way):
     the same numbers in the same places as the direct definition's, summed by numpy, so the sum is
     bit-identical to it (tested).
     """

@@ -36,7 +36,7 @@ from .datasets.base import Dataset, Pair, PoseGT
 from .evaluation.plan import plan_units
 from .evaluation.run import run_units
 from .evaluation.steps import (BLOB_METHOD, blob_candidates, check_filters, check_models, check_pair_keypoints,
-                               label_candidates, pair_features, pair_seed, register_dtm_stages, resolve_blobs,
+                               label_candidates, pair_features, pair_seed, resolve_blobs,
                                run_filter, run_model)
 from .features import FeatureConfig
 from .geometry import CONSISTENCY_THRESHOLD_PX
@@ -49,7 +49,6 @@ __all__ = [
     "BlobStage",
     "PairEvaluation",
     "resolve_blobs",
-    "register_dtm_stages",
     "check_filters",
     "check_pair_keypoints",
     "check_models",
@@ -268,7 +267,7 @@ def evaluate_dataset(
     progress : bool
         A tqdm bar on stderr naming the pair in progress.
     results_dir : path, None or False
-        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``False`` keeps
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False`` keeps
         nothing on disk (and cannot resume).
     recompute : bool
         Ignore the cached rows of these pairs and settings.

@@ -17,7 +17,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 @pytest.fixture(scope="session")
 def data_root():
     """The shared real data (CTXMATCH_DATA); skips the test with a reason when it is absent."""
-    from ctxmatch_lib._paths import data_root as _root
+    from ctxmatch_lib.cache import data_root as _root
 
     root = _root()
     if root is None:

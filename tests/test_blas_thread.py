@@ -1,4 +1,4 @@
-"""``ctxmatch_lib._blas``: one thread in every pool (a controller kept until modules change), and the product that
+"""``ctxmatch_lib._numerics.blas``: one thread in every pool (a controller kept until modules change), and the product that
 blob matching's scan accumulates into its tile."""
 
 import importlib

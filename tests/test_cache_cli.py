@@ -1,4 +1,4 @@
-"""``ctxmatch cache`` and :mod:`ctxmatch_lib.usercache`: the size of each part, clearing a part or what is older
+"""``ctxmatch cache`` and :mod:`ctxmatch_lib.cache`: the size of each part, clearing a part or what is older
 than an age, and never reaching outside the cache folder (links not followed, unmarked folders refused)."""
 
 import os
@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from ctxmatch_lib._paths import CACHE_MARKER, cache_dir, is_marked_cache, mark_cache
+from ctxmatch_lib.cache import CACHE_MARKER, cache_dir, is_marked_cache, mark_cache
 from ctxmatch_lib.cli import main
-from ctxmatch_lib.usercache import CACHE_PARTS, IN_PROGRESS_GRACE, cache_usage, clear_cache, parse_age, part_of
+from ctxmatch_lib.cache import CACHE_PARTS, IN_PROGRESS_GRACE, cache_usage, clear_cache, parse_age, part_of
 
 DAY = 86400.0
 

@@ -19,7 +19,7 @@ def test_reconstruction_from_ctxmatch_matches_registers_the_sequence(tmp_path):
     root = os.environ.get("CTXMATCH_DATA")
     if not root or not (Path(root) / SEQUENCE).is_dir():
         pytest.skip(f"needs the real data: CTXMATCH_DATA with {SEQUENCE}")
-    from ctxmatch_lib.export import write_colmap
+    from ctxmatch_lib.io.export import write_colmap
     from ctxmatch_lib.match import match_images
 
     folder = Path(root) / SEQUENCE

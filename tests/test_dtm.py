@@ -17,7 +17,7 @@ from ctxmatch_lib.dtm import (
     matlab_boundary_alpha,
 )
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
+from ctxmatch_lib.testing import apply_homography, planted_homography_matches
 
 SIZE = (640, 480)
 

@@ -446,7 +446,7 @@ def test_cli_eval_resumes_after_sigkill(tiny_dataset, tmp_path, monkeypatch):
 
 
 def test_keypoints_outside_the_image_size_are_rejected(tiny_dataset, tmp_path):
-    from ctxmatch_lib._validation import check_inside
+    from ctxmatch_lib._numerics.validation import check_inside
 
     pair, feats = _planted_pair()
     swapped = Pair(pair.pair_id, pair.image1, pair.image2, (480, 640), pair.image_size2, "planar", pair.gt)

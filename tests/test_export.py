@@ -6,7 +6,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from ctxmatch_lib.export import colmap_pair_id, names_to_pair, read_colmap, read_hloc, write_colmap, write_hloc
+from ctxmatch_lib.io.export import colmap_pair_id, names_to_pair, read_colmap, read_hloc, write_colmap, write_hloc
 
 
 @pytest.fixture
@@ -154,7 +154,7 @@ def test_write_colmap_bad_database_path_names_the_argument(tmp_path, pair, where
 def test_write_colmap_read_only_database_names_the_argument(tmp_path, pair, monkeypatch):
     import os
 
-    import ctxmatch_lib._paths as paths
+    import ctxmatch_lib.cache as paths
 
     k1, k2, m, _ = pair
     db = tmp_path / "db.db"

@@ -278,13 +278,13 @@ def test_cache_entries_without_the_image_size_are_ignored(tmp_path, gray):
     target = F.feature_cache_path(gray, cfg, cache_dir=tmp_path)
     target.parent.mkdir(parents=True)
     fake = Features.empty()
-    np.savez(target, **{n: getattr(fake, n) for n in F._FIELDS}, metric=np.array("l2"))
+    np.savez(target, **{n: getattr(fake, n) for n in F.cache._FIELDS}, metric=np.array("l2"))
     f = extract_features(gray, cfg, cache_dir=tmp_path)
     assert len(f) == 25 and f.image_size == gray.shape[::-1]
     with np.load(target) as z:
         assert tuple(z["image_size"]) == gray.shape[::-1]
     # The layout version is in the entry's file name: older entries are not even opened.
-    assert target.name.endswith(f".e{F._ENTRY_FORMAT}.npz")
+    assert target.name.endswith(f".e{F.cache._ENTRY_FORMAT}.npz")
 
 
 def test_cache_key_includes_the_opencv_version(gray, tmp_path, monkeypatch):
@@ -304,7 +304,7 @@ def test_cache_key_includes_the_opencv_version(gray, tmp_path, monkeypatch):
 
 
 def test_default_cache_is_the_users_cache_dir(tmp_path, monkeypatch):
-    from ctxmatch_lib._paths import cache_dir
+    from ctxmatch_lib.cache import cache_dir
 
     monkeypatch.delenv("CTXMATCH_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
@@ -317,7 +317,7 @@ def test_default_cache_is_the_users_cache_dir(tmp_path, monkeypatch):
     monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "mine"))
     assert cache_dir("sweep") == tmp_path / "mine" / "sweep" and (tmp_path / "mine" / "sweep").is_dir()
     # Never the checkout by surprise.
-    from ctxmatch_lib._paths import repo_root
+    from ctxmatch_lib.cache import repo_root
 
     monkeypatch.delenv("CTXMATCH_CACHE")
     if repo_root() is not None:

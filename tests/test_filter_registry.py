@@ -6,7 +6,7 @@ import pytest
 from ctxmatch_lib.dtm import dtm_filter
 from ctxmatch_lib.evaluation import resolve_filters
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 
 @pytest.mark.parametrize("name", resolve_filters("all"))

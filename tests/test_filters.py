@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
+from ctxmatch_lib.testing import apply_homography, planted_homography_matches
 from filter_cases import SIZE, grid_translation, identity_matches, run_filter
 
 PEERS = ["th", "gms", "lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pfm", "lmr"]

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from ctxmatch_lib.filters._common import coincident_groups, merge_coincident, prepare
-from ctxmatch_lib.synthetic import apply_homography, planted_homography_matches
+from ctxmatch_lib.testing import apply_homography, planted_homography_matches
 from filter_cases import SIZE, run_filter
 
 #: Filters that count coincident candidates once (this issue's fix).

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters.pgm import _affinity, greedy_assignment, rrwm
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 from filter_cases import SIZE, grid_translation, identity_matches, run_filter
 
 NAMES = ["pgm", "bm", "scv"]

@@ -1,7 +1,7 @@
 """Every registered filter decides on a *set* of candidate rows: permuting the rows permutes the keep mask and
 changes nothing else, and a row given twice gets one decision.
 
-The filters decide on the rows in their canonical order (``ctxmatch_lib.filters._common.canonical_order``:
+The filters decide on the rows in their canonical order (``ctxmatch_lib._numerics.order.canonical_order``:
 score, keypoint coordinates, keypoint indices) and spread the decisions back, so this holds by construction;
 the tests check it on every filter of the registry, on
 
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from ctxmatch_lib.filters import FILTERS, nnr_scores
-from ctxmatch_lib.filters._common import canonical_order, spread_back
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib._numerics.order import canonical_order, spread_back
+from ctxmatch_lib.testing import planted_homography_matches
 
 SIZE = (640, 480)
 # The package's own filters: other test modules register toy filters ("test-...") into the same registry.
@@ -117,7 +117,7 @@ def real_sets(data_root):
     """The real candidate sets (features and candidates come from the disk cache after the first run)."""
     from dataclasses import replace
 
-    from ctxmatch_lib._scores import score_ratio
+    from ctxmatch_lib._numerics.scores import score_ratio
     from ctxmatch_lib.blob import BLOB_PRESETS
     from ctxmatch_lib.evaluation import select_pairs
     from ctxmatch_lib.evaluation.steps import blob_candidates, pair_features

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 SIZE = (640, 480)
 

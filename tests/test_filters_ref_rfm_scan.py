@@ -18,7 +18,7 @@ import pytest
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters import rfm_scan as rfm_module
 from ctxmatch_lib.filters.rfm_scan import _added_matches, _MotionSpace, _Round
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 SIZE = (640, 480)
 

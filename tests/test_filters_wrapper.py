@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ctxmatch_lib._scores import NNRScores, nnr_scores, nnr_threshold, score_ratio
+from ctxmatch_lib._numerics.scores import NNRScores, nnr_scores, nnr_threshold, score_ratio
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters._common import knn_without_self, prepare
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 from filter_cases import SIZE
 
 FILTER_DIR = Path(__file__).resolve().parents[1] / "ctxmatch_lib" / "filters"

@@ -1,4 +1,4 @@
-"""The CPU-independent elementary functions of ``ctxmatch_lib._fixedmath``: ``log`` and ``atan`` agree with the
+"""The CPU-independent elementary functions of ``ctxmatch_lib._numerics.fixedmath``: ``log`` and ``atan`` agree with the
 C library's and numpy's to within one unit in the last place, and keep their special values."""
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def test_compiled_exp_and_tanh_give_the_ufunc_forms_bits(name):
 
 
 def test_tanh_f32_rounds_the_float64_tanh_once():
-    from ctxmatch_lib._fixedmath_kernels import tanh_f32
+    from ctxmatch_lib._numerics.fixedmath_kernels import tanh_f32
 
     x = (np.random.default_rng(6).standard_normal((50, 40)) * 3).astype(np.float32)
     got = tanh_f32(x)

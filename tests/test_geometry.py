@@ -20,7 +20,7 @@ from ctxmatch_lib.geometry import (
     ransac,
     top_ranked_sample,
 )
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 H_TRUE = np.array([[0.9, -0.15, 30.0], [0.12, 1.05, -12.0], [2e-4, -1e-4, 1.0]])
 
@@ -243,15 +243,15 @@ def test_apply_model_step_dispatch():
 def test_dlt_normal_matrix_equals_design_gram():
     """The 9 x 9 normal matrix built from its block sums equals A^T A of the DLT design matrix (whose rows are
     also checked against the homography they vanish on)."""
-    from ctxmatch_lib.geometry import _dlt_design, _dlt_normal_matrix
+    from ctxmatch_lib.geometry import dlt_design, dlt_normal_matrix
 
     rng = np.random.default_rng(0)
     n1 = rng.normal(size=(40, 2))
     h = np.array([[1.1, 0.2, 0.3], [-0.1, 0.9, -0.2], [0.05, -0.02, 1.0]])
     w = np.c_[n1, np.ones(40)] @ h.T
     n2 = w[:, :2] / w[:, 2:]
-    a = _dlt_design(n1, n2)
+    a = dlt_design(n1, n2)
     np.testing.assert_allclose(a @ h.reshape(-1), 0.0, atol=1e-12)
-    np.testing.assert_allclose(_dlt_normal_matrix(n1, n2), a.T @ a, rtol=1e-12, atol=1e-12)
-    m = _dlt_normal_matrix(n1, n2 + rng.normal(size=n2.shape))
+    np.testing.assert_allclose(dlt_normal_matrix(n1, n2), a.T @ a, rtol=1e-12, atol=1e-12)
+    m = dlt_normal_matrix(n1, n2 + rng.normal(size=n2.shape))
     np.testing.assert_array_equal(m, m.T)

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ctxmatch_lib.gt_compare import correct_per_pair, method_groups, rank_agreement, worst_in_groups
+from ctxmatch_lib.report.gt_compare import correct_per_pair, method_groups, rank_agreement, worst_in_groups
 
 
 def test_groups_are_disjoint_and_cover_the_union():

@@ -7,7 +7,7 @@ import pytest
 
 from ctxmatch_lib import BLOB_PRESETS, FILTERS, blob_matching
 from ctxmatch_lib.features import FeatureConfig, extract_features
-from ctxmatch_lib.interop import (
+from ctxmatch_lib.io.interop import (
     from_cv2_keypoints,
     from_cv2_matches,
     from_kornia_lafs,

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 
 ARCHS = ["oanet", "acne"]
 SIZE = (640, 480)
@@ -73,9 +73,9 @@ def test_filters_run_without_torch(tmp_path):
 import sys; sys.modules['torch'] = None; sys.modules['kornia'] = None
 import numpy as np
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.evalcache import resolve_filters
+from ctxmatch_lib.evaluation import resolve_filters
 from ctxmatch_lib.filters.learned import torch_available, train_learned_filter
-from ctxmatch_lib.synthetic import planted_homography_matches
+from ctxmatch_lib.testing import planted_homography_matches
 assert not torch_available()
 assert 'oanet' in list(FILTERS) and 'acne' in resolve_filters('all') and 'oanet' in resolve_filters('all')
 pm = planted_homography_matches(400, 0.4, rng=1)

@@ -181,7 +181,7 @@ def test_average_precision_bit_identical_to_the_whole_ranking(seed):
 def test_compiled_area_terms_equal_the_direct_ones(seed):
     # The compiled pass behind ranked_area places the same float64 terms at the same ranks as the numpy
     # definition (bit for bit, signs of zero included), with ties (integers, +0.0 beside -0.0) or without.
-    from ctxmatch_lib._metrics_kernels import area_terms
+    from ctxmatch_lib._numerics.ranking import area_terms
     from ctxmatch_lib.metrics import _area_terms_numpy
 
     rng = np.random.default_rng(seed)

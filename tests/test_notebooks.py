@@ -66,7 +66,7 @@ def test_a_rerun_of_ctxmatch_figures_writes_the_same_bytes(tmp_path):
     again. The times go to the untracked executed/ folder, where they differ."""
     pytest.importorskip("papermill")
     from ctxmatch_lib.cli import main
-    from ctxmatch_lib.evalcache import evaluate_cached, select_pairs
+    from ctxmatch_lib.evaluation import evaluate_cached, select_pairs
 
     df = evaluate_cached(select_pairs("embedded", pair_ids=["planar/lab/1-2", "planar/poster/1-3"]),
                          features=["sift-rootsift"], blobs=["paper-best", "baseline"], filters=["th", "dtm1", "dtm2"],

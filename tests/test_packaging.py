@@ -60,7 +60,7 @@ def test_dtm_subpackage_is_importable():
 
 
 def test_import_does_not_need_torch_or_h5py():
-    code = ("import sys, ctxmatch_lib, ctxmatch_lib.interop, ctxmatch_lib.export, ctxmatch_lib.match; "
+    code = ("import sys, ctxmatch_lib, ctxmatch_lib.io.interop, ctxmatch_lib.io.export, ctxmatch_lib.match; "
             "print(sorted(m for m in ('torch', 'kornia', 'h5py', 'pycolmap') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr
@@ -71,7 +71,7 @@ def test_import_does_not_need_torch_or_h5py():
 
 
 def _public_functions():
-    for modname in ("ctxmatch_lib", "ctxmatch_lib.interop", "ctxmatch_lib.export", "ctxmatch_lib.match"):
+    for modname in ("ctxmatch_lib", "ctxmatch_lib.io.interop", "ctxmatch_lib.io.export", "ctxmatch_lib.match"):
         mod = importlib.import_module(modname)
         for name in mod.__all__:
             obj = getattr(mod, name)

@@ -19,7 +19,7 @@ from ctxmatch_lib.dtm import dtm, dtm_boundary  # noqa: E402
 from ctxmatch_lib.plots import dtm as pdtm  # noqa: E402
 from ctxmatch_lib.plots import eval as peval  # noqa: E402
 from ctxmatch_lib.plots import viz2d  # noqa: E402
-from ctxmatch_lib.synthetic import planted_homography_matches  # noqa: E402
+from ctxmatch_lib.testing import planted_homography_matches  # noqa: E402
 
 
 @pytest.fixture
@@ -444,7 +444,7 @@ def test_save_figure_png_pdf_with_provenance(tmp_path, monkeypatch):
 
 
 def test_figure_folder_never_the_tracked_one(tmp_path, monkeypatch):
-    from ctxmatch_lib._paths import repo_root
+    from ctxmatch_lib.cache import repo_root
     from ctxmatch_lib.plots import base
 
     monkeypatch.delenv("CTXMATCH_FIGURES", raising=False)
@@ -475,7 +475,7 @@ def test_save_figure_shows_before_closing(tmp_path, monkeypatch):
 def test_parquet_carries_provenance(tmp_path):
     import pyarrow.parquet as pq
 
-    from ctxmatch_lib._paths import write_parquet_atomic
+    from ctxmatch_lib.cache import write_parquet_atomic
 
     path = write_parquet_atomic(pd.DataFrame({"a": [1, 2]}), tmp_path / "x.parquet", {"dataset": "embedded"})
     meta = pq.read_schema(path).metadata

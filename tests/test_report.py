@@ -1,4 +1,4 @@
-"""Tests for ctxmatch_lib.report (tables, inlier bins) and ctxmatch_lib.evalcache (cached evaluation)."""
+"""Tests for ctxmatch_lib.report (tables, inlier bins) and the cached evaluation (evaluate_cached)."""
 
 import math
 
@@ -203,7 +203,7 @@ def test_inlier_bin_table_edges_and_empty_bins(frame):
         report.inlier_bin_table(frame, bins=(0.5,))
 
 
-# ------------------------------------------------------------------------------------------- evalcache
+# ------------------------------------------------------------------------------------ evaluate_cached
 
 
 def test_resolve_filters():
@@ -231,12 +231,12 @@ def test_select_pairs():
 
 
 def test_evaluate_cached_reads_back(tmp_path, monkeypatch):
-    from ctxmatch_lib import sweep
+    from ctxmatch_lib.evaluation import SWEEP_COLUMNS
 
     pairs = select_pairs("embedded", pair_ids=["planar/poster/1-2"])
     kw = dict(blobs=["baseline"], filters=["th"], models=["none"], cache_dir=tmp_path)
     first = evaluate_cached(pairs, **kw)
-    assert list(first.columns) == list(sweep.SWEEP_COLUMNS) and set(ROW_COLUMNS) <= set(first.columns)
+    assert list(first.columns) == list(SWEEP_COLUMNS) and set(ROW_COLUMNS) <= set(first.columns)
     assert set(first.method) == {"blob", "th"} and (first.features == "sift-rootsift").all()
     assert set(first.blob) == {"baseline"}  # preset names, as the report's SETUPS select them
     assert len(list((tmp_path / "results").glob("*.parquet"))) == 1

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from ctxmatch_lib import report
-from ctxmatch_lib.report_paper import (PAPER_PAIRS, SIDE_COLUMNS, check_claims, parse_paper_gt_counts,
+from ctxmatch_lib.report.paper import (PAPER_PAIRS, SIDE_COLUMNS, check_claims, parse_paper_gt_counts,
                                        parse_paper_tables, rank_agreement, side_by_side, write_paper_data)
 
 matplotlib.use("Agg")

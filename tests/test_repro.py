@@ -51,10 +51,8 @@ _SCRIPT = r"""
 import json, sys
 import numpy as np
 from ctxmatch_lib.filters import FILTERS
-from ctxmatch_lib.pipeline import register_dtm_stages
 from ctxmatch_lib.geometry import apply_homography
 
-register_dtm_stages()
 rng = np.random.default_rng(7)
 H = np.array([[0.9, -0.1, 30.0], [0.08, 1.05, -12.0], [1e-4, -6e-5, 1.0]])
 n_in, n_out = 150, 150
@@ -88,9 +86,6 @@ def _masks(threads: int, names) -> dict:
 
 
 def test_every_filter_is_identical_with_1_and_2_threads():
-    from ctxmatch_lib.pipeline import register_dtm_stages
-
-    register_dtm_stages()
     names = [n for n in FILTERS if not n.startswith("test-")]
     one, two = _masks(1, names), _masks(2, names)
     assert set(one) == set(names)

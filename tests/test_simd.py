@@ -1,4 +1,4 @@
-"""The 16-lane intrinsics of blob matching's scan (``ctxmatch_lib._simd``) against plain Python references."""
+"""The 16-lane intrinsics of blob matching's scan (``ctxmatch_lib._numerics.simd``) against plain Python references."""
 
 from bisect import bisect_right
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ctxmatch_lib._simd import (band16, below16, count16, fill16, fma16, insert16, lane16, load16, prefetch,
+from ctxmatch_lib._numerics.simd import (band16, below16, count16, fill16, fma16, insert16, lane16, load16, prefetch,
                                 row_codes, row_flags, row_reflag, store16)
 from ctxmatch_lib.blob import _kernels, _walk_kernels
 

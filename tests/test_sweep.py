@@ -12,7 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ctxmatch_lib import sweep  # the compatibility face: its names must keep working
+from ctxmatch_lib import evaluation as sweep
+from ctxmatch_lib.report.blob import blob_map, heatmap_matrix
 from ctxmatch_lib.evaluation import overlap as ev_overlap
 from ctxmatch_lib.evaluation import rows as ev_rows
 from ctxmatch_lib.evaluation import run as ev_run
@@ -116,9 +117,9 @@ def test_sweep_rows_are_complete_and_unique(serial):
     assert len(df) == 3 * len(SMALL_GRID)
     assert not df.duplicated(KEYS).any()
     assert df["ap"].between(0, 1).all()
-    maps = sweep.blob_map(df)
+    maps = blob_map(df)
     assert len(maps) == len(SMALL_GRID) and (maps["pairs"] == 3).all()
-    mat = sweep.heatmap_matrix(maps)
+    mat = heatmap_matrix(maps)
     assert mat.shape == (6, 90) and np.isfinite(mat.to_numpy()).all()
     assert list(mat.index[:2]) == [("1∪", 1), ("3∩", 3)]
 
@@ -179,8 +180,8 @@ def test_resume_after_sigkill(serial, tmp_path):
     """A real kill -9 of `ctxmatch sweep` in the middle of a run; the rerun completes it exactly."""
     _, ref = serial
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    code = ("import pickle, sys; from ctxmatch_lib import sweep; "
-            "sweep.run_sweep('embedded', cache_dir=sys.argv[1], **pickle.loads(bytes.fromhex(sys.argv[2])))")
+    code = ("import pickle, sys; from ctxmatch_lib.evaluation import run_sweep; "
+            "run_sweep('embedded', cache_dir=sys.argv[1], **pickle.loads(bytes.fromhex(sys.argv[2])))")
     proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path), pickle.dumps(KW).hex()], env=env)
     parts = tmp_path / "results"
     deadline = time.time() + 120

@@ -30,8 +30,8 @@ from functools import cache
 import numpy as np
 from numba import config, literal_unroll, njit
 
-from .._numba import user_cache
-from .._simd import fill16, fma16, insert16, lane16, load16, row_codes, row_flags, row_reflag, store16
+from .._numerics.jit import user_cache
+from .._numerics.simd import fill16, fma16, insert16, lane16, load16, row_codes, row_flags, row_reflag, store16
 from ._kernels import TAKEN, _flush, _insert, _kth_of, _lowest_bit, code
 
 __all__ = ["CHUNK", "FRESH_ROWS", "NR", "ROW_BLOCK", "fused_product_fast", "pack_columns", "product_scan"]

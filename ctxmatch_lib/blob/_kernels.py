@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._numba import user_cache
-from .._simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, prefetch, store16, zero8
+from .._numerics.jit import user_cache
+from .._numerics.simd import add_sqdiff8, below16, count16, insert16, lane16, lanes8, load16, prefetch, store16, zero8
 
 __all__ = ["TAKEN", "code_scale", "code", "encode", "error_scale", "sq_norms", "scan_tile", "certify_lines",
            "first_allowed", "next_allowed", "outside_px"]
@@ -78,7 +78,7 @@ with user_cache() as _cache:
     @njit(cache=_cache, nogil=True)
     def _exact_sq(A, i, B, j):
         """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8, the lanes
-        of one :class:`~ctxmatch_lib._simd.Vec8`), the last d mod 8 terms added to the first, then added in
+        of one :class:`~ctxmatch_lib._numerics.simd.Vec8`), the last d mod 8 terms added to the first, then added in
         a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction (no fast-math)."""
         a, b = A[i], B[j]
         d = a.shape[0]
@@ -265,7 +265,7 @@ with user_cache() as _cache:
         written to ``dense`` (f = Ω): half the memory of float32, the bound of the codes one step wider.
 
         A line of at most 16 entries (its arrays padded to 16 columns) is updated in 16-lane registers by
-        :func:`~ctxmatch_lib._simd.insert16`: a row while its flagged entries are walked, a column a bucket
+        :func:`~ctxmatch_lib._numerics.simd.insert16`: a row while its flagged entries are walked, a column a bucket
         of up to ``P`` pending entries at a time. Every flagged (pending) entry goes through ``insert16``
         without a threshold test: one at or above the line's K-th value leaves it as it was, and one below
         it but at or above a fresh line's estimated threshold (which is above the line's true K-th value)
@@ -273,7 +273,7 @@ with user_cache() as _cache:
         branchy insertion, in the same order.
 
         Each row of ``G`` is set to zero once read: the next tile is accumulated into it
-        (:func:`~ctxmatch_lib._blas.accumulate_product`).
+        (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`).
         """
         B, C = G.shape
         reg = Kr <= 16

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blas import one_blas_thread
+from .._numerics.blas import one_blas_thread
 from . import _kernels
 
 _MiB = 1 << 20

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._blas import accumulate_product
+from .._numerics.blas import accumulate_product
 from . import _fused_kernels, _kernels
 
 __all__ = ["fused_pass", "tile_pass"]
@@ -15,7 +15,7 @@ __all__ = ["fused_pass", "tile_pass"]
 
 def tile_pass(A32, B32, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv, *, tile) -> None:
     """The pass over BLAS GEMM tiles of ``tile = (rows, columns)``: each tile accumulated into a buffer that
-    :func:`._kernels.scan_tile` reads and zeroes (:func:`~ctxmatch_lib._blas.accumulate_product`)."""
+    :func:`._kernels.scan_tile` reads and zeroes (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`)."""
     R, C = tile
     buf = np.zeros(R * C, np.float32)  # zero between tiles: the scan clears what it has read
     for r0 in range(0, len(A32), R):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 
 __all__ = ["prefilter_lists", "break_ties", "greedy_sorted"]
 

@@ -8,7 +8,7 @@ time, and float64 exact distances decide. The codes take half the memory of floa
 is written and read twice as fast.
 
 numba's disk cache checks the timestamp of a kernel's own file only: after an edit of the ``_kernels`` it
-uses (``_exact_sq``, ``_lowest_bit``, ``within_px``) or of ``ctxmatch_lib._simd``, touch this file (or clear
+uses (``_exact_sq``, ``_lowest_bit``, ``within_px``) or of ``ctxmatch_lib._numerics.simd``, touch this file (or clear
 ``$CTXMATCH_CACHE/numba``).
 """
 
@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._numba import user_cache
-from .._simd import band16, prefetch
+from .._numerics.jit import user_cache
+from .._numerics.simd import band16, prefetch
 from ._kernels import TAKEN, _exact_sq, _lowest_bit, within_px
 
 __all__ = ["next_in_line", "greedy_dense", "next_in_lines"]

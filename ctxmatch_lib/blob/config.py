@@ -6,7 +6,7 @@ import math
 from dataclasses import asdict, dataclass
 from itertools import product
 
-from .._validation import Presets
+from .._numerics.validation import Presets
 
 __all__ = ["BlobConfig", "BLOB_PRESETS", "blob_grid", "RATIOS", "COMBINES", "PREFILTERS", "T_O_KINDS"]
 

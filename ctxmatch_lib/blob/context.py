@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._blas import one_blas_thread
+from .._numerics.blas import one_blas_thread
 from . import _kernels, _select_kernels, _walk_kernels
 from ._fused_kernels import fused_product_fast
 from ._pass import fused_pass, tile_pass

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._scores import nnr_scores
-from .._validation import as_finite_matrix, as_points
+from .._numerics.scores import nnr_scores
+from .._numerics.validation import as_finite_matrix, as_points
 from . import _select_kernels
 from .config import BlobConfig
 from .context import BlobContext

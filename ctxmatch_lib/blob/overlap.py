@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._fixedmath import hypot, sincos
+from .._numerics.fixedmath import hypot, sincos
 
 __all__ = ["as_shapes", "shapes_from_scale_angle", "ellipse_overlap_error", "circle_overlap_bounds"]
 

@@ -1,5 +1,5 @@
 """``ctxmatch cache``: how much each part of the cache takes; ``ctxmatch cache clear``: remove parts of it, or
-what is older than an age (:mod:`ctxmatch_lib.usercache`)."""
+what is older than an age (:mod:`ctxmatch_lib.cache`)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ examples:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from ..usercache import CACHE_PARTS
+    from ..cache import CACHE_PARTS
 
     parser = subparsers.add_parser(
         "cache", help="show the cache's size per part; 'cache clear' removes parts or old files",
@@ -78,7 +78,7 @@ def _error(msg: str, status: int = 2) -> int:
 
 
 def _show(args) -> int:
-    from ..usercache import cache_usage
+    from ..cache import cache_usage
 
     usage = cache_usage()
     if not usage.exists:
@@ -98,7 +98,7 @@ def _show(args) -> int:
 
 
 def _clear(args) -> int:
-    from ..usercache import CACHE_PARTS, clear_cache, parse_age
+    from ..cache import CACHE_PARTS, clear_cache, parse_age
 
     unknown = [p for p in args.parts if p not in CACHE_PARTS]
     if unknown:

@@ -87,7 +87,7 @@ def _check_root(args, command: str) -> str | None:
     """``--root`` as a folder that can be filled, checked before any work; the error line, or ``None``."""
     if args.root is None:
         return None
-    from .._paths import check_writable
+    from ..cache import check_writable
 
     try:
         check_writable(args.root, "--root", folder=True)

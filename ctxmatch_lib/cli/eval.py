@@ -81,7 +81,7 @@ def run(args) -> int:
 
     import pandas as pd
 
-    from .._paths import write_parquet_atomic
+    from ..cache import write_parquet_atomic
     from ..evaluation.rows import SWEEP_COLUMNS
     from ..evaluation.run import run_units
     from ..pipeline import summary_table

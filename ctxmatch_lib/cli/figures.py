@@ -236,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
     import papermill as pm
     import yaml
 
-    from .._paths import repo_root
+    from ..cache import repo_root
 
     root = repo_root()
     if root is None or not (root / "notebooks").is_dir():

@@ -90,8 +90,8 @@ def _check_plot_suffix(path) -> None:
 
 def _check_inputs_and_outputs(args, folder: bool) -> None:
     """Every input and output path, before any work: a bad one fails at once, naming its flag."""
-    from .._paths import check_writable
-    from ..export import check_export_paths
+    from ..cache import check_writable
+    from ..io.export import check_export_paths
 
     if folder:
         pairs = Path(args.pairs)
@@ -236,7 +236,7 @@ def run(args) -> int:
         return _error(str(exc))
 
     if args.export_h5 is not None or args.export_colmap is not None:
-        from ..export import export_results
+        from ..io.export import export_results
 
         try:
             report = export_results(results, h5_dir=args.export_h5, colmap_db=args.export_colmap)

@@ -47,10 +47,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args) -> int:
     import pandas as pd
 
-    from .._paths import write_parquet_atomic
+    from ..cache import write_parquet_atomic
     from ..evaluation.cache import FORMAT
     from ..evaluation.run import run_units
-    from ..report_blob import blob_map
+    from ..report.blob import blob_map
 
     # Every argument (the output path included) is checked before any work, with the flag's name.
     if args.top < 1:

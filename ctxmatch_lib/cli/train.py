@@ -1,7 +1,7 @@
 """``ctxmatch train oanet|acne``: train a learned filter here, on correspondences generated from the embedded images.
 
 The weights are labelled "trained here" (never the authors'). Without ``--output`` they go to the user's
-cache, ``ctxmatch_lib._paths.cache_dir("weights")`` (``$CTXMATCH_CACHE/weights``, else
+cache, ``ctxmatch_lib.cache.cache_dir("weights")`` (``$CTXMATCH_CACHE/weights``, else
 ``~/.cache/ctxmatch/weights``), as ``<arch>_trained_here_seed<seed>[_steps<steps>].npz``: the weights shipped
 in the package are never overwritten by surprise. Use the trained weights with ``weights=``::
 
@@ -74,7 +74,7 @@ def default_output(arch: str, seed: int = 0, steps: int | None = None) -> Path:
     Path
         ``cache_dir("weights") / "<arch>_trained_here_seed<seed>[_steps<steps>].npz"``.
     """
-    from .._paths import cache_dir
+    from ..cache import cache_dir
 
     name = f"{arch}_trained_here_seed{seed}" + (f"_steps{steps}" if steps is not None else "")
     return cache_dir("weights") / f"{name}.npz"
@@ -95,7 +95,7 @@ def _check_args(args) -> str | None:
 
 
 def _train(args) -> int:
-    from .._paths import check_writable
+    from ..cache import check_writable
     from ..filters.learned import TORCH_HINT, torch_available
 
     problem = _check_args(args)

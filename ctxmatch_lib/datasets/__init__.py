@@ -88,7 +88,7 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
         ``.txt`` file or a folder holding ``pairs_with_gt.txt`` (images relative to it); a scene folder
         or a folder of scenes in the Strecha layout.
     root : str or Path, optional
-        For real datasets, the data root (default ``$CTXMATCH_DATA``, see ``ctxmatch_lib._paths.data_root``)
+        For real datasets, the data root (default ``$CTXMATCH_DATA``, see ``ctxmatch_lib.cache.data_root``)
         or the dataset folder itself; for the embedded ones, the parent folder the dataset is generated into
         (default the ``datasets`` cache). Ignored for a custom folder.
 

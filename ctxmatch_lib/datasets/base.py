@@ -12,7 +12,7 @@ from typing import Iterator, Literal, Union
 
 import numpy as np
 
-from .._validation import as_intrinsics, as_rotation, as_vector3
+from .._numerics.validation import as_intrinsics, as_rotation, as_vector3
 
 __all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "PoseGT", "GroundTruth", "Pair", "PairKind", "Dataset",
            "PAIR_KINDS"]

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._paths import atomic_path
+from ..cache import atomic_path
 
 from ._io import epipolar_gt, fitted_epipolar_gt, flow_gt, homography_gt, image_size, read_matrix
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, PoseGT

@@ -166,7 +166,7 @@ def _strip_top(folder: Path) -> Path:
 
 def _data_root(root) -> Path:
     if root is None:
-        from .._paths import cache_dir, data_root
+        from ..cache import cache_dir, data_root
 
         root = data_root() or cache_dir("data")
     root = Path(root)
@@ -220,7 +220,7 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
         sequences), ``planar``, ``nonplanar``, ``strecha`` (= ``calibrated``, the six scenes), ``all``.
     root : str or Path, optional
         Data root to fill (``planar/…``, ``nonplanar/…``, ``calibrated/…`` under it); default ``$CTXMATCH_DATA`` when set,
-        else ``ctxmatch_lib._paths.cache_dir("data")``.
+        else ``ctxmatch_lib.cache.cache_dir("data")``.
     url, sha256 : str, optional
         Override the archive URL (``http(s)://``, ``ftp://`` or ``file://``) and its SHA-256; only for a
         dataset with a single archive. A mirror is trusted only through the hash. For the Strecha scenes

@@ -139,7 +139,7 @@ def downscale_pairs(pairs, factor: int = 2, *, folder=None, suffix: str = "half"
         A pair without :class:`PoseGT` (a homography or a flow field would need rescaling too), or a bad
         ``factor``.
     """
-    from .._paths import cache_dir
+    from ..cache import cache_dir
 
     _check_factor(factor)
     folder = Path(folder) if folder is not None else cache_dir("datasets") / f"downscaled-{factor}"

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._fixedmath import opencv_baseline, sincos
+from .._numerics.fixedmath import opencv_baseline, sincos
 from .base import FlowGT, PoseGT
 
 __all__ = ["EMBEDDED_VERSION", "MOTORCYCLE_CALIBRATION", "embedded_root", "generate_embedded", "motorcycle_flows",
@@ -500,12 +500,12 @@ def embedded_root(root=None) -> Path:
     Parameters
     ----------
     root : str or Path, optional
-        Parent folder; default ``ctxmatch_lib._paths.cache_dir("datasets")``. The dataset lives in
+        Parent folder; default ``ctxmatch_lib.cache.cache_dir("datasets")``. The dataset lives in
         ``root/embedded-v<EMBEDDED_VERSION>``. Generation writes a temporary sibling folder and renames it
         into place, so an interrupted run leaves nothing half-written and concurrent runs are safe.
     """
     if root is None:
-        from .._paths import cache_dir
+        from ..cache import cache_dir
 
         root = cache_dir("datasets")
     root = Path(root)

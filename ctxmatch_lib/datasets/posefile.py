@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._paths import atomic_path
-from .._validation import as_rotation
+from ..cache import atomic_path
+from .._numerics.validation import as_rotation
 from ._io import image_size
 from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, nearest_rotation
 from .strecha import rotation_band, threshold_scale_for

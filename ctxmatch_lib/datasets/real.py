@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._paths import data_root
+from ..cache import data_root
 from ._io import epipolar_gt, fitted_epipolar_gt, homography_gt, image_size, read_matrix, read_vpts
 from .base import Pair, _check_matrix
 

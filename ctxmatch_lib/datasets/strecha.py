@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import as_intrinsics, as_rotation
+from .._numerics.validation import as_intrinsics, as_rotation
 from ._io import IMAGE_SUFFIXES, image_size
 from .base import ROTATION_TEXT_TOL, Pair, PoseGT, nearest_rotation
 

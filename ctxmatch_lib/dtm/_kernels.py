@@ -17,7 +17,7 @@ Their floating-point operations are those of the NumPy code they replaced, in th
 same bit for bit, on any machine.
 
 Compiled code is cached on disk in the user's cache directory (``$CTXMATCH_CACHE/numba``, see
-:func:`ctxmatch_lib._paths.cache_dir`) unless ``NUMBA_CACHE_DIR`` says otherwise, so only the first call on
+:func:`ctxmatch_lib.cache.cache_dir`) unless ``NUMBA_CACHE_DIR`` says otherwise, so only the first call on
 a machine pays the compilation (a few seconds).
 """
 
@@ -29,7 +29,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 from ._point_kernels import _group_by
 
 __all__ = [

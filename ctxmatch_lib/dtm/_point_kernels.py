@@ -13,7 +13,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 
 __all__ = [
     "doubled_areas_kernel",

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from .._validation import as_image_size, as_points
+from .._numerics.validation import as_image_size, as_points
 from ._kernels import alpha_shapes_kernel, circumradii_kernel, hull_edges_kernel, triangle_neighbors_kernel
 from ._point_kernels import inside_ring_kernel
 from ._samples import _fatten, _keep_clear, _nearest, _rings_from_edges, _sample_rings, _to_float32  # noqa: F401

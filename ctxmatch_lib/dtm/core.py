@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validation import as_image_size, as_matches, as_points, as_scores, check_inside
-from ..geometry import _dlt_normal_matrix, _normalise, _transfer_errors
+from .._numerics.validation import as_image_size, as_matches, as_points, as_scores, check_inside
+from .._numerics.order import canonical_order, spread_back
+from ..geometry import dlt_normal_matrix, hartley_normalise, transfer_errors
 from ._kernels import contract_expand_kernel, neighbourhood_kernel, row_counts_kernel, transfer_test_kernel
 from .boundary import BOUNDARY_METHODS, Boundary, boundaries_and_triangulations, keypoint_boundary
 from .triangulation import Triangulation, collapse_vertices, stable_argsort_small, triangulate
@@ -265,9 +266,9 @@ def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     """
     if len(p1) < 4:
         return False
-    n1, t1 = _normalise(p1)
-    n2, t2 = _normalise(p2)
-    evals, evecs = np.linalg.eigh(_dlt_normal_matrix(n1, n2))
+    n1, t1 = hartley_normalise(p1)
+    n2, t2 = hartley_normalise(p2)
+    evals, evecs = np.linalg.eigh(dlt_normal_matrix(n1, n2))
     if not evals[-1] > 0 or evals[1] <= 1e-12 * evals[-1]:
         return False  # no unique homography
     h = np.linalg.solve(t2, evecs[:, 0].reshape(3, 3) @ t1)
@@ -276,7 +277,7 @@ def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     det = np.linalg.det(h)
     if not det > 0 or not (w * np.sign(w[0]) > 0).all():
         return False
-    fwd, bwd = _transfer_errors(h, p1, p2)
+    fwd, bwd = transfer_errors(h, p1, p2)
     return bool((fwd <= tol).all() and (bwd <= tol).all())
 
 
@@ -349,31 +350,25 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     Parameters
     ----------
     kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        Keypoints, (x, y) pixels with the origin at the centre of the top-left pixel (extra columns such
-        as scale are ignored). All of them must lie on their image (``-0.5 <= x <= width - 0.5``, same
-        for y); ``boundary="keypoints"`` also uses the keypoints no match refers to.
+        Keypoints, (x, y) pixels, origin at the centre of the top-left pixel (extra columns ignored). All
+        must lie on their image (``-0.5 <= x <= width - 0.5``, same for y).
     matches : array_like of shape (K, 2)
         Indices into ``kpts1``/``kpts2``; many-to-many allowed.
     scores : array_like of shape (K,), optional
-        Descriptor distances, lower is better (step 4); ``None``: all equal, DTM is then purely spatial.
+        Descriptor distances, lower is better (step 4); ``None``: all equal (purely spatial DTM).
     image_size1, image_size2 : tuple of int
-        ``(width, height)`` of the images; they set the boundary distance ``s = min(w, h) / 10``.
+        ``(width, height)``; they set the boundary distance ``s = min(w, h) / 10``.
     stages : {1, 2}
         1 runs DTM1 only, 2 also DTM2.
     boundary : {"alpha", "convex", "canvas", "corners", "keypoints"}
-        Boundary construction (Fig. 2, Appendix A); ``"alpha"`` is the paper's. ``"keypoints"`` is the
-        construction of the author's Python port: the image frame plus the unmatched keypoints next to it
-        (:func:`~ctxmatch_lib.dtm.boundary.keypoint_boundary`).
+        Boundary construction (:func:`~ctxmatch_lib.dtm.boundary.dtm_boundary`); ``"alpha"`` is the
+        paper's, ``"keypoints"`` the author's Python port's.
     shrink : float
-        MATLAB ``boundary`` shrink factor for the alpha shape (footnote 2; default 0.5).
+        MATLAB ``boundary`` shrink factor of the alpha shape (footnote 2).
     dtm2_boundary : {"current", "stored"}
-        Boundaries of the DTM2 triangulations. ``"current"`` (default): built anew around ``E^i``, as the
-        author's port does; ``"stored"``: ``B^i`` kept from DTM1 iteration ``i``, as the paper's text states
-        (DTM2 step 1). See Notes for why the default follows the port.
+        DTM2's boundaries: built around ``E^i`` (as the port) or DTM1's ``B^i`` (the paper's text; Notes).
     whole_set_tol : float or None
-        Pixels. When DTM removes some of ``K >= 4`` matches (on at least four distinct vertices per image)
-        that one proper homography maps onto each other within this transfer error in both images, all are
-        kept (the whole-set rule, see Notes); ``None`` turns the rule off (DTM alone).
+        Transfer error in pixels of the whole-set rule (Notes); ``None`` turns it off.
     trace : bool
         Record every step in ``result.trace`` (:class:`DTMTrace`).
 
@@ -390,59 +385,24 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
 
     Notes
     -----
-    **Where the paper leaves a choice open, DTM follows the author's public Python port** (github
-    fb82/DTM, ``src/dtm.py``), read side by side with it on the real pairs
-    (``benchmarks/bench_dtm_real.py``):
+    Where the paper leaves a choice open, DTM follows the author's Python port (github fb82/DTM,
+    ``src/dtm.py``; compared on the real pairs in ``docs/dtm.md``):
 
-    - *Neighbourhoods.* The paper defines ``A_v`` as "the set of vertexes adjacent to ``v`` [...],
-      including ``v`` itself" (step 3). Taken literally, every match would be its own neighbour, so every
-      match picked into ``T`` would re-enter ``M^i`` through its own cluster and DTM1 could never remove an
-      outlier ranked above its neighbours. The port counts only the matches on the *adjacent* vertices
-      (its adjacency lists leave ``v`` out): neither ``m`` nor other matches collapsed onto the same
-      vertex support ``m``. DTM follows the port. (An earlier version counted the co-collapsed matches;
-      with the port made to count them too, the whole gap between the two DTM1 outputs on the real pairs
-      disappeared, and that version's DTM2 output, which also differed in the rule below, measured 66.6 /
-      68.9 precision / recall against the port's 70.4 / 62.8, paper-best planar.)
-    - *DTM2 near the boundary.* When the triangle ``W`` holding a removed match has one or two boundary
-      vertices (no partner in the other image), the paper says nothing. The port translates the other
-      keypoint by the motion of each base match adjacent to the keypoint vertex of ``W`` nearest to the
-      match (not that vertex's own matches) and accepts when one lands in ``W``; DTM does the same.
-      (Trying every keypoint vertex of ``W`` and its own matches, as an earlier version did, re-added
-      mostly gross outliers, median reprojection error about 300 px.)
-    - *Inside.* As in the port, "inside" is strict and a partner triangle must turn the same way as ``W``
-      (a mirrored triangle is no correspondence).
-    - *DTM2 boundaries.* The paper: "compute the Delaunay triangulations [...] from the collapsed vertex set
-      of ``E^i`` plus the boundary sets ``B_1^i`` and ``B_2^i`` computed in the DTM1 stage [...] in order to
-      increase the chance to include previously discarded keypoints close to the boundary". The port
-      builds the boundaries around ``E^i`` instead. The stored boundaries, drawn around the larger
-      ``M^{i-1}``, leave wide triangles with boundary vertices around ``E^i``, through which the translation
-      rule re-adds gross outliers. Measured on the 55 real pairs with the alpha boundary
-      (``benchmarks/bench_dtm_real.py``; precision / recall, %, port in brackets):
-      paper-best planar ``"stored"`` 68.2 / 64.5, ``"current"`` 73.7 / 62.9 (70.4 / 63.0); paper-best
-      kusvod2 69.5 / 45.9 and 78.0 / 44.7 (75.3 / 44.2); baseline planar 76.1 / 75.1 and 80.8 / 72.4
-      (79.7 / 72.9). The paper's reading trades 4-8 points of precision for 1-3 of recall, so the default
-      follows the port and ``"stored"`` stays as the paper's option.
-    - *The boundary itself* is where the paper and the port differ by design (the paper's alpha shape is the
-      default, the port's construction is ``boundary="keypoints"``). DTM2 re-adds a match only inside the
-      triangulation: within about ``s`` of the DTM1 survivors with the alpha shape, anywhere up to the image
-      frame with the port's boundary. On the 55 real pairs (``benchmarks/bench_dtm_real.py``) the matches the
-      port keeps beyond that reach are mostly wrong (paper-best planar: 1577 farther than ``s`` from the DTM1
-      survivors kept by the port alone, 1454 of them wrong), so the alpha shape measures 73.7 / 62.9 against
-      the port's 70.4 / 63.0 (kusvod2 78.0 / 44.7 against 75.3 / 44.2); without the matches that far, the
-      two agree within 1.5 points (74.6 / 62.3 against 75.4 / 61.5; 79.2 / 44.1 against 79.0 / 43.2).
+    - *Neighbourhoods.* The paper's ``A_v`` includes ``v`` itself (step 3); taken literally, every match
+      supports itself and DTM1 never removes an outlier ranked above its neighbours. Only the matches on
+      *adjacent* vertices count, not ``m`` nor the others collapsed onto its vertex.
+    - *DTM2 near the boundary.* A triangle ``W`` with one or two boundary vertices has no partner: the
+      candidate passes when translating its other keypoint by the motion of a base match adjacent to the
+      keypoint vertex of ``W`` nearest to it lands in ``W`` (:func:`_transfer_test`).
+    - *Inside* is strict, and a partner triangle must turn the same way as ``W`` (not mirrored).
+    - *DTM2 boundaries.* The paper's text keeps DTM1's ``B^i`` (``"stored"``); drawn around the larger
+      ``M^{i-1}``, they leave wide boundary triangles around ``E^i`` through which the translation rule
+      re-adds gross outliers, so the default builds them around ``E^i``, as the port does.
 
-    **Recall below the paper's** (``benchmarks/ablate_dtm_recall.py``, README "At paper scale"): at the budget
-    "paper" DTM1 recall stays 14 / 19 points below Table 2 (25.6 / 28.7 below Table 3) at near-paper precision;
-    no single factor (budget, coincident keypoints, f', image size) closes over 5 points; the port agrees.
-
-    The result does not depend on the order of the matches: vertices are sorted, and ties in the ranking
-    are broken by the keypoint coordinates, then the keypoint indices. Keypoints are rounded half away
-    from zero (the paper's ``⌈·⌋``; the port rounds halves to even, which only matters at exact halves).
-
-    The triangulations are exact Delaunay triangulations (OpenCV ``Subdiv2D``, inserting ``B`` into the
-    triangulation of ``V``; Qhull as fallback, see :class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`).
-    Where rounded vertices are cocircular the diagonal is a tie that the method leaves open; it is broken by
-    the (order-independent) insertion order, so results can differ from a Qhull-based run in such ties only.
+    The result does not depend on the order of the matches: vertices are sorted, and ranking ties are broken
+    by the keypoint coordinates, then indices. Keypoints are rounded half away from zero (the paper's
+    ``⌈·⌋``). The triangulations are exact (:class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`);
+    the diagonal of cocircular vertices, a tie the method leaves open, follows the insertion order.
 
     **Small and degenerate sets.** The boundary always surrounds the vertices (for ``"alpha"``: a circle
     around a single vertex, a stadium around collinear ones), so every step is defined. No matches give
@@ -485,7 +445,7 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
 
     Examples
     --------
-    >>> from ctxmatch_lib.synthetic import planted_homography_matches
+    >>> from ctxmatch_lib.testing import planted_homography_matches
     >>> p = planted_homography_matches(1500, 0.4, rng=0)
     >>> res = dtm(p.kpts1, p.kpts2, p.matches, p.scores, image_size1=p.image_size, image_size2=p.image_size)
     >>> precision = p.is_inlier[res.keep].mean()
@@ -580,7 +540,7 @@ def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, 
     Keypoints are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel. ``shapes1`` and
     ``shapes2`` are ignored (DTM uses keypoint positions only); ``params`` go to :func:`dtm`
     (``stages``, ``boundary``, ``shrink``, ``dtm2_boundary``). As every registered filter, it decides on the
-    rows in their canonical order (:func:`ctxmatch_lib.filters._common.canonical_order`), so a repeated row
+    rows in their canonical order (:func:`ctxmatch_lib._numerics.order.canonical_order`), so a repeated row
     gets one decision and the mask does not depend on the order of the rows.
 
     Returns
@@ -588,7 +548,6 @@ def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, 
     ndarray of shape (K,) bool
         The keep mask, ``matches[keep]``.
     """
-    from ..filters._common import canonical_order, spread_back
 
     kp1, kp2 = as_points(kpts1, "kpts1"), as_points(kpts2, "kpts2")
     m = as_matches(matches, len(kp1), len(kp2))

@@ -14,8 +14,7 @@ One module per job, each importing only those listed before it (and the method m
   (named presets), with :func:`check_output`.
 
 ``ctxmatch eval``, ``ctxmatch sweep``, :func:`ctxmatch_lib.pipeline.evaluate_dataset` and the report
-notebooks all run here, with the same unit keys, so each reuses what the others computed. The modules
-``ctxmatch_lib.sweep`` and ``ctxmatch_lib.evalcache`` are compatibility faces re-exporting these names.
+notebooks all run here, with the same unit keys, so each reuses what the others computed.
 
 Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
 """
@@ -25,7 +24,7 @@ from .frontends import check_output, evaluate_cached, run_sweep
 from .plan import SweepUnit, plan_sweep, plan_units, resolve_blob_configs, resolve_features, select_pairs
 from .rows import SWEEP_COLUMNS
 from .run import run_units
-from .steps import PAPER_FILTER_ORDER, register_dtm_stages, resolve_blobs, resolve_filters
+from .steps import PAPER_FILTER_ORDER, resolve_blobs, resolve_filters
 from .unit import PairError, run_unit
 
 __all__ = [
@@ -37,7 +36,6 @@ __all__ = [
     "evaluate_cached",
     "plan_sweep",
     "plan_units",
-    "register_dtm_stages",
     "resolve_blob_configs",
     "resolve_blobs",
     "resolve_features",

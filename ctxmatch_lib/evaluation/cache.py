@@ -2,7 +2,7 @@
 
 Every cached file is named by a SHA-1 of what its content depends on (:func:`digest`), written to a
 temporary name and moved into place, so a run killed at any moment leaves whole files only and a rerun
-skips what exists. Layout under ``ctxmatch_lib._paths.cache_dir("sweep")`` (features are cached by
+skips what exists. Layout under ``ctxmatch_lib.cache.cache_dir("sweep")`` (features are cached by
 :mod:`ctxmatch_lib.features` in its own folder)::
 
     results/<unit-hash>.parquet      one part per finished unit (rows of one pair)
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._paths import atomic_path
+from ..cache import atomic_path
 from ..datasets.base import Pair
 from ..features import Features
 
@@ -120,7 +120,7 @@ def load_npz(path: Path) -> dict | None:
 
 def engine_cache(cache_dir) -> Path:
     if cache_dir is None:
-        from .._paths import cache_dir as default_cache_dir
+        from ..cache import cache_dir as default_cache_dir
 
         return default_cache_dir("sweep")
     path = Path(cache_dir)

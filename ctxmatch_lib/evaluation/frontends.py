@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from .._paths import check_writable, write_parquet_atomic
+from ..cache import check_writable, write_parquet_atomic
 from ..groundtruth import GT_THRESHOLD_PX
 from .cache import FORMAT
 from .plan import plan_sweep, plan_units
@@ -24,7 +24,7 @@ __all__ = ["check_output", "run_sweep", "evaluate_cached"]
 
 def check_output(path, name: str = "out", suffix: str = ".parquet") -> Path:
     """Check, before any work, that ``path`` can be written: the right suffix, then
-    :func:`ctxmatch_lib._paths.check_writable` (not a folder; its first existing ancestor a writable folder,
+    :func:`ctxmatch_lib.cache.check_writable` (not a folder; its first existing ancestor a writable folder,
     missing folders being created when it is written).
 
     ``name`` is what the error calls it (``"--out"`` on the command line). Returns the path.
@@ -80,7 +80,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         Run the units on a Dask cluster instead: a scheduler address (``"tcp://host:8786"``) or a client.
         Workers must see the data and image paths the driver sees; each worker keeps its own caches.
     cache_dir : path, optional
-        The sweep cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``feature_cache_dir`` the
+        The sweep cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``feature_cache_dir`` the
         feature cache (default: that of :mod:`ctxmatch_lib.features`).
     out : path, optional
         Also write the table to this Parquet file (atomically), with the sweep settings as metadata.
@@ -152,7 +152,7 @@ def evaluate_cached(
     cache : bool
         Read and write the cache (``False``: always recompute, write nothing).
     cache_dir : path, optional
-        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``, shared with ``ctxmatch
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``, shared with ``ctxmatch
         eval`` and ``ctxmatch sweep``).
     progress : bool
         A tqdm bar over (feature setup, pair), naming the pair in progress.

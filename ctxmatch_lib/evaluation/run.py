@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._paths import write_parquet_atomic
+from ..cache import write_parquet_atomic
 from .cache import engine_cache
 from .plan import SweepUnit, keyed
 from .rows import frame
@@ -124,7 +124,7 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
         From :func:`~ctxmatch_lib.evaluation.plan.plan_sweep` or
         :func:`~ctxmatch_lib.evaluation.plan.plan_units`.
     cache_dir : path, None or False
-        The evaluation cache (default ``ctxmatch_lib._paths.cache_dir("sweep")``); ``False``: no cache at
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False``: no cache at
         all (nothing read, nothing written).
     feature_cache_dir : path, optional
         The feature cache (default: that of :mod:`ctxmatch_lib.features`).

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
-from .._scores import nnr_scores, score_ratio
+from .._numerics.scores import nnr_scores, score_ratio
 from ..datasets.base import Pair, PoseGT
 from ..features import FeatureConfig, Features, extract_features
 from ..geometry import (CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, ModelFit, apply_model_step, model_kind_for,
@@ -30,7 +30,6 @@ __all__ = [
     "PAPER_FILTER_ORDER",
     "resolve_blobs",
     "resolve_filters",
-    "register_dtm_stages",
     "check_filters",
     "check_models",
     "check_matchers",
@@ -103,14 +102,6 @@ def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: 
         raise ValueError(f"{argument} must name at least one {noun}")
     return out
 
-
-def register_dtm_stages() -> None:
-    """Do nothing; kept so that code written against older versions keeps running.
-
-    ``dtm1`` (DTM1 only, ``stages=1``) and ``dtm2`` (DTM1 + DTM2, ``stages=2``, the same as ``dtm``) are
-    built-in names of :data:`~ctxmatch_lib.filters.FILTERS` in every process, worker processes included, so
-    Tables 1-3 list both as the paper does without a call to this function.
-    """
 
 
 def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
@@ -197,9 +188,9 @@ def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
     """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
 
     Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
-    (:func:`ctxmatch_lib._validation.check_inside`); a size given as (height, width) is the usual cause.
+    (:func:`ctxmatch_lib._numerics.validation.check_inside`); a size given as (height, width) is the usual cause.
     """
-    from .._validation import check_inside
+    from .._numerics.validation import check_inside
 
     check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
     check_inside(f2.kpts, pair.image_size2, f"keypoints of image2 of pair {pair.pair_id!r}")

@@ -14,7 +14,7 @@ points along the keypoint orientation; for HarrisZ an ellipse (``A`` symmetric b
 Patch descriptors sample ``2 A`` (the 6σ reach of the SIFT descriptor around a 3σ disc).
 
 Extraction is cached per (OpenCV version, image content, extractor configuration) under
-``ctxmatch_lib._paths.cache_dir("features")`` (``$CTXMATCH_CACHE/features``, else
+``ctxmatch_lib.cache.cache_dir("features")`` (``$CTXMATCH_CACHE/features``, else
 ``$XDG_CACHE_HOME/ctxmatch/features`` or ``~/.cache/ctxmatch/features``); every entry is written to a
 temporary file and renamed into place, so an interrupted run never leaves a corrupt entry. Steps that
 several blocks of an image share (the HarrisZ detections of the four HarrisZ blocks, the OriNet angles of
@@ -31,13 +31,13 @@ on-disk cache); the other detectors and descriptors in :mod:`.harrisz`, :mod:`.s
 from __future__ import annotations
 
 from .base import Features, descriptor_distance
-from .cache import _ENTRY_FORMAT, _FIELDS, extract_features, feature_cache_path  # noqa: F401  (tests read the two)
+from .cache import extract_features, feature_cache_path
 from .config import (FEATURE_DESCRIPTIONS, FEATURE_PRESETS, KEYPOINT_BUDGETS, PAPER_FEATURE_BLOCKS, FeatureConfig,
                      keypoint_budget, paper_feature_blocks)
-from .io import _as_gray_uint8, load_image  # noqa: F401  (match.py converts images with it)
+from .io import as_gray_uint8, load_image
 
 __all__ = [
-    "FeatureConfig", "Features", "extract_features", "load_image", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
+    "FeatureConfig", "Features", "extract_features", "load_image", "as_gray_uint8", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
     "KEYPOINT_BUDGETS", "keypoint_budget",
     "descriptor_distance", "feature_cache_path", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
 ]

@@ -10,7 +10,7 @@ bit either; the order is fixed, so the sum is the same on any CPU. BLAS sums the
 order, so the float64 sums differ from its in the last bits, and after the rounding to float32 almost never
 (none in the ``tests/test_deep_features.py`` cases).
 
-Tiles of four output pixels × eight output channels (eight :class:`~ctxmatch_lib._simd.Vec4` accumulators)
+Tiles of four output pixels × eight output channels (eight :class:`~ctxmatch_lib._numerics.simd.Vec4` accumulators)
 keep the weights of one input channel in two registers for four pixels. Compiled code is cached on disk as for
 the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
 """
@@ -22,8 +22,8 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
-from .._simd import load4 as _load4, muladd4 as _muladd4, splat4 as _splat4, store4 as _store4, zero4 as _zero4
+from .._numerics.jit import user_cache
+from .._numerics.simd import load4 as _load4, muladd4 as _muladd4, splat4 as _splat4, store4 as _store4, zero4 as _zero4
 
 __all__ = ["direct_conv2d"]
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _fixedmath, _fixedmath_kernels
-from .._blas import one_blas_thread
+from .._numerics import fixedmath as _fixedmath
+from .._numerics import fixedmath_kernels as _fixedmath_kernels
+from .._numerics.blas import one_blas_thread
 from ._conv_kernels import direct_conv2d
 
 __all__ = ["conv2d", "tfeat", "hardtfeat", "orinet", "pyramid_patches", "NETS"]
@@ -23,7 +24,7 @@ _F32 = np.float32
 
 
 def _tanh(x: np.ndarray) -> np.ndarray:
-    """float32 ``tanh`` computed in float64 by :func:`ctxmatch_lib._fixedmath.tanh` and rounded once:
+    """float32 ``tanh`` computed in float64 by :func:`ctxmatch_lib._numerics.fixedmath.tanh` and rounded once:
     numpy's float32 ``tanh`` follows its SIMD loop (AVX-512, AVX2 and baseline loops differ in the last bit)."""
     return _fixedmath_kernels.tanh_f32(x)
 

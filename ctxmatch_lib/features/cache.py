@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .._paths import atomic_path
+from ..cache import atomic_path
 from .base import Features
 from .config import FeatureConfig
 from .extract import _extract
-from .io import _as_gray_uint8, _image_hash, _image_size
+from .io import as_gray_uint8, _image_hash, _image_size
 
 __all__ = ["extract_features", "feature_cache_path"]
 
@@ -48,13 +48,13 @@ def _save_entry(path: Path, feats: Features) -> None:
 
 def feature_cache_path(image, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> Path:
     """Where :func:`extract_features` stores the features of ``image`` under ``config``."""
-    gray = _as_gray_uint8(image)
+    gray = as_gray_uint8(image)
     return _entry_path(_image_hash(gray), config, cache_dir)
 
 
 def _entry_path(digest: str, config: FeatureConfig, cache_dir) -> Path:
     if cache_dir is None:
-        from .._paths import cache_dir as default_cache_dir
+        from ..cache import cache_dir as default_cache_dir
 
         base = default_cache_dir("features")
     else:
@@ -80,7 +80,7 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
     config : FeatureConfig
         Extractor settings; part of the cache key.
     cache_dir : str, Path, None or False
-        Cache folder: ``None`` for ``ctxmatch_lib._paths.cache_dir("features")``, ``False`` to disable the
+        Cache folder: ``None`` for ``ctxmatch_lib.cache.cache_dir("features")``, ``False`` to disable the
         cache. Entries are keyed by the OpenCV version, the hash of the gray pixels and ``config.key()``.
 
     Returns
@@ -101,7 +101,7 @@ def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_di
     """
     if not isinstance(config, FeatureConfig):
         raise ValueError(f"config must be a FeatureConfig, got {type(config).__name__}")
-    gray = _as_gray_uint8(image)
+    gray = as_gray_uint8(image)
     if cache_dir is False:
         return _extract(gray, config)
     path = _entry_path(_image_hash(gray), config, cache_dir)

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .._validation import Presets
+from .._numerics.validation import Presets
 
 __all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
            "KEYPOINT_BUDGETS", "keypoint_budget"]
@@ -19,7 +19,7 @@ __all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FE
 
 # Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
 # every cache keyed on it (features, sweep units) is then recomputed. 2: frames, orientations and descriptors
-# computed with CPU-independent elementary functions (``ctxmatch_lib._fixedmath``).
+# computed with CPU-independent elementary functions (``ctxmatch_lib._numerics.fixedmath``).
 _CACHE_FORMAT = 2
 
 

@@ -303,7 +303,7 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
     if n == 0:
         return np.empty(0)
     if _use_numpy(backend, weights, "orinet"):
-        from .. import _fixedmath
+        from .._numerics import fixedmath as _fixedmath
         from . import _nn
 
         _, params = load_numpy_net(weights, "orinet")
@@ -431,7 +431,7 @@ def export_npz(source, output, net: str) -> Path:
         The ``.npz`` to write.
     net : {"tfeat", "hardtfeat", "orinet"}
     """
-    from .._paths import atomic_path
+    from ..cache import atomic_path
 
     if net not in (*_NUMPY_NETS, "orinet"):
         raise ValueError(f"net must be one of {(*_NUMPY_NETS, 'orinet')}, got {net!r}")

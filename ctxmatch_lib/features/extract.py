@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._fixedmath import opencv_baseline
+from .._numerics.fixedmath import opencv_baseline
 from .base import Features
 from .config import _DEEP, FeatureConfig
 from .io import _image_size
@@ -48,7 +48,7 @@ def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
     """
     if memo is None:
         return compute()
-    from .._paths import atomic_path
+    from ..cache import atomic_path
 
     h = hashlib.sha1(what.encode())
     for part in parts:

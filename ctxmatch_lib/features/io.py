@@ -47,7 +47,7 @@ def load_image(path, *, gray: bool = True) -> np.ndarray:
     return img
 
 
-def _as_gray_uint8(image) -> np.ndarray:
+def as_gray_uint8(image) -> np.ndarray:
     """A path or an array (gray, RGB or RGBA; uint8, other integers or floats in [0, 1]) as gray uint8."""
     if isinstance(image, (str, os.PathLike)):
         return load_image(image, gray=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._fixedmath import atan2, exp, floor_log2, hypot, sincos
+from .._numerics.fixedmath import atan2, exp, floor_log2, hypot, sincos
 
 __all__ = ["extract_patches", "rotation_shapes", "dominant_orientation", "sift_from_patches"]
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .._fixedmath import atan2, exp, hypot
+from .._numerics.fixedmath import atan2, exp, hypot
 
 __all__ = [
     "SGLOH_DIM", "sgloh_descriptors", "sgloh_from_patches", "sgloh_rotate", "SGLOH2Distance",

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._fixedmath import sincos
+from .._numerics.fixedmath import sincos
 from .base import Features
 from .config import FeatureConfig
 

@@ -22,7 +22,7 @@ import functools
 import importlib
 from collections.abc import Callable, Iterator, Mapping
 
-from .._scores import nnr_scores
+from .._numerics.scores import nnr_scores
 
 __all__ = ["FILTERS", "register_filter", "nnr_scores"]
 

@@ -1,17 +1,11 @@
 """Compiled (numba) kernels of AdaLAM (see :mod:`.adalam`): the confidence-based inlier count of the local
 maps, and the seed test over distinct locations.
 
-The count evaluates the very expressions of the one it replaced (same residuals, same half-precision runs,
-same sums in the same order, no fast-math), so its decisions are bit-identical to it (tested against a plain
-implementation of the count in ``tests/test_filters_adalam_kernels.py``). It saves the work of the maps that
-cannot win, as only the best map of each neighbourhood is used (the first of the largest count):
-
-- a map's count is at most the number of its members that are not exact fits and have ``r^2 * min_conf <=
-  1`` (a good member needs ``r^2 * min_conf`` at most the share of votes so far); a map whose bound does not
-  exceed the best count so far is skipped;
-- otherwise those members (a prefix of the sorted residuals) are sorted alone and a tighter bound is read
-  from them and the number of distinct half-precision keys among the others (:func:`_count_bound`); only a
-  map that may still win has the others sorted and is counted in full.
+The count uses the expressions of a plain implementation (same residuals, half-precision runs and sums in
+the same order, no fast-math), so its decisions are bit-identical to it
+(``tests/test_filters_adalam_kernels.py``). Only the best map of each neighbourhood is used, so a map is
+skipped when a bound of its count (members that are not exact fits with ``r^2 * min_conf <= 1``, then the
+tighter :func:`_count_bound`) does not exceed the best count so far.
 """
 
 from __future__ import annotations
@@ -21,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 
 __all__ = ["beaten_by_neighbours", "best_confident_maps", "half_keys"]
 
@@ -34,15 +28,10 @@ with user_cache() as _cache:
 
     @_jit
     def half_keys(y, keys):  # pragma: no cover - compiled
-        """Integer keys of the float32 values ``y >= 0`` (NaN allowed), nondecreasing in ``y``: two keys are
-        equal exactly when the two values round to the same half-precision value (nearest, ties to even, inf
-        from 65520 on, as the reference's float16 cast); NaN, equal to nothing, gets a key of its own. Written
-        to ``keys`` (int64, the length of ``y``).
-
-        Normal half-precision values keep the 10 leading fraction bits of the float32 ones: the float32 bit
-        pattern rounded to nearest even at bit 13 (a carry moves to the next binade, as the rounding does);
-        below ``2^-14`` the spacing is ``2^-24``; from 65520 on every value is inf.
-        """
+        """Integer keys of the float32 values ``y >= 0`` (NaN allowed), nondecreasing in ``y``, written to
+        ``keys`` (int64): equal exactly when the values round to the same half-precision value (as the
+        reference's float16 cast: nearest even at bit 13 of the float32 pattern, spacing ``2^-24`` below
+        ``2^-14``, inf from 65520 on); each NaN gets a key of its own."""
         bits = y.view(np.int32)
         for k in range(len(y)):
             v = y[k]
@@ -126,11 +115,9 @@ with user_cache() as _cache:
         """An upper bound of the count of :func:`_count` from the sorted residuals that may be counted
         (``sv``) and the ``runs`` of the others (see :func:`_split`).
 
-        The votes are at least those of the runs of ``sv`` but its last, plus one per run of the others, plus
-        the last run's when no other residual shares its key (each run beyond ``sv`` holds no exact fit, so
-        it adds one vote; the run across the boundary adds at least nothing). Counting the last run of ``sv``
-        as ending there overstates its members' votes, hence the votes so far. Slack of ``1e-9`` covers the
-        rounding of the sums.
+        The votes are at least those of the runs of ``sv`` but its last, plus one per run of the others (no
+        exact fit among them), plus the last run's when no other residual shares its key; ending the last
+        run at ``p`` overstates the votes so far. ``1e-9`` of slack covers the rounding of the sums.
         """
         p = len(sv)
         for k in range(p):

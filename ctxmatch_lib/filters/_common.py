@@ -4,8 +4,8 @@ A filter module writes its method as a *core*, ``core(ms, *, **params) -> keep``
 :class:`MatchSet`, and :func:`match_filter` turns it into the public function with the common signature
 ``f(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None, **params)``.
 The wrapper validates the common arguments (:func:`prepare`, with the helpers of
-:mod:`ctxmatch_lib._validation`), maps the thresholds the core reads on the NNR scale to the scale of the
-scores (:mod:`ctxmatch_lib._scores`), merges coincident rows once where the filter asks for it
+:mod:`ctxmatch_lib._numerics.validation`), maps the thresholds the core reads on the NNR scale to the scale of the
+scores (:mod:`ctxmatch_lib._numerics.scores`), merges coincident rows once where the filter asks for it
 (:func:`merge_coincident`), puts the rows in their canonical order (:func:`canonical_order`), calls the core on
 them and spreads its decisions back to every row in the order given. The parameters every
 filter shares are documented once here (:data:`DOCS`) and composed into each docstring (:func:`compose_doc`).
@@ -24,8 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._scores import _check_ratio, nnr_threshold, score_ratio
-from .._validation import as_image_size, as_matches, as_points, as_scores
+from .._numerics.scores import check_ratio, nnr_threshold, score_ratio
+from .._numerics.docstrings import SHARED, compose_doc as _compose_doc
+from .._numerics.order import canonical_order, spread_back
+from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive",
            "coincident_groups", "merge_coincident", "first_of_pair", "canonical_order", "spread_back",
@@ -245,71 +247,6 @@ def first_of_pair(ms: MatchSet) -> np.ndarray:
     return first
 
 
-def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | None]:
-    """The order of candidate rows a filter decides in, which depends only on the set of rows.
-
-    The rows are sorted (``np.lexsort``, in float64) by score, then the image-1 keypoint (x, then y), the
-    image-2 keypoint (x, then y), the image-1 keypoint index and the image-2 keypoint index. Two rows equal in
-    every key are the same candidate given twice (they hold the same keypoints, and so the same shapes):
-    their relative order is the only thing left to the input order, and :func:`spread_back` gives them one
-    decision, so no decision depends on it.
-
-    Parameters
-    ----------
-    x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoint of each row, (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Keypoint indices of each row.
-    scores : ndarray of shape (K,)
-        Score of each row (lower is better; zeros when none were given).
-
-    Returns
-    -------
-    order : ndarray of shape (K,) int64
-        The rows in canonical order: row ``order[j]`` of the input is row ``j`` of the sorted set.
-    twins : ndarray of shape (K,) int64, or None
-        None when no two rows are equal in every key; else the group of each *sorted* row, numbered
-        ``0, 1, ...`` in order, equal rows sharing a group.
-
-    Examples
-    --------
-    >>> x = np.array([[5.0, 5.0], [1.0, 2.0], [5.0, 5.0]])
-    >>> m = np.array([[2, 0], [1, 1], [2, 0]])
-    >>> order, twins = canonical_order(x, x, m, np.array([0.5, 0.5, 0.5]))
-    >>> order.tolist(), twins.tolist()
-    ([1, 0, 2], [0, 1, 1])
-    """
-    n = len(matches)
-    keys = np.empty((7, n), np.float64)
-    keys[0] = scores
-    keys[1:3] = np.asarray(x, np.float64).T
-    keys[3:5] = np.asarray(y, np.float64).T
-    keys[5:7] = np.asarray(matches).T
-    order = np.lexsort(keys[::-1])  # the last key is the primary one
-    if n < 2:
-        return order, None
-    k = keys[:, order]
-    same = (k[:, 1:] == k[:, :-1]).all(axis=0)
-    if not same.any():
-        return order, None
-    return order, np.r_[0, np.cumsum(~same)]
-
-
-def spread_back(keep: np.ndarray, order: np.ndarray, twins: np.ndarray | None) -> np.ndarray:
-    """The decisions ``keep`` made on the rows in canonical order (:func:`canonical_order`), in input order.
-
-    Rows equal in every key (``twins``) are one candidate: all of them are kept when any of them is (a core
-    that keeps one copy of a repeated row, such as a one-to-one output, keeps the candidate), so the mask
-    never depends on the input order.
-    """
-    keep = np.asarray(keep, bool)
-    if twins is not None:
-        keep = (np.bincount(twins, weights=keep) > 0)[twins]
-    out = np.empty(len(order), bool)
-    out[order] = keep
-    return out
-
-
 # ---------------------------------------------------------------------------------------------------------
 # Shared documentation, composed into the filters' docstrings (one way of scipy's ``_lib/doccer``).
 
@@ -317,12 +254,7 @@ def spread_back(keep: np.ndarray, order: np.ndarray, twins: np.ndarray | None) -
 #: by ``DOCS[name]``, indented as that line; ``{label}`` in an entry is the filter's name (``match_filter``); an
 #: entry may itself be made of ``%(name)s`` lines.
 DOCS: dict[str, str] = {
-    "kpts": """\
-kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-    Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.""",
-    "matches": """\
-matches : ndarray of shape (K, 2)
-    Indices into ``kpts1`` and ``kpts2``; many-to-many allowed.""",
+    **SHARED,
     "scores_unused": """\
 scores : ndarray of shape (K,) or None
     Unused by {label} (validated only).""",
@@ -355,14 +287,9 @@ its match, so a wrong correspondence cannot support itself through its own copie
 without coincident rows is unchanged.""",
 }
 
-_PLACEHOLDER = re.compile(r"^([ \t]*)%\((\w+)\)s[ \t]*$", re.M)
-
-
 def compose_doc(doc: str | None, **fields) -> str | None:
-    """``doc`` with every line that holds only ``%(name)s`` replaced by :data:`DOCS` ``[name]``.
-
-    The entry is indented as the placeholder and formatted with ``fields`` (``{label}``, ...). Other ``%``
-    signs in ``doc`` are left alone (percentages in Notes), unlike ``%``-formatting a whole docstring.
+    """``doc`` with every line that holds only ``%(name)s`` replaced by :data:`DOCS` ``[name]`` (see
+    :func:`ctxmatch_lib._numerics.docstrings.compose_doc`).
 
     Examples
     --------
@@ -374,18 +301,7 @@ def compose_doc(doc: str | None, **fields) -> str | None:
         scores : ndarray of shape (K,) or None
             Unused by BM (validated only).
     """
-    if doc is None:
-        return None
-
-    def entry(m: re.Match) -> str:
-        indent, name = m.groups()
-        if name not in DOCS:
-            raise KeyError(f"no shared documentation named {name!r}")
-        text = DOCS[name].format(**fields) if "{" in DOCS[name] else DOCS[name]
-        text = compose_doc(text, **fields)  # an entry may be made of entries
-        return "\n".join(indent + line if line else line for line in text.splitlines())
-
-    return _PLACEHOLDER.sub(entry, doc)
+    return _compose_doc(doc, DOCS, **fields)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -413,7 +329,7 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
     1. validates the common arguments (:func:`prepare`; ``ValueError`` naming the argument);
     2. maps the core's parameters named in ``nnr`` (thresholds on the NNR ratio, checked positive) to the
        scale of the scores: the ratio named by the public parameter ``ratio_param`` when given, else the one
-       the scores carry (:func:`ctxmatch_lib._scores.score_ratio`), else ``"D>="``, with a ``UserWarning``
+       the scores carry (:func:`ctxmatch_lib._numerics.scores.score_ratio`), else ``"D>="``, with a ``UserWarning``
        where that default keeps every row although every score lies in the D+ range (at most 1/2); a
        ratio given that contradicts the scores' own is a ``ValueError``;
     3. sorts the rows into their canonical order (:func:`canonical_order`: score, keypoint coordinates, keypoint
@@ -501,7 +417,7 @@ def _scale(scores, ms: MatchSet, given, given_name, thresholds: dict, name: str)
     """The blob ratio the scores of a filter are read with (see :func:`match_filter`, step 2)."""
     carried = score_ratio(scores)
     if given is not None:
-        _check_ratio(given, given_name)
+        check_ratio(given, given_name)
         if carried is not None and carried != given:
             raise ValueError(f"{given_name}={given!r} contradicts the scores, which blob matching made with "
                              f"ratio {carried!r}; leave {given_name} out or pass the same")

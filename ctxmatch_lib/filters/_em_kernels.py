@@ -13,7 +13,7 @@ multiply-add), and the small systems are solved by Gaussian elimination with par
 lowest row): the same operations in the same order on any x86-64 CPU. The ``(K, n)`` products cost O(K n^2)
 per iteration with n about 20, a few milliseconds at K = 30 000.
 
-The four partial sums of a Gram entry are the four lanes of one 4-wide vector (:class:`ctxmatch_lib._simd.Vec4`, an LLVM
+The four partial sums of a Gram entry are the four lanes of one 4-wide vector (:class:`ctxmatch_lib._numerics.simd.Vec4`, an LLVM
 ``<4 x double>`` value): a lane-wise multiply and add is the same IEEE operation as the scalar one, so the
 vector kernel gives the scalar loop's bits. With 4 x 4 entries in registers and the weighted rows formed
 in registers, a (17, 30 155) Gram matrix takes 0.4 ms instead of the scalar loop's 1.9 ms (numba leaves
@@ -29,8 +29,8 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
-from .._simd import load4 as _load4, mul4 as _mul4, muladd4 as _muladd4, store4 as _store4
+from .._numerics.jit import user_cache
+from .._numerics.simd import load4 as _load4, mul4 as _mul4, muladd4 as _muladd4, store4 as _store4
 
 __all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched"]
 

@@ -6,7 +6,7 @@ Each kernel performs the operations of the numpy expression it replaces, element
 order (one IEEE multiply or add at a time, no ``fastmath``: no reassociation, no fused multiply-add), so its
 results are the same bits; the sums that numpy orders by its own rules (``np.trace``, ``ndarray.sum``) stay
 in numpy. Compiled code is cached on disk as for the other kernels (``$CTXMATCH_CACHE/numba`` unless
-``NUMBA_CACHE_DIR``). The kernels here compile in the vector intrinsics of :mod:`ctxmatch_lib._simd` and the
+``NUMBA_CACHE_DIR``). The kernels here compile in the vector intrinsics of :mod:`ctxmatch_lib._numerics.simd` and the
 elimination of :mod:`._em_kernels`; numba's cache checks the timestamp of this file only, so an edit there
 needs this file touched (or the cache cleared) to reach these kernels.
 """
@@ -18,8 +18,8 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
-from .._simd import load4 as _load4, muladd4 as _muladd4, store4 as _store4
+from .._numerics.jit import user_cache
+from .._numerics.simd import load4 as _load4, muladd4 as _muladd4, store4 as _store4
 from ._em_kernels import _solve
 
 __all__ = ["offset_norms", "lle_solve", "em_residuals"]

@@ -13,7 +13,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 
 __all__ = ["pair_affinity", "sinkhorn", "votes"]
 

@@ -1,59 +1,29 @@
 """AdaLAM: Adaptive Locally-Affine Matching (Cavalli et al., ECCV 2020).
 
-1. Seeds (Sec. 3.1): a match is a seed when its score passes the ratio test and no match whose image-1
-   keypoint lies within ``R1 = sqrt(w1 h1 / (pi * area_ratio))`` of its own has a strictly better (lower)
-   score (equal scores do not suppress each other).
-2. Neighbourhoods (Sec. 3.2): a match joins the neighbourhood of a seed when its keypoints are within
-   ``search_expansion * R1`` and ``search_expansion * R2`` of the seed's in both images and, when the
-   keypoint shapes are known, its relative orientation and scale agree with the seed's (within
-   ``orientation_threshold`` degrees and a factor ``scale_rate_threshold``).
-3. Local affine verification (Sec. 3.3): in each neighbourhood, coordinates are taken relative to the seed
-   and divided by the neighbourhood radius, members sorted best score first (the seed among them);
-   ``ransac_iters`` minimal hypotheses (couples of members, best-ranked couples first, as PROSAC) give
-   linear maps ``v = A u`` through the seed. The inlier threshold of a hypothesis is adaptive: along the
-   sorted residuals, a member is good when its a-contrario confidence (inlier rate so far over ``r^2``, the
-   rate expected of uniform outliers in the unit disc) reaches ``min_confidence``; the count of good members
-   is the inlier count and that many smallest residuals the inliers. The best hypothesis is refitted on its
-   inliers by least squares (a map scaling by more than ``detected_scale_rate_threshold`` becomes the
-   identity), and its inliers are accepted when the confidence passes and
-   ``count * (1 - 1 / confidence) >= min_inliers``.
-4. The output is the union of the accepted inliers of all neighbourhoods.
+1. Seeds (Sec. 3.1): matches whose score passes ``seed_threshold`` and that no match within
+   ``R1 = sqrt(w1 h1 / (pi * area_ratio))`` in image 1 beats with a strictly lower score.
+2. Neighbourhoods (Sec. 3.2): the matches within ``search_expansion * R1`` and ``* R2`` of a seed in both
+   images whose relative orientation and scale agree with the seed's when the shapes are known.
+3. Local affine verification (Sec. 3.3): ``ransac_iters`` maps ``v = A u`` through the seed, each from a
+   couple of members (best-ranked couples first, as PROSAC), in coordinates relative to the seed over the
+   neighbourhood radius. Along the sorted residuals a member is an inlier while its a-contrario confidence
+   (inlier rate so far over ``r^2``) reaches ``min_confidence``. The best map is refitted on its inliers,
+   which are accepted when ``count * (1 - 1 / confidence) >= min_inliers``.
+4. The output is the union of the accepted inliers.
 
-Orientation and scale come from the affine shapes ``A`` (patch ``{kpt + A u : |u| <= 1}``): by default
-(``similarity="keypoints"``) each keypoint's orientation is the angle of the rotation closest to its ``A``
-(polar decomposition) and its scale ``sqrt(|det A|)``, and a match carries their difference and ratio, as
-the reference reads detector orientations and scales; ``similarity="map"`` reads them from the local map
-``L = A2 A1^-1`` instead (the same for similarity shapes such as SIFT's, not for affine ones). Without shapes
-the orientation/scale checks are skipped (the paper's fallback). No torch backend is offered here.
+Orientation and scale come from the affine shapes ``A``: with ``similarity="keypoints"`` each keypoint's
+orientation is the angle of the rotation closest to ``A`` (polar decomposition) and its scale
+``sqrt(|det A|)``, as the reference reads detector orientations and scales; ``similarity="map"`` reads them
+from ``L = A2 A1^-1`` (the same for similarity shapes such as SIFT's). Without shapes the checks are skipped
+(the paper's fallback).
 
 Notes
 -----
-Aligned with kornia's AdaLAM (``kornia.feature.adalam``, a port of the authors' code, github
-cavalli1234/AdaLAM; the paper's "original code", Sec. 5.3) run side by side on the same blob candidates
-(``benchmarks/bench_filters_ref.py --ref adalam=kornia``; every candidate row is its own image-1 point,
-scores squared for kornia's squared-ratio convention, no mutual-nearest-neighbour mask). Where the paper is
-silent the reference's reading is the default: ties between seed scores (no random tie-break); the sampled
-couples (``_couples``: exhaustive over the first ranks, then the reference's remainder block, taken modulo
-the neighbourhood size, the seed not excluded); the inlier count (exact fits, i.e. the seed and the sampled
-couple, add nothing; members whose squared residuals coincide in half precision, the copies of a
-duplicated match, share one vote; the inliers are the ``count`` smallest residuals); a refit with an
-implausible scale becomes the identity instead of being dropped; neighbourhoods fitted exactly (synthetic
-data) are recovered as the kornia port does (near-exact residuals on at least ``min_inliers`` distinct
-locations beyond the seed and couple); orientation and scale per keypoint (``similarity``).
-
-Measured with ``benchmarks/bench_filters_ref.py --ref adalam=kornia --pairs 12 --configs baseline best``
-(kornia 0.9.0; 12 pairs per dataset, 1500 keypoints, CPU, one thread): before the alignment, precision /
-recall ours vs kornia were 74.3 / 74.1 vs 74.7 / 71.8 (planar) and 93.1 / 77.1 vs 94.4 / 70.5 (non-planar)
-in the baseline configuration, mean Jaccard of the keep masks 0.973 and 0.889; 84.0 / 91.2 vs 87.0 / 90.0
-and 82.9 / 67.7 vs 81.2 / 65.1 in the best one, Jaccard 0.926 and 0.856. After: 74.7 / 72.4 vs 74.7 / 71.8
-and 94.5 / 70.4 vs 94.4 / 70.5 (Jaccard 0.991, 0.973); 87.1 / 90.0 vs 87.0 / 90.0 and 81.3 / 65.0 vs
-81.2 / 65.1 (Jaccard 0.997, 0.994). Re-measured since the NNR thresholds read on the scale of the scores
-(issue 32): the best configuration 89.1 / 88.6 vs 87.0 / 90.0 and 82.9 / 63.4 vs 81.2 / 65.1 (Jaccard 0.946,
-0.948), the baseline unchanged. Ours takes 0.06-0.34x kornia's CPU time (the code before issue 33's
-compiled count, run in the same session: 0.16-0.67x). In the pairs
-inspected, the remaining differences are single matches at the inlier-count boundary of one neighbourhood
-with identical seeds, neighbourhoods and member order (likely the order of near-equal residuals, which kornia
-sorts by a float32 key; not verified further).
+Where the paper is silent, the default is the reading of kornia's port of the authors' code
+(``kornia.feature.adalam``; the paper's "original code", Sec. 5.3): equal seed scores do not suppress each
+other; the sampled couples (:func:`_couples`); the inlier count (:func:`_confident_inliers`); a refit with
+an implausible scale becomes the identity; exactly fitted neighbourhoods are recovered
+(:func:`_exact_support`). The agreement with kornia is in ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -61,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._fixedmath import atan2
+from .._numerics.fixedmath import atan2
 from ._adalam_kernels import beaten_by_neighbours, best_confident_maps
 from ._common import MatchSet, check_positive, match_filter
 
@@ -120,22 +90,14 @@ def _residuals(A: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
 
 
 def _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf: float):
-    """Confidence-based inlier selection of the best map of each neighbourhood (Sec. 3.3), as the reference
-    counts it.
+    """Confidence-based inlier count of the best map of each neighbourhood (Sec. 3.3), as the reference counts.
 
-    ``A`` (B, T, 2, 2) holds ``T`` maps per neighbourhood (``usable`` marks those that exist), ``Ub``, ``Vb``
-    (B, m, 2) the members, ``nb`` how many. Along the residuals ``|A u - v|`` of a map sorted in increasing
-    order, a member is good when ``r^2 * min_conf`` is at most the inlier rate so far (the rate expected of
-    uniform outliers in the unit disc is ``r^2``). Members fitted exactly (``r^2 <= 1e-8``: the seed and the
-    sampled couple) add nothing to the counts, and members whose squared residuals coincide in half precision
-    (the copies of a duplicated match) share one vote. The inlier count is the integer part of the good votes;
-    the inliers are that many smallest residuals; the confidence is ``count / (votes * r_c^2)``, ``r_c`` the
-    largest of them.
-
-    Returns ``(count, conf, order, near, near_distinct)``: the count and confidence of the best map of each
-    neighbourhood (the first of the largest count), the sorting permutation of its residuals (B, m), and the
-    numbers of residuals up to ``2^-12`` of every map (B, T), of all members and of the ``distinct`` ones; see
-    :func:`._adalam_kernels.best_confident_maps`.
+    Along the sorted residuals ``r`` of a map, a member is good when ``r^2 * min_conf`` is at most the inlier
+    rate so far (``r^2`` is the rate of uniform outliers in the unit disc). Exact fits (``r^2 <= 1e-8``: the
+    seed and the sampled couple) add nothing, members whose squared residuals coincide in half precision
+    (copies of a duplicated match) share one vote; the count is the integer part of the good votes, the
+    inliers that many smallest residuals, the confidence ``count / (votes * r_c^2)``. Arguments and returns:
+    see :func:`._adalam_kernels.best_confident_maps`.
     """
     return best_confident_maps(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
                               np.ascontiguousarray(Vb, dtype=np.float64), np.ascontiguousarray(nb, dtype=np.int64),
@@ -192,11 +154,7 @@ def adalam_filter(
         do are replaced by the identity (as in the reference).
     seed_threshold : float, default 0.8
         Seeds must have ``score < seed_threshold`` (ratio test of the reference implementation), an NNR
-        ratio read on the scale of the scores (0.8 / 1.8 on D+ blob scores). Measured on the best
-        configuration (``benchmarks/ablate_peer_filters.py --config best --sweep
-        adalam:seed_threshold=0.8,0.4444 --pairs 40``; plain D+ arrays read as NNR ratios before issue 32,
-        where 0.8 passes every candidate): P / R 91.2 / 86.5 -> 92.3 / 82.9 (planar), 84.3 / 62.0 ->
-        87.5 / 60.4 (non-planar).
+        ratio read on the scale of the scores (0.8 / 1.8 on D+ blob scores).
     refit : bool, default True
         Refit the best hypothesis of each neighbourhood on its inliers (Sec. 3.3).
     similarity : {"keypoints", "map"}, default "keypoints"

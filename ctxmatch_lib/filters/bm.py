@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d
 
-from .._fixedmath import exp, hypot
+from .._numerics.fixedmath import exp, hypot
 from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["bm_filter"]

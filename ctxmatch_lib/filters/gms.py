@@ -55,7 +55,7 @@ import math
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 from ._common import MatchSet, check_positive, match_filter
 
 __all__ = ["gms_filter", "GMS_SCALE_RATIOS"]

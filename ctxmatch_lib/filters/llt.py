@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .._blas import one_blas_thread
-from .._fixedmath import log
+from .._numerics.blas import one_blas_thread
+from .._numerics.fixedmath import log
 from ._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
 from ._llt_kernels import em_residuals, lle_solve, offset_norms

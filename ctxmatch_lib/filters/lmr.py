@@ -1,48 +1,29 @@
 """LMR: a learned two-class classifier for mismatch removal (Ma, Jiang, Jiang, Zhao, Guo, IEEE TIP 2019).
 
-LMR turns mismatch removal into the classification of each putative match from a *general* description of
-its neighbourhood, so that one classifier trained on a few image pairs serves any other pair.
+Each putative match is classified from a general description of its neighbourhood, so one classifier
+trained on a few pairs serves any pair. Main functions: :func:`lmr_filter`, :func:`mpc_features`,
+:func:`lmr_features`, :func:`train_lmr`.
 
-**Features** (default ``features="mpc"``): the match representation of the authors' code (``MPC.m`` of
-StaRainJ/LMR, read here, not copied). Three consensus stages first: a match passes a stage when more than
-10 %, 30 %, 50 % of its 10 nearest matches in image 1 are also among its 10 nearest in image 2, the
-neighbours being searched among the matches that passed the stage before (all matches for the first);
-then, for every match and every scale ``k`` of ``MPC_SCALES`` (the demo's ``Klist``, 2 to 25), with the
-``k`` nearest consensus matches of ``x_i`` and of ``y_i``: the shared fraction, the consistency of the
-squared motion length ``|v_i|^2`` with the mean over the shared neighbours (ratio ``r``, the larger of the
-two quotients) and of the motion direction with their mean direction, ``v = y - x``. ``MPC.m`` maps the last
-two by Gaussians (``gaussmf`` of ``r - 1`` and of the angle); here by ``1 / (1 + u^2)``, monotone in ``|u|``
-as the Gaussian, so a tree splits them alike, and made of correctly rounded operations only; the direction
-comes from ``_fixedmath.atan2`` (correctly rounded operations too), not from NumPy's or the C library's
-``atan2``, whose SIMD and FMA variants differ between CPUs. One pass, as the authors' code.
+**Features** (``features="mpc"``, default): the match representation of the authors' ``MPC.m``
+(StaRainJ/LMR, read, not copied). Three consensus stages (a match passes when more than 10 / 30 / 50 % of
+its 10 nearest matches in image 1 are among its 10 nearest in image 2, searched among the previous stage's
+survivors), then per scale ``k`` of :data:`MPC_SCALES`: the shared fraction, and the consistency of the
+squared motion length and of the motion direction with the shared neighbours' means. ``MPC.m`` maps the
+last two by Gaussians; here by ``1 / (1 + u^2)``: monotone in ``|u|`` as the Gaussian, so trees split
+alike, and made of correctly rounded operations (direction from ``_fixedmath.atan2``), so the features
+have the same bits on every CPU. ``features="lpm"``: the reading on LPM's neighbourhoods (Ma et al.
+IJCV 2019, Eq. (13)-(14)), two passes as LPM's two iterations (Sec. 4.3), see :func:`lmr_features`.
 
-The former reading, ``features="lpm"``, built on the neighbourhoods of LPM (Ma et al. IJCV 2019): for every
-match ``i`` and every scale ``k`` in ``SCALES = (4, 8, 12, 16, 20)``, with ``N_x`` and ``N_y`` the ``k``
-nearest matches of ``x_i`` in image 1 and of ``y_i`` in image 2, the fraction of shared neighbours
-``|N_x ∩ N_y| / k`` and ``sum_j s(v_i, v_j) / k`` over the shared neighbours, with LPM's motion similarity
-``s = min(|v_i|, |v_j|) / max(|v_i|, |v_j|) * cos(v_i, v_j)`` (Eq. (13)-(14)). Two passes: the second, as
-LPM's second iteration (IJCV 2019, Sec. 4.3), sees neighbours among the first pass's inliers and has its
-own classifier. Either way a match is kept when the inlier probability exceeds ``threshold`` (0.5).
+**Classifier** (the paper leaves it replaceable; the authors' network weights are theirs and not shipped,
+``network=PATH`` reads them from a user's checkout, see :mod:`._lmr_network`): gradient boosted trees
+(scikit-learn, 60 trees of depth 3), trained without threads (bit-for-bit repeatable), stored as plain
+arrays in ``data/lmr_model.npz``; prediction is pure NumPy.
 
-**Classifier** (a choice made here: the paper treats the classifier as a replaceable component; the authors'
-demo uses a small neural network trained on their ten image pairs, whose weights are theirs and are not
-shipped, hence "trained here"; ``lmr_filter(..., network=PATH)`` reads them from a user's checkout instead,
-see :mod:`ctxmatch_lib.filters._lmr_network`): gradient boosted decision trees (scikit-learn's ``GradientBoostingClassifier``,
-60 trees of depth 3 per classifier: stage 3 for ``"mpc"``, stages 1 and 2 for ``"lpm"``), trained
-without threads, so training is bit-for-bit repeatable, and stored as plain arrays in
-``ctxmatch_lib/filters/data/lmr_model.npz`` (a few tens of kB); prediction is pure NumPy.
-
-**Training data** (:func:`train_lmr`): synthetic pairs generated here from a seed, never evaluation data.
-Each pair draws a motion (a random homography, two independently moving planar layers, or a homography
-plus a smooth non-rigid warp), 300-3000 matches, an inlier ratio of 5-90 %, Gaussian keypoint noise of
-0.3-2 px, keypoints uniform or clustered as on texture, and three kinds of outliers: uniform in both
-images, "near misses" 15-120 px from the true position, and second matches of inlier keypoints (the
-many-to-many case). The shipped model is exactly::
-
-    python -m ctxmatch_lib.filters.lmr          # = train_lmr(seed=0), writes the shipped npz
-
-(about 35 s on one core). The embedded image dataset is not used by default: its features come
-from the OpenCV build, which would tie the model's bits to it.
+**Training data** (:func:`train_lmr`): synthetic pairs from a seed, never evaluation data: a random
+homography, two planar layers, or a homography plus a smooth warp; 300-3000 matches, 5-90 % inliers,
+0.3-2 px noise, uniform or clustered keypoints; outliers uniform, near misses 15-120 px off, or second
+matches of inlier keypoints (many-to-many). The embedded images are not used: their features depend on the
+OpenCV build. ``python -m ctxmatch_lib.filters.lmr`` writes the shipped model (``train_lmr(seed=0)``).
 """
 
 from __future__ import annotations
@@ -55,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._fixedmath import atan2, exp
+from .._numerics.fixedmath import atan2, exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._lmr_network import ANGLE_GAUSSMF, LENGTH_GAUSSMF, gaussmf, load_network, mpc_motion
 
@@ -78,7 +59,11 @@ LMR_TRAIN_DEFAULTS = dict(seed=0, n_pairs=60, max_samples_per_pair=400, n_estima
 
 
 def lmr_features(x: np.ndarray, y: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
-    """The LMR feature vectors of every match, ``(K, 2 * len(SCALES))`` float64.
+    """The ``features="lpm"`` vectors of every match, on LPM's neighbourhoods (IJCV 2019, Eq. (13)-(14)).
+
+    With ``N_x``, ``N_y`` the ``k`` nearest matches of ``x_i`` and of ``y_i``: ``|N_x ∩ N_y| / k`` and
+    ``sum_j s(v_i, v_j) / k`` over the shared neighbours, ``s = min(|v_i|, |v_j|) / max(|v_i|, |v_j|) *
+    cos(v_i, v_j)``, ``v = y - x``.
 
     Parameters
     ----------
@@ -86,13 +71,12 @@ def lmr_features(x: np.ndarray, y: np.ndarray, candidates: np.ndarray | None = N
         Image-1 and image-2 keypoints of each match, (x, y) pixels, origin at the centre of the top-left
         pixel.
     candidates : ndarray of int, optional
-        Matches among which the neighbours are searched (default: all).
+        Matches among which the neighbours are searched (default: all; the second pass: the first's inliers).
 
     Returns
     -------
     ndarray of shape (K, 10)
-        Per scale ``k`` in :data:`SCALES`: the shared-neighbour fraction, then the summed motion
-        similarity over ``k``.
+        Per scale ``k`` in :data:`SCALES`: the two values above.
     """
     n = len(x)
     cand = np.arange(n) if candidates is None else np.asarray(candidates, np.int64)
@@ -133,24 +117,22 @@ def _shared_sorted(nx: np.ndarray, ny: np.ndarray):
 
 
 def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.ndarray:
-    """The authors' match representation (``MPC.m`` of their code), ``(K, 3 * len(MPC_SCALES))`` float64.
+    """The authors' match representation (``MPC.m``), ``features="mpc"``; see the module notes.
 
     Parameters
     ----------
     x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoints of each match, (x, y) pixels, origin at the centre of the top-left
-        pixel.
+        Image-1 and image-2 keypoints of each match (as in :func:`lmr_features`).
     exact : bool, default False
-        ``True``: ``MPC.m``'s own values (its ``gaussmf`` maps, motion shift ``dv`` and quadrant rules, see
-        :func:`~ctxmatch_lib.filters._lmr_network.mpc_motion`), as the authors' network needs; ``False``: the
-        rational maps of the module notes, which the shipped trees classify.
+        ``True``: ``MPC.m``'s own values (``gaussmf``, shift ``dv``, quadrant rules:
+        :func:`~ctxmatch_lib.filters._lmr_network.mpc_motion`), for the authors' network; ``False``: the
+        rational maps the shipped trees classify.
 
     Returns
     -------
     ndarray of shape (K, 48)
-        First the shared-neighbour fraction at each scale of :data:`MPC_SCALES`, then per scale a length and
-        an angle consistency (see the module notes); neighbours are searched among the consensus matches.
-        The column order of ``MPC.m``'s output.
+        The shared fraction at each scale of :data:`MPC_SCALES`, then per scale the length and angle
+        consistencies, in ``MPC.m``'s column order.
     """
     n = len(x)
     feats = np.zeros((n, 3 * len(MPC_SCALES)))
@@ -190,10 +172,7 @@ def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.nda
                 angle = gaussmf(ang, *ANGLE_GAUSSMF)
             else:
                 r = np.maximum(d2 / d2_mean, d2_mean / d2)
-                # MPC.m maps (r - 1) and the angle by Gaussians (gaussmf). Trees split alike on any monotone
-                # map of a feature, so 1 / (1 + u^2), monotone in |u| as the Gaussian and made of correctly
-                # rounded operations only, stands in for exp(-u^2 / (2 sigma^2)); 0 where no neighbour is
-                # shared, below every defined value, as gaussmf's 0 there.
+                # 1 / (1 + u^2) for MPC.m's gaussmf (see the module notes); 0 where no neighbour is shared.
                 length = 1.0 / (1.0 + (r - 1.0) ** 2)
                 angle = 1.0 / (1.0 + ang * ang)
         feats[:, ns + 2 * s] = np.where(ok & np.isfinite(length), length, 0.0)
@@ -206,9 +185,9 @@ def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.nda
 
 @dataclass(frozen=True)
 class LMRModel:
-    """Two boosted-tree classifiers (first and second pass) as flat arrays; see :meth:`proba`.
+    """The boosted-tree classifiers (stages 1 to 3, see :func:`train_lmr`) as flat arrays.
 
-    Each pass holds ``offsets`` (T + 1,) into the node arrays ``left``, ``right`` (-1 at leaves),
+    Each stage holds ``offsets`` (T + 1,) into the node arrays ``left``, ``right`` (-1 at leaves),
     ``feature``, ``threshold`` (float64, compared with float32 features as scikit-learn does) and
     ``value`` (leaf values), plus ``init`` (prior log-odds) and ``learning_rate``.
     """
@@ -216,7 +195,7 @@ class LMRModel:
     arrays: dict
 
     def proba(self, stage: int, feats: np.ndarray) -> np.ndarray:
-        """Inlier probability of every row of ``feats`` under the classifier of pass ``stage`` (1 or 2)."""
+        """Inlier probability of every row of ``feats`` under the classifier of ``stage``."""
         a = {k[2:]: v for k, v in self.arrays.items() if k.startswith(f"{stage}_")}
         X = feats.astype(np.float32)  # scikit-learn's trees split float32 features
         off = a["offsets"]
@@ -300,7 +279,7 @@ def _keypoints(rng, n: int, w: int, h: int) -> np.ndarray:
 
 def _motion(rng, w: int, h: int):
     """A random motion image 1 -> image 2: homography, two layers, or homography plus a smooth warp."""
-    from ..synthetic import apply_homography
+    from ..testing import apply_homography
 
     kind = rng.integers(0, 3)
     H = _random_homography(rng, w, h)
@@ -383,8 +362,8 @@ def train_lmr(
 ) -> LMRModel:
     """Train the LMR classifiers on synthetic pairs drawn from ``seed``; same seed, same model.
 
-    Stage 3 classifies :func:`mpc_features` (the default, ``features="mpc"`` of :func:`lmr_filter`); stages 1
-    and 2 the two passes of :func:`lmr_features` (``features="lpm"``).
+    Stage 3 classifies :func:`mpc_features` (``features="mpc"``), stages 1 and 2 the two passes of
+    :func:`lmr_features` (``features="lpm"``).
 
     Parameters
     ----------
@@ -395,14 +374,14 @@ def train_lmr(
     max_samples_per_pair : int, default 400
         Matches drawn from each pair for training (all of a pair's matches give the features).
     n_estimators, max_depth, learning_rate : int, int, float
-        Gradient boosting: 60 trees of depth 3, rate 0.15.
+        Gradient boosting.
     path : path-like, optional
         Where to write the model (``.npz``); ``None`` writes nothing.
 
     Returns
     -------
     LMRModel
-        The shipped model is ``train_lmr(**LMR_TRAIN_DEFAULTS)`` (see the module notes).
+        The shipped model is ``train_lmr(**LMR_TRAIN_DEFAULTS)``.
     """
     n_pairs = check_positive(n_pairs, "n_pairs", integer=True)
     max_samples_per_pair = check_positive(max_samples_per_pair, "max_samples_per_pair", integer=True)

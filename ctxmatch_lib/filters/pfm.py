@@ -43,8 +43,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
-from .._blas import one_blas_thread
-from .._fixedmath import exp
+from .._numerics.blas import one_blas_thread
+from .._numerics.fixedmath import exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["pfm_filter", "local_affines"]

@@ -1,40 +1,27 @@
 """PGM: Progressive Graph Matching (Cho & Lee, CVPR 2012) on a sparse k-nearest-neighbour affinity.
 
-PGM alternates two steps on an *active* subset of the candidate matches, starting from the best-scored
-candidate of every image-1 keypoint:
+PGM alternates two steps on an *active* subset of the candidates, starting from the best-scored candidate
+of every image-1 keypoint, until the objective ``X' W X`` of the discrete solution stops growing, the active
+set stops changing, or ``max_rounds``:
 
-1. **Graph matching** by reweighted random walks (RRWM, Cho, Lee & Lee, ECCV 2010): a random walker moves on
-   the association graph whose nodes are the active candidates and whose edge weights are the pairwise
-   affinities; with probability ``1 - c`` it jumps to a node drawn from the *reweighted jump* distribution,
-   the current scores amplified by ``exp(amp_max * x / max x)`` and made doubly stochastic over the
-   conflict groups (candidates sharing a keypoint) by Sinkhorn normalisation (ECCV 2010, Alg. 1).
-   The stationary scores are discretised into a one-to-one matching by greedy assignment.
-2. **Graph progression** by probabilistic voting (CVPR 2012): every candidate of the whole input,
-   active or not, receives the votes of the current matches near it, each weighted by the match's RRWM
-   score and by the pairwise affinity between the two (the posterior ``P(m | X)`` up to normalisation). The
-   best voted candidates of every keypoint form the next active set, so candidates leave and re-enter it.
+1. **Graph matching** by reweighted random walks (:func:`rrwm`, ECCV 2010 Alg. 1), discretised into a
+   one-to-one matching by greedy assignment.
+2. **Graph progression** by probabilistic voting (CVPR 2012): every input candidate receives the votes of
+   the current matches near it, weighted by their RRWM scores and pairwise affinities; the best voted
+   candidates of every keypoint form the next active set.
 
-The loop stops when the matching objective ``X' W X`` of the discrete solution no longer increases, when
-the active set no longer changes, or after ``max_rounds``; the output is the best one-to-one matching, less
-the matches that the other matches of the solution do not support.
+The output is the best matching, less the matches its other matches do not support (``min_support``).
 
-Pairwise affinity (RRWM and PGM image experiments): ``w_ab = max(tau - d_ab, 0)`` with ``tau = 50``
-pixels and ``d_ab`` the mutual projection error of the two local affine transformations,
-``d_ab = (|y_b - y_a - A_a (x_b - x_a)| + |y_a - y_b - A_b (x_a - x_b)|) / 2`` with
-``A = shape2 @ inv(shape1)`` (Cho, Lee & Lee, ICCV 2009); it is used here divided by ``tau``, i.e.
-``max(1 - d_ab / tau, 0)`` (RRWM is invariant to the scale of the affinity). Without keypoint shapes the
-transformations are unknown and ``d_ab`` is the relative length distortion of the edge,
-``|l1 - l2| / ((l1 + l2) / 2)`` with ``l1 = |x_a - x_b|``, ``l2 = |y_a - y_b|``, with the affinity
-``max(1 - d_ab / rho, 0)``: the rotation-invariant second-order term of Leordeanu & Hebert (ICCV 2005),
-made relative because an absolute 50-pixel cut-off accepts any pair of short edges.
+Pairwise affinity: ``max(1 - d_ab / tau, 0)``, ``d_ab`` the mutual projection error of the local affine maps
+``A = shape2 inv(shape1)`` (Cho, Lee & Lee, ICCV 2009; RRWM's ``max(tau - d, 0)`` over ``tau``, to which
+RRWM is invariant). Without shapes, ``max(1 - d_ab / rho, 0)`` with ``d_ab`` the relative length distortion
+of the edge, ``|l1 - l2| / ((l1 + l2) / 2)`` (the rotation-invariant term of Leordeanu & Hebert, ICCV 2005,
+made relative because a 50-pixel cut-off accepts any pair of short edges).
 
-Sparse affinity (a deviation, for speed and memory): the papers build the dense ``n x n`` affinity of the
-active candidates, ``O(n^2)`` (16000 candidates: 2 GB). Here an affinity is computed only between a
-candidate and its ``k`` nearest active candidates in image 1 and in image 2 (the union, symmetrised), and is
-stored as a ``scipy.sparse`` matrix of ``O(k n)`` entries. Far pairs are exactly those for which a local
-affine transformation says least (the projection error grows with the distance and is clipped to 0 at
-``tau``), so the dropped entries are mostly zeros already; the paper under reproduction also describes
-PGM's neighbourhoods as "defined by the k closest matches" (Bellavia, TPAMI 2022, Sec. 2).
+Sparse affinity (a deviation, for memory: the dense ``n x n`` matrix of 16000 candidates takes 2 GB): only
+between a candidate and its ``k`` nearest active candidates in either image, symmetrised. The pairs dropped
+are far ones, whose projection error mostly exceeds ``tau`` anyway; Bellavia (TPAMI 2022, Sec. 2) also
+describes PGM's neighbourhoods as "defined by the k closest matches".
 """
 
 from __future__ import annotations
@@ -43,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .._fixedmath import exp
+from .._numerics.fixedmath import exp
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 from ._pgm_kernels import pair_affinity as _pair_affinity
 from ._pgm_kernels import sinkhorn as _pgm_sinkhorn

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._fixedmath import log
+from .._numerics.fixedmath import log
 from ._common import MatchSet, check_positive, knn_without_self, match_filter
 
 __all__ = ["scv_filter", "SCV_GROWTH"]

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _fixedmath
-from .._blas import one_blas_thread
+from .._numerics import fixedmath as _fixedmath
+from .._numerics.blas import one_blas_thread
 from ._common import MatchSet, check_positive, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, matmul_t, solve, weighted_gram_t
 

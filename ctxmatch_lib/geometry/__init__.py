@@ -10,14 +10,7 @@ pixel. ``H`` maps image-1 points to image 2 (``x2 ~ H x1``); ``F`` satisfies ``x
 # The public names are listed once, in each module's ``__all__``; the star imports re-export them.
 from . import models, pose, usac
 from .models import *  # noqa: F403
-from .models import (  # noqa: F401  (the DTM, the ground truth and the learned filters' data share these kernels)
-    ModelKind,
-    _dlt_design,
-    _dlt_normal_matrix,
-    _epipolar,
-    _normalise,
-    _transfer_errors,
-)
+from .models import ModelKind
 from .pose import *  # noqa: F403
 from .usac import *  # noqa: F403
 

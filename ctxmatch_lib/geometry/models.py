@@ -1,16 +1,8 @@
-"""Two-view models: normalised DLT homography, normalised 8-point fundamental matrix, their errors and 1SAC.
+"""Two-view models (normalised DLT ``H``, normalised 8-point ``F``), their errors and 1SAC (Sec. 5.1).
 
-The model step of the pipeline (Sec. 5.1): after the spatial filter, a global model -- a homography
-``H`` for planar pairs, a fundamental matrix ``F`` otherwise -- is fitted and only the matches consistent
-with it are kept. 1SAC (one SAmple Consensus, Sec. 5.1 and its footnote) fits the model once, on the
-``3 q`` top-ranked matches (``q = 4`` for ``H``, ``q = 8`` for ``F``); the seeded robust alternatives
-(OpenCV's USAC) live in :mod:`~ctxmatch_lib.geometry.usac`.
-
-Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
-pixel. ``H`` maps image-1 points to image 2 (``x2 ~ H x1``); ``F`` satisfies ``x2^T F x1 = 0``.
-
-The error functions here (:func:`homography_transfer_errors`, :func:`epipolar_distances`) are shared with
-:mod:`ctxmatch_lib.groundtruth`, so the model step and the ground truth measure distances the same way.
+The model step fits ``H`` (planar pairs) or ``F`` (otherwise) and keeps the matches consistent with it;
+1SAC fits it once on the ``3 q`` top-ranked matches (Sec. 5.1, footnote). ``x2 ~ H x1``, ``x2^T F x1 = 0``.
+The error functions are shared with :mod:`ctxmatch_lib.groundtruth`, so both measure distances alike.
 """
 
 from __future__ import annotations
@@ -20,11 +12,17 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import as_matches, as_points, as_scores, cumulative_distinct
+from .._numerics.docstrings import shared_doc
+from .._numerics.validation import as_matches, as_points, as_scores, cumulative_distinct
 from .pose import _fundamental_from_essential, check_intrinsics
 
 __all__ = [
     "MIN_SAMPLE",
+    "dlt_design",
+    "dlt_normal_matrix",
+    "epipolar_errors",
+    "hartley_normalise",
+    "transfer_errors",
     "CONSISTENCY_THRESHOLD_PX",
     "ModelFit",
     "normalise_points",
@@ -40,13 +38,11 @@ __all__ = [
 
 ModelKind = Literal["H", "F", "E"]
 
-#: Minimal sample size ``q`` of each model (Sec. 5.1, footnote); ``E`` (the five-point solver of the ``essential``
-#: model step, which 1SAC and :func:`~ctxmatch_lib.geometry.ransac` do not fit) needs five.
+#: Minimal sample size ``q`` of each model (Sec. 5.1, footnote); ``E`` is the ``essential`` step's.
 MIN_SAMPLE = {"H": 4, "F": 8, "E": 5}
 
-#: Default consistency threshold of the model step, in pixels. It equals the method-D ground-truth
-#: tolerance (15 px, Sec. 5.1): a correct model then keeps what the ground truth would call correct, so
-#: the model step removes outliers without being stricter than the evaluation itself.
+#: Consistency threshold of the model step in pixels: the method-D ground-truth tolerance (Sec. 5.1), so the
+#: step is never stricter than the evaluation.
 CONSISTENCY_THRESHOLD_PX = 15.0
 
 
@@ -57,16 +53,14 @@ class ModelFit:
     Attributes
     ----------
     keep : ndarray of shape (K,), bool
-        Matches consistent with the model (all ``False`` when no model could be fitted).
+        Matches consistent with the model (all ``False`` without a model).
     model : ndarray of shape (3, 3) or None
-        The fitted ``H`` (image 1 -> image 2), ``F`` (``x2^T F x1 = 0``) or ``E`` (``x2n^T E x1n = 0`` on
-        points normalised by the intrinsics; the ``essential`` step); ``None`` on failure.
+        ``H``, ``F`` or ``E`` (``x2n^T E x1n = 0`` on intrinsics-normalised points); ``None`` on failure.
     kind : {"H", "F", "E"}
-        Which model was fitted.
     sample : ndarray of shape (S,), int64
-        Indices (into the matches given) of the sample the model was fitted on; for RANSAC, its inliers.
+        Indices into the matches of the fitting sample; for RANSAC, its inliers.
     errors : ndarray of shape (K,)
-        Per-match error against the model (``inf`` when there is no model).
+        Per-match error against the model (``inf`` without a model).
     """
 
     keep: np.ndarray
@@ -80,21 +74,11 @@ class ModelFit:
 
 
 def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
-    """Hartley normalisation: centroid at the origin, mean distance sqrt(2).
+    """Hartley normalisation of ``(N, 2)`` points: centroid at the origin, mean distance sqrt(2).
 
-    Parameters
-    ----------
-    pts : array_like of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-
-    Returns
-    -------
-    pts_n : ndarray of shape (N, 2)
-        Normalised points, ``pts_n ~ T @ [x, y, 1]``.
-    T : ndarray of shape (3, 3)
-        The similarity that normalises.
+    Returns ``(pts_n, T)``: the normalised points and the similarity ``T`` with ``pts_n ~ T @ [x, y, 1]``.
     """
-    return _normalise(as_points(pts, "pts"))
+    return hartley_normalise(as_points(pts, "pts"))
 
 
 # Public functions validate their arguments once; the private ``_name`` versions they call (and that call
@@ -107,7 +91,7 @@ def _point_pair(pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
     return pts1, as_points(pts2, "pts2", n=len(pts1))
 
 
-def _normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def hartley_normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(pts) == 0:
         return pts.copy(), np.eye(3)
     c = pts.mean(axis=0)
@@ -120,9 +104,7 @@ def _normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
     """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D.
 
-    The thin SVD of the ``(M, n)`` design matrix costs ``O(M n^2)`` time and ``O(M n)`` memory; the full
-    SVD would also build the ``(M, M)`` left factor (12.8 GB for 20 000 correspondences).
-    """
+    A thin SVD: the full one would build the ``(M, M)`` left factor of the design matrix."""
     _, s, vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])
     n = A.shape[1]
     # Fewer rows than unknowns pads the spectrum with zeros.
@@ -132,20 +114,19 @@ def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
     return vt[-1] if vt.shape[0] == n else None
 
 
+@shared_doc
 def fit_homography(pts1, pts2) -> np.ndarray | None:
     """Least-squares homography by the normalised DLT (Hartley & Zisserman, Alg. 4.2).
 
     Parameters
     ----------
-    pts1, pts2 : array_like of shape (N, 2), N >= 4
-        Corresponding (x, y) pixels (origin at the centre of the top-left pixel) in images 1 and 2.
+    %(pts)s
 
     Returns
     -------
     H : ndarray of shape (3, 3) or None
-        Maps image 1 to image 2, scaled so that ``H[2, 2] = 1`` when possible; ``None`` for fewer than 4
-        points or a degenerate configuration (e.g. three or more collinear points leaving no unique
-        solution).
+        Image 1 -> image 2, ``H[2, 2] = 1`` when possible; ``None`` for fewer than 4 points or a
+        degenerate configuration (no unique solution).
 
     Examples
     --------
@@ -159,7 +140,7 @@ def fit_homography(pts1, pts2) -> np.ndarray | None:
     return _fit_homography(*_point_pair(pts1, pts2))
 
 
-def _dlt_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+def dlt_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     """The ``(2N, 9)`` DLT design matrix of a homography from normalised points ``n1`` to ``n2``: its null
     vector is ``H`` row by row (Hartley & Zisserman, Alg. 4.2), two interleaved rows per pair."""
     x, y = n1[:, 0], n1[:, 1]
@@ -171,13 +152,12 @@ def _dlt_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     return A
 
 
-def _dlt_normal_matrix(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
-    """``A^T A`` of the DLT design matrix ``A`` (:func:`_dlt_design`), from its block structure.
+def dlt_normal_matrix(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """``A^T A`` of the DLT design matrix ``A`` (:func:`dlt_design`), from its block structure.
 
-    With ``q = (x, y, 1)`` the two rows of a pair are ``(-q, 0, u q)`` and ``(0, -q, v q)``, so the 9 x 9
-    matrix is made of the sums ``S_w = sum w q q^T`` for ``w`` in ``1, u, v, u^2 + v^2``: 24 sums over the
-    pairs instead of 81 over twice as many rows. They are summed without BLAS (``einsum``), so the result
-    does not depend on the thread count.
+    With ``q = (x, y, 1)`` a pair's rows are ``(-q, 0, u q)`` and ``(0, -q, v q)``, so the blocks are the
+    sums ``sum w q q^T``, ``w`` in ``1, u, v, u^2 + v^2``; summed by ``einsum``, not BLAS, so the result does
+    not depend on the thread count.
     """
     x, y = n1[:, 0], n1[:, 1]
     u, v = n2[:, 0], n2[:, 1]
@@ -199,14 +179,13 @@ def _dlt_normal_matrix(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
 
 
 def _normalised_solve(pts1: np.ndarray, pts2: np.ndarray, kind: ModelKind):
-    """The null vector of ``kind``'s design matrix built on Hartley-normalised points, as a 3 x 3 matrix in
-    normalised coordinates, with the two normalising similarities ``T1`` and ``T2`` to undo; ``None`` for
-    fewer points than the minimal sample or a degenerate configuration."""
+    """``(m, T1, T2)``: the 3 x 3 null vector of ``kind``'s design matrix on Hartley-normalised points and the
+    similarities to undo; ``None`` below the minimal sample or for a degenerate configuration."""
     if len(pts1) < MIN_SAMPLE[kind]:
         return None
-    n1, T1 = _normalise(pts1)
-    n2, T2 = _normalise(pts2)
-    m = _null_vector(_dlt_design(n1, n2) if kind == "H" else _eight_point_design(n1, n2))
+    n1, T1 = hartley_normalise(pts1)
+    n2, T2 = hartley_normalise(pts2)
+    m = _null_vector(dlt_design(n1, n2) if kind == "H" else _eight_point_design(n1, n2))
     return None if m is None else (m.reshape(3, 3), T1, T2)
 
 
@@ -225,19 +204,19 @@ def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
     return H
 
 
+@shared_doc
 def fit_fundamental(pts1, pts2) -> np.ndarray | None:
     """Least-squares fundamental matrix by the normalised 8-point algorithm with rank-2 enforcement.
 
     Parameters
     ----------
-    pts1, pts2 : array_like of shape (N, 2), N >= 8
-        Corresponding (x, y) pixels (origin at the centre of the top-left pixel) in images 1 and 2.
+    %(pts)s
 
     Returns
     -------
     F : ndarray of shape (3, 3) or None
-        Rank-2 matrix with ``x2^T F x1 = 0``, unit Frobenius norm; ``None`` for fewer than 8 points or a
-        degenerate configuration.
+        Rank 2, ``x2^T F x1 = 0``, unit Frobenius norm; ``None`` for fewer than 8 points or a degenerate
+        configuration.
     """
     return _fit_fundamental(*_point_pair(pts1, pts2))
 
@@ -276,27 +255,24 @@ def apply_homography(H, pts) -> np.ndarray:
     return out
 
 
+@shared_doc
 def homography_transfer_errors(H, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
-    """Reprojection errors of corresponding points in both directions.
+    """Reprojection errors of corresponding points through ``H`` (image 1 -> image 2), both directions.
 
     Parameters
     ----------
     H : array_like of shape (3, 3)
-        Image 1 -> image 2.
-    pts1, pts2 : array_like of shape (N, 2)
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+    %(pts)s
 
     Returns
     -------
-    forward : ndarray of shape (N,)
-        ``||H x1 - x2||`` in image-2 pixels.
-    backward : ndarray of shape (N,)
-        ``||H^-1 x2 - x1||`` in image-1 pixels (``inf`` everywhere when ``H`` is singular).
+    forward, backward : ndarray of shape (K,)
+        ``||H x1 - x2||`` and ``||H^-1 x2 - x1||`` in pixels (backward ``inf`` when ``H`` is singular).
     """
-    return _transfer_errors(np.asarray(H, dtype=np.float64), *_point_pair(pts1, pts2))
+    return transfer_errors(np.asarray(H, dtype=np.float64), *_point_pair(pts1, pts2))
 
 
-def _transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     fwd = np.linalg.norm(apply_homography(H, pts1) - pts2, axis=1)
     try:
         Hinv = np.linalg.inv(H)
@@ -306,28 +282,24 @@ def _transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple
     return fwd, bwd
 
 
+@shared_doc
 def epipolar_distances(F, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
-    """Point-to-epipolar-line distances in both images.
+    """Point-to-epipolar-line distances under ``F`` (``x2^T F x1 = 0``) in both images.
 
     Parameters
     ----------
     F : array_like of shape (3, 3)
-        Fundamental matrix with ``x2^T F x1 = 0``.
-    pts1, pts2 : array_like of shape (N, 2)
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+    %(pts)s
 
     Returns
     -------
-    d2 : ndarray of shape (N,)
-        Distance in image 2 of ``x2`` from the epipolar line ``F x1``.
-    d1 : ndarray of shape (N,)
-        Distance in image 1 of ``x1`` from the epipolar line ``F^T x2``.
-        A degenerate line (``x`` at an epipole) gives ``inf``.
+    d2, d1 : ndarray of shape (K,)
+        Distance of ``x2`` from the line ``F x1`` and of ``x1`` from ``F^T x2``; ``inf`` for a degenerate line.
     """
-    return _epipolar(np.asarray(F, dtype=np.float64), *_point_pair(pts1, pts2))
+    return epipolar_errors(np.asarray(F, dtype=np.float64), *_point_pair(pts1, pts2))
 
 
-def _epipolar(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def epipolar_errors(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     h1 = np.c_[pts1, np.ones(len(pts1))]
     h2 = np.c_[pts2, np.ones(len(pts2))]
     l2 = h1 @ F.T  # lines in image 2
@@ -342,12 +314,10 @@ def _epipolar(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[np.nda
 
 
 def model_errors(model, kind: ModelKind, pts1, pts2, *, K1=None, K2=None) -> np.ndarray:
-    """Symmetric error of each correspondence against ``model``: the larger of the two directions.
+    """Symmetric error in pixels of each correspondence: the larger of the two directions.
 
-    For ``kind="H"`` the larger of the forward and backward reprojection errors, for ``kind="F"`` the larger
-    of the two point-to-epipolar-line distances, in pixels; for ``kind="E"`` the same distances to
-    ``F = K2^-T E K1^-1``, so an essential matrix is judged in pixels like a fundamental one (``K1`` and ``K2``,
-    the intrinsics of images 1 and 2, are required then and ignored otherwise).
+    ``H``: reprojection errors; ``F``: epipolar distances; ``E``: the epipolar distances to
+    ``F = K2^-T E K1^-1`` (``K1``, ``K2`` required then, ignored otherwise).
     """
     kind = _check_kind(kind, MIN_SAMPLE)
     model = np.asarray(model, np.float64)
@@ -358,7 +328,7 @@ def model_errors(model, kind: ModelKind, pts1, pts2, *, K1=None, K2=None) -> np.
 
 
 def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray:
-    a, b = _transfer_errors(model, pts1, pts2) if kind == "H" else _epipolar(model, pts1, pts2)
+    a, b = transfer_errors(model, pts1, pts2) if kind == "H" else epipolar_errors(model, pts1, pts2)
     return np.maximum(a, b)
 
 
@@ -368,24 +338,10 @@ def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np
 def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
     """Indices of the shortest top-ranked prefix holding ``size`` matches once normalised.
 
-    Matches are ranked by ascending score (stable: ties keep their given order). A prefix is counted
-    like the recall of Sec. 5.1, as ``min(#distinct image-1 keypoints, #distinct image-2 keypoints)``,
-    so many-to-many duplicates of a keypoint count once; the sample is the shortest prefix whose count
-    reaches ``size`` (or every match when the whole set counts less).
-
-    Parameters
-    ----------
-    matches : array_like of shape (K, 2), int
-        Indices into the keypoints of images 1 and 2.
-    scores : array_like of shape (K,), optional
-        Lower is better; ``None`` keeps the given order.
-    size : int
-        Normalised sample size, ``3 q`` for 1SAC.
-
-    Returns
-    -------
-    ndarray of shape (S,), int64
-        Indices into ``matches``, best first.
+    Matches are ranked by ascending score (stable; ``None`` keeps the given order). A prefix counts like
+    the recall of Sec. 5.1, ``min(#distinct image-1 keypoints, #distinct image-2 keypoints)``; the sample is
+    the shortest prefix counting ``size`` (``3 q`` for 1SAC), or every match. Returns indices into
+    ``matches``, best first.
 
     Examples
     --------
@@ -426,6 +382,7 @@ def _failed(k: int, kind: str, sample=None) -> ModelFit:
     return ModelFit(np.zeros(k, bool), None, kind, sample, np.full(k, np.inf))
 
 
+@shared_doc
 def one_sac(
     kpts1,
     kpts2,
@@ -438,26 +395,22 @@ def one_sac(
 ) -> ModelFit:
     """1SAC: fit one model on the top-ranked matches and keep those consistent with it (Sec. 5.1).
 
-    The sample is the shortest top-ranked prefix counting ``sample_factor * q`` matches with the
-    normalisation of the recall (see :func:`top_ranked_sample`); ``q = 4`` for ``H`` (normalised DLT) and
-    ``q = 8`` for ``F`` (normalised 8-point). Every match whose :func:`model_errors` is at most
-    ``threshold`` pixels is kept. With fewer than ``q`` normalised matches, or a degenerate sample, no model
-    exists and nothing is kept.
+    The sample is :func:`top_ranked_sample` of ``sample_factor * q`` matches (``q = 4`` for ``H``, 8 for
+    ``F``); the matches whose :func:`model_errors` is at most ``threshold`` pixels are kept. Without ``q``
+    normalised matches or with a degenerate sample nothing is kept.
 
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1`` and ``kpts2`` (many-to-many allowed).
-    scores : array_like of shape (K,), optional
-        Lower is better; ``None`` uses the given order as the ranking.
+    %(kpts)s
+    %(matches)s
+    %(scores)s
+        ``None`` ranks by the given order.
     kind : {"H", "F"}
-        Homography (planar pairs) or fundamental matrix (non-planar and depth pairs).
+        Homography (planar pairs) or fundamental matrix.
     threshold : float
-        Consistency threshold in pixels (default: 15, the method-D ground-truth tolerance).
+        Consistency threshold in pixels.
     sample_factor : int
-        The sample holds ``sample_factor * q`` normalised matches (3 in the paper).
+        3 in the paper.
 
     Returns
     -------

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_intrinsics, as_matrix3, as_points, as_vector3
+from .._numerics.validation import as_intrinsics, as_matrix3, as_points, as_vector3
 
 __all__ = [
     "POSE_FAILURE_DEG",

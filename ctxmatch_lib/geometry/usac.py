@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validation import as_matches
+from .._numerics.validation import as_matches
 from .models import (CONSISTENCY_THRESHOLD_PX, MIN_SAMPLE, ModelFit, ModelKind, _check_kind, _check_step, _failed,
                      _model_errors, _one_sac)
 from .pose import _fundamental_from_essential, _normalise_by_intrinsics, check_intrinsics

@@ -1,29 +1,19 @@
 """Ground-truth labels: is each match correct? (Sec. 5.1 and Appendix "Ground truth estimation methods").
 
-The four methods the paper compares, all selected by :func:`label_matches` (``method=``):
-
-* ``"D"`` (the paper's choice): centre distance at most 15 px, plus the localisation check on non-planar
-  pairs (:mod:`~ctxmatch_lib.groundtruth.core`);
-* ``"A"``: the epipolar distance alone (the Appendix figure uses 7 px; pass ``threshold=7``);
-* ``"B"``: overlap error of the doubled support regions at most 50 %, true overlap through the homography,
-  approximated through the local affine map of the hand-taken correspondences or of the dense flow
-  (:mod:`~ctxmatch_lib.groundtruth.regions`);
-* ``"C"``: B and the centre distance (reprojection, epipolar or flow transfer) at most 30 px.
-
-Calibrated pairs (:class:`~ctxmatch_lib.datasets.PoseGT`) follow the paper's SUN3D rule when no depth is
-available (Sec. 5.1, end of "Ground truth"): a match is correct when the larger of its two epipolar
-distances, to the lines of the ground-truth ``F = K2^-T [t]x R K1^-1``, is at most the threshold times the
-pair's ``threshold_scale``; methods A and D coincide there (no hand-taken points to localise against), and
-B and C are refused (no local affine map without depth).
-
-Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
-pixel; ``matches`` is ``(K, 2)`` int64 into them.
+:func:`label_matches` selects one of the paper's four methods: ``"D"`` (the paper's: centre distance at
+most 15 px, plus a localisation check on non-planar pairs) and ``"A"`` (epipolar distance alone) in
+:mod:`~ctxmatch_lib.groundtruth.core`; ``"B"`` (overlap error of the doubled support regions at most 50 %)
+and ``"C"`` (B and centre distance at most 30 px) in :mod:`~ctxmatch_lib.groundtruth.regions`.
+Calibrated pairs (:class:`~ctxmatch_lib.datasets.PoseGT`) follow the paper's SUN3D rule without depth
+(Sec. 5.1): the larger epipolar distance to the lines of ``gt.F``, at most the threshold times
+``gt.threshold_scale``; A and D coincide there, B and C are refused.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .._numerics.docstrings import shared_doc
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .core import (
     GT_THRESHOLD_PX,
@@ -67,11 +57,11 @@ __all__ = [
     "sample_flow",
 ]
 
-#: Ground-truth methods: "D" (the paper's choice), "A" (epipolar distance only), "B" (region overlap) and
-#: "C" (region overlap and centre distance).
+#: Ground-truth methods, the paper's choice first (module docstring).
 GT_METHODS = ("D", "A", "B", "C")
 
 
+@shared_doc
 def label_matches(
     kpts1,
     kpts2,
@@ -87,31 +77,20 @@ def label_matches(
     centre_threshold: float = CENTRE_THRESHOLD_PX,
     shape_scale: float = SHAPE_SCALE,
 ) -> np.ndarray:
-    """Correct/incorrect label of each match under the pair's ground truth.
-
-    Dispatches on the method and the ground-truth type (rules in :mod:`~ctxmatch_lib.groundtruth.core` for
-    A and D, :mod:`~ctxmatch_lib.groundtruth.regions` for B and C).
+    """Correct/incorrect label of each match under the pair's ground truth (see the module docstring).
 
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2`` (many-to-many allowed).
+    %(kpts)s
+    %(matches)s
     gt : HomographyGT, EpipolarGT, FlowGT or PoseGT
-        The pair's ground truth.
     method : {"D", "A", "B", "C"}
-        Method D (the paper's), A (epipolar distance only, for ``EpipolarGT``), B (overlap of the support
-        regions) or C (B and centre distance).
     threshold : float
-        Pixels (15 in the paper) of methods A and D; B and C ignore it (see ``centre_threshold``). On a
-        :class:`PoseGT` it is multiplied by ``gt.threshold_scale`` (the pair's image size relative to the
-        paper's, e.g. 3 for the 3072 px Strecha views).
+        Pixels (15 in the paper) of methods A and D, times ``gt.threshold_scale`` on a :class:`PoseGT`.
     ratio : float
         Localisation radius ratio (:func:`localisation_check`).
-    shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2), optional
-        Affine shapes of the keypoints' support regions (the patch of keypoint k is
-        ``{kpts[k] + A[k] u : |u| <= 1}``); methods B and C need them, methods A and D ignore them.
+    %(shapes)s
+        Needed by methods B and C only.
     overlap : float
         Methods B and C: largest overlap error (0.5 in the paper).
     centre_threshold : float

@@ -18,7 +18,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numba import user_cache
+from .._numerics.jit import user_cache
 
 __all__ = ["overlap_kernel", "homography_ellipse_kernel", "flow_transfer_kernel", "flow_label_kernel"]
 

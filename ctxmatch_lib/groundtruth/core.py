@@ -1,36 +1,22 @@
 """Ground-truth methods A and D: centre distances only (Sec. 5.1 and Appendix "Ground truth estimation methods").
 
-Method D of the paper, per ground-truth type (all distances in pixels, threshold ``t = 15`` inclusive):
-
-* :class:`~ctxmatch_lib.datasets.HomographyGT` (planar): the reprojection error must not exceed ``t`` in
-  **both** directions, ``||H x1 - x2|| <= t`` and ``||H^-1 x2 - x1|| <= t``. The paper states one
-  reprojection distance; requiring both makes the label independent of which image is called first.
-* :class:`~ctxmatch_lib.datasets.EpipolarGT` (non-planar): the epipolar distance must not exceed ``t`` in
-  both images (the larger of the two point-to-line distances) **and** the match must pass the
-  spatial-localisation check of :func:`localisation_check` against the hand-taken correspondences. The
-  paper defers this check to Bellavia & Colombo (IJCV 2020); the rule implemented here is our own,
-  documented in :func:`localisation_check`.
-* :class:`~ctxmatch_lib.datasets.FlowGT` (depth and synthetic scenes): each keypoint is moved to the other
-  image by the dense displacement field; the match is correct if **either** direction lands within ``t`` of
-  the other keypoint (Sec. 5.1, SUN3D protocol). Unknown displacement (NaN, outside the field) counts as a
-  miss for that direction.
-
-Method A (appendix comparison): the epipolar distance alone, without the localisation check; it differs
-from method D only on :class:`~ctxmatch_lib.datasets.EpipolarGT` (the other types have no epipolar-only
-variant, so method A labels them as method D). The appendix figure draws method A with a 7 px threshold;
-pass ``threshold=7`` to reproduce it.
-
-Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
-pixel; ``matches`` is ``(K, 2)`` int64 into them.
+Method D, threshold ``t = 15`` px inclusive: planar (:func:`label_homography`), reprojection error at most
+``t`` in **both** directions (the paper states one; both make the label independent of the image order);
+non-planar (:func:`label_epipolar`), the larger epipolar distance at most ``t`` **and** the localisation
+check against the hand-taken points (:func:`localisation_check`: the paper defers it to Bellavia & Colombo,
+IJCV 2020, the rule is ours); dense (:func:`label_flow`), **either** flow direction within ``t`` (Sec. 5.1,
+SUN3D protocol). Method A drops the localisation check, so it differs from D only on non-planar pairs; the
+Appendix figure draws it with ``threshold=7``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_matches, as_points
+from .._numerics.docstrings import shared_doc
+from .._numerics.validation import as_matches, as_points
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
-from ..geometry import _epipolar, _transfer_errors
+from ..geometry import epipolar_errors, transfer_errors
 
 __all__ = [
     "GT_THRESHOLD_PX",
@@ -57,15 +43,14 @@ def _match_points(kpts1, kpts2, matches):
     return kpts1[matches[:, 0]], kpts2[matches[:, 1]]
 
 
+@shared_doc
 def label_homography(kpts1, kpts2, matches, H, *, threshold: float = GT_THRESHOLD_PX) -> np.ndarray:
     """Method D, planar: reprojection error at most ``threshold`` pixels in both directions.
 
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2``.
+    %(kpts)s
+    %(matches)s
     H : array_like of shape (3, 3)
         Maps image 1 to image 2.
     threshold : float
@@ -85,10 +70,11 @@ def label_homography(kpts1, kpts2, matches, H, *, threshold: float = GT_THRESHOL
     array([ True, False, False])
     """
     p1, p2 = _match_points(kpts1, kpts2, matches)
-    fwd, bwd = _transfer_errors(np.asarray(H, np.float64), p1, p2)  # p1, p2 validated above
+    fwd, bwd = transfer_errors(np.asarray(H, np.float64), p1, p2)  # p1, p2 validated above
     return (fwd <= threshold) & (bwd <= threshold)
 
 
+@shared_doc
 def label_epipolar(
     kpts1,
     kpts2,
@@ -105,10 +91,8 @@ def label_epipolar(
 
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2``.
+    %(kpts)s
+    %(matches)s
     F : array_like of shape (3, 3)
         ``x2^T F x1 = 0``.
     hand_pts1, hand_pts2 : array_like of shape (M, 2), optional
@@ -125,7 +109,7 @@ def label_epipolar(
     ndarray of shape (K,), bool
     """
     p1, p2 = _match_points(kpts1, kpts2, matches)
-    d2, d1 = _epipolar(np.asarray(F, np.float64), p1, p2)  # p1, p2 validated above
+    d2, d1 = epipolar_errors(np.asarray(F, np.float64), p1, p2)  # p1, p2 validated above
     ok = np.maximum(d1, d2) <= threshold
     if localise:
         if hand_pts1 is None or hand_pts2 is None:
@@ -140,15 +124,13 @@ def label_epipolar(
 class PiecewiseAffineMap:
     """Piecewise-affine map defined by the Delaunay triangulation of corresponding points.
 
-    Each Delaunay triangle of ``src`` is sent affinely onto the triangle with the same vertices in ``dst``.
-    Points outside the convex hull of ``src`` use the affine map of the triangle owning the nearest hull
-    edge (extrapolation).
+    Each Delaunay triangle of ``src`` is sent affinely onto the triangle with the same vertices in ``dst``;
+    points outside the hull of ``src`` use the triangle owning the nearest hull edge.
 
     Parameters
     ----------
     src, dst : array_like of shape (M, 2), M >= 3
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel; ``src`` must not be all
-        collinear.
+        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
 
     Raises
     ------
@@ -188,10 +170,9 @@ class PiecewiseAffineMap:
     def locate(self, pts, *, bruteforce: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Triangle used for each point and its distance (pixels) outside the hull (0 inside).
 
-        A point on an edge or a vertex belongs to several triangles; scipy's walk may pick a different one
-        depending on the other points of the batch. ``bruteforce=True`` picks the first in triangle order,
-        the same for a point whatever the batch (methods B and C use it: their local affine map changes
-        with the triangle)."""
+        ``bruteforce=True`` picks, for a point on a shared edge or vertex, the first triangle in order
+        whatever the batch (scipy's walk depends on the batch); methods B and C need that, their local
+        affine map changes with the triangle."""
         pts = as_points(pts, "pts")
         simplex = self.tri.find_simplex(pts, bruteforce=bruteforce)
         dist = np.zeros(len(pts))
@@ -215,6 +196,7 @@ class PiecewiseAffineMap:
         return np.einsum("nij,nj->ni", A, np.c_[pts, np.ones(len(pts))])
 
 
+@shared_doc
 def localisation_check(
     hand_pts1,
     hand_pts2,
@@ -224,31 +206,24 @@ def localisation_check(
     threshold: float = GT_THRESHOLD_PX,
     ratio: float = LOCALISATION_RATIO,
 ) -> np.ndarray:
-    """Spatial-localisation check of method D against hand-taken correspondences (our documented rule).
+    """Spatial-localisation check of method D against hand-taken correspondences (our rule).
 
-    The hand points define a piecewise-affine map (:class:`PiecewiseAffineMap`, Delaunay triangulation of
-    the hand points in the source image). A correspondence ``(x1, x2)`` passes when, in **both** directions,
-    the mapped point lands close enough to its partner:
+    A correspondence ``(x1, x2)`` passes when, in **both** directions (each with the
+    :class:`PiecewiseAffineMap` of its source image's hand points),
 
     ``||A_T(x1) - x2|| <= max(threshold, ratio * L_T) + s_T * d_out``
 
-    where ``T`` is the triangle holding ``x1`` (or owning the nearest hull edge when ``x1`` lies outside
-    the hull of the hand points), ``A_T`` its affine map, ``L_T`` the longest edge of ``T`` in the target
-    image, ``s_T = sqrt(|det A_T|)`` its linear scale and ``d_out`` the distance of ``x1`` from the hull
-    (0 inside). The radius grows with the triangle because a piecewise-affine map is only a coarse model of
-    a non-planar scene: the check is not a precise reprojection, it rejects matches that satisfy the
-    epipolar constraint but sit on the wrong part of the epipolar line. The same holds from image 2 to
-    image 1 with the triangulation of ``hand_pts2``.
-
-    With fewer than three hand points, or collinear ones, no triangulation exists and every
-    correspondence passes (method D then reduces to method A for that pair).
+    with ``T`` the triangle used for ``x1`` (:meth:`PiecewiseAffineMap.locate`), ``A_T`` its affine map,
+    ``L_T`` its longest edge in the target image, ``s_T = sqrt(|det A_T|)`` and ``d_out`` the distance of
+    ``x1`` outside the hull. The radius grows with the triangle because the map is a coarse model of a
+    non-planar scene: the check rejects matches on the wrong part of the epipolar line. Without a
+    triangulation (fewer than three or collinear hand points) every correspondence passes (D = A).
 
     Parameters
     ----------
     hand_pts1, hand_pts2 : array_like of shape (M, 2)
-        Hand-taken corresponding points, (x, y) pixels, origin at the centre of the top-left pixel.
-    pts1, pts2 : array_like of shape (K, 2)
-        The correspondences to check, same convention.
+        Hand-taken corresponding points, same convention as ``pts1``, ``pts2``.
+    %(pts)s
     threshold : float
         Minimum radius in pixels.
     ratio : float
@@ -304,15 +279,16 @@ def sample_flow(flow, pts) -> np.ndarray:
     return out
 
 
+@shared_doc
 def label_flow(kpts1, kpts2, matches, flow12, flow21=None, *, threshold: float = GT_THRESHOLD_PX) -> np.ndarray:
     """Dense ground truth (depth, synthetic): correct if either direction lands within ``threshold``.
 
+    Unknown displacement (NaN, outside the field) is a miss for that direction.
+
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2``.
+    %(kpts)s
+    %(matches)s
     flow12 : ndarray of shape (H1, W1, 2)
         Image 1 -> image 2 displacement, NaN where unknown.
     flow21 : ndarray of shape (H2, W2, 2), optional

@@ -63,11 +63,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._fixedmath import sincos
-from .._validation import as_matches, as_points
+from .._numerics.fixedmath import sincos
+from .._numerics.validation import as_matches, as_points
 from ..blob.overlap import as_shapes, ellipse_overlap_error
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
-from ..geometry import _epipolar, _transfer_errors
+from ..geometry import epipolar_errors, transfer_errors
 from ._kernels import flow_label_kernel, flow_transfer_kernel, homography_ellipse_kernel, overlap_kernel
 from .core import PiecewiseAffineMap
 
@@ -308,9 +308,9 @@ def _overlap(q, B, p2, A2, back, p1, A1, reject_above=1.0):
 def _centre(gt, p1, p2, q=None, back=None):
     """Centre distance of method C (pixels, inf if unknown); flow pairs read it off the carried centres."""
     if isinstance(gt, HomographyGT):
-        return np.maximum(*_transfer_errors(np.asarray(gt.H, float), p1, p2))
+        return np.maximum(*transfer_errors(np.asarray(gt.H, float), p1, p2))
     if isinstance(gt, EpipolarGT):
-        return np.maximum(*_epipolar(np.asarray(gt.F, float), p1, p2))
+        return np.maximum(*epipolar_errors(np.asarray(gt.F, float), p1, p2))
     with np.errstate(invalid="ignore"):
         centre = np.linalg.norm(q - p2, axis=1)
         if back is not None:

@@ -3,7 +3,7 @@
 x is the paper's value, y ours, on the y = x line where the two agree; each method keeps its colour and marker
 of the scatter plots (:func:`ctxmatch_lib.plots.eval.method_style`), hollow without a model and filled after
 1SAC as in :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`; precision and recall have rows of their own. The
-panel title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report_paper.rank_agreement`).
+panel title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.paper.rank_agreement`).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import matplotlib.pyplot as plt
 from matplotlib.legend_handler import HandlerTuple
 from matplotlib.lines import Line2D
 
-from ..report import KIND_LABELS, method_label, method_order
-from ..report_paper import rank_agreement
+from ..report.tables import KIND_LABELS, method_label, method_order
+from ..report.paper import rank_agreement
 from .eval import method_style
 
 __all__ = ["plot_agreement"]
@@ -29,7 +29,7 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     Parameters
     ----------
     side : DataFrame
-        A :func:`ctxmatch_lib.report_paper.side_by_side` frame (index setup, kind, model, method).
+        A :func:`ctxmatch_lib.report.paper.side_by_side` frame (index setup, kind, model, method).
     setups : sequence of str, optional
         The configurations, one column of panels each (default: those in ``side``, in order).
     models : sequence of str
@@ -52,7 +52,7 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
         (kinds × metrics) × ``len(setups)`` panels sharing the 0-100 % axes; one legend below them. Each
         panel's title gives Spearman's ρ of its metric over the filters without a model.
     """
-    from ..report import MODEL_LABELS
+    from ..report.tables import MODEL_LABELS
 
     setups = list(dict.fromkeys(side.index.get_level_values("setup"))) if setups is None else list(setups)
     unknown = [s for s in setups if s not in set(side.index.get_level_values("setup"))]

@@ -14,7 +14,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .._paths import atomic_path, repo_root
+from ..cache import atomic_path, repo_root
 
 __all__ = [
     "COLUMN_WIDTHS",

@@ -1,6 +1,6 @@
 """Plot helpers for the blob-matching sweep (Sec. 5.2): the mAP heat map of Fig. 5 and the per-parameter
 bands of Fig. 6. Each takes an ``ax`` and never calls ``plt.show``; inputs come from
-:func:`ctxmatch_lib.report_blob.heatmap_matrix` (mAP in %, rows f × f', columns t_o × D × W)."""
+:func:`ctxmatch_lib.report.blob.heatmap_matrix` (mAP in %, rows f × f', columns t_o × D × W)."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     ax : matplotlib Axes
     matrix : DataFrame
         mAP (%) with a (f, f') row index and a (t_o, D, W) column index
-        (:func:`~ctxmatch_lib.report_blob.heatmap_matrix`).
+        (:func:`~ctxmatch_lib.report.blob.heatmap_matrix`).
     title : str
     vmin, vmax : float, optional
         Colour range (default: this block's own range; one shared range washes out the better blocks).
@@ -177,7 +177,7 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
     ----------
     ax : matplotlib Axes
     row : Series
-        mAP (%) indexed by (t_o, D, W) labels: one row of :func:`~ctxmatch_lib.report_blob.heatmap_matrix`.
+        mAP (%) indexed by (t_o, D, W) labels: one row of :func:`~ctxmatch_lib.report.blob.heatmap_matrix`.
     title : str
     ylim : (float, float), optional
     legend : bool

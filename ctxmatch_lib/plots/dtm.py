@@ -1,17 +1,7 @@
-"""Plot helpers for DTM (Sec. 4): the boundary construction of Fig. 2 / Appendix A and the DTM1/DTM2 steps
-of Fig. 3. Each helper draws overlays on a given ``ax`` (draw the image first with
-:func:`ctxmatch_lib.plots.viz2d.plot_image`) and never calls ``plt.show()``.
-
-Points are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel.
-
-Colours of the boundary figure (Fig. 2), the paper's roles in the colour-blind-safe Okabe–Ito palette:
-Delaunay triangulation blue, edges joining two keypoint vertices bluish green (the final meshes), convex hull
-vermillion, alpha-shape edges solid sky blue, fattening ``B'`` dashed, contour and boundary set ``B`` reddish
-purple. The DTM-step figure (Fig. 3) gives each colour one meaning:
-matches in the colour-blind-safe code of :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS` (kept correct / wrong,
-dropped correct / wrong), matches re-added by DTM2 dashed in the kept colours, triangulations grey, the DTM1
-contraction set white dots and the expansion clusters bluish green.
-"""
+"""Overlays for DTM (Sec. 4): the boundary construction of Fig. 2 / Appendix A and the DTM1/DTM2 steps of
+Fig. 3, drawn on an ``ax`` (image first: :func:`ctxmatch_lib.plots.viz2d.plot_image`). Points are (x, y)
+pixels, origin at the centre of the top-left pixel. Colours: :data:`DTM_COLORS` (Okabe–Ito) and the match code
+of :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS`; DTM2's re-added matches are dashed."""
 
 from __future__ import annotations
 
@@ -37,10 +27,9 @@ __all__ = [
     "mesh_border_distance",
 ]
 
+#: Colours of Figs. 2-3 in Okabe–Ito: the paper's red hull / orange alpha shape become vermillion / sky blue,
+#: which dichromats tell apart too.
 DTM_COLORS = {
-    # Okabe–Ito (the palette the README promises; the paper's red hull against an orange alpha shape is hard to
-    # tell apart with a red-green deficiency): hull vermillion against alpha shape sky blue, ΔE ≈ 90-114
-    # under normal vision and the three simulated dichromacies (palette.delta_e).
     "delaunay": OKABE_ITO["blue"],
     "keypoint_edge": OKABE_ITO["bluish_green"],
     "hull": OKABE_ITO["vermillion"],
@@ -71,11 +60,8 @@ def triangulation_edges(simplices) -> np.ndarray:
 
 def plot_triangulation(ax, points, simplices, n_vertices: int | None = None, *, color=None,
                        keypoint_color=None, lw: float = 0.6, alpha: float = 0.9, zorder: float = 1) -> None:
-    """Draw the edges of a triangulation of ``points`` (``(P, 2)``).
-
-    With ``keypoint_color`` set, edges joining two of the first ``n_vertices`` points (the keypoint vertices
-    ``V``; the rest are boundary points ``B``) get that colour, the others ``color`` (Fig. 2 right, App. A).
-    """
+    """Draw the edges of a triangulation of ``points`` (``(P, 2)``); with ``keypoint_color``, edges joining two
+    of the first ``n_vertices`` points (the keypoints ``V``, not ``B``) get that colour (Fig. 2 right)."""
     points = np.asarray(points, np.float64).reshape(-1, 2)
     edges = triangulation_edges(simplices)
     if len(edges) == 0:
@@ -91,8 +77,8 @@ def plot_triangulation(ax, points, simplices, n_vertices: int | None = None, *, 
 
 
 def plot_canvas(ax, image_size, *, color="0.35", lw: float = 1.0, fill: str | None = "white") -> None:
-    """The image canvas ``(width, height)`` as a rectangle (pixel edges at -0.5 and size - 0.5), and axis
-    limits that show it with a margin large enough for boundary points outside it."""
+    """The image canvas ``(width, height)`` as a rectangle (pixel edges at -0.5 and size - 0.5), equal aspect,
+    no ticks."""
     w, h = image_size
     ax.add_patch(Rectangle((-0.5, -0.5), w, h, fill=fill is not None, fc=fill or "none", ec=color, lw=lw,
                            zorder=0))
@@ -121,14 +107,9 @@ def _shape_region(vertices, edges):
 
 
 def outer_fattening(boundary) -> np.ndarray:
-    """The segments of ``B'`` drawn dashed in Fig. 2: for each first-shape edge, its copy shifted by ``s`` to the
-    outside of the shape, ``(E, 2, 2)``.
-
-    ``Boundary.fattened`` holds both copies of every edge (``v0 ± s n``, ``v1 ± s n``); the inner one lies
-    inside the shape (or across it, where the shape is thinner than ``s``) and never reaches the contour of
-    ``V ∪ B'``, so the figure draws the outer one only. The outer copy is the one whose midpoint is outside the
-    shape; on a thin part where both are outside, both are kept.
-    """
+    """The segments of ``B'`` drawn dashed in Fig. 2, ``(E, 2, 2)``: of the two copies of each shape edge
+    shifted by ``±s`` (``Boundary.fattened``), those whose midpoint is outside the shape (both on a part thinner
+    than ``s``); the inner copy never reaches the contour of ``V ∪ B'``."""
     import shapely
 
     if len(boundary.fattened) == 0:
@@ -144,14 +125,10 @@ def outer_fattening(boundary) -> np.ndarray:
 
 
 def plot_boundary_steps(ax, boundary, *, shape_color=None, ps: float = 6, lw: float = 1.2) -> None:
-    """The boundary construction of Fig. 2 (left) / Appendix A (a, b, c, e) for one ``Boundary``.
-
-    ``"alpha"`` / ``"convex"``: Delaunay triangulation of ``V`` (blue), convex hull (red), first shape edges
-    (solid, sky blue for the alpha shape, vermillion for the convex hull, or ``shape_color``), each shape edge shifted
-    by ``s`` to the outside (dashed, :func:`outer_fattening`: the points ``B'`` that shape the contour), the
-    outer contour of ``V ∪ B'`` (purple) and the final set ``B`` (purple dots). ``"corners"`` / ``"canvas"``:
-    the image border and its sample points ``B``.
-    """
+    """The boundary construction of Fig. 2 (left) / Appendix A (a, b, c, e) for one ``Boundary``: Delaunay
+    triangulation of ``V``, convex hull, shape edges (``shape_color``, default by method), their outer shift
+    :func:`outer_fattening` dashed, the outer contour of ``V ∪ B'`` and the final set ``B`` (for ``"corners"`` /
+    ``"canvas"`` just the border samples ``B``)."""
     import shapely
 
     v, c = boundary.vertices, DTM_COLORS
@@ -212,10 +189,10 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     image : {1, 2}
         Which image the overlay is for (its triangulation; flows start at its keypoints).
     dropped_lw, dropped_alpha : float
-        Thinner, fainter lines for the removed matches, which are many and long in the first iterations.
+        Line width and alpha of the removed matches.
     max_dropped_lines : int or None
-        With more removed matches than this (thousands of long random lines in the first iteration hide
-        everything else) they are drawn as dots at their keypoints only; ``None``: always as lines.
+        Above this many removed matches they are drawn as dots at their keypoints (thousands of long lines
+        would hide everything); ``None``: always lines.
 
     Returns
     -------
@@ -231,8 +208,7 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     gone_colors = match_colors(labels[gone], np.zeros(len(gone), bool))
     as_dots = max_dropped_lines is not None and len(gone) > max_dropped_lines
     if as_dots:
-        # The removed wrong ones are thousands of small dots under the flows; the removed correct ones are few
-        # and yellow (pale on a bright photo): larger, outlined in black and drawn above the flows.
+        # Removed correct ones are few and pale yellow: larger, outlined, above the flows.
         good = labels[gone].astype(bool)
         ax.scatter(*src[gone[~good]].T, s=max(ps, 3.0), c=gone_colors[~good], linewidths=0, alpha=0.85, zorder=2)
         ax.scatter(*src[gone[good]].T, s=max(ps, 3.0) * 3.5, c=gone_colors[good], edgecolors="black",
@@ -261,13 +237,9 @@ def plot_dtm_clusters(ax, iteration, p1, p2, *, image: int = 2, lw: float = 0.9,
 
 def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1, lw: float = 0.9,
                    ps: float = 4, tri_lw: float = 0.4) -> None:
-    """Fig. 3e-f: the DTM1 output ``M^ī`` (``stage=1``: kept matches in the correct / wrong colours, with the
-    last DTM1 triangulation) or the DTM2 output (``stage=2``: DTM1 matches solid, re-added ones dashed in the
-    same correct / wrong colours, with the triangulation of the last DTM2 level), as flow vectors on image
-    ``image``.
-
-    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
-    """
+    """Fig. 3e-f as flows on image ``image``: the DTM1 output ``M^ī`` over the last DTM1 triangulation
+    (``stage=1``), or the DTM2 output, re-added matches dashed, over the last DTM2 level's (``stage=2``).
+    ``result``: a :class:`~ctxmatch_lib.dtm.DTMResult` with ``trace=True``."""
     tr = result.trace
     if stage == 1 or not tr.levels:
         last = tr.iterations[-1]
@@ -287,17 +259,8 @@ def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1
 
 def plot_dtm_mesh(ax, result, *, image: int = 1, color="white", lw: float = 0.35, alpha: float = 0.55,
                   zorder: float = 1.5) -> int:
-    """The triangulation of DTM's output on image ``image``: the edges joining two keypoint vertices of the
-    last DTM1 iteration (the mesh over the DTM1 output ``M^ī``; edges to the boundary points ``B`` left out),
-    so that a match can be seen to sit inside the mesh or on its border (Sec. 4).
-
-    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
-
-    Returns
-    -------
-    int
-        The number of edges drawn.
-    """
+    """Draw the mesh over DTM's output ``M^ī`` on image ``image`` (edges of the last DTM1 iteration between two
+    keypoints, not to ``B``) and return the number of edges. ``result``: a DTMResult with ``trace=True``."""
     if result.trace is None:
         raise ValueError("result has no trace: compute it with dtm(..., trace=True)")
     if not result.trace.iterations:
@@ -313,14 +276,9 @@ def plot_dtm_mesh(ax, result, *, image: int = 1, color="white", lw: float = 0.35
 
 
 def mesh_border_distance(result, points, *, image: int = 1) -> np.ndarray:
-    """Distance (pixels) of each of ``points`` (``(K, 2)`` (x, y) pixels) to the border of the region that
-    DTM's keypoint mesh covers on image ``image`` (the triangles of the last DTM1 iteration whose three vertices
-    are keypoints: what :func:`plot_dtm_mesh` draws); negative outside the region. With it one can check the
-    paper's remark (Sec. 5.3, App. "DTM evaluation") that DTM's wrong matches sit near the triangulation
-    border.
-
-    ``result`` is a :class:`~ctxmatch_lib.dtm.DTMResult` computed with ``trace=True``.
-    """
+    """Signed distance (pixels, negative outside) of ``points`` ``(K, 2)`` to the border of the region covered
+    by :func:`plot_dtm_mesh`'s mesh on image ``image``: checks Sec. 5.3's remark that DTM's wrong matches sit
+    near the triangulation border. ``result``: a DTMResult with ``trace=True``."""
     import shapely
 
     points = np.asarray(points, np.float64).reshape(-1, 2)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..report import method_label, method_order
+from ..report.tables import method_label, method_order
 from .palette import OKABE_ITO
 
 __all__ = [
@@ -203,7 +203,7 @@ def pr_legend(fig_or_ax, methods, *, times: dict | None = None, models=("none", 
     from matplotlib.legend_handler import HandlerTuple
     from matplotlib.lines import Line2D
 
-    from ..report import MODEL_LABELS
+    from ..report.tables import MODEL_LABELS
 
     handles, labels = [], []
     for m in method_order(methods):
@@ -317,7 +317,7 @@ def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    from ..report import MODEL_LABELS
+    from ..report.tables import MODEL_LABELS
 
     handles, labels = [], []
     for metric in metrics:
@@ -369,38 +369,3 @@ def plot_pair_share(ax, table, *, color="0.45", title: str | None = None, drop_e
     ax.grid(True, axis="y", lw=0.4, alpha=0.5)
     if title:
         ax.set_title(title, pad=2)
-
-
-# -------------------------------------------------------------------------------- deprecated (0.1 API)
-
-#: Deprecated: the scatter draws 1SAC as the filled marker of the method, no longer in its own colour.
-MODEL_COLORS = {"none": OKABE_ITO["blue"], "1sac": OKABE_ITO["vermillion"], "ransac": OKABE_ITO["bluish_green"]}
-
-
-def method_marker(name: str) -> str:
-    """Deprecated: the marker of :func:`method_style` (one colour *and* marker per method)."""
-    import warnings
-
-    warnings.warn("method_marker is deprecated; use method_style(name)[1]", DeprecationWarning, stacklevel=2)
-    return method_style(name)[1]
-
-
-def method_color(name: str) -> str:
-    """Deprecated: the colour of :func:`method_style` (Okabe–Ito; was a tab20 colour per method)."""
-    import warnings
-
-    warnings.warn("method_color is deprecated; use method_style(name)[0]", DeprecationWarning, stacklevel=2)
-    return method_style(name)[0]
-
-
-_REMOVED = {
-    "place_labels": "the precision/recall scatter labels no point any more (one legend, as the paper's Fig. 7); "
-                    "use plot_pr_scatter and pr_legend",
-    "plot_inlier_bars": "the inlier histograms are one small panel per method; use plot_inlier_method",
-}
-
-
-def __getattr__(name: str):
-    if name in _REMOVED:
-        raise AttributeError(f"ctxmatch_lib.plots.eval.{name} was removed: {_REMOVED[name]}")
-    raise AttributeError(f"module 'ctxmatch_lib.plots.eval' has no attribute {name!r}")

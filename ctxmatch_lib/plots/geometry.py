@@ -1,9 +1,6 @@
-"""Plots of the model's accuracy (issue 30): accuracy against the time to geometry, and cumulative error curves.
-
-Input: the rows of the evaluation engine (:data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`) and the table of
-:func:`~ctxmatch_lib.geometry_metrics.geometry_table`. Each method keeps the colour and marker it has in every
-other figure (:func:`~ctxmatch_lib.plots.eval.method_style`); the axes are drawn on, never shown.
-"""
+"""Plots of the model's accuracy after the model step: per-method AUCs, accuracy against the time to
+geometry, and cumulative corner-error curves, from engine rows or
+:func:`~ctxmatch_lib.geometry_metrics.geometry_table`. Methods keep their :func:`~ctxmatch_lib.plots.eval.method_style`."""
 
 from __future__ import annotations
 
@@ -17,16 +14,12 @@ __all__ = ["MATCHER_LABELS", "MATCHER_STYLES", "method_name", "geometry_style", 
 
 #: Display names of the OpenCV matchers (:mod:`ctxmatch_lib.opencv_matchers`).
 MATCHER_LABELS = {"opencv_ratio": "OpenCV ratio 0.8", "opencv_mnn": "OpenCV MNN"}
-#: Colour and marker of the OpenCV matchers: a grey that no filter wears (:data:`~ctxmatch_lib.plots.eval.
-#: METHOD_COLORS` has none), so the matcher a user would pick instead never looks like one of the filters it is
-#: compared with.
+#: Colour and marker of the OpenCV matchers: a grey that no filter wears, so they never look like a filter.
 MATCHER_STYLES = {"opencv_ratio": ("#8C8C8C", "X"), "opencv_mnn": ("#8C8C8C", "P")}
 
 
 def geometry_style(name: str) -> tuple[str, str]:
-    """``(colour, marker)`` of a method in the geometry figures: :data:`MATCHER_STYLES` for the OpenCV
-    matchers, the method's style of every other figure (:func:`~ctxmatch_lib.plots.eval.method_style`) for
-    the rest.
+    """``(colour, marker)``: :data:`MATCHER_STYLES` for the OpenCV matchers, else :func:`method_style`.
 
     Examples
     --------
@@ -37,8 +30,7 @@ def geometry_style(name: str) -> tuple[str, str]:
 
 
 def method_name(name: str) -> str:
-    """Display name of a method of the geometry figures: the OpenCV matchers by :data:`MATCHER_LABELS`, the
-    others as in every figure.
+    """Display name of a method: :data:`MATCHER_LABELS` for the OpenCV matchers, else the usual label.
 
     Examples
     --------
@@ -71,18 +63,14 @@ POSE_MARKERS = {5: "^", 10: "v", 20: "*"}
 
 
 def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | None = None, order=None) -> list:
-    """The model's accuracy per method, one row per method, best on top: for planar pairs the AUC of the
-    corner error at 1, 3, 5 and 10 px (one marker per threshold, :data:`THRESHOLD_MARKERS`, on a line in the
-    method's colour), sorted by the AUC at 5 px; for calibrated pairs the AUC of the pose error at 5, 10 and
-    20° (:data:`POSE_MARKERS`), sorted by the AUC at 5° then 10°; for other kinds the share of ground-truth
-    correspondences consistent with F at 1, 3, 5, 10 px and its mean over 1-19 px (the bar), sorted by the
-    mean. The method's own marker (:func:`geometry_style`) stands left of its row, so two methods of one colour
-    stay apart; pairs left without a model are written after the method's name. Nothing here depends on
-    running times.
+    """The model's accuracy, one row per method, best on top: planar, the AUC of the corner error at 1/3/5/10 px
+    (:data:`THRESHOLD_MARKERS`, sorted by 5 px); calibrated, the AUC of the pose error at 5/10/20°
+    (:data:`POSE_MARKERS`, sorted by 5° then 10°); otherwise the share of GT correspondences consistent with F
+    at 1/3/5/10 px and its 1-19 px mean as a bar (sorted by it). The method's marker stands left of its row;
+    pairs without a model are counted after its name.
 
     Parameters
     ----------
-    ax : matplotlib Axes
     table : DataFrame
         :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model).
     kind : {"planar", "nonplanar", "depth", "calibrated"}
@@ -90,8 +78,7 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
         The model step whose rows are drawn.
     title : str, optional
     order : sequence of str, optional
-        The methods top to bottom, instead of sorting by accuracy (panels side by side then share their rows);
-        methods of ``order`` without a value get an empty row.
+        The methods top to bottom instead of sorting (so side-by-side panels share rows); missing ones stay empty.
 
     Returns
     -------
@@ -120,7 +107,7 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
             if c in row.index and np.isfinite(row[c]):
                 ax.plot(row[c], y, marker=markers[th], ms=3.5, color=colour, mec=colour, ls="none",
                         mfc="white" if th in (3, 10) else colour, zorder=3)
-        # The method's own marker, just left of the axis (transform: x in axes fraction, y in data).
+        # x in axes fraction, y in data: just left of the axis.
         ax.plot(-0.06, y, marker=marker, ms=3.2, color=colour, mec=colour, ls="none", clip_on=False,
                 transform=ax.get_yaxis_transform(), zorder=3)
     names = [method_name(m) + (f" ({int(r['no_model'])} w/o model)" if r["no_model"] > 0 else "")
@@ -138,9 +125,8 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
 
 
 def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kwargs):
-    """The key of :func:`plot_accuracy_by_method`'s markers: with ``pixels`` the threshold (px) of an AUC
-    (planar) or of a share (F) and the bar of the mean share over 1-19 px; with ``pose`` the thresholds
-    (degrees) of the AUC of the pose error."""
+    """The key of :func:`plot_accuracy_by_method`'s markers: pixel thresholds and the mean-share bar
+    (``pixels``), pose thresholds in degrees (``pose``)."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -160,22 +146,19 @@ def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kw
 
 def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5.0, ms: float = 22,
                           title: str | None = None) -> list:
-    """The model's accuracy (y) against the mean time to geometry per pair (x, log scale), one point per method.
+    """The model's accuracy (y, :func:`accuracy_column`) against the mean time to geometry per pair (x, log),
+    one point per method.
 
     Parameters
     ----------
-    ax : matplotlib Axes
     table : DataFrame
-        :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model) (a ``blob``
-        level, if any, restricted to one setup beforehand).
-    kind : {"planar", "nonplanar", "depth"}
+        :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model), one blob setup.
+    kind : {"planar", "nonplanar", "depth", "calibrated"}
     model : str
-        The model step whose rows are drawn.
     auc_px : float
         Planar pairs: the AUC threshold (one of the table's).
     ms : float
         Marker area (points²).
-    title : str, optional
 
     Returns
     -------
@@ -202,16 +185,14 @@ def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5
 
 
 def plot_cumulative_errors(ax, rows, methods, *, model: str, max_px: float = 10.0, title: str | None = None) -> dict:
-    """The share of planar pairs whose mean corner error is below ``e`` (y), for ``e`` in [0, ``max_px``] (x):
-    the curve whose area :func:`~ctxmatch_lib.geometry_metrics.pose_auc` measures (pairs without a model never
-    enter the curve but count in the denominator).
+    """The share of planar pairs whose mean corner error is below ``e`` (y) for ``e`` in [0, ``max_px``]: the
+    curve whose area :func:`~ctxmatch_lib.geometry_metrics.pose_auc` measures (pairs without a model count in
+    the denominator only).
 
     Parameters
     ----------
     rows : DataFrame
-        Engine rows of planar pairs (one row per pair and method: restrict the blob setup beforehand).
-    methods : sequence of str
-    model : str
+        Engine rows of planar pairs, one blob setup.
 
     Returns
     -------

@@ -1,6 +1,6 @@
 """Plots of the ground-truth comparison (Appendix "Ground truth estimation methods", figure ``setup_imgs``).
 
-The caption's groups of matches (:func:`ctxmatch_lib.gt_compare.method_groups`) drawn as coloured motion flows
+The caption's groups of matches (:func:`ctxmatch_lib.report.gt_compare.method_groups`) drawn as coloured motion flows
 on image 1 (:func:`plot_gt_flows`), and the support regions of their matches on image 2 with the region
 carried over from image 1 dashed (:func:`plot_support_regions`). One colour per group, the same in every
 panel (:data:`GROUP_COLORS`, Okabe–Ito); every helper takes an ``ax`` and never calls ``plt.show()``.
@@ -58,7 +58,7 @@ def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7
     kpts1, kpts2 : ndarray of shape (K, 2)
         Matched keypoints (row k is a match), (x, y) pixels.
     groups : dict of str to ndarray of shape (K,), bool
-        Disjoint groups (:func:`ctxmatch_lib.gt_compare.method_groups`), drawn in order.
+        Disjoint groups (:func:`ctxmatch_lib.report.gt_compare.method_groups`), drawn in order.
     colors : dict, optional
         Group name -> colour (default :data:`GROUP_COLORS`).
     counts : bool
@@ -107,7 +107,7 @@ def plot_support_regions(ax, img, kpts2, shapes2, carried_centres, carried_shape
         The image-1 regions carried into image 2 (:class:`ctxmatch_lib.groundtruth.RegionErrors`).
     groups : dict of str to ndarray of shape (K,), bool
     worst : dict of str to int
-        The match drawn thick in each group (:func:`ctxmatch_lib.gt_compare.worst_in_groups`).
+        The match drawn thick in each group (:func:`ctxmatch_lib.report.gt_compare.worst_in_groups`).
     """
     colors = GROUP_COLORS if colors is None else colors
     plot_image(ax, img, dim=dim)

@@ -11,7 +11,7 @@ Nothing here reads ``CTXMATCH_DATA`` (the evaluation data). The images are sciki
 (:data:`SOURCE_IMAGES`), scaled so that the longer side is 1024 px (the real pairs' size). Each scene draws:
 
 * **homography** (planar): image 2 is image 1 under a random homography
-  (:func:`~ctxmatch_lib.filters.learned.data._random_homography`, the generator of
+  (:func:`~ctxmatch_lib.filters.learned.data.random_homography`, the generator of
   :mod:`ctxmatch_lib.filters.learned.data`);
 * **layered** (non-planar): image 1 is a background photo with one to three elliptical foreground layers cut
   from other photos pasted on it; in image 2 the background moves by a homography and every layer by its
@@ -24,7 +24,7 @@ Image 2 also gets a photometric change (gain, bias, gamma, Gaussian blur, noise)
 an inlier when its image-2 keypoint lies within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` of the
 true position of its image-1 keypoint, the evaluation's threshold.
 
-Sets are cached as ``.npz`` under ``ctxmatch_lib._paths.cache_dir("learned-sets")``, one per (scene,
+Sets are cached as ``.npz`` under ``ctxmatch_lib.cache.cache_dir("learned-sets")``, one per (scene,
 feature preset, blob preset), keyed by :data:`GENERATOR_VERSION`, the seed and the scene index, so a
 training run reads them instead of recomputing features; each scene draws from its own
 ``SeedSequence([seed, index])`` stream, so set ``i`` is the same whatever the number of scenes asked for.
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..filters.learned.data import _random_homography
+from ..filters.learned.data import random_homography
 from ..geometry import apply_homography
 from ..groundtruth import GT_THRESHOLD_PX
 
@@ -89,11 +89,11 @@ def source_images() -> list[np.ndarray]:
     import cv2
     import skimage.data
 
-    from ..features import _as_gray_uint8
+    from ..features import as_gray_uint8
 
     out = []
     for name in SOURCE_IMAGES:
-        g = _as_gray_uint8(getattr(skimage.data, name)())
+        g = as_gray_uint8(getattr(skimage.data, name)())
         s = LONG_SIDE / max(g.shape)
         out.append(cv2.resize(g, (round(g.shape[1] * s), round(g.shape[0] * s)), interpolation=cv2.INTER_CUBIC))
     return out
@@ -169,7 +169,7 @@ def make_scene(images, rng, kind: str | None = None) -> Scene:
     img1 = images[order[0]].copy()
     h, w = img1.shape
     size = (w, h)
-    H0 = _random_homography(size, rng, strength=rng.uniform(*STRENGTH_RANGE))
+    H0 = random_homography(size, rng, strength=rng.uniform(*STRENGTH_RANGE))
     img2 = _warp(img1, H0, size)
     layers1 = np.zeros((h, w), np.int64)
     layers2 = np.where(_warp(np.ones((h, w), np.uint8), H0, size) > 0, 0, -1).astype(np.int64)
@@ -181,7 +181,7 @@ def make_scene(images, rng, kind: str | None = None) -> Scene:
             fg = _warp(fg, np.array([[1, 0, rng.uniform(-0.2, 0.2) * w], [0, 1, rng.uniform(-0.2, 0.2) * h],
                                      [0, 0, 1.0]]), size)
             mask = _ellipse_mask(size, rng)
-            Hi = _random_homography(size, rng, strength=0.35) @ H0
+            Hi = random_homography(size, rng, strength=0.35) @ H0
             Hi[:2] += np.outer(rng.uniform(-0.12, 0.12, size=2) * np.array(size), Hi[2])
             img1 = np.where(mask > 0, fg, img1)
             layers1[mask > 0] = i + 1
@@ -217,7 +217,7 @@ def scene_sets(scene: Scene, features=FEATURES, blobs=BLOBS, max_keypoints: int 
 
 
 def _cache_root(cache_dir) -> Path:
-    from .._paths import cache_dir as _cache_dir
+    from ..cache import cache_dir as _cache_dir
 
     root = Path(cache_dir) if cache_dir is not None else _cache_dir("learned-sets")
     return root / f"v{GENERATOR_VERSION}"
@@ -228,7 +228,7 @@ def _scene_path(root: Path, seed: int, index: int) -> Path:
 
 
 def _save(path: Path, sets: list[BlobSet]) -> None:
-    from .._paths import atomic_path
+    from ..cache import atomic_path
 
     arrays = {}
     meta = []
@@ -260,7 +260,7 @@ def build_sets(n_scenes: int, seed: int = 0, *, cache_dir=None, progress: bool =
     seed : int
         Scene ``i`` draws from ``np.random.SeedSequence([seed, i])``.
     cache_dir : str or Path, optional
-        Default ``ctxmatch_lib._paths.cache_dir("learned-sets")``.
+        Default ``ctxmatch_lib.cache.cache_dir("learned-sets")``.
     progress : bool
         A progress bar.
 

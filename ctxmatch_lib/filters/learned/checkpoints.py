@@ -97,7 +97,7 @@ def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None =
     A path ending in ``.npz`` gets the numpy format that the filters read without torch
     (:func:`.npnets.save_npz`); any other path a ``torch.save`` checkpoint in the ctxmatch format.
     """
-    from ..._paths import atomic_path
+    from ...cache import atomic_path
 
     if side is None:
         side = "score_rank" if getattr(net.config, "side_channels", 0) == 1 else "none"

@@ -33,7 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ...geometry import _normalise as _hartley
+from ...geometry import hartley_normalise as _hartley
 from ...geometry import apply_homography
 from ...groundtruth import GT_THRESHOLD_PX
 
@@ -166,7 +166,7 @@ def keypoint_pool(max_images: int | None = None, max_keypoints: int = 3000) -> t
 
 
 # ------------------------------------------------------------------------------------------ geometry
-def _random_homography(size, rng, strength: float = 1.0) -> np.ndarray:
+def random_homography(size, rng, strength: float = 1.0) -> np.ndarray:
     w, h = size
     rot = rng.uniform(-np.pi / 6, np.pi / 6) * strength
     if rng.uniform() < 0.1 * strength:
@@ -220,14 +220,14 @@ def _true_positions(pts, size, rng, kind):
     """Image-2 position of every pool point under a random geometry (NaN: out of view or occluded)."""
     from matplotlib.path import Path as MplPath
 
-    H0 = _random_homography(size, rng)
+    H0 = random_homography(size, rng)
     dest = apply_homography(H0, pts)
     if kind == "layered":
         labels = np.zeros(len(pts), np.int64)
         layers = []
         for i in range(rng.integers(1, 3)):
             ell = _ellipse(size, rng)
-            Hi = _random_homography(size, rng, strength=0.35) @ H0
+            Hi = random_homography(size, rng, strength=0.35) @ H0
             # The foreground moves on its own: an extra shift of up to 12 % of the image on top of H0.
             Hi[:2] += np.outer(rng.uniform(-0.12, 0.12, size=2) * np.array(size), Hi[2])
             inside = _in_ellipse(pts, ell)

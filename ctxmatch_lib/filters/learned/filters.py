@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._common import canonical_order, prepare, spread_back
+from ..._numerics.order import canonical_order, spread_back
+from .._common import prepare
 
 __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
            "shipped_weights", "require_torch", "TORCH_HINT"]

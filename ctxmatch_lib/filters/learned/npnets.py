@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..._blas import one_blas_thread
+from ..._numerics.blas import one_blas_thread
 from .configs import ACNeConfig, OANetConfig
 
 __all__ = ["NumpyModel", "oanet_logits", "acne_logits", "weighted_eight_point", "epipolar_residual",
@@ -242,7 +242,7 @@ def _float_params(sd: dict) -> dict:
 def save_npz(path, arch: str, config: dict, params: dict, *, normalization: str, side: str, label: str,
              training: dict | None = None) -> Path:
     """Write a network in the ctxmatch ``.npz`` format: the arrays, and ``__meta__`` (JSON) saying what they are."""
-    from ..._paths import atomic_path
+    from ...cache import atomic_path
 
     meta = {"format": NPZ_FORMAT, "version": 1, "arch": arch, "config": config,
             "input": {"normalization": normalization, "side": side}, "label": label, "training": training or {}}

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import as_image_size, as_matches, as_points, as_scores
+from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = [
     "names_to_pair",
@@ -83,7 +83,7 @@ _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 def _check_colmap_path(path, name: str) -> Path:
     """A COLMAP database path that can be written: a new file, an empty one or an SQLite database."""
-    from ._paths import check_writable
+    from ..cache import check_writable
 
     path = check_writable(path, name)
     if path.is_file() and path.stat().st_size:
@@ -97,7 +97,7 @@ def _check_colmap_path(path, name: str) -> Path:
 
 def _check_h5_path(path, name: str) -> Path:
     """An hloc HDF5 path that can be written: a new file or an HDF5 file."""
-    from ._paths import check_writable
+    from ..cache import check_writable
 
     path = check_writable(path, name)
     if path.is_file() and path.stat().st_size:
@@ -128,7 +128,7 @@ def check_export_paths(h5_dir=None, colmap_db=None, *, h5_name: str = "h5_dir",
         Naming the argument and what is wrong with the path.
     """
     if h5_dir is not None:
-        from ._paths import check_writable
+        from ..cache import check_writable
 
         folder = check_writable(h5_dir, h5_name, folder=True)
         for file in ("features.h5", "matches.h5"):
@@ -468,7 +468,7 @@ def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates:
     list of str
         One summary line per export.
     """
-    from .match import load_result
+    from ..match import load_result
 
     check_export_paths(h5_dir, colmap_db)
     lines = []

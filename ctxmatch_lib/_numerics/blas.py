@@ -1,6 +1,5 @@
-"""One BLAS thread around the float32 products whose rounding must not depend on the thread count and around
-the filters' loops of skinny products (VFC, LLT, PFM: threads cost more than they give there), and the
-product blob matching's scan accumulates into its tile."""
+"""One BLAS thread (float32 products whose rounding must not follow the thread count, the filters' skinny
+products), and the in-place product blob matching's scan accumulates into its tile."""
 
 from __future__ import annotations
 
@@ -16,12 +15,9 @@ _modules = -1  # len(sys.modules) when the controller was made
 
 def one_blas_thread():
     """Context manager limiting every thread pool (BLAS, OpenMP) to one thread, as
-    ``threadpoolctl.threadpool_limits(1)`` does, through a controller kept between calls.
-
-    A new controller inspects every loaded library: 1-2 ms per call with OpenCV, numba and SciPy loaded, paid
-    by every blob matching call before. It is made again when modules have been imported since (a library
-    such as torch brings its own thread pools), so the limit covers what the process has loaded.
-    """
+    ``threadpoolctl.threadpool_limits(1)``, through a controller kept between calls (making one inspects
+    every loaded library). It is made again when modules have been imported since (torch brings its own
+    thread pools)."""
     global _controller, _modules
     if _controller is None or len(sys.modules) != _modules:
         _controller = ThreadpoolController()
@@ -32,10 +28,9 @@ def one_blas_thread():
 def accumulate_product(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """``out += a @ b.T`` in place, for C-contiguous float32 ``a`` (R, d), ``b`` (C, d) and ``out`` (R, C).
 
-    BLAS's ``sgemm`` with ``beta = 1``, through SciPy (NumPy's ``matmul`` has no ``beta``): with ``beta = 0``
-    OpenBLAS first zeroes the output in a pass of its own (a ``memset`` of the whole tile), and blob
-    matching's scan zeroes each tile row once it has read it, while the row is in cache. Into zeros the sum
-    is the product itself. 3 of the 48 ms of the tiles at n = m = 5000 (``benchmarks/bench_blob.py``).
+    BLAS's ``sgemm`` with ``beta = 1`` through SciPy (``matmul`` has no ``beta``): with ``beta = 0`` OpenBLAS
+    zeroes the whole tile in a pass of its own, whereas blob matching's scan zeroes each row while it is in
+    cache; into zeros the sum is the product itself.
     """
     for name, arr in (("a", a), ("b", b), ("out", out)):
         if arr.dtype != np.float32 or arr.ndim != 2 or not arr.flags.c_contiguous:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba import user_cache
+from .jit import user_cache
 
 __all__ = ["area_terms"]
 

@@ -1,21 +1,12 @@
 """Elementary functions whose bits do not depend on the CPU: ``exp``, ``log``, ``tanh``, ``sin``/``cos``, ``atan2``.
 
-numpy dispatches its transcendental ufuncs (``np.exp``, ``np.sin``, ``np.arctan2``, ``np.tanh``, ``np.log2``, …)
-at run time to AVX-512, AVX2 or baseline loops, and its baseline loops call the C library, which picks FMA or
-plain variants by CPU in turn. These differ in the last bit, so a value computed with them (an orientation
-angle, an elliptical frame, a Gaussian weight table) and anything quantised or decided from it would follow
-the CPU. The functions here are evaluated with the correctly rounded IEEE operations only (``+ − × ÷``,
-``rint``, ``floor``, ``ldexp``, comparisons), one numpy ufunc per operation: every SIMD width computes each
-of those to the same bits and no step can fuse a multiply with an add, so the result is the same on any
-CPU. ``exp`` and ``tanh``, the hot ones (patch networks, EM filters), run the same operations in a compiled
-loop (:mod:`ctxmatch_lib._fixedmath_kernels`, no ``fastmath``), tested bit for bit against the ufunc form.
-The algorithms are fdlibm's (Sun Microsystems, as in musl): argument reduction and minimax polynomials with
-an error below one unit in the last place.
-
-Inputs are float64 (float32 is widened exactly); finite inputs are expected (non-finite ones give NaN).
-
-OpenCV dispatches too (its SSE4, AVX2 and AVX-512 builds of blurs, remaps and SIFT, and Intel IPP, which picks
-its own code by CPU); :func:`opencv_baseline` runs a block on its baseline build for every CPU.
+numpy's transcendental ufuncs dispatch by CPU (AVX-512, AVX2 or baseline loops, and the C library's FMA or
+plain variants behind them) and differ in the last bit. These functions use only correctly rounded IEEE
+operations (``+ − × ÷``, ``rint``, ``floor``, ``ldexp``, comparisons), one ufunc per operation, so no step
+fuses a multiply with an add and every CPU gives the same bits. ``exp`` and ``tanh`` run the same operations
+in a compiled loop (:mod:`.fixedmath_kernels`). The algorithms are fdlibm's (as in musl): argument reduction
+and minimax polynomials, error below one unit in the last place. Inputs are float64 (float32 widened
+exactly); non-finite inputs give NaN. :func:`opencv_baseline` does the same for OpenCV, which dispatches too.
 """
 
 from __future__ import annotations
@@ -26,7 +17,7 @@ from contextlib import contextmanager
 import numpy as np
 
 # fdlibm's exp constants, shared with the compiled loop (_fixedmath_kernels) that exp and tanh call.
-from ._fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
+from .fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
 
 __all__ = ["atan", "atan2", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "sin", "sincos", "tanh"]
 
@@ -233,7 +224,7 @@ def exp(x) -> np.ndarray:
     """``e ** x`` (float64), the same bits on any CPU (fdlibm's ``exp``: ``x = k ln 2 + r``, a rational
     approximation of ``e ** r``, then an exact scaling by ``2 ** k``).
 
-    Evaluated by the compiled loop of :mod:`ctxmatch_lib._fixedmath_kernels` (the same operations, 4x
+    Evaluated by the compiled loop of :mod:`ctxmatch_lib._numerics.fixedmath_kernels` (the same operations, 4x
     faster); :func:`_exp_ufuncs` is this formula one numpy ufunc per operation, the reference it is tested on.
 
     Examples
@@ -241,7 +232,7 @@ def exp(x) -> np.ndarray:
     >>> np.round(exp([0.0, 1.0, -2.0]), 12).tolist()
     [1.0, 2.718281828459, 0.135335283237]
     """
-    from ._fixedmath_kernels import exp as compiled
+    from .fixedmath_kernels import exp as compiled
 
     return compiled(x)
 
@@ -315,7 +306,7 @@ def tanh(x) -> np.ndarray:
     >>> np.round(tanh([-1.0, 0.0, 0.5, 30.0]), 12).tolist()
     [-0.761594155956, 0.0, 0.46211715726, 1.0]
     """
-    from ._fixedmath_kernels import tanh as compiled
+    from .fixedmath_kernels import tanh as compiled
 
     return compiled(x)
 

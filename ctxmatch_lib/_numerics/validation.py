@@ -147,7 +147,7 @@ def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
         if _first_cv2_object(x, "KeyPoint"):
             raise ValueError(
                 f"{name} must be an (N, 2) array of (x, y) pixels, got a list of cv2.KeyPoint; convert it with "
-                f"ctxmatch_lib.interop.from_cv2_keypoints({name}) (returns kpts, shapes, angles, responses)")
+                f"ctxmatch_lib.io.interop.from_cv2_keypoints({name}) (returns kpts, shapes, angles, responses)")
         arr = np.asarray(x, dtype=np.float64)
         if arr.size == 0:
             arr = arr.reshape(0, 2)
@@ -165,7 +165,7 @@ def as_matches(matches, n1: int | None = None, n2: int | None = None, name: str 
     """Return matches as an int64 ``(K, 2)`` array, checking the indices against ``n1`` and ``n2``."""
     if _first_cv2_object(matches, "DMatch"):
         raise ValueError(f"{name} must be a (K, 2) array of indices, got a list of cv2.DMatch; convert it with "
-                         f"ctxmatch_lib.interop.from_cv2_matches({name})")
+                         f"ctxmatch_lib.io.interop.from_cv2_matches({name})")
     arr = np.asarray(matches)
     if arr.size == 0:
         return np.empty((0, 2), np.int64)

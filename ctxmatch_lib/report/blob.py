@@ -74,7 +74,7 @@ def heatmap_matrix(maps, features: str | None = None):
     d = d[d["features"] == features]
     if d.empty:
         raise ValueError(f"no rows for features {features!r}")
-    from .blob.config import COMBINES, GRID_F, GRID_T_O
+    from ..blob.config import COMBINES, GRID_F, GRID_T_O
 
     f_order = {_f_label(str(f), p): i for i, (f, p) in enumerate(GRID_F)}
     t_order = {_t_o_label(t, k): i for i, (t, k) in enumerate(GRID_T_O)}

@@ -265,8 +265,8 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True, bl
 
 
 #: The paper's Tables 1-3 and caption counts, parsed from its LaTeX source by ``python -m
-#: ctxmatch_lib.report_paper TEX`` (:func:`ctxmatch_lib.report_paper.parse_paper_tables`), shipped as package data.
-_PAPER_DATA = Path(__file__).with_name("data")
+#: ctxmatch_lib.report.paper TEX`` (:func:`ctxmatch_lib.report.paper.parse_paper_tables`), shipped as package data.
+_PAPER_DATA = Path(__file__).resolve().parents[1] / "data"
 _PAPER_TABLES_CSV = _PAPER_DATA / "paper_tables.csv"
 _PAPER_GT_COUNTS_CSV = _PAPER_DATA / "paper_gt_counts.csv"
 
@@ -291,7 +291,7 @@ def paper_table(setup: str | None = None) -> pd.DataFrame:
     ``none`` / ``1sac``, the paper's 18 methods); ``time (s)`` is NaN where the paper prints "--". The paper
     does not count empty outputs apart: its ``failures`` are pairs without a correct match, empty outputs
     included, and ``empty`` is NaN. Read from the package data ``ctxmatch_lib/data/paper_tables.csv``, parsed
-    from the paper's LaTeX source (:mod:`ctxmatch_lib.report_paper`)."""
+    from the paper's LaTeX source (:mod:`ctxmatch_lib.report.paper`)."""
     t = pd.read_csv(_PAPER_TABLES_CSV)
     t = t.rename(columns={"precision": "precision (%)", "recall": "recall (%)", "recall_star": "recall* (%)",
                           "time_s": "time (s)"})

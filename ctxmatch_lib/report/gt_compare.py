@@ -114,7 +114,7 @@ def rank_agreement(map_a: pd.DataFrame, map_b: pd.DataFrame, *, value: str = "mA
     Parameters
     ----------
     map_a, map_b : pandas.DataFrame
-        :func:`ctxmatch_lib.report_blob.blob_map` tables (columns ``features``, ``blob`` and ``value``).
+        :func:`ctxmatch_lib.report.blob.blob_map` tables (columns ``features``, ``blob`` and ``value``).
 
     Returns
     -------

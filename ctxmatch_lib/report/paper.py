@@ -1,7 +1,7 @@
 """Our results side by side with the paper's Tables 1-3 (Appendix "DTM evaluation") and the claims of Sec. 5.3.
 
 - :func:`parse_paper_tables` and :func:`parse_paper_gt_counts` read Tables 1-3 and the ground-truth counts of
-  their captions from the paper's LaTeX source; ``python -m ctxmatch_lib.report_paper TEX`` writes them to the
+  their captions from the paper's LaTeX source; ``python -m ctxmatch_lib.report.paper TEX`` writes them to the
   package data ``ctxmatch_lib/data/paper_tables.csv`` and ``paper_gt_counts.csv`` that
   :func:`ctxmatch_lib.report.paper_table` and :data:`ctxmatch_lib.report.PAPER_GT_COUNTS` read.
 - :func:`side_by_side` puts each cell of our :func:`~ctxmatch_lib.report.method_table` beside the paper's
@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .report import KIND_LABELS, MODEL_LABELS, PAPER_GT_COUNTS, PAPER_SETUP, SETUP_TITLES, markdown_table, paper_table
+from .tables import KIND_LABELS, MODEL_LABELS, PAPER_GT_COUNTS, PAPER_SETUP, SETUP_TITLES, markdown_table, paper_table
 
 __all__ = [
     "PAPER_TABLE_LABELS",
@@ -58,7 +58,7 @@ _INT_COLUMNS = ("correct", "output", "failures")
 _DECIMALS = {"precision": 2, "recall": 2, "recall_star": 2, "time_s": 3}
 _KINDS = {"planar": "planar", "nonplanar": "nonplanar"}
 _MODELS = {"nomodel": "none", "1sac": "1sac"}
-_DATA = Path(__file__).with_name("data")
+_DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _norm(text: str) -> str:
@@ -606,10 +606,10 @@ def check_claims(tables: dict, *, paper: dict | None = None) -> pd.DataFrame:
 
 
 def main(argv=None) -> int:
-    """``python -m ctxmatch_lib.report_paper TEX [OUT_DIR]``: write the paper's tables and counts as CSV."""
+    """``python -m ctxmatch_lib.report.paper TEX [OUT_DIR]``: write the paper's tables and counts as CSV."""
     argv = sys.argv[1:] if argv is None else argv
     if not 1 <= len(argv) <= 2:
-        print("usage: python -m ctxmatch_lib.report_paper TEX [OUT_DIR]", file=sys.stderr)
+        print("usage: python -m ctxmatch_lib.report.paper TEX [OUT_DIR]", file=sys.stderr)
         return 2
     for path in write_paper_data(argv[0], argv[1] if len(argv) > 1 else None):
         print(path)

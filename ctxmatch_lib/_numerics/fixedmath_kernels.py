@@ -1,4 +1,4 @@
-"""Compiled (numba) loops behind :func:`ctxmatch_lib._fixedmath.exp` and :func:`~ctxmatch_lib._fixedmath.tanh`.
+"""Compiled (numba) loops behind :func:`ctxmatch_lib._numerics.fixedmath.exp` and :func:`~ctxmatch_lib._numerics.fixedmath.tanh`.
 
 The numpy versions spend one ufunc, one full pass over memory and one temporary array per operation: about
 80 ns per value for ``tanh``, which was a third of the patch networks' time (:mod:`ctxmatch_lib.features._nn`
@@ -25,8 +25,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ._fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
-from ._numba import user_cache
+from .fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
+from .jit import user_cache
 
 __all__ = ["exp", "tanh", "tanh_f32"]
 

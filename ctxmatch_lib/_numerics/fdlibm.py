@@ -1,5 +1,5 @@
-"""fdlibm's ``exp`` constants, shared by :mod:`ctxmatch_lib._fixedmath` (the ufunc form) and
-:mod:`ctxmatch_lib._fixedmath_kernels` (the compiled loop), so that neither module imports the other's."""
+"""fdlibm's ``exp`` constants, shared by :mod:`ctxmatch_lib._numerics.fixedmath` (the ufunc form) and
+:mod:`ctxmatch_lib._numerics.fixedmath_kernels` (the compiled loop), so that neither module imports the other's."""
 
 # ln 2 in two parts (n * _LN2HI exact for |n| < 2^11), 1 / ln 2, and the remez coefficients.
 _LN2HI = 6.93147180369123816490e-01

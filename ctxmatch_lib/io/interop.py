@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_matches, as_points, as_scores
+from .._numerics.validation import as_matches, as_points, as_scores
 
 __all__ = [
     "from_cv2_keypoints",
@@ -352,8 +352,8 @@ def match_blob(desc1, desc2, lafs1=None, lafs2=None, dm=None, *, mr_size: float 
     """
     import torch
 
-    from .blob import blob_matching
-    from .match import resolve_blob
+    from ..blob import blob_matching
+    from ..match import resolve_blob
 
     cfg = resolve_blob(blob)
 

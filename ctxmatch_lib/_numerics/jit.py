@@ -6,7 +6,7 @@ from contextlib import contextmanager
 
 import numba
 
-from ._paths import cache_dir
+from ..cache import cache_dir
 
 __all__ = ["user_cache"]
 
@@ -14,7 +14,7 @@ __all__ = ["user_cache"]
 @contextmanager
 def user_cache():
     """Point numba's on-disk cache at the ctxmatch cache directory (``$CTXMATCH_CACHE/numba``, see
-    :func:`ctxmatch_lib._paths.cache_dir`) while kernels are decorated (numba picks a function's cache
+    :func:`ctxmatch_lib.cache.cache_dir`) while kernels are decorated (numba picks a function's cache
     location then), unless the user set ``NUMBA_CACHE_DIR``. Yields whether to cache at all: not when the
     cache directory cannot be created (numba would fall back to the package's own folder)."""
     previous = numba.config.CACHE_DIR

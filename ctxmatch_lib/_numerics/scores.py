@@ -20,7 +20,7 @@ __all__ = ["RATIOS", "NNRScores", "nnr_scores", "score_ratio", "nnr_threshold"]
 RATIOS = ("D>=", "D+>=", "D+")
 
 
-def _check_ratio(ratio, name: str = "ratio") -> str:
+def check_ratio(ratio, name: str = "ratio") -> str:
     if not isinstance(ratio, str) or ratio not in RATIOS:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, RATIOS))}, got {ratio!r}")
     return ratio
@@ -37,7 +37,7 @@ class NNRScores(np.ndarray):
 
     def __new__(cls, scores, ratio: str):
         obj = np.asarray(scores, dtype=np.float64).view(cls)
-        obj.ratio = _check_ratio(ratio)
+        obj.ratio = check_ratio(ratio)
         return obj
 
     def __array_finalize__(self, obj) -> None:
@@ -75,7 +75,7 @@ def nnr_scores(scores, ratio: str) -> NNRScores:
     >>> type(s * 2).__name__
     'ndarray'
     """
-    ratio = _check_ratio(ratio)
+    ratio = check_ratio(ratio)
     carried = score_ratio(scores)
     if carried is not None and carried != ratio:
         raise ValueError(f"scores carry ratio {carried!r}, not {ratio!r}")
@@ -98,4 +98,4 @@ def nnr_threshold(threshold: float, ratio: str) -> float:
     >>> nnr_threshold(0.8, "D>="), round(nnr_threshold(0.8, "D+"), 4)
     (0.8, 0.4444)
     """
-    return float(threshold) if _check_ratio(ratio) == "D>=" else float(threshold) / (1.0 + float(threshold))
+    return float(threshold) if check_ratio(ratio) == "D>=" else float(threshold) / (1.0 + float(threshold))
