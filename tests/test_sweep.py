@@ -8,6 +8,8 @@ import subprocess
 import sys
 import time
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -298,8 +300,50 @@ def test_units_without_filters_keep_their_key_when_a_filter_changes():
     pairs = select_pairs("embedded")[:1]
     blob_only = plan_units(pairs, filters=())[0]
     filtered = plan_units(pairs, filters=("th",))[0]
-    assert blob_only.salt == ev_cache.source_digest(filters=False)
-    assert filtered.salt == ev_cache.source_digest() != blob_only.salt
+    assert blob_only.salt == ev_cache.source_digest(())
+    assert filtered.salt == ev_cache.source_digest(("th",)) != blob_only.salt
+
+
+def _edited_copy(tmp_path, rel: str, old: str, new: str):
+    """A copy of the package with one code edit in ``rel``."""
+    import shutil
+
+    import ctxmatch_lib
+
+    src = Path(ctxmatch_lib.__file__).parent
+    dst = tmp_path / "ctxmatch_lib"
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__"))
+    path = dst / rel
+    text = path.read_text()
+    assert old in text, (rel, old)
+    path.write_text(text.replace(old, new, 1))
+    return dst
+
+
+@pytest.mark.parametrize("rel", ["io/export.py", "match.py", "cache.py", "cli/eval.py", "report/tables.py",
+                                 "plots/eval.py", "io/interop.py"])
+def test_editing_code_that_computes_no_number_keeps_every_key(tmp_path, rel):
+    """The key of a unit follows the code it runs: a code edit (not a docstring) in export, the cache folder's
+    module, the command line, plots, reports or interop keeps every key."""
+    from ctxmatch_lib.evaluation.cache import source_digest
+
+    root = _edited_copy(tmp_path, rel, "\n\n\n", "\n\n_EDITED_CONSTANT = 1\n\n\n")
+    for filters in [(), ("th",), ("dtm", "adalam")]:
+        assert source_digest(filters, package_root=root) == source_digest(filters), filters
+
+
+def test_editing_a_filter_renews_the_keys_of_its_units_only(tmp_path):
+    from ctxmatch_lib.evaluation.cache import source_digest
+
+    root = _edited_copy(tmp_path, "filters/th.py", "\n\n\n", "\n\n_EDITED_CONSTANT = 1\n\n\n")
+    assert source_digest(("th",), package_root=root) != source_digest(("th",))
+    assert source_digest(("dtm", "th"), package_root=root) != source_digest(("dtm", "th"))
+    assert source_digest((), package_root=root) == source_digest(())
+    assert source_digest(("dtm",), package_root=root) == source_digest(("dtm",))
+    # Code every unit runs (blob matching) renews every key.
+    root2 = _edited_copy(tmp_path / "b", "blob/core.py", "\n\n\n", "\n\n_EDITED_CONSTANT = 1\n\n\n")
+    for filters in [(), ("th",), ("dtm",)]:
+        assert source_digest(filters, package_root=root2) != source_digest(filters), filters
 
 
 def test_every_candidate_set_counts_the_context_build_once():

@@ -27,10 +27,10 @@ from ..datasets.base import Pair
 from ..features import Features
 
 __all__ = ["FORMAT", "digest", "pair_digest", "features_digest", "source_digest", "save_npz", "load_npz",
-           "engine_cache", "candidate_sets"]
+           "engine_cache", "candidate_sets", "code_closure"]
 
 # Bump when the rows or the cached intermediates change meaning: old parts and caches are then ignored.
-FORMAT = 4  # 4: the geometry columns and the OpenCV matcher rows (issue 30)
+FORMAT = 4
 
 
 def digest(*parts) -> str:
@@ -63,30 +63,95 @@ def features_digest(*feats: Features) -> str:
     return digest(*[a for f in feats for a in (f.kpts, f.shapes, f.desc)], *extra)
 
 
-@functools.lru_cache(maxsize=2)
-def source_digest(filters: bool = True) -> str:
-    """SHA-1 of the library source files and shipped models that produce evaluation numbers (all of
-    ``ctxmatch_lib`` but ``plots/``, ``cli/``, the report modules (``report``, ``report_blob``, ``report_paper``,
-    ``gt_compare``, which read the engine's rows) and the faces ``evalcache.py`` and ``sweep.py``).
+#: Modules a unit's key never follows into: the front door (it re-exports everything), the filters' registry
+#: (it imports every filter; a unit's key takes the filters it runs one by one) and the cache folder's module
+#: (paths and atomic writes, no numbers).
+_KEY_CUTS = ("ctxmatch_lib", "ctxmatch_lib.filters", "ctxmatch_lib.cache")
+#: The code every unit runs: the unit and, through its imports, the steps and the methods below them.
+_UNIT_ROOT = "ctxmatch_lib.evaluation.unit"
+
+
+_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+
+
+@functools.lru_cache(maxsize=4)
+def _import_graph(root: Path = _PACKAGE_ROOT) -> tuple[Path, dict]:
+    """The modules of the package at ``root`` and what each imports, read from the source (imports inside
+    functions included): ``(root, {module: (path, {imported modules})})``."""
+    paths = {}
+    for path in root.rglob("*.py"):
+        parts = list(path.relative_to(root.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        paths[".".join(parts)] = path
+    graph = {}
+    for name, path in paths.items():
+        package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                edges.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                edges.update(f"{target}.{a.name}" if f"{target}.{a.name}" in paths else target for a in node.names)
+        graph[name] = (path, {e for e in edges if e in paths and e != name})
+    return root, graph
+
+
+def code_closure(roots, *, package_root: Path = _PACKAGE_ROOT) -> list[str]:
+    """The library modules that ``roots`` run: the roots and everything they import, transitively, without
+    entering :data:`_KEY_CUTS` (a root may be inside one)."""
+    _, graph = _import_graph(package_root)
+    seen, todo = set(), [r for r in roots if r in graph]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        todo.extend(e for e in graph[name][1] if e not in seen and e not in _KEY_CUTS)
+    return sorted(seen)
+
+
+def _filter_module(name: str) -> str | None:
+    """The module that implements the registered filter ``name`` (a partial or a wrapper is unwrapped)."""
+    from ..filters import FILTERS
+
+    func = FILTERS.get(name)
+    while func is not None and (hasattr(func, "__wrapped__") or isinstance(func, functools.partial)):
+        func = func.func if isinstance(func, functools.partial) else func.__wrapped__
+    return getattr(func, "__module__", None)
+
+
+@functools.lru_cache(maxsize=64)
+def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAGE_ROOT) -> str:
+    """SHA-1 of the code a unit runs: the import closure of the unit (:func:`code_closure`: the steps, blob
+    matching, features, models, ground truth and metrics), of each filter it runs (the module that implements
+    the filter and its own imports), and the shipped models (``.npz``) of the packages in that closure.
 
     Python files enter by their syntax tree without docstrings and comments: a documentation edit keeps the
-    cache, any code edit (a constant, a default) renews it. ``filters=False`` also leaves out ``filters/`` and
-    ``dtm/`` (the spatial filters, which nothing else in the library imports): the key of units that run no
-    filter (the blob-matching sweeps), so that editing a filter keeps them."""
-    root = Path(__file__).resolve().parent.parent
-    # The faces and the report layer compute no numbers.
-    skip = {root / name for name in ("report.py", "report_blob.py", "report_paper.py", "gt_compare.py", "evalcache.py",
-                                     "sweep.py")}
+    cache, any code edit (a constant, a default) renews it. The command line, plots, reports, export and
+    interop, the cache folder's module and the filters a unit does not run are outside the closure, so editing
+    them keeps its rows. A filter registered from outside the library enters by its module's name.
+    ``package_root``: the package folder to read (a copy of ``ctxmatch_lib``, in the tests)."""
+    root, graph = _import_graph(Path(package_root))
+    modules = [_filter_module(n) for n in filters]
+    closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in graph)], package_root=Path(package_root))
     h = hashlib.sha1()
-    # Shipped models (LMR's trees, the learned filters' and the stand-in descriptors' weights, all .npz) produce
-    # numbers too.
-    files = [*root.rglob("*.py"), *root.rglob("*.npz")]
-    for path in sorted(files):
-        rel = path.relative_to(root)
-        if path in skip or rel.parts[0] in ("plots", "cli") or (not filters and rel.parts[0] in ("filters", "dtm")):
-            continue
-        h.update(str(rel).encode())
-        h.update(_code_bytes(path) if path.suffix == ".py" else path.read_bytes())
+    for name in closure:
+        h.update(name.encode())
+        h.update(_code_bytes(graph[name][0]))
+    for name in modules:
+        if name not in graph:
+            h.update(repr(name).encode())
+    packages = {graph[name][0].parent for name in closure}
+    for path in sorted(root.rglob("*.npz")):
+        if any(folder in path.parents for folder in packages):
+            h.update(str(path.relative_to(root)).encode())
+            h.update(path.read_bytes())
     return h.hexdigest()
 
 

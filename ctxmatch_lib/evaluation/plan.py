@@ -244,8 +244,8 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
 
 
 def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
-    # Units without filters do not depend on the filters' code (source_digest's filters=False).
-    salt = source_digest(filters=bool(st["filters"])) if salt is None else salt
+    # A unit's key follows the code it runs: its filters' code, not the others'.
+    salt = source_digest(tuple(st["filters"])) if salt is None else salt
     return [SweepUnit(str(dataset_name), pair, fname, fcfg, st["blobs"], st["filters"], st["models"], st["fparams"],
                       st["gt_method"], st["gt_threshold"], st["model_threshold"], st["seed"],
                       blob_names=st["blob_names"], salt=salt, matchers=st["matchers"], estimator=st["estimator"])
