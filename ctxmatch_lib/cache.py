@@ -1,16 +1,11 @@
-"""The user's cache folder: where ctxmatch keeps its caches, writes them atomically, looks for real data,
-and what each part of the cache takes and how it is cleared.
+"""The user's cache folder (:func:`cache_root`), atomic writes (:func:`atomic_path`), the real-data root
+(:func:`data_root`), output-path checks (:func:`check_writable`) and the parts of the cache
+(:data:`CACHE_PARTS`) that ``ctxmatch cache`` shows (:func:`cache_usage`) and clears (:func:`clear_cache`).
 
-The cache (:func:`ctxmatch_lib.cache.cache_root`: ``$CTXMATCH_CACHE``, else ``$XDG_CACHE_HOME/ctxmatch`` or
-``~/.cache/ctxmatch``) is split into parts by folder (:data:`CACHE_PARTS`). ``ctxmatch cache`` prints
-:func:`cache_usage`; ``ctxmatch cache clear`` runs :func:`clear_cache`.
-
-Clearing never reaches outside the cache folder: links are never followed (a link inside the cache is removed
-as a link, its target untouched), folders on another file system (mount points) are skipped, and a folder
-that does not hold the cache's marker (:data:`ctxmatch_lib.cache.CACHE_MARKER`) is refused. It is safe while
-another process writes to the cache: every cache file is written under a temporary name and renamed into
-place, and temporary files younger than :data:`IN_PROGRESS_GRACE` seconds are kept; a file removed while a
-run reads the cache is a miss, recomputed.
+Clearing never reaches outside the cache folder: links are removed as links, never followed, other file
+systems are skipped, and a folder without the cache's marker (:data:`CACHE_MARKER`) is refused. It is safe
+while another process writes: files are written under a temporary name and renamed into place, temporary
+files younger than :data:`IN_PROGRESS_GRACE` are kept, and a file removed under a reader is a cache miss.
 """
 
 from __future__ import annotations
@@ -67,15 +62,8 @@ def cache_root() -> Path:
 
 
 def cache_dir(sub: str | None = None) -> Path:
-    """The cache folder: ``$CTXMATCH_CACHE`` if set, else the user's cache directory,
-    ``$XDG_CACHE_HOME/ctxmatch`` (``~/.cache/ctxmatch`` when ``XDG_CACHE_HOME`` is unset).
-
-    Never the checkout unless ``CTXMATCH_CACHE`` says so. ``sub`` names a sub-folder (created on demand):
-    ``features`` (extracted keypoints and descriptors), ``sweep`` (the evaluation cache of ``ctxmatch
-    eval``, ``ctxmatch sweep`` and the report notebooks: result parts and intermediates), ``weights`` (what
-    ``ctxmatch train`` writes without ``--output``). The folder gets the cache's marker (:func:`mark_cache`)
-    when it is created, or when it holds nothing but the cache's own sub-folders.
-    """
+    """The cache folder (:func:`cache_root`), created with its marker (:func:`mark_cache`), or its sub-folder
+    ``sub`` (:data:`CACHE_SUBFOLDERS`, created on demand)."""
     base = cache_root()
     base.mkdir(parents=True, exist_ok=True)
     if str(base) not in _CHECKED:
@@ -100,14 +88,9 @@ def is_marked_cache(folder) -> bool:
 
 
 def mark_cache(folder) -> bool:
-    """Write the cache's marker into ``folder`` when the folder is clearly the cache's; return whether it is
-    marked.
-
-    A folder is the cache's when it is empty (the cache has just created it) or holds nothing but the
-    sub-folders the package creates there (:data:`CACHE_SUBFOLDERS`, real folders, not links): a cache made
-    before the marker existed. A folder holding anything else is left unmarked, and ``ctxmatch cache clear``
-    refuses to delete in it.
-    """
+    """Write the cache's marker into ``folder`` when it is clearly the cache's: empty, or holding nothing but
+    real folders of :data:`CACHE_SUBFOLDERS`. Returns whether it is marked; ``ctxmatch cache clear``
+    refuses to delete in an unmarked folder."""
     folder = Path(folder)
     if is_marked_cache(folder):
         return True
@@ -129,10 +112,8 @@ def mark_cache(folder) -> bool:
 
 
 def data_root(required: bool = False) -> Path | None:
-    """The real-data root from ``$CTXMATCH_DATA`` (its README describes the layout), or ``None``.
-
-    With ``required=True`` a missing root raises ``FileNotFoundError`` explaining how to set it.
-    """
+    """The real-data root from ``$CTXMATCH_DATA`` (its README describes the layout), or ``None``; with
+    ``required=True`` a missing root raises ``FileNotFoundError`` explaining how to set it."""
     env = os.environ.get("CTXMATCH_DATA")
     if env and Path(env).is_dir():
         return Path(env)
@@ -147,10 +128,8 @@ def data_root(required: bool = False) -> Path | None:
 def check_writable(path, name: str, *, folder: bool = False) -> Path:
     """Check, before any work and without creating anything, that ``path`` can be written.
 
-    A file (``folder=False``) must not be a folder, and either be a writable file or be creatable: its
-    nearest existing ancestor must be a writable folder (not a file). A folder (``folder=True``) must be a
-    writable folder or be creatable the same way. Commands call this on every output path first, so a bad
-    path fails at once instead of after the computation.
+    The path must be a writable file (a folder with ``folder=True``) or be creatable: its nearest existing
+    ancestor a writable folder. Commands call this on every output path first, so a bad path fails at once.
 
     Parameters
     ----------
@@ -169,8 +148,7 @@ def check_writable(path, name: str, *, folder: bool = False) -> Path:
     Raises
     ------
     ValueError
-        Naming ``name`` and the reason: a folder where a file is wanted (or the reverse), a file in the way of
-        a folder to create, or no write permission.
+        Naming ``name`` and the reason (a folder for a file or the reverse, a file in the way, no permission).
 
     Examples
     --------
@@ -228,10 +206,9 @@ def _umask() -> int:
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path`` in one ``os.replace``.
 
-    Readers never see a half-written file, and an interrupted write leaves nothing behind. The temporary
-    name is hidden and ends in ``.tmp``, so globs for the real suffix never pick it up; writers that infer
-    the format from the suffix must be told it. The file gets the mode a plain ``open(path, "w")`` would
-    give (``0o666`` less the umask), not the ``0o600`` of a temporary file.
+    Readers never see a half-written file and an interrupted write leaves nothing. The name is hidden and
+    ends in ``.tmp`` (writers that infer the format from the suffix must be told it); the file gets
+    ``open(path, "w")``'s mode (``0o666`` less the umask), not ``0o600``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -352,11 +329,8 @@ class CacheUsage:
 
 @dataclass(frozen=True)
 class ClearResult:
-    """What :func:`clear_cache` removed (or would remove, ``dry_run``) per selected part.
-
-    ``kept_in_progress`` counts temporary files kept because a running process may still be writing them;
-    ``skipped`` lists folders left alone because they are on another file system (relative paths).
-    """
+    """What :func:`clear_cache` removed (or would, ``dry_run``) per selected part; ``kept_in_progress``
+    counts temporary files a process may still be writing, ``skipped`` the folders on another file system."""
 
     root: Path
     dry_run: bool
@@ -556,8 +530,7 @@ def cache_usage(root=None) -> CacheUsage:
     Parameters
     ----------
     root : str or Path, optional
-        The cache folder; default :func:`ctxmatch_lib.cache.cache_root` (``$CTXMATCH_CACHE``, else the user's
-        cache directory).
+        The cache folder; default :func:`cache_root`.
 
     Returns
     -------
@@ -602,19 +575,17 @@ def clear_cache(parts, *, older_than=None, dry_run: bool = False, root=None) -> 
     dry_run : bool
         Count what would be removed, remove nothing.
     root : str or Path, optional
-        The cache folder; default :func:`ctxmatch_lib.cache.cache_root`.
+        The cache folder; default :func:`cache_root`.
 
     Returns
     -------
     ClearResult
-        Bytes and files removed per selected part (would be removed, in a dry run).
 
     Raises
     ------
     ValueError
-        An unknown part or a bad ``older_than`` (named); a cache folder that is not a folder, or that holds
-        no marker and is not clearly the cache's (see :func:`ctxmatch_lib.cache.mark_cache`): nothing is
-        removed then.
+        An unknown part, a bad ``older_than``, or a cache folder that is not clearly the cache's
+        (:func:`mark_cache`): nothing is removed then.
 
     Examples
     --------

@@ -1,29 +1,23 @@
-"""Accuracy of an estimated two-view model against the ground truth, and its AUC over pairs (issue 30).
+"""Accuracy of an estimated two-view model against the ground truth, and its AUC over pairs.
 
 The metrics the field reports after a robust estimator, beside the paper's match-level numbers:
 
-* planar pairs: the **mean corner error** of an estimated homography (:func:`homography_corner_error`): the
-  four corners of image 1 mapped by the estimate and by the ground truth, the mean of the four distances
-  in image-2 pixels (glue-factory's ``homography_corner_error``, ``gluefactory/geometry/homography.py``);
-  ``inf`` when there is no model;
-* pairs with ground-truth correspondences (hand-taken points, or the dense flow of depth and synthetic pairs
-  sampled by :func:`gt_correspondences`): the **share of them consistent with an estimated F**, i.e. whose
-  symmetric epipolar distance (:func:`symmetric_epipolar_distance`) is at most ``theta`` pixels, for
-  ``theta`` = 1 ... 19 (:func:`epipolar_consistency`; the WxBS benchmark's
-  ``fraction_of_gt_corrs_consisent_with_F``, ducha-aiki/wxbs-benchmark ``metrics.ipynb``); 0 when there is
-  no model;
-* over pairs: the **AUC** of the cumulative error curve up to a threshold (:func:`pose_auc`, SuperGlue's
-  ``pose_auc``, ``models/utils.py`` of magicleap/SuperGluePretrainedNetwork): pairs without a model enter
-  with an infinite error and stay in the denominator.
+* planar pairs: the mean corner error of a homography (:func:`homography_corner_error`, glue-factory's);
+* pairs with ground-truth correspondences (hand-taken points, or dense flow sampled by
+  :func:`gt_correspondences`): the share consistent with an estimated F within 1 ... 19 px
+  (:func:`epipolar_consistency`, the WxBS benchmark's ``fraction_of_gt_corrs_consisent_with_F``);
+* over pairs: the AUC of the cumulative error curve (:func:`pose_auc`, SuperGlue's), pairs without a model
+  at an infinite error.
 
-Keypoints and points are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left
-pixel; ``H`` maps image 1 to image 2 and ``F`` satisfies ``x2^T F x1 = 0``.
+Points are (x, y) pixels, origin at the centre of the top-left pixel; ``H`` maps image 1 to image 2 and
+``F`` satisfies ``x2^T F x1 = 0``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._numerics.docstrings import shared_doc
 from ._numerics.validation import as_points
 from .datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .geometry import apply_homography, epipolar_distances
@@ -43,12 +37,10 @@ __all__ = [
     "geometry_table",
 ]
 
-#: The thresholds ``theta`` of the epipolar consistency, in pixels: 1 ... 19 (WxBS scores 0 ... 19; the share
-#: at 0 px is 0 for any real estimate, so it is left out of the mean here).
+#: The thresholds of the epipolar consistency, in pixels: 1 ... 19 (WxBS's 0 gives 0 for any real estimate).
 EPIPOLAR_THRESHOLDS_PX = np.arange(1, 20, dtype=np.float64)
 
-#: The thresholds of the AUC of the corner error that glue-factory's HPatches evaluation reports (1, 3, 5 px),
-#: and 10 px.
+#: The thresholds of the AUC of the corner error: glue-factory's HPatches ones (1, 3, 5 px) and 10 px.
 CORNER_AUC_THRESHOLDS_PX = (1.0, 3.0, 5.0, 10.0)
 
 #: The thresholds of the AUC of the pose error (degrees) that SuperGlue, LoFTR, glue-factory and fb82/MiHo report.
@@ -59,14 +51,8 @@ FLOW_SAMPLE_POINTS = 2000
 
 
 def image_corners(image_size) -> np.ndarray:
-    """The four outer corners of an image of ``(width, height)`` pixels, clockwise from the top left.
-
-    With the origin at the centre of the top-left pixel, the image spans ``[-0.5, width - 0.5]`` by
-    ``[-0.5, height - 0.5]``.
-
-    Returns
-    -------
-    ndarray of shape (4, 2)
+    """The four outer corners, ``(4, 2)``, of an image of ``(width, height)`` pixels, clockwise from the top
+    left: the image spans ``[-0.5, width - 0.5]`` by ``[-0.5, height - 0.5]``.
 
     Examples
     --------
@@ -86,10 +72,9 @@ def image_corners(image_size) -> np.ndarray:
 def homography_corner_error(H, H_gt, image_size) -> float:
     """Mean distance between the image-1 corners mapped by ``H`` and by ``H_gt``, in image-2 pixels.
 
-    glue-factory's ``homography_corner_error`` (the HPatches metric of SuperPoint, LoFTR and LightGlue):
-    the four corners of image 1 (:func:`image_corners`) are mapped by both homographies and the four
-    Euclidean distances averaged. glue-factory puts the origin at the top-left corner of the top-left pixel;
-    the same homographies written in that convention give the same value.
+    glue-factory's ``homography_corner_error`` (``gluefactory/geometry/homography.py``, the HPatches metric
+    of SuperPoint, LoFTR and LightGlue) on the corners of :func:`image_corners`; the same homographies in
+    glue-factory's corner origin give the same value.
 
     Parameters
     ----------
@@ -130,19 +115,18 @@ def _matrix(M, name: str) -> np.ndarray:
     return M
 
 
+@shared_doc
 def symmetric_epipolar_distance(F, pts1, pts2) -> np.ndarray:
     """``sqrt(d1^2 + d2^2)``: the two point-to-epipolar-line distances of each correspondence combined.
 
-    ``d2`` is the distance in image 2 of ``x2`` from the line ``F x1``, ``d1`` that in image 1 of ``x1`` from
-    ``F^T x2`` (:func:`~ctxmatch_lib.geometry.epipolar_distances`). This is kornia's
-    ``symmetrical_epipolar_distance(..., squared=False)``, the distance the WxBS benchmark thresholds:
-    ``(x2^T F x1)^2 (1 / |(F x1)_{1,2}|^2 + 1 / |(F^T x2)_{1,2}|^2)``, square-rooted.
+    ``d2`` is the distance of ``x2`` from the line ``F x1``, ``d1`` that of ``x1`` from ``F^T x2``
+    (:func:`~ctxmatch_lib.geometry.epipolar_distances`): kornia's ``symmetrical_epipolar_distance(...,
+    squared=False)``, the distance the WxBS benchmark thresholds.
 
     Parameters
     ----------
     F : array_like of shape (3, 3)
-    pts1, pts2 : array_like of shape (N, 2)
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
+    %(pts)s
 
     Returns
     -------
@@ -160,6 +144,7 @@ def symmetric_epipolar_distance(F, pts1, pts2) -> np.ndarray:
     return np.hypot(d1, d2)
 
 
+@shared_doc
 def epipolar_consistency(F, pts1, pts2, thresholds=EPIPOLAR_THRESHOLDS_PX) -> np.ndarray:
     """Share of ground-truth correspondences whose symmetric epipolar distance under ``F`` is at most
     each threshold (the WxBS benchmark's score of a fundamental matrix).
@@ -168,10 +153,9 @@ def epipolar_consistency(F, pts1, pts2, thresholds=EPIPOLAR_THRESHOLDS_PX) -> np
     ----------
     F : array_like of shape (3, 3) or None
         The estimate; ``None`` when the estimator found no model (every share is then 0).
-    pts1, pts2 : array_like of shape (N, 2)
-        Ground-truth correspondences, (x, y) pixels, origin at the centre of the top-left pixel.
+    %(pts)s
     thresholds : array_like of shape (T,)
-        In pixels (default 1 ... 19).
+        In pixels.
 
     Returns
     -------
@@ -200,13 +184,8 @@ def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
     """Ground-truth correspondences to score a fundamental matrix on, or ``None``.
 
     ``EpipolarGT``: its hand-taken points. ``FlowGT``: up to ``max_points`` pixels of image 1 with a known
-    displacement, evenly spaced in row-major order (deterministic), each with its target ``x + flow12``.
-    ``HomographyGT``: ``None`` (planar pairs are scored by the corner error); ``PoseGT``: ``None`` (calibrated
-    pairs are scored by the relative pose).
-
-    Returns
-    -------
-    (pts1, pts2) : ndarrays of shape (N, 2), or None
+    displacement, evenly spaced in row-major order, and their targets ``x + flow12``. ``HomographyGT`` and
+    ``PoseGT``: ``None`` (scored by the corner error and the relative pose).
     """
     if isinstance(gt, EpipolarGT):
         return np.asarray(gt.pts1, np.float64), np.asarray(gt.pts2, np.float64)
@@ -228,10 +207,9 @@ def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
 def pose_auc(errors, thresholds) -> np.ndarray:
     """Area under the cumulative error curve up to each threshold, divided by the threshold.
 
-    SuperGlue's ``pose_auc``: the recall ``r(e)`` (share of pairs with an error below ``e``) is linearly
-    interpolated between the sorted errors, starting from ``(0, 0)``, integrated from 0 to ``t`` and divided
-    by ``t``. Every pair stays in the denominator: a pair without a model has an infinite error (NaN counts
-    as infinite too). An error equal to ``t`` counts from above ``t``, as there.
+    SuperGlue's ``pose_auc`` (``models/utils.py`` of magicleap/SuperGluePretrainedNetwork): the share of pairs
+    with an error below ``e``, linearly interpolated from ``(0, 0)`` between the sorted errors. Every pair
+    stays in the denominator (NaN counts as ``inf``); an error equal to ``t`` counts from above, as there.
 
     Parameters
     ----------
@@ -270,22 +248,10 @@ def pose_auc(errors, thresholds) -> np.ndarray:
 
 
 def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn")):
-    """Seconds from the features to the model of each row of the evaluation engine: the row's ``time_s`` and
-    ``model_time_s``, plus, for a filter, the ``time_s`` of the blob candidates it filtered (the ``blob`` row
-    of the same pair, features and blob setup). NaN for model ``none``.
-
-    Parameters
-    ----------
-    rows : pandas.DataFrame
-        Rows with :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`.
-    standalone : sequence of str
-        Methods that do not run on the blob candidates (the blob candidates themselves, the OpenCV matchers).
-
-    Returns
-    -------
-    pandas.Series
-        Aligned with ``rows``.
-    """
+    """Seconds from the features to the model, per row of ``rows``
+    (:data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`): ``time_s + model_time_s``, plus for a filter the
+    ``time_s`` of the ``blob`` row it filtered (methods in ``standalone`` do not run on the blob candidates).
+    NaN for model ``none``; a Series aligned with ``rows``."""
     keys = ["dataset", "pair_id", "features", "blob"]
     blob_time = rows[rows["method"] == "blob"].groupby(keys)["time_s"].first().rename("_blob_time_s")
     base = rows[keys].join(blob_time, on=keys)["_blob_time_s"].where(~rows["method"].isin(standalone), 0.0)
@@ -295,30 +261,18 @@ def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn"))
 
 def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX,
                    pose_thresholds=POSE_AUC_THRESHOLDS_DEG):
-    """The model's accuracy over pairs, per group: the AUC of the corner error (planar rows), the mean
-    epipolar consistency (other rows), the AUC of the pose error (calibrated rows), pairs left without a
-    model, the mean time to geometry.
-
-    Parameters
-    ----------
-    rows : pandas.DataFrame
-        Rows of the evaluation engine; rows with model ``none`` or an ``error`` are left out.
-    by : sequence of str
-        Grouping columns.
-    thresholds : sequence of float
-        Of the AUC (:func:`pose_auc`) of the corner error, in pixels.
-    pose_thresholds : sequence of float
-        Of the AUC of the pose error, in degrees.
+    """The model's accuracy over pairs, per group of ``by`` columns of the engine's ``rows`` (model ``none``
+    and rows with an ``error`` left out).
 
     Returns
     -------
     pandas.DataFrame
-        Indexed by ``by``: ``pairs``, ``auc_<t>px_pct`` (planar: :func:`pose_auc` of ``corner_error`` in %,
-        pairs without a model at infinity), ``epi_share_mean_pct`` and ``epi_share_<t>_pct`` (other kinds: means
-        over pairs in %), ``auc_<t>deg_pct`` (calibrated: :func:`pose_auc` of ``pose_err`` in %, pairs without
-        a pose at infinity), ``no_model`` (pairs where the estimator returned no model), ``geometry_time_s`` and
-        ``geometry_time_median_s`` (mean and median :func:`time_to_geometry`: the mean carries any one-off cost,
-        such as compiling kernels on a cold cache, charged to the first pair).
+        Indexed by ``by``: ``pairs``; ``auc_<t>px_pct`` (planar: :func:`pose_auc` of ``corner_error`` at
+        ``thresholds`` px, in %); ``epi_share_mean_pct``, ``epi_share_<t>_pct`` (other kinds: means over pairs
+        in %); ``auc_<t>deg_pct`` (calibrated: :func:`pose_auc` of ``pose_err`` at ``pose_thresholds``
+        degrees, in %); ``no_model`` (pairs without a model); ``geometry_time_s`` and
+        ``geometry_time_median_s`` (mean and median :func:`time_to_geometry`; the mean carries one-off costs
+        such as compiling kernels on a cold cache).
     """
     import pandas as pd
 

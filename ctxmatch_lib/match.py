@@ -180,7 +180,7 @@ def resolve_blob(blob="paper-best"):
     return BlobConfig(**params)
 
 
-def _as_filter_list(filters) -> tuple[str, ...]:
+def as_filter_list(filters) -> tuple[str, ...]:
     from .evaluation.steps import check_filters
 
     if filters is None:
@@ -286,7 +286,7 @@ def match_images(
 
     cfg_feat = resolve_features(features, max_keypoints=max_keypoints)
     cfg_blob = resolve_blob(blob)
-    names = _as_filter_list(filters)
+    names = as_filter_list(filters)
     if model not in MODEL_STEPS:
         raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
     if model_kind not in ("F", "H"):
@@ -588,7 +588,7 @@ def _settings_key(kwargs: Mapping) -> str:
         "features": asdict(resolve_features(kwargs.get("features", "sift-rootsift"),
                                             max_keypoints=kwargs.get("max_keypoints"))),
         "blob": resolve_blob(kwargs.get("blob", "paper-best")).kwargs(),
-        "filters": list(_as_filter_list(kwargs.get("filters", ("dtm",)))),
+        "filters": list(as_filter_list(kwargs.get("filters", ("dtm",)))),
         "filter_params": dict(kwargs.get("filter_params") or {}),
         "model": kwargs.get("model", "none"),
         "model_kind": kwargs.get("model_kind", "F"),

@@ -1,28 +1,18 @@
 """Match-set statistics of Sec. 5.1 and Appendix "DTM evaluation": precision, normalised recall, recall*,
 correct/output counts, failure, AP and mAP.
 
-Counting with many-to-many matches (Sec. 5.1, Fig. 4). A set ``Z`` of correct matches is counted as
-``min(|Z_rows|, |Z_cols|)`` -- the number of distinct image-1 keypoints or distinct image-2 keypoints it
-uses, whichever is smaller -- instead of ``|Z|``, so a keypoint matched several times is counted once.
-Both the numerator and the denominator of the recall are counted this way; for one-to-one matches it is
-the usual count. The precision is computed as usual, ``correct / output``.
+With many-to-many matches (Sec. 5.1, Fig. 4) a set ``Z`` of correct matches counts ``min(|Z_rows|,
+|Z_cols|)``, its distinct image-1 or image-2 keypoints, whichever fewer (the usual count for one-to-one
+matches), in both terms of the recall; the precision is ``correct / output``. The recall reference is the
+correct blob candidates of the same pipeline (Sec. 5.3); recall* uses the union of the correct matches over
+all configurations tested on the pair (Appendix, Tables 1-3).
 
-The recall reference is the set of ground-truth-correct matches among the blob candidates of the same
-pipeline (Sec. 5.3: a filter cannot output matches it was not given); recall* uses instead the union of
-the correct matches over all the configurations tested on the pair (Appendix, Tables 1-3).
+Degenerate cases, so that means over pairs are defined:
 
-Conventions for degenerate cases (documented so that averages over pairs are well defined):
-
-* empty output (no match at all): ``empty_output`` is ``True`` and ``failure`` ``False``; precision 0, recall 0
-  (when the reference is not empty), AP 0. Means over pairs therefore count an empty output as 0 %
-  precision and 0 % recall, as the paper's averages do; tables report the number of empty outputs in
-  their own column so that a method that gives up is told apart from one that is wrong;
-* wrong output (matches, none of them correct): ``failure`` is ``True``. The paper's "failure" (no correct
-  match in the output) is ``failure or empty_output``;
-* empty reference (no correct candidate at all): recall, recall* and AP are NaN (undefined; pandas' mean
-  skips them), precision, failure and empty_output as above.
-
-``matches`` are ``(K, 2)`` int64 indices into the keypoints of images 1 and 2.
+* empty output: ``empty_output`` True, ``failure`` False, precision, recall and AP 0 (as the paper's means);
+  tables count empty outputs in their own column;
+* wrong output (matches, none correct): ``failure`` True; the paper's failure is ``failure or empty_output``;
+* empty reference: recall, recall* and AP are NaN (pandas' mean skips them).
 """
 
 from __future__ import annotations
@@ -48,15 +38,8 @@ __all__ = [
 
 
 def normalised_count(matches) -> int:
-    """``min(|Z_rows|, |Z_cols|)``: distinct image-1 or image-2 keypoints, whichever fewer (Sec. 5.1, Fig. 4).
-
-    Parameters
-    ----------
-    matches : array_like of shape (K, 2), int
-
-    Returns
-    -------
-    int
+    """``min(|Z_rows|, |Z_cols|)`` of ``(K, 2)`` matches: distinct image-1 or image-2 keypoints, whichever
+    fewer (Sec. 5.1, Fig. 4).
 
     Examples
     --------
@@ -72,12 +55,7 @@ def normalised_count(matches) -> int:
 
 
 def cumulative_normalised_count(matches) -> np.ndarray:
-    """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (for ranked lists).
-
-    Returns
-    -------
-    ndarray of shape (K,), int64
-    """
+    """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (int64, for ranked lists)."""
     m = as_matches(matches)
     if len(m) == 0:
         return np.empty(0, np.int64)
@@ -135,17 +113,8 @@ def recall(matches, is_correct, reference) -> float:
 
 
 def ground_truth_union(*correct_sets) -> np.ndarray:
-    """Union of sets of correct matches (same keypoints), e.g. over the configurations tested on a pair.
-
-    Parameters
-    ----------
-    *correct_sets : array_like of shape (M_i, 2), int
-
-    Returns
-    -------
-    ndarray of shape (M, 2), int64
-        Distinct matches, sorted lexicographically.
-    """
+    """Union of ``(M_i, 2)`` sets of correct matches on the same keypoints (e.g. over the configurations
+    tested on a pair): the distinct matches, int64, sorted lexicographically."""
     sets = [as_matches(s, name=f"correct_sets[{i}]") for i, s in enumerate(correct_sets)]
     if not sets:
         return np.empty((0, 2), np.int64)
@@ -158,16 +127,11 @@ def ground_truth_union(*correct_sets) -> np.ndarray:
 def average_precision(matches, is_correct, scores, reference) -> float:
     """Average precision of the ranking of ``matches`` by ascending score, with the normalised recall.
 
-    Definition: walking down the ranking (stable sort, ties keep their given order), the precision at
-    rank ``k`` is ``P_k = (#correct in the top k) / k`` and the normalised count of the correct matches
-    in the top ``k`` is ``N_k`` (:func:`cumulative_normalised_count`). Then
-
-    ``AP = sum_k P_k * (N_k - N_{k-1}) / normalised_count(reference)``,
-
-    the area under the precision-recall curve of the ranking with the recall of Sec. 5.1. A correct match
-    that only repeats an already counted keypoint adds no recall and so no area. For the blob candidates
-    themselves (``reference`` = their correct subset) ``AP`` is 1 exactly when every correct match is
-    ranked before every wrong one; for a filtered subset it integrates up to the subset's recall.
+    With ``P_k = (#correct in the top k) / k`` (stable sort) and ``N_k`` the normalised count of the correct
+    matches in the top ``k`` (:func:`cumulative_normalised_count`),
+    ``AP = sum_k P_k * (N_k - N_{k-1}) / normalised_count(reference)``: the area under the precision-recall
+    curve with the recall of Sec. 5.1 (a correct match repeating a counted keypoint adds none). For the blob
+    candidates themselves AP is 1 exactly when every correct match ranks before every wrong one.
 
     Parameters
     ----------
@@ -216,12 +180,8 @@ def _area_terms_numpy(rows, cols, lab, scores) -> np.ndarray:
 def ranked_area(rows, cols, lab, scores) -> np.float64:
     """``sum_k P_k * (N_k - N_{k-1})``, the numerator of :func:`average_precision`, for candidates given by
     their ``rows``, ``cols`` (int arrays), labels ``lab`` (bool) and float64 ``scores`` (lower first, ties in
-    the given order); divide by the reference size for the AP.
-
-    The terms (``P_k`` times the step of ``N_k`` at each correct candidate's rank, +0.0 elsewhere) come from
-    one compiled pass (:func:`ctxmatch_lib._numerics.ranking.area_terms`; scores with NaN the direct way):
-    the same numbers in the same places as the direct definition's, summed by numpy, so the sum is
-    bit-identical to it (tested).
+    the given order). The terms come from one compiled pass (:func:`ctxmatch_lib._numerics.ranking.area_terms`;
+    NaN scores the direct way, :func:`_area_terms_numpy`), bit-identical to the direct ones.
     """
     lab = np.asarray(lab, bool)
     scores = np.asarray(scores, np.float64)
@@ -247,16 +207,10 @@ class MatchMetrics:
     ----------
     precision, recall, recall_star, ap : float
         In [0, 1]; recall, recall* and AP are NaN when their reference is empty.
-    correct : int
-        Correct output matches (plain count).
-    correct_norm : int
-        Correct output matches, normalised count (the recall numerator).
-    output : int
-        Output matches.
-    failure : bool
-        A wrong output: matches, none of them correct.
-    empty_output : bool
-        No match in the output (not a failure; the paper's failure is ``failure or empty``).
+    correct, correct_norm, output : int
+        Correct output matches (plain and normalised count, the recall numerator), output matches.
+    failure, empty_output : bool
+        Matches, none correct; no match at all (see the module).
     n_gt, n_gt_star : int
         Normalised size of the recall and recall* references.
     time_s : float
@@ -294,7 +248,7 @@ def evaluate_matches(
     Parameters
     ----------
     matches : array_like of shape (K, 2), int
-        The output matches (indices into the keypoints of images 1 and 2).
+        The output matches.
     is_correct : array_like of shape (K,), bool
         Their ground-truth labels.
     reference : array_like of shape (M, 2), int

@@ -1,16 +1,10 @@
-"""The matchers a user would pick instead of blob matching + a filter: OpenCV's brute-force matcher (issue 30).
+"""The matchers a user would pick instead of blob matching + a filter: OpenCV's brute-force matcher.
 
-Each is a unit-level alternative candidate set on the same descriptors, not a filter: it replaces blob
-matching and the spatial filter, and its output goes to the same model step and the same ground truth.
-
-* ``opencv_ratio``: ``cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc1, desc2, k=2)`` and Lowe's ratio test
-  ``d1 < 0.8 d2`` (Lowe 2004, Sec. 7.1; 0.8 is his value); score ``d1 / d2``;
-* ``opencv_mnn``: mutual nearest neighbours, ``cv2.BFMatcher(cv2.NORM_L2, crossCheck=True).match``; score the
-  distance.
-
-Both are OpenCV's code as a user calls it (float32 L2 distances, whatever the features' own metric), so the
-rows measure what that user gets. Matches are ``(K, 2)`` int64 indices into the keypoints of images 1 and 2,
-scores lower-is-better, rows sorted by (score, row, column).
+Each replaces blob matching and the filter on the same descriptors; its output goes to the same model step
+and ground truth. ``opencv_ratio`` is Lowe's ratio test (:func:`opencv_ratio_matches`), ``opencv_mnn``
+mutual nearest neighbours (:func:`opencv_mnn_matches`), both OpenCV's code as a user calls it (float32 L2,
+whatever the features' own metric). Matches are ``(K, 2)`` int64, scores lower-is-better, rows sorted by
+(score, row, column).
 """
 
 from __future__ import annotations
@@ -48,14 +42,15 @@ def _empty() -> tuple[np.ndarray, np.ndarray]:
 
 
 def opencv_ratio_matches(desc1, desc2, *, ratio: float = LOWE_RATIO) -> tuple[np.ndarray, np.ndarray]:
-    """``BFMatcher.knnMatch(k=2)`` with Lowe's ratio test.
+    """``cv2.BFMatcher(cv2.NORM_L2).knnMatch(k=2)`` with Lowe's ratio test ``d1 < ratio d2`` (Lowe 2004,
+    Sec. 7.1).
 
     Parameters
     ----------
     desc1, desc2 : array_like of shape (N, D), (M, D)
         Descriptors of images 1 and 2 (converted to float32, as OpenCV needs).
     ratio : float
-        Keep a match when its distance is below ``ratio`` times that of the second nearest neighbour.
+        Lowe's 0.8 by default.
 
     Returns
     -------
@@ -92,18 +87,12 @@ def opencv_ratio_matches(desc1, desc2, *, ratio: float = LOWE_RATIO) -> tuple[np
 
 
 def opencv_mnn_matches(desc1, desc2) -> tuple[np.ndarray, np.ndarray]:
-    """Mutual nearest neighbours: ``BFMatcher(NORM_L2, crossCheck=True).match``.
-
-    Returns
-    -------
-    matches : ndarray of shape (K, 2), int64
-    scores : ndarray of shape (K,)
-        The descriptor distance, lower is better; sorted.
+    """Mutual nearest neighbours, ``BFMatcher(NORM_L2, crossCheck=True).match``: ``(matches, scores)``, the
+    score the descriptor distance, sorted.
 
     Examples
     --------
-    Descriptor 1 of image 1 is nearest to descriptor 0 of image 2, whose own nearest is descriptor 0: not
-    mutual, so only (0, 0) is kept.
+    Descriptor 1 of image 1 is nearest to descriptor 0 of image 2, whose own nearest is descriptor 0:
 
     >>> import numpy as np
     >>> matches, scores = opencv_mnn_matches([[0.0, 0.0], [1.0, 0.0]], [[0.2, 0.0], [5.0, 5.0]])

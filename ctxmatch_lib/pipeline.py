@@ -1,28 +1,21 @@
-"""The per-pair evaluation of Sec. 5.1: features -> blob -> filters -> model -> ground truth -> metrics.
+"""The per-pair evaluation of Sec. 5.1 (features -> blob -> filters -> model -> ground truth -> metrics) as a
+thin face over the evaluation engine of :mod:`ctxmatch_lib.evaluation`.
 
-Each step is a function that can be called on its own (:func:`pair_features`, :func:`blob_candidates`,
-:func:`run_filter`, :func:`run_model`, :func:`label_candidates`: they live in
-:mod:`ctxmatch_lib.evaluation.steps` and are re-exported here; :func:`metrics_rows`);
-:func:`evaluate_pair` chains them for one pair and keeps every intermediate result in a
-:class:`PairEvaluation`, and :func:`evaluate_dataset` runs a whole dataset into a ``pandas.DataFrame`` with
-one row per (pair, blob setup, method, model), on the evaluation engine of :mod:`ctxmatch_lib.evaluation`
-(per-pair result parts in the cache, resumable; tested to give the same rows as :func:`evaluate_pair`).
-This module sits on the engine: the steps below it never import it.
+:func:`evaluate_pair` runs one pair through the engine's unit and keeps every intermediate result in a
+:class:`PairEvaluation`; :func:`evaluate_dataset` runs a whole dataset on the engine (per-pair parts in the
+cache, resumable) into one row per (pair, blob setup, method, model); :func:`summary_table` averages the rows
+as the Appendix tables. The steps (:func:`pair_features`, :func:`blob_candidates`, :func:`run_filter`,
+:func:`run_model`, :func:`label_candidates`) live in :mod:`ctxmatch_lib.evaluation.steps` and are
+re-exported here.
 
-How the pieces fit:
-
-* the ground truth labels the **blob candidates** once per blob setup; every later output (a filter's
-  mask, then a model's mask) is a subset of them, so its labels are read off, never recomputed;
+* the ground truth labels the **blob candidates** once; every later output (a filter's mask, then a model's
+  mask) is a subset of them, so its labels are read off, never recomputed;
 * the recall reference of a row is the set of correct candidates of its own blob setup (Sec. 5.3), the
-  recall* reference the union of the correct candidates of all blob setups evaluated on the pair (same
-  keypoints, so the union is well defined);
-* the unfiltered candidates appear as method ``"blob"``; models are ``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``,
-  fitted on the method's output, ``H`` for planar pairs and ``F`` for non-planar and depth pairs;
-* ``time_s`` is the running time of the method itself (blob matching for ``"blob"``, the filter alone for
-  a filter), the same on every model row of that method as in the paper's tables; ``model_time_s`` is
-  the model step's own time.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+  recall* reference their union over the blob setups evaluated on the pair;
+* the unfiltered candidates are method ``"blob"``; a model step is fitted on the method's output, ``H`` for
+  planar pairs, ``F`` otherwise;
+* ``time_s`` is the time of the method itself (blob matching, or the filter alone), ``model_time_s`` of the
+  model step.
 """
 
 from __future__ import annotations
@@ -34,14 +27,14 @@ import numpy as np
 
 from .datasets.base import Dataset, Pair, PoseGT
 from .evaluation.plan import plan_units
-from .evaluation.run import run_units
+from .evaluation.run import named_rows, run_units
 from .evaluation.steps import (BLOB_METHOD, blob_candidates, check_filters, check_models, check_pair_keypoints,
-                               label_candidates, pair_features, pair_seed, resolve_blobs,
-                               run_filter, run_model)
+                               label_candidates, pair_features, pair_seed, resolve_blobs, run_filter, run_model)
+from .evaluation.unit import BlobStage, run_unit
 from .features import FeatureConfig
 from .geometry import CONSISTENCY_THRESHOLD_PX
-from .groundtruth import GT_METHODS, GT_THRESHOLD_PX
-from .metrics import evaluate_matches, ground_truth_union
+from .groundtruth import GT_THRESHOLD_PX
+from .metrics import ground_truth_union
 
 __all__ = [
     "BLOB_METHOD",
@@ -57,7 +50,6 @@ __all__ = [
     "run_filter",
     "run_model",
     "label_candidates",
-    "metrics_rows",
     "evaluate_pair",
     "evaluate_dataset",
     "summary_table",
@@ -77,41 +69,6 @@ and ``model_time_s`` (the model step) in seconds; ``error`` is empty, or says wh
 evaluated (its metrics are then NaN). :func:`summary_table` prints percentages under ``*_pct`` names."""
 
 
-# -------------------------------------------------------------------------------------- per-pair state
-
-
-@dataclass
-class BlobStage:
-    """Everything computed for one blob setup on one pair.
-
-    ``keeps[method]`` masks the candidates (``keeps["blob"]`` is all ``True``); ``fits[(method, model)]``
-    is the :class:`~ctxmatch_lib.geometry.ModelFit` over the method's output, whose ``keep`` masks that
-    output; :meth:`final_mask` combines the two into a mask over the candidates.
-    """
-
-    name: str
-    config: object
-    matches: np.ndarray
-    scores: np.ndarray
-    labels: np.ndarray
-    time_s: float
-    keeps: dict = field(default_factory=dict)
-    method_times: dict = field(default_factory=dict)
-    fits: dict = field(default_factory=dict)
-    model_times: dict = field(default_factory=dict)
-
-    @property
-    def correct_candidates(self) -> np.ndarray:
-        """The recall reference: ground-truth-correct candidates, ``(M, 2)``."""
-        return self.matches[self.labels]
-
-    def final_mask(self, method: str, model: str) -> np.ndarray:
-        """Mask over the candidates of the output of ``method`` followed by ``model``."""
-        keep = self.keeps[method].copy()
-        keep[np.flatnonzero(keep)] = self.fits[(method, model)].keep
-        return keep
-
-
 @dataclass
 class PairEvaluation:
     """All intermediate results of :func:`evaluate_pair` and its result rows."""
@@ -126,39 +83,6 @@ class PairEvaluation:
     def reference_star(self) -> np.ndarray:
         """Union of the correct candidates over the blob setups (the recall* reference)."""
         return ground_truth_union(*(s.correct_candidates for s in self.stages.values()))
-
-
-def metrics_rows(evaluation: PairEvaluation, *, reference_star=None) -> list[dict]:
-    """One row dict per (blob setup, method, model) of an evaluated pair.
-
-    ``reference_star`` overrides the recall* reference (by default :attr:`PairEvaluation.reference_star`),
-    e.g. with a union over configurations run elsewhere on the same keypoints.
-    """
-    pair = evaluation.pair
-    f1, f2 = evaluation.features
-    ref_star = evaluation.reference_star if reference_star is None else reference_star
-    rows = []
-    for stage in evaluation.stages.values():
-        ref = stage.correct_candidates
-        for method in stage.keeps:
-            for (m, model), fit in stage.fits.items():
-                if m != method:
-                    continue
-                mask = stage.final_mask(method, model)
-                mm = evaluate_matches(stage.matches[mask], stage.labels[mask], reference=ref,
-                                      reference_star=ref_star, scores=stage.scores[mask],
-                                      time_s=stage.method_times[method])
-                rows.append({
-                    "dataset": pair.dataset, "pair_id": pair.pair_id, "kind": pair.kind, "blob": stage.name,
-                    "method": method, "model": model,
-                    "precision": mm.precision, "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
-                    "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
-                    "failure": mm.failure, "empty_output": mm.empty_output, "time_s": mm.time_s,
-                    "model_time_s": stage.model_times[(method, model)],
-                    "n_kpts1": len(f1), "n_kpts2": len(f2), "n_candidates": len(stage.matches),
-                    "n_gt": mm.n_gt, "n_gt_star": mm.n_gt_star, "gt_method": evaluation.gt_method, "error": "",
-                })
-    return rows
 
 
 def evaluate_pair(
@@ -176,7 +100,8 @@ def evaluate_pair(
     cache_dir=None,
     precomputed_features: tuple | None = None,
 ) -> PairEvaluation:
-    """Evaluate one pair: features, then for each blob setup candidates, labels, filters, models, metrics.
+    """Evaluate one pair and keep every intermediate: the engine's unit (:func:`~ctxmatch_lib.evaluation.run_unit`,
+    nothing cached) with its blob stages recorded.
 
     Parameters
     ----------
@@ -187,9 +112,9 @@ def evaluate_pair(
     filters : sequence of str
         Registered filter names; ``"blob"`` (no filter) is always included.
     models : sequence of str
-        Model steps among ``none``, ``1sac``, ``ransac``, ``prosac``.
-    gt_method : {"D", "A"}
-        Ground-truth method; ``gt_threshold`` its distance in pixels.
+        Model steps among :data:`~ctxmatch_lib.geometry.MODEL_STEPS`.
+    gt_method : {"D", "A", "B", "C"}
+        Ground-truth method; ``gt_threshold`` its distance in pixels (D and A).
     model_threshold : float
         Consistency threshold of 1SAC / RANSAC in pixels.
     filter_params : dict of str -> dict, optional
@@ -204,43 +129,30 @@ def evaluate_pair(
     Returns
     -------
     PairEvaluation
-        ``.rows`` holds the result rows (see :data:`ROW_COLUMNS`).
+        ``.stages[blob]`` is a :class:`~ctxmatch_lib.evaluation.unit.BlobStage` (candidates in score order,
+        labels, every mask and model fit); ``.rows`` the result rows (see :data:`ROW_COLUMNS`).
+
+    Raises
+    ------
+    RuntimeError
+        When a filter or model step raises on the pair (the engine records it as an error row instead).
     """
-    if gt_method not in GT_METHODS:
-        raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
-    blob_cfgs = resolve_blobs(blobs)
-    filters = check_filters(filters)
-    models = check_models(models)
-    filter_params = dict(filter_params or {})
-    f1, f2 = precomputed_features if precomputed_features is not None else pair_features(
-        pair, features, cache_dir=cache_dir)
-    check_pair_keypoints(pair, f1, f2)
-    rng_seed = pair_seed(seed, pair.pair_id)
+    (unit,) = plan_units([pair], features=features, blobs=resolve_blobs(blobs), filters=tuple(filters),
+                         models=tuple(models), gt_method=gt_method, gt_threshold=gt_threshold,
+                         model_threshold=model_threshold, filter_params=filter_params, seed=seed, salt="")
+    if precomputed_features is not None:
+        check_pair_keypoints(pair, *precomputed_features)
+        feats = tuple(precomputed_features)
+    else:
+        feats = pair_features(pair, unit.features, cache_dir=cache_dir)
+        check_pair_keypoints(pair, *feats)
     stages = {}
-    for bname, cfg in blob_cfgs.items():
-        matches, scores, t_blob = blob_candidates(f1, f2, cfg)
-        labels = label_candidates(pair, f1, f2, matches, method=gt_method, threshold=gt_threshold)
-        stage = BlobStage(bname, cfg, matches, scores, labels, t_blob)
-        stage.keeps[BLOB_METHOD] = np.ones(len(matches), bool)
-        stage.method_times[BLOB_METHOD] = t_blob
-        for name in filters:
-            try:
-                keep, t = run_filter(name, f1, f2, matches, scores, image_size1=pair.image_size1,
-                                     image_size2=pair.image_size2, blob_ratio=cfg.ratio,
-                                     **filter_params.get(name, {}))
-            except Exception as exc:
-                raise RuntimeError(f"filter {name!r} failed on pair {pair.pair_id!r}: {exc}") from exc
-            stage.keeps[name], stage.method_times[name] = keep, t
-        for method, keep in stage.keeps.items():
-            for model in models:
-                fit, t = run_model(model, f1, f2, matches[keep], scores[keep], pair_kind=pair.kind,
-                                   threshold=model_threshold, rng=rng_seed,
-                                   intrinsics=(pair.gt.K1, pair.gt.K2) if isinstance(pair.gt, PoseGT) else None)
-                stage.fits[(method, model)], stage.model_times[(method, model)] = fit, t
-        stages[bname] = stage
-    evaluation = PairEvaluation(pair, (f1, f2), stages, gt_method)
-    evaluation.rows = metrics_rows(evaluation)
-    return evaluation
+    df = named_rows(run_unit(unit, cache_dir=False, features=feats, stages=stages), unit)
+    errors = df["error"].astype(str)
+    if (errors != "").any():
+        raise RuntimeError(f"pair {pair.pair_id!r}: {errors[errors != ''].iloc[0]}")
+    rows = df[list(ROW_COLUMNS)].assign(dataset=pair.dataset).to_dict("records")
+    return PairEvaluation(pair, feats, stages, gt_method, rows)
 
 
 def evaluate_dataset(

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-from ctxmatch_lib import _blas
+from ctxmatch_lib._numerics import blas as _blas
 
 
 def test_every_pool_runs_one_thread_inside():

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ctxmatch_lib import _fixedmath as fm
+from ctxmatch_lib._numerics import fixedmath as fm
 
 
 def _ulps(got: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ctxmatch_lib.report.gt_compare import correct_per_pair, method_groups, rank_agreement, worst_in_groups
+from ctxmatch_lib.report.gt_compare import correct_per_pair, method_groups, setup_rank_agreement, worst_in_groups
 
 
 def test_groups_are_disjoint_and_cover_the_union():
@@ -48,6 +48,6 @@ def test_correct_per_pair_and_rank_agreement():
         correct_per_pair(rows.drop(columns="kind"))
     a = pd.DataFrame({"features": "f", "blob": list("abcd"), "mAP": [1.0, 2.0, 3.0, 4.0]})
     b = a.assign(mAP=[10.0, 20.0, 40.0, 30.0])
-    r = rank_agreement(a, b)
+    r = setup_rank_agreement(a, b)
     assert r.loc["f", "spearman"] == pytest.approx(0.8) and r.loc["f", "setups"] == 4
     assert r.loc["f", "best_a"] == "d" and r.loc["f", "best_b"] == "c"

@@ -10,12 +10,12 @@ import pytest
 
 from ctxmatch_lib import report
 from ctxmatch_lib.report.paper import (PAPER_PAIRS, SIDE_COLUMNS, check_claims, parse_paper_gt_counts,
-                                       parse_paper_tables, rank_agreement, side_by_side, write_paper_data)
+                                       parse_paper_tables, method_rank_agreement, side_by_side, write_paper_data)
 
 matplotlib.use("Agg")
 
 TEX_NAME = "sift_matching_by_context_exposed.tex"
-DATA = Path(report.__file__).with_name("data")
+DATA = Path(report.__file__).resolve().parents[1] / "data"
 
 
 def _paper_tex() -> Path:
@@ -126,7 +126,7 @@ def test_side_by_side_and_rank_agreement():
     assert th["precision Δ"] == -10 and th["recall Δ"] == -10
     assert th["failures ours (%)"] == 20.0 and th["failures paper (%)"] == 6.0 and th["failures Δ"] == 14.0
     assert side["blob"].tolist() == [True, False, False, False]
-    rho = rank_agreement(side).loc[("baseline", "planar", "none")]
+    rho = method_rank_agreement(side).loc[("baseline", "planar", "none")]
     assert rho["ρ precision"] == pytest.approx(1.0) and rho["ρ recall"] == pytest.approx(1.0)
     assert rho["mean |ΔP|"] == pytest.approx(25 / 3) and rho["mean |ΔR|"] == pytest.approx(20 / 3)
     assert rho["n"] == 3
@@ -138,7 +138,7 @@ def test_side_by_side_and_rank_agreement():
 def test_rank_agreement_reversed_order():
     ours = _frame({("planar", "none", m): (p, 50, 0) for m, p in (("th", 10), ("dtm1", 20), ("dtm2", 30))})
     paper = _frame({("planar", "none", m): (p, 50, 0) for m, p in (("th", 30), ("dtm1", 20), ("dtm2", 10))})
-    rho = rank_agreement(side_by_side({"best": ours}, paper={"best": paper}))
+    rho = method_rank_agreement(side_by_side({"best": ours}, paper={"best": paper}))
     assert rho.loc[("best", "planar", "none"), "ρ precision"] == pytest.approx(-1.0)
     assert np.isnan(rho.loc[("best", "planar", "none"), "ρ recall"])  # constant recall: no ranking
 

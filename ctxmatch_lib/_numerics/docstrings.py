@@ -1,10 +1,8 @@
-"""Parameter texts shared by many docstrings, written once and composed in (one way of scipy's
-``_lib/doccer``).
+"""Parameter texts shared by many docstrings, written once and composed in (as scipy's ``_lib/doccer``).
 
-A docstring line that holds only ``%(name)s`` is replaced by the entry ``name`` of a table of texts, indented
-as that line; ``{field}`` in an entry is formatted with the caller's fields; an entry may itself be made of
-``%(name)s`` lines. :data:`SHARED` holds the conventions every package states; a package adds its own
-entries (``compose_doc(doc, {**SHARED, ...})``) or decorates with :func:`shared_doc`.
+A docstring line holding only ``%(name)s`` becomes the entry ``name`` of a table, indented as that line
+(:func:`compose_doc`, :func:`shared_doc`); :data:`SHARED` holds the library's conventions, and a package adds
+its own entries (``compose_doc(doc, {**SHARED, ...})``).
 """
 
 from __future__ import annotations
@@ -45,8 +43,8 @@ _PLACEHOLDER = re.compile(r"^([ \t]*)%\((\w+)\)s[ \t]*$", re.M)
 def compose_doc(doc: str | None, docs: Mapping[str, str] = SHARED, **fields) -> str | None:
     """``doc`` with every line that holds only ``%(name)s`` replaced by ``docs[name]``.
 
-    The entry is indented as the placeholder and formatted with ``fields`` (``{label}``, ...). Other ``%``
-    signs in ``doc`` are left alone (percentages in Notes), unlike ``%``-formatting a whole docstring.
+    The entry is indented as the placeholder, formatted with ``fields`` (``{label}``, ...) and may itself
+    hold placeholders. Other ``%`` signs in ``doc`` are left alone (percentages in Notes).
 
     Examples
     --------

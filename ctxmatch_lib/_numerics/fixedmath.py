@@ -6,7 +6,7 @@ operations (``+ − × ÷``, ``rint``, ``floor``, ``ldexp``, comparisons), one u
 fuses a multiply with an add and every CPU gives the same bits. ``exp`` and ``tanh`` run the same operations
 in a compiled loop (:mod:`.fixedmath_kernels`). The algorithms are fdlibm's (as in musl): argument reduction
 and minimax polynomials, error below one unit in the last place. Inputs are float64 (float32 widened
-exactly); non-finite inputs give NaN. :func:`opencv_baseline` does the same for OpenCV, which dispatches too.
+exactly); finite inputs are expected. :func:`opencv_baseline` does the same for OpenCV, which dispatches too.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-# fdlibm's exp constants, shared with the compiled loop (_fixedmath_kernels) that exp and tanh call.
+# fdlibm's exp constants, shared with the compiled loop (fixedmath_kernels) that exp and tanh call.
 from .fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
 
 __all__ = ["atan", "atan2", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "sin", "sincos", "tanh"]
@@ -29,12 +29,10 @@ _CV_USERS = [0, True, 1]  # blocks inside opencv_baseline; the settings to resto
 def opencv_baseline():
     """Run the block with OpenCV on its baseline code and one thread, the settings restored after.
 
-    OpenCV picks, per call, SSE4, AVX2 or AVX-512 builds of its filters, remaps and SIFT, and Intel IPP's
-    CPU-specific code; their float results differ in the last bits (SIFT keypoints and descriptors move).
-    With optimisations off (``cv2.setUseOptimized(False)``) every CPU runs the same baseline (SSE3) code
-    and no IPP; that code is only repeatable on one thread (``cv2.setNumThreads(1)``: on several, SIFT's
-    keypoints move from run to run). Both settings are global to the process: blocks in several threads
-    share them, and they are restored when the last one leaves.
+    OpenCV's SSE4 / AVX2 / AVX-512 builds and Intel IPP move SIFT's keypoints and descriptors in the last
+    bits; ``cv2.setUseOptimized(False)`` runs the baseline (SSE3) code on every CPU, repeatable only on one
+    thread (``cv2.setNumThreads(1)``). Both settings are global: blocks in several threads share them, and
+    the last one to leave restores them.
     """
     import cv2
 
@@ -110,20 +108,10 @@ def _kernel_cos(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def sincos(x) -> tuple[np.ndarray, np.ndarray]:
-    """``(sin x, cos x)`` of float64 angles in radians, the same bits on any CPU.
+    """``(sin x, cos x)`` of angles ``x`` in radians, float64 of ``x``'s shape, the same bits on any CPU.
 
     The argument is reduced by the nearest multiple of pi/2 (Cody and Waite, pi/2 in two parts: accurate for
-    ``|x| < 2**20``, far beyond the angles of an image).
-
-    Parameters
-    ----------
-    x : array_like
-        Angles in radians.
-
-    Returns
-    -------
-    (ndarray, ndarray)
-        ``sin x`` and ``cos x``, float64, of the shape of ``x``.
+    ``|x| < 2**20``).
 
     Examples
     --------
@@ -188,17 +176,8 @@ def atan(x) -> np.ndarray:
 
 
 def atan2(y, x) -> np.ndarray:
-    """The angle of the vector ``(x, y)``, in ``[-pi, pi]``, the same bits on any CPU (fdlibm's ``atan2``).
-
-    Parameters
-    ----------
-    y, x : array_like
-        Finite coordinates (broadcast together); float32 inputs are widened exactly.
-
-    Returns
-    -------
-    ndarray
-        float64, ``atan2(±0, +0) = ±0`` and ``atan2(±0, -0) = ±pi`` as in C; NaN where either is NaN.
+    """The angle of the vector ``(x, y)`` (broadcast together), float64 in ``[-pi, pi]``, the same bits on any
+    CPU (fdlibm's ``atan2``): ``atan2(±0, +0) = ±0`` and ``atan2(±0, -0) = ±pi`` as in C; NaN where either is.
 
     Examples
     --------
@@ -222,10 +201,8 @@ def atan2(y, x) -> np.ndarray:
 
 def exp(x) -> np.ndarray:
     """``e ** x`` (float64), the same bits on any CPU (fdlibm's ``exp``: ``x = k ln 2 + r``, a rational
-    approximation of ``e ** r``, then an exact scaling by ``2 ** k``).
-
-    Evaluated by the compiled loop of :mod:`ctxmatch_lib._numerics.fixedmath_kernels` (the same operations, 4x
-    faster); :func:`_exp_ufuncs` is this formula one numpy ufunc per operation, the reference it is tested on.
+    approximation of ``e ** r``, then an exact scaling by ``2 ** k``), by the compiled loop of
+    :mod:`.fixedmath_kernels`; :func:`_exp_ufuncs` is its reference, one ufunc per operation.
 
     Examples
     --------
@@ -257,19 +234,10 @@ def _exp_ufuncs(x) -> np.ndarray:
 def log(x) -> np.ndarray:
     """Natural logarithm (float64), the same bits on any CPU (fdlibm's ``log``).
 
-    ``x = 2 ** k (1 + f)`` with ``sqrt(2) / 2 <= 1 + f < sqrt(2)`` (exact, from the binary exponent), then
-    ``log(1 + f) = f - f^2 / 2 + s (f^2 / 2 + R(s^2))`` with ``s = f / (2 + f)`` and fdlibm's minimax ``R``,
-    and ``k ln 2`` added in two parts. Error below one unit in the last place.
+    ``x = 2 ** k (1 + f)`` with ``sqrt(2) / 2 <= 1 + f < sqrt(2)`` (exact), then ``log(1 + f) = f - f^2 / 2 +
+    s (f^2 / 2 + R(s^2))`` with ``s = f / (2 + f)`` and fdlibm's minimax ``R``, and ``k ln 2`` in two parts.
 
-    Parameters
-    ----------
-    x : array_like
-        Non-negative values (subnormals included); float32 inputs are widened exactly.
-
-    Returns
-    -------
-    ndarray
-        float64: ``log 0 = -inf``, ``log inf = inf``, NaN for negative inputs and NaN.
+    ``log 0 = -inf``, ``log inf = inf``, NaN for negative inputs and NaN; subnormals are exact.
 
     Examples
     --------
@@ -324,9 +292,8 @@ def _tanh_ufuncs(x) -> np.ndarray:
 
 
 def hypot(x, y) -> np.ndarray:
-    """``sqrt(x² + y²)`` in float64 (float32 inputs widened exactly): each step correctly rounded, so the
-    same bits on any CPU (``np.hypot`` is the C library's, whose variant may follow the CPU). No scaling:
-    for the image gradients and matrix entries it is used on, the squares neither overflow nor underflow."""
+    """``sqrt(x² + y²)`` in float64, each step correctly rounded (``np.hypot``'s C variant may follow the
+    CPU). No scaling: for image gradients and matrix entries the squares neither overflow nor underflow."""
     x, y = _f64(x), _f64(y)
     return np.sqrt(x * x + y * y)
 

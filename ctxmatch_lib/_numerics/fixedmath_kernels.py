@@ -1,17 +1,11 @@
-"""Compiled (numba) loops behind :func:`ctxmatch_lib._numerics.fixedmath.exp` and :func:`~ctxmatch_lib._numerics.fixedmath.tanh`.
+"""Compiled (numba) loops behind :func:`.fixedmath.exp` and :func:`.fixedmath.tanh` (the patch networks' activations).
 
-The numpy versions spend one ufunc, one full pass over memory and one temporary array per operation: about
-80 ns per value for ``tanh``, which was a third of the patch networks' time (:mod:`ctxmatch_lib.features._nn`
-evaluates it on every activation of TFeat and HardTFeat). Here each value goes through the same operations,
-in the same order, with the same constants, in one loop: the same IEEE operations (``+ − × ÷``, ``rint``,
-``trunc``, scalings by powers of two, comparisons) give the same bits (``tests/test_fixedmath.py`` compares
-them value for value with the ufunc forms ``_fixedmath._exp_ufuncs`` and ``_tanh_ufuncs``),
-and without ``fastmath`` LLVM neither reassociates nor fuses a multiply with an add, so every x86-64 CPU
-computes the same result (``tests/test_blas_kernels.py`` runs the features under emulated CPU generations).
-``tanh``'s loop has no branch, table or integer conversion (:func:`_pow2` writes ``2 ** k`` from its bits),
-so LLVM runs it four values per AVX2 instruction: about 4 ns per value, against 20 ns for the scalar loop.
-
-Compiled code is cached on disk as for the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
+Each value goes through the ufunc forms' operations (``fixedmath._exp_ufuncs``, ``_tanh_ufuncs``) in the same
+order with the same constants, in one loop instead of one pass over memory per operation. Without
+``fastmath`` LLVM neither reassociates nor fuses a multiply with an add, so every x86-64 CPU gives the same
+bits (``tests/test_fixedmath.py`` compares them value for value). ``tanh``'s loop has no branch, table or
+integer conversion (:func:`_pow2` writes ``2 ** k`` from its bits), so LLVM vectorises it (AVX2).
+Compiled code is cached in ``$CTXMATCH_CACHE/numba`` (:mod:`.jit`).
 """
 
 from __future__ import annotations
@@ -39,10 +33,9 @@ _POW2 = np.ldexp(1.0, np.arange(-_POW2_BIAS, _POW2_BIAS + 1))
 
 @intrinsic
 def _pow2(typingctx, k):
-    """``2.0 ** k`` for an integer-valued float64 ``k`` in [-1022, 1023], its exponent field written directly:
-    ``k + 1.5 * 2**52`` is exact and holds ``k`` in its low bits, so ``(bits - bits(1.5 * 2**52) + 1023) << 52``
-    are the bits of ``2 ** k``. No conversion to an integer register (AVX2 has no packed float64 -> int64)
-    and no table, so a loop that uses it vectorises."""
+    """``2.0 ** k`` for an integer-valued float64 ``k`` in [-1022, 1023]: ``k + 1.5 * 2**52`` holds ``k`` in its
+    low bits, so ``(bits - bits(1.5 * 2**52) + 1023) << 52`` are the bits of ``2 ** k``. No integer
+    conversion (AVX2 has no packed float64 -> int64) and no table, so a loop using it vectorises."""
     sig = types.float64(types.float64)
 
     def codegen(context, builder, sig, args):
@@ -61,10 +54,8 @@ with user_cache() as _cache:
 
     @_jit
     def _exp1(x):
-        # _fixedmath.exp on one value, operation for operation (NaN gives NaN). Written without branches and
-        # calls, so that LLVM can vectorise the loops below: both scalings by 2 ** m (|m| <= 794, so 2 ** m
-        # is a normal number) are multiplications by table entries, exactly what ldexp computes (the first
-        # is exact, the second rounds once, into the subnormal range too).
+        # fixedmath._exp_ufuncs on one value (NaN gives NaN), without branches or calls. Both scalings by
+        # 2 ** m (|m| <= 794: normal numbers) multiply by table entries, as ldexp (the second rounds once).
         xc = min(max(x, -1100.0), 1100.0)
         k = np.rint(xc * _INVLN2)
         hi = x - k * _LN2HI
@@ -87,10 +78,8 @@ with user_cache() as _cache:
 
     @_jit
     def _exp_tanh(x):
-        # _exp1 for x in [-80, 0] (and NaN, whose result is not used): k = rint(x / ln 2) lies in [-116, 0],
-        # so both of _exp1's scalings by powers of two are exact (normal results) and their product is one
-        # exact multiplication by 2 ** k: the same bits, with no table and no integer conversion, so that
-        # _tanh_loop vectorises.
+        # _exp1 for x in [-80, 0] (NaN unused): k in [-116, 0], so _exp1's two exact scalings are one exact
+        # multiplication by _pow2(k): the same bits, no table or integer conversion (_tanh_loop vectorises).
         k = np.rint(x * _INVLN2)
         hi = x - k * _LN2HI
         lo = k * _LN2LO
@@ -107,7 +96,7 @@ with user_cache() as _cache:
 
     @_jit
     def _tanh1(x):
-        # _fixedmath.tanh on one value: both branches evaluated, one selected (vectorisable).
+        # fixedmath._tanh_ufuncs on one value: both branches evaluated, one selected (vectorisable).
         a = abs(x)
         z = a * a
         small = a + a * (z * (-1 / 3 + z * (2 / 15 + z * (-17 / 315 + z * (62 / 2835)))))
@@ -128,7 +117,7 @@ with user_cache() as _cache:
 
 
 def exp(x) -> np.ndarray:
-    """``_fixedmath._exp_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
+    """``fixedmath._exp_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
     x = np.asarray(x, np.float64)
     out = np.empty(x.shape)
     _exp_loop(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
@@ -136,7 +125,7 @@ def exp(x) -> np.ndarray:
 
 
 def tanh(x) -> np.ndarray:
-    """``_fixedmath._tanh_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
+    """``fixedmath._tanh_ufuncs(x)``, compiled: the same bits, a float64 array of ``x``'s shape."""
     x = np.asarray(x, np.float64)
     out = np.empty(x.shape)
     _tanh_loop(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
@@ -144,8 +133,7 @@ def tanh(x) -> np.ndarray:
 
 
 def tanh_f32(x: np.ndarray) -> np.ndarray:
-    """``tanh`` of a float32 array evaluated in float64 (:func:`tanh`) and rounded once to float32, as
-    ``_fixedmath.tanh(x).astype(np.float32)``, without the float64 array in between."""
+    """``tanh(x).astype(np.float32)`` of a float32 array, without the float64 array in between."""
     x = np.ascontiguousarray(x, np.float32)
     out = np.empty_like(x)
     _tanh_loop(x.reshape(-1), out.reshape(-1))

@@ -13,10 +13,9 @@ __all__ = ["user_cache"]
 
 @contextmanager
 def user_cache():
-    """Point numba's on-disk cache at the ctxmatch cache directory (``$CTXMATCH_CACHE/numba``, see
-    :func:`ctxmatch_lib.cache.cache_dir`) while kernels are decorated (numba picks a function's cache
-    location then), unless the user set ``NUMBA_CACHE_DIR``. Yields whether to cache at all: not when the
-    cache directory cannot be created (numba would fall back to the package's own folder)."""
+    """Point numba's on-disk cache at ``cache_dir("numba")`` while kernels are decorated (when numba picks
+    their cache location), unless ``NUMBA_CACHE_DIR`` is set. Yields whether to cache at all: not when that
+    folder cannot be created (numba would fall back to the package's own folder)."""
     previous = numba.config.CACHE_DIR
     if previous:
         yield True

@@ -11,16 +11,14 @@ __all__ = ["canonical_order", "spread_back"]
 def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | None]:
     """The order of candidate rows a filter decides in, which depends only on the set of rows.
 
-    The rows are sorted (``np.lexsort``, in float64) by score, then the image-1 keypoint (x, then y), the
-    image-2 keypoint (x, then y), the image-1 keypoint index and the image-2 keypoint index. Two rows equal in
-    every key are the same candidate given twice (they hold the same keypoints, and so the same shapes):
-    their relative order is the only thing left to the input order, and :func:`spread_back` gives them one
-    decision, so no decision depends on it.
+    The rows are sorted (``np.lexsort``, in float64) by score, image-1 keypoint (x, y), image-2 keypoint
+    (x, y), then the two keypoint indices. Rows equal in every key are one candidate given twice; their
+    relative order is all that is left to the input, and :func:`spread_back` gives them one decision.
 
     Parameters
     ----------
     x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoint of each row, (x, y) pixels, origin at the centre of the top-left pixel.
+        Image-1 and image-2 keypoint of each row, (x, y) pixels.
     matches : ndarray of shape (K, 2)
         Keypoint indices of each row.
     scores : ndarray of shape (K,)
@@ -61,9 +59,8 @@ def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | Non
 def spread_back(keep: np.ndarray, order: np.ndarray, twins: np.ndarray | None) -> np.ndarray:
     """The decisions ``keep`` made on the rows in canonical order (:func:`canonical_order`), in input order.
 
-    Rows equal in every key (``twins``) are one candidate: all of them are kept when any of them is (a core
-    that keeps one copy of a repeated row, such as a one-to-one output, keeps the candidate), so the mask
-    never depends on the input order.
+    Rows equal in every key (``twins``) are one candidate: all are kept when any is (a one-to-one core keeps
+    one copy), so the mask never depends on the input order.
     """
     keep = np.asarray(keep, bool)
     if twins is not None:

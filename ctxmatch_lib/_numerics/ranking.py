@@ -1,14 +1,9 @@
-"""Compiled (numba) loop behind :func:`ctxmatch_lib.metrics.ranked_area`.
+"""Compiled (numba) loop behind :func:`ctxmatch_lib.metrics.ranked_area`, called once per blob setup in a sweep.
 
-The blob-setup sweep asks for the area of one ranking per setup, 2430 times per pair: as numpy calls (a sort,
-binary searches, two cumulative distinct counts, a scatter) it took about a fifth of the sweep. Here the same
-numbers come from one pass: the stable ascending order of the scores (ties in index order), the correct
-candidates met in that order, their cumulative distinct keypoints, and each one's term
-``P_k * (N_k - N_{k-1})`` at its rank. The terms are the same float64 operations on the same integers as
+One pass gives each correct candidate's term ``P_k * (N_k - N_{k-1})`` at its rank in the stable ascending
+order of the scores: the same float64 operations on the same integers as
 :func:`ctxmatch_lib.metrics._area_terms_numpy` (``tests/test_metrics.py`` compares them bit for bit); the
-caller sums them with numpy, as before.
-
-Compiled code is cached on disk as for the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
+caller sums them with numpy. Compiled code is cached in ``$CTXMATCH_CACHE/numba`` (:mod:`.jit`).
 """
 
 from __future__ import annotations
@@ -24,9 +19,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _area_terms(rows, cols, lab, scores, order, terms):
-        # The correct candidates by rank in the stable ascending order of every score (ties in index order).
-        # ``order`` sorts the scores (any algorithm): without ties (no two equal scores, -0.0 == +0.0
-        # included) it is the only such order; with ties (rare in the sweep) the merge sort's is taken.
+        # ``order`` sorts the scores (any algorithm): without ties (-0.0 == +0.0 included) it is the stable
+        # order; with ties (rare) the merge sort's is taken.
         k = len(lab)
         for t in range(1, k):
             if scores[order[t]] == scores[order[t - 1]]:

@@ -1,12 +1,10 @@
-"""Match scores that carry the scale of the ratio that made them (private; used by ``blob`` and ``filters``).
+"""Match scores that carry the scale of the ratio that made them (used by ``blob`` and ``filters``).
 
-Blob matching's scores (Sec. 3, Eq. 14) are NNR-like ratios on one of two scales: with ``"D>="`` a score is
-the NNR ratio ``r`` itself (first over second distance, Lowe's ratio), with ``"D+>="`` and ``"D+"`` it is
-``r / (1 + r)`` (first distance over the sum of both), which never exceeds 1/2 where ``r <= 1``. A threshold
-read on the NNR scale (Lowe's 0.8, GLPM's 1/1.5, AdaLAM's seed test) must be mapped to the scores' own scale,
-``t / (1 + t)`` for the D+ scales. :class:`NNRScores` is a plain float64 array that remembers its ``ratio``
-through indexing, slicing, sorting and copies, so a filter can map its thresholds without being told;
-arithmetic on it (``scores * 2``, ``scores <= t``) gives plain arrays, whose scale is no longer known.
+Blob matching's scores (Sec. 3, Eq. 14) are, with ``"D>="``, the NNR ratio ``r`` (first over second
+distance), and with ``"D+>="`` / ``"D+"`` ``r / (1 + r)`` (first distance over the sum of both). A threshold
+on the NNR scale (Lowe's 0.8, GLPM's 1/1.5, AdaLAM's seed test) maps to ``t / (1 + t)`` on the D+ scales
+(:func:`nnr_threshold`). :class:`NNRScores` remembers its ``ratio`` so a filter can map its thresholds
+without being told.
 """
 
 from __future__ import annotations
@@ -15,8 +13,7 @@ import numpy as np
 
 __all__ = ["RATIOS", "NNRScores", "nnr_scores", "score_ratio", "nnr_threshold"]
 
-#: The blob ratios (Eq. 13-14) and the scale of their scores: ``"D>="`` the NNR ratio ``r``, the two others
-#: ``r / (1 + r)``.
+#: The blob ratios (Eq. 13-14).
 RATIOS = ("D>=", "D+>=", "D+")
 
 
@@ -88,10 +85,8 @@ def score_ratio(scores) -> str | None:
 
 
 def nnr_threshold(threshold: float, ratio: str) -> float:
-    """A threshold ``t`` on the NNR ratio, mapped to the scale of scores made by ``ratio``.
-
-    ``"D>="`` scores are the NNR ratio (``t``); ``"D+>="`` / ``"D+"`` scores are ``r / (1 + r)``, where the
-    same ratio reads ``t / (1 + t)``.
+    """A threshold ``t`` on the NNR ratio, mapped to the scale of scores made by ``ratio`` (``t`` for
+    ``"D>="``, ``t / (1 + t)`` for ``"D+>="`` / ``"D+"``).
 
     Examples
     --------

@@ -1,25 +1,18 @@
 """Numba intrinsics for fixed-order float64 sums in SIMD registers, and blob matching's 16-lane work.
 
-numba leaves LLVM's SLP vectoriser off, so running sums written as scalar variables stay scalar chains. Here
-they are the lanes of one LLVM vector value: :class:`Vec8` (``<8 x double>``) for the eight partial sums of
-blob matching's exact distances, :class:`Vec4` (``<4 x double>``) for the four of the EM filters' weighted
-Gram matrices and for four output channels of the patch networks' direct convolution. :class:`Vec16`
-(16 float32, int64 or uint16 lanes) holds a sorted line of blob matching's scan in registers; :func:`band16`
-compares sixteen 16-bit codes of its look-ups beyond the sorted lists at once; 16-lane vectors hold the
-accumulators of its fused float32 product (:func:`fma16`, :func:`row_flags`, :func:`row_reflag`,
-:func:`row_codes`; the product only proposes, so there a multiply-add fuses).
-:func:`prefetch` asks for the scattered rows its re-ranking reads next. A lane-wise subtract, multiply and
-add is the same IEEE operation as the scalar one (no fast-math flags, so no fused multiply-add), hence the
-same bits as the scalar loop on any x86-64 CPU; where the CPU has narrower registers, LLVM splits the value
-lane by lane.
+numba leaves LLVM's SLP vectoriser off, so running sums held in scalar variables stay scalar chains; here
+they are the lanes of one LLVM vector: :class:`Vec8` for blob matching's exact distances, :class:`Vec4` for
+the EM filters' weighted Gram matrices and the patch networks' convolutions, :class:`Vec16` for a sorted
+line of blob matching's scan (:func:`band16` compares sixteen 16-bit codes at once; :func:`fma16`,
+:func:`row_flags`, :func:`row_reflag`, :func:`row_codes` are its fused float32 product, which only proposes,
+so it fuses multiply-adds). Elsewhere a lane-wise operation is the scalar IEEE one (no fast-math flags), so
+the bits are the scalar loop's on any x86-64 CPU.
 
-numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the files
-whose kernels use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``,
-``blob/_fused_kernels.py``, ``filters/_em_kernels.py``, ``filters/_llt_kernels.py``,
-``features/_conv_kernels.py``) or clear
-``$CTXMATCH_CACHE/numba``. Never rename or remove one of the types below: numba unpickles a cached index
-before it compares timestamps, and an index naming a type that is gone raises ``AttributeError`` instead of
-recompiling (seen when ``Vec4`` was renamed; checkouts at the same path share their cache folders).
+numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the kernel
+files that use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``, ``blob/_fused_kernels.py``,
+``filters/_em_kernels.py``, ``filters/_llt_kernels.py``, ``features/_conv_kernels.py``) or clear
+``$CTXMATCH_CACHE/numba``. Never rename or remove a type below: numba unpickles a cached index before it
+compares timestamps, and an index naming a missing type raises ``AttributeError`` instead of recompiling.
 """
 
 from __future__ import annotations
@@ -124,10 +117,8 @@ def lanes8(typingctx, acc):
 
 
 class Vec4(types.Type):
-    """Four float64 lanes held as one LLVM ``<4 x double>`` (a SIMD register): the accumulators of the EM
-    filters' weighted Gram matrices (``filters/_em_kernels.py``) and of the patch networks' convolutions
-    (``features/_conv_kernels.py``). Only :func:`load4`, :func:`store4`, :func:`mul4`, :func:`muladd4`,
-    :func:`splat4` and :func:`zero4` make or use one."""
+    """Four float64 lanes held as one LLVM ``<4 x double>``; made and used by :func:`load4`, :func:`store4`,
+    :func:`mul4`, :func:`muladd4`, :func:`splat4` and :func:`zero4` only."""
 
     def __init__(self):
         super().__init__(name="Vec4f64")
@@ -240,10 +231,9 @@ def _row_lanes(context, builder, aryty, ary, line, k, n):
 
 
 class Vec16(types.Type):
-    """Sixteen float32, int64 or uint16 lanes held as one LLVM vector: a sorted line of blob matching's scan
-    kept in registers while its row is walked (values and indices). Made and used by
-    :func:`load16`, :func:`store16`, :func:`count16`, :func:`below16`, :func:`insert16` and :func:`lane16`
-    only (the uint16 lanes are kept for numba's on-disk cache, whose type names must not change)."""
+    """Sixteen float32, int64 or uint16 lanes held as one LLVM vector (a sorted line's values and indices).
+    Made and used by :func:`load16`, :func:`store16`, :func:`count16`, :func:`below16`, :func:`insert16`,
+    :func:`lane16` and :func:`fill16` only (uint16 stays for numba's on-disk cache, see the module)."""
 
     def __init__(self, dtype):
         self.dtype = dtype
@@ -314,11 +304,9 @@ def below16(typingctx, vec, v, lim):
 
 @intrinsic
 def insert16(typingctx, vals, idxs, v, x):
-    """Insert ``(v, x)`` into a line sorted by value, held as a float32 :class:`Vec16` of values and an
-    int64 one of indices: lane q keeps its entry when it is ``<= v`` (so ``v`` goes after equal values),
-    takes ``(v, x)`` when its left neighbour is ``<= v`` (or q = 0) and it is not, and its left neighbour's
-    entry otherwise; the last lane drops out. A ``v`` at or above the q-th value leaves lanes 0..q as they
-    were. Returns the two vectors; no lane's result depends on the lanes to its right."""
+    """Insert ``(v, x)`` into a line sorted by value (float32 :class:`Vec16` values, int64 indices), after
+    equal values; the last lane drops out. Lane q keeps its entry when it is ``<= v``, takes ``(v, x)`` when
+    its left neighbour is ``<= v`` (or q = 0), else its left neighbour's. Returns the two vectors."""
     if vals != _vec16[types.float32] or idxs != _vec16[types.int64]:
         raise TypingError(f"vals / idxs must be float32 / int64 Vec16, got {vals} / {idxs}")
 
@@ -363,8 +351,7 @@ def _check_row_pen(arr, pen):
 
 @intrinsic
 def band16(typingctx, arr, line, k, pen, lo, hi):
-    """Bit mask (bit q = lane q) of the codes ``x = arr[line, k + q] | pen[k + q]`` with ``lo <= x <= hi``
-    (uint16)."""
+    """Bit mask (bit q) of the uint16 codes ``x = arr[line, k + q] | pen[k + q]`` with ``lo <= x <= hi``."""
     _check_row_pen(arr, pen)
 
     def codegen(context, builder, sig, args):
@@ -378,8 +365,7 @@ def band16(typingctx, arr, line, k, pen, lo, hi):
 
 @intrinsic
 def prefetch(typingctx, arr, line, k):
-    """Hint the CPU to bring the cache line of ``arr[line, k]`` (a C-contiguous 2-d array) into its caches;
-    no effect on any result (``llvm.prefetch``, a read, all cache levels)."""
+    """Prefetch the cache line of ``arr[line, k]`` (``llvm.prefetch``, a read); no effect on any result."""
     _check2(arr, "arr")
 
     def codegen(context, builder, sig, args):
@@ -395,9 +381,8 @@ def prefetch(typingctx, arr, line, k):
     return types.none(arr, types.intp, types.intp), codegen
 
 
-# -- the fused product and scan of blob matching (blob/_fused_kernels.py) -----------------------------------
-# The float32 GEMM there only proposes (any summation order, with or without FMA, is within the certified
-# bound of blob/_kernels.py), so fma16 fuses; the scan's formulas are those of scan_tile, lane by lane.
+# -- the fused product and scan of blob matching (blob/_fused_kernels.py): the float32 product only proposes
+# (within the certified bound of blob/_kernels.py), so fma16 fuses; the scan is scan_tile's, lane by lane.
 
 
 @intrinsic
@@ -431,8 +416,8 @@ def fma16(typingctx, acc, b, s):
 @intrinsic
 def row_flags(typingctx, V, r, k, g0, g1, g2, g3, a, t, n2, cthr, j0):
     """One row of a register block: ``V[r, k + 16 p + q] = v = (a + n2[j0 + 16 p + q]) - (g_p[q] + g_p[q])``
-    in float32 (as ``scan_tile``), and returns two bit masks (bit 16 p + q): of ``v < t``, the entries below
-    their row's threshold, and of ``v < cthr[j0 + 16 p + q]``, those below their column's. No bounds check."""
+    in float32 (as ``scan_tile``); returns the bit masks (bit 16 p + q) of ``v < t`` (below the row's
+    threshold) and of ``v < cthr[j0 + 16 p + q]`` (below the column's). No bounds check."""
     vec = _vec16[types.float32]
     if (g0, g1, g2, g3) != (vec,) * 4 or a != types.float32 or t != types.float32:
         raise TypingError(f"g0..g3 / a / t must be float32 Vec16 / float32 / float32, got {g0} / {a} / {t}")
@@ -462,9 +447,8 @@ def row_flags(typingctx, V, r, k, g0, g1, g2, g3, a, t, n2, cthr, j0):
 
 @intrinsic
 def row_reflag(typingctx, V, r, k, t, cthr, j0):
-    """Bit mask (bit q) of ``V[r, k + q] < max(t, cthr[j0 + q])`` for q < 64, from the distances that
-    :func:`row_flags` stored: against a row's new threshold (``cthr`` of -inf), or the columns' (``t`` of
-    -inf)."""
+    """Bit mask (bit q < 64) of ``V[r, k + q] < max(t, cthr[j0 + q])`` on the distances :func:`row_flags`
+    stored: against a row's new threshold (``cthr`` of -inf), or the columns' (``t`` of -inf)."""
     if t != types.float32:
         raise TypingError(f"t must be a float32, got {t}")
     _check2(V, "V", (types.float32,))

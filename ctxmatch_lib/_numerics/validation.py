@@ -1,8 +1,5 @@
-"""Argument checks shared by every stage.
-
-Each helper returns a clean array or raises a ``ValueError`` that names the offending argument, so that
-public functions can validate their inputs in one line.
-"""
+"""Argument checks shared by every stage: each returns a clean array or raises a ``ValueError`` naming the
+argument."""
 
 from __future__ import annotations
 
@@ -13,17 +10,8 @@ __all__ = ["Presets", "as_points", "as_matches", "as_scores", "as_image_size", "
 
 
 class Presets(dict):
-    """A dict of named presets whose missing-key error lists the known names.
-
-    A plain ``dict`` in every other respect (``in``, ``get``, iteration, ``dict(presets)``), so presets stay
-    hloc-style ``confs`` dicts; only ``presets["typo"]`` says what exists.
-
-    Parameters
-    ----------
-    what : str
-        What a key names, for the error message (``"blob preset"``).
-    *args, **kwargs
-        As ``dict``.
+    """A ``dict`` of named presets (hloc-style ``confs``) whose missing-key error lists the known names;
+    ``what`` names a key in that message (``"blob preset"``), the other arguments are ``dict``'s.
 
     Examples
     --------
@@ -85,8 +73,7 @@ def as_vector3(v, name: str) -> np.ndarray:
 
 def as_intrinsics(K, name: str = "K") -> np.ndarray:
     """``K`` as a float64 upper-triangular ``(3, 3)`` intrinsic matrix with non-zero focals, divided by
-    ``K[2, 2]``; the single check behind :func:`ctxmatch_lib.geometry.pose.check_intrinsics` and the
-    calibrated datasets. The error names ``name``.
+    ``K[2, 2]`` (behind :func:`ctxmatch_lib.geometry.pose.check_intrinsics` and the calibrated datasets).
 
     Examples
     --------
@@ -136,11 +123,8 @@ def _first_cv2_object(x, cls: str) -> bool:
 
 
 def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
-    """Return keypoint coordinates as a float64 ``(N, 2)`` array of (x, y) pixels.
-
-    Accepts ``(N, 2)`` or wider arrays (extra columns such as scale or angle are dropped), and
-    ``None``/empty input as ``(0, 2)``. The origin is the centre of the top-left pixel, x right, y down.
-    """
+    """Keypoints as a float64 ``(N, 2)`` array of (x, y) pixels; extra columns (scale, angle) are dropped,
+    ``None`` or empty input gives ``(0, 2)``."""
     if x is None:
         arr = np.empty((0, 2))
     else:
@@ -211,20 +195,9 @@ def as_image_size(size, name: str) -> tuple[int, int]:
 def check_inside(kpts, image_size, name: str = "kpts", *, tol: float = 0.5) -> np.ndarray:
     """Raise ``ValueError`` unless every keypoint lies inside its image; returns ``kpts`` as ``(N, 2)``.
 
-    Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel, so the pixels of a
-    ``(width, height)`` image cover ``x`` in ``[-0.5, width - 0.5]`` and ``y`` in ``[-0.5, height - 0.5]``;
-    ``tol`` (default 0.5, that half pixel) is how far outside the pixel centres ``[0, width - 1]`` a
-    keypoint may lie. The usual cause of an error is an image size given as (height, width).
-
-    Parameters
-    ----------
-    kpts : array_like of shape (N, 2)
-    image_size : (int, int)
-        ``(width, height)``.
-    name : str
-        The argument's name, for the message.
-    tol : float
-        Allowance in pixels beyond the outer pixel centres.
+    With the origin at the centre of the top-left pixel, a ``(width, height)`` image covers ``x`` in
+    ``[-0.5, width - 0.5]``; ``tol`` (default: that half pixel) is how far beyond the outer pixel centres a
+    keypoint may lie. ``name`` names ``kpts`` in the message, which suggests a (height, width) mix-up.
 
     Examples
     --------
@@ -256,10 +229,8 @@ def check_inside(kpts, image_size, name: str = "kpts", *, tol: float = 0.5) -> n
 
 
 def cumulative_distinct(values) -> np.ndarray:
-    """``out[k]`` = number of distinct values among ``values[:k + 1]`` (non-negative ints), in O(K + max).
-
-    The one implementation behind the normalised counts of ranked lists (``metrics``, ``geometry``'s
-    1SAC sample, the sweep's AP).
+    """``out[k]`` = number of distinct values among ``values[:k + 1]`` (non-negative ints), in O(K + max):
+    the normalised counts of ranked lists (``metrics``, 1SAC's sample, the sweep's AP).
 
     Examples
     --------

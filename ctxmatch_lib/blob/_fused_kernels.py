@@ -1,26 +1,12 @@
 """Blob matching's one pass with the product in registers: a compiled float32 GEMM fused with the scan.
 
-:func:`product_scan` does what the GEMM tiles and :func:`~._kernels.scan_tile` do together, without the
-tiles. The dot products of four rows of ``d1`` with 64 columns of ``d2`` stay in sixteen 16-lane registers
-(``fma16``, one fused multiply-add per lane and coordinate); the approximate squared distances and their
-flags against the rows' and columns' thresholds are formed from them (``row_flags``), and only the flagged
-entries are walked. The 2 MiB tile that the BLAS product writes and the scan reads back from the L3 cache
-is gone.
-
-The product only proposes, as the BLAS one does: the certified bound of :mod:`._kernels` holds for any
-summation order with or without FMA, and :func:`~._kernels.certify_lines` decides on exact float64
-distances afterwards, so the candidates and scores are those of the tile path, bit for bit. The entries
-reach the lines in the same order (a row's columns ascending, a column's rows ascending).
-
-Columns go in chunks of :data:`CHUNK` blocks (512 columns, 256 KiB of packed ``d2`` in the L2 cache), each
-swept by every row, four rows at a time (with f = Ω's 16-bit codes, by blocks of :data:`ROW_BLOCK` rows, each
-over every chunk). A row's flagged entries in a chunk are walked together, its line in
-registers, as a row of ``scan_tile``'s tile. Fresh lines start from thresholds estimated on their first
-entries, as ``scan_tile``'s: a row from its first chunk, a chunk's columns from its first
-:data:`FRESH_ROWS` rows, whose distances are kept for that.
-
-The sixteen 512-bit accumulators stay in registers where the CPU has AVX-512 (32 of them) and spill where it
-has not, so ``BlobContext`` takes this path on AVX-512 CPUs only (:func:`fused_product_fast`).
+:func:`product_scan` does what the GEMM tiles and :func:`~._kernels.scan_tile` do together: the dot products
+of four rows of ``d1`` with 64 columns of ``d2`` stay in sixteen 16-lane registers (``fma16``), the
+approximate squared distances are flagged there against the lines' thresholds (``row_flags``), and only the
+flagged entries are walked, in the tile path's order. The product only proposes (the bound of
+:mod:`._kernels` holds for any order, with or without FMA), so the results are the tile path's, bit for bit.
+Columns go in chunks of :data:`CHUNK` blocks swept by every row. The accumulators fit in registers only with
+AVX-512 (:func:`fused_product_fast`).
 """
 
 from __future__ import annotations
@@ -66,19 +52,16 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def aligned_zeros(rows, cols):
-        """A float32 ``(rows, cols)`` array of zeros whose data starts on a 64-byte boundary (``cols`` a
-        multiple of 16, so every row does): a 16-lane load or store then never straddles two cache lines.
-        numba's own allocations are 32-byte aligned only, and the product ran up to 25 % slower on the half
-        of them that are not 64-byte aligned."""
+        """A float32 ``(rows, cols)`` array of zeros starting on a 64-byte boundary (numba aligns to 32 only),
+        so that no 16-lane load or store straddles two cache lines (``cols`` a multiple of 16)."""
         buf = np.zeros(rows * cols + 16, np.float32)
         off = ((64 - buf.ctypes.data % 64) % 64) // 4
         return buf[off : off + rows * cols].reshape(rows, cols)
 
     @njit(cache=_cache, nogil=True)
     def pack_columns(B, n2):
-        """``B`` (m, d) packed for the register blocks, coordinate-major within blocks of :data:`NR` columns:
-        ``Bp[blk, k * NR + q] = B[blk * NR + q, k]`` (zero past m), and the squared norms padded with +inf,
-        so a padded column's distance is +inf and never flagged."""
+        """``B`` packed coordinate-major in blocks of :data:`NR` columns, ``Bp[blk, k * NR + q] =
+        B[blk * NR + q, k]`` (zero past m), and the squared norms padded with +inf (never flagged)."""
         m, d = B.shape
         nb = (m + NR - 1) // NR
         Bp = aligned_zeros(nb, d * NR)
@@ -112,9 +95,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _fresh_row(V, r, w, M, mr, nblk, b0, shut, Kr):
-        """A fresh row's threshold from its first ``w`` distances ``V[r, :w]`` (as ``scan_tile``: the K-th
-        smallest of the minima of 2K strided groups, nudged up by one float32 step), and its flags again
-        (``shut``: -inf for every column)."""
+        """A fresh row's threshold from ``V[r, :w]`` (as ``scan_tile``'s), and its flags again."""
         ngr = min(w, 2 * Kr)
         roww = np.full((1, max(32, ngr)), np.inf, np.float32)
         rw = roww[0]
@@ -132,16 +113,10 @@ with user_cache() as _cache:
     @njit(cache=_cache, nogil=True)
     def _sweep(A, Bp, b0, b1, i_lo, i_hi, n1, n2p, X, early, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols, M,
                dense, keep, qoff, qinv, pv, pi, pc, tv, tx):
-        """Rows ``i_lo .. i_hi - 1`` (four at a time) against column blocks ``b0 .. b1 - 1``, in one function
-        (a call per row group would pay numba's reference counts of its array arguments).
-
-        The distances of four rows go into ``X`` (``V``, or with ``early`` the rows of ``F``), their flags
-        into ``M`` (``M[0]``: below the row's threshold as it stands, ``M[1]``: below the column's), with
-        ``keep`` their codes into ``dense``. Then the flagged entries are walked row by row, columns
-        ascending, as ``scan_tile``'s walk: those below the row's threshold into the row's K best (a fresh
-        row first gets its threshold, :func:`_fresh_row`), with ``cols`` those below their column's into the
-        column's (through its bucket for K <= 16: written, kept if below the threshold, inserted
-        :data:`BUCKET` at a time). An entry below neither threshold would leave both lines as they are.
+        """Rows ``i_lo .. i_hi - 1``, four at a time, against column blocks ``b0 .. b1 - 1`` (one call: no
+        reference counting per row group). Distances go into ``X`` (``F``'s rows with ``early``), flags into
+        ``M`` (``M[0]``: below the row's threshold, ``M[1]``: the column's), codes into ``dense`` with
+        ``keep``; the flagged entries then go to the rows' and (``cols``) columns' K best, as ``scan_tile``'s.
         """
         n, m = rv.shape[0], cv.shape[0]
         nblk, c0 = b1 - b0, b0 * NR
@@ -195,8 +170,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _to_columns(M, X, xr, r, i, nblk, c0, cv, ci, cthr, Kc, pv, pi, pc, tv, tx):
-        """Row ``i``'s entries below their column's threshold (``M[1, r]``, distances ``X[xr]``) into the
-        columns' K best, columns ascending (see :func:`_sweep`)."""
+        """Row ``i``'s entries flagged in ``M[1, r]`` into the columns' K best (see :func:`_sweep`)."""
         for b in range(nblk):
             mask = np.uint64(M[1, r, b])
             while mask != np.uint64(0):
@@ -217,10 +191,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _fresh_columns(F, R0, nblk, b0, rv, ri, rthr, cv, ci, cthr, Kr, Kc, pv, pi, pc, tv, tx):
-        """A chunk's fresh columns from the distances of its first ``R0`` rows, ``F[:R0]``: each column's
-        threshold is the K-th smallest of the minima of 2K groups of consecutive rows, nudged up by one
-        float32 step (as ``scan_tile``'s first tile: K groups have an entry at or below it, so it keeps the
-        column's K smallest); then those rows' entries below it go to the columns, rows ascending."""
+        """A chunk's fresh columns from its first ``R0`` rows ``F[:R0]``: thresholds as ``scan_tile``'s, then
+        those rows' entries below them into the columns."""
         c0 = b0 * NR
         w = min(nblk * NR, cv.shape[0] - c0)
         ngc = 2 * Kc
@@ -247,24 +219,20 @@ with user_cache() as _cache:
     def product_scan(A, n1, Bp, n2p, rv, ri, rthr, cv, ci, cthr, Kr, Kc, cols, dense, keep, qoff, qinv):
         """``scan_tile`` over the whole of ``D`` with the product in registers (see the module docstring).
 
-        ``A`` (n4, d) is ``d1`` in float32 with zero rows up to a multiple of 4, ``n1`` (n4,) its squared
-        norms with +inf past n; ``Bp``, ``n2p`` from :func:`pack_columns`; ``cthr`` the columns' thresholds
-        padded with -inf to ``len(n2p)`` (a padded column is never flagged); the other arguments as
-        ``scan_tile``'s, ``cols`` False when no column keeps entries (thresholds of -inf).
+        ``A``, ``n1``: ``d1`` and its squared norms padded to a multiple of 4 rows (zeros, +inf); ``Bp``,
+        ``n2p`` from :func:`pack_columns`; ``cthr`` padded with -inf; the rest as ``scan_tile``'s.
         """
         n, m = rv.shape[0], cv.shape[0]
         n4, nb, W = A.shape[0], Bp.shape[0], CHUNK * NR
-        # With f = Ω's codes, rows go in blocks of ROW_BLOCK, each swept over every chunk: a chunk's sweep of
-        # all rows would write one page of codes per row, past what the TLB holds. The columns' buckets then
-        # outlive a chunk's sweep: one per column.
+        # With codes, rows go in blocks of ROW_BLOCK over every chunk (a page of codes per row would overrun
+        # the TLB); the columns' buckets then outlive a chunk's sweep.
         RB = ROW_BLOCK if keep else n4
         nbk = nb * NR if RB < n4 else W
         pv_all, pi_all = np.empty((nbk, BUCKET), np.float32), np.empty((nbk, BUCKET), np.int64)
         pc_all = np.zeros(nbk, np.int64)
         V, M = aligned_zeros(4, W), np.zeros((2, 4, CHUNK), np.int64)
         tv, tx = np.empty(max(Kr, Kc), np.float32), np.empty(max(Kr, Kc), np.int64)
-        # The first R0 rows of a chunk go in with the columns' thresholds at -inf (out of the flags), their
-        # distances kept in F, which then starts the columns (_fresh_columns).
+        # A chunk's first R0 rows, kept in F, start its columns (_fresh_columns).
         R0 = min(FRESH_ROWS, n - n % 4) if cols and min(FRESH_ROWS, n - n % 4) >= 2 * Kc else 0
         F = aligned_zeros(R0, W)
         shut = np.full(len(cthr), -np.inf, np.float32)

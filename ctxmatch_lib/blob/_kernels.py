@@ -1,23 +1,13 @@
-"""Compiled kernels of blob matching: one pass over float32 GEMM tiles, exact float64 decisions.
+"""Compiled kernels of blob matching: the scan of float32 GEMM tiles and the exact float64 decisions.
 
-The float32 GEMM ``d1 @ d2.T`` only *proposes* candidates. Its rounding depends on the BLAS kernel (SIMD
-width, FMA, blocking), so no decision is taken on its values: every line (row or column of D) keeps the
-``K`` smallest approximate squared distances, and the entries that can be among the ``T`` best under the
-certified error bound ``E`` of the approximation are recomputed in float64 by :func:`_exact_sq` (products
-of float32 are exact in float64, the sum runs in a fixed order, no BLAS), then ranked by (distance, index).
-A line whose bound does not separate (many near ties) is recomputed whole. The decisions are then those of
-the exact distances, on any CPU.
-
-Error bound (Higham, *Accuracy and Stability of Numerical Algorithms*, Sec. 3.1): a float32 dot product of
-length ``d`` in any summation order, with or without FMA, is within ``γ_d |a||b|`` of the exact one
-(``γ_d = d u / (1 - d u)``, ``u = 2^-24``); the squared norms and the two float32 operations that form
-``|a|² + |b|² − 2 a·b`` add a few ``u (|a|² + |b|²)``. With ``2|a||b| <= |a|² + |b|²``, the approximation
-is within ``(2 γ_d + 8u)(|a|² + |b|²)`` (``+ 4u`` more for float64 descriptors rounded to float32);
-:func:`error_scale` doubles that.
-
-Look-ups beyond the sorted lists (f = Ω's greedy, a second best past the list) read whole lines of the
-approximations as 16-bit codes (:func:`code_scale`, :func:`code`): half the memory of float32, and a decoded
-code within ``E`` plus one code step of the exact squared distance.
+The float32 product only *proposes*: each line (row or column of D) keeps its ``K`` smallest approximate
+squared distances, and the entries that can be among the ``T`` best under the certified bound ``E`` are
+recomputed in float64 in a fixed order without BLAS (:func:`_exact_sq`) and ranked by (distance, index), so
+the decisions are the same on any CPU. Bound (Higham, *Accuracy and Stability*, Sec. 3.1): a float32 dot
+product of length ``d``, in any order with or without FMA, is within ``γ_d |a||b|`` (``γ_d = d u / (1 - d u)``,
+``u = 2^-24``), so ``|a|² + |b|² − 2 a·b`` is within ``(2 γ_d + 8u)(|a|² + |b|²)`` (``+ 4u`` for float64
+input); :func:`error_scale` doubles that. Look-ups beyond the lists read 16-bit codes of the approximations
+(:func:`code_scale`).
 """
 
 from __future__ import annotations
@@ -50,10 +40,9 @@ _S56, _S58 = np.uint64(56), np.uint64(58)
 def code_scale(lo: float, hi: float) -> tuple[np.float32, np.float32, float]:
     """``(qoff, qinv, step)`` of the 16-bit codes of approximate squared distances in ``[lo, hi]``.
 
-    :func:`code` maps ``v`` to ``q = floor((v - qoff) qinv + 1/2)`` in float32, which is within 0.51 of the
-    real ``(v - qoff) qinv`` (three float32 roundings of values below 2^16 add at most 0.01), so
-    ``qoff + q step`` (``step = 1 / qinv``) is within ``0.51 step`` of ``v``: a look-up on codes adds
-    ``step`` to the bound of the approximation. ``qinv`` leaves two codes of headroom below :data:`TAKEN`.
+    :func:`code` gives ``q = floor((v - qoff) qinv + 1/2)`` in float32, so ``qoff + q step`` lies within
+    ``0.51 step`` of ``v`` (three float32 roundings below 2^16 add at most 0.01): codes add ``step`` to the
+    bound. ``qinv`` leaves two codes of headroom below :data:`TAKEN`.
     """
     qoff = np.nextafter(np.float32(lo), np.float32(-np.inf))
     qinv = np.float32((TAKEN - 2) / max(hi - float(qoff), 1e-30))
@@ -70,16 +59,14 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _lowest_bit(mask):
-        """A 64-bit mask without its lowest set bit, and that bit's index (de Bruijn, above): the walks over
-        flagged entries take their bits lowest first, without a branch per bit."""
+        """A 64-bit mask without its lowest set bit, and that bit's index (de Bruijn)."""
         low = mask & (~mask + np.uint64(1))
         return mask ^ low, _DEBRUIJN_BIT[np.int64((low * _DEBRUIJN) >> _S58)]
 
     @njit(cache=_cache, nogil=True)
     def _exact_sq(A, i, B, j):
-        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8, the lanes
-        of one :class:`~ctxmatch_lib._numerics.simd.Vec8`), the last d mod 8 terms added to the first, then added in
-        a fixed tree. The same bits on any CPU: no reassociation, and no FMA contraction (no fast-math)."""
+        """Squared L2 distance of ``A[i]`` and ``B[j]`` in float64: eight running sums (k mod 8), summed in a
+        fixed tree (:func:`_tree`); no fast-math, so the same bits on any CPU."""
         a, b = A[i], B[j]
         d = a.shape[0]
         d8 = d - d % 8
@@ -90,8 +77,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def sq_norms(A):
-        """Squared norms of the rows of ``A`` in float64: :func:`_exact_sq` against a zero row (``a - 0`` is
-        ``a`` exactly), so summed alike, and no copy of ``A``."""
+        """Squared norms of the rows of ``A`` in float64 (:func:`_exact_sq` against a zero row)."""
         zero = np.zeros((1, A.shape[1]), A.dtype)
         out = np.empty(A.shape[0])
         for i in range(A.shape[0]):
@@ -100,8 +86,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _tree(acc, a, b, d8, d):
-        """The end of :func:`_exact_sq`: the last d mod 8 terms added to the first lane, the lanes summed in
-        its fixed tree."""
+        """The end of :func:`_exact_sq`: the last d mod 8 terms into lane 0, the lanes summed in a fixed tree."""
         s0, s1, s2, s3, s4, s5, s6, s7 = lanes8(acc)
         for k in range(d8, d):
             t0 = np.float64(a[k]) - np.float64(b[k])
@@ -110,9 +95,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _exact_sq4(A, i, B, j0, j1, j2, j3):
-        """:func:`_exact_sq` of ``A[i]`` against four rows of ``B`` at once, each in its own registers and
-        with the same operations in the same order (so the same bits): four independent chains of additions
-        overlap."""
+        """:func:`_exact_sq` of ``A[i]`` against four rows of ``B``, four independent chains (the same bits)."""
         a, b0, b1, b2, b3 = A[i], B[j0], B[j1], B[j2], B[j3]
         d = a.shape[0]
         d8 = d - d % 8
@@ -180,10 +163,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _insert(val, idx, thr, line, K, v, x, tv, tx):
-        """Insert ``(v, x)`` into the line's K entries, kept sorted by value (after equal values; +inf in
-        empty slots); the line's threshold becomes the K-th entry when that is lower. No branch on the data:
-        the position is a count, the shift a select over copies of the line in ``tv`` / ``tx`` (scratch of
-        K entries); a ``v`` at or above the K-th entry leaves the line as it was."""
+        """Insert ``(v, x)`` into the line's K sorted entries (after equal values), without a branch on the
+        data (``tv``/``tx``: scratch); the threshold becomes the K-th entry when lower."""
         a = val[line]
         b = idx[line]
         pos = 0
@@ -203,9 +184,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _kth_of(work, cnt, K):
-        """The K-th smallest (1-based) of ``work[0, :cnt]`` (a (1, 32) float32 array). For ``K <= 16``
-        (``cnt <= 32``) by ranks: the entry with fewer than K entries below it and at least K at or
-        below it, counted in two 16-lane registers without a branch on the data; else :func:`_kth`."""
+        """The K-th smallest (1-based) of ``work[0, :cnt]``: for ``K <= 16`` by ranks counted in two 16-lane
+        registers, else :func:`_kth`."""
         if K > 16:
             return _kth(work[0], cnt, K - 1)
         lo, hi = load16(work, 0, 0), load16(work, 0, 16)
@@ -219,8 +199,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _flush(val, idx, thr, line, K, pv, pi, q, cnt):
-        """Insert the pending entries ``(pv[q, :cnt], pi[q, :cnt])`` (in arrival order) into a line of at
-        most 16 entries (arrays padded to 16 columns), held in registers meanwhile."""
+        """Insert the pending entries ``(pv[q, :cnt], pi[q, :cnt])`` into a line of at most 16, in registers."""
         lv, lx = load16(val, line, 0), load16(idx, line, 0)
         for p in range(cnt):
             lv, lx = insert16(lv, lx, pv[q, p], pi[q, p])
@@ -231,8 +210,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc):
-        """A fresh column's threshold from its first tile (see :func:`scan_tile`): the K-th smallest of the
-        minima of 2K groups of consecutive rows, nudged up by one float32 step."""
+        """Fresh columns' thresholds from the first tile (see :func:`scan_tile`)."""
         B, C = G.shape
         ngc = min(B, 2 * Kc)
         gsz = B // ngc
@@ -258,27 +236,15 @@ with user_cache() as _cache:
     def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv):
         """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the rows' and columns' K best.
 
-        ``v = |a|² + |b|² − 2 a·b`` in float32. An entry below its row's or column's threshold is flagged
-        in a vectorisable pass, then inserted into the line's K entries ``rv[i, :Kr]`` / ``cv[j, :Kc]``
-        (sorted by value, +inf in empty slots); a full line's threshold is its K-th value, so only entries
-        that can enter the K best are flagged. With ``keep``, the 16-bit :func:`code` of ``v`` is also
-        written to ``dense`` (f = Ω): half the memory of float32, the bound of the codes one step wider.
-
-        A line of at most 16 entries (its arrays padded to 16 columns) is updated in 16-lane registers by
-        :func:`~ctxmatch_lib._numerics.simd.insert16`: a row while its flagged entries are walked, a column a bucket
-        of up to ``P`` pending entries at a time. Every flagged (pending) entry goes through ``insert16``
-        without a threshold test: one at or above the line's K-th value leaves it as it was, and one below
-        it but at or above a fresh line's estimated threshold (which is above the line's true K-th value)
-        is pushed out again by the K true best entries, which all come. The K entries are those of the
-        branchy insertion, in the same order.
-
-        Each row of ``G`` is set to zero once read: the next tile is accumulated into it
-        (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`).
+        ``v = |a|² + |b|² − 2 a·b`` in float32. Entries below their row's or column's threshold (a full
+        line's K-th value) are flagged in a vectorisable pass, then inserted into ``rv[i, :Kr]`` /
+        ``cv[j, :Kc]`` (sorted, +inf in empty slots); lines of at most 16 entries in 16-lane registers
+        (:func:`~ctxmatch_lib._numerics.simd.insert16`), columns a bucket of ``P`` at a time. With ``keep``
+        the 16-bit :func:`code` of every ``v`` goes to ``dense`` (f = Ω). Each row of ``G`` is zeroed once
+        read, for the next tile's accumulation (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`).
         """
         B, C = G.shape
         reg = Kr <= 16
-        # Columns of at most 16 entries: the entries below a column's threshold wait in a bucket of P and
-        # are inserted a bucket at a time, the line in registers (a column's entries come a row apart).
         regc = Kc <= 16
         P = 32
         pv = np.empty((C, P), np.float32)
@@ -289,10 +255,8 @@ with user_cache() as _cache:
         words = fl.view(np.uint64)
         up = np.float32(np.inf)
         tv, tx = np.empty(max(Kr, Kc), np.float32), np.empty(max(Kr, Kc), np.int64)
-        # A fresh line starts with a threshold at or above the K-th smallest of its first tile, not +inf
-        # (which would insert the tile's entries until K are in): the K-th smallest of the minima of 2K
-        # groups of the tile's entries. K groups have an entry at or below it, so it keeps the K smallest,
-        # and it costs one vectorised pass plus a selection among 2K values.
+        # A fresh line's threshold: the K-th smallest of the minima of 2K groups of its first tile (K groups
+        # have an entry at or below it, so the K smallest pass), nudged up one float32 step.
         if B >= Kc and cv[c0, 0] == np.inf and cthr[c0] == np.inf:
             _fresh_columns(G, r0, c0, n1, n2, cv, cthr, Kc)
         ngr = min(C, 2 * Kr)
@@ -330,12 +294,8 @@ with user_cache() as _cache:
                     v = (a + n2t[jj]) - (g + g)
                     c = ctt[jj]
                     fl[jj] = np.uint8(v < (t if t > c else c))
-            # A row of at most 16 entries (its array padded to 16) stays in registers while its entries are
-            # walked: the next insertion does not wait on the last one's stores.
-            lv, lx = load16(rv, i, 0), load16(ri, i, 0)
-            # The flagged entries in order, without a branch per entry: eight flag bytes (0 / 1) gather
-            # into eight bits by one multiplication, a group's 64 into a mask; its set bits are then
-            # taken lowest first (de Bruijn index of the lowest bit).
+            lv, lx = load16(rv, i, 0), load16(ri, i, 0)  # the row in registers while walked
+            # Flag bytes gathered into 64-bit masks, their set bits taken lowest first.
             for g in range(ng):
                 mask = np.uint64(0)
                 for q in range(8):
@@ -400,12 +360,11 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def certify_lines(A, B, hv, hi, cnt, K, T, norm_a, max_norm_b, scale, out_idx, out_val):
-        """The exact T best entries of every line (rows of ``A`` against ``B``) from its heap of K.
+        """The exact T best entries of every line (rows of ``A`` against ``B``) from its K approximate ones.
 
-        The T-th smallest approximate value ``τ`` bounds the T-th exact value by ``τ + E``, so every entry
-        among the exact T best has an approximate value ``<= τ + 2E``; when the heap's largest value is above
-        that (or the heap holds the whole line), those entries are all in the heap: they alone are recomputed.
-        Otherwise the whole line is. Returns the number of exact distances computed.
+        The exact T best all have approximate values ``<= τ + 2E`` (``τ``: the T-th approximate value); when
+        the K entries reach past that, those alone are recomputed, else the whole line. Returns the number
+        of exact distances computed.
         """
         n, m, d = A.shape[0], B.shape[0], B.shape[1]
         step = max(1, 64 // B.itemsize)  # entries per 64-byte cache line
@@ -444,18 +403,15 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def within_px(pts, k, o, t_o2):
-        """FGINN by pixels (Eq. (9), Sec. 3): whether keypoint ``k`` lies less than ``sqrt(t_o2)`` pixels from
-        the matched keypoint ``o`` (rows of ``pts``, (x, y) pixels), which excludes it from the second best.
-        The rule's one definition: the sorted lists (:func:`first_allowed`), the L2 path's whole lines
-        (:func:`._walk_kernels.next_in_line`) and exact whole lines (:func:`outside_px`) apply it."""
+        """FGINN by pixels (Eq. 9): whether keypoint ``k`` lies less than ``sqrt(t_o2)`` pixels from the
+        matched keypoint ``o``, which excludes it from the second best (the rule's one definition)."""
         dx = pts[k, 0] - pts[o, 0]
         dy = pts[k, 1] - pts[o, 1]
         return dx * dx + dy * dy < t_o2
 
     @njit(cache=_cache, nogil=True)
     def outside_px(pts, others, t_o2):
-        """``(K, N)`` mask of the keypoints ``k`` of ``pts`` (shape ``(N, 2)``, (x, y) pixels) that FGINN by
-        pixels leaves to the line of match ``others[r]``: not :func:`within_px` of it."""
+        """``(K, N)`` mask of the keypoints not :func:`within_px` of ``others[r]``."""
         out = np.empty((len(others), pts.shape[0]), np.bool_)
         for r in range(len(others)):
             o = others[r]
@@ -488,12 +444,9 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def next_allowed(idx, val, anchors, others, dist, geq, pos, pts, radius, far_ok):
-        """Per anchor line, the first position ``>= pos[r]`` of its sorted list that is not the match
-        itself, not below ``dist`` (``geq``) and, for FGINN by overlap, either near the matched keypoint
-        ``others[r]`` (bounding circles of radius ``radius`` intersecting: its overlap error is to be
-        computed) or far from it and ``far_ok`` (overlap error exactly 1, above ``t_o``; far entries are
-        skipped when not ``far_ok``). Returns the positions (the list length when none) and whether each
-        is far (decided) rather than near (to be checked)."""
+        """Per anchor line, the first position ``>= pos[r]`` that is not the match, not below ``dist``
+        (``geq``) and either near ``others[r]`` (bounding circles intersecting: to be checked) or far from
+        it with ``far_ok`` (overlap error 1). Returns the positions (list length: none) and the far flags."""
         L = idx.shape[1]
         out = np.empty(len(anchors), np.int64)
         far = np.zeros(len(anchors), np.bool_)

@@ -10,16 +10,14 @@ from . import _kernels
 
 _MiB = 1 << 20
 
-#: The most memory per side that :class:`LineMemo` keeps computed lines in (4.3 MiB at 1500 x 1500 keypoints,
-#: 122 MiB at 8000 x 8000: then lines are recomputed when asked again).
+#: The most memory per side that :class:`LineMemo` keeps computed lines in (2 bytes an entry).
 LINE_MEMO_BYTES = 32 * _MiB
 
 
 def coded_lines(own: np.ndarray, other: np.ndarray, n_own: np.ndarray, n_other: np.ndarray, which: np.ndarray,
                 qoff, qinv) -> np.ndarray:
-    """Coded approximate squared distances ``|a|² + |b|² − 2 a·b`` of the float32 rows ``own[which]`` to every
-    row of ``other`` (``n_*``: float32 squared norms): one BLAS thread, about 8 MiB of float32 at a time, then
-    :func:`._kernels.encode` with the offset and scale ``qoff``, ``qinv``."""
+    """Codes (:func:`._kernels.encode`) of ``|a|² + |b|² − 2 a·b`` from the float32 rows ``own[which]`` to
+    every row of ``other``, about 8 MiB of float32 at a time on one BLAS thread."""
     out, step = np.empty((len(which), len(other)), np.uint16), max(1, (8 * _MiB) // (4 * len(other)))
     for s in range(0, len(which), step):
         w = which[s : s + step]
@@ -32,9 +30,8 @@ def coded_lines(own: np.ndarray, other: np.ndarray, n_own: np.ndarray, n_other: 
 
 
 class LineMemo:
-    """The lines of one side computed so far: :meth:`get` computes the missing ones (one call of
-    ``compute(which)``) and returns copies, so that a caller may mark entries in them. A context asked for the
-    same lines under every setup of a sweep computes each once. Beyond :data:`LINE_MEMO_BYTES` nothing is kept."""
+    """The lines of one side computed so far (up to :data:`LINE_MEMO_BYTES`): :meth:`get` computes the
+    missing ones and returns copies, so a sweep computes each line once."""
 
     def __init__(self, n_lines: int, line_len: int):
         self.keep = n_lines * line_len * 2 <= LINE_MEMO_BYTES

@@ -7,11 +7,8 @@ import numpy as np
 
 
 def _first_t(group, other, value, n_groups: int, n_other: int, T: int):
-    """From candidate entries (every group holds at least T), keep the T best per group.
-
-    Within a group the order is by value, then by the other index (blob matching's tie-break).
-    Returns ``idx`` (n_groups, T) int64 and ``val`` (n_groups, T) float64 distances.
-    """
+    """The T best candidate entries of every group (each holds at least T), by (value, other index), as
+    ``idx`` (n_groups, T) int64 and ``val`` (n_groups, T) float64."""
     gb, ob = max(1, int(n_groups - 1).bit_length()), max(1, int(n_other - 1).bit_length())
     if value.dtype == np.float32 and gb + ob <= 32:
         # One int64 sort: the bits of a non-negative float32 are monotone in its value (31 bits).
@@ -37,11 +34,8 @@ def _group_size(size: int, T: int) -> int:
 
 
 def _row_thresholds(block: np.ndarray, T: int, G: int) -> np.ndarray:
-    """Per-row value ``tau`` with at least ``T`` entries ``<= tau``: the T-th smallest of group minima.
-
-    The columns are split into interleaved groups of ``G``; T distinct groups each have an entry no larger
-    than the T-th smallest group minimum, so the bound holds, and it is tight up to a few entries.
-    """
+    """Per-row value ``tau`` with at least ``T`` entries ``<= tau``: the T-th smallest minimum of interleaved
+    column groups of ``G`` (T groups have an entry at or below it)."""
     B, m = block.shape
     if T >= m:
         return np.full(B, np.inf)

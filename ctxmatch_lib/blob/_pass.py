@@ -1,7 +1,5 @@
-"""The two drivers of ``BlobContext``'s one pass over D (:attr:`~.context.BlobContext.product`): BLAS GEMM
-tiles scanned while in cache, or the compiled product that keeps them in registers. Both fill the same
-lists (each line's K smallest float32 approximations, in ``rv, ri, rthr`` / ``cv, ci, cthr``) and, for
-f = Ω, the same 16-bit codes in ``dense``: the arguments are those of :func:`._kernels.scan_tile`."""
+"""The two drivers of ``BlobContext``'s one pass over D (:attr:`~.context.BlobContext.product`), filling the
+same lists and codes; the arguments are those of :func:`._kernels.scan_tile`."""
 
 from __future__ import annotations
 
@@ -14,8 +12,8 @@ __all__ = ["fused_pass", "tile_pass"]
 
 
 def tile_pass(A32, B32, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv, *, tile) -> None:
-    """The pass over BLAS GEMM tiles of ``tile = (rows, columns)``: each tile accumulated into a buffer that
-    :func:`._kernels.scan_tile` reads and zeroes (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`)."""
+    """The pass over BLAS GEMM tiles of ``tile = (rows, columns)``, accumulated into a buffer that
+    :func:`._kernels.scan_tile` reads and zeroes."""
     R, C = tile
     buf = np.zeros(R * C, np.float32)  # zero between tiles: the scan clears what it has read
     for r0 in range(0, len(A32), R):
@@ -28,9 +26,8 @@ def tile_pass(A32, B32, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep,
 
 
 def fused_pass(A32, B32, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv, *, columns) -> None:
-    """The pass with the product in registers (:func:`._fused_kernels.product_scan`): rows padded with zeros
-    to a multiple of 4 (squared norms +inf), columns packed in blocks of 64, the columns' thresholds padded
-    with -inf, so a padded row or column is never flagged. ``columns`` False: no column keeps entries."""
+    """The pass with the product in registers (:func:`._fused_kernels.product_scan`), on padded inputs that
+    are never flagged. ``columns`` False: no column keeps entries."""
     n, m = len(A32), len(B32)
     if n == 0 or m == 0:
         return

@@ -1,6 +1,5 @@
 """Compiled kernels of blob matching's steps 1-2 on the sorted lists: the pre-filter F∪ / F∩, the order by
-(value, row, column) and the greedy many-to-many selection. They see distances only, whatever made them (the
-exact L2 path, a precomputed D, a distance hook)."""
+(value, row, column) and the greedy many-to-many selection."""
 
 from __future__ import annotations
 
@@ -16,9 +15,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def prefilter_lists(ridx, rval, cidx, cval, fr, fc, cup):
-        """Step 1 from the sorted lists: the entries of F∪ (Eq. 11, ``cup``) or F∩ (Eq. 10) as rows, columns
-        and values, unordered. An entry of both lists comes once, with its row's value (a distance is the
-        same bits seen from either image)."""
+        """Step 1: the entries of F∪ (Eq. 11, ``cup``) or F∩ (Eq. 10) as rows, columns and values, unordered;
+        an entry of both lists comes once."""
         n, m = ridx.shape[0], cidx.shape[0]
         size = n * fr + (m * fc if cup else 0)
         rows, cols, vals = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)

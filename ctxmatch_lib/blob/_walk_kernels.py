@@ -1,15 +1,10 @@
-"""Compiled look-ups of blob matching beyond the sorted lists: whole lines of the approximate matrix.
+"""Compiled look-ups of blob matching beyond the sorted lists: f = Ω's greedy (:func:`greedy_dense`) and the
+second best past a list (:func:`next_in_lines`) take a line's next entry in (exact distance, index) order
+with :func:`next_in_line`, where 16-bit codes (:func:`._kernels.code_scale`) propose and exact float64
+distances decide.
 
-f = Ω's greedy (:func:`greedy_dense`) walks a row past its sorted list, and a ratio's second best
-(:func:`next_in_lines`) may lie past it. Both take the next entry of a line in (exact distance, index) order
-with :func:`next_in_line`: 16-bit codes of the float32 approximate squared distances (within the certified
-bound ``E`` of :mod:`._kernels` plus the codes' step, :func:`._kernels.code_scale`) propose, sixteen at a
-time, and float64 exact distances decide. The codes take half the memory of float32: f = Ω's dense matrix
-is written and read twice as fast.
-
-numba's disk cache checks the timestamp of a kernel's own file only: after an edit of the ``_kernels`` it
-uses (``_exact_sq``, ``_lowest_bit``, ``within_px``) or of ``ctxmatch_lib._numerics.simd``, touch this file (or clear
-``$CTXMATCH_CACHE/numba``).
+numba's disk cache checks only a kernel's own file: after editing ``_kernels`` or ``_numerics.simd``, touch
+this file (or clear ``$CTXMATCH_CACHE/numba``).
 """
 
 from __future__ import annotations
@@ -56,20 +51,15 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _band_top(mu, top_best, E, qoff, step):
-        """The last code of the band of least code ``mu``: entries coded up to it may come before the one coded
-        ``mu`` (exact <= qoff + mu step + E, so decoded <= that + E), or before the best so far (``top_best``)."""
+        """The last code that may come before the entry coded ``mu`` (decoded within ``2E``) or before the
+        best so far (``top_best``)."""
         return max(_code_at_least(qoff + mu * step + 2.0 * E, qoff, step), top_best)
 
     @njit(cache=_cache, nogil=True)
     def _band_from(Q, r, pen, lo, top_best, E, qoff, step, band):
-        """One pass over line ``r`` of ``Q``: the least code ``mu >= lo`` not taken out, and in
-        ``band[:count]`` (column order) every entry coded in ``[lo, hi]`` with ``hi`` the band's last code
-        (:func:`_band_top`) for the least code met so far: the band of ``mu``, plus a few entries met before
-        ``mu`` that lie above it. Returns ``(mu, count)``; ``mu`` is ``TAKEN`` when no entry is left.
-
-        ``hi`` only falls, so an entry of the final band is kept whenever it is met: one pass finds the least
-        code and its band, sixteen codes at a time.
-        """
+        """One pass over line ``r`` of ``Q``, sixteen codes at a time: the least code ``mu >= lo`` not taken
+        out (``TAKEN``: none), and in ``band[:count]`` every entry coded in ``[lo, hi]``, ``hi`` the band top
+        of the least code so far (it only falls, so the final band is all kept). Returns ``(mu, count)``."""
         m = Q.shape[1]
         m16 = m - m % 16
         mu = np.int64(TAKEN)
@@ -99,15 +89,11 @@ with user_cache() as _cache:
     def next_in_line(Q, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2, qoff, step, band):
         """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
 
-        ``Q[r]`` holds the line's 16-bit codes ``q`` of approximate squared distances: ``qoff + q step`` is
-        within ``E`` of the exact squared distance. Candidates: ``pen[k] == 0`` (0xFFFF takes entry ``k``
-        out; saturated columns of the greedy), ``k != skip``, not within ``sqrt(t_o2)`` pixels of ``skip``
-        (FGINN, when ``t_o2 > 0``) and exact distance ``> d`` or ``== d`` with ``k > j`` (``strict``) /
-        ``>= d`` (not ``strict``, any ``k``). Exact distances are computed only for the entries whose code
-        cannot rule them out: the band of codes ``[lo, top]`` above the least code not yet seen, found in one
-        pass (:func:`_band_from`, into ``band``, an int64 buffer of at least ``Q.shape[1]`` entries). Returns
-        ``(distance, index)``, ``(inf, -1)`` when none qualifies. ``pen[skip]`` is set during the call and
-        restored.
+        ``Q[r]``: the line's codes (``qoff + q step`` within ``E`` of the exact squared distance).
+        Candidates: ``pen[k] == 0`` (``TAKEN`` takes ``k`` out), ``k != skip``, not within ``sqrt(t_o2)``
+        pixels of ``skip`` (FGINN) and after ``(d, j)`` (``strict``) or ``>= d``. Exact distances are
+        computed only in the band of codes the least unseen code cannot rule out (:func:`_band_from`;
+        ``band``: int64 scratch of ``Q.shape[1]``). Returns ``(distance, index)``, ``(inf, -1)`` for none.
         """
         held = np.uint16(0)
         if skip >= 0:
@@ -136,8 +122,7 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True, inline="always")
     def _prefetch_line(Q, r):
-        """Start bringing line ``r`` of ``Q`` into the caches (a hint: no effect on any result). The look-ups
-        read whole lines of codes from memory, one after the other; a line asked for ahead arrives meanwhile."""
+        """Prefetch line ``r`` of ``Q`` (a hint: no effect on any result)."""
         for k in range(0, Q.shape[1], 32):  # 32 codes: one 64-byte cache line
             prefetch(Q, r, k)
 
@@ -178,11 +163,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def greedy_dense(Q, A, B, lidx, lval, E_rows, f_prime, qoff, step):
-        """Step 2 over all of D (f = Ω): a heap holds each row's next entry in (distance, column) order.
-
-        Rows walk their exact sorted lists first, then continue with :func:`next_in_line` on their row of
-        ``Q``, the coded approximate matrix (exact distances where the codes cannot decide).
-        """
+        """Step 2 over all of D (f = Ω): a heap of each row's next entry in (distance, column) order, from
+        its sorted list, then from :func:`next_in_line` on its row of codes ``Q``."""
         n, m = Q.shape
         T = lidx.shape[1]
         rc = np.zeros(n, np.int64)
@@ -231,8 +213,7 @@ with user_cache() as _cache:
                 d, j = lval[i, T - 1], lidx[i, T - 1]
             if T == m:
                 continue
-            # (d, j) is an entry of the row (exact distance d), so j cannot come after itself: skipped, its
-            # code stays out of the band, which otherwise takes it, and a second pass, while j's column is free.
+            # Skip j itself: (d, j) is an entry of the row, and its code would otherwise enter the band.
             e, k = next_in_line(Q, i, A, i, B, E_rows[i], d, j, True, j, pen, dummy, 0.0, qoff, step, band)
             if k >= 0:
                 size = _hpush(hv, hi, hj, size, e, i, k)
@@ -240,10 +221,8 @@ with user_cache() as _cache:
 
     @njit(cache=_cache, nogil=True)
     def next_in_lines(Q, rows, A, which, B, E_lines, d, j, strict, skip, pts, t_o2, qoff, step):
-        """:func:`next_in_line` for several lines: line ``which[r]`` of ``A`` against ``B``, the codes of its
-        approximate squared distances in ``Q[rows[r]]``, the entry after ``(d[r], j[r])`` (``strict[r]``) other than
-        ``skip[r]`` and, when ``t_o2 > 0``, not within ``sqrt(t_o2)`` pixels of it (FGINN). Returns the
-        exact distances and indices, ``inf`` and ``-1`` where none qualifies."""
+        """:func:`next_in_line` for lines ``which[r]`` of ``A`` (codes ``Q[rows[r]]``), prefetching
+        :data:`AHEAD` lines ahead. Returns the exact distances and indices (``inf``, ``-1``: none)."""
         L = len(which)
         out_d = np.empty(L)
         out_k = np.empty(L, np.int64)

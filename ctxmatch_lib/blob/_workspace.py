@@ -1,12 +1,10 @@
 """One buffer for f = Ω's 16-bit codes of D, reused from one call of blob matching to the next.
 
-f = Ω's greedy reads the whole of D (Sec. 3): on the L2 path the pass writes 16-bit codes of all of it
-(:meth:`.context.BlobContext._scan_exact`), 2 bytes an entry, 50 MB at n = m = 5000. A fresh array each call
-costs its page faults, about as much as writing the codes, and on virtual machines whose host takes freed
-memory back, several times that. :func:`blob_matching` hands its buffer back when it returns
-(:meth:`.context.BlobContext.release`), and the next call with at most as many entries takes it over, as a
-BLAS GEMM's caller keeps its output. Only buffers of at most :data:`HOLD_BYTES` are held, one per thread;
-:func:`free_workspace` drops it. The codes are rewritten in full each pass, so reuse changes no result.
+f = Ω's greedy reads all of D, as 16-bit codes on the L2 path; a fresh array each call costs page faults
+about as large as writing the codes. :func:`blob_matching` hands its buffer back
+(:meth:`.context.BlobContext.release`) and the next call takes it over, as a GEMM's caller keeps its
+output: at most :data:`HOLD_BYTES`, one per thread (:func:`free_workspace` drops it). The codes are
+rewritten in full each pass, so reuse changes no result.
 """
 
 from __future__ import annotations
@@ -24,11 +22,8 @@ _held = threading.local()
 
 
 def take_codes(n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """An (n, m) uint16 array for the codes, and the flat buffer behind it to :func:`give_back`.
-
-    The held buffer when it is large enough (it is no longer held: two contexts never share it), else a
-    fresh one.
-    """
+    """An (n, m) uint16 array for the codes and the flat buffer behind it (:func:`give_back`): the held
+    buffer, no longer held, when large enough, else a fresh one."""
     buf = getattr(_held, "buf", None)
     if buf is not None and buf.size >= n * m:
         _held.buf = None

@@ -42,27 +42,9 @@ def _check_t_o(t_o, t_o_kind: str) -> float | None:
 
 @dataclass(frozen=True)
 class BlobConfig:
-    """One blob-matching setup (Sec. 3, steps 1-4).
-
-    Attributes
-    ----------
-    f : int or "omega"
-        Pre-filter depth: keep the ``f`` best entries per row and/or column (Eqs. 10-11); ``"omega"``
-        (Ω = max(n, m)) keeps everything.
-    prefilter : {"cap", "cup"}
-        ``"cap"``: F∩ of Eq. (10), best for both images; ``"cup"``: F∪ of Eq. (11), best for either.
-    f_prime : int
-        Greedy many-to-many cap f' of step 2; ``f_prime=1`` is the one-to-one greedy S_gNN of Eq. (5).
-    ratio : {"D>=", "D+>=", "D+"}
-        NNR-like similarity of step 3: D≥ (Eq. 13), D+≥ and D+ (Eq. 14 with and without ≥).
-    t_o : float or None
-        FGINN exclusion threshold; ``None`` (or ``math.inf``) turns FGINN off.
-    t_o_kind : {"px", "overlap"}
-        ``"px"``: exclude keypoints closer than ``t_o`` pixels; ``"overlap"``: exclude keypoints whose
-        elliptical patch has overlap error ``1 - IoU <= t_o`` (0 < t_o < 1).
-    combine : {"a", "b", "min", "max", "harmonic"}
-        W(a, b) of step 4 (Eq. 15): image 1 or image 2 as reference, min, max or harmonic mean.
-    """
+    """One blob-matching setup (Sec. 3, steps 1-4): the keywords of :func:`~ctxmatch_lib.blob.blob_matching`
+    (``f``, ``prefilter``, ``f_prime``, ``ratio``, ``t_o``, ``t_o_kind``, ``combine``), validated and
+    normalised (``"∩"``/``"∪"`` aliases, ``t_o = math.inf`` as ``None``)."""
 
     f: int | str = 10
     prefilter: str = "cup"
@@ -138,10 +120,8 @@ GRID_T_O = ((None, "px"), (0.50, "overlap"), (0.75, "overlap"), (0.99, "overlap"
 
 
 def blob_grid() -> list[BlobConfig]:
-    """The full blob-matching grid of Sec. 5.2 (2430 setups).
-
-    f ∈ {1∪, 1∩, 3∪, 3∩, 5∪, 5∩, 10∪, 10∩, Ω} × f' ∈ {1, 3, 5} × t_o ∈ {∞, 50 %, 75 %, 99 %, 5 px, 10 px}
-    × D ∈ {D≥, D+≥, D+} × W ∈ {a, b, min, max, harmonic}, rows (f × f') outermost as in Fig. 5.
+    """The 2430 setups of Sec. 5.2 (``GRID_F`` × ``GRID_F_PRIME`` × ``GRID_T_O`` × D × W), f × f' outermost as
+    in Fig. 5.
 
     Examples
     --------

@@ -1,15 +1,7 @@
-"""The per-pair state of blob matching: sorted best entries of every row and column of D.
-
-Blob matching only ever looks at the few best entries of each row and column of the distance matrix
-(pre-filter of Eqs. 10-11, second-best search of Eqs. 13-14), plus, rarely, a whole row or column. A
-:class:`BlobContext` computes the ``T`` best entries of every row and column in one pass over D, without
-ever holding D in float64 nor any n×n matrix. For L2 descriptors the pass forms float32 distances, keeps
-each line's candidates in a compiled kernel, and decides on exact float64 distances (:mod:`._kernels`): the
-candidates and scores do not depend on the BLAS kernel, its SIMD width or the thread count. The float32
-products come from BLAS GEMM tiles sized to the cache, scanned while in cache, or, on AVX-512 CPUs, from a
-compiled product that keeps them in registers (:mod:`._fused_kernels`; :attr:`BlobContext.product`), with
-the same results. Every setup of the grid of Sec. 5.2 then
-reuses it: the candidate set G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
+"""The per-pair state of blob matching (Sec. 3): :class:`BlobContext` keeps the ``T`` best entries of every
+row and column of D from one pass over it (Eqs. 10-11 and 13-14 read only those, and rarely a whole line).
+On the L2 path float32 products propose and exact float64 distances decide (:mod:`._kernels`). The setups
+of Sec. 5.2 share one context: G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
 """
 
 from __future__ import annotations
@@ -35,12 +27,8 @@ _MiB = 1 << 20
 
 @dataclass(frozen=True)
 class SortedLists:
-    """The ``T`` best entries of every row (or column) of D.
-
-    ``idx[r]`` and ``val[r]`` (distances, float64) are sorted by (value, index): exactly the first ``T``
-    entries of the line in the order of blob matching's tie-break. ``complete`` is True when ``T`` is the
-    whole line.
-    """
+    """The ``T`` best entries of every row (or column) of D, sorted by (value, index); ``complete``: ``T`` is
+    the whole line."""
 
     idx: np.ndarray  # (N, T) int64
     val: np.ndarray  # (N, T) float64
@@ -52,44 +40,23 @@ class BlobContext:
 
     Parameters
     ----------
-    desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (on RootSIFT descriptors, the Hellinger distance). Proposed by
-        float32 products (:attr:`product`), decided on float64 distances computed without BLAS in a fixed
-        order (the same on any CPU).
-    distances : ndarray of shape (n, m), optional
-        A precomputed distance matrix instead of descriptors.
-    distance : callable, optional
-        The descriptors' own distance instead of L2: ``distance(desc1[r0:r1], desc2)`` returns the
-        ``(r1 - r0, m)`` block of non-negative distances (e.g. the sGLOH2 rotation-min distance,
-        :class:`ctxmatch_lib.features.sgloh.SGLOH2Distance`). It is called on row blocks of about
-        ``block_bytes`` and on a few rows or columns (``distance(desc1, desc2[cols])``), so D is never held
-        whole unless ``keep_dense``; the hook itself should need O(block) memory.
-    kpts1, kpts2 : ndarray of shape (n, 2) and (m, 2), optional
-        Keypoints (x, y) in pixels, origin at the centre of the top-left pixel; needed by FGINN.
-    shapes1, shapes2 : ndarray of shape (n, 2, 2) and (m, 2, 2), optional
-        Affine shapes of the elliptical patches; needed by FGINN by overlap.
+    desc1, desc2, distances, distance, kpts1, kpts2, shapes1, shapes2
+        As :func:`~ctxmatch_lib.blob.blob_matching` (which validates them). A ``distance`` hook is called
+        on row blocks of about ``block_bytes`` and on a few rows or columns (``distance(desc1,
+        desc2[cols])``), so D is never held whole unless ``keep_dense``.
     depth : int
         Largest ``f`` (and ``f'``) this context will serve.
     keep_dense : bool, optional
-        Keep D in memory (needed by f = Ω, speeds up rare full-row look-ups). Default: when it takes at
-        most 256 MiB. The L2 path keeps 16-bit codes of its float32 approximations (2 bytes an entry,
-        written by the one pass; exact distances still decide, see :mod:`._kernels`), in the buffer the
-        last :meth:`release` handed back when it is large enough (:mod:`._workspace`).
+        Keep D (needed by f = Ω); default: when it takes at most 256 MiB. The L2 path keeps 16-bit codes of
+        its float32 approximations instead, in the buffer of :mod:`._workspace`.
     max_dense_bytes : int
-        Above this size (of D, or of its codes on the L2 path) f = Ω fails fast with a ``MemoryError``
-        stating the memory it needs.
+        Above this size (of D, or of its codes) f = Ω raises ``MemoryError``.
     margin : int, optional
-        Entries kept per line beyond ``depth`` (default :attr:`margin`). The second best of step 3 is
-        looked for in these lists first and in the whole line only when none qualifies; the results do not
-        depend on it, the time does: each entry costs the one pass over D, each miss a line.
+        Entries kept per line beyond ``depth`` (default :attr:`margin`), where the second best of step 3 is
+        looked for before the whole line; speed only.
     columns : bool, default True
-        Keep the columns' sorted lists too. The pre-filter F (f < Ω) and image 2's ratio need them; f = Ω
-        with W = a reads rows only (the baseline): without them the pass inserts no entry into a column and
-        re-ranks no column (the baseline's call about 5 % faster at n = m = 5000).
-
-    Notes
-    -----
-    Inputs are assumed validated by :func:`ctxmatch_lib.blob.blob_matching`.
+        Keep the columns' lists too; the pre-filter (f < Ω) and image 2's ratio need them, f = Ω with W = a
+        does not.
     """
 
     #: Default entries per line beyond ``depth``, so that FGINN and D≥ rarely need a whole line.
@@ -146,8 +113,7 @@ class BlobContext:
         self._exact = distances is None and distance is None
         self._approx = self._codes = None
         self.depth = int(depth)
-        # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count, and the candidates and
-        # scores must not (the same tables on any machine setting).
+        # One BLAS thread: OpenBLAS's float32 rounding depends on the thread count; the results must not.
         with one_blas_thread():
             if self._exact:
                 self._scan_exact(bool(keep_dense))
@@ -214,19 +180,14 @@ class BlobContext:
         # Candidates come row-major; a stable sort by column keeps rows ascending within ties.
         self.cols = SortedLists(*_first_t(g, o, v, m, n, Tc), complete=Tc == n)
 
-    #: GEMM tile (rows x columns) of ``product="tiles"``, 2 MiB of float32. A column's threshold starts from
-    #: its first tile's rows and a row's from its first tile's columns; the insertions after that grow with the
-    #: log of the lines' length over the tile's. 1024 x 768, 1536 x 512 and 2048 x 512 take the same time within
-    #: 2 % (whole paper-best calls at 5000 and 8000, the shapes' order rotated: the first after the GEMM pays
-    #: ~3 ms).
+    #: GEMM tile (rows x columns) of ``product="tiles"``, 2 MiB of float32, scanned while in cache.
     tile = (1024, 512)
-    #: Entries per line beyond the T kept: room for the certified band of the float32 rounding
-    #: (with fewer than 2 many lines fail the band test and are recomputed whole; 4 to 8 take the same time).
+    #: Entries per line beyond the T kept: room for the certified band of the float32 rounding (with fewer
+    #: than 2, many lines fail the band test and are recomputed whole).
     slack = 4
-    #: The pass's float32 product: ``"tiles"`` (BLAS GEMM tiles, each scanned while in cache), ``"fused"``
-    #: (a compiled product that keeps it in registers, fused with the scan, :mod:`._fused_kernels`), or
-    #: ``"auto"``: fused where the CPU has AVX-512 and numba compiles for it (:func:`fused_product_fast`),
-    #: else the tiles. The candidates and scores are the same either way (the product only proposes).
+    #: The pass's float32 product: ``"tiles"`` (BLAS GEMM tiles), ``"fused"`` (in registers, fused with the
+    #: scan, :mod:`._fused_kernels`) or ``"auto"``: fused where :func:`fused_product_fast`, else the tiles.
+    #: The results are the same either way (the product only proposes).
     product = "auto"
 
     def _scan_exact(self, keep_dense: bool) -> None:
@@ -243,9 +204,7 @@ class BlobContext:
         nrm1, nrm2 = _kernels.sq_norms(X1), _kernels.sq_norms(X2)
         self._scale = _kernels.error_scale(d)
         self._norms = (nrm1, nrm2)
-        # Each line's K best so far, sorted by value; +inf marks an empty slot (no entry equals +inf: it
-        # would have to be below a threshold).
-        # Lines of at most 16 entries are padded to 16: the kernel keeps them in 16-lane registers.
+        # Each line's K best so far, sorted, +inf in empty slots; padded to 16 (16-lane registers).
         Wr, Wc = max(Kr, 16), max(Kc, 16)
         rv, ri = np.full((n, Wr), np.inf, np.float32), np.zeros((n, Wr), np.int64)
         cv, ci = np.full((m, Wc), np.inf, np.float32), np.zeros((m, Wc), np.int64)
@@ -289,8 +248,8 @@ class BlobContext:
         return self.product == "fused" or (self.product == "auto" and fused_product_fast())
 
     def _line_bounds(self, side: int) -> np.ndarray:
-        """Per line of ``side``, the bound E on |decoded code - exact| of its squared distances: the float32
-        approximation's, plus the codes' step (:func:`._kernels.code_scale`)."""
+        """Per line of ``side``, the bound E on |decoded code - exact squared distance| (the float32 bound
+        plus the codes' step, :func:`._kernels.code_scale`)."""
         own, other = self._norms[side], self._norms[1 - side]
         return self._scale * (own + other.max()) + self._qstep
 
@@ -302,10 +261,8 @@ class BlobContext:
         return self._approx
 
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
-        """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, each
-        decoding within :meth:`_line_bounds` of the exact value (:func:`._lines.coded_lines`). Lines once
-        computed are kept (:class:`._lines.LineMemo`): the codes only propose and exact distances decide, so
-        which batch a line was computed in changes no result."""
+        """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, within
+        :meth:`_line_bounds` of the exact ones (:func:`._lines.coded_lines`), kept by :class:`._lines.LineMemo`."""
         if self._approx is not None and side == 0:
             return self._approx[which]
         if self._line_memo[side] is None:
@@ -388,12 +345,8 @@ class BlobContext:
         return np.stack([rows[accepted], cols[accepted]], axis=1), vals[accepted]
 
     def _greedy_dense(self, f_prime: int):
-        """Greedy over all of D (f = Ω) without sorting D.
-
-        A heap holds each row's next entry in (value, column) order. Saturated columns stay saturated, so
-        a row skips them when it advances; past its sorted list, the next entry of a row is found with one
-        vectorised scan of the row. On the L2 path the same runs compiled, on exact distances.
-        """
+        """Greedy over all of D (f = Ω) without sorting it: a heap of each row's next entry in (value, column)
+        order, skipping saturated columns (compiled on the L2 path, :func:`._walk_kernels.greedy_dense`)."""
         if self._exact:
             X1, X2 = self._X
             gi, gj, gd = _walk_kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
@@ -452,14 +405,9 @@ class BlobContext:
     # -- step 3: NNR-like ratios ---------------------------------------------------------------------
     def second_best(self, side: int, anchors: np.ndarray, others: np.ndarray, dist: np.ndarray, *,
                     geq: bool, t_o: float | None, t_o_kind: str = "px") -> np.ndarray:
-        """Denominator entry of Eqs. (13)-(14) for each match.
-
-        For side 0 (image 1 as reference) ``anchors`` are rows ``i`` and ``others`` the matched columns
-        ``j``; the result is the lowest entry of row ``i`` over columns ``k != j`` that FGINN does not
-        exclude (keypoint ``k`` of image 2 at least ``t_o`` pixels from ``j``, or with overlap error above
-        ``t_o``), restricted to entries ``>= D_ij`` when ``geq``. Side 1 is the same on columns. ``inf``
-        when no entry qualifies.
-        """
+        """Denominator entry of Eqs. (13)-(14) for each match: for side 0, the lowest entry of row
+        ``anchors[r]`` over columns ``k != others[r]`` that FGINN keeps, ``>= dist[r]`` when ``geq``; side 1
+        the same on columns; ``inf`` when none qualifies."""
         if side == 1:
             self._need_columns("image 2's ratio (side 1)")
         lists = self.rows if side == 0 else self.cols
@@ -488,14 +436,9 @@ class BlobContext:
 
     def _second_best_lines(self, side: int, anchors: np.ndarray, others: np.ndarray, dist: np.ndarray,
                            geq: bool, t_o, t_o_kind: str) -> np.ndarray:
-        """:meth:`second_best` on whole lines, for the anchors whose sorted list holds no qualifying entry.
-
-        Lines are taken in chunks of about 8 MiB. On the L2 path their coded float32 GEMM rows propose and exact
-        distances decide (:func:`._walk_kernels.next_in_lines`): one call yields the entry FGINN by pixels
-        allows; FGINN by overlap takes the entries in (distance, index) order and computes the overlap
-        error of each until one is above ``t_o``, so only the few nearest entries need a patch overlap,
-        never the whole line. Precomputed D and distance hooks follow the same order on exact lines.
-        """
+        """:meth:`second_best` on whole lines (chunks of about 8 MiB), for anchors whose list holds none. The
+        entries go in (distance, index) order (:func:`._walk_kernels.next_in_lines` on the L2 path); FGINN by
+        overlap computes overlaps until one is above ``t_o``."""
         size = self.m if side == 0 else self.n
         out = np.full(len(anchors), np.inf)
         by_overlap = t_o is not None and t_o_kind == "overlap"
@@ -538,9 +481,8 @@ class BlobContext:
             if not by_overlap:
                 out[s : s + step] = line.min(axis=1)
                 continue
-            # The entries in (distance, index) order, one round per entry: a line's first minimum is its
-            # next entry in that order, and an entry met is taken out (inf). Most lines end in a round or
-            # two, so no line is sorted whole. NaN (never output) ends a line as inf does.
+            # One round per entry in (distance, index) order (first minimum, then taken out as inf), so no
+            # line is sorted whole. NaN ends a line as inf does.
             line[np.isnan(line)] = np.inf
             live = np.arange(len(a))
             while len(live):
@@ -557,16 +499,9 @@ class BlobContext:
 
     def _first_not_overlapping(self, img: int, lists: SortedLists, anchors: np.ndarray, others: np.ndarray,
                                dist: np.ndarray, geq: bool, t_o: float) -> np.ndarray:
-        """FGINN by overlap on sorted lists, lazily: per anchor line, the position of the first entry that is
-        not the match, not below ``dist`` (``geq``) and whose overlap error with ``others`` is above ``t_o``;
-        ``-1`` when none is.
-
-        The lists are sorted by distance, so the first candidate FGINN keeps is the second best; only the
-        candidates before it need their overlap error, not the whole list. Of those, a candidate whose
-        bounding circle misses the match's has overlap error exactly 1 (as :func:`ellipse_overlap_error`
-        and the tabulated errors give it), decided in the kernel; the others by :meth:`overlap_near`, one
-        vectorised call per round.
-        """
+        """FGINN by overlap on sorted lists: per anchor line, the position of the first entry that is not the
+        match, not below ``dist`` (``geq``) and with overlap error above ``t_o`` (``-1``: none). Overlaps are
+        computed lazily, in list order; disjoint bounding circles give exactly 1 (decided in the kernel)."""
         K, L = len(anchors), lists.idx.shape[1]
         first = np.full(K, -1, np.int64)
         pos = np.zeros(K, np.int64)
@@ -595,9 +530,7 @@ class BlobContext:
 
     def overlap_near(self, img: int, other: np.ndarray, cand: np.ndarray, t_o: float) -> np.ndarray:
         """Whether keypoint ``other[k]``'s and ``cand[k]``'s patches (image ``img``) overlap with error
-        ``<= t_o``. Circular patches are decided by :func:`circle_overlap_bounds` where ``t_o`` is outside
-        them (nearly always); :meth:`overlap_errors` gives the error of the others. The decisions are those
-        of the errors."""
+        ``<= t_o``: by :func:`circle_overlap_bounds` where they decide, else :meth:`overlap_errors`."""
         pts, shapes = self.kpts[img], self.shapes[img]
         lo, hi = circle_overlap_bounds(pts[other], shapes[other], pts[cand], shapes[cand])
         near = hi <= t_o
@@ -607,10 +540,8 @@ class BlobContext:
         return near
 
     def overlap_errors(self, img: int, other: np.ndarray, cand: np.ndarray) -> np.ndarray:
-        """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img``.
-
-        The one place FGINN by overlap computes patch overlaps; sweeps override it with a table look-up.
-        """
+        """Overlap errors ``(K, L)`` between keypoint ``other[k]`` and ``cand[k, l]`` of image ``img`` (the one
+        place FGINN computes them; sweeps override it with a table look-up)."""
         pts, shapes = self.kpts[img], self.shapes[img]
         K, L = cand.shape
         anchor = np.broadcast_to(other[:, None], (K, L)).ravel()

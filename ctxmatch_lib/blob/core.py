@@ -25,9 +25,8 @@ class BlobMatches:
     matches : ndarray of shape (K, 2), int64
         Row into image 1 (keypoint / descriptor index), row into image 2.
     scores : ndarray of shape (K,), float64
-        The final similarity D̄ of Eq. (15): lower is better. Rows are sorted by score, ties by row then
-        column. The array (an ``NNRScores``) carries the ``ratio`` that made it, the scale
-        the filters read their NNR thresholds on (``r`` for ``"D>="``, ``r / (1 + r)`` for the others).
+        The final similarity D̄ of Eq. (15), lower is better; rows sorted by score, then row, then column.
+        An ``NNRScores`` carrying its ``ratio`` (the scale filters read NNR thresholds on).
     """
 
     matches: np.ndarray
@@ -42,12 +41,8 @@ class BlobMatches:
 
 
 def nnr_ratio(dist: np.ndarray, second: np.ndarray, ratio: str) -> np.ndarray:
-    """NNR-like similarity of step 3 from a match's distance and its second-best entry.
-
-    ``"D>="``: ``d / d2`` (Eq. 13, with ``d2 >= d`` by construction); ``"D+>="`` and ``"D+"``:
-    ``d / (d + d2)`` (Eq. 14). Limits: no second entry (``d2 = inf``) gives 0; ``d = d2 = 0`` gives the
-    value of ``d = d2 > 0``, i.e. 1 for D≥ and 0.5 for D+. All results lie in [0, 1].
-    """
+    """NNR-like similarity of step 3: ``"D>="`` ``d / d2`` (Eq. 13), ``"D+>="``/``"D+"`` ``d / (d + d2)``
+    (Eq. 14). No second entry (``d2 = inf``) gives 0; ``d = d2 = 0`` gives 1 for D≥, 0.5 for D+."""
     dist = np.asarray(dist, np.float64)
     second = np.asarray(second, np.float64)
     den = second if ratio == "D>=" else dist + second
@@ -77,11 +72,8 @@ def combine_ratios(a: np.ndarray, b: np.ndarray, combine: str) -> np.ndarray:
 
 def rank_candidates(ctx: BlobContext, matches: np.ndarray, dist: np.ndarray, *, ratio: str,
                     t_o: float | None, t_o_kind: str) -> tuple[np.ndarray, np.ndarray]:
-    """Step 3 for both references: ``a = D'_ij`` (image 1) and ``b = (D^T)'_ji`` (image 2).
-
-    With ``ratio`` in ``{"D>=", "D+>="}`` the second-best entry is restricted to values ``>= D_ij``
-    (Eq. 13); FGINN (Eq. 9) skips keypoints near the matched one in the same image.
-    """
+    """Step 3 for both references: ``a = D'_ij`` (image 1) and ``b = (D^T)'_ji`` (image 2); with ``"D>="``
+    or ``"D+>="`` the second best is ``>= D_ij`` (Eq. 13); FGINN (Eq. 9) skips keypoints near the match."""
     return tuple(_side_ratio(ctx, matches, dist, side, ratio=ratio, t_o=t_o, t_o_kind=t_o_kind)
                  for side in (0, 1))
 
@@ -116,18 +108,14 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     Parameters
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (the Hellinger distance on RootSIFT), or ``distance``. Give
-        these or ``distances``.
+        Descriptors; D is their L2 distance (Hellinger on RootSIFT) or ``distance``. Or give ``distances``.
     distances : ndarray of shape (n, m), optional
         Precomputed non-negative distance matrix.
     kpts1, kpts2 : ndarray of shape (n, 2) and (m, 2), optional
-        Keypoints (x, y) in pixels, origin at the centre of the top-left pixel. Required when ``t_o`` is
-        set.
+        Keypoints (x, y) in pixels, origin at the centre of the top-left pixel; required when ``t_o`` is set.
     shapes1, shapes2 : ndarray of shape (n, 2, 2) and (m, 2, 2), optional
-        Elliptical patches: keypoint ``k``'s patch is ``{kpts[k] + A[k] @ u : |u| <= 1}`` (for a
-        circular patch of radius ``s`` and orientation ``θ``, ``A = s R(θ)``, see
-        :func:`shapes_from_scale_angle`); ``(n,)`` radii are accepted too. Required when
-        ``t_o_kind="overlap"``.
+        Affine shapes of the patches ``{kpts[k] + A[k] @ u : |u| <= 1}`` (:func:`shapes_from_scale_angle`),
+        or ``(n,)`` radii; required when ``t_o_kind="overlap"``.
     f : int or "omega", default 10
         Pre-filter depth; ``"omega"`` (Ω = max(n, m)) disables the pre-filter.
     prefilter : {"cup", "cap"}, default "cup"
@@ -144,14 +132,11 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     combine : {"harmonic", "a", "b", "min", "max"}, default "harmonic"
         W(a, b) of Eq. (15).
     max_dense_bytes : int
-        f = Ω needs the whole D; above this size it raises ``MemoryError`` stating the memory needed. On the
-        L2 path D is held as 16-bit codes, and their buffer (up to 128 MiB, n = m = 8192) is kept for the
-        next call, as a GEMM's caller keeps its output: fresh pages cost as much as writing the codes.
-        :func:`free_workspace` drops it.
+        f = Ω needs the whole D (on the L2 path as 16-bit codes, whose buffer of up to 128 MiB is kept for
+        the next call, :func:`free_workspace`); above this size it raises ``MemoryError``.
     distance : callable, optional
-        The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)`` non-negative array
-        (e.g. RootsGLOH2's rotation-min distance, ``Features.distance()``); default L2. Evaluated in row
-        blocks like L2, with the same memory bound.
+        The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)`` non-negative
+        (e.g. ``Features.distance()`` of RootsGLOH2); default L2.
 
     Returns
     -------
@@ -160,14 +145,11 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
 
     Notes
     -----
-    Ties are broken deterministically everywhere: by value, then row, then column. "The f best of a row"
-    are the first f in that order, so exactly min(f, m) per row. When no entry qualifies as second best
-    (e.g. m = 1, or FGINN excludes all), the ratio is 0. With descriptors and the L2 distance, every
-    decision (the best entries of a row or column, the greedy order, the second best) is taken on float64
-    distances computed in a fixed order without BLAS; the float32 GEMM only proposes candidates within a
-    certified rounding bound, so the output is the same under any BLAS kernel or thread count. The memory
-    is O((n + m) f) plus one GEMM tile of D in float32 (2 MiB); no n×m matrix is built except the float32
-    one of f = Ω.
+    Ties are broken by value, then row, then column, so "the f best of a row" are exactly min(f, m). With
+    no admissible second best (m = 1, or FGINN excludes all) the ratio is 0. On the L2 path every decision
+    is taken on float64 distances computed in a fixed order without BLAS; the float32 product only proposes
+    within a certified rounding bound (:mod:`._kernels`), so the output does not depend on the BLAS kernel
+    or thread count. Memory is O((n + m) f), plus the codes of D for f = Ω (:class:`BlobContext`).
 
     References
     ----------
@@ -177,11 +159,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     --------
     The toy matrix of Fig. 1a with f = 3∩, f' = 2 (indices count from 0 here, from 1 in the paper):
 
-    >>> import numpy as np
-    >>> D = np.array([[1.6, 2.5, 1, 4, 2.3], [4.2, .5, 1.7, 3, 1.1], [5.1, 3.5, 3.1, 1.2, 2],
-    ...               [2.8, .6, 2.1, 4.1, 5], [4.4, 3.4, 2.4, 4.3, 4.5], [3.2, 5.5, 5.8, 6.1, 3.6],
-    ...               [1.3, 6, 3.7, 2.7, 1.4]])
-    >>> out = blob_matching(distances=D, f=3, prefilter="cap", f_prime=2, ratio="D>=", t_o=None)
+    >>> from ctxmatch_lib.blob.toy import FIG1A_D
+    >>> out = blob_matching(distances=FIG1A_D, f=3, prefilter="cap", f_prime=2, ratio="D>=", t_o=None)
     >>> sorted((int(i) + 1, int(j) + 1) for i, j in out.matches)
     [(1, 1), (1, 3), (2, 2), (2, 5), (3, 4), (4, 2), (4, 3), (7, 1), (7, 5)]
     """
@@ -232,15 +211,9 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
 
 
 def _margin(cfg: BlobConfig, dense: bool) -> int:
-    """Entries kept per line beyond the depth for one setup (speed only; the results do not depend on it).
-
-    D+ takes its second best among all entries of the line: the line's best or second-best entry, already in
-    the list, unless FGINN excludes them (rare); two more entries save some of those look-ups. D≥ and D+≥ take
-    it among entries >= D_ij, which for a match from the other image's list lies beyond this line's list
-    however long it is; a few more entries (and the greedy's walk of f = Ω) still save whole-line look-ups.
-    Measured with ``bench_blob.py``'s planted sets and real pairs at 5000 - 8000 keypoints: 2 and 8 take
-    0.55-0.6x and 0.85-0.9x the time of 22.
-    """
+    """Entries kept per line beyond the depth (speed only; the results do not depend on it). D+'s second
+    best is nearly always in the list already; D≥'s and D+≥'s may lie anywhere past ``D_ij``, so a few more
+    entries save whole-line look-ups."""
     return 2 if cfg.ratio == "D+" and not dense else 8
 
 

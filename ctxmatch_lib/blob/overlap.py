@@ -10,20 +10,9 @@ __all__ = ["as_shapes", "shapes_from_scale_angle", "ellipse_overlap_error", "cir
 
 
 def shapes_from_scale_angle(scale, angle=None) -> np.ndarray:
-    """Affine shapes ``A = scale * R(angle)`` of circular patches of radius ``scale``.
-
-    Parameters
-    ----------
-    scale : array_like of shape (N,)
-        Patch radius in pixels (for OpenCV SIFT, ``keypoint.size / 2``).
-    angle : array_like of shape (N,), optional
-        Orientation in radians (it does not change a circle, but it is kept in the frame).
-
-    Returns
-    -------
-    ndarray of shape (N, 2, 2)
-        The elliptical patch of keypoint ``k`` is ``{kpts[k] + A[k] @ u : |u| <= 1}``.
-    """
+    """Affine shapes ``A = scale * R(angle)``, ``(N, 2, 2)``, of circular patches of radius ``scale``
+    (pixels; ``keypoint.size / 2`` for OpenCV SIFT) and orientation ``angle`` (radians, default 0): the patch
+    of keypoint ``k`` is ``{kpts[k] + A[k] @ u : |u| <= 1}``."""
     scale = np.asarray(scale, dtype=np.float64).reshape(-1)
     angle = np.zeros_like(scale) if angle is None else np.asarray(angle, dtype=np.float64).reshape(-1)
     s, c = sincos(angle)  # _fixedmath's: the same shapes on any CPU
@@ -51,9 +40,8 @@ def as_shapes(shapes, n: int, name: str) -> np.ndarray:
 
 
 def _bounding_circles(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
-    """Squared centre distances of the pairs, and whether their bounding circles (radius: the largest
-    singular value of A) intersect. A pair whose circles do not has overlap error exactly 1: the one test of
-    :func:`ellipse_overlap_error` and :func:`circle_overlap_bounds`, so both decide those pairs alike."""
+    """Squared centre distances of the pairs, and whether their bounding circles intersect (else the overlap
+    error is exactly 1); the one test of :func:`ellipse_overlap_error` and :func:`circle_overlap_bounds`."""
     r1, r2 = _largest_singular_value(A1), _largest_singular_value(A2)
     d2 = np.sum((c1 - c2) ** 2, axis=1)
     return d2, d2 < (r1 + r2) ** 2
@@ -62,8 +50,7 @@ def _bounding_circles(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
 def _unit_polygon(k: int = 32) -> np.ndarray:
     """Vertices of a regular ``k``-gon with the area of the unit disk (radius scaled up from 1)."""
     t = np.linspace(0.0, 2.0 * np.pi, k, endpoint=False)
-    # _fixedmath's sines: the polygon, and the overlap errors that FGINN and methods B/C threshold, are the
-    # same on any CPU.
+    # fixedmath's sines: the same polygon, hence overlap errors, on any CPU.
     scale = np.sqrt(2.0 * np.pi / (k * float(sincos(2.0 * np.pi / k)[0])))
     s, c = sincos(t)
     return scale * np.stack([c, s], axis=1)
@@ -73,9 +60,8 @@ _POLYGON = _unit_polygon()
 
 
 def _largest_singular_value(A: np.ndarray) -> np.ndarray:
-    """Largest singular value of each 2x2 matrix ``[[a, b], [c, d]]``: ``(|z1| + |z2|) / 2`` with
-    ``z1 = (a + d, c - b)`` and ``z2 = (a - d, c + b)``. Element-wise IEEE operations, so the same bits on any
-    CPU (``np.linalg.norm(A, 2)`` runs an SVD per matrix through LAPACK, ~20x slower)."""
+    """Largest singular value of each 2x2 ``[[a, b], [c, d]]``: ``(|(a + d, c - b)| + |(a - d, c + b)|) / 2``,
+    element-wise (the same bits on any CPU, no LAPACK)."""
     a, b, c, d = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
     return 0.5 * (np.sqrt((a + d) ** 2 + (c - b) ** 2) + np.sqrt((a - d) ** 2 + (c + b) ** 2))
 
@@ -93,12 +79,9 @@ def _det(A: np.ndarray) -> np.ndarray:
 def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
     """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of elliptical patches, element-wise.
 
-    Ellipse ``E = {c + A u : |u| <= 1}``. Each ellipse is the image of a 32-gon of the unit disk's area
-    (so the polygon's area is the ellipse's exactly); the intersection area of the two polygons comes
-    from shapely (GEOS, vectorised), the union area is ``|E1| + |E2| - |E1 ∩ E2|`` with the exact ellipse
-    areas ``pi |det A|``. The absolute error of the result is about 1e-4 against 2048-gon polygons
-    (9.9e-5 at most on 5000 random pairs, ``benchmarks/bench_overlap.py``; tested below 1e-3, well within
-    the 0.01 that FGINN by overlap needs). Pairs whose bounding circles are disjoint get exactly 1.
+    Ellipse ``E = {c + A u : |u| <= 1}``, approximated by the image of a 32-gon of the unit disk's area; the
+    intersection area comes from GEOS, the union is ``|E1| + |E2| - |E1 ∩ E2|`` with the exact areas
+    ``pi |det A|``. Pairs whose bounding circles are disjoint get exactly 1.
 
     Parameters
     ----------
@@ -125,13 +108,10 @@ def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
     c1, c2 = np.asarray(c1, float).reshape(-1, 2), np.asarray(c2, float).reshape(-1, 2)
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)
     out = np.ones(len(c1))
-    # Bounding radius of an ellipse = its largest singular value.
     near = np.flatnonzero(_bounding_circles(c1, A1, c2, A2)[1])
     for s in range(0, len(near), chunk):
         idx = near[s : s + chunk]
-        # Element-wise products, not einsum (whose SIMD loops fuse multiply-adds on FMA CPUs) nor LAPACK's
-        # determinant (OpenBLAS's kernel): the vertices and areas, and the errors FGINN thresholds, are the
-        # same on any CPU.
+        # Element-wise products, not einsum (FMA on some CPUs) nor LAPACK: the same errors on any CPU.
         p = shapely.polygons(c1[idx, None, :] + _apply(A1[idx], _POLYGON))
         q = shapely.polygons(c2[idx, None, :] + _apply(A2[idx], _POLYGON))
         inter = shapely.area(shapely.intersection(p, q))
@@ -164,15 +144,9 @@ def _lens_area(r1: np.ndarray, r2: np.ndarray, dist: np.ndarray) -> np.ndarray:
 def circle_overlap_bounds(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
     """Bounds ``lo <= e <= hi`` of :func:`ellipse_overlap_error`'s ``e`` for each pair, without polygons.
 
-    For two circular patches (``A = s R(θ)``: ``A[0, 0] == A[1, 1]`` and ``A[0, 1] == -A[1, 0]``, as
-    :func:`shapes_from_scale_angle` makes them) each 32-gon lies between the circles of its inradius and its
-    circumradius, so the intersection area lies between the two circles' lens areas, and ``e`` (decreasing
-    in it) between the values they give. The bounds are widened by ``1e-6`` for the rounding of both
-    computations (the lens formula loses digits near tangency); they are at most 0.02 apart (median 0.003
-    over 20 000 random overlapping pairs). Pairs whose
-    bounding circles are disjoint get ``lo = hi = 1`` (the function's exact 1, decided alike); other shapes get
-    ``(0, 1)``. FGINN by overlap compares ``e`` with ``t_o`` and computes it only where ``t_o`` falls
-    between the bounds.
+    For circular patches (``A = s R(θ)``, :func:`shapes_from_scale_angle`) each 32-gon lies between the
+    circles of its inradius and circumradius, so ``e`` lies between the values of the two lens areas (widened
+    by ``1e-6`` for rounding). Disjoint bounding circles give ``lo = hi = 1``; other shapes ``(0, 1)``.
     """
     c1, c2 = np.asarray(c1, float).reshape(-1, 2), np.asarray(c2, float).reshape(-1, 2)
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)

@@ -1,8 +1,5 @@
-"""The ``ctxmatch`` command line.
-
-Each sub-command lives in a module of this package exposing ``add_parser(subparsers)``; the module sets
-``func`` on its parser. Heavy imports happen inside the command, so ``ctxmatch --help`` is instant.
-"""
+"""The ``ctxmatch`` command line: one module per sub-command with ``add_parser(subparsers)`` setting ``func``;
+heavy imports happen inside the command, so ``ctxmatch --help`` is instant."""
 
 from __future__ import annotations
 
@@ -33,12 +30,8 @@ EXIT_INTERRUPTED = 130
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one ``ctxmatch`` command; returns its exit status.
-
-    Ctrl-C stops the command with one line on stderr and status 130 instead of a traceback. Nothing is lost
-    by it: every result file and cache entry is written to a temporary file and renamed into place, so a
-    rerun of the same command reuses what was finished and redoes only the rest.
-    """
+    """Run one ``ctxmatch`` command and return its exit status; Ctrl-C gives one line and status 130 (results
+    are written atomically, so a rerun resumes)."""
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -1,11 +1,6 @@
-"""The flags ``ctxmatch eval`` and ``ctxmatch sweep`` share, their checks, and the plan they lead to.
-
-Both commands are the evaluation engine (:mod:`ctxmatch_lib.evaluation`) with different defaults: eval on
-named presets (paper-best blob setup, the DTM filter, none and 1SAC), sweep on a grid (the 2430 blob
-setups of Sec. 5.2). The same flag means the same thing in both, every flag is checked before any work
-with its name in the message, and both plan with :func:`~ctxmatch_lib.evaluation.plan.plan_sweep`, so the
-same settings give the same unit keys and either command reuses what the other computed.
-"""
+"""The flags ``ctxmatch eval`` and ``ctxmatch sweep`` share (the same engine with other defaults), their checks
+(before any work, naming the flag) and the plan (:func:`~ctxmatch_lib.evaluation.plan.plan_sweep`): the same
+settings give the same unit keys, so either command reuses what the other computed."""
 
 from __future__ import annotations
 
@@ -118,12 +113,9 @@ def check_numbers(args) -> str | None:
 
 
 def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
-    """Every flag resolved to the planner's arguments, or an error message naming the flag.
-
-    ``features`` replaces ``--features`` (eval's ``--descriptor``/``--upright``). The output path is
-    checked here too, so a run that could not write its table never starts.
-    """
-    from ..evaluation.plan import resolve_blob_configs, resolve_features
+    """``(settings, None)`` for the planner, or ``(None, message naming the flag)``; ``--out`` is checked too.
+    ``features`` replaces ``--features`` (eval's ``--descriptor``/``--upright``)."""
+    from ..evaluation.plan import resolve_blob_configs, resolve_feature_configs
     from ..evaluation.steps import check_estimator, check_matchers, check_models, resolve_blobs, resolve_filters
 
     msg = check_numbers(args)
@@ -143,7 +135,7 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         ("--estimator", lambda: check_estimator(estimator_overrides(args))),
         # Named presets keep their names in the blob column; the grid is labelled by each setup's fields.
         ("--blob", lambda: resolve_blob_configs("grid") if args.blob.strip() == "grid" else resolve_blobs(csv(args.blob))),
-        ("--features", lambda: resolve_features(features if features is not None else
+        ("--features", lambda: resolve_feature_configs(features if features is not None else
                                                 csv(args.features or "sift-rootsift"))),
     )
     for flag, step in steps:
@@ -179,10 +171,8 @@ def estimator_overrides(args) -> dict:
 
 
 def plan(args, settings: dict, *, limit: int | None = None):
-    """The units of the run (:func:`~ctxmatch_lib.evaluation.plan.plan_sweep`), or an error message.
-
-    ``limit`` keeps the first N pairs of each dataset (eval's ``--limit``) instead of ``--pairs``.
-    """
+    """``(units, None)`` of :func:`~ctxmatch_lib.evaluation.plan.plan_sweep`, or ``(None, message)``; ``limit``
+    keeps the first N selected pairs of each dataset (eval's ``--limit``)."""
     from ..datasets import load_dataset
     from ..evaluation.plan import plan_sweep, select_pairs
 

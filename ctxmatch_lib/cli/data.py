@@ -1,14 +1,5 @@
-"""``ctxmatch data``: list the datasets, generate the embedded one, download the public ones.
-
-Examples::
-
-    ctxmatch data list
-    ctxmatch data embedded
-    ctxmatch data download hpatches --root ~/data/ctxmatch
-    ctxmatch data download kusvod2 --url file:///mirror/Lebeda-2012-kusvod2.tar.gz --sha256 <64 hex>
-    ctxmatch data strecha --root ~/data/ctxmatch
-    ctxmatch data strecha --scenes fountain-P11 castle-P19 --url file:///mirror/Benchmarking_Camera_Calibration_2008
-"""
+"""``ctxmatch data``: list the datasets, generate the embedded one, download the public ones, e.g.
+``ctxmatch data download hpatches --root ~/data/ctxmatch`` or ``ctxmatch data strecha --scenes fountain-P11``."""
 
 from __future__ import annotations
 

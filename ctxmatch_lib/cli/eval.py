@@ -1,8 +1,6 @@
-"""``ctxmatch eval``: the evaluation engine on named presets (Sec. 5.1): one Parquet row per (pair, features,
-blob setup, method, model), then the per-kind, per-method mean table.
-
-It shares its flags, its checks and its planner with ``ctxmatch sweep`` (:mod:`ctxmatch_lib.cli._engine_args`),
-so the same settings give the same unit keys and either command reuses what the other computed."""
+"""``ctxmatch eval``: the evaluation engine on named presets (Sec. 5.1), one Parquet row per (pair, features,
+blob setup, method, model) and a mean table; flags and cache shared with ``ctxmatch sweep`` (see
+:mod:`ctxmatch_lib.cli._engine_args`)."""
 
 from __future__ import annotations
 
@@ -14,26 +12,23 @@ from ._engine_args import add_engine_arguments, error, plan, resolve_args
 DESCRIPTION = """\
 Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac/
 magsac/essential) -> ground truth (--gt, method D by default) -> metrics. The unfiltered candidates appear as
-method 'blob', --matchers adds OpenCV's matchers (opencv_ratio, opencv_mnn) as methods on the same descriptors;
-the model is H for planar pairs, F for non-planar, depth and calibrated pairs, E for the 'essential' step
-(calibrated pairs only: points normalised by the intrinsics, MAGSAC, threshold in px over the focal); time_s is the method's own running time,
-model_time_s the model step's. Parquet columns (fractions in [0, 1] for precision, recall, recall_star, ap, ap_star):
-dataset, pair_id, kind, features, blob (+ its fields), method, model, precision, recall, recall_star, ap,
-ap_star, correct, correct_norm, output, failure (output without a correct match), empty_output (no output),
-time_s, model_time_s, the model's accuracy (NaN for model none): model_inliers (the estimator's inliers),
-corner_error (planar: mean distance in px of the image-1 corners mapped by the estimated and the true H;
-inf without a model), epi_share_mean, epi_share_1/3/5/10 (other kinds: share of the ground-truth
-correspondences within 1..19 px, resp. t px, of the estimated F by the symmetric epipolar distance of the
-WxBS benchmark; 0 without a model), pose_err_R, pose_err_t, pose_err (calibrated pairs: rotation,
-translation-direction and pose error, their maximum, of the relative pose recovered from the model and its
-inliers, in degrees; 180 without a pose), n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error
-(why a pair could not be evaluated, else empty). Recall is normalised as in Sec. 5.1 (min of distinct keypoints per image)
-against the correct blob candidates of the same setup; recall_star against their union over all --blob
-setups. The printed table shows means in percent (*_pct columns).
-Each pair's rows are kept in the evaluation cache ($CTXMATCH_CACHE, else $XDG_CACHE_HOME/ctxmatch or
-~/.cache/ctxmatch), shared with 'ctxmatch sweep' (same flags, same keys: either reuses what the other
-computed): a killed run resumes where it stopped, and a pair that cannot be evaluated (unreadable image,
-0 keypoints, a filter that raised) is reported by name and recorded, and the run goes on."""
+method 'blob'; --matchers adds OpenCV's matchers (opencv_ratio, opencv_mnn) on the same descriptors. The
+model is H for planar pairs, F otherwise, E for 'essential' (calibrated pairs: points normalised by the
+intrinsics, MAGSAC, threshold in px over the focal).
+Parquet columns (precision, recall, recall_star, ap, ap_star as fractions in [0, 1]): dataset, pair_id, kind,
+features, blob (+ its fields), method, model, precision, recall, recall_star, ap, ap_star, correct,
+correct_norm, output, failure (output without a correct match), empty_output (no output), time_s (the
+method), model_time_s (the model step); the model's accuracy (NaN for model none): model_inliers,
+corner_error (planar: mean px distance of the image-1 corners mapped by the estimated and true H; inf
+without a model), epi_share_mean, epi_share_1/3/5/10 (other kinds: share of GT correspondences within
+1..19 px, resp. t px, of the estimated F, WxBS symmetric epipolar distance; 0 without a model), pose_err_R,
+pose_err_t, pose_err (calibrated: rotation, translation-direction error and their maximum, degrees; 180
+without a pose); n_kpts1, n_kpts2, n_candidates, n_gt, n_gt_star, gt_method, error (why a pair could not be
+evaluated). Recall is normalised as in Sec. 5.1 against the correct candidates of the same setup,
+recall_star against their union over all --blob setups. The printed table shows means in % (*_pct).
+Rows are cached per pair ($CTXMATCH_CACHE, else $XDG_CACHE_HOME/ctxmatch or ~/.cache/ctxmatch), shared with
+'ctxmatch sweep': a killed run resumes, and a pair that cannot be evaluated (unreadable image, 0 keypoints,
+a filter that raised) is reported, recorded, and skipped."""
 
 EXAMPLE = """\
 example:

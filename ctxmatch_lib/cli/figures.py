@@ -1,23 +1,8 @@
-"""``ctxmatch figures``: run the figure notebooks through papermill.
-
-The run is quiet (the kernels' start-up and shut-down log lines are dropped; a failing cell is reported with
-its error and the executed notebook) and its progress moves: one status line names the notebook in progress, its
-running time, the time elapsed and the time left, estimated from the previous run's durations
-(``executed/durations.json`` of the figure folder, untracked). A notebook without a previous duration (a first
-run) gives no estimate: the line shows the time elapsed and how many notebooks are done instead of a "time left"
-that a mean of unlike notebooks would make jump.
-
-Two notebooks run at once by default (``--jobs``): a notebook that plots spends minutes on one core (kernel
-start, tables, figures) while an evaluation keeps two busy, so a second one fills the gaps. Notebooks that
-read what another computes (:data:`AFTER`: the shared evaluation and feature caches) start when it has
-finished, so no two kernels compute the same features or filter masks at once; the others start in the order
-of :data:`PRIORITY`. Every notebook gets the same parameters and writes the same bytes
-whatever runs beside it.
-
-A rerun that computes the same numbers writes byte-identical figures and tables: their provenance names the
-source commit and library version (:func:`ctxmatch_lib.plots.base.provenance`), never the clock, and running
-times go to the untracked ``executed/`` folder.
-"""
+"""``ctxmatch figures``: run the figure notebooks through papermill, quietly, with one status line whose time
+left comes from the previous run's durations (``executed/durations.json``). ``--jobs`` notebooks run at once;
+one that reads another's cached results (:data:`AFTER`) starts after it, the rest in :data:`PRIORITY` order.
+Figures carry no clock (:func:`ctxmatch_lib.plots.base.provenance`), so a rerun with the same numbers writes
+the same bytes."""
 
 from __future__ import annotations
 
@@ -29,23 +14,16 @@ import threading
 import time
 from pathlib import Path
 
-#: Arguments of the kernels: their log (the "running over TCP without encryption" warning at start, the
-#: "KeyboardInterrupt caught in kernel" that a shut-down can provoke) is not the user's business; a cell's
-#: error still reaches papermill, which raises it, and the executed notebook keeps it.
+#: Arguments of the kernels: no kernel log (a cell's error still reaches papermill), and no "IProgress not
+#: found" warning from tqdm.auto's text-bar fallback.
 KERNEL_ARGUMENTS = [
     "--IPKernelApp.log_level=CRITICAL",
-    # Without ipywidgets, tqdm.auto in a kernel falls back to the text bar (what a papermill run wants) and
-    # warns "IProgress not found" into every notebook that shows progress: say nothing instead.
     "--IPKernelApp.exec_lines=import warnings; warnings.filterwarnings('ignore', message='IProgress not found')",
 ]
 
 
-#: Notebook -> the notebooks whose cached results it reads (started only after they finish, when selected).
-#: fig_agreement's evaluation (the eight blocks' features, every filter's masks) is what fig_pr_scatter, tables
-#: and fig_inlier_hist show and what fig_blob_bands' sweep, fig_geometry, fig_gt_methods and fig_match_examples
-#: start from (features and filter masks are cached per pair whatever the blob setups or models asked for);
-#: fig_geometry's pose panels start from fig_gt_calibrated's calibrated features, fig_pr_scatter's calibrated
-#: row from fig_geometry's masks, fig_blob_heatmap from fig_blob_bands' sweep.
+#: Notebook -> the notebooks whose cached results (features, filter masks, sweeps) it reads; it starts after
+#: those of them that are selected.
 AFTER = {
     "fig_blob_bands": ("fig_agreement",),
     "fig_blob_heatmap": ("fig_blob_bands",),
@@ -57,8 +35,7 @@ AFTER = {
     "tables": ("fig_agreement",),
 }
 
-#: Start order among the notebooks that may start: the long evaluation first, the small ones that need none of
-#: its results beside it, then the rest, the longest first; a notebook not listed comes last.
+#: Start order: the long evaluation, small independent ones beside it, then the rest longest first; unlisted last.
 PRIORITY = ("fig_agreement", "fig_gt_calibrated", "fig_dtm_steps", "fig_boundary", "fig_blob_toy", "fig_blob_bands",
             "fig_geometry", "fig_gt_methods", "fig_match_examples", "fig_pr_scatter", "tables", "fig_inlier_hist",
             "fig_blob_heatmap")
@@ -74,8 +51,8 @@ def add_parser(sub) -> None:
                    help="default: the embedded offline dataset (minutes); paper: notebooks/params/<stem>.yaml, "
                         "real data under CTXMATCH_DATA")
     p.add_argument("--only", default="", help="comma-separated notebook stems (default: all)")
-    p.add_argument("--output", type=Path, default=None, help="figure folder (default: figures/ of the checkout; figures/paper/ with --params paper, so "
-                        "that the paper-scale run never replaces the embedded gallery)")
+    p.add_argument("--output", type=Path, default=None,
+                   help="figure folder (default: figures/ of the checkout; figures/paper/ with --params paper)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
                    help="set a notebook parameter (VALUE is read as YAML: 2, [a, b], null), after --params; "
                         "repeatable, given to every notebook run that has the parameter")
@@ -104,9 +81,8 @@ def _fmt(seconds: float) -> str:
 
 
 class _Status:
-    """One status line, refreshed every second (every 30 s when stderr is not a terminal): the notebooks in
-    progress and their running times, the time elapsed and either the time left (every remaining notebook has
-    a previous duration) or the number of notebooks done (no estimate to go on)."""
+    """One status line, refreshed every second (30 s off a terminal): notebooks in progress, time elapsed, and
+    the time left when every remaining notebook has a previous duration, else the number done."""
 
     def __init__(self, stems, expected: dict, enabled: bool, jobs: int = 1):
         self.stems, self.expected, self.done = list(stems), dict(expected), {}
@@ -124,13 +100,12 @@ class _Status:
         todo = [s for s in self.stems if s not in self.done]
         if not todo:
             return 0.0
-        # Only previous durations: the notebooks differ by orders of magnitude, so a mean of those done so far
-        # is no estimate of those to come.
+        # Notebooks differ by orders of magnitude: only their own previous durations estimate them.
         if any(s not in self.expected for s in todo):
             return None
         rest = {s: self.expected[s] - min(now - self.running[s], self.expected[s]) if s in self.running
                 else self.expected[s] for s in todo}
-        # With several at once: the work left shared by the slots, but no less than the longest notebook left.
+        # The work left shared by the slots, at least the longest notebook left.
         return max(max(rest.values()), sum(rest.values()) / self.jobs)
 
     def line(self) -> str:
@@ -204,9 +179,8 @@ def _execute(src: str, out: str, params: dict, cwd: str) -> str | None:
 
 
 def _schedule(stems, jobs: int, start, finished) -> None:
-    """Run ``stems`` with at most ``jobs`` at once: ``start(stem)`` returns a future, ``finished(stem, future)``
-    is called as each completes. A notebook starts when the selected notebooks it reads (:data:`AFTER`) are
-    done (whether they succeeded or not), in the order of :data:`PRIORITY`."""
+    """Run ``stems``, at most ``jobs`` at once, in :data:`PRIORITY` order once their :data:`AFTER` notebooks are
+    done (failed or not): ``start(stem)`` returns a future, ``finished(stem, future)`` is called on completion."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     rank = {stem: i for i, stem in enumerate(PRIORITY)}
@@ -225,8 +199,7 @@ def _schedule(stems, jobs: int, start, finished) -> None:
 
 
 def output_dir(params: str, output, root: Path) -> Path:
-    """Where the figures go: ``output`` when given, else ``figures/`` of the checkout, or ``figures/paper/``
-    for the paper-scale parameters (which never replace the embedded gallery)."""
+    """Where the figures go: ``output``, else the checkout's ``figures/`` (``figures/paper/`` for ``paper``)."""
     if output is not None:
         return Path(output).resolve()
     return (root / "figures" / "paper" if params == "paper" else root / "figures").resolve()
@@ -274,8 +247,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"ctxmatch figures: --param {', '.join(unused)}: no selected notebook has such a parameter "
                   f"(papermill --help-notebook notebooks/<stem>.ipynb lists them)", file=sys.stderr)
             return 2
-    # One BLAS thread in every kernel: OpenBLAS's float32 rounding (and so a figure's bytes) depends on the
-    # thread count, and the gallery must not; the engine parallelises over pairs instead.
+    # One BLAS thread per kernel: OpenBLAS's float32 rounding, and so a figure's bytes, depends on the count.
     saved_env = {var: os.environ.get(var) for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
     os.environ.update(dict.fromkeys(saved_env, "1"))
     status = _Status(stems, expected, enabled=not args.no_progress, jobs=args.jobs)

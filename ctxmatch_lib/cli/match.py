@@ -133,7 +133,7 @@ def _filters(values) -> list[str]:
 def _settings(args) -> dict:
     """The library settings of the flags, each resolved here so that its error names the flag (the library's
     errors name its parameter). Raises ``ValueError`` with the message to print."""
-    from ..match import _as_filter_list, resolve_blob, resolve_features
+    from ..match import as_filter_list, resolve_blob, resolve_features
 
     if args.max_keypoints is not None and args.max_keypoints < 0:
         raise ValueError(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
@@ -148,7 +148,7 @@ def _settings(args) -> dict:
         except ValueError as exc:
             raise ValueError(f"{flag}: {exc}") from None
     try:
-        _as_filter_list(settings["filters"])
+        as_filter_list(settings["filters"])
     except ValueError as exc:
         raise ValueError(f"--filter: {exc}") from None
     if args.export_h5 is not None:

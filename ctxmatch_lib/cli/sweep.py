@@ -1,8 +1,5 @@
-"""``ctxmatch sweep``: run (or resume) a grid of dataset × features × blob setup × filter × model and write
-one Parquet row per (pair, features, blob setup, method, model); print the best setups by mAP.
-
-The evaluation engine on a grid: the same flags, checks, planner and unit keys as ``ctxmatch eval``
-(:mod:`ctxmatch_lib.cli._engine_args`), so either command reuses what the other computed."""
+"""``ctxmatch sweep``: run (or resume) a grid of dataset × features × blob setup × filter × model, one Parquet
+row per unit and method, and print the best setups by mAP; flags and cache shared with ``ctxmatch eval``."""
 
 from __future__ import annotations
 
@@ -12,13 +9,11 @@ from ._engine_args import add_engine_arguments, error, plan, resolve_args
 
 DESCRIPTION = """\
 Sweep blob-matching setups (default: the 2430 of Sec. 5.2) and optionally filters and model steps over a
-dataset. Each (pair, features) is one work unit whose rows are cached as an atomic Parquet part under the
-sweep cache, so an interrupted run resumes where it stopped (no lost, no duplicated rows) and a rerun is
-instant; the cache is shared with 'ctxmatch eval' (same flags, same keys). Intermediates (features,
-candidate sets, FGINN overlap tables, filter masks) are cached too.
-The AP of a row ranks the setup's candidates by its score, with the --gt labels (method D by default): 'ap' against the setup's own
-correct candidates, 'ap_star' against the correct candidates of all setups of the sweep on the pair; the mAP
-printed (and drawn in the heat map of Fig. 5) is the mean of ap_star over pairs."""
+dataset. Each (pair, features) unit's rows are cached as an atomic Parquet part (shared with 'ctxmatch eval'),
+so an interrupted run resumes with no lost or duplicated rows and a rerun is instant; features, candidate
+sets, FGINN overlap tables and filter masks are cached too.
+AP ranks a setup's candidates by score with the --gt labels (default D): 'ap' against the setup's own correct
+candidates, 'ap_star' against those of all setups on the pair; the printed mAP (Fig. 5) averages ap_star."""
 
 EXAMPLE = """\
 examples:

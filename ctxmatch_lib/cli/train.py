@@ -1,19 +1,9 @@
-"""``ctxmatch train oanet|acne``: train a learned filter here, on correspondences generated from the embedded images.
+"""``ctxmatch train oanet|acne``: train a learned filter on correspondences generated from the embedded images.
 
-The weights are labelled "trained here" (never the authors'). Without ``--output`` they go to the user's
-cache, ``ctxmatch_lib.cache.cache_dir("weights")`` (``$CTXMATCH_CACHE/weights``, else
-``~/.cache/ctxmatch/weights``), as ``<arch>_trained_here_seed<seed>[_steps<steps>].npz``: the weights shipped
-in the package are never overwritten by surprise. Use the trained weights with ``weights=``::
+The weights ("trained here", never the authors') go to :func:`default_output` unless ``--output`` names a
+file (the only way to replace the shipped ones); use them with ``weights=``::
 
-    FILTERS["oanet"](kpts1, kpts2, matches, scores, image_size1=..., image_size2=..., weights=path)
     match_images(img1, img2, filters=["oanet"], filter_params={"oanet": {"weights": path}})
-
-To replace the shipped weights on purpose (maintainers), name them with ``--output``.
-
-Examples::
-
-    ctxmatch train oanet
-    ctxmatch train acne --steps 200 --seed 1 --output /tmp/acne.npz
 """
 
 from __future__ import annotations
@@ -60,20 +50,8 @@ def _error(msg: str) -> int:
 
 
 def default_output(arch: str, seed: int = 0, steps: int | None = None) -> Path:
-    """Where ``ctxmatch train`` writes without ``--output``: the user's cache, never the package.
-
-    Parameters
-    ----------
-    arch : {"oanet", "acne"}
-    seed : int
-    steps : int, optional
-        Only named in the file when given (the default steps are those of the shipped weights).
-
-    Returns
-    -------
-    Path
-        ``cache_dir("weights") / "<arch>_trained_here_seed<seed>[_steps<steps>].npz"``.
-    """
+    """Where ``ctxmatch train`` writes without ``--output``, never the package:
+    ``cache_dir("weights") / "<arch>_trained_here_seed<seed>[_steps<steps>].npz"`` (steps only when given)."""
     from ..cache import cache_dir
 
     name = f"{arch}_trained_here_seed{seed}" + (f"_steps{steps}" if steps is not None else "")

@@ -1,28 +1,11 @@
 """Datasets: image pairs with ground truth (embedded offline default, real loaders, custom folders).
 
-``load_dataset(name_or_path)`` accepts a registered name (see :func:`list_datasets`), a folder holding
-``pairs.csv`` in the custom format (:mod:`ctxmatch_lib.datasets.custom`), a pairs-with-ground-truth text file
-or a folder holding ``pairs_with_gt.txt`` (calibrated pairs, :mod:`ctxmatch_lib.datasets.posefile`), or a
-scene / folder of scenes in the Strecha layout (:mod:`ctxmatch_lib.datasets.strecha`).
-
-=====================  ============================================================================
-name                   pairs
-=====================  ============================================================================
-embedded               the whole offline default (planar + nonplanar + depth), the default everywhere
-embedded-planar        its 3 planar sequences (15 pairs, homographies)
-embedded-nonplanar     its 4 layered synthetic scenes (dense exact flow with occlusion)
-embedded-depth         the Middlebury motorcycle stereo pair (disparity as dense flow)
-embedded-calibrated    the same pair with its calibration (rectified: R = I), a calibrated pair (pose)
-hpatches               HPatches sequences under ``$CTXMATCH_DATA/planar/hpatches``
-oxford                 Oxford affine sequences under ``$CTXMATCH_DATA/planar/oxford``
-homogr                 Lebeda homogr pairs under ``$CTXMATCH_DATA/planar/homogr``
-kusvod2                Lebeda kusvod2 pairs under ``$CTXMATCH_DATA/nonplanar/kusvod2``
-strecha                Strecha calibrated scenes under ``$CTXMATCH_DATA/calibrated/strecha`` (pose ground truth)
-strecha-half           the same pairs at half resolution (1536 × 1024, :mod:`ctxmatch_lib.datasets.downscaled`)
-planar                 hpatches + oxford + homogr
-nonplanar              kusvod2
-calibrated             strecha
-=====================  ============================================================================
+:func:`load_dataset` reads a registered name (:func:`list_datasets`): the offline default ``embedded`` and
+its subsets ``embedded-planar``, ``-nonplanar``, ``-depth``, ``-calibrated`` (:mod:`.embedded`); the real
+``hpatches``, ``oxford``, ``homogr``, ``kusvod2`` (:mod:`.real`), ``strecha`` and ``strecha-half``
+(:mod:`.strecha`, :mod:`.downscaled`) under ``$CTXMATCH_DATA``; the groups ``planar``, ``nonplanar``,
+``calibrated``. It also reads a custom folder (:mod:`.custom`), a pairs-with-ground-truth file
+(:mod:`.posefile`) or a Strecha-layout folder. Overview: ``docs/evaluation.md`` (Datasets).
 """
 
 from __future__ import annotations
@@ -59,8 +42,7 @@ def load_strecha(root=None, **kwargs) -> list:
 
 
 def load_strecha_half(root=None, **kwargs) -> list:
-    """:func:`load_strecha` at half resolution: images downscaled by 2 into the dataset cache, ``K`` to match
-    (:func:`.downscaled.downscale_pairs`), the scale of the paper's images (about 1000 px wide)."""
+    """:func:`load_strecha` at half resolution (:func:`.downscaled.downscale_pairs`)."""
     return downscale_pairs(load_strecha(root, **kwargs), 2)
 
 
@@ -79,28 +61,23 @@ def list_datasets() -> list[str]:
 
 
 def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
-    """Load a dataset by registered name or from a custom-format folder.
+    """Load a dataset by registered name or from a folder or file (module docstring).
 
     Parameters
     ----------
     name_or_path : str or Path
-        A name from :func:`list_datasets`; a folder holding ``pairs.csv``; a pairs-with-ground-truth
-        ``.txt`` file or a folder holding ``pairs_with_gt.txt`` (images relative to it); a scene folder
-        or a folder of scenes in the Strecha layout.
     root : str or Path, optional
-        For real datasets, the data root (default ``$CTXMATCH_DATA``, see ``ctxmatch_lib.cache.data_root``)
-        or the dataset folder itself; for the embedded ones, the parent folder the dataset is generated into
-        (default the ``datasets`` cache). Ignored for a custom folder.
+        Real datasets: the data root (default ``$CTXMATCH_DATA``) or the dataset folder; embedded ones: the
+        parent folder it is generated into (default the ``datasets`` cache). Ignored for a path.
 
     Returns
     -------
     Dataset
-        ``.name``, ``.pairs`` (list of :class:`Pair`), iterable, ``len()``.
 
     Raises
     ------
     ValueError
-        ``name_or_path`` is neither a registered name nor a folder with ``pairs.csv``.
+        Neither a registered name nor a readable folder or file.
     FileNotFoundError
         The real data are not found (``CTXMATCH_DATA`` unset or wrong), or a listed file is missing.
 
@@ -111,7 +88,6 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
     (15, 'planar')
     """
     if name_or_path == "embedded-calibrated":
-        # The motorcycle pair again, with its calibration instead of the dense disparity: a calibrated pair.
         folder = embedded_root(root)
         depth = [p for p in read_custom_dataset(folder, name="embedded").pairs if p.pair_id == "depth/motorcycle"]
         pairs = [dataclasses.replace(p, pair_id="calibrated/motorcycle", kind="calibrated", gt=motorcycle_pose_gt())

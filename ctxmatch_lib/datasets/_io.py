@@ -32,18 +32,8 @@ def read_matrix(path, shape=(3, 3), *, what: str = "matrix") -> np.ndarray:
 
 
 def homography_gt(H, source, pts1=None, pts2=None):
-    """A :class:`~.base.HomographyGT` scaled to ``H[2, 2] = 1``, or a ValueError naming ``source``.
-
-    Parameters
-    ----------
-    H : ndarray of shape (3, 3)
-        Image 1 → image 2; must be finite and invertible (all zeros or rank 1-2 is an error, not a pair
-        whose every match is then labelled wrong).
-    source : str or Path
-        The file (and pair) it came from, first in every message.
-    pts1, pts2 : ndarray of shape (N, 2), optional
-        Hand-taken points, finite.
-    """
+    """A :class:`~.base.HomographyGT` scaled to ``H[2, 2] = 1``, or a ValueError naming ``source`` (the
+    file it came from) when ``H`` is not finite and invertible or the hand points ``pts1``, ``pts2`` bad."""
     from .base import HomographyGT, _check_matrix
 
     try:
@@ -55,10 +45,7 @@ def homography_gt(H, source, pts1=None, pts2=None):
 
 
 def epipolar_gt(F, source, pts1, pts2):
-    """An :class:`~.base.EpipolarGT` scaled to unit Frobenius norm, or a ValueError naming ``source``.
-
-    ``F`` must be finite and of rank 2 (all zeros or rank 1 is an error); ``pts1``, ``pts2`` (N, 2) finite.
-    """
+    """An :class:`~.base.EpipolarGT` scaled to unit Frobenius norm, or a ValueError naming ``source``."""
     from .base import EpipolarGT, _check_matrix
 
     try:
@@ -71,8 +58,7 @@ def epipolar_gt(F, source, pts1, pts2):
 
 
 def fitted_epipolar_gt(pts1, pts2, source):
-    """An :class:`~.base.EpipolarGT` with F fitted to hand points (:func:`fundamental_from_hand_points`),
-    or a ValueError naming ``source`` when the points are degenerate (coincident, collinear, too few)."""
+    """:func:`epipolar_gt` with F fitted by :func:`fundamental_from_hand_points`; degenerate points raise."""
     why = "degenerate hand points (coincident or collinear?)"
     try:
         with np.errstate(all="ignore"):
@@ -98,9 +84,8 @@ def read_vpts(path):
     Returns
     -------
     ptsA, ptsB : ndarray of shape (N, 2)
-        Hand-taken corresponding points of images A and B, (x, y) pixels, origin at the centre of the
-        top-left pixel (checked against SIFT matches on the zoom pairs of homogr: the files need no
-        MATLAB one-pixel shift).
+        Hand-taken points of images A and B, (x, y) pixels, origin at the centre of the top-left pixel
+        (no MATLAB one-pixel shift: checked against SIFT matches on homogr's zoom pairs).
     model : ndarray of shape (3, 3) or None
         ``validation.model`` when present and not all zeros.
     """
@@ -206,20 +191,13 @@ def _refine(F0, x1, x2):
 
 
 def fundamental_from_hand_points(pts1, pts2) -> np.ndarray:
-    """Ground-truth fundamental matrix with ``x2^T F x1 = 0`` from a few hand-taken correspondences.
+    """Ground-truth fundamental matrix (``x2^T F x1 = 0``, unit Frobenius norm) from hand-taken points.
 
-    Not :func:`ctxmatch_lib.geometry.fit_fundamental` (the linear 8-point fit used inside RANSAC): this
-    one also accepts 7 points and refines the fit non-linearly, for ground truth.
-
-    Normalised 8-point algorithm (Hartley 1997) with rank-2 enforcement for N >= 8, refined by
-    minimising the point-to-epipolar-line distances in both images over rank-2 matrices (orthonormal
-    parametrisation, Bartoli & Sturm 2004); the refinement matters with the 8-14 hand points of a pair,
-    where truncating the linear solution to rank 2 can move the lines by pixels. With exactly 7
-    points the 7-point algorithm gives one or three exact solutions, which the points cannot tell apart:
-    those satisfying the oriented epipolar constraint (Chum, Werner & Matas 2004) are kept and, among
-    them, the one whose epipoles lie farthest from the points (the lateral camera motion of the usual
-    wide-baseline pair; on kusvod2 ``dino1``, the only 7-point pair, it is also the root that SIFT
-    matches agree with). ``F`` is scaled to unit Frobenius norm.
+    N >= 8: normalised 8-point (Hartley 1997), rank 2, refined on the symmetric point-to-line distances
+    over rank-2 matrices (Bartoli & Sturm 2004): with 8-14 hand points truncating to rank 2 can move the
+    lines by pixels. N = 7: of the 7-point roots, those meeting the oriented epipolar constraint (Chum,
+    Werner & Matas 2004), then the one with the epipoles farthest from the points (the lateral motion of a
+    wide-baseline pair). Unlike :func:`ctxmatch_lib.geometry.fit_fundamental` (inside RANSAC).
 
     Parameters
     ----------

@@ -20,9 +20,8 @@ __all__ = ["HomographyGT", "EpipolarGT", "FlowGT", "PoseGT", "GroundTruth", "Pai
 PairKind = Literal["planar", "nonplanar", "depth", "calibrated"]
 PAIR_KINDS = ("planar", "nonplanar", "depth", "calibrated")
 
-# Relative size of the smallest singular value below which a 3x3 ground-truth matrix counts as losing a
-# rank: far beneath the conditioning of any real homography (about 1e-5 for a 1000 px translation) and far
-# above the rounding of a matrix that is exactly singular.
+# Relative singular value below which a 3x3 matrix loses a rank: far beneath any real homography's
+# conditioning (about 1e-5 for a 1000 px translation), far above the rounding of an exactly singular one.
 _RANK_TOL = 1e-12
 
 
@@ -62,8 +61,7 @@ def _check_points(pts, name: str, n: int | None = None) -> None:
 class HomographyGT:
     """Planar ground truth: ``H`` (3, 3) maps image-1 points to image 2, ``x2 ~ H @ [x1, y1, 1]``.
 
-    ``pts1``/``pts2`` (N, 2), optional: hand-taken corresponding points the homography was checked or
-    fitted on (the Lebeda homogr set ships them), ``None`` when the dataset has none.
+    ``pts1``/``pts2`` (N, 2), optional: the hand-taken points it was fitted on (Lebeda homogr ships them).
     """
 
     H: np.ndarray
@@ -71,8 +69,7 @@ class HomographyGT:
     pts2: np.ndarray | None = None
 
     def __post_init__(self):
-        # A zero or rank-deficient H maps the image to a point or a line: every match would be labelled
-        # wrong and the pair silently counted as a failure. Loaders prefix the file the matrix came from.
+        # A rank-deficient H would label every match wrong, silently.
         _check_matrix(self.H, "H", "homography", min_rank=3)
         if (self.pts1 is None) != (self.pts2 is None):
             raise ValueError("pts1 and pts2 must both be given or both be None")
@@ -82,12 +79,8 @@ class HomographyGT:
 
 @dataclass(frozen=True, eq=False)
 class EpipolarGT:
-    """Non-planar ground truth from hand-taken correspondences.
-
-    ``F`` (3, 3) satisfies ``x2^T F x1 = 0`` for homogeneous image-1 point ``x1`` and image-2 point ``x2``.
-    ``pts1``/``pts2`` (N, 2) are the hand-taken corresponding points used by the spatial-localisation check
-    of method D.
-    """
+    """Non-planar ground truth: ``F`` (3, 3) with ``x2^T F x1 = 0`` and the hand-taken points ``pts1``,
+    ``pts2`` (N, 2) of method D's localisation check."""
 
     F: np.ndarray
     pts1: np.ndarray
@@ -97,7 +90,6 @@ class EpipolarGT:
         for name in ("pts1", "pts2"):
             if getattr(self, name) is None:
                 raise ValueError(f"{name}: EpipolarGT needs the hand-taken correspondences, got None")
-        # Rank 2 is what a fundamental matrix has; rank 1 or 0 gives no usable epipolar lines.
         _check_matrix(self.F, "F", "fundamental matrix", min_rank=2)
         _check_points(self.pts1, "pts1")
         _check_points(self.pts2, "pts2", len(np.asarray(self.pts1)))
@@ -105,12 +97,9 @@ class EpipolarGT:
 
 @dataclass(frozen=True, eq=False)
 class FlowGT:
-    """Dense ground truth as per-pixel displacement fields (synthetic scenes, stereo disparity).
-
-    ``flow12`` (H1, W1, 2): the image-1 pixel at row ``r``, column ``c`` (the point x = c, y = r) moves to
-    ``(c + flow12[r, c, 0], r + flow12[r, c, 1])`` in image 2; NaN where unknown or occluded.
-    ``flow21`` (H2, W2, 2) is the same from image 2 to image 1, or ``None`` when only one direction exists.
-    """
+    """Dense ground truth: ``flow12`` (H1, W1, 2) moves the image-1 pixel (x = c, y = r) to
+    ``(c + flow12[r, c, 0], r + flow12[r, c, 1])``, NaN where unknown or occluded; ``flow21`` (H2, W2, 2)
+    the same from image 2, or ``None``."""
 
     flow12: np.ndarray
     flow21: np.ndarray | None = None
@@ -128,10 +117,8 @@ class FlowGT:
             raise ValueError("flow12 has no known pixel (all NaN or empty): no ground truth")
 
 
-# PoseGT's rotation must be orthonormal to 1e-6. A rotation read from a text file with 6 significant digits
-# is orthonormal only to about 1e-6 (1.07e-6 on the Strecha cameras), so the readers accept up to
-# ROTATION_TEXT_TOL and then project onto the nearest rotation (:func:`nearest_rotation`); anything further
-# off is not a rotation (a scale, a shear, a transposed or mistyped matrix).
+# A rotation printed with 6 significant digits is orthonormal only to about 1e-6, so the readers accept
+# ROTATION_TEXT_TOL and project onto the nearest rotation; PoseGT itself requires _ROTATION_TOL.
 _ROTATION_TOL = 1e-6
 ROTATION_TEXT_TOL = 1e-4
 
@@ -148,29 +135,22 @@ def nearest_rotation(R) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class PoseGT:
-    """Calibrated two-view ground truth: intrinsics and the relative pose of camera 2 w.r.t. camera 1.
-
-    A point ``X1`` in camera-1 coordinates is ``X2 = R @ X1 + t`` in camera-2 coordinates (SuperGlue's and
-    LoFTR's ``T_0to1``); pixels are ``x ~ K @ X``, with the package's convention (x right, y down, (0, 0)
-    the centre of the top-left pixel).
+    """Calibrated two-view ground truth: ``X2 = R @ X1 + t`` (SuperGlue's ``T_0to1``), pixels ``x ~ K @ X``.
 
     Parameters
     ----------
     K1, K2 : ndarray of shape (3, 3)
-        Intrinsics of image 1 and image 2 (upper triangular, non-zero focals; stored divided by ``K[2, 2]``).
+        Intrinsics (upper triangular, non-zero focals; stored divided by ``K[2, 2]``).
     R : ndarray of shape (3, 3)
         Rotation (``R^T R = I`` within 1e-6, determinant +1).
     t : ndarray of shape (3,)
-        Translation, non-zero; any unit, only its direction enters the pose error.
+        Translation, non-zero; only its direction enters the pose error.
     threshold_scale : float
-        Factor on the paper's pixel thresholds for this pair (its 15 px were set on images about 1000 px
-        wide, Sec. 5.1); the Strecha loader sets ``max(width, height) / 1024``.
+        Factor on the paper's pixel thresholds, set on images about 1000 px wide (Sec. 5.1).
     difficulty : str
-        The pair's difficulty band (``"easy"``, ``"medium"``, ``"hard"``; ``""`` when unknown), see
-        :mod:`ctxmatch_lib.datasets.strecha`; :func:`ctxmatch_lib.datasets.pose_difficulty` reads it.
+        ``"easy"``, ``"medium"``, ``"hard"`` or ``""`` (:func:`ctxmatch_lib.datasets.pose_difficulty`).
     rotations : tuple of int
-        Quarter turns ``(rot0, rot1)`` of a pairs-with-ground-truth line (:mod:`.posefile`), kept for writing
-        it back; the geometry always refers to the images as stored.
+        Quarter turns ``(rot0, rot1)`` of a pairs-with-ground-truth line, kept to write it back.
 
     Raises
     ------
@@ -217,12 +197,8 @@ GroundTruth = Union[HomographyGT, EpipolarGT, FlowGT, PoseGT]
 
 @dataclass(frozen=True)
 class Pair:
-    """One image pair of a dataset.
-
-    ``image_size1``/``image_size2`` are (width, height). ``kind`` is ``"planar"`` (``HomographyGT``),
-    ``"nonplanar"`` (``EpipolarGT``), ``"depth"`` (``FlowGT``) or ``"calibrated"`` (``PoseGT``); ``gt``
-    holds the matching ground-truth object.
-    """
+    """One image pair: sizes as (width, height); ``kind`` ``"planar"``, ``"nonplanar"``, ``"depth"`` or
+    ``"calibrated"`` with ``gt`` a ``HomographyGT``, ``EpipolarGT``, ``FlowGT`` or ``PoseGT``."""
 
     pair_id: str
     image1: Path
@@ -236,10 +212,7 @@ class Pair:
 
 @dataclass(frozen=True, eq=False)
 class Dataset:
-    """A named, ordered list of :class:`Pair`; iterable, indexable and sized.
-
-    ``root`` is the folder the pairs were read from (or generated into), when there is one.
-    """
+    """A named, ordered list of :class:`Pair`, with the folder it was read from (``root``, or None)."""
 
     name: str
     pairs: list[Pair]

@@ -1,23 +1,11 @@
 """The custom folder format: run your own image pairs without writing code.
 
-A folder holding ``pairs.csv`` with the header ``pair_id,image1,image2,kind,gt`` and an optional ``F``
-column; paths are relative to the folder (absolute paths work too). Pixel convention: x right, y down,
-(0, 0) the centre of the top-left pixel.
-
-``kind`` and ``gt``:
-
-- ``planar``: ``gt`` is a text file with a 3×3 whitespace-separated homography mapping image1 → image2.
-- ``nonplanar``: ``gt`` is an N×4 text file of hand-taken correspondences ``x1 y1 x2 y2`` (N >= 7); the
-  fundamental matrix is fitted from them (normalised 8-point) unless the ``F`` column names a 3×3 text
-  file with ``x2^T F x1 = 0``.
-- ``calibrated``: ``gt`` is a text file with the 36 numbers ``rot0 rot1 K1(9) K2(9) T_0to1(16)`` of a
-  SuperGlue / LoFTR pairs-with-ground-truth line without its two image names (see
-  :mod:`~ctxmatch_lib.datasets.posefile`, which also reads and writes whole pairs-with-GT files).
-- any kind, including ``depth``: ``gt`` may be a ``.npz`` file with a dense ``flow12`` array (H1, W1, 2)
-  and optionally ``flow21`` (see :class:`~ctxmatch_lib.datasets.base.FlowGT`; NaN where unknown or
-  occluded).
-
-Example ``pairs.csv``::
+``pairs.csv`` has the header ``pair_id,image1,image2,kind,gt`` and an optional ``F`` column, paths relative
+to the folder. ``gt`` per ``kind``: ``planar``, a 3×3 text homography image1 → image2; ``nonplanar``, an N×4
+text file ``x1 y1 x2 y2`` of hand-taken points (N >= 7), F fitted to them unless ``F`` names a 3×3 text
+file; ``calibrated``, the 36 numbers of a pairs-with-ground-truth line after its names (:mod:`.posefile`);
+any kind, including ``depth``, a ``.npz`` with ``flow12`` and optionally ``flow21`` (:class:`.FlowGT`).
+Example::
 
     pair_id,image1,image2,kind,gt,F
     graf-1-2,graf/img1.png,graf/img2.png,planar,graf/H1to2.txt,
@@ -78,7 +66,6 @@ def _gt_for(folder: Path, row: dict, csv_path: Path, line: int):
     try:
         return _read_gt(folder, row, csv_path, line)
     except ValueError as exc:
-        # Name the pair too: the message already names the file.
         pair_id = (row.get("pair_id") or "").strip()
         raise ValueError(f"{csv_path}, line {line}, pair {pair_id!r}: {exc}") from None
 
@@ -124,14 +111,7 @@ def _read_pose(path: Path) -> PoseGT:
 
 
 def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
-    """Load a folder in the custom format (see the module docstring).
-
-    Parameters
-    ----------
-    folder : str or Path
-        The folder holding ``pairs.csv``.
-    name : str, optional
-        Dataset name; default the folder name.
+    """Load the folder holding ``pairs.csv`` (module docstring), named ``name`` (default: the folder's).
 
     Raises
     ------
@@ -198,13 +178,8 @@ def _rel(path: Path, folder: Path) -> str:
 
 
 def write_custom_dataset(dataset, folder) -> Path:
-    """Write ``dataset`` (a :class:`Dataset` or a list of pairs) as a custom-format folder.
-
-    Images are referenced, not copied (relative paths from ``folder``). Ground truth goes to ``gt/``:
-    homographies and F as 3×3 text, hand points as N×4 text, dense flows as ``.npz``, calibrated poses as
-    one pairs-with-ground-truth line without its names. Returns the path
-    of the written ``pairs.csv``. :func:`read_custom_dataset` reads it back.
-    """
+    """Write ``dataset`` (a :class:`Dataset` or a list of pairs) as a custom-format folder and return the
+    path of its ``pairs.csv``; images are referenced, ground truth is written under ``gt/``."""
     folder = Path(folder)
     gt_dir = folder / "gt"
     gt_dir.mkdir(parents=True, exist_ok=True)

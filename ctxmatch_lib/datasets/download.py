@@ -1,16 +1,10 @@
 """Download the public real datasets into the data-root layout the loaders read (``ctxmatch data download``).
 
-Archives are fetched with pooch and checked against pinned SHA-256 hashes, then unpacked (path-traversal
-safe) into ``<root>/planar/<name>`` or ``<root>/nonplanar/<name>`` through a temporary folder renamed into
-place, so an interrupted download never leaves a half-extracted dataset behind.
-
-Datasets kept as plain files in a git repository (the Strecha scenes, :class:`FileSet`) are fetched file by
-file from the repository at a pinned commit, each checked against its own SHA-256, into a temporary folder
-renamed into place (``<root>/calibrated/strecha/<scene>``).
-
-Hashes: the ones pinned below were published by independent third parties for the same URL; an archive
-with no pinned hash is refused unless the caller passes its hash (``sha256=``) or ``allow_unpinned=True``,
-in which case the hash of what was downloaded is reported so that it can be pinned here.
+Archives (:class:`Source`) are fetched with pooch, checked against pinned SHA-256 hashes (published by
+independent third parties) and unpacked, path-traversal safe, through a temporary folder renamed into
+place. The Strecha scenes (:class:`FileSet`) are fetched file by file from a pinned commit, each file
+checked against its hash. An archive with no pinned hash is refused unless ``sha256=`` or
+``allow_unpinned=True`` is given; then the hash of the download is reported, to be pinned here.
 """
 
 from __future__ import annotations
@@ -214,25 +208,18 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
     Parameters
     ----------
     name : str
-        One of :func:`download_names`: ``hpatches``, ``oxford-<sequence>`` (graf, boat, bark, bikes,
-        leuven, trees, ubc, wall), ``homogr``, ``kusvod2``, ``strecha-<scene>`` (fountain-P11,
-        Herz-Jesus-P8, castle-P19, entry-P10, Herz-Jesus-P25, castle-P30) or the groups ``oxford`` (all eight
-        sequences), ``planar``, ``nonplanar``, ``strecha`` (= ``calibrated``, the six scenes), ``all``.
+        One of :func:`download_names` (:data:`SOURCES` and the groups :data:`DOWNLOAD_GROUPS`).
     root : str or Path, optional
-        Data root to fill (``planar/…``, ``nonplanar/…``, ``calibrated/…`` under it); default ``$CTXMATCH_DATA`` when set,
-        else ``ctxmatch_lib.cache.cache_dir("data")``.
+        Data root to fill; default ``$CTXMATCH_DATA`` when set, else ``cache_dir("data")``.
     url, sha256 : str, optional
-        Override the archive URL (``http(s)://``, ``ftp://`` or ``file://``) and its SHA-256; only for a
-        dataset with a single archive. A mirror is trusted only through the hash. For the Strecha scenes
-        ``url`` is the base URL of a mirror of the repository's ``Benchmarking_Camera_Calibration_2008``
-        folder (``<url>/<scene>/images/0000.jpg``; ``<url>/images/0000.jpg`` for one scene); every file is
-        checked against its pinned hash, and ``sha256`` does not apply.
+        Override the archive URL (``http(s)://``, ``ftp://`` or ``file://``) and its SHA-256, for a single
+        archive; a mirror is trusted only through the hash. For the Strecha scenes ``url`` is a mirror of
+        the ``Benchmarking_Camera_Calibration_2008`` folder and the pinned per-file hashes apply.
     allow_unpinned : bool
-        Accept an archive with no pinned hash; the hash of what was downloaded is reported.
+        Accept an archive with no pinned hash.
     force : bool
-        Re-download and replace a dataset folder that already exists.
+        Replace a dataset folder that already exists.
     progress : bool
-        Show a download progress bar.
     log : callable
         Receives one line per step.
 

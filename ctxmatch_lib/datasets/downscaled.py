@@ -1,16 +1,9 @@
 """Calibrated pairs at a lower resolution: images downscaled by an integer factor, intrinsics to match.
 
-The paper's pixel thresholds (15 px for the ground truth, the filters' own radii) were set on images about
-1000 px wide (Sec. 5.1), and SIFT's cost grows with the pixel count. :func:`downscale_pairs` turns pairs with
-:class:`~ctxmatch_lib.datasets.base.PoseGT` at, e.g., Strecha's 3072 × 2048 into the same pairs at
-1536 × 1024 (``factor=2``): each image is reduced once by averaging ``factor × factor`` blocks of its grey
-levels in integer arithmetic (exact, so the same bytes on every machine and CPU) and written as PNG into
-the ``datasets`` cache; the pose is unchanged and ``K`` is mapped to the new pixel grid. The pixel
-convention is kept: (0, 0) is the centre of the top-left pixel, so an image-1 point ``x`` becomes
-``(x + 0.5) / factor - 0.5``.
-
-The registered dataset ``strecha-half`` (:func:`~ctxmatch_lib.datasets.load_dataset`) is Strecha's
-calibrated pairs at half resolution; the paper-scale gallery evaluates it.
+The paper's pixel thresholds were set on images about 1000 px wide (Sec. 5.1) and SIFT's cost grows with
+the pixel count: :func:`downscale_pairs` gives, e.g., Strecha's 3072 × 2048 pairs at 1536 × 1024 (the
+registered ``strecha-half``), each image reduced once in integer arithmetic (the same bytes on every CPU)
+into the ``datasets`` cache, the pose unchanged and ``K`` mapped to the new grid.
 """
 
 from __future__ import annotations
@@ -32,19 +25,8 @@ PAPER_IMAGE_SIDE = 1024
 
 
 def downscale_image(img: np.ndarray, factor: int) -> np.ndarray:
-    """Mean of each ``factor × factor`` block of a uint8 image, rounded half up, in integer arithmetic.
-
-    Rows and columns beyond the last whole block are dropped.
-
-    Parameters
-    ----------
-    img : ndarray of shape (H, W), uint8
-    factor : int
-        At least 1.
-
-    Returns
-    -------
-    ndarray of shape (H // factor, W // factor), uint8
+    """Mean of each ``factor × factor`` block of a 2-D uint8 image, rounded half up, in integer arithmetic;
+    rows and columns beyond the last whole block are dropped.
 
     Examples
     --------
@@ -64,10 +46,8 @@ def downscale_image(img: np.ndarray, factor: int) -> np.ndarray:
 
 
 def downscale_intrinsics(K, factor: int) -> np.ndarray:
-    """``K`` of an image downscaled by ``factor`` (:func:`downscale_image`), pixel centres at integers.
-
-    A point ``x`` of the original image is ``(x + 0.5) / factor - 0.5`` in the downscaled one, so
-    ``K' = A K`` with ``A = [[1/f, 0, (1/f - 1)/2], [0, 1/f, (1/f - 1)/2], [0, 0, 1]]``.
+    """``K`` of an image downscaled by ``factor``: pixel centres at integers, ``x`` becomes
+    ``(x + 0.5) / factor - 0.5``.
 
     Examples
     --------
@@ -91,8 +71,7 @@ def _downscaled_file(image: Path, factor: int, folder: Path) -> Path:
     """The downscaled copy of ``image`` in ``folder``, written on first use (atomically)."""
     from ..features import load_image
 
-    # Named by the source path and size, so two scenes with the same file names never collide and an edited
-    # source gets a new copy.
+    # Keyed by path and size: same-named files of two scenes never collide, an edited source gets a new copy.
     st = image.stat()
     key = hashlib.sha256(f"{image.resolve()}|{st.st_size}|{factor}".encode()).hexdigest()[:16]
     out = folder / f"{image.stem}-{key}.png"
@@ -118,26 +97,17 @@ def downscale_pairs(pairs, factor: int = 2, *, folder=None, suffix: str = "half"
     Parameters
     ----------
     pairs : iterable of Pair
-        Pairs whose ground truth is :class:`~ctxmatch_lib.datasets.base.PoseGT`.
+        Pairs with :class:`~ctxmatch_lib.datasets.base.PoseGT` (others raise ValueError).
     factor : int
-        Integer downscaling factor (2: 3072 × 2048 -> 1536 × 1024).
     folder : str or Path, optional
-        Where the downscaled images go (default: ``<cache>/datasets/downscaled-<factor>``).
+        Where the images go (default: ``<cache>/datasets/downscaled-<factor>``).
     suffix : str
-        Appended to each pair's dataset name (``strecha`` -> ``strecha-half``), so the rows of both
-        resolutions never mix.
+        Appended to each pair's dataset name (``strecha-half``), so the two resolutions never mix.
 
     Returns
     -------
     list of Pair
-        The same pairs and ids, images in ``folder``, ``K1``/``K2`` by :func:`downscale_intrinsics`,
-        ``threshold_scale`` = the longer side / :data:`PAPER_IMAGE_SIDE`.
-
-    Raises
-    ------
-    ValueError
-        A pair without :class:`PoseGT` (a homography or a flow field would need rescaling too), or a bad
-        ``factor``.
+        Same ids, ``threshold_scale`` the longer side / :data:`PAPER_IMAGE_SIDE`.
     """
     from ..cache import cache_dir
 

@@ -1,29 +1,18 @@
 """The embedded offline default: image pairs with exact ground truth built from scikit-image's bundled photos.
 
-Nothing is downloaded: every image comes from the photos shipped inside the scikit-image wheel
-(``skimage.data``). The dataset is generated deterministically (fixed seeds, fixed parameters) into the
-cache on first use, in the custom folder format of :mod:`ctxmatch_lib.datasets.custom`, and read back
-from there. It holds three kinds of pairs:
+Generated deterministically into the cache on first use (:func:`embedded_root`), in the custom format
+(:mod:`.custom`), from ``skimage.data`` only:
 
-- **planar** (HPatches-like): three sequences of six 640×480 views of a textured plane (photo mosaics, the
-  Hubble deep field), reference view 1 and views 2-6 of growing viewpoint change (rotation up to 30°, zoom
-  up to 1.4, foreshortening up to 45 %), each sequence adding a growing photometric change: illumination
-  (gain, gamma and a lighting ramp), Gaussian blur, or Gaussian noise. Ground truth ``H_1k`` is exact.
-- **nonplanar**: four synthetic 640×480 scenes of two or three independently moving planar layers (a
-  background photo and textured cut-outs: an ellipse, the scikit-image horse silhouette, a card, a disc,
-  a star) with occlusion and disocclusion. Ground truth is dense (:class:`FlowGT`, both directions), exact
-  per pixel, NaN where the point leaves the image or is hidden by another layer.
-- **depth**: the Middlebury 2014 "motorcycle" stereo pair shipped by scikit-image
-  (``skimage.data.stereo_motorcycle``, 741×500) with its ground-truth disparity as :class:`FlowGT`.
+- **planar**: three HPatches-like sequences of six 640×480 views of a textured plane, growing viewpoint
+  change (rotation up to 30°, zoom up to 1.4, foreshortening up to 45 %) plus illumination, blur or noise;
+  exact ``H_1k``;
+- **nonplanar**: four scenes of two or three independently moving planar layers with occlusion; exact
+  dense :class:`FlowGT` both ways, NaN where a point leaves the image or is hidden;
+- **depth**: the Middlebury 2014 motorcycle stereo pair (741×500) with its disparity as :class:`FlowGT`
+  (:func:`motorcycle_flows`). The left pixel (x, y) is the right pixel (x - d, y), checked against the
+  images (``stereo_motorcycle``'s docstring reads as the opposite sign).
 
-Rendering is anti-aliased (2× supersampling, area downsampling) and keeps the pixel-centre convention:
-x right, y down, (0, 0) the centre of the top-left pixel.
-
-Disparity convention of the motorcycle pair, checked against the images: the left pixel (x, y) is the
-right pixel (x - d, y), with ``d = disp[y, x]`` (the usual Middlebury convention; warping the right image by
-it reproduces the left image best, with no sub-pixel offset). The docstring of
-``stereo_motorcycle`` reads as the opposite sign. ``flow21`` is derived by inverting ``flow12`` scanline by
-scanline over continuous surface segments, the nearest surface (largest disparity) winning.
+Rendering is anti-aliased (2× supersampling, area downsampling), pixel centres at integers.
 """
 
 from __future__ import annotations
@@ -43,7 +32,7 @@ __all__ = ["EMBEDDED_VERSION", "MOTORCYCLE_CALIBRATION", "embedded_root", "gener
            "motorcycle_pose_gt"]
 
 # Bump whenever the generated images or ground truth change: a new cache folder is generated.
-EMBEDDED_VERSION = 2  # 2: generated with CPU-independent sines and OpenCV baseline code
+EMBEDDED_VERSION = 2
 
 VIEW_W, VIEW_H = 640, 480
 _SS = 2  # supersampling factor of the renderer
@@ -399,10 +388,8 @@ def motorcycle_flows(disp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     flow12, flow21 : ndarray of shape (H, W, 2), float32
-        ``flow12 = (-d, 0)`` where known. ``flow21`` inverts it along each scanline: every right pixel
-        between the images of two horizontally adjacent left pixels of the same surface (disparities
-        within 1 px) gets the linearly interpolated left position; where several surfaces land, the
-        nearest (largest disparity) wins; NaN elsewhere (occluded or unknown).
+        ``flow12 = (-d, 0)``. ``flow21`` inverts it scanline by scanline, interpolating between adjacent
+        left pixels of one surface (disparities within 1 px), the nearest surface winning; NaN elsewhere.
     """
     disp = np.asarray(disp, np.float64)
     h, w = disp.shape
@@ -443,13 +430,8 @@ MOTORCYCLE_CALIBRATION = {"f": 994.978, "cx": 311.193, "cy": 254.877, "dx": 31.0
 
 
 def motorcycle_pose_gt() -> PoseGT:
-    """The motorcycle pair as a calibrated pair: :data:`MOTORCYCLE_CALIBRATION` as ``K1``, ``K2`` and the pose.
-
-    The pair is rectified: both cameras share their orientation (``R = I``) and the right one sits one
-    baseline to the right, so a left-camera point ``X`` is ``X - (B, 0, 0)`` in the right camera (``t`` in
-    millimetres; only its direction enters the pose error). The right principal point is ``dx`` to the right
-    of the left one (Middlebury's ``doffs``), consistent with the disparity: ``d = f B / Z - dx``.
-    """
+    """The motorcycle pair as a calibrated pair (:data:`MOTORCYCLE_CALIBRATION`): rectified, ``R = I``,
+    ``t = (-B, 0, 0)`` mm, the right principal point ``dx`` further right (``d = f B / Z - dx``)."""
     c = MOTORCYCLE_CALIBRATION
     K1 = np.array([[c["f"], 0.0, c["cx"]], [0.0, c["f"], c["cy"]], [0.0, 0.0, 1.0]])
     K2 = K1.copy()
@@ -473,10 +455,7 @@ def _write_depth(folder: Path, rows: list) -> None:
 
 # ------------------------------------------------------------------------------------------ generation
 def generate_embedded(folder) -> Path:
-    """Generate the embedded dataset into ``folder`` (created; files overwritten) and return it.
-
-    Deterministic: the same scikit-image photos give bit-identical images and ground truth, on any x86-64 CPU.
-    """
+    """Generate the embedded dataset into ``folder`` and return it; bit-identical on any x86-64 CPU."""
     import csv
 
     folder = Path(folder)
@@ -495,15 +474,8 @@ def generate_embedded(folder) -> Path:
 
 
 def embedded_root(root=None) -> Path:
-    """The folder of the embedded dataset, generating it first if needed.
-
-    Parameters
-    ----------
-    root : str or Path, optional
-        Parent folder; default ``ctxmatch_lib.cache.cache_dir("datasets")``. The dataset lives in
-        ``root/embedded-v<EMBEDDED_VERSION>``. Generation writes a temporary sibling folder and renames it
-        into place, so an interrupted run leaves nothing half-written and concurrent runs are safe.
-    """
+    """``root/embedded-v<EMBEDDED_VERSION>`` (default root: the ``datasets`` cache), generated first if
+    needed into a temporary sibling renamed into place (safe against interruption and concurrent runs)."""
     if root is None:
         from ..cache import cache_dir
 

@@ -4,20 +4,12 @@ One pair per line, 38 whitespace-separated tokens::
 
     name0 name1 rot0 rot1 K0(9) K1(9) T_0to1(16)
 
-``name0``/``name1`` are image paths relative to the image folder (default: the folder of the text file;
-absolute paths work too); ``K0``/``K1`` the 3x3 intrinsics row by row; ``T_0to1`` the 4x4 rigid transform
-row by row that takes camera-0 coordinates to camera-1 coordinates (``X1 = R X0 + t``, last row
-``0 0 0 1``). ``rot0``/``rot1`` (0-3) are the quarter turns (``np.rot90``, counter-clockwise) that SuperGlue
-applies to an image before matching, updating its intrinsics and pose with it: ``K`` and ``T_0to1`` in the
-file describe the images **as stored**. The package matches the stored images, so the rotations are kept
-(and written back) but change nothing. Pixel convention: (0, 0) the centre of the top-left pixel, as in
-SuperGlue (its rotated principal point is ``w - 1 - cx``) and in the package. Blank lines and lines
-starting with ``#`` are skipped.
-
-Each pair becomes ``kind="calibrated"`` with a :class:`~ctxmatch_lib.datasets.PoseGT` whose
-``threshold_scale`` is ``max(width, height) / 1024`` of the larger image (the paper's pixel thresholds,
-Sec. 5.1, refer to images about 1000 px wide) and whose ``difficulty`` is the band of its rotation angle
-(:func:`~ctxmatch_lib.datasets.strecha.rotation_band`).
+Names are relative to the image folder (default: the file's); matrices row by row, ``T_0to1`` taking
+camera-0 to camera-1 coordinates. ``K`` and ``T_0to1`` describe the images **as stored**: the quarter
+turns ``rot0``/``rot1`` SuperGlue applies before matching are kept and written back but change nothing.
+Pixel centres are at integers, as in SuperGlue. Blank lines and ``#`` lines are skipped. Each pair gets a
+:class:`~ctxmatch_lib.datasets.PoseGT` with :func:`.strecha.threshold_scale_for` and
+:func:`.strecha.rotation_band`.
 """
 
 from __future__ import annotations
@@ -45,8 +37,7 @@ def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = No
     Raises
     ------
     ValueError
-        Not 36 tokens, a non-number, a rotation outside 0-3, a bad last row of ``T_0to1``, a non-rotation,
-        a zero focal or a zero translation (the message names the field; callers prefix the file and line).
+        Bad tokens or geometry; the message names the field, callers prefix the file and line.
     """
     if len(tokens) != POSE_LINE_TOKENS - 2:
         raise ValueError(f"expected {POSE_LINE_TOKENS - 2} numbers 'rot0 rot1 K0(9) K1(9) T_0to1(16)', "
@@ -91,24 +82,15 @@ def format_pose_tokens(gt: PoseGT) -> list[str]:
 
 
 def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Dataset:
-    """Read a pairs-with-ground-truth text file (module docstring) as a dataset of calibrated pairs.
-
-    Parameters
-    ----------
-    path : str or Path
-        The text file.
-    image_dir : str or Path, optional
-        Folder the image names are relative to; default the folder of ``path``.
-    name : str, optional
-        Dataset name (pair ids are ``<name>/<stem0>-<stem1>``); default the name of the image folder.
+    """Read a pairs-with-ground-truth file as calibrated pairs, images relative to ``image_dir`` (default:
+    the file's folder), ids ``<name>/<stem0>-<stem1>`` (default name: the image folder's).
 
     Raises
     ------
     FileNotFoundError
-        No such file, or a listed image is missing (the message names it).
+        No such file, or a listed image is missing.
     ValueError
-        A line with the wrong number of tokens or invalid geometry (the message names the file and line),
-        a duplicate pair, or no pair at all.
+        A bad line (named with its file and number), a duplicate pair, or no pair at all.
     """
     path = Path(path).expanduser()
     if not path.is_file():
@@ -146,12 +128,8 @@ def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Data
 
 
 def write_pairs_with_gt(dataset, path, *, image_dir=None) -> Path:
-    """Write the calibrated pairs of ``dataset`` (a :class:`Dataset` or a list of pairs) as a
-    pairs-with-ground-truth text file, atomically; :func:`read_pairs_with_gt` reads it back.
-
-    Image names are written relative to ``image_dir`` (default the folder of ``path``) when the images
-    lie under it, else as absolute paths. A pair whose ground truth is not a :class:`PoseGT` is an error.
-    """
+    """Write the calibrated pairs of ``dataset`` as a pairs-with-ground-truth file, atomically; names
+    relative to ``image_dir`` (default: the file's folder) when the images lie under it, else absolute."""
     import os
 
     path = Path(path)

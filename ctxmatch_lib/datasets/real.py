@@ -1,9 +1,7 @@
 """Loaders for the public real datasets, in the formats their authors distribute.
 
-Each loader takes the data root (the folder holding ``planar/`` and ``nonplanar/``, from ``CTXMATCH_DATA``
-by default) or the dataset folder itself, and returns the pairs with ground truth in the conventions of
-:mod:`ctxmatch_lib.datasets.base` (x right, y down, origin at the centre of the top-left pixel;
-``H`` maps image 1 to image 2; ``x2^T F x1 = 0``).
+Each loader takes the data root (default ``$CTXMATCH_DATA``) or the dataset folder and returns pairs in
+the conventions of :mod:`ctxmatch_lib.datasets.base`.
 
 ==========  ===================================  ===========================================================
 name        layout                               ground truth
@@ -75,14 +73,8 @@ def _sequence_pairs(seq: Path, images: dict[str, Path], gt_name, dataset: str) -
 
 
 def load_hpatches(root=None) -> list[Pair]:
-    """HPatches sequences (Balntas et al., CVPR 2017): every ``v_*``/``i_*`` folder, pairs 1→k.
-
-    Parameters
-    ----------
-    root : str or Path, optional
-        The data root (``planar/hpatches`` under it), the ``hpatches`` folder, or the folder of the
-        extracted ``hpatches-sequences-release``; default ``CTXMATCH_DATA``.
-    """
+    """HPatches sequences (Balntas et al., CVPR 2017), pairs 1→k; ``root`` may also be the extracted
+    ``hpatches-sequences-release`` folder."""
     def is_seq(p):
         return (p / "H_1_2").is_file()
 
@@ -134,12 +126,8 @@ def _model_file(folder: Path, name: str, mat_model):
 
 
 def load_homogr(root=None) -> list[Pair]:
-    """Lebeda, Matas & Chum (BMVC 2012) planar "homogr" pairs; image 1 = A, image 2 = B.
-
-    The distributed model maps B to A, so the pair's ``H`` (image 1 → image 2) is its inverse. When no
-    model is shipped, ``H`` is fitted to the hand-taken points (normalised DLT). The hand points are kept
-    in ``HomographyGT.pts1/pts2``.
-    """
+    """Lebeda, Matas & Chum (BMVC 2012) planar "homogr" pairs, image 1 = A: ``H`` is the inverse of the
+    shipped model (B to A), else fitted to the hand points, which are kept in ``pts1``/``pts2``."""
     import cv2
 
     folder = _resolve(root, "planar/homogr", lambda d: any(d.glob("*_vpts.mat")))
@@ -168,12 +156,8 @@ def load_homogr(root=None) -> list[Pair]:
 
 
 def load_kusvod2(root=None) -> list[Pair]:
-    """Lebeda, Matas & Chum (BMVC 2012) non-planar "kusvod2" pairs; image 1 = A, image 2 = B.
-
-    The distributed F satisfies ``xA^T F xB = 0``, so the pair's F (``x2^T F x1 = 0``) is its transpose.
-    When it is absent or all zeros (8 of the 24 pairs), F is fitted to the hand-taken points with
-    :func:`ctxmatch_lib.datasets._io.fundamental_from_hand_points`.
-    """
+    """Lebeda, Matas & Chum (BMVC 2012) non-planar "kusvod2" pairs, image 1 = A: F is the transpose of the
+    shipped one (``xA^T F xB = 0``), else fitted (:func:`._io.fundamental_from_hand_points`)."""
     folder = _resolve(root, "nonplanar/kusvod2", lambda d: any(d.glob("*_vpts.mat")))
     pairs = []
     for name, a, b, vpts in _ab_pairs(folder):

@@ -1,37 +1,16 @@
 """Calibrated pairs from the Strecha et al. (CVPR 2008) multi-view scenes, in openMVG's layout.
 
-The paper's third dataset, SUN3D (Sec. 5.1), is calibrated: each pair carries intrinsics and a relative
-pose, and matches are labelled by their epipolar distances. The Strecha scenes stand in for it here (SUN3D
-is not obtainable), as openMVG/SfM_quality_evaluation distributes them::
+They stand in for the paper's calibrated SUN3D (Sec. 5.1, not obtainable). Layout:
+``<scene>/images/0000.jpg`` (3072 x 2048) and ``<scene>/gt_dense_cameras/0000.jpg.camera``, 9 lines: ``K``
+(3), the distortion (1, zeros), the camera-to-world ``R`` (3), the centre ``C`` (1), ``width height`` (1);
+``P = K [R^T | -R^T C]``, principal point used as published (``docs/evaluation.md``, Calibrated pairs).
 
-    <scene>/images/0000.jpg ...                 the views (3072 x 2048)
-    <scene>/gt_dense_cameras/0000.jpg.camera    one text file per view
-
-A ``.camera`` file holds 9 lines: the intrinsics ``K`` (3 lines), the radial distortion (1 line, zeros: the
-images are undistorted), the camera-to-world rotation ``R`` (3 lines), the camera centre ``C`` (1 line) and
-the image width and height (1 line); the projection is ``P = K [R^T | -R^T C]``. Its principal point is
-used as published: on SIFT ratio-test matches the median Sampson distance to the ground-truth F moves by
-about 0.01 px, in no consistent direction, when both principal points shift by half a pixel, far below the
-0.1-0.2 px of the calibration itself, so the files carry no detectable half-pixel offset with respect to the
-package's convention (origin at the centre of the top-left pixel).
-
-**Pair rule** (:func:`select_pairs`), from the cameras alone, fixed before any filter was run:
-
-1. views ``i < j`` of one scene whose optical axes converge in front of both cameras (the closest points of
-   the two axes lie at positive depths ``d1``, ``d2``: both views look at the same part of the scene), with
-   a baseline of at least 5 % of the depth ``min(d1, d2)`` (a well-defined translation direction) and a
-   relative rotation angle of at most 60 degrees (beyond, SIFT finds next to no correct match: its
-   repeatability vanishes past about 50-60 degrees of viewpoint change, Mikolajczyk et al., IJCV 2005);
-2. the difficulty band of a pair is its relative rotation angle: ``easy`` below 15 degrees, ``medium``
-   15-30, ``hard`` 30-60 (:data:`DIFFICULTY_BANDS`);
-3. per scene and band, at most :data:`MAX_PAIRS_PER_BAND` pairs, taken evenly over the band's qualifying
-   pairs sorted by angle (so each band spans its range and each scene weighs the same).
-
-On the three scenes in ``calibrated/strecha`` this gives 52 pairs: 17 easy, 18 medium, 17 hard.
-
-**Threshold scale.** The paper's 15 px (Sec. 5.1) were set on images about 1000 px wide; a pair's
-:attr:`~ctxmatch_lib.datasets.PoseGT.threshold_scale` is ``max(width, height) / 1024`` (3 for the
-3072 x 2048 views), so the ground-truth tolerance keeps the same fraction of the image.
+**Pair rule** (:func:`select_pairs`), from the cameras alone: views ``i < j`` whose optical axes converge in
+front of both cameras, baseline at least :data:`MIN_BASELINE_RATIO` of the fixation depth (a defined
+translation direction), relative rotation at most 60 degrees (SIFT's repeatability vanishes beyond,
+Mikolajczyk et al., IJCV 2005); the rotation gives the band (:data:`DIFFICULTY_BANDS`); per scene and band
+at most :data:`MAX_PAIRS_PER_BAND` pairs, evenly over the angles. ``PoseGT.threshold_scale`` is
+``max(width, height) / 1024`` (:func:`threshold_scale_for`).
 """
 
 from __future__ import annotations
@@ -73,11 +52,7 @@ REFERENCE_SIDE = 1024
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """One calibrated view: ``x ~ K (R_wc X + t_wc)`` with ``R_wc = R^T``, ``t_wc = -R^T C``.
-
-    ``K`` (3, 3) intrinsics; ``R`` (3, 3) camera-to-world rotation (projected onto the nearest rotation);
-    ``C`` (3,) camera centre; ``size`` (width, height); ``path`` the ``.camera`` file.
-    """
+    """One calibrated view: ``x ~ K R^T (X - C)``, ``R`` camera-to-world, ``size`` (width, height)."""
 
     K: np.ndarray
     R: np.ndarray
@@ -103,20 +78,11 @@ def _numbers(lines: list[str], start: int, stop: int, count: int, path: Path) ->
 
 
 def read_strecha_camera(path) -> Camera:
-    """Read one ``.camera`` file of the Strecha / openMVG layout (see the module docstring).
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    Camera
+    """Read one ``.camera`` file (module docstring) as a :class:`Camera`.
 
     Raises
     ------
     FileNotFoundError
-        No such file.
     ValueError
         Fewer than 9 lines, a line with the wrong count of numbers, non-zero distortion, a zero focal, a
         non-rotation ``R`` or a non-positive size; the message names the file and line.
@@ -181,11 +147,8 @@ def rotation_band(angle_deg: float) -> str:
 
 
 def pose_difficulty(pair) -> str:
-    """The difficulty band of a calibrated pair (``"easy"``, ``"medium"``, ``"hard"``), ``""`` if none.
-
-    The band the loader stored (``pair.gt.difficulty``), else the band of the relative rotation angle of
-    ``pair.gt.R`` (pairs read from a pairs-with-ground-truth file); ``""`` for a pair of another kind.
-    """
+    """The difficulty band of a calibrated pair: ``pair.gt.difficulty``, else that of the rotation of
+    ``pair.gt.R``; ``""`` for a pair of another kind."""
     gt = pair.gt
     if not isinstance(gt, PoseGT):
         return ""
@@ -196,15 +159,8 @@ def pose_difficulty(pair) -> str:
 
 
 def select_pairs(cameras, *, max_per_band: int | None = MAX_PAIRS_PER_BAND) -> list[tuple[int, int, str]]:
-    """The pairs ``(i, j, band)`` of one scene under the pair rule (module docstring), sorted by ``(i, j)``.
-
-    Parameters
-    ----------
-    cameras : sequence of Camera
-        The scene's views in order.
-    max_per_band : int or None
-        Pairs kept per band, evenly over the qualifying pairs sorted by angle; ``None`` keeps all.
-    """
+    """The pairs ``(i, j, band)`` of one scene's cameras under the pair rule (module docstring), sorted;
+    ``max_per_band=None`` keeps every qualifying pair."""
     by_band: dict[str, list[tuple[float, int, int]]] = {name: [] for name, _, _ in DIFFICULTY_BANDS}
     for i in range(len(cameras)):
         for j in range(i + 1, len(cameras)):
@@ -267,15 +223,13 @@ def load_strecha_folder(folder, *, dataset: str = "strecha",
     folder : str or Path
         A scene (``images/``, ``gt_dense_cameras/``) or a folder of scenes.
     dataset : str
-        Name stored in each pair; pair ids are ``<dataset>/<scene>/<i>-<j>`` (view indices in name order).
+        Name stored in each pair; pair ids are ``<dataset>/<scene>/<i>-<j>``.
     max_per_band : int or None
-        Pairs per scene and difficulty band (:func:`select_pairs`); ``None`` keeps every qualifying pair.
+        See :func:`select_pairs`.
 
     Returns
     -------
     list of Pair
-        ``kind="calibrated"``, ``gt`` a :class:`~ctxmatch_lib.datasets.PoseGT` whose ``difficulty`` is the
-        band and ``threshold_scale`` is :func:`threshold_scale_for` of the larger image.
 
     Raises
     ------

@@ -1,24 +1,8 @@
-"""Compiled (numba) loops of DTM's hot paths.
-
-- :func:`triangle_neighbors_kernel`, :func:`circumradii_kernel`, :func:`alpha_shapes_kernel`: the triangle
-  adjacency and the MATLAB-``boundary`` alpha shapes (:mod:`ctxmatch_lib.dtm.boundary`);
-- :func:`locate_kernel`: the visibility walk of
-  :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex` (DTM2's point location);
-- :func:`neighbourhood_kernel`, :func:`row_counts_kernel`, :func:`contract_expand_kernel`: DTM1 steps 3-6
-  (:mod:`ctxmatch_lib.dtm.core`); :func:`transfer_test_kernel`: DTM2 step 2;
-- :func:`vertex_csr_kernel`, :func:`hull_edges_kernel`: neighbourhoods and hull edges of a triangulation.
-
-The point-set kernels (row keys, nearest vertices, ring samples) are in :mod:`ctxmatch_lib.dtm._point_kernels`.
-
-These are graph walks (union-find, flood fill, walks from triangle to triangle, greedy loops) that NumPy
-can only express as several sorts and sparse-graph calls, or not at all; here each is one linear loop.
-Their floating-point operations are those of the NumPy code they replaced, in the same order and without
-``fastmath`` (so no reassociation and no fused multiply-add): the results, and DTM's keep masks, are the
-same bit for bit, on any machine.
-
-Compiled code is cached on disk in the user's cache directory (``$CTXMATCH_CACHE/numba``, see
-:func:`ctxmatch_lib.cache.cache_dir`) unless ``NUMBA_CACHE_DIR`` says otherwise, so only the first call on
-a machine pays the compilation (a few seconds).
+"""Compiled (numba) graph walks of DTM: triangle adjacency and alpha shapes (:mod:`.boundary`), point
+location (:meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex`), DTM1 steps 3-6 and DTM2
+step 2 (:mod:`.core`), vertex neighbourhoods and hull edges. Without ``fastmath`` (no reassociation, no
+FMA contraction), so the results are the same bits on any machine; cached on disk under
+``$CTXMATCH_CACHE/numba`` (:func:`ctxmatch_lib.cache.cache_dir`) unless ``NUMBA_CACHE_DIR`` is set.
 """
 
 from __future__ import annotations
@@ -60,11 +44,8 @@ with user_cache() as _cache:
 
     @_jit
     def triangle_neighbors_kernel(simplices, n_points):
-        """``neighbors[t, k]``: the triangle across edge ``k`` of ``t`` (the edge opposite vertex ``k``),
-        ``-1`` on the hull. The edges (row ``3 t + k``), in increasing row order, go through an open-addressing
-        hash table keyed by their vertex pair: an edge meets the waiting twin with the same two vertices, and
-        the two become neighbours (a pair met once is closed, so a third copy, which no valid mesh has, stays
-        ``-1`` as the first two are paired)."""
+        """``neighbors[t, k]``: the triangle across the edge of ``t`` opposite vertex ``k``, ``-1`` on the hull;
+        twin edges meet in an open-addressing hash table keyed by their vertex pair."""
         n_tri = simplices.shape[0]
         bits = 4
         while (1 << bits) < 3 * n_tri:
@@ -121,8 +102,7 @@ with user_cache() as _cache:
 
     @_jit
     def circumradii_kernel(points, simplices):
-        """Circumradius ``abc / (4 area) = sqrt(a² b² c²) / (2 |cross|)`` of each triangle (one square root per
-        triangle), ``inf`` when degenerate."""
+        """Circumradius ``sqrt(a² b² c²) / (2 |cross|)`` of each triangle, ``inf`` when degenerate."""
         n_tri = simplices.shape[0]
         radii = np.empty(n_tri)
         for t in range(n_tri):
@@ -139,8 +119,7 @@ with user_cache() as _cache:
     @_jit(inline="always")
     def _mesh_alpha(g, simplices, neighbors, radii, order, t_off, p_off, shrink, rank, parent, size, spectrum,
                     first):
-        """The alpha of mesh ``g`` (see :func:`alpha_shapes_kernel`); fills ``rank`` for its triangles and uses
-        ``parent``/``size`` (union-find), ``spectrum`` and ``first`` as scratch."""
+        """The alpha of mesh ``g`` (:func:`alpha_shapes_kernel`); the other arrays are scratch."""
         lo, hi = t_off[g], t_off[g + 1]
         # The alpha spectrum: distinct radii, ascending; rank[t] is the index of radii[t] in it.
         n_spec = 0
@@ -162,9 +141,7 @@ with user_cache() as _cache:
         for v in range(p_off[g], p_off[g + 1]):
             if first[v] < n_spec and first[v] > all_points:
                 all_points = first[v]
-        # Regions (triangles connected through shared edges, union-find) of the shape at all_points, then
-        # the triangles of higher rank added in rank order until one region is left: the critical alpha
-        # is the first spectrum value >= all_points at which the shape is one region.
+        # Regions (union-find) at all_points, then higher ranks added until one region is left: critical alpha.
         regions = 0
         for t in range(lo, hi):
             if rank[t] <= all_points:
@@ -196,8 +173,7 @@ with user_cache() as _cache:
 
     @_jit(inline="always")
     def _fill_holes(inside, neighbors):
-        """Outside triangles not reachable, through outside triangles, from an outside triangle on the hull
-        become inside (in place)."""
+        """Fill holes in place: outside triangles not reachable through outside ones from the hull."""
         n_tri = inside.shape[0]
         exterior = np.zeros(n_tri, np.bool_)
         stack = np.empty(n_tri, np.int64)
@@ -221,8 +197,7 @@ with user_cache() as _cache:
 
     @_jit(inline="always")
     def _boundary_edges(simplices, neighbors, inside, t_off):
-        """Edge ``k`` of each inside triangle ``t`` whose neighbour across it is outside or missing, in
-        ``(t, k)`` order, with the offsets per mesh."""
+        """Edges of inside triangles with an outside or no neighbour, in ``(t, k)`` order, offsets per mesh."""
         n_tri = inside.shape[0]
         n_groups = t_off.shape[0] - 1
         n_edges = 0
@@ -249,15 +224,10 @@ with user_cache() as _cache:
 
     @_jit
     def alpha_shapes_kernel(simplices, neighbors, radii, order, t_off, p_off, shrink):
-        """Holes-filled alpha shapes (MATLAB ``boundary`` alpha) of the meshes of a disjoint union.
-
-        Mesh ``g`` holds triangles ``t_off[g]:t_off[g + 1]`` and points ``p_off[g]:p_off[g + 1]``
-        (``simplices`` index the concatenated points); every mesh has triangles. ``order[t_off[g]:t_off[g + 1]]``
-        lists mesh ``g``'s triangles by increasing circumradius (ties in any order). Returns each mesh's alpha,
-        the inside flags and the boundary edges (in ``(t, k)`` order: edge ``k`` of an inside triangle ``t``
-        whose neighbour across it is outside or missing) with their offsets per mesh. See
-        :func:`ctxmatch_lib.dtm.boundary.matlab_boundary_alpha` for the rule.
-        """
+        """Holes-filled alpha shapes (:func:`ctxmatch_lib.dtm.boundary.matlab_boundary_alpha`) of the meshes
+        of a disjoint union: mesh ``g`` holds triangles ``t_off[g]:t_off[g + 1]`` (``order`` ranks them by
+        circumradius) and points ``p_off[g]:p_off[g + 1]``. Returns the alphas, inside flags, boundary edges
+        and their offsets per mesh."""
         n_tri = simplices.shape[0]
         n_groups = t_off.shape[0] - 1
         alphas = np.empty(n_groups)
@@ -273,8 +243,6 @@ with user_cache() as _cache:
         for g in range(n_groups):
             for t in range(t_off[g], t_off[g + 1]):
                 inside[t] = radii[t] <= alphas[g]
-        # Fill holes: outside triangles not reachable, through outside triangles, from an outside triangle
-        # on the hull.
         _fill_holes(inside, neighbors)
         edges, e_off = _boundary_edges(simplices, neighbors, inside, t_off)
         return alphas, inside, edges, e_off
@@ -286,14 +254,9 @@ with user_cache() as _cache:
 
     @_jit
     def locate_kernel(points, simplices, neighbors, xy, nearest, max_steps):
-        """Visibility walk of :meth:`ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex`.
-
-        Query ``q`` starts in the lowest-indexed triangle around its nearest vertex ``nearest[q]`` (triangle
-        0 if that vertex has none) and, while it lies outside the current triangle (some edge value
-        ``d_k < -1e-12 |area|``, or a zero area), crosses the edge with the smallest ``d_k`` (the first on
-        ties); it stops inside (found) or at the hull (``-1``). Returns the triangles and whether each query
-        was still walking after ``max_steps`` steps (those are left ``-1`` for the caller's exhaustive test).
-        """
+        """Visibility walk of :meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex`: from a
+        triangle at ``nearest[q]``, cross the edge with the smallest ``d_k`` while some ``d_k < -1e-12 |area|``.
+        Returns the triangles (``-1`` past the hull) and which queries exceeded ``max_steps``."""
         n_tri = simplices.shape[0]
         first = np.full(points.shape[0], -1, np.int64)
         for t in range(n_tri - 1, -1, -1):
@@ -339,19 +302,15 @@ with user_cache() as _cache:
     @_jit(inline="always")
     def _strictly_inside(x, y, ax, ay, bx, by, cx, cy, orientation):
         """Whether ``(x, y)`` lies strictly inside triangle ``abc`` turning the way of ``orientation`` (+1, -1;
-        0 holds nothing): the three products of ``core._strictly_inside``, in its operation order."""
+        0 holds nothing)."""
         return ((_cross(ax, ay, bx, by, x, y) * orientation > 0) and (_cross(bx, by, cx, cy, x, y) * orientation > 0)
                 and (_cross(cx, cy, ax, ay, x, y) * orientation > 0))
 
     @_jit
     def transfer_test_kernel(simplex, simplices, points, n_vertices, indptr, indices, q_src, q_dst, base_src,
                              base_dst, base_vertex):
-        """DTM2 step 2 in one direction (:func:`ctxmatch_lib.dtm.core._transfer_test`, which states the rule):
-        whether each candidate ``(q_src, q_dst)`` passes, given the triangle ``simplex`` (``-1``: none) of
-        ``simplices`` holding ``q_src``. Keypoint triangles try every partner triangle of base matches; triangles
-        with one or two boundary vertices try the translations by the base matches on the vertices adjacent to
-        their keypoint vertex nearest to ``q_src`` (the first on ties). The arithmetic is that of the NumPy
-        version, operation for operation."""
+        """DTM2 step 2 in one direction (the rule: :func:`ctxmatch_lib.dtm.core._transfer_test`), given the
+        triangle ``simplex`` (``-1``: none) holding each ``q_src``."""
         n = q_src.shape[0]
         ok = np.zeros(n, np.bool_)
         start, at = _group_by(base_vertex, n_vertices)  # base matches collapsed onto each vertex
@@ -409,10 +368,8 @@ with user_cache() as _cache:
 
     @_jit
     def neighbourhood_kernel(indptr1, indices1, vertex1, indptr2, indices2, vertex2):
-        """DTM1 step 3 seen from image 1: every pair ``(m, o)`` with the image-1 vertex of ``o`` adjacent to
-        that of ``m`` (``vertex1``; ``indices1[indptr1[v]:indptr1[v + 1]]`` are the neighbours of ``v``,
-        ``v`` itself skipped), by increasing ``m``, then neighbour order, then increasing ``o``; and whether
-        the image-2 vertices of ``m`` and ``o`` are adjacent too (distinct and an edge of image 2)."""
+        """DTM1 step 3 from image 1: every pair ``(m, o)`` with the vertex of ``o`` adjacent to (not equal to)
+        that of ``m``, by increasing ``m``, and whether their image-2 vertices are adjacent too."""
         n = vertex1.shape[0]
         start, at = _group_by(vertex1, indptr1.shape[0] - 1)  # matches on each image-1 vertex, increasing
         total = 0
@@ -448,8 +405,7 @@ with user_cache() as _cache:
 
     @_jit
     def hull_edges_kernel(simplices, neighbors):
-        """The edges ``(simplices[t, k + 1], simplices[t, k + 2])`` (indices mod 3) with no triangle across
-        (``neighbors[t, k] < 0``), in ``(t, k)`` order (``np.nonzero`` order)."""
+        """The edges with no triangle across (``neighbors[t, k] < 0``), in ``(t, k)`` order."""
         n = 0
         for t in range(simplices.shape[0]):
             for k in range(3):
@@ -466,8 +422,8 @@ with user_cache() as _cache:
 
     @_jit
     def vertex_csr_kernel(simplices, n):
-        """CSR ``(indptr, indices)`` of the vertices ``0..n-1`` adjacent to each vertex ``v < n`` through an edge
-        of ``simplices``, ``v`` itself included, increasing and without repeats (rows ``>= n`` are left out)."""
+        """CSR ``(indptr, indices)`` of the vertices ``< n`` adjacent to each vertex ``v < n``, ``v`` included,
+        increasing."""
         count = np.zeros(n + 1, np.int64)
         for t in range(simplices.shape[0]):
             for k in range(3):
@@ -535,11 +491,9 @@ with user_cache() as _cache:
 
     @_jit
     def contract_expand_kernel(rank, rows_a, others_a, both_a, rows_b, others_b, both_b, n):
-        """DTM1 steps 5-6 on the neighbourhood pairs of both images (:func:`neighbourhood_kernel`, rows
-        non-decreasing): walk the matches in ``rank`` order, pick each one still alive and kill the others of its
-        pairs that are not flagged in either image's list (``(M_A1 ∪ M_A2) \\ (M_A1 ∩ M_A2)``); then keep the
-        flagged others of image 1's pairs of every picked match (the union of ``M_A1 ∩ M_A2``). Returns the
-        picked matches in pick order and the kept flags."""
+        """DTM1 steps 5-6 on the pairs of :func:`neighbourhood_kernel`: in ``rank`` order, pick each match
+        still alive and kill ``(M_A1 ∪ M_A2) \\ (M_A1 ∩ M_A2)``; keep the union of ``M_A1 ∩ M_A2`` over the
+        picks. Returns the picks in order and the kept flags."""
         ptr_a = _row_ptr(rows_a, n)
         ptr_b = _row_ptr(rows_b, n)
         alive = np.ones(n, np.bool_)

@@ -1,9 +1,6 @@
-"""Compiled (numba) loops of DTM's point-set helpers: exact keys, de-duplication and look-up of point rows
-(:func:`~ctxmatch_lib.dtm.triangulation.unique_rows`, the ``Subdiv2D`` triangle look-up), nearest-vertex
-searches (exhaustive and on a grid, bit for bit alike), and the boundary contour's ring tracing and sampling
-(:mod:`ctxmatch_lib.dtm._samples`). Same rules as :mod:`ctxmatch_lib.dtm._kernels`: the floating-point
-operations of the NumPy code they replaced, in the same order, without ``fastmath``; cached on disk.
-"""
+"""Compiled (numba) point-set helpers of DTM: row keys, de-duplication and look-up of points
+(:mod:`.triangulation`), nearest-vertex searches, and the boundary's ring tracing and sampling
+(:mod:`._samples`). Same rules as :mod:`._kernels` (no ``fastmath``, cached on disk)."""
 
 from __future__ import annotations
 
@@ -36,8 +33,7 @@ with user_cache() as _cache:
 
     @_jit
     def _group_by(keys, n_keys):
-        """Counting sort: ``(start, order)`` with group ``k`` at ``order[start[k]:start[k + 1]]``, the
-        positions of ``keys == k`` in increasing order."""
+        """Counting sort: group ``k`` (positions of ``keys == k``, increasing) is ``order[start[k]:start[k + 1]]``."""
         start = np.zeros(n_keys + 1, np.int64)
         for i in range(keys.shape[0]):
             start[keys[i] + 1] += 1
@@ -52,11 +48,8 @@ with user_cache() as _cache:
 
     @_jit
     def single_ring_kernel(edges, n_points):
-        """The boundary ``edges`` (rows of point indices) as one closed ring, when they form exactly one simple
-        cycle (every endpoint on exactly two edges, all edges connected): the point indices from
-        ``edges[0, 1]`` to ``edges[0, 0]`` and on around the cycle, the first point repeated at the end (the ring
-        GEOS's polygonizer returns for such edges, see :func:`~ctxmatch_lib.dtm.boundary._rings_from_edges`).
-        Empty when the edges form anything else (several rings, pinched vertices, open chains)."""
+        """``edges`` as one closed ring of point indices from ``edges[0, 1]`` through ``edges[0, 0]`` (first
+        repeated at the end) when they form one simple cycle, else empty (:func:`._samples._rings_from_edges`)."""
         n_edges = edges.shape[0]
         fail = np.empty(0, np.int64)
         if n_edges < 3:
@@ -90,9 +83,8 @@ with user_cache() as _cache:
 
     @_jit(inline="always")
     def _closer(qx, qy, points, p, best, arg, again):
-        """One step of the nearest-point search, shared by the exhaustive and the grid search so that they
-        stay bit for bit alike: point ``p`` at squared distance ``dx² + dy²`` replaces ``(best, arg)`` when
-        closer; at exactly ``best`` it only raises the tie flag ``again``."""
+        """One step of both nearest-point searches: point ``p`` replaces ``(best, arg)`` when closer; at
+        exactly ``best`` it raises the tie flag ``again``."""
         dx = qx - points[p, 0]
         dy = qy - points[p, 1]
         d2 = dx * dx + dy * dy
@@ -104,9 +96,8 @@ with user_cache() as _cache:
 
     @_jit
     def nearest_kernel(queries, points):
-        """Nearest of ``points`` to each query by exhaustive search: the distance ``sqrt(dx² + dy²)`` (as
-        ``scipy.spatial.cKDTree.query`` computes it), the index, and whether any query has two nearest points
-        at exactly the same distance (then the index is a tie that a k-d tree may break otherwise)."""
+        """Nearest of ``points`` to each query, exhaustively: distance (as ``cKDTree.query``), index, and
+        whether any query has two nearest points at exactly the same distance."""
         n = queries.shape[0]
         dist = np.empty(n)
         index = np.empty(n, np.int64)
@@ -125,11 +116,8 @@ with user_cache() as _cache:
 
     @_jit
     def grid_nearest_kernel(queries, points):
-        """:func:`nearest_kernel` through a uniform grid over ``points`` (about two per cell): the same
-        distances, indices and tie flag, bit for bit. Each query visits the cells ring by ring around its own
-        and stops when every cell left lies farther than its nearest point so far (with a margin that
-        covers the rounding), so it still sees every point at the nearest distance, and the tie flag stays
-        exact."""
+        """:func:`nearest_kernel` through a uniform grid (about two points per cell), bit for bit alike: each
+        query visits rings of cells until the rest lie farther than its nearest point (with a margin)."""
         n, m = points.shape[0], queries.shape[0]
         dist = np.full(m, np.inf)
         index = np.full(m, -1, np.int64)
@@ -164,8 +152,7 @@ with user_cache() as _cache:
             r = 0
             while True:
                 if r > 0:
-                    # Cells left: outside the box of rings < r. Their points lie beyond the box's inner sides
-                    # (the sides on the grid's edge have nothing beyond them).
+                    # Lower bound on the distance to cells outside the rings < r.
                     lb = np.inf
                     if cx - r >= 0:
                         lb = min(lb, qx - (x0 + (cx - r + 1) * cell))
@@ -200,10 +187,8 @@ with user_cache() as _cache:
 
     @_jit
     def push_out_kernel(b, vertices, d, j, s):
-        """The move of :func:`~ctxmatch_lib.dtm._samples._keep_clear`: samples closer than ``s`` to their
-        nearest vertex ``j`` (at ``d``; not on it) moved radially to ``v + (b - v) * (s / d)``, then the nearest
-        distances again (:func:`grid_nearest_kernel`) and only the samples at least ``s / 2`` away kept, with
-        those distances. The NumPy version's arithmetic, operation for operation."""
+        """The move of :func:`._samples._keep_clear`: samples closer than ``s`` to their nearest vertex moved
+        radially to ``v + (b - v) * (s / d)``; those at least ``s / 2`` away are kept, with their distances."""
         moved = b.copy()
         for i in range(b.shape[0]):
             if d[i] < s * (1 - 1e-9) and d[i] > 1e-9 * s:
@@ -226,11 +211,9 @@ with user_cache() as _cache:
 
     @_jit
     def inside_ring_kernel(ring, xy):
-        """Whether each point of ``xy`` lies inside the simple polygon of the closed ``ring`` (first point
-        repeated), by the crossing number, and whether every answer is certain: each point's orientation to
-        every edge line is computed in floating point and accepted only when it exceeds a bound on its
-        rounding error (Shewchuk's, widened a hundredfold), so a point on or next to an edge line makes the
-        whole answer uncertain (``False``). A certain answer is the exact one, hence GEOS's."""
+        """Crossing-number test of each point of ``xy`` against the closed ``ring``, and whether every answer
+        is certain: each orientation must exceed a rounding-error bound (Shewchuk's, widened a hundredfold);
+        a certain answer is the exact one, hence GEOS's."""
         n_edges = ring.shape[0] - 1
         inside = np.zeros(xy.shape[0], np.bool_)
         for q in range(xy.shape[0]):
@@ -252,9 +235,7 @@ with user_cache() as _cache:
 
     @_jit
     def doubled_areas_kernel(tri):
-        """``|cross|`` (twice the area) of each triangle ``(x0, y0, x1, y1, x2, y2)`` of a float32 ``(T, 6)``
-        triangle list, in float64 (exact inputs): ``(x1 - x0)(y2 - y0) - (y1 - y0)(x2 - x0)``, as NumPy computes it
-        on the float64 columns."""
+        """Twice the area of each float32 triangle ``(x0, y0, x1, y1, x2, y2)``, computed in float64."""
         out = np.empty(tri.shape[0])
         for t in range(tri.shape[0]):
             x0, y0 = np.float64(tri[t, 0]), np.float64(tri[t, 1])
@@ -265,8 +246,8 @@ with user_cache() as _cache:
 
     @_jit
     def integer_row_keys_kernel(points):
-        """``((x << 31) + y, True)`` of each ``(x, y)`` row when every value is an integer in ``(-2**30, 2**30)``
-        (what ``unique_rows`` checks with ``min``, ``max`` and ``astype(np.int64)``), else ``(_, False)``."""
+        """``((x << 31) + y, True)`` per row when every value is an integer in ``(-2**30, 2**30)``, else
+        ``(_, False)``."""
         n = points.shape[0]
         key = np.empty(n, np.int64)
         for i in range(n):
@@ -281,10 +262,8 @@ with user_cache() as _cache:
 
     @_jit
     def float32_row_keys_kernel(points):
-        """``(key, True)`` with one uint64 per ``(x, y)`` row, ordered as the rows are lexicographically, when
-        every value is a float32 value in ``(-2**30, 2**30)``, else ``(_, False)``: the float32 bit patterns
-        (``-0.0`` taken as ``0.0``) made monotone (negatives: all bits flipped; others: sign bit set), ``x``'s
-        in the high half (what ``unique_rows`` computes with NumPy)."""
+        """``(key, True)``, one uint64 per row in lexicographic row order (monotone float32 bit patterns, ``x``
+        high), when every value is a float32 value in ``(-2**30, 2**30)``, else ``(_, False)``."""
         n = points.shape[0]
         p32 = np.empty((n, 2), np.float32)
         for i in range(n):
@@ -308,8 +287,7 @@ with user_cache() as _cache:
 
     @_jit
     def sorted_unique_rows_kernel(points, key, order):
-        """The rows of ``points`` at the first position of each run of equal ``key[order]``, and each row's run
-        (``unique_rows`` after its sort)."""
+        """The first row of each run of equal ``key[order]``, and each row's run."""
         n = order.shape[0]
         inverse = np.empty(n, np.int64)
         first = np.empty(n, np.int64)
@@ -327,8 +305,7 @@ with user_cache() as _cache:
 
     @_jit
     def float32_exact_kernel(points):
-        """Whether every value of ``points`` (float64) is a float32 value (``points.astype(np.float32) ==
-        points`` everywhere; NaN never is)."""
+        """Whether every value of ``points`` is a float32 value (NaN never is)."""
         flat = points.reshape(-1)
         for i in range(flat.shape[0]):
             if np.float64(np.float32(flat[i])) != flat[i]:
@@ -337,11 +314,8 @@ with user_cache() as _cache:
 
     @_jit(error_model="numpy")
     def sample_ring_kernel(ring, s):
-        """The samples of one closed ring (first point repeated) at ``0, L / n, ..., (n - 1) L / n`` of its length
-        ``L``, ``n = max(ceil(L / s - 1e-9), 3)`` (:func:`~ctxmatch_lib.dtm._samples._sample_rings`, which states
-        the rule): the NumPy version's arithmetic operation for operation (running length summed in ring
-        order, the first segment whose running length exceeds the distance, ``p0 + (p1 - p0) * frac``);
-        none for a ring of zero length."""
+        """The samples of one closed ring at ``0, L / n, ..., (n - 1) L / n`` of its length ``L``,
+        ``n = max(ceil(L / s - 1e-9), 3)`` (:func:`._samples._sample_rings`); none for zero length."""
         n_seg = ring.shape[0] - 1
         seg = np.empty(max(n_seg, 0))
         cum = np.empty(max(n_seg, 0))
@@ -376,10 +350,8 @@ with user_cache() as _cache:
 
     @_jit
     def key_rows_kernel(keys, queries):
-        """Row of each query among ``keys`` (int64, e.g. the bit patterns of float32 point pairs) through an
-        open-addressing hash table. Returns ``(rows, status)``: ``status`` 0 when every query is a key and every
-        key is some query's, 1 when ``keys`` hold duplicates, 2 when a query is no key, 3 when a key is no
-        query's (``rows`` then meaningless)."""
+        """Row of each query among the int64 ``keys`` (open-addressing hash table). ``status``: 0 when queries
+        and keys match up, 1 on duplicate keys, 2 when a query is no key, 3 when a key is no query's."""
         n = keys.shape[0]
         bits = 4
         while (1 << bits) < 4 * n:

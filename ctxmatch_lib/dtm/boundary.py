@@ -1,25 +1,9 @@
 """Boundary points ``B`` added to the DTM triangulations (Sec. 4, Fig. 2, footnotes 2-3, Appendix A).
 
-Points are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel; image
-sizes are ``(width, height)``.
-
-DTM's own boundary (``method="alpha"``, Fig. 2):
-
-1. the alpha-shape boundary edges of the vertex set ``V``, as MATLAB's ``boundary(x, y)`` with its default
-   shrink factor 0.5 returns them (footnote 2; :func:`matlab_boundary_alpha` says how alpha is picked);
-2. for each boundary edge, the four points at distance ``s = min(width, height) / 10`` (footnote 3) on the
-   perpendiculars to the edge through its two vertices form ``B'``;
-3. the alpha-shape boundary of ``V ∪ B'`` is split into segments of length at most ``s``; the segment
-   vertices are ``B``.
-
-The alternatives that Appendix A (Fig. 11) compares are ``"corners"`` (the four image corners),
-``"canvas"`` (the image border split into segments of length ``s``) and ``"convex"`` (steps 1-3 with the
-convex hull, i.e. shrink factor 0, instead of the alpha shape).
-
-``"keypoints"`` is the construction of the author's public Python port of DTM (github fb82/DTM,
-``prepare_data_shaped``), which has no alpha shape: the image frame split into segments of about the mean
-vertex spacing, plus the image's other keypoints (those not among the vertices) that share a Delaunay
-triangle free of vertices with a frame point (:func:`keypoint_boundary`).
+:func:`dtm_boundary` builds ``B`` around the vertex set ``V`` of one image: DTM's alpha-shape construction
+(``"alpha"``, Fig. 2), the alternatives of Appendix A (``"convex"``, ``"canvas"``, ``"corners"``) or the
+author's Python port's frame and keypoints (``"keypoints"``, :func:`keypoint_boundary`).
+:func:`alpha_shape` and :func:`matlab_boundary_alpha` emulate MATLAB's ``boundary``.
 """
 
 from __future__ import annotations
@@ -98,8 +82,7 @@ class Boundary:
     vertices : ndarray of shape (V, 2)
         The vertex set ``V`` the boundary was built for.
     vertex_simplices : ndarray of shape (T, 3)
-        Delaunay triangles of ``V`` alone (blue in Fig. 2; empty if ``V`` is degenerate or the method
-        does not triangulate ``V``).
+        Delaunay triangles of ``V`` alone (blue in Fig. 2; empty when not computed).
     hull_edges : ndarray of shape (H, 2)
         Convex-hull edges of ``V`` (red in Fig. 2), rows into ``vertices``.
     alpha : float
@@ -108,13 +91,11 @@ class Boundary:
         Boundary edges of the first shape (solid orange in Fig. 2; the hull for ``"convex"``), rows into
         ``vertices``.
     fattened : ndarray of shape (F, 2)
-        ``B'``: the four points at distance ``s`` on the perpendiculars of each shape edge (dashed
-        orange in Fig. 2 joins them edge by edge: rows ``4e:4e+4`` belong to ``shape_edges[e]`` and are
-        ``(v0 + s n, v1 + s n, v0 - s n, v1 - s n)``).
+        ``B'`` (dashed orange in Fig. 2): rows ``4e:4e+4`` are ``(v0 + s n, v1 + s n, v0 - s n, v1 - s n)``
+        for ``shape_edges[e]`` with unit normal ``n``.
     contour : list of ndarray of shape (R, 2)
-        Closed rings (first point repeated at the end) of the second shape, i.e. the boundary of
-        ``V ∪ B'`` (purple contour in Fig. 2) that ``points`` samples; for ``"canvas"``/``"corners"`` the
-        image border.
+        Closed rings (first point repeated) of the boundary of ``V ∪ B'`` (purple in Fig. 2) that
+        ``points`` samples; for ``"canvas"``/``"corners"`` the image border.
     contour_alpha : float
         Alpha radius of the second shape (``nan`` when not computed).
     """
@@ -139,8 +120,7 @@ def boundary_step(image_size) -> float:
 
 
 def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
-    """Circumradius ``abc / (4 area)`` of each triangle, ``inf`` for a degenerate one, computed as
-    ``sqrt(a² b² c²) / (2 |cross|)`` (one square root per triangle)."""
+    """Circumradius of each triangle (:func:`~ctxmatch_lib.dtm._kernels.circumradii_kernel`)."""
     return circumradii_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(simplices, np.int64))
 
 
@@ -148,35 +128,15 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
                           n_points: int, shrink: float = 0.5) -> float:
     """Alpha radius that MATLAB ``boundary(P, shrink)`` picks for a Delaunay triangulation.
 
-    MATLAB builds ``alphaShape(P, Inf)``, takes its *alpha spectrum* (the distinct alpha values at which the
-    shape changes: for a 2-D regularised alpha shape, the distinct triangle circumradii) and its critical
-    alpha ``a_c = criticalAlpha('one-region')`` (the smallest alpha whose shape encloses every point in a
-    single region), keeps the spectrum values ``>= a_c`` in increasing order, ``a_c = v_1 < ... < v_n``,
-    and uses ``v_k`` with ``k = max(ceil((1 - shrink) n), 1)``. So ``shrink = 0`` gives ``v_n`` (the convex
-    hull), ``shrink = 1`` the tightest single region ``a_c``, and the default 0.5 the median of the range.
+    The candidate alphas (MATLAB's *alpha spectrum*) are the distinct triangle circumradii; the critical
+    alpha ``a_c`` is the smallest whose shape (the triangles of circumradius ``<= alpha``) encloses every
+    point in one edge-connected region. Of the values ``a_c = v_1 < ... < v_n``, MATLAB uses ``v_k``,
+    ``k = max(ceil((1 - shrink) n), 1)``: ``shrink = 0`` gives the convex hull, 1 the tightest single region.
+    ``a_c`` is found exactly by a union-find over the triangles
+    (:func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel`).
 
-    Here a triangle belongs to the shape when its circumradius is ``<= alpha``; regions are sets of
-    triangles connected through shared edges; a point is enclosed when one of its triangles is in the shape
-    (points that Qhull leaves out of every triangle are ignored). ``a_c`` is found exactly with a union-find
-    over the triangles: the regions of the shape that first encloses every point, then the remaining
-    triangles added in increasing circumradius until one region is left (compiled,
-    :func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel`).
-
-    Parameters
-    ----------
-    radii : ndarray of shape (T,)
-        Triangle circumradii.
-    simplices, neighbors : ndarray of shape (T, 3)
-        Triangles and their adjacency (``scipy.spatial.Delaunay`` conventions; ``-1``: no neighbour).
-    n_points : int
-        Number of triangulated points.
-    shrink : float
-        MATLAB's shrink factor ``S`` in ``[0, 1]``.
-
-    Returns
-    -------
-    float
-        The alpha radius (``inf`` if there are no triangles).
+    ``radii``: the ``(T,)`` circumradii of the triangles ``simplices`` with adjacency ``neighbors``
+    (scipy's conventions) over ``n_points`` points. Returns the alpha (``inf`` without triangles).
     """
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
@@ -190,23 +150,9 @@ def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: n
 
 
 def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | None = None) -> AlphaShape | None:
-    """Holes-filled alpha shape of ``points`` with MATLAB ``boundary``'s choice of alpha.
-
-    Parameters
-    ----------
-    points : ndarray of shape (N, 2)
-        Distinct (x, y) points.
-    shrink : float
-        MATLAB shrink factor: 0 convex hull, 1 tightest single region, 0.5 MATLAB's default.
-    tri : DelaunayMesh, optional
-        Precomputed Delaunay triangulation of ``points`` (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_or_none`).
-
-    Returns
-    -------
-    AlphaShape or None
-        ``None`` when the points are fewer than three or collinear (no triangle). Holes are filled, as
-        MATLAB ``boundary`` does by setting ``HoleThreshold`` to the hull area.
-    """
+    """Alpha shape of the distinct ``points`` with MATLAB ``boundary``'s alpha for ``shrink``
+    (:func:`matlab_boundary_alpha`), holes filled (``HoleThreshold`` = hull area); ``tri``: their Delaunay
+    triangulation, when known. ``None`` for fewer than three or collinear points."""
     points = np.asarray(points, np.float64).reshape(-1, 2)
     tri = delaunay_or_none(points) if tri is None else tri
     if tri is None or len(tri.simplices) == 0:
@@ -218,14 +164,9 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
 
 def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
                   neighbors: np.ndarray | None = None) -> tuple[list, list]:
-    """:func:`alpha_shape` of several triangulated point sets (each with triangles) in one compiled pass.
-
-    The meshes are concatenated into one disjoint mesh (vertex and triangle indices offset) and
-    :func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel` runs once for all of them, with the alpha spectrum
-    ranked per mesh, so each shape is exactly the one :func:`alpha_shape` gives alone.
-    ``neighbors`` is the concatenated triangle adjacency when already known. Returns the shapes and the
-    triangle adjacency of each mesh.
-    """
+    """:func:`alpha_shape` of several triangulated point sets in one compiled pass over their disjoint union
+    (each shape as alone). ``neighbors``: the union's triangle adjacency, when known. Returns the shapes and
+    each mesh's triangle adjacency."""
     n_groups = len(points_list)
     p_off = np.array([0, *itertools.accumulate(len(p) for p in points_list)], np.int64)
     t_off = np.array([0, *itertools.accumulate(len(s) for s in simplices_list)], np.int64)
@@ -251,12 +192,10 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
 
 
 def _outside_shape(b: np.ndarray, dist: np.ndarray, vertices: np.ndarray, shape: AlphaShape) -> np.ndarray:
-    """Drop the boundary samples that fall inside the first alpha shape of ``V`` (see :func:`dtm_boundary`).
+    """Drop the boundary samples inside the first alpha shape of ``V`` (see :func:`dtm_boundary`).
 
-    ``dist`` is each sample's distance to its nearest vertex. Every point of a triangle lies within its
-    circumradius of one of the triangle's vertices, so a sample farther than the largest circumradius of the
-    shape's triangles (holes filled included) from every vertex is outside it; only the others are tested
-    against the shape's polygons (on dense sets, none)."""
+    ``dist`` is each sample's distance to its nearest vertex; a sample farther than the shape's largest
+    circumradius from every vertex is outside it, so only the others are tested against the polygons."""
     if len(b) == 0 or len(shape.edges) == 0:
         return b
     reach = float(shape.radii[shape.inside].max())
@@ -266,8 +205,7 @@ def _outside_shape(b: np.ndarray, dist: np.ndarray, vertices: np.ndarray, shape:
     rings = _rings_from_edges(vertices, shape.edges)
     inside = np.zeros(len(b), bool)
     if len(rings) == 1:
-        # One ring is one simple polygon (edges of a triangulation, every vertex on two of them): a compiled
-        # crossing-number test, used when every orientation in it is certain (then it is GEOS's answer).
+        # One simple polygon: a crossing-number test, GEOS's answer when every orientation is certain.
         inside[near], certain = inside_ring_kernel(np.ascontiguousarray(rings[0], np.float64),
                                                    np.ascontiguousarray(b[near], np.float64))
         if certain:
@@ -309,35 +247,13 @@ def _row_keys(points: np.ndarray) -> np.ndarray:
 def keypoint_boundary(vertices, image_size, keypoints, *, collapsed: bool = False) -> Boundary:
     """Boundary set of the author's Python port of DTM (``boundary="keypoints"``).
 
-    The paper builds ``B`` from an alpha shape of ``V`` (Fig. 2); the author's public port (github
-    fb82/DTM, ``prepare_data_shaped``) instead uses the image itself:
-
-    1. the image frame ``[0, width] x [0, height]`` split into equal segments of about
-       ``l = ceil(sqrt(width * height / |V|))`` pixels (the mean spacing of ``|V|`` points spread over the
-       image), the segment vertices rounded to integers;
-    2. the image's other keypoints ``O`` (rounded, not among ``V``) that are vertices of a Delaunay
-       triangle of ``V ∪ O ∪ frame`` having a frame vertex and no ``V`` vertex: the detections just inside
-       the frame that no candidate match uses.
-
-    ``B`` is the frame points plus those keypoints. Where ``V`` is concentrated in part of the image, the
-    unmatched keypoints around it pull the boundary close to ``V``, much as the alpha shape does.
-
-    Parameters
-    ----------
-    vertices : array_like of shape (V, 2)
-        Distinct vertex points ``V``, (x, y) pixels with the origin at the centre of the top-left pixel.
-    image_size : tuple of int
-        ``(width, height)``.
-    keypoints : array_like of shape (N, 2)
-        All keypoints detected in the image, (x, y) pixels (those collapsing onto ``V`` are ignored).
-    collapsed : bool
-        ``keypoints`` are already rounded and distinct (:func:`~ctxmatch_lib.dtm.collapse_vertices`).
-
-    Returns
-    -------
-    Boundary
-        ``.points`` is ``B`` (frame points first); ``.contour`` is the frame ring; ``.fattened`` holds the
-        keypoints taken into ``B``.
+    As the port (github fb82/DTM, ``prepare_data_shaped``), ``B`` is (1) the image frame
+    ``[0, width] x [0, height]`` split into equal segments of about ``ceil(sqrt(width * height / |V|))``
+    pixels (the mean vertex spacing), rounded to integers, plus (2) the image's other keypoints ``O``
+    (rounded, not in ``V``) on a Delaunay triangle of ``V ∪ O ∪ frame`` with a frame vertex and no ``V``
+    vertex: the unmatched detections just inside the frame. ``keypoints``: all of the image's (``collapsed``:
+    already rounded and distinct). In the returned :class:`Boundary`, ``.points`` is ``B`` (frame points
+    first), ``.contour`` the frame ring and ``.fattened`` the keypoints taken into ``B``.
 
     Examples
     --------
@@ -387,20 +303,19 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     Parameters
     ----------
     vertices : array_like of shape (V, 2)
-        Distinct vertex points ``V``, (x, y) pixels with the origin at the centre of the top-left pixel
-        (typically collapsed keypoints, :func:`~ctxmatch_lib.dtm.collapse_vertices`).
+        Distinct vertex points ``V``, (x, y) pixels (collapsed keypoints,
+        :func:`~ctxmatch_lib.dtm.collapse_vertices`).
     image_size : tuple of int
-        ``(width, height)`` of the image; sets ``s = min(width, height) / 10`` (footnote 3) and the canvas
-        for ``"canvas"``/``"corners"``.
+        ``(width, height)``; sets ``s = min(width, height) / 10`` (footnote 3) and the canvas.
     method : {"alpha", "convex", "canvas", "corners", "keypoints"}
-        ``"alpha"`` is DTM's boundary (Fig. 2): alpha-shape edges of ``V`` (MATLAB ``boundary`` with shrink
-        factor ``shrink``), fattened by ``s`` into ``B'``, alpha-shape contour of ``V ∪ B'`` split into
-        segments of length at most ``s``. ``"convex"`` does the same with the convex hull (Appendix A,
-        Fig. 11c-d). ``"canvas"`` splits the image border into segments of length at most ``s``
-        (Fig. 11b); ``"corners"`` uses the four image corners (Fig. 11a). ``"keypoints"`` is the author's
-        Python port's frame-and-unmatched-keypoints boundary (:func:`keypoint_boundary`).
+        ``"alpha"`` is DTM's (Fig. 2): the alpha-shape edges of ``V`` (MATLAB ``boundary``, footnote 2),
+        each fattened into the four points at distance ``s`` on the perpendiculars through its ends
+        (``B'``), then the alpha-shape contour of ``V ∪ B'`` split into segments of length at most ``s``.
+        ``"convex"``: the same with the convex hull (Fig. 11c-d); ``"canvas"``: the image border split into
+        segments of at most ``s`` (Fig. 11b); ``"corners"``: the image corners (Fig. 11a); ``"keypoints"``:
+        :func:`keypoint_boundary`.
     shrink : float
-        MATLAB shrink factor for ``"alpha"`` (default 0.5, MATLAB's default, as in footnote 2).
+        MATLAB shrink factor for ``"alpha"`` (MATLAB's default 0.5, footnote 2).
     keypoints : array_like of shape (N, 2), optional
         All keypoints of the image; required by ``"keypoints"``, ignored otherwise.
 
@@ -411,24 +326,17 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
 
     Notes
     -----
-    Two details the paper leaves open are fixed as follows.
+    Choices the paper leaves open:
 
-    - The contour of ``V ∪ B'`` cuts the convex corners of ``B'`` with chords, which pass closer than ``s``
-      to the corner vertex (``s cos(θ/2)`` for a turn of ``θ``: ``0.71 s`` at a right angle). Samples that
-      fall closer than ``s`` to ``V`` are pushed radially out to distance ``s`` from their nearest vertex
-      (any still closer than ``s/2``, which needs a very thin spike, are dropped), so ``B`` keeps the
-      clearance ``s`` that the construction aims for.
-    - When ``V`` is sparse (vertices further apart than about ``2 s``), the alpha shape of ``V ∪ B'`` can
-      cut into the shape of ``V`` it should surround, and its samples then fall between the vertices and
-      cut their Delaunay edges (a set of four matches in agreement could lose every neighbourhood).
-      Samples inside the first shape are dropped: ``B`` bounds the shape of ``V`` from outside, as Fig. 2
-      intends. On dense sets no sample lies there and nothing changes.
-    - Constructed points (``B'`` and ``B``) are rounded to float32 (under 4e-5 px at image scale), so that
-      the fast triangulation kernel works on exactly the stored coordinates
-      (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`).
-    - When ``V`` has fewer than three points or is collinear the alpha shape is empty; the contour is then
-      the boundary of the ``s``-buffer of ``V`` (a circle, or a stadium around the segment), sampled the
-      same way. An empty ``V`` gives an empty ``B`` for ``"alpha"`` and ``"convex"``.
+    - The contour of ``V ∪ B'`` cuts the convex corners of ``B'`` with chords closer than ``s`` to ``V``
+      (``0.71 s`` at a right angle): samples closer than ``s`` are pushed radially out to ``s`` from their
+      nearest vertex, and any still closer than ``s/2`` dropped.
+    - On sparse ``V`` (vertices more than about ``2 s`` apart) the contour can cut into the shape of ``V``:
+      samples inside the first shape are dropped, so ``B`` bounds it from outside, as Fig. 2 intends.
+    - Constructed points are rounded to float32 (under 4e-5 px at image scale), the coordinates the fast
+      triangulation (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`) is exact on.
+    - Fewer than three or collinear vertices have no alpha shape: the contour is then that of the
+      ``s``-buffer of ``V`` (a circle or a stadium). An empty ``V`` gives an empty ``B``.
 
     Examples
     --------
@@ -442,12 +350,8 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
 
 def boundary_and_triangulation(vertices, image_size, method: str = "alpha", *, shrink: float = 0.5,
                                keypoints=None) -> tuple[Boundary, np.ndarray | None]:
-    """:func:`dtm_boundary` and the Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``B``).
-
-    For ``"alpha"`` and ``"convex"`` the boundary points are inserted into the triangulation of ``V`` that
-    the first shape needed, which saves a full triangulation of ``V ∪ B``; the triangles are ``None`` when
-    not computed here (then :func:`~ctxmatch_lib.dtm.triangulation.triangulate` builds them).
-    """
+    """:func:`dtm_boundary` and the Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``B``):
+    for ``"alpha"``/``"convex"``, ``B`` inserted into the triangulation of ``V``; else ``None``."""
     if method not in BOUNDARY_METHODS:
         raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
     image_size = as_image_size(image_size, "image_size")
@@ -492,12 +396,8 @@ def _shape_boundary(vertices, method, shrink, s, empty) -> tuple[Boundary, np.nd
 
 def boundaries_and_triangulations(vertices_list, image_sizes, method: str = "alpha", *,
                                   shrink: float = 0.5, keypoints_list=None) -> list:
-    """:func:`boundary_and_triangulation` of several vertex sets (DTM: the two images), as a list of pairs.
-
-    For ``"alpha"`` and ``"convex"`` the alpha shapes of all the sets are computed together, one vectorised
-    pass per construction step instead of one per set; the results are exactly those of
-    :func:`boundary_and_triangulation` on each set, which degenerate sets and the other methods fall back to.
-    """
+    """:func:`boundary_and_triangulation` of several vertex sets (DTM: the two images), as a list of pairs;
+    for ``"alpha"``/``"convex"`` the alpha shapes of all sets are computed in one pass per step."""
     if method not in BOUNDARY_METHODS:
         raise ValueError(f"method must be one of {BOUNDARY_METHODS}, got {method!r}")
     sizes = [as_image_size(size, "image_size") for size in image_sizes]

@@ -1,9 +1,5 @@
-"""Delaunay Triangulation Matching: DTM1 contraction/expansion and DTM2 re-addition (Sec. 4).
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left
-pixel; image sizes are ``(width, height)``; ``matches`` are ``(K, 2)`` int indices into ``kpts1``/``kpts2``
-(many-to-many allowed); scores are ``(K,)``, lower is better.
-"""
+"""Delaunay Triangulation Matching (Sec. 4): :func:`dtm` (DTM1 contraction/expansion, DTM2 re-addition),
+its record types and :func:`dtm_filter`."""
 
 from __future__ import annotations
 
@@ -23,9 +19,7 @@ __all__ = ["DTMResult", "DTMTrace", "DTM1Iteration", "DTM2Level", "dtm", "dtm_fi
 
 @dataclass(frozen=True)
 class DTM1Iteration:
-    """Everything DTM1 iteration ``i`` computed (one row of Fig. 3; the boundaries of Fig. 2).
-
-    All match indices are rows of the input ``matches``.
+    """Everything DTM1 iteration ``i`` computed (one row of Fig. 3); match indices are rows of ``matches``.
 
     Attributes
     ----------
@@ -42,8 +36,7 @@ class DTM1Iteration:
     consistency : ndarray of shape (n,)
         ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` of each active match (step 4).
     rank : ndarray of shape (n,)
-        Active matches in ranking order ``r(m)`` (step 4): score ascending, then consistency descending,
-        then an order-independent key (keypoint coordinates, then keypoint indices).
+        Active matches in ranking order ``r(m)`` (step 4; ties by keypoint coordinates, then indices).
     contraction : ndarray of shape (t,)
         ``T`` in the order it was built (step 5; orange in Fig. 3).
     cluster_ptr, cluster_members : ndarray
@@ -137,9 +130,7 @@ class DTMResult:
     trace : DTMTrace or None
         The per-step record with ``trace=True``.
     whole_set : bool
-        ``True`` when ``keep`` is all ``True`` by the whole-set rule (:func:`dtm`, ``whole_set_tol``): one
-        homography explains every match, although DTM alone removed some. ``removed_at``, ``readded_at``
-        and ``trace`` still say what DTM alone decided.
+        Whether the whole-set rule (:func:`dtm`) kept every match; the other fields say what DTM alone did.
     """
 
     keep: np.ndarray
@@ -159,13 +150,8 @@ def _csr_by(keys: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _neighbourhood_pairs(tri: Triangulation, other: Triangulation, vertex: np.ndarray, other_vertex: np.ndarray):
-    """All pairs ``(m, m')`` with the vertex of ``m'`` adjacent to the vertex ``v`` of ``m`` in ``tri`` (DTM1
-    step 3), grouped by ``m`` (increasing), and whether their vertices in the other image are adjacent too.
-
-    Only *adjacent* vertices count: ``v`` itself is left out, so neither ``m`` nor the other matches
-    collapsed onto ``v`` are neighbours of ``m`` (see :func:`dtm`, Notes); likewise two matches on one vertex
-    of the other image are not adjacent there. Compiled
-    (:func:`~ctxmatch_lib.dtm._kernels.neighbourhood_kernel`)."""
+    """DTM1 step 3: the pairs ``(m, m')`` with the vertex of ``m'`` adjacent to (not equal to) that of ``m``
+    in ``tri``, grouped by ``m``, and whether they are adjacent in ``other`` too (:func:`dtm`, Notes)."""
     return neighbourhood_kernel(*(np.asarray(a, np.int64) for a in (tri.indptr, tri.indices, vertex, other.indptr,
                                                                      other.indices, other_vertex)))
 
@@ -184,12 +170,8 @@ class _Setup:
     built: dict = field(default_factory=dict, compare=False, repr=False)
 
     def triangulations(self, v1: np.ndarray, v2: np.ndarray):
-        """Boundaries ``B_1``, ``B_2`` of the vertex sets and the triangulations of ``V ∪ B`` (steps 1-2).
-
-        Each image's boundary and triangulation depend on its vertex set alone, so they are built once per
-        vertex set and run: a DTM2 level whose ``E`` a DTM1 iteration has already triangulated (the last
-        level re-added every match that iteration removed), or an iteration that changed the vertices of one
-        image only (many-to-many sets), reuses them. The results are those of a fresh construction."""
+        """Boundaries ``B_1``, ``B_2`` and the triangulations of ``V ∪ B`` (steps 1-2), built once per vertex
+        set and run (they depend on the vertex set alone)."""
         keys = [(0, v1.shape, v1.tobytes()), (1, v2.shape, v2.tobytes())]
         new = [j for j in (0, 1) if keys[j] not in self.built]
         vs, sizes, others = (v1, v2), (self.size1, self.size2), (self.others1, self.others2)
@@ -241,12 +223,9 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
 
 
 def _shared_keypoint_spread(p1: np.ndarray, p2: np.ndarray, canon: np.ndarray, tol: float) -> bool:
-    """Whether two matches share an image-1 keypoint but have image-2 keypoints more than ``2 tol`` apart.
-
-    Then no map sends that keypoint within ``tol`` of both (triangle inequality), so the whole-set rule
-    cannot apply and its fit is skipped (many-to-many candidate sets nearly always have such a pair).
-    ``canon`` ranks the matches by image-1 keypoint first, so matches sharing one are consecutive.
-    """
+    """Whether two matches share an image-1 keypoint but have image-2 keypoints more than ``2 tol`` apart,
+    so that no map fits both within ``tol`` and the whole-set rule's fit is skipped (``canon`` ranks the
+    matches by image-1 keypoint first)."""
     order = np.empty(len(canon), np.int64)
     order[canon] = np.arange(len(canon))
     a, b = p1[order], p2[order]
@@ -258,11 +237,9 @@ def _shared_keypoint_spread(p1: np.ndarray, p2: np.ndarray, canon: np.ndarray, t
 def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     """Whether one proper homography maps every ``p1`` onto its ``p2`` within ``tol`` pixels, and back.
 
-    The homography is the normalised DLT fit (Hartley & Zisserman, Alg. 4.2) of all the pairs, from the
-    9 x 9 normal matrix (summed without BLAS, so the decision does not depend on the thread count).
-    *Proper*: the configuration determines it (a 1-D null space; not collinear, not collapsed), every
-    ``p1`` maps in front of the horizon (the same sign of ``w``) and it does not mirror (``det H > 0``),
-    as two views of one plane require. Both transfer errors must be at most ``tol`` for every pair.
+    The normalised DLT fit (Hartley & Zisserman, Alg. 4.2) of all pairs, from the 9 x 9 normal matrix
+    summed without BLAS (independent of the thread count). *Proper*: unique (1-D null space), every ``p1``
+    in front of the horizon (one sign of ``w``) and not mirrored (``det H > 0``).
     """
     if len(p1) < 4:
         return False
@@ -296,9 +273,8 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
     - ``W`` of boundary vertices only, or no ``W``: the candidate fails.
 
     The paper states only the first case; the rest follows the author's Python port (see :func:`dtm`).
-    "Strictly inside" compares the three edge cross products, times the orientation of the triangle ``W``
-    (``+1``/``-1``; ``0`` for a flat one, which holds nothing), with zero. One compiled pass over the
-    candidates (:func:`~ctxmatch_lib.dtm._kernels.transfer_test_kernel`).
+    "Strictly inside": the three edge cross products times the orientation of ``W`` (0 for a flat ``W``,
+    which holds nothing) are positive.
     """
     if len(q_src) == 0 or len(base_src) == 0 or tri_src.delaunay is None:
         return np.zeros(len(q_src), bool)
@@ -404,39 +380,17 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     ``⌈·⌋``). The triangulations are exact (:class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`);
     the diagonal of cocircular vertices, a tie the method leaves open, follows the insertion order.
 
-    **Small and degenerate sets.** The boundary always surrounds the vertices (for ``"alpha"``: a circle
-    around a single vertex, a stadium around collinear ones), so every step is defined. No matches give
-    empty arrays. A match is kept only when another match supports it, so **a single match is always
-    removed**, and so are matches that all collapse onto one vertex pair (nothing outside the vertex
-    supports them). What DTM alone cannot decide is a sparse set:
-
-    - The paper's alpha-shape boundary lies at ``s = min(width, height) / 10`` from the vertices whatever
-      their number. When the vertices are further apart than about ``2 s`` (a few matches spread over the
-      image), boundary points fall between them and cut their Delaunay edges: a vertex left with no
-      adjacent keypoint vertex has no support, and DTM alone removes its match even when the whole set
-      agrees (4 identical matches in the middle of a 640 x 480 image: 9 of 10 draws lose some; 20: 1 of 10;
-      50 or more: none). Widening ``s`` with the set's own spacing keeps them, but on the real pairs it
-      moves the boundary of most candidate sets and trades 2-6 points of precision for 0.5-6 of recall.
-    - ``boundary="keypoints"`` spaces its frame points by the mean vertex spacing, so small sets keep
-      their Delaunay edges; under a general homography the Delaunay neighbourhoods of the two images still
-      differ near the hull, and a hull match that DTM2's translation rule cannot re-add is lost (up to 2 of
-      10 draws at 12 to 300 matches, ``benchmarks/bench_dtm_small_sets.py``).
-
-    Hence the **whole-set rule** (``whole_set_tol``, default 1 px): when DTM removes some of ``K >= 4``
-    matches on at least four distinct vertices in each image, and one proper homography (a unique
-    normalised-DLT fit of all of them, every point in front of the horizon, not mirrored) maps each onto
-    its partner within ``whole_set_tol`` pixels in both images, every match is kept (``result.whole_set`` is then ``True``; ``removed_at``/``readded_at`` and
-    the trace keep what DTM alone did). Such a set has nothing for DTM to remove: every match agrees with
-    every other. The paper is silent here and the port has no such rule; it cannot fire on a set holding
-    even one match off the homography, so on the real pairs (hundreds of candidates, outliers among them)
-    it never does. Four matches in general position always fit a homography, so at ``K = 4`` it keeps any
-    four whose homography is proper, outliers included (of four random matches, 1 of 10 draws; of three
-    agreeing plus one random, 4 of 10): four matches are below what a neighbourhood test can decide. From
-    ``K = 5`` on a random match breaks the fit (0 of 10 draws in the benchmark). With the rule, every
-    agreeing set of the benchmark is kept whole, with either boundary.
-
-    When DTM1 empties the set, DTM2 has no triangle with keypoint vertices and adds nothing, so the output is
-    empty (the paper's worst case).
+    **Small sets.** The boundary always surrounds the vertices (for ``"alpha"``: a circle around a single
+    vertex, a stadium around collinear ones). A match is kept only when another supports it, so a single
+    match is removed, and so are matches all collapsed onto one vertex pair; when DTM1 empties the set the
+    output is empty. The alpha boundary lies at ``s`` whatever the vertices' spacing, so a few matches
+    spread over the image lose their Delaunay edges to it. Hence the **whole-set rule**: when DTM removes
+    some of ``K >= 4`` matches (on at least four distinct vertices per image) and one proper homography
+    (a unique normalised-DLT fit of all of them, every point in front of the horizon, not mirrored) maps
+    each onto its partner within ``whole_set_tol`` pixels in both images, every match is kept
+    (``result.whole_set``; ``removed_at``, ``readded_at`` and the trace keep what DTM alone did). The paper
+    is silent here and the port has no such rule. One match off the homography stops it from ``K = 5`` on;
+    at ``K = 4`` any four matches with a proper homography are kept.
 
     References
     ----------
@@ -537,11 +491,9 @@ def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, 
                **params) -> np.ndarray:
     """DTM behind the common filter signature of :data:`ctxmatch_lib.filters.FILTERS` (``"dtm"``).
 
-    Keypoints are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel. ``shapes1`` and
-    ``shapes2`` are ignored (DTM uses keypoint positions only); ``params`` go to :func:`dtm`
-    (``stages``, ``boundary``, ``shrink``, ``dtm2_boundary``). As every registered filter, it decides on the
-    rows in their canonical order (:func:`ctxmatch_lib._numerics.order.canonical_order`), so a repeated row
-    gets one decision and the mask does not depend on the order of the rows.
+    Arguments as :func:`dtm` (``params``: its keywords); ``shapes1``, ``shapes2`` are ignored. It decides on
+    the rows in their canonical order (:func:`ctxmatch_lib._numerics.order.canonical_order`), so a repeated
+    row gets one decision and the mask does not depend on the order of the rows.
 
     Returns
     -------

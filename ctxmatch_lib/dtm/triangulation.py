@@ -1,16 +1,5 @@
-"""Vertex collapsing, Delaunay triangulations and neighbourhoods for DTM (Sec. 4 of the paper).
-
-Points are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-
-The helpers here are the geometric kernel shared by DTM1 and DTM2:
-
-- :func:`collapse_vertices` rounds keypoints and merges the ones that round to the same pixel
-  (DTM1 step 2, "vertex collapsing by rounding-off");
-- :func:`triangulate` builds the Delaunay triangulation of the vertex set ``V`` plus a boundary set ``B``
-  and exposes the neighbourhoods ``A_v`` restricted to ``V`` (DTM1 step 3) as CSR arrays;
-- :func:`points_in_triangles` is the vectorised point-in-triangle test of DTM2 step 2;
-- :func:`expand_ranges` is the CSR "gather" used to enumerate neighbourhoods without Python loops.
-"""
+"""Vertex collapsing and Delaunay triangulations for DTM (Sec. 4): :func:`collapse_vertices` (DTM1 step 2),
+:func:`triangulate` (``V ∪ B`` with the neighbourhoods ``A_v`` of step 3), :class:`IncrementalDelaunay`."""
 
 from __future__ import annotations
 
@@ -66,8 +55,7 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     vertices : ndarray of shape (V, 2)
-        The distinct rounded points, sorted lexicographically by (x, y), so that the vertex order does not
-        depend on the order of ``points``.
+        The distinct rounded points, sorted by (x, y) (independent of the order of ``points``).
     inverse : ndarray of shape (N,)
         ``vertices[inverse[n]]`` is the vertex point ``n`` collapsed into.
 
@@ -84,9 +72,8 @@ def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def unique_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays, through one sort (several
-    times faster than numpy's generic row path): of one 64-bit key per row when the points are integers (the
-    collapsed vertices) or float32 values (the constructed boundary points), else a lexsort."""
+    """``np.unique(points, axis=0, return_inverse=True)`` for ``(N, 2)`` arrays: one sort of a 64-bit key
+    per row when the values are integers or float32 values, else a lexsort."""
     key = None
     if len(points) > 1 and points.dtype == np.float64:
         points = np.ascontiguousarray(points)
@@ -119,8 +106,8 @@ def unique_ints(x: np.ndarray) -> np.ndarray:
 
 
 def stable_argsort_small(keys: np.ndarray, n_keys: int) -> np.ndarray:
-    """``np.argsort(keys, kind="stable")`` for integer keys in ``[0, n_keys)``: radix sort through int16
-    when the keys fit (about ten times faster at DTM's sizes)."""
+    """``np.argsort(keys, kind="stable")`` for integer keys in ``[0, n_keys)``, through int16 (radix sort)
+    when they fit."""
     if n_keys <= 2**15:
         return np.argsort(keys.astype(np.int16), kind="stable")
     return np.argsort(keys, kind="stable")
@@ -128,18 +115,8 @@ def stable_argsort_small(keys: np.ndarray, n_keys: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class DelaunayMesh:
-    """A 2-D Delaunay triangulation as index arrays (what DTM needs of ``scipy.spatial.Delaunay``).
-
-    Attributes
-    ----------
-    points : ndarray of shape (P, 2)
-        The triangulated points, (x, y) pixels.
-    simplices : ndarray of shape (T, 3)
-        Triangles as rows into ``points``.
-    neighbors : ndarray of shape (T, 3)
-        ``neighbors[t, k]``: the triangle across the edge of ``t`` opposite its vertex ``k``; ``-1`` on the
-        convex hull (scipy's convention). Computed on first use.
-    """
+    """A 2-D Delaunay triangulation (what DTM needs of ``scipy.spatial.Delaunay``): ``points`` ``(P, 2)``,
+    ``simplices`` ``(T, 3)`` rows into them, and ``neighbors`` (scipy's convention, computed on first use)."""
 
     points: np.ndarray
     simplices: np.ndarray
@@ -175,26 +152,18 @@ def _float32_exact(points: np.ndarray) -> bool:
 class IncrementalDelaunay:
     """Delaunay triangulation of a point set that can grow by insertion (OpenCV ``Subdiv2D``, Qhull fallback).
 
-    DTM triangulates ``V`` (for the alpha shape) and then ``V ∪ B``; inserting ``B`` into the triangulation of
-    ``V`` gives the second one for the price of the few boundary points.
-
-    ``Subdiv2D`` works on float32 coordinates, so it is used only for float32-exact points (integer pixels,
-    and the boundary points, which :mod:`.boundary` rounds to float32): it then triangulates exactly the given
-    points, inside a bounding rectangle whose three virtual outer vertices it connects to the hull. Every
-    triangle it returns among real points has an empty circumcircle, hence is a Delaunay triangle; the result
-    is accepted when those triangles use every point and cover the convex hull (checked by area: a very flat
-    hull triangle whose circumcircle reached a virtual vertex would be missing). Otherwise, and for
-    duplicates or non-float32 input, scipy's Qhull triangulates the points. Both give the Delaunay
-    triangulation; they may split a set of cocircular points (common among rounded pixels) along different
-    diagonals, a tie that the method does not define (Qhull's own choice depends on the input order).
+    DTM triangulates ``V`` (for the alpha shape), then ``V ∪ B`` by inserting ``B``. ``Subdiv2D`` is exact on
+    float32-exact points (integer pixels, the float32-rounded boundary points); its result is accepted when
+    its triangles use every point and cover the convex hull (by area), else, and for duplicates or other
+    input, Qhull triangulates. The two may split cocircular points along different diagonals, a tie the
+    method leaves open.
 
     Parameters
     ----------
     points : ndarray of shape (P, 2)
         Initial points, (x, y) pixels.
     pad : float
-        How far outside the bounding box of ``points`` later insertions may fall (a farther one just sends
-        the triangulation to Qhull).
+        How far outside the bounding box of ``points`` later insertions may fall (farther: Qhull).
     """
 
     def __init__(self, points: np.ndarray, pad: float = 0.0):
@@ -248,8 +217,7 @@ class IncrementalDelaunay:
         if len(tri) == 0:
             return None if _KeyIndex(keys).has_duplicates else np.empty((0, 3), np.int64)
         tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
-        # Every triangle corner is a point (and every point a corner); duplicates go to Qhull, which decides
-        # which copy it keeps.
+        # Every corner must be a point and every point a corner; duplicates go to Qhull.
         idx, status = key_rows_kernel(keys, tk)
         if status != 0:
             return None
@@ -275,12 +243,8 @@ def _fibonacci_slot(keys: np.ndarray, shift: np.uint64) -> np.ndarray:
 
 
 class _KeyIndex:
-    """Row of each of a set of int64 keys, for fast exact look-ups (the point coordinates' bit patterns).
-
-    A Fibonacci-hashed table with 8 slots per key holds, in each slot, the last key hashed there; the keys
-    that lost their slot (a few percent) are kept sorted for a binary search. Every table answer is verified,
-    so a look-up finds a key's row exactly, as a binary search over all keys would, without sorting them.
-    """
+    """Row of each of a set of int64 keys: a Fibonacci-hashed table of 8 slots per key (last key wins),
+    the keys that lost their slot sorted for a binary search; every answer is verified."""
 
     def __init__(self, keys: np.ndarray):
         n = len(keys)
@@ -324,12 +288,8 @@ def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
 
 
 def delaunay_simplices(points: np.ndarray) -> np.ndarray:
-    """Delaunay triangles of distinct ``(P, 2)`` points as ``(T, 3)`` rows into ``points``.
-
-    OpenCV's ``Subdiv2D`` (C++, about 4x faster than Qhull at these sizes) for float32-exact input, scipy's
-    Qhull otherwise or when the result fails the completeness check (see :class:`IncrementalDelaunay`).
-    Fewer than three points, or collinear points, give no triangle.
-    """
+    """Delaunay triangles of distinct ``(P, 2)`` points as ``(T, 3)`` rows into ``points`` (none for fewer
+    than three or collinear points); see :class:`IncrementalDelaunay`."""
     return IncrementalDelaunay(points).simplices()
 
 
@@ -354,8 +314,7 @@ class Triangulation:
     n_vertices : int
         ``|V|``.
     simplices : ndarray of shape (T, 3)
-        Triangles as row indices into ``points`` (empty when fewer than three points are in general
-        position).
+        Triangles as rows into ``points`` (empty when degenerate).
     indptr, indices : ndarray
         CSR neighbourhoods over ``V``: ``indices[indptr[v]:indptr[v + 1]]`` are the ``V`` vertices adjacent
         to ``v``, *including ``v`` itself* (``A_v`` of DTM1 step 3; boundary vertices dropped).
@@ -378,13 +337,10 @@ class Triangulation:
     def find_simplex(self, xy: np.ndarray) -> np.ndarray:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
-        A visibility walk (compiled, :func:`~ctxmatch_lib.dtm._kernels.locate_kernel`): each query starts in a
-        triangle around its nearest vertex (:func:`~ctxmatch_lib.dtm._point_kernels.grid_nearest_kernel`; the k-d
-        tree's choice where two are nearest) (usually the one holding it) and crosses, while the point lies
-        outside the current triangle, the edge that separates them most; on a Delaunay triangulation this
-        terminates, in a few steps from there. Points on an edge count as inside (either triangle may be
-        returned). Queries still walking after many steps (only possible on near-degenerate slivers) are
-        tested against every triangle.
+        A visibility walk (:func:`~ctxmatch_lib.dtm._kernels.locate_kernel`) from a triangle around the
+        query's nearest vertex; it terminates on a Delaunay triangulation. Points on an edge count as inside
+        (either triangle). Queries still walking after many steps (near-degenerate slivers) are tested
+        against every triangle.
         """
         xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
         out = np.full(len(xy), -1, np.int64)
@@ -392,7 +348,7 @@ class Triangulation:
             return out
         simplices, p = self.simplices, np.ascontiguousarray(self.points, np.float64)
         _, nearest, tie = grid_nearest_kernel(xy, p)
-        if tie:  # a query with two nearest vertices: the k-d tree's choice, as before
+        if tie:  # a query with two nearest vertices: the k-d tree's choice
             _, nearest = cKDTree(p, balanced_tree=False, compact_nodes=False).query(xy)
         out, unresolved = locate_kernel(p, np.ascontiguousarray(simplices, np.int64), self.delaunay.neighbors, xy,
                                         nearest.astype(np.int64), max(64, int(math.isqrt(len(simplices))) * 4))
@@ -421,17 +377,14 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
     vertices : ndarray of shape (V, 2)
         Distinct vertex points (x, y) pixels, e.g. from :func:`collapse_vertices`.
     boundary : ndarray of shape (Q, 2), optional
-        Boundary points ``B`` (Sec. 4, Fig. 2). They take part in the triangulation but are excluded from
-        the neighbourhoods, because they carry no match.
+        Boundary points ``B`` (Fig. 2): triangulated, but in no neighbourhood (they carry no match).
     simplices : ndarray of shape (T, 3), optional
-        The Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``boundary``) when already known,
-        e.g. from an :class:`IncrementalDelaunay` that had ``B`` inserted.
+        The Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``boundary``) when already known.
 
     Returns
     -------
     Triangulation
-        With ``A_v`` as CSR arrays (DTM1 step 3). Degenerate input (fewer than three points in general
-        position) gives no triangles and ``A_v = {v}``.
+        With ``A_v`` as CSR arrays; degenerate input gives no triangles and ``A_v = {v}``.
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 2)
     boundary = np.empty((0, 2)) if boundary is None else np.asarray(boundary, np.float64).reshape(-1, 2)
@@ -453,14 +406,8 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
 
 
 def expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Enumerate the integer ranges ``[starts[r], starts[r] + lengths[r])`` in one vectorised pass.
-
-    Returns
-    -------
-    rows : ndarray of shape (L,)
-        For each produced index, the range ``r`` it comes from.
-    flat : ndarray of shape (L,)
-        The produced indices, range after range.
+    """The integer ranges ``[starts[r], starts[r] + lengths[r])``, range after range (``flat``), and the
+    range ``r`` of each (``rows``).
 
     Examples
     --------
@@ -480,11 +427,8 @@ def expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, 
 
 
 def points_in_triangles(xy: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Whether each point ``xy[k]`` lies in the closed triangle ``(a[k], b[k], c[k])``.
-
-    All arguments are ``(K, 2)`` (x, y) arrays; either vertex orientation works. Degenerate (zero-area)
-    triangles contain nothing.
-    """
+    """Whether each point ``xy[k]`` lies in the closed triangle ``(a[k], b[k], c[k])`` (``(K, 2)`` arrays,
+    either orientation; a zero-area triangle holds nothing)."""
     xy, a, b, c = (np.asarray(t, np.float64).reshape(-1, 2) for t in (xy, a, b, c))
 
     def cross(p, q, r):

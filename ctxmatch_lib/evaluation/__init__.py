@@ -21,7 +21,7 @@ Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of 
 
 from .cache import source_digest
 from .frontends import check_output, evaluate_cached, run_sweep
-from .plan import SweepUnit, plan_sweep, plan_units, resolve_blob_configs, resolve_features, select_pairs
+from .plan import SweepUnit, plan_sweep, plan_units, resolve_blob_configs, resolve_feature_configs, select_pairs
 from .rows import SWEEP_COLUMNS
 from .run import run_units
 from .steps import PAPER_FILTER_ORDER, resolve_blobs, resolve_filters
@@ -38,7 +38,7 @@ __all__ = [
     "plan_units",
     "resolve_blob_configs",
     "resolve_blobs",
-    "resolve_features",
+    "resolve_feature_configs",
     "resolve_filters",
     "run_sweep",
     "run_unit",

@@ -52,7 +52,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     datasets : str or list of str
         Registered dataset names or custom folders (``"embedded"``, ``"planar,nonplanar"``, ...).
     features : str, FeatureConfig, list or dict
-        Detector+descriptor configurations (:func:`~ctxmatch_lib.evaluation.plan.resolve_features`).
+        Detector+descriptor configurations (:func:`~ctxmatch_lib.evaluation.plan.resolve_feature_configs`).
     blobs : str, BlobConfig or list
         ``"grid"`` (the 2430 setups of Sec. 5.2), preset names or configs (:func:`~ctxmatch_lib.evaluation.plan.resolve_blob_configs`).
     filters : sequence of str

@@ -26,11 +26,11 @@ from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .cache import FORMAT, digest, pair_digest, source_digest
 from .steps import check_estimator, check_matchers, check_models, named_configs, resolve_filters
 
-__all__ = ["SweepUnit", "resolve_features", "resolve_blob_configs", "select_pairs", "check_settings",
+__all__ = ["SweepUnit", "resolve_feature_configs", "resolve_blob_configs", "select_pairs", "check_settings",
            "plan_units", "plan_sweep", "keyed"]
 
 
-def resolve_features(features) -> dict[str, FeatureConfig]:
+def resolve_feature_configs(features) -> dict[str, FeatureConfig]:
     """Named feature configurations: a preset name (``"sift-rootsift"``, ``"sift-rootsift-upright"``,
     ``"sift"``), a :class:`FeatureConfig`, a list of them, or a dict name -> config.
 
@@ -220,7 +220,7 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     max_keypoints = keypoint_budget(max_keypoints)  # a budget name ("paper", "dense") or an int
-    feats = resolve_features(features)
+    feats = resolve_feature_configs(features)
     if max_keypoints is not None:
         feats = {k: replace(v, max_keypoints=int(max_keypoints)) for k, v in feats.items()}
     if isinstance(blobs, Mapping):

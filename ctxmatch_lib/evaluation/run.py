@@ -63,7 +63,7 @@ def check_runner(n_jobs, dask):
         raise ValueError("give either n_jobs (local processes) or dask (a cluster), not both")
 
 
-def _named(df, unit: SweepUnit):
+def named_rows(df, unit: SweepUnit):
     """The unit's rows with its names: ``features_name`` in the ``features`` column, ``blob_names`` in
     the ``blob`` column (names are not part of the key: the part may come from a unit named otherwise)."""
     if len(df) and (df["features"] != unit.features_name).any():
@@ -185,7 +185,7 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
         bar.set_postfix_str("", refresh=False)
         bar.close()
 
-    frames = [_named(in_memory[u.key] if u.key in in_memory else pd.read_parquet(part[u.key]), u) for u in units]
+    frames = [named_rows(in_memory[u.key] if u.key in in_memory else pd.read_parquet(part[u.key]), u) for u in units]
     out = pd.concat(frames, ignore_index=True)
     # What this run computed (the others were read from the cache): for progress reports and tests.
     out.attrs.update(units=n_total, units_computed=len(todo))

@@ -84,7 +84,7 @@ def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: 
                   default_name: Callable) -> dict:
     """``{name: config}`` from a preset name, a ``cls`` instance, a list of them or a dict name -> either,
     in the given order: a preset is named by its key, a bare config by ``default_name(config)``; errors name
-    ``argument`` (the :func:`resolve_blobs` and :func:`~ctxmatch_lib.evaluation.plan.resolve_features`
+    ``argument`` (the :func:`resolve_blobs` and :func:`~ctxmatch_lib.evaluation.plan.resolve_feature_configs`
     rule)."""
     if isinstance(configs, (str, cls)):
         configs = [configs]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -31,7 +31,40 @@ from .rows import blob_record, error_row, error_rows, frame, ranked_aps
 from .steps import (check_pair_keypoints, label_candidates, model_accuracy, pair_seed, run_filter, run_matcher,
                     run_model)
 
-__all__ = ["PairError", "unit_features", "run_unit"]
+__all__ = ["BlobStage", "PairError", "unit_features", "run_unit"]
+
+
+@dataclass
+class BlobStage:
+    """Everything computed for one blob setup on one pair, kept when :func:`run_unit` is given ``stages``.
+
+    ``matches``, ``scores`` and ``labels`` are the setup's candidates in score order; ``keeps[method]`` masks
+    them (``keeps["blob"]`` is all ``True``; a filter that raised holds its message); ``fits[(method, model)]``
+    is the :class:`~ctxmatch_lib.geometry.ModelFit` over the method's output, whose ``keep`` masks that
+    output; :meth:`final_mask` combines the two into a mask over the candidates.
+    """
+
+    name: str
+    config: object
+    matches: np.ndarray
+    scores: np.ndarray
+    labels: np.ndarray
+    time_s: float
+    keeps: dict = field(default_factory=dict)
+    method_times: dict = field(default_factory=dict)
+    fits: dict = field(default_factory=dict)
+    model_times: dict = field(default_factory=dict)
+
+    @property
+    def correct_candidates(self) -> np.ndarray:
+        """The recall reference: ground-truth-correct candidates, ``(M, 2)``."""
+        return self.matches[self.labels]
+
+    def final_mask(self, method: str, model: str) -> np.ndarray:
+        """Mask over the candidates of the output of ``method`` followed by ``model``."""
+        keep = self.keeps[method].copy()
+        keep[np.flatnonzero(keep)] = self.fits[(method, model)].keep
+        return keep
 
 
 class PairError(RuntimeError):
@@ -159,7 +192,7 @@ def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tupl
     return keeps, added
 
 
-def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> list[dict]:
+def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage=None) -> list[dict]:
     """The rows of every (method, model) of one setup; a step that raised gives an error row.
 
     ``keeps`` maps the blob candidates and each filter to a mask over ``sm`` (or an error message) and its
@@ -183,6 +216,8 @@ def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl) -> li
                                       f"model {model!r} raised {type(exc).__name__}: {exc}", n, m,
                                       **known, time_s=t_method))
                 continue
+            if stage is not None and not shared:
+                stage.fits[method, model], stage.model_times[method, model] = fit, t_model
             final = keep.copy()
             final[np.flatnonzero(keep)] = fit.keep
             mm = evaluate_matches(cm[final], cl[final], reference=ref, reference_star=d.ref_star,
@@ -243,7 +278,7 @@ def _mask_store(unit: SweepUnit, feats_digest: str, cache):
     return load_npz(path) or {}, path
 
 
-def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
+def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None, features=None, stages=None):
     """Evaluate one :class:`~ctxmatch_lib.evaluation.plan.SweepUnit`; returns a ``pandas.DataFrame``
     with :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`.
 
@@ -256,22 +291,28 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None):
     NaN metrics whose ``error`` names the image and the reason; a filter or model step that raises gives
     such rows for that method (or method + model) only, and the other methods are evaluated as usual.
 
-    ``cache_dir``: the evaluation cache (``None``: the default; ``False``: no cache).
+    ``cache_dir``: the evaluation cache (``None``: the default; ``False``: no cache). ``features``: the two
+    images' :class:`~ctxmatch_lib.features.Features`, used as given instead of extracted. ``stages``: a dict
+    that receives a :class:`BlobStage` per blob setup, every intermediate mask and model fit kept.
 
     BLAS runs on one thread inside a unit (the engine runs units in parallel instead): OpenBLAS's float32
     rounding depends on its thread count, and the numbers must not.
     """
     with threadpool_limits(1):
-        return _run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir)
+        return _run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, features=features,
+                         stages=stages)
 
 
-def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir):
+def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir, features, stages):
     cache = None if cache_dir is False else engine_cache(cache_dir)
     pair = unit.pair
-    try:
-        f1, f2 = unit_features(unit, feature_cache_dir)
-    except PairError as exc:
-        return frame(error_rows(unit, str(exc)))
+    if features is not None:
+        f1, f2 = features
+    else:
+        try:
+            f1, f2 = unit_features(unit, feature_cache_dir)
+        except PairError as exc:
+            return frame(error_rows(unit, str(exc)))
     feats_digest = features_digest(f1, f2)
     ctx, cand_keys = _context_factory(unit, f1, f2, cache)
     sets, ref_star, n_gt_star = _labelled_sets(unit, f1, f2, candidate_sets(ctx, cand_keys, cache, feats_digest,
@@ -282,12 +323,13 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir):
     d = _PairData(unit, f1, f2, ref_star, n_gt_star, base_row,
                   {name: json.loads(p) for name, p in unit.filter_params}, pair_seed(unit.seed, pair.pair_id),
                   gt_correspondences(pair.gt) if any(m != "none" for m in unit.models) else None, {})
-    fast = not unit.filters and not unit.matchers and unit.models == ("none",)
+    fast = not unit.filters and not unit.matchers and unit.models == ("none",) and stages is None
+    names = unit.blob_names or tuple(cfg.label for cfg in unit.blobs)
     masks, mask_path = _mask_store(unit, feats_digest, cache)
     masks_added = False
     ranks: dict = {}
     rows = []
-    for cfg in unit.blobs:
+    for name, cfg in zip(names, unit.blobs):
         mt, dt, lab, n_gt, t_cand = sets[cfg.candidate_key]
         rk = (cfg.candidate_key, cfg.ratio, cfg.t_o, cfg.t_o_kind)
         if rk not in ranks:
@@ -309,7 +351,11 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir):
         sm, ss, sl = mt[order], scores[order], lab[order]
         keeps, added = _filter_keeps(d, cfg, sm, ss, t_blob, masks)
         masks_added |= added
-        rows.extend(_method_rows(d, cfg, common, keeps, sm, ss, sl))
+        stage = None
+        if stages is not None:
+            stage = stages[name] = BlobStage(name, cfg, sm, ss, sl, t_blob, {m: k for m, (k, _) in keeps.items()},
+                                             {m: t for m, (_, t) in keeps.items()})
+        rows.extend(_method_rows(d, cfg, common, keeps, sm, ss, sl, stage))
     if masks_added and mask_path is not None:
         save_npz(mask_path, masks)
     return frame(rows)

@@ -1,18 +1,8 @@
-"""Compiled (numba) direct convolution for the patch networks' wide, shallow layers (:mod:`._nn`).
+"""Compiled (numba) direct convolution for the patch networks' shallow layers (:func:`._nn.conv2d`).
 
-:func:`ctxmatch_lib.features._nn.conv2d` builds an ``im2col`` matrix in float64 and multiplies it by the
-weights with BLAS. That is fast where the layer has many input channels, but OriNet's second layer (16 → 16
-channels, 3×3, on 32×32 patches) spends most of its time writing and reading that matrix: 1.2 MB per patch
-for a product of 2.4 M multiply-adds. Here the same sums are formed in registers from the input itself: each
-output is ``Σ_(i, j, c) x[y + i, x + j, c] · w[i, j, c, o]``, accumulated in float64 in that order, from
-+0.0. Each product of two float32 numbers is exact in float64, so a fused multiply-add would not change a
-bit either; the order is fixed, so the sum is the same on any CPU. BLAS sums the same terms in another
-order, so the float64 sums differ from its in the last bits, and after the rounding to float32 almost never
-(none in the ``tests/test_deep_features.py`` cases).
-
-Tiles of four output pixels × eight output channels (eight :class:`~ctxmatch_lib._numerics.simd.Vec4` accumulators)
-keep the weights of one input channel in two registers for four pixels. Compiled code is cached on disk as for
-the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
+Where the ``im2col`` matrix costs more than its product (OriNet's 16-channel 3×3 layers), each output
+``Σ_(i, j, c) x[y + i, x + j, c] · w[i, j, c, o]`` is summed in registers in float64, in that fixed order, so
+the same on any CPU; tiles of 4 pixels × 8 channels keep one input channel's weights in two registers.
 """
 
 from __future__ import annotations
@@ -99,9 +89,8 @@ with user_cache() as _cache:
 
 
 def direct_conv2d(x: np.ndarray, w: np.ndarray, *, stride: int = 1) -> np.ndarray:
-    """Cross-correlation of the (already padded) float32 ``x`` (N, H, W, C) with torch-layout float32 weights
-    ``w`` (O, C, kh, kw), ``O`` a multiple of 8 -> float32 (N, H', W', O), each sum formed in float64 in
-    (i, j, c) order and rounded once. No bias (added by the caller, in float32, as after the BLAS product)."""
+    """Cross-correlation of the padded float32 ``x`` (N, H, W, C) with torch-layout ``w`` (O, C, kh, kw), ``O``
+    a multiple of 8 -> float32 (N, H', W', O), each sum rounded once; the caller adds the bias."""
     o, c, kh, kw = w.shape
     if o % 8 or x.ndim != 4 or x.shape[3] != c:
         raise ValueError(f"direct_conv2d needs (N, H, W, {c}) input and a multiple of 8 output channels, got "

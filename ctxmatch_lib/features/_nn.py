@@ -1,12 +1,7 @@
-"""numpy inference of the small patch networks (TFeat, HardTFeat, OriNet) and kornia-compatible patch sampling.
+"""numpy inference of the patch networks of :mod:`.deep` (TFeat, HardTFeat, OriNet) and kornia's patch sampling.
 
-The deep presets' stand-in networks (:mod:`.deep`) run here, in float32, without torch: a convolution is an
-``im2col`` matrix product (the shifted views copied side by side, then one float64 BLAS ``@`` rounded once to
-float32), or, with few input channels, a direct sum in registers (:func:`._conv_kernels.direct_conv2d`), on
-``(N, H, W, C)`` arrays. The parameters are the torch ``state_dict`` arrays (same names), read from the ``.npz``
-files shipped in ``features/weights``. :func:`pyramid_patches` samples the patches the way kornia's
-``extract_patches_from_pyramid`` does (its documented convention), so the numbers agree with the torch path
-to float32 rounding.
+float32 on ``(N, H, W, C)`` arrays, parameters named as in the torch ``state_dict``; products are formed in
+float64 and rounded once, so the numbers do not depend on the BLAS kernel or thread count.
 """
 
 from __future__ import annotations
@@ -24,34 +19,28 @@ _F32 = np.float32
 
 
 def _tanh(x: np.ndarray) -> np.ndarray:
-    """float32 ``tanh`` computed in float64 by :func:`ctxmatch_lib._numerics.fixedmath.tanh` and rounded once:
-    numpy's float32 ``tanh`` follows its SIMD loop (AVX-512, AVX2 and baseline loops differ in the last bit)."""
+    """float32 ``tanh`` from float64 fixedmath, rounded once (numpy's follows its SIMD loop)."""
     return _fixedmath_kernels.tanh_f32(x)
 
 
-# ------------------------------------------------------------------------------------------- layers
 def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride: int = 1,
            padding: int = 0) -> np.ndarray:
     """2-D cross-correlation of ``x`` (N, H, W, C) with torch-layout weights ``w`` (O, C, kh, kw) -> (N, H', W', O).
 
-    ``im2col``: the ``kh × kw`` shifted views are copied side by side (channels innermost) and multiplied
-    once by the weights; callers pass small batches so that the copy stays in cache. With at most 16 input
-    channels, a kernel of at most 3×3 and a multiple of 8 outputs (OriNet's first layers) the sums run in
-    registers instead (:func:`._conv_kernels.direct_conv2d`): there the copy cost more than its product.
+    An ``im2col`` product; with few input channels, a small kernel and a multiple of 8 outputs (OriNet's
+    first layers) the im2col copy costs more than its product, and :func:`._conv_kernels.direct_conv2d` runs.
     """
     if padding:
         x = np.pad(x, ((0, 0), (padding, padding), (padding, padding), (0, 0)))
     o, c, kh, kw = w.shape
     if c <= 16 and kh * kw <= 9 and o % 8 == 0:
-        # Few input channels: the im2col matrix costs more than its product; summed in registers instead.
         out = direct_conv2d(x, w, stride=stride)
         if b is not None:
             out += b
         return out
     n, h, wd = x.shape[:3]
     ho, wo = (h - kh) // stride + 1, (wd - kw) // stride + 1
-    # Built in float64 at once (float32 -> float64 is exact): the product's float64 operand without a
-    # second copy of the im2col matrix.
+    # float64 at once (exact): the product's operand without a second copy.
     cols = np.empty((n, ho, wo, kh, kw, c), np.float64)
     for i in range(kh):
         for j in range(kw):
@@ -64,21 +53,14 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
 
 
 def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` of float32 matrices, accumulated in float64 and rounded once to float32 (issue 31).
-
-    A float32 GEMM rounds differently under each OpenBLAS kernel (SkylakeX, Haswell, Nehalem: descriptors
-    up to 3e-6 and AffNet shapes up to 6e-5 apart on the same image); in float64 the kernels differ in the
-    last bits of float64, which the rounding to float32 removes but for values on a float32 rounding
-    boundary (about one in 10^8)."""
+    """``a @ b`` of float32 matrices in float64, rounded once to float32: a float32 GEMM rounds differently
+    under each OpenBLAS kernel, while the float64 kernels' last-bit differences vanish in the rounding."""
     return (a.astype(np.float64, copy=False) @ b.astype(np.float64)).astype(np.float32)
 
 
 def _chunked(fn):
-    # The networks run on chunks of 16 patches: their im2col buffers then stay in cache (a 4x speed-up
-    # over 512-patch batches). Every chunk has exactly `chunk` patches (the last one zero-padded) and BLAS
-    # runs on one thread: OpenBLAS picks its kernels, and so the float32 rounding, by matrix shape and
-    # thread count, and a descriptor must not depend on its neighbours in the batch nor on the machine's
-    # thread setting (the figures must repeat on any thread count).
+    # Chunks of exactly `chunk` patches (the last zero-padded; the im2col buffers stay in cache) on one BLAS
+    # thread: OpenBLAS picks its kernel by shape and threads, and a descriptor must not depend on either.
     def run(p: dict, patches: np.ndarray, chunk: int = 16) -> np.ndarray:
         patches = np.asarray(patches, np.float32)
         if not len(patches):
@@ -125,13 +107,9 @@ def _batch_norm(p: dict, name: str, x: np.ndarray, eps: float = 1e-5) -> np.ndar
     return x * scale + shift
 
 
-# ------------------------------------------------------------------------------------------- networks
 @_chunked
 def tfeat(p: dict, patches: np.ndarray) -> np.ndarray:
-    """TFeat (Balntas et al., BMVC 2016) of ``(N, 32, 32)`` patches -> ``(N, 128)`` (kornia's ``TFeat`` layout).
-
-    Instance normalisation of the patch, 7×7 conv + tanh, 2×2 max pool, 6×6 conv + tanh, linear + tanh.
-    """
+    """TFeat (Balntas et al., BMVC 2016) of ``(N, 32, 32)`` patches -> ``(N, 128)`` (kornia's ``TFeat`` layout)."""
     x = _standardise(patches, 1e-5, unbiased=False, inside=True)
     x = _tanh(_max_pool2(conv2d(x, p["features.1.weight"], p["features.1.bias"])))  # tanh is monotonic
     x = _tanh(conv2d(x, p["features.4.weight"], p["features.4.bias"]))
@@ -141,11 +119,8 @@ def tfeat(p: dict, patches: np.ndarray) -> np.ndarray:
 
 @_chunked
 def hardtfeat(p: dict, patches: np.ndarray) -> np.ndarray:
-    """HardTFeat (TFeat trained with the HardNet loss, Mishkin et al.) of ``(N, 32, 32)`` patches -> ``(N, 128)``.
-
-    Per-patch ``(p - mean) / (std + 1e-7)`` (unbiased std), TFeat's two tanh convolutions with the max pool,
-    then an 8×8 convolution to 128 channels and tanh (the authors' ``HardTFeatNet``).
-    """
+    """HardTFeat (TFeat trained with the HardNet loss; the authors' ``HardTFeatNet``), ``(N, 32, 32)`` ->
+    ``(N, 128)``."""
     x = _standardise(patches, 1e-7, unbiased=True, inside=False)
     x = _tanh(_max_pool2(conv2d(x, p["features.0.weight"], p["features.0.bias"])))  # tanh is monotonic
     x = _tanh(conv2d(x, p["features.3.weight"], p["features.3.bias"]))
@@ -158,11 +133,7 @@ _ORINET_LAYERS = ((0, 1), (3, 1), (6, 2), (9, 1), (12, 2), (15, 1))
 
 @_chunked
 def orinet(p: dict, patches: np.ndarray) -> np.ndarray:
-    """OriNet (Mishkin et al., ECCV 2018) of ``(N, 32, 32)`` patches: the angle in radians (kornia's ``OriNet``).
-
-    Per-patch ``(p - mean) / (std + 1e-6)``, six 3×3 conv + batch norm + ReLU layers, an 8×8 conv (padding
-    1) to 2 channels, tanh, the spatial mean ``(s, c)``, then ``atan2(s + 1e-8, c + 1e-8)``.
-    """
+    """OriNet (Mishkin et al., ECCV 2018) of ``(N, 32, 32)`` patches: the angle in radians (kornia's ``OriNet``)."""
     x = _standardise(patches, 1e-6, unbiased=True, inside=False)
     for i, stride in _ORINET_LAYERS:
         x = conv2d(x, p[f"features.{i}.weight"], stride=stride, padding=1)
@@ -174,7 +145,6 @@ def orinet(p: dict, patches: np.ndarray) -> np.ndarray:
 NETS = {"tfeat": tfeat, "hardtfeat": hardtfeat, "orinet": orinet}
 
 
-# -------------------------------------------------------------------------------------- patch sampling
 def _pyrdown(img: np.ndarray) -> np.ndarray:
     """kornia's ``pyrdown``: 5×5 binomial blur (reflect-101 border), bilinear resize to ``floor(side / 2)``
     with ``align_corners=False``."""
@@ -218,36 +188,20 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def pyramid_patches(img: np.ndarray, kpts: np.ndarray, A: np.ndarray, ps: int = 32) -> np.ndarray:
     """Square patches sampled as kornia's ``extract_patches_from_pyramid`` samples LAFs ``[A | kpt]``.
 
-    Cell ``(i, j)`` samples ``kpt + A @ (u_j, u_i)``, ``u_k = (2k + 1) / ps - 1`` (pixel centres at integers),
-    bilinearly, from pyramid level ``floor(log2(2 sqrt|det A| / ps))`` (clamped to the levels built); level
-    ``l`` (side ``n_l``) holds image position ``x`` at ``(x + 0.5) n_l / n - 0.5``; outside the image the
-    border pixel is read.
-
-    Parameters
-    ----------
-    img : ndarray of shape (H, W), float32
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    A : ndarray of shape (N, 2, 2)
-        Patch frames in pixels (the LAF's linear part).
-    ps : int
-        Patch side.
-
-    Returns
-    -------
-    ndarray of shape (N, ps, ps), float32
+    Cell ``(i, j)`` of the ``(N, ps, ps)`` float32 result samples ``kpt + A @ (u_j, u_i)``,
+    ``u_k = (2k + 1) / ps - 1``, bilinearly, from pyramid level ``floor(log2(2 sqrt|det A| / ps))`` (clamped);
+    level ``l`` (side ``n_l``) holds image position ``x`` at ``(x + 0.5) n_l / n - 0.5``; outside the image
+    the border pixel is read.
     """
     img = np.ascontiguousarray(img, np.float32)
     h, w = img.shape
     kpts = np.asarray(kpts, np.float64)
     A = np.asarray(A, np.float64)
     u = (2 * np.arange(ps) + 1) / ps - 1
-    # (N, ps, ps) sample positions: row i uses u_i along the frame's y axis, column j u_j along its x axis.
     px = kpts[:, 0, None, None] + A[:, 0, 0, None, None] * u[None, None, :] + A[:, 0, 1, None, None] * u[None, :, None]
     py = kpts[:, 1, None, None] + A[:, 1, 0, None, None] * u[None, None, :] + A[:, 1, 1, None, None] * u[None, :, None]
     sizes = _levels(h, w, ps)
-    # The determinant written out (LAPACK's rounds by BLAS kernel) and the level from the binary exponent,
-    # exactly (np.log2's last bit follows numpy's SIMD loop); a non-finite frame gets level 0.
+    # det written out and the level from the binary exponent: LAPACK and np.log2 round by CPU.
     det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
     scale = np.sqrt(np.abs(det) + 1e-10)
     arg = 2 * scale / ps

@@ -1,6 +1,4 @@
-"""The result of feature extraction, :class:`Features`, and how its descriptors compare
-(:func:`descriptor_distance`). Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""The result of feature extraction, :class:`Features`, and how its descriptors compare."""
 
 from __future__ import annotations
 
@@ -22,24 +20,16 @@ class Features:
     kpts : ndarray of shape (N, 2), float64
         (x, y) pixels, x right, y down, origin at the centre of the top-left pixel.
     shapes : ndarray of shape (N, 2, 2), float64
-        Affine shape ``A`` of each keypoint: its elliptical patch is ``{kpt + A @ u : |u| <= 1}``.
+        Affine shape ``A``: the patch is ``{kpt + A @ u : |u| <= 1}``.
     desc : ndarray of shape (N, D), float32
-        Descriptors (D = 128 for SIFT/RootSIFT and the deep ones, 256 for RootsGLOH2), unit L2 norm.
-    scales : ndarray of shape (N,), float64
-        Keypoint scale: the Gaussian sigma of the detection in image pixels.
-    angles : ndarray of shape (N,), float64
-        Orientation in radians in the image frame (x right, y down, so positive angles turn clockwise on
-        screen); 0 for upright features.
-    responses : ndarray of shape (N,), float64
-        Detector response: absolute DoG value for SIFT, non-increasing along the rows; z-scored Harris
-        response for HarrisZ, non-increasing within each scale (rows go from the finest scale up).
+        Unit L2 norm; D = 256 for RootsGLOH2, 128 otherwise.
+    scales, angles, responses : ndarray of shape (N,), float64
+        Detection sigma in pixels; orientation in radians, clockwise on screen (0 when upright); absolute DoG
+        (SIFT, non-increasing) or z-scored Harris response (non-increasing within a scale).
     metric : {"l2", "sgloh2"}
-        How descriptors compare: Euclidean, or the sGLOH2 rotation-min distance (see
-        :func:`descriptor_distance`).
+        See :func:`descriptor_distance`.
     image_size : tuple of int (width, height), optional
-        Size of the image the features come from, as :class:`ctxmatch_lib.datasets.Pair` stores it, ready
-        for the filters' ``image_size1`` / ``image_size2``. :func:`extract_features` always fills it;
-        ``None`` only for features built by hand without it.
+        As :class:`ctxmatch_lib.datasets.Pair` stores it; ``None`` only for features built by hand.
     """
 
     kpts: np.ndarray
@@ -76,18 +66,8 @@ class Features:
 
 
 def descriptor_distance(metric):
-    """The blob-matching distance hook of a descriptor metric.
-
-    Parameters
-    ----------
-    metric : {"l2", "sgloh2"} or FeatureConfig or Features
-
-    Returns
-    -------
-    callable or None
-        ``None`` for the Euclidean distance (blob matching's own GEMM path); for RootsGLOH2 a
-        :class:`.sgloh.SGLOH2Distance`, the minimum over the 16 discrete rotations (sGLOH2, TPAMI 2018).
-    """
+    """The blob-matching distance hook of ``metric`` (``"l2"``, ``"sgloh2"``, a FeatureConfig or Features):
+    ``None`` for the Euclidean distance, a :class:`.sgloh.SGLOH2Distance` for RootsGLOH2."""
     if isinstance(metric, FeatureConfig):
         metric = "sgloh2" if metric.descriptor == "rootsgloh2" else "l2"
     elif isinstance(metric, Features):

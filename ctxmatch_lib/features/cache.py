@@ -17,11 +17,8 @@ from .io import as_gray_uint8, _image_hash, _image_size
 __all__ = ["extract_features", "feature_cache_path"]
 
 
-# Bump when only the layout of a stored feature entry changes (the features are the same): part of the entry's
-# file name, so old entries are ignored while the keys of the caches built on the features stay.
-# 2: entries carry the image size.
+# Part of the entry's file name: bump it when only the entry layout changes (the caches built on it stay).
 _ENTRY_FORMAT = 2
-
 
 _FIELDS = ("kpts", "shapes", "desc", "scales", "angles", "responses")
 
@@ -70,24 +67,16 @@ def _opencv_version() -> str:
 
 
 def extract_features(image, config: FeatureConfig = FeatureConfig(), *, cache_dir=None) -> Features:
-    """Detect keypoints and describe them (see :class:`FeatureConfig`), reusing the on-disk cache.
+    """The :class:`Features` of ``image`` under ``config``, empty for a blank or tiny image, cached.
 
     Parameters
     ----------
     image : str, Path or ndarray
-        An image file, or pixels: ``(H, W)`` gray or ``(H, W, 3|4)`` RGB(A); uint8, wider integers, or
-        floats in [0, 1].
+        A file or pixels (:func:`.io.as_gray_uint8`).
     config : FeatureConfig
-        Extractor settings; part of the cache key.
     cache_dir : str, Path, None or False
-        Cache folder: ``None`` for ``ctxmatch_lib.cache.cache_dir("features")``, ``False`` to disable the
-        cache. Entries are keyed by the OpenCV version, the hash of the gray pixels and ``config.key()``.
-
-    Returns
-    -------
-    Features
-        Keypoints sorted by decreasing response, at most ``config.max_keypoints``; empty (N = 0) when the
-        image is blank or tiny. ``image_size`` is the image's (width, height).
+        ``None``: ``ctxmatch_lib.cache.cache_dir("features")``; ``False``: no cache. Entries are keyed by the
+        OpenCV version, the gray pixels' hash and ``config.key()``.
 
     Examples
     --------

@@ -1,8 +1,5 @@
-"""Feature settings: :class:`FeatureConfig` (detector, descriptor, orientation, cap) and the named presets.
-
-:data:`FEATURE_PRESETS` holds the paper's eight detector+descriptor blocks of Fig. 5 and the upright and plain
-SIFT variants; :func:`paper_feature_blocks` lists the blocks that can run here. Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""Feature settings: :class:`FeatureConfig` and :data:`FEATURE_PRESETS`, the paper's eight detector +
+descriptor blocks of Fig. 5 (:func:`paper_feature_blocks`) and the upright and plain SIFT variants."""
 
 from __future__ import annotations
 
@@ -17,29 +14,16 @@ __all__ = ["FeatureConfig", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS", "PAPER_FE
            "KEYPOINT_BUDGETS", "keypoint_budget"]
 
 
-# Bump when the extracted features change (keypoints, frames, descriptors): part of FeatureConfig.key(), so
-# every cache keyed on it (features, sweep units) is then recomputed. 2: frames, orientations and descriptors
-# computed with CPU-independent elementary functions (``ctxmatch_lib._numerics.fixedmath``).
+# Part of FeatureConfig.key(): bump it when the extracted features change, to recompute every cache keyed on it.
 _CACHE_FORMAT = 2
 
-
 _DETECTORS = ("sift", "harrisz")
-
-
 _DESCRIPTORS = ("rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet")
-
-
 _DEEP = ("hardnet2", "sosnet")
-
-
 _ORIENTATIONS = ("auto", "sift", "dominant", "orinet", "none")
-
-
 _NETS = ("auto", "hardnet", "sosnet", "tfeat", "hardtfeat")
 
-
-# Fields added after cache format 1: left out of the key digest at their defaults, so the keys (and cache
-# entries) of the SIFT configurations stay what they were.
+# Left out of the key digest at their defaults, so the keys of the SIFT configurations stay stable.
 _NEW_FIELDS = {"orientation": "auto", "weights": None, "net": "auto", "orinet_weights": None,
                "support": 2.0}
 
@@ -51,46 +35,27 @@ class FeatureConfig:
     Parameters
     ----------
     detector : {"sift", "harrisz"}
-        Keypoint detector: OpenCV's SIFT (difference of Gaussians), or HarrisZ (:func:`.harrisz.harrisz`,
-        affine multi-scale Harris corners).
+        OpenCV's SIFT (DoG) or :func:`.harrisz.harrisz`.
     descriptor : {"rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet"}
-        ``"rootsift"``: L1-normalised, square-rooted SIFT (Arandjelović & Zisserman 2012), so that the
-        Euclidean distance of the descriptors is the Hellinger distance of the histograms; ``"sift"``: plain
-        L2-normalised SIFT; ``"rootsgloh2"``: RootsGLOH2 (256-D, non-oriented patches, matched with the
-        rotation-min distance of :func:`descriptor_distance`); ``"hardnet2"``, ``"sosnet"``: deep patch
-        descriptors (stand-in weights run in numpy; the published ones need torch and kornia, see ``weights``).
+        RootSIFT (Arandjelović & Zisserman 2012: Euclidean distance = Hellinger distance), L2-normalised
+        SIFT, RootsGLOH2 (:mod:`.sgloh`) or the deep descriptors of :mod:`.deep`.
     upright : bool
-        Use no dominant orientation: every keypoint gets angle 0 and the descriptor is computed on the
-        unrotated patch; keypoints that only differed by orientation are merged.
+        Angle 0 for every keypoint; keypoints that differ only by orientation are merged.
     max_keypoints : int
-        Keep at most this many keypoints, strongest (largest absolute DoG response) first for SIFT, finest
-        scale then strongest first for HarrisZ; 0 means no cap.
-    n_octave_layers, contrast_threshold, edge_threshold, sigma : int, float, float, float
-        OpenCV ``SIFT_create`` parameters (defaults are Lowe's and OpenCV's).
-    precise_upscale : bool
-        Use OpenCV's precise upscaling of the first octave (index x ↦ 2x), which removes the quarter-pixel
-        localisation bias of the default linear upscaling, so keypoints follow the pixel-centre convention.
+        Cap (0: none), strongest first for SIFT, finest scale then strongest for HarrisZ.
+    n_octave_layers, contrast_threshold, edge_threshold, sigma, precise_upscale
+        OpenCV ``SIFT_create`` parameters; the precise first-octave upscaling avoids the quarter-pixel bias.
     patch_radius : float
-        Radius of the elliptical patch in units of the keypoint scale (the Gaussian sigma of its octave
-        layer); 3 sigma is the usual support of a SIFT blob. For HarrisZ, the major semi-axis of the
-        ellipse in units of the integration scale.
+        Patch radius in units of the keypoint scale (SIFT's 3σ blob); HarrisZ's major semi-axis.
     orientation : {"auto", "sift", "dominant", "orinet", "none"}
-        Patch orientation: SIFT's own (SIFT detector only), the dominant gradient orientation of the
-        affine-normalised patch (a handcrafted stand-in for the learned orientation of Yi et al. 2016 that the
-        paper uses), OriNet (the learned stand-in, weights ``orinet_weights``, run in numpy), or none.
-        ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT+(Root)SIFT, dominant for
-        HarrisZ+(Root)SIFT, OriNet for the deep descriptors.
-    weights : str, optional
-        Deep descriptor weights: a path, or a file name in the weights folder (``$CTXMATCH_WEIGHTS``, else
-        ``$CTXMATCH_DATA/../weights``). ``None`` loads the published weights the way kornia does (download on a
-        connected machine). The file's hash is part of :meth:`key`.
-    net : {"auto", "hardnet", "sosnet", "tfeat", "hardtfeat"}
-        Network architecture for ``weights``: ``"auto"`` is the descriptor's own (kornia's HardNet for
-        hardnet2, SOSNet for sosnet); stand-in weights of another architecture name it here.
-    orinet_weights : str, optional
-        OriNet weights (path or file name in the weights folder); ``None``: kornia's published ones.
+        SIFT's own, the dominant gradient (:func:`.patches.dominant_orientation`), OriNet or none.
+        ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT + (Root)SIFT, dominant for
+        HarrisZ + (Root)SIFT, OriNet for the deep descriptors.
+    weights, orinet_weights, net : str, optional
+        Deep descriptor and OriNet weights (:func:`.deep.resolve_weights`; ``None``: kornia's published
+        ones; their hash is part of :meth:`key`) and the architecture of ``weights``.
     support : float
-        Patch descriptors sample ``support × A`` around each keypoint.
+        Patch descriptors sample ``support × A``.
     """
 
     detector: str = "sift"
@@ -145,7 +110,6 @@ class FeatureConfig:
         'sift-rootsift-k8000-v2-441d0e9b'
         """
         items = sorted((k, v) for k, v in asdict(self).items() if not (k in _NEW_FIELDS and v == _NEW_FIELDS[k]))
-        # The weights enter by content: another file under the same name is another configuration.
         for field in ("weights", "orinet_weights"):
             if getattr(self, field) is not None or (field == "orinet_weights"
                                                     and self.resolved_orientation() == "orinet"):
@@ -153,8 +117,7 @@ class FeatureConfig:
 
                 items.append((field + "_sha1", weights_digest(getattr(self, field), field)))
         if self.detector != "sift" or self.descriptor not in ("sift", "rootsift") or self.resolved_orientation() == "orinet":
-            # HarrisZ's shapes and the float32 networks and sGLOH products no longer go through BLAS's float32
-            # or batched products (issue 31): features cached before differ in their last bits.
+            # Marks the features computed without BLAS's float32 or batched products (last bits differ).
             items.append(("blas_independent", 1))
         digest = hashlib.sha1(repr(items).encode()).hexdigest()[:8]
         up = "-upright" if self.upright else ""
@@ -172,8 +135,6 @@ class FeatureConfig:
 
 
 _HARDNET2_STANDIN = dict(weights="HardTFeat.pth", net="hardtfeat", orinet_weights="OriNet.pth")
-
-
 _SOSNET_STANDIN = dict(weights="tfeat-liberty.params", net="tfeat", orinet_weights="OriNet.pth")
 
 
@@ -216,19 +177,8 @@ PAPER_FEATURE_BLOCKS = ("sift-rootsift", "sift-rootsgloh2", "harrisz-rootsift", 
 
 
 def paper_feature_blocks(deep: bool | None = None) -> list[str]:
-    """The paper's detector + descriptor blocks that can run here.
-
-    Parameters
-    ----------
-    deep : bool, optional
-        Include the HardNet2 / SOSNet blocks (stand-in weights, run in numpy). ``None``: when their weights
-        are found (they ship with the package); ``True``: always (an error later if they cannot run);
-        ``False``: never.
-
-    Returns
-    -------
-    list of str
-        Keys of :data:`FEATURE_PRESETS`, in the order of :data:`PAPER_FEATURE_BLOCKS`.
+    """The keys of :data:`PAPER_FEATURE_BLOCKS` that can run here: the HardNet2 / SOSNet blocks when
+    ``deep`` is true, or is ``None`` and their weights are found.
 
     Examples
     --------
@@ -247,21 +197,14 @@ def paper_feature_blocks(deep: bool | None = None) -> list[str]:
     return list(PAPER_FEATURE_BLOCKS)
 
 
-#: Named keypoint budgets (at most this many keypoints per image, for every detector + descriptor block).
-#:
-#: ``"paper"`` (1500) is the budget of the paper-scale runs, calibrated once on counts only (issue 21,
-#: ``benchmarks/calibrate_budget.py``): with it the baseline (SIFT + RootSIFT, one-to-one NNR) has on the
-#: shared real pairs 1358 / 1277 candidates and 292 / 242 ground-truth (D) matches per planar / non-planar
-#: pair, against 1329 / 1370 and 293 / 214 in the paper's Table 2 (ratios 1.02 / 0.93 and 1.00 / 1.13).
-#: ``"dense"`` (8000) is the cap of :class:`FeatureConfig` and of the earlier paper-scale runs, which gave
-#: 2.5x the paper's candidates (3603 / 2930 per pair).
+#: Named keypoint caps per image: ``"paper"`` matches the candidate counts of the paper's Table 2
+#: (calibrated on counts only, see ``docs/paper-scale.md``); ``"dense"`` is :class:`FeatureConfig`'s default.
 KEYPOINT_BUDGETS = {"paper": 1500, "dense": 8000}
 
 
 def keypoint_budget(value, *, argument: str = "max_keypoints") -> int | None:
-    """A keypoint cap from a budget name of :data:`KEYPOINT_BUDGETS` or a non-negative integer.
-
-    ``None`` stays ``None`` (each preset's own cap); 0 means no cap. Errors name ``argument``.
+    """A keypoint cap from a name of :data:`KEYPOINT_BUDGETS` or a non-negative integer (0: no cap;
+    ``None``: each preset's own). Errors name ``argument``.
 
     Examples
     --------

@@ -1,21 +1,8 @@
-"""Deep patch descriptors (HardNet2, SOSNet stand-ins) and OriNet orientation, run in numpy.
+"""Deep patch descriptors (HardNet2, SOSNet) on OriNet-oriented patches (Sec. 5), run in numpy.
 
-The paper (Sec. 5) describes HarrisZ and SIFT patches with HardNet2 and SOSNet after the learned orientation
-of Yi et al. (CVPR 2016). Here 32×32 patches are sampled from LAFs ``[support × A | kpt]`` as kornia's
-``extract_patches_from_pyramid`` samples them, oriented by OriNet (a learned orientation standing in for Yi et
-al.'s, which is not obtainable) and described by a network. HardNet2 and SOSNet weights are not obtainable
-here either: the presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS` use **stand-in** weights, and say so:
-``HardTFeat.pth`` (TFeat architecture trained with the HardNet loss) for HardNet2, ``tfeat-liberty.params``
-(TFeat) for SOSNet, and ``OriNet.pth`` for the orientation.
-
-These three networks run in numpy (:mod:`._nn`, float32; no torch needed) from ``.npz`` copies of their
-weights shipped in ``ctxmatch_lib/features/weights/`` (MIT-licensed; the notices are in ``LICENSES.md``
-there), converted once from the published files by :func:`export_npz` (``python -m
-ctxmatch_lib.features.deep SRC_DIR``, needs torch). A weights name resolves to the shipped copy first, then
-to ``$CTXMATCH_WEIGHTS`` (else ``$CTXMATCH_DATA/../weights``); a path is used as given (a ``.pth``/``.params``
-file is read with torch). ``backend="torch"`` runs kornia's modules and sampler instead (to check the two
-agree), and ``weights=None`` asks kornia for the published HardNet / SOSNet / OriNet weights (torch, kornia
-and a network connection needed).
+The published weights (and Yi et al.'s orientation) are not obtainable, so the presets use **stand-ins**,
+shipped as ``.npz`` (:func:`export_npz`) and run by :mod:`._nn`: ``HardTFeat.pth`` for HardNet2,
+``tfeat-liberty.params`` for SOSNet, ``OriNet.pth``. ``backend="torch"`` runs kornia's modules instead.
 """
 
 from __future__ import annotations
@@ -37,9 +24,9 @@ _DEFAULT_NET = {"hardnet2": "hardnet", "sosnet": "sosnet"}
 _NUMPY_NETS = ("tfeat", "hardtfeat")  # descriptor architectures with a numpy implementation (plus OriNet)
 _BACKENDS = ("auto", "numpy", "torch")
 _NPZ_FORMAT = "ctxmatch-patch-net-npz"
-#: Tag of the numpy inference, part of :func:`weights_digest` (and so of the feature cache keys): bump it when
-#: a change of :mod:`._nn` changes the descriptors or angles.
-NUMPY_IMPL = "numpy-2"  # 2: fixed chunk shapes, one BLAS thread (thread-independent numbers)
+#: Tag of the numpy inference, part of :func:`weights_digest` and so of the feature cache keys: bump it when
+#: :mod:`._nn` changes the descriptors or angles.
+NUMPY_IMPL = "numpy-2"
 _SHIPPED = Path(__file__).resolve().parent / "weights"
 #: The published files the shipped ``.npz`` copies come from, their architectures and authors.
 _SHIPPED_SOURCES = {
@@ -79,14 +66,8 @@ def shipped_weights_dir() -> Path:
 
 
 def resolve_weights(name, what: str = "weights") -> Path:
-    """The file of ``name``: an existing path; else the shipped ``.npz`` copy of that name (``HardTFeat.pth`` ->
-    ``weights/HardTFeat.npz``); else a file name in :func:`weights_dir`.
-
-    Raises
-    ------
-    FileNotFoundError
-        Naming the folders searched and how to set them.
-    """
+    """The file of ``name``: an existing path, else the shipped ``.npz`` of that stem, else a file in
+    :func:`weights_dir`; ``FileNotFoundError`` names the folders searched."""
     p = Path(name)
     if p.is_file():
         return p
@@ -119,9 +100,8 @@ def _file_sha1(path: str, mtime_ns: int, size: int) -> str:
 
 
 def weights_digest(name, what: str = "weights") -> str:
-    """Content hash (SHA-1) of a weights file and the inference that runs it, or ``"kornia-published"`` for
-    ``None``. ``.npz`` files are hashed by their arrays; the ``":numpy-N"`` tag (:data:`NUMPY_IMPL`) says the numbers
-    come from the numpy inference, so a change of it changes the feature cache keys."""
+    """SHA-1 of a weights file (of its arrays for ``.npz``) tagged with :data:`NUMPY_IMPL`, or
+    ``"kornia-published"`` for ``None``."""
     if name is None:
         return "kornia-published"
     p = resolve_weights(name, what)
@@ -129,7 +109,6 @@ def weights_digest(name, what: str = "weights") -> str:
     return f"{_file_sha1(str(p.resolve()), st.st_mtime_ns, st.st_size)}:{NUMPY_IMPL}"
 
 
-# ------------------------------------------------------------------------------------------- numpy nets
 @lru_cache(maxsize=16)
 def _numpy_params(path: str, arch: str, mtime_ns: int) -> tuple[str, dict]:
     if path.endswith(".npz"):
@@ -151,15 +130,8 @@ def _numpy_params(path: str, arch: str, mtime_ns: int) -> tuple[str, dict]:
 
 
 def load_numpy_net(weights, net: str):
-    """``(architecture, parameters)`` of ``weights`` for the numpy inference of :mod:`._nn`.
-
-    Parameters
-    ----------
-    weights : str or Path
-        A shipped or exported ``.npz`` (by name or path), or a ``.pth``/``.params`` file (read with torch).
-    net : {"tfeat", "hardtfeat", "orinet", "auto"}
-        The expected architecture (``"auto"``: the one the ``.npz`` names).
-    """
+    """``(architecture, parameters)`` of ``weights`` (an ``.npz``, or a ``.pth``/``.params`` read with torch)
+    for :mod:`._nn`; ``net`` is the expected architecture, ``"auto"`` the one the ``.npz`` names."""
     p = resolve_weights(weights, "weights").resolve()
     return _numpy_params(str(p), net, p.stat().st_mtime_ns)
 
@@ -174,10 +146,8 @@ def _use_numpy(backend: str, weights, arch: str) -> bool:
     return backend != "torch" and possible
 
 
-# ------------------------------------------------------------------------------------------- torch path
 def _hardtfeat():
-    """TFeat trained with the HardNet loss ("HardTFeat" of the HardNet authors): per-patch standardisation,
-    TFeat's two tanh convolutions, a final 8×8 convolution to 128 and tanh, as the authors define it."""
+    """The torch module of HardTFeat, as its authors define it (see :func:`._nn.hardtfeat`)."""
     import torch
     from torch import nn
 
@@ -227,15 +197,10 @@ def _descriptor_net(descriptor: str, net: str, path: str | None):
 
 
 def load_descriptor_net(descriptor: str, *, net: str = "auto", weights=None):
-    """The torch module of a deep descriptor, in evaluation mode (cached per process).
+    """The torch module of ``descriptor`` (``"hardnet2"``, ``"sosnet"``) in evaluation mode, cached.
 
-    Parameters
-    ----------
-    descriptor : {"hardnet2", "sosnet"}
-    net : {"auto", "hardnet", "sosnet", "tfeat", "hardtfeat"}
-        Architecture; ``"auto"``: kornia's HardNet for hardnet2, SOSNet for sosnet.
-    weights : str or Path, optional
-        Weights file (see :func:`resolve_weights`); ``None``: kornia's published weights.
+    ``net`` is the architecture (``"auto"``: kornia's HardNet / SOSNet); ``weights`` a file
+    (:func:`resolve_weights`), ``None`` for kornia's published weights.
     """
     _require_torch()
     if descriptor not in _DEFAULT_NET:
@@ -280,24 +245,11 @@ def _image(gray):
 
 def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, weights=None, support: float = 2.0,
                   batch: int = 512, backend: str = "auto") -> np.ndarray:
-    """OriNet orientation of each keypoint's affine-normalised patch (as kornia's LAFOrienter).
+    """OriNet angle θ of each keypoint's patch ``support × A`` (as kornia's LAFOrienter): the oriented shape
+    is ``A @ R(θ)``, ``R(θ) = [[cos, -sin], [sin, cos]]``.
 
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel (kornia's convention too).
-    shapes : ndarray of shape (N, 2, 2)
-        Affine shapes before orientation; the patch covers ``support × A``.
-    weights : str or Path, optional
-        OriNet weights (see :func:`resolve_weights`); ``None``: kornia's published ones (torch path).
-    backend : {"auto", "numpy", "torch"}
-        ``"auto"``: numpy whenever ``weights`` are given.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        θ such that the oriented shape is ``A @ R(θ)``, ``R(θ) = [[cos, -sin], [sin, cos]]``.
+    ``weights``: OriNet's (:func:`resolve_weights`), ``None`` for kornia's published ones (torch);
+    ``backend="auto"`` runs numpy whenever ``weights`` are given.
     """
     n = len(kpts)
     if n == 0:
@@ -313,8 +265,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
         for s in range(0, n, batch):
             patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
             a = _nn.orinet(params, patches).astype(np.float64)
-            # kornia turns the LAF by R_k(a) = [[cos, sin], [-sin, cos]], i.e. R(-a) in our convention.
-            sin, cos = _fixedmath.sincos(a)  # not numpy's sin / cos / arctan2: their last bit follows the CPU
+            # kornia turns the LAF by R(-a) in our convention; fixedmath: numpy's last bit follows the CPU.
+            sin, cos = _fixedmath.sincos(a)
             out[s : s + batch] = _fixedmath.atan2(-sin, cos)
         return out
     _require_torch()
@@ -337,11 +289,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
 
 def describe_patches(patches, descriptor: str, *, net: str = "auto", weights=None, batch: int = 256,
                      backend: str = "auto") -> np.ndarray:
-    """Deep descriptors of ``(N, 32, 32)`` patches (any intensity scale), unit L2 norm, float32.
-
-    ``backend="auto"`` runs numpy for the TFeat-architecture nets (``net`` ``"tfeat"``/``"hardtfeat"``) with
-    given ``weights``, torch otherwise (kornia's HardNet / SOSNet, published weights).
-    """
+    """Deep descriptors of ``(N, 32, 32)`` patches, unit L2 norm, float32; ``backend="auto"`` runs numpy for
+    the TFeat-architecture nets with given ``weights``, torch otherwise."""
     if descriptor not in _DEFAULT_NET:
         raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
     arch = _DEFAULT_NET[descriptor] if net == "auto" else net
@@ -368,23 +317,9 @@ def describe_patches(patches, descriptor: str, *, net: str = "auto", weights=Non
 
 def deep_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, descriptor: str, net: str = "auto",
                      weights=None, support: float = 2.0, batch: int = 512, backend: str = "auto") -> np.ndarray:
-    """HardNet2 / SOSNet descriptors of oriented keypoint patches (sampled as kornia samples LAFs).
-
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : ndarray of shape (N, 2, 2)
-        Oriented affine shapes; the 32×32 patch covers ``support × A`` (kornia's LAF ``[support A | kpt]``).
-    descriptor, net, weights, backend
-        See :func:`load_descriptor_net` and :func:`describe_patches`.
-
-    Returns
-    -------
-    ndarray of shape (N, 128), float32
-        Unit L2 norm.
-    """
+    """HardNet2 / SOSNet descriptors ``(N, 128)`` of the 32×32 patches covering ``support × A`` of the
+    oriented shapes (kornia's LAF ``[support A | kpt]``); the other arguments as in
+    :func:`load_descriptor_net` and :func:`describe_patches`."""
     n = len(kpts)
     if n == 0:
         return np.empty((0, 128), np.float32)
@@ -415,21 +350,11 @@ def deep_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, 
     return np.concatenate(out)
 
 
-# ------------------------------------------------------------------------------------------- conversion
 def export_npz(source, output, net: str) -> Path:
-    """Convert a published weights file to the ``.npz`` the numpy inference reads (needs torch and kornia).
+    """Convert the published weights ``source`` of architecture ``net`` to the ``.npz`` ``output`` (torch).
 
-    The arrays are the ``state_dict`` of the kornia module (or :func:`_hardtfeat`) after loading ``source``
-    exactly as the torch path loads it; ``__meta__`` (JSON) records the architecture, the source file's name
-    and SHA-1, and, for the shipped stand-ins, the origin and copyright notice (MIT).
-
-    Parameters
-    ----------
-    source : str or Path
-        ``HardTFeat.pth``, ``tfeat-liberty.params``, ``OriNet.pth`` or another file of that architecture.
-    output : str or Path
-        The ``.npz`` to write.
-    net : {"tfeat", "hardtfeat", "orinet"}
+    The arrays are the module's ``state_dict`` after the torch path's loading; ``__meta__`` (JSON) records the
+    architecture, the source's name and SHA-1 and, for the shipped stand-ins, origin and copyright (MIT).
     """
     from ..cache import atomic_path
 

@@ -1,6 +1,4 @@
-"""One extraction, uncached: the detector (SIFT or HarrisZ), the orientation and the descriptor of a
-:class:`~ctxmatch_lib.features.config.FeatureConfig` on gray pixels. Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""One uncached extraction: the detector, orientation and descriptor of a :class:`.config.FeatureConfig`."""
 
 from __future__ import annotations
 
@@ -20,9 +18,7 @@ __all__: list[str] = []
 
 
 def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) -> Features:
-    """The features of ``gray`` under ``config``. ``memo``: a folder where the steps that several blocks
-    share (SIFT and HarrisZ detections, OriNet angles) are kept, so the blocks of one image compute them once
-    (:func:`_memo`); ``None``: nothing kept."""
+    """The features of ``gray`` under ``config``; ``memo``: the folder of :func:`_memo` (``None``: none)."""
     ori = config.resolved_orientation()
     metric = "sgloh2" if config.descriptor == "rootsgloh2" else "l2"
     dim = 256 if metric == "sgloh2" else 128
@@ -34,17 +30,14 @@ def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) 
             feats = _extract_sift(gray, config, upright=ori == "none")
         else:
             feats = _extract_patches(gray, config, ori, metric, dim, memo)
-    # Every detector path ends here: the size is set once, for empty results too.
     return replace(feats, image_size=_image_size(gray))
 
 
 def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
-    """``compute()`` (a dict of arrays), or what an earlier call with the same ``what`` and ``parts`` stored.
+    """``compute()`` (a dict of arrays), or what a call with the same ``what`` and ``parts`` stored.
 
-    The key hashes everything the step reads (``parts``: the gray pixels, the keypoints and frames it
-    starts from, its settings and, through ``what``, the version of the features), so a stored value is the
-    very result ``compute`` returns; ``check`` says whether a loaded value is whole. The file is written
-    atomically: concurrent workers at worst compute the same value twice.
+    Keeps the steps several blocks of an image share (detections, OriNet angles). The key hashes all the
+    step reads, so a stored value is ``compute``'s; ``check`` says whether a loaded one is whole.
     """
     if memo is None:
         return compute()
@@ -88,8 +81,7 @@ _DETECTION = ("pts", "size", "ang", "resp", "octave")
 
 
 def _sift_merged(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
-    """SIFT's detections with the orientation duplicates merged (:func:`._sift_detect` with ``merge=True``),
-    shared by the SIFT blocks described from patches (RootsGLOH2, HardNet2, SOSNet) of an image."""
+    """SIFT's detections with orientation duplicates merged, shared by the patch-described SIFT blocks."""
     from .config import _CACHE_FORMAT
 
     def compute():

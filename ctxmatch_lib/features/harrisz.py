@@ -1,22 +1,8 @@
-"""HarrisZ: the affine multi-scale Harris corner detector of the paper's best setup (Sec. 5, Fig. 5).
+"""HarrisZ, the affine multi-scale Harris detector of the paper's best setup (Sec. 5, Fig. 5).
 
-Bellavia, Tegolo and Valenti, "Improving Harris corner selection strategy", IET Computer Vision 5(2), 2011.
-At each scale of a √2-spaced ladder, HarrisZ
-
-1. smooths the image derivatives at the differentiation scale and weights them by a soft *edge mask* (the
-   blurred indicator of a gradient magnitude above its image mean), so flat and weak-texture areas vote less;
-2. builds the second-moment matrix ``M`` at the integration scale and takes the *z-scored* Harris response
-   ``z(det M) - z((tr M)^2)``: each term is standardised over the image, which replaces Harris' fixed
-   ``k`` with an adaptive balance between corner strength and edge penalty;
-3. keeps strict local maxima that are positive and on the edge mask, greedily thinned (strongest first) so
-   that no two lie closer than the differentiation radius, refines them to sub-pixel with a parabola per axis,
-   and gives each the ellipse of ``M^{-1/2}`` (major semi-axis ``patch_radius × σ_i``), dropping the too
-   elongated ones.
-
-Pure numpy/scipy/OpenCV; the author's public implementation (github fb82/HarrisZ, PyTorch and MATLAB) was
-read to settle the details the paper leaves out (ladder, mask threshold, ordering), not copied.
-
-Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel.
+Bellavia, Tegolo and Valenti, IET CV 5(2), 2011. Per scale: edge-masked derivatives, the z-scored response
+``z(det M) - z((tr M)^2)`` (an adaptive Harris ``k``), positive strict maxima thinned, refined and given
+the ellipse of ``M^{-1/2}``. Ladder, mask threshold and ordering follow the author's fb82/HarrisZ.
 """
 
 from __future__ import annotations
@@ -30,22 +16,11 @@ __all__ = ["HarrisZResult", "harrisz"]
 
 @dataclass(frozen=True, eq=False)
 class HarrisZResult:
-    """HarrisZ keypoints, finest scale first and, within a scale, strongest first.
+    """HarrisZ keypoints ``kpts`` (N, 2), finest scale first and, within a scale, strongest first.
 
-    Attributes
-    ----------
-    kpts : ndarray of shape (N, 2), float64
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : ndarray of shape (N, 2, 2), float64
-        Affine shape ``A`` (symmetric positive definite): the elliptical patch is ``{kpt + A @ u : |u| <= 1}``;
-        its semi-axes are ``patch_radius × σ_i`` along the eigenvector of the smaller eigenvalue of ``M``
-        and ``patch_radius × σ_i × sqrt(λ_min / λ_max)`` across it.
-    scales : ndarray of shape (N,), float64
-        Integration scale σ_i of the detection, in pixels.
-    responses : ndarray of shape (N,), float64
-        z-scored Harris response (comparable within one scale only).
-    levels : ndarray of shape (N,), int64
-        Index of the scale in the ladder ``σ_i = base ** level``.
+    ``shapes`` (N, 2, 2) are symmetric, with semi-axes ``patch_radius × σ_i`` along the eigenvector of ``M``'s
+    smaller eigenvalue and ``patch_radius × σ_i × sqrt(λ_min / λ_max)`` across it; ``scales`` the
+    integration scales ``σ_i = base ** levels`` in pixels; ``responses`` the z-scored responses.
     """
 
     kpts: np.ndarray
@@ -61,8 +36,7 @@ class HarrisZResult:
 def _blur(img: np.ndarray, sigma: float) -> np.ndarray:
     import cv2
 
-    r = int(max(1, np.ceil(3 * sigma)))
-    # Reflect-101 border, as the reference's Gaussian blur (reflect padding without repeating the edge).
+    r = int(max(1, np.ceil(3 * sigma)))  # reflect-101 border, as the author's blur
     return cv2.GaussianBlur(img, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma,
                             borderType=cv2.BORDER_REFLECT_101)
 
@@ -83,8 +57,7 @@ def _zscore(a: np.ndarray) -> np.ndarray:
 
 
 def _thin(rc: np.ndarray, radius: float) -> np.ndarray:
-    """Greedy thinning: walk ``rc`` (already strongest first) and keep a point when no kept point lies
-    closer than ``radius``. Returns the kept indices, in order."""
+    """Indices of ``rc`` (strongest first) kept by greedy thinning: no kept point closer than ``radius``."""
     if len(rc) <= 1:
         return np.arange(len(rc))
     from scipy.spatial import cKDTree
@@ -127,10 +100,8 @@ def _subpixel(resp: np.ndarray, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarra
 
 def _ellipses(mxx, myy, mxy, major: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Symmetric affine shapes ∝ M^{-1/2} with major semi-axis ``major``; also sqrt(λ_min / λ_max)."""
-    # The 2x2 eigen decomposition in closed form, elementwise and without trigonometry: LAPACK's eigh and a
-    # batched matmul go through BLAS, whose kernel rounds by CPU, and numpy's arctan2 / cos / sin by its
-    # SIMD loop. The eigenvalues are t -/+ r; the larger one's eigenvector (c, s) makes the angle phi with
-    # cos 2phi = (mxx - myy) / 2r and sin 2phi = mxy / r, so c², s² and cs follow from half-angle identities.
+    # Closed form without trigonometry (eigh, BLAS and numpy's SIMD trigonometry round by CPU): eigenvalues
+    # t -/+ r; the larger one's eigenvector (c, s) has cos 2phi = (mxx - myy) / 2r, sin 2phi = mxy / r.
     half_diff = 0.5 * (mxx - myy)
     t = 0.5 * (mxx + myy)
     r = np.sqrt(half_diff * half_diff + mxy * mxy)
@@ -151,42 +122,22 @@ def _ellipses(mxx, myy, mxy, major: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def harrisz(image, *, base: float = np.sqrt(2), levels=range(3, 9), diff_ratio: float = 1 / np.sqrt(2),
             mask_threshold: float = 0.31, max_elongation: float = 0.75, patch_radius: float = 3.0,
             max_keypoints: int = 0) -> HarrisZResult:
-    """Detect HarrisZ corners with their affine elliptical shapes.
+    """HarrisZ corners of a gray ``image`` with their affine elliptical shapes, as a :class:`HarrisZResult`.
 
     Parameters
     ----------
-    image : ndarray of shape (H, W)
-        Gray image (any real dtype; uint8 in [0, 255] is the usual input).
-    base : float
-        Ratio of the scale ladder: the integration scale of level ``l`` is ``σ_i = base ** l``.
-    levels : iterable of int
-        Ladder levels to use; the default 3..8 spans σ_i ≈ 2.8 … 16 px.
-    diff_ratio : float
-        Differentiation scale σ_d = ``diff_ratio`` × σ_i.
-    mask_threshold : float
-        Keep maxima where the blurred edge mask exceeds this value (0..1).
-    max_elongation : float
-        Drop keypoints whose ellipse has ``1 - minor/major >= max_elongation``.
-    patch_radius : float
-        Major semi-axis of the ellipse in units of σ_i.
+    base, levels : float, iterable of int
+        Integration scales ``σ_i = base ** l`` (default 3..8: σ_i ≈ 2.8 … 16 px).
+    diff_ratio, patch_radius : float
+        Differentiation scale σ_d and ellipse major semi-axis, in units of σ_i.
+    mask_threshold, max_elongation : float
+        Keep maxima where the blurred edge mask exceeds ``mask_threshold`` (0..1), ellipses with
+        ``1 - minor/major < max_elongation``.
     max_keypoints : int
-        Keep the first ``max_keypoints`` of the output order (0: all).
-
-    Returns
-    -------
-    HarrisZResult
-        Keypoints ordered by level (finest first), then by decreasing response.
-
-    References
-    ----------
-    F. Bellavia, D. Tegolo, C. Valenti, "Improving Harris corner selection strategy", IET Computer Vision
-    5(2), 2011; used as the "HarrisZ" detector in F. Bellavia, "SIFT Matching by Context Exposed",
-    IEEE TPAMI 2022, Secs. 2 and 5.
+        Keep the first ``max_keypoints`` (0: all).
 
     Examples
     --------
-    Two bright squares: HarrisZ fires at their corners.
-
     >>> import numpy as np
     >>> img = np.zeros((96, 96), np.uint8)
     >>> img[20:44, 20:44] = 255; img[56:80, 52:76] = 255

@@ -12,26 +12,14 @@ __all__ = ["load_image"]
 
 
 def load_image(path, *, gray: bool = True) -> np.ndarray:
-    """Read an image file.
+    """An image file as uint8 pixels; row ``r``, column ``c`` is the point x = c, y = r.
 
     Parameters
     ----------
     path : str or Path
-        Image file (any format OpenCV reads: PNG, JPEG, PPM/PGM, TIFF, ...).
+        Any format OpenCV reads; ``FileNotFoundError`` when missing, ``ValueError`` when it does not decode.
     gray : bool
-        Return a single-channel ``(H, W)`` uint8 image; otherwise ``(H, W, 3)`` uint8 in RGB order.
-
-    Returns
-    -------
-    ndarray
-        The pixels; row ``r``, column ``c`` is the point x = c, y = r.
-
-    Raises
-    ------
-    FileNotFoundError
-        ``path`` does not exist.
-    ValueError
-        ``path`` exists but cannot be decoded as an image.
+        ``(H, W)`` gray, else ``(H, W, 3)`` RGB.
     """
     import cv2
 

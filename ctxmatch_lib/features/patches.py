@@ -1,12 +1,4 @@
-"""Affine-normalised patches: sample each keypoint's elliptical region onto a square grid.
-
-The interface between keypoints and patch descriptors (paper Sec. 2, "patch normalization"). Keypoint ``k``
-has the affine shape ``A_k``: its patch is ``{kpt_k + A_k @ u : |u| <= 1}``. A patch of ``size × size``
-pixels maps its pixel ``(c, r)`` to ``u = ((c, r) - (size - 1) / 2) / radius`` and samples the image at
-``kpt + support * A @ u`` (bilinear), from the level of a Gaussian pyramid whose pixel is at most the patch's
-sampling step, so large patches are not aliased. Keypoints are (x, y) pixels, origin at the centre of the
-top-left pixel.
-"""
+"""Affine-normalised patches (Sec. 2, "patch normalization"), their dominant orientation and SIFT descriptors."""
 
 from __future__ import annotations
 
@@ -19,9 +11,8 @@ __all__ = ["extract_patches", "rotation_shapes", "dominant_orientation", "sift_f
 
 def rotation_shapes(shapes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """``A @ R(θ)``: the same ellipses with their first axis turned by ``θ`` (radians, image frame)."""
-    s, c = sincos(angles)  # not np.sin / np.cos, whose last bit follows numpy's SIMD loop
+    s, c = sincos(angles)  # fixedmath and no matmul: numpy's SIMD loops and BLAS round by CPU
     A = np.asarray(shapes, np.float64)
-    # Elementwise, not a batched matmul: BLAS would round by its CPU kernel.
     col0 = A[..., 0] * c[..., None] + A[..., 1] * s[..., None]
     col1 = A[..., 1] * c[..., None] - A[..., 0] * s[..., None]
     return np.stack([col0, col1], -1)
@@ -40,32 +31,12 @@ def _pyramid(img: np.ndarray, levels: int) -> list[np.ndarray]:
 
 def extract_patches(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, size: int, *, radius: float = None,
                     support: float = 1.0, chunk: int = 512) -> np.ndarray:
-    """Sample affine-normalised square patches.
+    """``(N, size, size)`` float32 patches: pixel ``(c, r)`` of patch ``k`` is the image at
+    ``kpt_k + support A_k u``, ``u = ((c, r) - (size - 1) / 2) / radius`` (default radius ``(size - 1) / 2``).
 
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-        Gray image.
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : ndarray of shape (N, 2, 2)
-        Affine shapes ``A`` (see :class:`ctxmatch_lib.features.Features`).
-    size : int
-        Patch side in pixels.
-    radius : float, optional
-        Patch pixels from the centre to ``|u| = 1``; default ``(size - 1) / 2``.
-    support : float
-        Magnification of the shape: the patch covers ``support × A`` (descriptors look beyond the
-        detected region: 2 maps a SIFT disc of 3σ to the 6σ half-width of the SIFT descriptor window).
-    chunk : int
-        Keypoints per remap call (bounds the memory of the sampling maps; 512 keeps them in cache, the
-        result does not depend on it).
-
-    Returns
-    -------
-    ndarray of shape (N, size, size), float32
-        Row ``r``, column ``c`` of patch ``k`` is the image at ``kpt_k + support A_k u`` with
-        ``u = ((c, r) - (size - 1) / 2) / radius``; outside the image the border is mirrored.
+    Sampled bilinearly from the Gaussian-pyramid level whose pixel is at most the sampling step, so large
+    patches are not aliased; the border is mirrored. ``support`` 2 maps a 3σ SIFT disc to the descriptor's
+    6σ reach; ``chunk`` keypoints per remap call bound the maps' memory.
     """
     import cv2
 
@@ -85,12 +56,12 @@ def extract_patches(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, size
     ux, uy = np.meshgrid(grid, grid)  # (size, size), x along columns
     ux, uy = ux.ravel()[None, :], uy.ravel()[None, :]
     T = support * shapes
-    # Sampling step in image pixels per patch pixel: the larger singular value of T, over radius.
+    # Sampling step: T's larger singular value over radius; det and log2 written out (LAPACK, np.log2 round
+    # by CPU).
     fro = np.sum(T * T, axis=(1, 2))
-    det = T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]  # not LAPACK's, which rounds by BLAS kernel
+    det = T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]
     smax = np.sqrt(np.maximum(0.5 * (fro + np.sqrt(np.maximum(fro * fro - 4 * det * det, 0))), 0))
     step = smax / float(radius)
-    # The pyramid level from the binary exponent, exactly (np.log2's last bit follows numpy's SIMD loop).
     level = np.clip(floor_log2(np.maximum(step, 1e-12)), 0, 30)
     pyr = _pyramid(img, int(level.max()))
     level = np.minimum(level, len(pyr) - 1)
@@ -112,25 +83,10 @@ def dominant_orientation(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray,
                          n_bins: int = 36) -> np.ndarray:
     """Dominant gradient orientation of each affine-normalised patch (SIFT's rule, one peak per keypoint).
 
-    A handcrafted stand-in for the learned orientation of Yi et al. (CVPR 2016) that the paper uses: a
-    36-bin histogram of gradient orientations weighted by magnitude and by a Gaussian of σ = 1/8 of the
-    support (SIFT's 1.5σ for a 3σ disc and support 2) within 3/8 of it, smoothed, with a parabolic peak.
-
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : ndarray of shape (N, 2, 2)
-        Affine shapes before orientation.
-    support : float
-        The patch covers ``support × A``.
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        Angle θ (radians, in (−π, π]) in the normalised frame: the oriented shape is ``A @ R(θ)``
-        (:func:`rotation_shapes`), whose first axis points along the dominant gradient.
+    A stand-in for the learned orientation of Yi et al. (CVPR 2016) that the paper uses: a 36-bin histogram
+    weighted by magnitude and a Gaussian of σ = 1/8 of the support (SIFT's 1.5σ for a 3σ disc), smoothed,
+    with a parabolic peak. Returns θ in (−π, π]: the oriented shape ``A @ R(θ)`` (:func:`rotation_shapes`)
+    has its first axis along the dominant gradient.
     """
     n = len(kpts)
     if n == 0:
@@ -142,8 +98,7 @@ def dominant_orientation(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray,
     off = np.arange(size - 2) - (size - 3) / 2
     ux, uy = np.meshgrid(off, off)
     r2 = (ux ** 2 + uy ** 2) / rad ** 2
-    # Weights, magnitudes and angles from CPU-independent functions (_fixedmath): the angles are binned
-    # and the histogram's peak decides, so their last bits must not follow numpy's SIMD loops.
+    # fixedmath: the binned angles must not follow numpy's SIMD loops.
     w = exp(-r2 / (2 * (1 / 8 * 2) ** 2)) * (r2 <= (3 / 8 * 2) ** 2)  # σ_w = 0.25, reach 0.75 in u
     mag = hypot(gx, gy) * w
     pos = (atan2(gy, gx) % (2 * np.pi)) * (n_bins / (2 * np.pi))
@@ -169,14 +124,8 @@ def sift_from_patches(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *,
                       chunk: int = 2500) -> np.ndarray:
     """Raw SIFT descriptors (OpenCV) of affine-normalised, oriented patches.
 
-    The patches are tiled into one mosaic image per chunk and OpenCV's SIFT describes a keypoint at each
-    tile centre, at angle 0 and at the scale whose 6σ descriptor reach is ``support × A``; each tile carries
-    enough real image margin for OpenCV's pre-blur and descriptor window.
-
-    Returns
-    -------
-    ndarray of shape (N, 128), float32
-        Unnormalised OpenCV SIFT histograms (normalise as SIFT or RootSIFT).
+    The patches are tiled into a mosaic and described at each tile centre, angle 0, at the scale whose 6σ
+    reach is ``support × A``, with image margin for OpenCV's pre-blur. Returns unnormalised ``(N, 128)``.
     """
     import cv2
 

@@ -1,22 +1,13 @@
 """RootsGLOH2: the shifting Gradient Local Orientation Histogram with RootSIFT square rooting.
 
-sGLOH (Bellavia & Colombo, TPAMI 2018) splits a circular, *non-oriented* patch into ``R = 2`` rings ×
-``m = 8`` sectors and gives each region an ``m``-bin gradient orientation histogram whose bins are measured
-*relative to the sector's direction*. Rotating the patch by one sector (2π/m) then only moves every histogram
-to the next sector: the descriptor of the rotated patch is a cyclic permutation of the original. sGLOH2
-concatenates a second sGLOH whose sectors and bins are offset by half a sector (the sGLOH of the patch turned
-by π/m), so the 2m rotations by multiples of π/m are all permutations, and the distance of two descriptors
-is the minimum over these rotations. RootsGLOH2 (Bellavia & Colombo, IET CV 2020) L1-normalises and
-square-roots each half, as RootSIFT does, so the Euclidean distance is a Hellinger distance.
+sGLOH (Bellavia & Colombo, "Rethinking the sGLOH descriptor", TPAMI 40(4), 2018) splits a non-oriented
+circular patch into 2 rings × 8 sectors, each with an 8-bin orientation histogram relative to the sector, so
+a rotation by one sector permutes the descriptor; sGLOH2 adds the half-sector offset copy, and the distance
+is the minimum over the 16 rotations by π/8. RootsGLOH2 ("RootsGLOH2: embedding RootSIFT 'square rooting'
+in sGLOH2", IET CV 14(4), 2020) L1-normalises and square-roots each half.
 
-Layout of a descriptor (256 float32): ``[half k][ring r][sector j][bin w]`` with k ∈ {0, 1}, r ∈ {0, 1},
-j, w ∈ 0..7. Half ``k``'s sector ``j`` covers polar angles φ/s ∈ [j + k/2, j + 1 + k/2) (s = π/4, φ measured
-from the +x axis towards +y, i.e. clockwise on screen with y down) and its bin ``w`` is centred on gradient
-orientation (w + j + k/2) s. Turning the patch content by ``a`` × π/8 (same sense) maps entry (k, r, j, w) to
-((k + a) mod 2, r, (j + ⌊(k + a)/2⌋) mod 8, w): :func:`sgloh_rotate`.
-
-The author's Python implementation (github fb82/sGLOH, ``src/sgloh.py``) was read for the patch geometry
-(rings of radius 12 and 20 px, Gaussian soft binning of σ = 0.7 bins); the code here is written anew.
+Layout ``[half k][ring r][sector j][bin w]``: sector ``j`` covers φ/s in [j + k/2, j + 1 + k/2) (s = π/4,
+φ from +x towards +y), bin ``w`` is centred on (w + j + k/2) s. Ring radii and soft binning: fb82/sGLOH.
 """
 
 from __future__ import annotations
@@ -41,12 +32,10 @@ _FINE = 8  # (power of two) sub-bins per orientation bin of the fine histogram t
 
 
 def _region_maps() -> tuple[np.ndarray, np.ndarray]:
-    """Ring (−1 outside) and sector label of each pixel of the 41×41 grid for both halves.
+    """Ring (−1 outside, and at the centre) and sector of each pixel of the 41×41 grid, for both halves.
 
-    Computed on one quadrant and rotated, so a 90° turn of the grid is an exact relabelling
-    (sector + 2 for both halves) even for pixels on the sector boundaries; the centre pixel belongs to no
-    sector (it cannot follow a rotation). Rings and sectors are decided in integers (no ``hypot`` or
-    ``arctan2``, whose last bit follows the CPU, on the 45° diagonal where φ / s is exactly 1).
+    Decided in integers on one quadrant and rotated, so a 90° turn is an exact relabelling even on the
+    sector boundaries (``arctan2``'s last bit follows the CPU).
     """
     R = _PATCH_RADIUS
     off = np.arange(-R, R + 1)
@@ -77,23 +66,10 @@ _RING, _SECTOR = _region_maps()
 
 
 def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 64) -> np.ndarray:
-    """sGLOH2 / RootsGLOH2 descriptors of square patches.
+    """sGLOH2 (``root=False``, halves L2-normalised) or RootsGLOH2 descriptors of ``(N, 43, 43)`` patches.
 
-    Parameters
-    ----------
-    patches : ndarray of shape (N, 43, 43)
-        Patches centred on the keypoint, one pixel of margin around the 41×41 descriptor grid (gradients are
-        central differences).
-    root : bool
-        RootsGLOH2: L1-normalise and square-root each half. Otherwise sGLOH2 with each half L2-normalised.
-    chunk : int
-        Patches per vectorised step: 64 keeps the per-pixel temporaries in cache (2.5x faster than 1024;
-        the result does not depend on it).
-
-    Returns
-    -------
-    ndarray of shape (N, 256), float32
-        Each half has L2 norm 1/√2 (the whole vector unit norm); all-zero for a flat patch.
+    The 41×41 grid plus a pixel of margin for the central differences. Each half of the ``(N, 256)`` result
+    has norm 1/√2 (zero for a flat patch). ``chunk`` patches per step keep the temporaries in cache.
     """
     p = np.asarray(patches, np.float32)
     side = 2 * _PATCH_RADIUS + 3
@@ -122,8 +98,7 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
         gx = (q[:, 1:-1, 2:] - q[:, 1:-1, :-2])[:, inside]  # (B, P)
         gy = (q[:, 2:, 1:-1] - q[:, :-2, 1:-1])[:, inside]
         B, P = gx.shape
-        # Magnitude and angle from CPU-independent functions rounded to float32 (numpy's float32 hypot and
-        # arctan2 follow its SIMD loop, and the angle picks the bins).
+        # fixedmath, not numpy's float32 hypot / arctan2, which follow its SIMD loop.
         mag = hypot(gx, gy).astype(np.float32)
         # Fine position in [0, fine): fine is a power of two, so the wrap is a bit mask.
         pos = atan2(gy, gx).astype(np.float32) * np.float32(fine / (2 * np.pi)) + np.float32(fine)
@@ -140,7 +115,7 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
             size = B * n_reg * fine
             hist = (np.bincount((cell + lo).ravel(), w_lo, size)
                     + np.bincount((cell + hi).ravel(), w_hi, size)).reshape(B, n_reg, fine)
-            # float64 products (issue 31): a float32 GEMM's rounding follows the OpenBLAS kernel.
+            # float64: a float32 GEMM's rounding follows the OpenBLAS kernel.
             desc[:, k] = np.einsum("brf,rfw->brw", hist, np.asarray(kern[k], np.float64), optimize=True)
         desc = desc.reshape(B, 2, _HALF)
         if root:
@@ -155,32 +130,10 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
 
 def sgloh_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, support: float = 2.0,
                       root: bool = True, smooth: float = 1.0) -> np.ndarray:
-    """RootsGLOH2 (or sGLOH2) descriptors of keypoints with affine shapes, on non-oriented patches.
+    """RootsGLOH2 (``root=False``: sGLOH2) descriptors ``(N, 256)`` of keypoints on non-oriented patches.
 
-    Parameters
-    ----------
-    gray : ndarray of shape (H, W)
-        Gray image.
-    kpts : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : ndarray of shape (N, 2, 2)
-        Affine shapes ``A``: the outer ring (20 px) covers ``support × A``. No orientation is needed: the
-        matching distance tries all 16 discrete rotations.
-    support : float
-        Magnification of the shape (2: the SIFT descriptor's reach of 6σ for a 3σ shape).
-    root : bool
-        RootsGLOH2 (default) or plain sGLOH2.
-    smooth : float
-        Gaussian σ (patch pixels) applied to the sampled patch before the gradients.
-
-    Returns
-    -------
-    ndarray of shape (N, 256), float32
-
-    References
-    ----------
-    F. Bellavia, C. Colombo, "Rethinking the sGLOH descriptor", IEEE TPAMI 40(4), 2018;
-    F. Bellavia, C. Colombo, "RootsGLOH2: embedding RootSIFT 'square rooting' in sGLOH2", IET CV 14(4), 2020.
+    The outer ring covers ``support × A`` of each shape (2: SIFT's 6σ reach for a 3σ shape); the sampled
+    patch is blurred by ``smooth`` (σ in patch pixels) before the gradients.
     """
     from scipy.ndimage import gaussian_filter
 
@@ -198,18 +151,8 @@ def sgloh_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *,
 
 
 def sgloh_rotate(desc: np.ndarray, a: int) -> np.ndarray:
-    """The descriptors of the patches turned by ``a`` × π/8 (φ increasing), by permuting the entries.
-
-    Parameters
-    ----------
-    desc : ndarray of shape (N, 256)
-    a : int
-        Rotation step; any integer (taken modulo 16).
-
-    Returns
-    -------
-    ndarray of shape (N, 256)
-    """
+    """The ``(N, 256)`` descriptors of the patches turned by ``a`` × π/8 (φ increasing, ``a`` mod 16): entry
+    (k, r, j, w) moves to ((k + a) mod 2, r, (j + ⌊(k + a)/2⌋) mod 8, w)."""
     d = np.asarray(desc).reshape(-1, 2, len(_RINGS), _M, _M)
     a = int(a) % (2 * _M)
     out = np.empty_like(d)
@@ -227,21 +170,10 @@ def _first_half_shifts(desc1: np.ndarray, shifts) -> dict[int, np.ndarray]:
 class SGLOH2Distance:
     """The sGLOH2 matching distance: ``min_a ‖h1 − rot_a(h2)‖₂`` over half 0, for the allowed rotations.
 
-    A distance hook for :func:`ctxmatch_lib.blob.blob_matching` / :class:`~ctxmatch_lib.blob.BlobContext`:
-    ``dist(desc1_rows, desc2)`` returns the ``(len(desc1_rows), len(desc2))`` float32 block; it runs one GEMM
-    per rotation and keeps a running maximum of the dot products, so its memory is two blocks.
-
-    Parameters
-    ----------
-    rotations : iterable of int, optional
-        Allowed rotation steps (multiples of π/8); default all 16 (full rotation invariance). A subset
-        around 0 gives the upright-biased sGOr2 variants of the paper.
-
-    Notes
-    -----
-    ``rot_a(h2)``'s half 0 is half ``a mod 2`` of ``h2`` with its sectors rolled by ``⌈a/2⌉``, so
-    ``h1 · rot_a(h2) = roll(h1, −⌈a/2⌉) · h2[half a mod 2]``: desc1's half 0 is rolled (8 variants) and
-    multiplied with desc2's halves.
+    The distance hook of :func:`ctxmatch_lib.blob.blob_matching`: ``dist(desc1_rows, desc2)`` is the float32
+    block, one GEMM per rotation with a running minimum. Since ``h1 · rot_a(h2) = roll(h1, −⌈a/2⌉) ·
+    h2[half a mod 2]``, desc1's half 0 is rolled instead of desc2. ``rotations`` (steps of π/8, default all
+    16) around 0 give the upright-biased sGOr2 variants of the paper.
     """
 
     def __init__(self, rotations=None):
@@ -253,10 +185,8 @@ class SGLOH2Distance:
     def __repr__(self) -> str:
         return f"SGLOH2Distance(rotations={self.rotations})"
 
-    #: Rows per GEMM. Every GEMM has this many rows (the last chunk is zero-padded) and runs on one BLAS
-    #: thread, so a row's distances depend neither on how many rows the caller passes nor on the thread
-    #: count: OpenBLAS picks its kernel (and so the float32 rounding) by matrix shape and threads, and
-    #: BlobContext's row blocks must equal the whole-matrix distances.
+    #: Rows of every GEMM (the last chunk zero-padded, one BLAS thread), so a row's distances depend neither on
+    #: the rows passed with it nor on the thread count.
     ROWS = 64
 
     def __call__(self, desc1: np.ndarray, desc2: np.ndarray) -> np.ndarray:
@@ -265,8 +195,8 @@ class SGLOH2Distance:
         B, m = len(d1), len(d2)
         if B == 0 or m == 0:
             return np.zeros((B, m), np.float32)
-        # The products in float64, rounded once to float32 at the end (issue 31): a float32 GEMM rounds by the
-        # OpenBLAS kernel, and |a|^2 + |b|^2 - 2ab loses the small distances' digits that the ratio test reads.
+        # float64, rounded once: a float32 GEMM rounds by the OpenBLAS kernel, and |a|^2 + |b|^2 - 2ab loses
+        # the small distances' digits that the ratio test reads.
         halves2 = [np.ascontiguousarray(d2[:, k * _HALF : (k + 1) * _HALF].T, np.float64) for k in range(2)]
         n2 = [np.einsum("ij,ij->j", h, h) for h in halves2]
         out = np.empty((B, m), np.float32)
@@ -299,13 +229,8 @@ class SGLOH2Distance:
 
 
 def sgloh_distance_matrix(desc1: np.ndarray, desc2: np.ndarray, *, rotations=None) -> np.ndarray:
-    """Brute-force sGLOH2 distances (float64), the reference for :class:`SGLOH2Distance`.
-
-    Returns
-    -------
-    ndarray of shape (n, m)
-        ``D[i, j] = min_a ‖desc1[i, :128] − sgloh_rotate(desc2[j], a)[:128]‖₂``.
-    """
+    """Brute-force float64 ``D[i, j] = min_a ‖desc1[i, :128] − sgloh_rotate(desc2[j], a)[:128]‖₂``, the
+    reference for :class:`SGLOH2Distance`."""
     d1 = np.asarray(desc1, np.float64).reshape(-1, SGLOH_DIM)
     d2 = np.asarray(desc2, np.float64).reshape(-1, SGLOH_DIM)
     rot = range(16) if rotations is None else sorted({int(a) % 16 for a in rotations})

@@ -1,7 +1,4 @@
-"""SIFT (OpenCV's DoG detector and SIFT/RootSIFT descriptors): keypoints, elliptical frames, descriptors.
-
-Keypoints are ``(N, 2)`` float64 arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""SIFT (OpenCV's DoG detector and SIFT/RootSIFT descriptors): keypoints, elliptical frames, descriptors."""
 
 from __future__ import annotations
 

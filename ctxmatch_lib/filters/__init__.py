@@ -6,14 +6,27 @@ Every filter has the same signature::
                   shapes1=None, shapes2=None, **params) -> keep  # (K,) bool
 
 ``kpts*`` are ``(N, 2)`` (x, y) pixels with the origin at the centre of the top-left pixel, ``matches`` is
-``(K, 2)`` int64 into ``kpts1``/``kpts2`` (many-to-many allowed), ``scores`` is ``(K,)`` with lower is
-better (``None``: all equal), image sizes are ``(width, height)``. The mask selects the kept matches:
-``matches[keep]``. Scores that :func:`ctxmatch_lib.blob.blob_matching` returns carry the blob ratio that made
-them, and the filters that read a threshold on the NNR ratio (``th``, ``glpm``, ``adalam``) read it on that
-scale; :func:`nnr_scores` tags a plain array the same way.
+``(K, 2)`` int64 into ``kpts1``/``kpts2`` (many-to-many allowed), ``scores`` is ``(K,)``, lower is better
+(``None``: all equal), image sizes are ``(width, height)``; ``matches[keep]`` are the kept matches. The
+filters that read a threshold on the NNR ratio (``th``, ``glpm``, ``adalam``) read it on the scale the
+scores carry (:func:`ctxmatch_lib.blob.blob_matching`'s, or :func:`nnr_scores`). Filters are imported on
+first use; :func:`register_filter` adds one.
 
-Filters are imported lazily on first use, so ``import ctxmatch_lib`` stays cheap; users add their own with
-:func:`register_filter`.
+Examples
+--------
+Every spatial filter drops the one outlier of a translated grid and keeps the rest:
+
+>>> import numpy as np
+>>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
+>>> y = g + (7.0, -3.0)
+>>> y[0] = (300.0, 200.0)  # one outlier
+>>> m, shapes = np.c_[np.arange(64), np.arange(64)], np.tile(3.0 * np.eye(2), (64, 1, 1))  # scale 3, upright
+>>> def kept(name):
+...     keep = FILTERS[name](g, y, m, image_size1=(400, 300), image_size2=(400, 300), shapes1=shapes, shapes2=shapes)
+...     return bool(keep[0]), int(keep[1:].sum())
+>>> names = ("lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pgm", "scv", "bm", "pfm", "lmr")
+>>> [name for name in names if kept(name) != (False, 63)]
+[]
 """
 
 from __future__ import annotations
@@ -26,8 +39,7 @@ from .._numerics.scores import nnr_scores
 
 __all__ = ["FILTERS", "register_filter", "nnr_scores"]
 
-# name -> "module:function[:stages]"; modules live in this package (dtm lives in ctxmatch_lib.dtm). ``dtm1``
-# (DTM1 only) and ``dtm2`` (DTM1 + DTM2, the same as ``dtm``) are DTM's stages, listed apart as in Tables 1-3.
+# name -> "module:function[:stages]"; ``dtm1`` (DTM1) and ``dtm2`` (DTM1 + DTM2, as ``dtm``) as in Tables 1-3.
 _BUILTIN: dict[str, str] = {
     "dtm": "ctxmatch_lib.dtm:dtm_filter",
     "dtm1": "ctxmatch_lib.dtm:dtm_filter:1",
@@ -79,21 +91,8 @@ FILTERS = _Registry()
 
 
 def register_filter(name: str, func: Callable | None = None):
-    """Register ``func`` under ``name`` (usable as a decorator: ``@register_filter("mine")``).
-
-    Parameters
-    ----------
-    name : str
-        The registry key (``FILTERS[name]``, ``--filters name``).
-    func : callable, optional
-        A filter with the common signature ``func(kpts1, kpts2, matches, scores, *, image_size1,
-        image_size2, shapes1=None, shapes2=None, **params) -> keep``; omitted, a decorator is returned.
-
-    Returns
-    -------
-    callable
-        ``func``, or the decorator.
-    """
+    """Register ``func``, a filter with the common signature, under ``name`` (``FILTERS[name]``,
+    ``--filters name``); without ``func``, return a decorator (``@register_filter("mine")``)."""
 
     def _add(f: Callable) -> Callable:
         FILTERS._loaded[name] = f

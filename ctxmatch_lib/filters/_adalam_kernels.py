@@ -153,20 +153,9 @@ with user_cache() as _cache:
     def best_confident_maps(A, U, V, ns, usable, distinct, min_conf):  # pragma: no cover - compiled
         """The best map of every neighbourhood under the confidence-based inlier count.
 
-        Parameters
-        ----------
-        A : ndarray of shape (B, T, 2, 2)
-            ``T`` maps per neighbourhood.
-        U, V : ndarray of shape (B, M, 2)
-            Members of each neighbourhood, its first ``ns[b]`` rows.
-        ns : ndarray of shape (B,), int64
-            Neighbourhood sizes.
-        usable : ndarray of shape (B, T), bool
-            Maps that exist; the others put every member at residual 2 (outside the unit disc).
-        distinct : ndarray of shape (B, M), bool
-            Members counted in ``near_distinct``.
-        min_conf : float
-            Confidence threshold.
+        ``A`` (B, T, 2, 2): ``T`` maps per neighbourhood, of which ``usable`` (B, T) exist (the others put
+        every member at residual 2); ``U``, ``V`` (B, M, 2): the members, the first ``ns[b]`` rows;
+        ``distinct`` (B, M): the members counted in ``near_distinct``; ``min_conf``: the threshold.
 
         Returns
         -------
@@ -235,23 +224,8 @@ with user_cache() as _cache:
 
     @_jit
     def beaten_by_neighbours(s, inv, pairs, n_loc):  # pragma: no cover - compiled
-        """Matches whose score ``s`` exceeds the best score at their location or at a neighbouring one.
-
-        Parameters
-        ----------
-        s : ndarray of shape (K,)
-            Scores, lower is better (no NaN).
-        inv : ndarray of shape (K,), int64
-            Location of each match, in ``0 .. n_loc - 1``.
-        pairs : ndarray of shape (P, 2), int64
-            Pairs of neighbouring locations.
-        n_loc : int
-            Number of locations.
-
-        Returns
-        -------
-        beaten : ndarray of shape (K,), bool
-        """
+        """``(K,)`` bool: matches whose score ``s`` (lower is better, no NaN) exceeds the best score at their
+        location ``inv`` (in ``0 .. n_loc - 1``) or at one paired with it in ``pairs`` (P, 2)."""
         best = np.full(n_loc, np.inf)
         for i in range(len(s)):
             if s[i] < best[inv[i]]:

@@ -1,15 +1,8 @@
-"""What the peer spatial filters share (private): one wrapper around each filter's core, and its helpers.
+"""Shared machinery of the spatial filters (private): the wrapper :func:`match_filter` and its helpers.
 
-A filter module writes its method as a *core*, ``core(ms, *, **params) -> keep``, on a prepared
-:class:`MatchSet`, and :func:`match_filter` turns it into the public function with the common signature
-``f(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None, **params)``.
-The wrapper validates the common arguments (:func:`prepare`, with the helpers of
-:mod:`ctxmatch_lib._numerics.validation`), maps the thresholds the core reads on the NNR scale to the scale of the
-scores (:mod:`ctxmatch_lib._numerics.scores`), merges coincident rows once where the filter asks for it
-(:func:`merge_coincident`), puts the rows in their canonical order (:func:`canonical_order`), calls the core on
-them and spreads its decisions back to every row in the order given. The parameters every
-filter shares are documented once here (:data:`DOCS`) and composed into each docstring (:func:`compose_doc`).
-Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel.
+A filter module writes its method as a core ``core(ms, **params) -> keep`` on a validated :class:`MatchSet`;
+:func:`match_filter` makes it the public function with the common signature (:mod:`ctxmatch_lib.filters`) and
+composes its docstring from :data:`DOCS`.
 """
 
 from __future__ import annotations
@@ -98,20 +91,10 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
 
 
 def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries: np.ndarray | None = None):
-    """Indices (into ``points``) of the ``k`` nearest ``candidates`` of every query, the query excluded.
-
-    ``candidates`` and ``queries`` (default: every point) are index arrays into ``points``; the answer has
-    shape ``(len(queries), k')`` with ``k' = min(k, len(candidates) - 1)``, nearest first. A query that is
-    itself a candidate is not its own neighbour.
-
-    Ties (equal distances) are broken by the smaller index, not by the k-d tree's traversal order: that
-    order is an implementation detail of the scipy build, and it changed the LPM and GLPM results between
-    machines. Ties are frequent because many-to-many matches repeat a keypoint: the tree is built on the
-    distinct locations, each standing for all the candidates there (smallest indices first), and each
-    distinct query location is answered once; a row where two of the locations it needs lie at the same
-    distance, or where more may lie at the k-th distance, takes every candidate within that distance and
-    sorts them. Distances are recomputed here in one fixed arithmetic. Tested against a brute-force
-    (distance, index) sort; on a 4040-candidate embedded pair it takes 2x the plain tree query.
+    """Indices into ``points`` (``(len(queries), min(k, len(candidates) - 1))``, nearest first) of the ``k``
+    nearest ``candidates`` of every query (default: every point), the query excluded. Ties are broken by the
+    smaller index, not by the k-d tree's traversal order (scipy-build dependent): the tree holds the distinct
+    locations, and a row whose locations may tie ranks every candidate within its k-th distance.
     """
     queries = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
@@ -120,10 +103,7 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     if kk <= 0 or n == 0:
         return np.empty((n, 0), np.int64)
     pts = np.asarray(points, np.float64)
-    # Work per distinct query location (duplicated queries share their neighbours, all but themselves):
-    # the kk + 1 nearest candidates of each location by (distance, index), then each query drops itself
-    # (or, when it is not among them, the last one).
-    # Distinct candidate locations; the members of each, by index (``order[start[u]:start[u] + cnt[u]]``).
+    # Members of distinct candidate location u, by index: ``order[start[u]:start[u] + cnt[u]]``.
     locs, inv, cnt = np.unique(pts[cand], axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     if n == len(cand) and np.array_equal(queries, cand):  # the queries are the candidates: same locations
@@ -134,8 +114,7 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     kq = kk + 1
 
     def ranked(rows, jj, valid):
-        """Candidates ``cand[jj]`` of the query locations ``qlocs[rows]`` sorted by (distance, index), the
-        entries not ``valid`` last (squared distance ``inf``), with their squared distances."""
+        """``cand[jj]`` and squared distances to ``qlocs[rows]`` by (distance, index), not ``valid`` last."""
         idx = cand[jj]
         d2 = ((pts[idx] - qlocs[rows][:, None, :]) ** 2).sum(-1)
         d2[~valid] = np.inf
@@ -149,18 +128,14 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
     mu = min(kq + 1, len(locs))
     _, L = cKDTree(locs).query(qlocs, k=mu)
     L = L.reshape(nq, mu)
-    # Where the returned locations are strictly increasing in distance (recomputed here), the ranking by
-    # (distance, index) is the members of each location in turn, by index: element t of a row lies in
-    # location rank r[t].
+    # Without ties the ranking is the members of each location in turn: element t lies in location rank r[t].
     dl = ((locs[L] - qlocs[:, None, :]) ** 2).sum(-1)
     cum = np.cumsum(cnt[L], axis=1)
     t = np.arange(kq)
     r = (cum[:, :, None] <= t[None, None, :]).sum(axis=1)
     prev = np.where(r > 0, np.take_along_axis(cum, np.maximum(r - 1, 0), axis=1), 0)
     near_idx = cand[order[start[np.take_along_axis(L, r, axis=1)] + t[None, :] - prev]]
-    # Exact unless two of the locations up to the one after the last needed tie (or the last needed one is
-    # the last returned and more may lie at its distance): those rows take every candidate within the
-    # distance of their kq-th neighbour and rank them by (distance, index).
+    # Rows with possible ties rank every candidate within the distance of their kq-th neighbour.
     last = r[:, -1]
     tie = np.diff(dl, axis=1) <= dl[:, 1:] * 1e-12
     first_tie = np.where(tie.any(axis=1), tie.argmax(axis=1), mu) if mu > 1 else np.full(nq, mu)
@@ -189,26 +164,8 @@ def zero_mean_unit_rms(p: np.ndarray) -> np.ndarray:
 
 
 def coincident_groups(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Group the matches whose keypoints coincide in both images (same coordinates, any keypoint index).
-
-    SIFT keeps one keypoint per dominant orientation, so one correspondence can appear as several candidate
-    rows on coincident keypoints, and a many-to-many matcher can repeat a row; a filter that counts such
-    copies as distinct matches lets a wrong correspondence support itself through its own copies.
-
-    Parameters
-    ----------
-    x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoint of each match, (x, y) pixels, origin at the centre of the top-left
-        pixel. Coincidence is exact equality of the coordinates.
-
-    Returns
-    -------
-    first : ndarray of shape (G,) int64
-        The first row of each group, increasing: ``x[first], y[first]`` are the distinct matches in input
-        order.
-    group : ndarray of shape (K,) int64
-        The group of every row (``first[group[i]]`` is the first copy of row ``i``).
-    """
+    """Group the matches whose keypoints ``x``, ``y`` (K, 2) coincide exactly in both images (:data:`DOCS`
+    ``["coincident"]``): ``first`` (G,), the first row of each group, increasing, and ``group`` (K,)."""
     n = len(x)
     if n == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64)
@@ -221,15 +178,9 @@ def coincident_groups(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def merge_coincident(ms: MatchSet) -> tuple[np.ndarray, np.ndarray] | None:
-    """One row per group of coincident matches (see :func:`coincident_groups`), and the map back.
-
-    Returns None when no two matches coincide, so a filter's result on an input without copies is exactly
-    what it was. Otherwise ``(rows, group)``: ``rows`` (G,) picks, for each group in the order of its first
-    copy, its best-scored copy (lowest score, the first one on ties), whose keypoint indices and shapes then
-    stand for the group; ``group`` (K,) is the position in ``rows`` of every input row. A filter decides
-    ``matches[rows]`` and maps the decision back with ``keep[group]``, so every copy gets the decision of its
-    group and no copy counts in the support or neighbourhood of another.
-    """
+    """None when no two matches coincide (:func:`coincident_groups`), else ``(rows, group)``: ``rows`` (G,),
+    the best-scored copy of each group (the first on ties), and ``group`` (K,), each row's position in
+    ``rows``. The core decides ``matches[rows]`` and ``keep[group]`` maps the decision back."""
     first, group = coincident_groups(ms.x, ms.y)
     if len(first) == len(ms):
         return None
@@ -247,12 +198,8 @@ def first_of_pair(ms: MatchSet) -> np.ndarray:
     return first
 
 
-# ---------------------------------------------------------------------------------------------------------
-# Shared documentation, composed into the filters' docstrings (one way of scipy's ``_lib/doccer``).
-
-#: Parameter and section texts shared by the filters. A docstring line holding only ``%(name)s`` is replaced
-#: by ``DOCS[name]``, indented as that line; ``{label}`` in an entry is the filter's name (``match_filter``); an
-#: entry may itself be made of ``%(name)s`` lines.
+#: Parameter and section texts shared by the filters' docstrings (see :func:`compose_doc`); ``{label}`` is
+#: the filter's name, ``{thresholds}`` its NNR thresholds (:func:`match_filter`).
 DOCS: dict[str, str] = {
     **SHARED,
     "scores_unused": """\
@@ -285,6 +232,19 @@ correspondence, on distinct keypoint indices, or a row the matcher repeated) are
 decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
 its match, so a wrong correspondence cannot support itself through its own copies. The result on inputs
 without coincident rows is unchanged.""",
+    # The EM of VFC and LLT: a Gaussian-inlier / uniform-outlier mixture on normalised coordinates.
+    "em_mixture": """\
+beta : float, default 0.1
+    Width of the Gaussian kernel ``exp(-beta |x - c|^2)`` on normalised coordinates.
+tau : float, default 0.75
+    Posterior threshold of an inlier and of the inlier-fraction update (``conf.theta``).
+gamma, a : float, default 0.9 and 10
+    Initial inlier fraction (updates clipped to [0.05, 0.95]) and volume of the uniform outliers.""",
+    "em_rng": """\
+min_p : float, default 1e-5
+    Posterior floor of the M-step, for a well-conditioned system.
+rng : None, int or numpy.random.Generator, default 0
+    Seed of the control-point draw; the fixed default makes the result deterministic.""",
 }
 
 def compose_doc(doc: str | None, **fields) -> str | None:
@@ -304,9 +264,6 @@ def compose_doc(doc: str | None, **fields) -> str | None:
     return _compose_doc(doc, DOCS, **fields)
 
 
-# ---------------------------------------------------------------------------------------------------------
-# The wrapper.
-
 _P = inspect.Parameter
 _REQUIRED = _P.empty
 
@@ -322,31 +279,15 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
                  ratio_param: str | None = None, shapes: str = "match", scores_required: bool = False):
     """Decorator: the public filter with the common signature around ``core(ms, *, **params) -> keep``.
 
-    The public function takes ``(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
-    shapes1=None, shapes2=None)`` followed by the core's keyword parameters (with their defaults and
-    annotations; ``inspect.signature`` and ``help`` show them), and
-
-    1. validates the common arguments (:func:`prepare`; ``ValueError`` naming the argument);
-    2. maps the core's parameters named in ``nnr`` (thresholds on the NNR ratio, checked positive) to the
-       scale of the scores: the ratio named by the public parameter ``ratio_param`` when given, else the one
-       the scores carry (:func:`ctxmatch_lib._numerics.scores.score_ratio`), else ``"D>="``, with a ``UserWarning``
-       where that default keeps every row although every score lies in the D+ range (at most 1/2); a
-       ratio given that contradicts the scores' own is a ``ValueError``;
-    3. sorts the rows into their canonical order (:func:`canonical_order`: score, keypoint coordinates, keypoint
-       indices), so that the core sees the same rows in the same order whatever order they were given in;
-    4. merges coincident rows (:func:`merge_coincident`) when ``merge`` is True, or when the public boolean
-       parameter named by ``merge`` (default True) is; the core then decides the distinct rows and every
-       copy gets the decision of its group; with ``one_to_one`` only the first of the rows that repeat one
-       keypoint pair (:func:`first_of_pair`) is kept, so that a one-to-one output stays one-to-one;
-    5. returns the core's mask over the rows given, in their order (:func:`spread_back`; rows equal in every
-       key of the canonical order get one decision). Every filter is thus equivariant: permuting the rows
-       permutes the mask, and changes nothing else.
-
-    ``shapes``: ``"match"`` (checked and gathered per match for the core, ``ms.A1`` / ``ms.A2``), ``"check"``
-    (checked only, for a core that reads none) or ``"both"`` (as ``"match"``, and one without the other is a
-    ``ValueError``). The docstring is the core's, composed with :func:`compose_doc` (``{label}`` is ``label``,
-    ``{thresholds}`` the ``nnr`` parameters). The public function is made in the core's module (its globals),
-    so doctest and the docs find it there; the core stays reachable as ``.core``.
+    The public function takes the common arguments, then the core's keyword parameters, and (1) validates
+    the common arguments (:func:`prepare`); (2) maps the NNR-ratio thresholds named in ``nnr`` to the scale
+    of the scores: the ratio of the public parameter ``ratio_param``, else the one the scores carry, else
+    ``"D>="`` (see :func:`_scale`); (3) sorts the rows into their canonical order (:func:`canonical_order`);
+    (4) merges coincident rows (:func:`merge_coincident`) when ``merge`` is True or names a public boolean
+    parameter (default True) that is, keeping with ``one_to_one`` only :func:`first_of_pair`; (5) returns the
+    core's mask in the order given (:func:`spread_back`). ``shapes``: ``"match"`` (gathered per match,
+    ``ms.A1`` / ``ms.A2``), ``"check"`` (checked only) or ``"both"`` (``"match"``, both or neither). The
+    docstring is the core's, composed by :func:`compose_doc`; ``.core`` is the core.
     """
     if shapes not in ("match", "check", "both"):
         raise ValueError(f"shapes must be 'match', 'check' or 'both', got {shapes!r}")
@@ -414,7 +355,9 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
 
 
 def _scale(scores, ms: MatchSet, given, given_name, thresholds: dict, name: str) -> str:
-    """The blob ratio the scores of a filter are read with (see :func:`match_filter`, step 2)."""
+    """The blob ratio the scores are read with: ``given`` (``ValueError`` if it contradicts the scores'),
+    the carried one, else ``"D>="`` (``UserWarning`` where every score is at most 1/2, the D+ range, and the
+    thresholds keep every row)."""
     carried = score_ratio(scores)
     if given is not None:
         check_ratio(given, given_name)

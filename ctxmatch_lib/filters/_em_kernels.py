@@ -1,25 +1,11 @@
 """Compiled (numba) linear algebra of the EM filters (VFC, LLT) whose result does not depend on the BLAS kernel.
 
-The EM loops of VFC and LLT iterate hundreds of times on small, ill-conditioned systems (Gaussian kernels of
-a few control points), so the last bits of one iteration's products grow into different posteriors, and a
-posterior near the threshold ``tau`` decides differently (issue 31: on the same candidate set, VFC kept one
-match more under ``OPENBLAS_CORETYPE=Nehalem`` than under the default SkylakeX kernels, its posteriors 3.5e-5
-apart after 188 iterations). OpenBLAS sums a product in an order that depends on the SIMD kernel it picks
-for the CPU, and LAPACK's least squares truncates singular values at a cutoff that such differences cross.
-
-Here every product is a plain loop that sums in a fixed order (row order, or four interleaved partial sums
-for the weighted Gram matrices), without ``fastmath`` (no reassociation, no fused
-multiply-add), and the small systems are solved by Gaussian elimination with partial pivoting (ties: the
-lowest row): the same operations in the same order on any x86-64 CPU. The ``(K, n)`` products cost O(K n^2)
-per iteration with n about 20, a few milliseconds at K = 30 000.
-
-The four partial sums of a Gram entry are the four lanes of one 4-wide vector (:class:`ctxmatch_lib._numerics.simd.Vec4`, an LLVM
-``<4 x double>`` value): a lane-wise multiply and add is the same IEEE operation as the scalar one, so the
-vector kernel gives the scalar loop's bits. With 4 x 4 entries in registers and the weighted rows formed
-in registers, a (17, 30 155) Gram matrix takes 0.4 ms instead of the scalar loop's 1.9 ms (numba leaves
-LLVM's SLP vectoriser off, so that loop ran one scalar chain per partial sum).
-
-Compiled code is cached on disk as for the DTM kernels (``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR``).
+The EM loops of VFC and LLT iterate hundreds of times on small, ill-conditioned systems, so the last bits of
+a product, which OpenBLAS sums in an order that depends on the CPU's SIMD kernel, grow into a different
+decision ``p > tau``. Here every product sums in a fixed order (row order, or four interleaved partial sums,
+the lanes of a :class:`ctxmatch_lib._numerics.simd.Vec4`, for the weighted Gram matrices), without
+``fastmath``, and the small systems are solved by Gaussian elimination with partial pivoting (ties: the lowest
+row): the same bits on any x86-64 CPU. Compiled code is cached on disk (``$CTXMATCH_CACHE/numba``).
 """
 
 from __future__ import annotations
@@ -35,8 +21,7 @@ from .._numerics.simd import load4 as _load4, mul4 as _mul4, muladd4 as _muladd4
 __all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched"]
 
 
-#: Rows of H per tile of a Gram matrix (a multiple of 4): the tile's 18 columns, 18 x 8 kB, stay in the L2
-#: cache while its blocks run.
+#: Rows of H per tile of a Gram matrix (a multiple of 4): the tile's columns stay in the L2 cache.
 _TILE = 1024
 
 
@@ -60,8 +45,7 @@ with user_cache() as _cache:
 
     @_jit
     def _gram_block(w, HT, t0, i, j, acc, L):
-        # acc[i + a, j + b] += the lanes of sum_k (w_k H_k,i+a) H_k,j+b over the tile's rows k = t0 .. t0 + L
-        # - 1 (a, b = 0 .. 3), in increasing k: sixteen Vec4 accumulators in registers.
+        # acc[i + a, j + b] += sum_k (w_k H_k,i+a) H_k,j+b over the tile, increasing k: sixteen Vec4 in registers.
         wt = w[t0:]
         u0, u1, u2, u3 = HT[i, t0:], HT[i + 1, t0:], HT[i + 2, t0:], HT[i + 3, t0:]
         g0, g1, g2, g3 = HT[j, t0:], HT[j + 1, t0:], HT[j + 2, t0:], HT[j + 3, t0:]
@@ -81,8 +65,7 @@ with user_cache() as _cache:
 
     @_jit
     def _gram_strip(w, HT, t0, i, j, acc, L):
-        # acc[i + a, j] as _gram_block for a = 0 .. 3 and one column j; rows past the last are the last
-        # row again (their sums land in acc's spare rows).
+        # _gram_block for one column j; rows past the last repeat it (their sums land in acc's spare rows).
         n = HT.shape[0]
         wt, g = w[t0:], HT[j, t0:]
         u0, u1 = HT[i, t0:], HT[min(i + 1, n - 1), t0:]
@@ -102,11 +85,9 @@ with user_cache() as _cache:
 
     @_jit
     def _weighted_gram(HT, w):
-        # HT is H transposed (n, K). Entry (i, j) sums (w_k H_ki) H_kj in four interleaved partial sums (rows
-        # k = 0, 1, 2, 3 mod 4, each in increasing k; the last K mod 4 rows go to the first), added as
-        # (s0 + s1) + (s2 + s3) at the end: the order is spelled out, so it is the same on every CPU (no
-        # fastmath). The partial sums are the lanes of a Vec4; tiles of _TILE rows of H go through blocks
-        # of 4 x 4 entries on and above the diagonal, then strips of 4 x 1 for the last n mod 4 columns.
+        # HT is H' (n, K). Entry (i, j) sums (w_k H_ki) H_kj in four partial sums (rows k mod 4, increasing
+        # k; the last K mod 4 rows go to the first), added as (s0 + s1) + (s2 + s3). Tiles of _TILE rows go
+        # through 4 x 4 blocks on and above the diagonal, then 4 x 1 strips for the last n mod 4 columns.
         n, K = HT.shape
         K4 = K - K % 4
         full = n - n % 4
@@ -131,8 +112,7 @@ with user_cache() as _cache:
 
     @_jit
     def _matmul_t(AT, B):
-        # (AT' B)' for AT (m, K) and B (m, n): entry (k, j) sums A_ki B_ij over i in increasing order,
-        # updated across k side by side (vectorised); returned transposed, (n, K).
+        # (AT' B)' (n, K) for AT (m, K), B (m, n): entry (k, j) sums A_ki B_ij over increasing i.
         m, K = AT.shape
         n = B.shape[1]
         out = np.zeros((n, K))
@@ -201,8 +181,7 @@ def _f64(a) -> np.ndarray:
 
 
 def weighted_gram(H: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``H' diag(w) H`` of ``H`` (K, n) and ``w`` (K,): (n, n), symmetric, each entry summed over the rows in
-    four interleaved partial sums (a fixed order)."""
+    """``H' diag(w) H`` (n, n) of ``H`` (K, n) and ``w`` (K,), summed in four interleaved partial sums."""
     return _weighted_gram(np.ascontiguousarray(np.asarray(H, np.float64).T), _f64(w))
 
 
@@ -227,11 +206,8 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^-1 B`` of a square ``A`` (n, n) and ``B`` (n, r) by Gaussian elimination with partial pivoting.
-
-    An exactly singular (or non-finite) ``A`` falls back to LAPACK's least squares, whose answer may then depend
-    on the BLAS kernel.
-    """
+    """``A^-1 B`` of ``A`` (n, n) and ``B`` (n, r) by Gaussian elimination with partial pivoting; an exactly
+    singular (or non-finite) ``A`` by LAPACK's least squares, which may depend on the BLAS kernel."""
     X, ok = _solve(_f64(A), _f64(B))
     if ok and np.isfinite(X).all():
         return X
@@ -239,8 +215,7 @@ def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def solve_batched(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A[t]^-1 B[t]`` for a stack ``A`` (T, n, n) and ``B`` (T, n, r), each as :func:`solve` (the exactly
-    singular ones by LAPACK's least squares)."""
+    """``A[t]^-1 B[t]`` for stacks ``A`` (T, n, n) and ``B`` (T, n, r), each as :func:`solve`."""
     X, ok = _solve_batched(_f64(A), _f64(B))
     for t in np.flatnonzero(~ok | ~np.isfinite(X).all(axis=(1, 2))):
         X[t] = np.linalg.lstsq(A[t], B[t], rcond=None)[0]

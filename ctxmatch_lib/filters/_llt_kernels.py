@@ -1,14 +1,8 @@
-"""Compiled (numba) steps of LLT that numpy ran through large temporaries: the locally linear reconstruction
-weights (one small Gram matrix and solve per point instead of a (K, 15, 15) stack), and the residuals of one
-EM iteration.
+"""Compiled (numba) steps of LLT: the locally linear reconstruction weights and the residuals of one EM
+iteration, the same operations in the same order as the numpy expressions they replace (no ``fastmath``).
 
-Each kernel performs the operations of the numpy expression it replaces, element by element and in the same
-order (one IEEE multiply or add at a time, no ``fastmath``: no reassociation, no fused multiply-add), so its
-results are the same bits; the sums that numpy orders by its own rules (``np.trace``, ``ndarray.sum``) stay
-in numpy. Compiled code is cached on disk as for the other kernels (``$CTXMATCH_CACHE/numba`` unless
-``NUMBA_CACHE_DIR``). The kernels here compile in the vector intrinsics of :mod:`ctxmatch_lib._numerics.simd` and the
-elimination of :mod:`._em_kernels`; numba's cache checks the timestamp of this file only, so an edit there
-needs this file touched (or the cache cleared) to reach these kernels.
+They compile in :mod:`ctxmatch_lib._numerics.simd` and :mod:`._em_kernels`; numba's cache checks this file's
+timestamp only, so an edit there needs this file touched (or the cache cleared).
 """
 
 from __future__ import annotations
@@ -63,9 +57,8 @@ with user_cache() as _cache:
 
     @_jit
     def _em_residuals(GT, C, target, BX):
-        # Four entries of F = matmul_t(GT, C) at a time per column of C (the lanes of a Vec4: rows 2p, 2p + 1,
-        # 2p + 2, 2p + 3 of [U C, BU C], i.e. U_p C, (BU)_p C and the next point's), each summed over the m
-        # rows of GT in order from 0.0 in registers; the last two entries (odd n) in scalars.
+        # Four entries of F = matmul_t(GT, C) per column of C in a Vec4 (U_p C, (BU)_p C and the next point's),
+        # summed over the m rows of GT in order from 0.0; the last two entries (odd n) in scalars.
         m, n2 = GT.shape
         r2 = np.empty(n2 // 2)
         local = np.empty(n2 // 2)
@@ -106,44 +99,18 @@ with user_cache() as _cache:
 
 
 def offset_norms(x: np.ndarray, nb: np.ndarray) -> np.ndarray:
-    """Squared lengths ``|x[nb[i, a]] - x[i]|^2`` (n, kk): the diagonals of :func:`lle_solve`'s local Gram
-    matrices, bit for bit.
-
-    Parameters
-    ----------
-    x : ndarray of shape (n, 2)
-        The points.
-    nb : ndarray of shape (n, kk), int
-        Neighbour indices into ``x``.
-    """
+    """Squared lengths ``|x[nb[i, a]] - x[i]|^2`` (n, kk) of points ``x`` (n, 2) to their neighbours ``nb``
+    (n, kk): the diagonals of :func:`lle_solve`'s local Gram matrices, bit for bit."""
     return _offset_norms(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64))
 
 
 def lle_solve(x: np.ndarray, nb: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unnormalised locally linear reconstruction weights: ``(G_i + t_i I)^-1 1`` for every point ``i``.
 
-    ``G_i`` is the Gram matrix of the offsets ``z_a = x[nb[i, a]] - x[i]``, formed as numpy forms
-    ``z[:, :, None, 0] * z[:, None, :, 0] + z[:, :, None, 1] * z[:, None, :, 1]``, plus ``t_i`` on its
-    diagonal as ``+= t[:, None, None] * np.eye(kk)`` adds it (``t_i * 0.0`` off the diagonal), solved by
-    :func:`ctxmatch_lib.filters._em_kernels.solve`'s elimination: the bits of those numpy steps and
-    ``solve_batched`` without a (n, kk, kk) array.
-
-    Parameters
-    ----------
-    x : ndarray of shape (n, 2)
-        The points.
-    nb : ndarray of shape (n, kk), int
-        Neighbour indices into ``x``.
-    t : ndarray of shape (n,)
-        The regulariser of each point.
-
-    Returns
-    -------
-    w : ndarray of shape (n, kk)
-        The solutions.
-    ok : ndarray of shape (n,) bool
-        False where the elimination met an exactly singular or non-finite system, or gave a non-finite
-        weight: those rows of ``w`` are to be replaced (``solve_batched`` takes LAPACK's least squares).
+    ``G_i`` is the Gram matrix of the offsets ``x[nb[i, a]] - x[i]`` (points ``x`` (n, 2), neighbours ``nb``
+    (n, kk)), with the bits of numpy's stacked products and :func:`._em_kernels.solve_batched`, without a
+    (n, kk, kk) array. Returns ``w`` (n, kk) and ``ok`` (n,) bool, False where the system was singular or a
+    weight non-finite (rows to be solved by least squares).
     """
     return _lle_solve(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64),
                       np.ascontiguousarray(t, np.float64))
@@ -152,25 +119,10 @@ def lle_solve(x: np.ndarray, nb: np.ndarray, t: np.ndarray) -> tuple[np.ndarray,
 def em_residuals(GT: np.ndarray, C: np.ndarray, target: np.ndarray, BX: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Squared residuals of the fit and of the local constraint after an M-step of LLT.
 
-    With ``F = matmul_t(GT, C).reshape(n, 2, 2)`` (:func:`ctxmatch_lib.filters._em_kernels.matmul_t`: each
-    entry summed over the ``m`` rows in order), ``res = target - F[:, 0]`` and ``loc = BX + F[:, 1]``, returns
-    ``r2 = einsum("ij,ij->i", res, res)`` and ``local = einsum("ij,ij->i", loc, loc)``: the same operations in
-    the same order, the sums over ``m`` held in SIMD registers (one pass over ``GT``, no (2n,) running sums
-    stored and reloaded per row of ``GT``) and no (n, 2) temporaries.
-
-    Parameters
-    ----------
-    GT : ndarray of shape (m, 2n)
-        ``[U, BU]`` reshaped to (2n, m) and transposed, C-contiguous float64: column ``2p`` is ``U_p``,
-        column ``2p + 1`` is ``(BU)_p``.
-    C : ndarray of shape (m, 2)
-        Kernel coefficients.
-    target, BX : ndarray of shape (n, 2)
-        ``y - x`` and ``(I - W) x``.
-
-    Returns
-    -------
-    r2, local : ndarray of shape (n,)
+    ``GT`` (m, 2n) is ``[U, BU]`` reshaped to (2n, m) and transposed (column ``2p`` is ``U_p``, ``2p + 1``
+    ``(BU)_p``), ``C`` (m, 2) the kernel coefficients, ``target`` and ``BX`` (n, 2) ``y - x`` and
+    ``(I - W) x``. With ``F = matmul_t(GT, C).reshape(n, 2, 2)``, returns the row-wise squared norms (n,)
+    of ``target - F[:, 0]`` and ``BX + F[:, 1]``, with numpy's bits, in one pass over ``GT``.
     """
     f64 = partial(np.ascontiguousarray, dtype=np.float64)
     return _em_residuals(f64(GT), f64(C), f64(target), f64(BX))

@@ -1,15 +1,11 @@
 """The authors' LMR network (``Trained_Model/Net.mat`` of StaRainJ/LMR) evaluated in NumPy, and the exact
 ``MPC.m`` values it was trained on.
 
-Used by :func:`ctxmatch_lib.filters.lmr.lmr_filter` with ``network=PATH``: the weights stay in the user's
-checkout of the authors' code and are read from there; nothing of theirs ships with this library.
-
-A MATLAB ``network`` saved in a ``.mat`` file loads with :func:`scipy.io.loadmat` as an object (or, saved by
-GNU Octave or :func:`scipy.io.savemat`, as a struct) with the fields ``IW`` (input weights, a cell array
-``numLayers x 1``), ``LW`` (layer weights, ``numLayers x numLayers``), ``b`` (biases), ``layers`` (each with a
-``transferFcn``) and ``inputs`` / ``outputs`` (each with ``processFcns``). Only a feed-forward chain without
-processing functions is evaluated: ``a_1 = f_1(IW{1,1} x + b{1})``, ``a_l = f_l(LW{l,l-1} a_(l-1) + b{l})``,
-with the toolbox's transfer functions by their definitions.
+For :func:`ctxmatch_lib.filters.lmr.lmr_filter` with ``network=PATH``: the weights are read from the user's
+checkout; nothing of theirs ships here. :func:`scipy.io.loadmat` gives the MATLAB ``network`` as an object
+or struct with ``IW``, ``LW``, ``b``, ``layers`` (``transferFcn``) and ``inputs`` / ``outputs``
+(``processFcns``); only a feed-forward chain without processing functions is evaluated,
+``a_1 = f_1(IW{1,1} x + b{1})``, ``a_l = f_l(LW{l,l-1} a_(l-1) + b{l})``.
 """
 
 from __future__ import annotations
@@ -44,21 +40,10 @@ def gaussmf(x: np.ndarray, sigma: float, c: float) -> np.ndarray:
 
 
 def mpc_motion(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Squared motion length and direction of every match exactly as ``MPC.m`` computes them.
+    """Squared motion length ``d2`` and direction ``theta`` of every match (x, y: (K, 2)) as ``MPC.m``.
 
-    ``vec = y - x + dv``; ``d2 = |vec|^2``; the direction is ``atan((vec_y + dv) / (vec_x + dv))`` moved to
-    ``[0, 2 pi)`` by ``MPC.m``'s three quadrant rules (tested on ``vec_y`` and the angle, in that order).
-    The arctangent is ``_fixedmath.atan``, so the bits depend neither on NumPy's SIMD loops nor on the C
-    library's FMA variants.
-
-    Parameters
-    ----------
-    x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoints, (x, y) pixels, origin at the centre of the top-left pixel.
-
-    Returns
-    -------
-    d2, theta : ndarray of shape (K,)
+    ``vec = y - x + dv``, ``d2 = |vec|^2``, ``theta = atan((vec_y + dv) / (vec_x + dv))`` moved to
+    ``[0, 2 pi)`` by ``MPC.m``'s quadrant rules, with ``_fixedmath.atan`` (the same bits on any CPU).
     """
     vec = (y - x) + MPC_DV
     d2 = vec[:, 0] ** 2 + vec[:, 1] ** 2

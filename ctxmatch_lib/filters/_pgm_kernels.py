@@ -1,10 +1,8 @@
 """Compiled (numba) kernels of PGM (see :mod:`.pgm`): pairwise affinities, votes, Sinkhorn normalisation.
 
-Each kernel evaluates the very expressions of the array formulation it replaced (same operations in the
-same order, sums in numpy's order, no fast-math), so its results are bit-identical to it (tested against
-that formulation in ``tests/test_filters_pgm.py``); it saves the temporaries and gathers of the array form,
-and the ``hypot`` calls of pairs whose affinity is certainly zero, which made PGM several times
-DTM's time on 20 000 - 30 000 candidates."""
+Each kernel evaluates the expressions of the array formulation (same operations in the same order, sums in
+numpy's order, no fast-math), so its results are bit-identical to it (``tests/test_filters_pgm.py``),
+without its temporaries and without the ``hypot`` calls of pairs whose affinity is certainly zero."""
 
 from __future__ import annotations
 
@@ -30,8 +28,8 @@ with user_cache() as _cache:
         if with_t:
             ua, va = dy0 - t[p, 0] * dx0 - t[p, 1] * dx1, dy1 - t[p, 2] * dx0 - t[p, 3] * dx1
             ub, vb = dy0 - t[q, 0] * dx0 - t[q, 1] * dx1, dy1 - t[q, 2] * dx0 - t[q, 3] * dx1
-            # |(u, v)| >= max(|u|, |v|), in floating point too: a pair whose bound reaches the cut-off has
-            # affinity exactly 0 without the two (costly) hypot calls, as most pairs of a candidate set.
+            # |(u, v)| >= max(|u|, |v|), in floating point too: a pair whose bound reaches the cut-off (most
+            # pairs) has affinity exactly 0 without the two hypot calls.
             if 0.5 * (max(abs(ua), abs(va)) + max(abs(ub), abs(vb))) >= cut:
                 return 0.0
             d = 0.5 * (math.hypot(ua, va) + math.hypot(ub, vb))

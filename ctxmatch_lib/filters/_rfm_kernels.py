@@ -1,22 +1,14 @@
 """Compiled (numba) neighbour counts of RFM-SCAN in its motion space, on a uniform grid.
 
-The motion-space points are rows ``[x, y, v]`` (six coordinates in [0, 1], the float32 values of
-:class:`ctxmatch_lib.filters.rfm_scan._MotionSpace` held as float64), and the distance is Eq. (3) of Jiang
-et al. (TIP 2020), ``d = |dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``. A match within ``r`` of a
-query has ``|dx| <= r`` and, its motion weight being at least ``c(r) = 1 + gamma exp(-r / 2)`` (the smaller
-of two norms summing to at most ``r`` is at most ``r / 2``), ``|dv| <= r / c(r)``: the grid has cells of
-half those sizes over ``(x, v)``, and a query visits the cells of ``x`` within ``r`` and, for each, the cells
-of ``v`` within what the distance of ``x`` to that cell leaves.
+The points are rows ``[x, y, v]`` (the float32 values of :class:`.rfm_scan._MotionSpace` as float64), the
+distance Eq. (3) of Jiang et al. (TIP 2020), ``d = |dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``.
+A match within ``r`` has ``|dx| <= r`` and ``|dv| <= r / c(r)``, ``c(r) = 1 + gamma exp(-r / 2)``: the grid
+over ``(x, v)`` has cells of half those sizes, and a query visits the cells of ``x`` within ``r`` and, for
+each, those of ``v`` within what the distance to that cell leaves.
 
-The kernels never decide alone. They compute Eq. (3) in float64 and count the members *surely* within the
-threshold (``t <= eps (1 - MARGIN)``) and those *possibly* within it (``t <= eps (1 + MARGIN)``); the
-filter's own float32 distances differ from these by a few float32 roundings and the float32 ``exp``'s error,
-relative (every term of Eq. (3) is non-negative), far below ``MARGIN``. A count that the two do not settle
-is left to the exact float32 test of the caller. :func:`upper_kth` likewise returns upper bounds of the
-filter's k-th smallest float32 distances (float64 ones times ``1 + MARGIN``).
-
-Compiled code is cached on disk as for the other kernels (``$CTXMATCH_CACHE/numba`` unless
-``NUMBA_CACHE_DIR``).
+The counts are of the members *surely* (``t <= eps (1 - MARGIN)``) and *possibly* (``t <= eps (1 +
+MARGIN)``) within the threshold, in float64: the filter's float32 distances differ relatively by far less
+than ``MARGIN``, and a count the two leave open goes to the caller's exact float32 test.
 """
 
 from __future__ import annotations
@@ -44,20 +36,11 @@ def _box_radii(radius: float, gamma: float) -> np.ndarray:
 
 
 class MotionGrid:
-    """Members of a motion space sorted by the cells of a uniform grid over ``(x, v)``.
+    """The points ``members`` of ``feats`` (n, 6) sorted by the cells of a uniform grid over ``(x, v)``.
 
-    Parameters
-    ----------
-    feats : ndarray of shape (n, 6)
-        Motion-space points (float64).
-    members : ndarray of shape (m,)
-        Indices of the points in the grid.
-    radius : float
-        The query radius (true distance) the grid is sized for: cells of half the box of that radius per
-        coordinate (larger where that would make more than ``cells_per_member`` cells per member); any
-        radius can be queried.
-    gamma : float
-        Eq. (3)'s gamma (the float32 value the caller's distances use).
+    The cells are half the box of ``radius`` per coordinate (larger where that would make more than
+    ``cells_per_member`` cells per member); any radius can be queried. ``gamma``: Eq. (3)'s, the float32
+    value of the caller's distances.
     """
 
     def __init__(self, feats: np.ndarray, members: np.ndarray, radius: float, gamma: float,
@@ -136,9 +119,8 @@ with user_cache() as _cache:
     def _count_within(qf, qscale, stop, on_possible, gf, gscale, starts, origin, size, shape, eps, gamma,
                       margin, sure, possible):
         # For each query q: the members j with t = d(q, j) * gscale * qscale[q] <= eps (1 -/+ margin), counted
-        # into sure[q] / possible[q], until sure[q] (possible[q] with on_possible) reaches stop[q]. The cells
-        # visited: those of x within the radius, and for each, the cells of v within what the distance of x
-        # to that cell leaves (over the least motion weight).
+        # into sure[q] / possible[q], until sure[q] (possible[q] with on_possible) reaches stop[q]; the cells
+        # visited as in the module docstring.
         lo_t = eps * (1.0 - margin)
         hi_t = eps * (1.0 + margin)
         for q in range(qf.shape[0]):
@@ -213,31 +195,12 @@ with user_cache() as _cache:
 def count_within(grid: MotionGrid, qf: np.ndarray, qscale: np.ndarray, stop: np.ndarray, eps: float,
                  gamma: float, gscale: float = 1.0, sure: np.ndarray | None = None,
                  possible: np.ndarray | None = None, on_possible: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Members of ``grid`` surely / possibly within ``eps`` of each query, the distance scaled.
+    """``(sure, possible)``: members of ``grid`` with ``d * gscale * qscale`` at most ``eps (1 - MARGIN)`` and
+    at most ``eps (1 + MARGIN)`` from each query ``qf`` (q, 6).
 
-    Parameters
-    ----------
-    grid : MotionGrid
-        Built for a radius of at least ``eps / (gscale * qscale)`` of every query.
-    qf : ndarray of shape (q, 6)
-        The queries' motion-space points (float64).
-    qscale : ndarray of shape (q,)
-        Per-query factor of the distance (with ``gscale``, the group's).
-    stop : ndarray of shape (q,)
-        A query stops counting once its sure count (possible count with ``on_possible``) reaches it; 0 or
-        less: not counted.
-    eps : float
-        The threshold of the scaled distance ``d * gscale * qscale``.
-    gamma : float
-        Eq. (3)'s gamma.
-    sure, possible : ndarray of shape (q,), optional
-        Counts to add to (int64, updated in place); zeros when left out.
-
-    Returns
-    -------
-    sure, possible : ndarray of shape (q,)
-        Members with scaled distance at most ``eps (1 - MARGIN)`` and at most ``eps (1 + MARGIN)``, the
-        counts stopped early as said (cumulated over calls when passed in).
+    A query stops counting once its sure count (possible count with ``on_possible``) reaches ``stop``
+    (none at 0). ``sure`` and ``possible`` given (int64) are added to in place. ``grid`` must be built for a
+    radius of at least ``eps / (gscale * qscale)``.
     """
     n = len(qf)
     sure = np.zeros(n, np.int64) if sure is None else sure
@@ -252,29 +215,9 @@ def count_within(grid: MotionGrid, qf: np.ndarray, qscale: np.ndarray, stop: np.
 
 def upper_kth(feats: np.ndarray, rows: np.ndarray, cand: np.ndarray, cscale: np.ndarray, k: int,
               gamma: float) -> np.ndarray:
-    """An upper bound of the filter's float32 ``k``-th smallest of the given distances, per row.
-
-    Parameters
-    ----------
-    feats : ndarray of shape (n, 6)
-        Motion-space points (float64: the filter's float32 values).
-    rows : ndarray of shape (r,)
-        The points whose distances are taken.
-    cand : ndarray of shape (r, m)
-        For each, ``m >= k`` other points.
-    cscale : ndarray of shape (r, m)
-        Factor of each distance.
-    k : int
-        Which smallest.
-    gamma : float
-        Eq. (3)'s gamma.
-
-    Returns
-    -------
-    ndarray of shape (r,), float32
-        The ``k``-th smallest of the float64 distances, times ``1 + MARGIN``, in float32: at least the
-        ``k``-th smallest of the float32 ones.
-    """
+    """``(r,)`` float32 upper bounds of the filter's ``k``-th smallest float32 distance from each of ``rows``
+    to its ``m >= k`` candidates ``cand`` (r, m), each times ``cscale`` (r, m): the float64 one times
+    ``1 + MARGIN``."""
     out = np.empty(len(rows))
     if len(rows):
         _kth_rows(np.ascontiguousarray(feats, np.float64), np.ascontiguousarray(rows, np.int64),

@@ -11,19 +11,11 @@
    which are accepted when ``count * (1 - 1 / confidence) >= min_inliers``.
 4. The output is the union of the accepted inliers.
 
-Orientation and scale come from the affine shapes ``A``: with ``similarity="keypoints"`` each keypoint's
-orientation is the angle of the rotation closest to ``A`` (polar decomposition) and its scale
-``sqrt(|det A|)``, as the reference reads detector orientations and scales; ``similarity="map"`` reads them
-from ``L = A2 A1^-1`` (the same for similarity shapes such as SIFT's). Without shapes the checks are skipped
-(the paper's fallback).
-
-Notes
------
 Where the paper is silent, the default is the reading of kornia's port of the authors' code
-(``kornia.feature.adalam``; the paper's "original code", Sec. 5.3): equal seed scores do not suppress each
-other; the sampled couples (:func:`_couples`); the inlier count (:func:`_confident_inliers`); a refit with
-an implausible scale becomes the identity; exactly fitted neighbourhoods are recovered
-(:func:`_exact_support`). The agreement with kornia is in ``docs/filters.md``.
+(``kornia.feature.adalam``, the paper's "original code", Sec. 5.3): equal seed scores do not suppress each
+other; the sampled couples (:func:`_couples`); the inlier count (:func:`_confident_inliers`); an implausibly
+scaled refit becomes the identity; exactly fitted neighbourhoods are recovered (:func:`_exact_support`);
+orientation and scale per keypoint (``similarity``). Its agreement with kornia: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -129,49 +121,43 @@ def adalam_filter(
     %(kpts)s
     %(matches)s
     scores : ndarray of shape (K,) or None
-        NNR-like scores, lower is better: seeds must pass ``seed_threshold`` and beat their neighbours,
-        samples are drawn best first. ``None`` means all equal (ties broken in a seeded random order).
+        NNR-like scores, lower is better (seeds, sampling order); ``None``: all equal.
     image_size1, image_size2 : (int, int)
         Image sizes (width, height), which set the radii ``R1`` and ``R2``.
-    shapes1, shapes2 : ndarray of shape (N1, 2, 2) and (N2, 2, 2), optional
-        Affine shapes of the keypoints; give relative orientation and scale. Both or neither.
+    shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
+        Affine shapes of the keypoints, for the orientation and scale checks. Both or neither.
     area_ratio : float, default 100
-        Image area over seed-disc area (Sec. 4, default configuration).
+        Image area over seed-disc area (Sec. 4).
     search_expansion : float, default 4
         Neighbourhood radius over seed radius (lambda, Sec. 3.2).
     ransac_iters : int, default 128
         Hypotheses per neighbourhood (Sec. 4).
     min_inliers : int, default 6
-        Minimum neighbourhood size and minimum confident inlier count (Sec. 4).
+        Minimum neighbourhood size and confident inlier count (Sec. 4).
     min_confidence : float, default 200
-        Confidence threshold of the adaptive inlier selection (t_tau, Sec. 3.3 and 4).
-    orientation_threshold : float, default 30
-        Degrees (Sec. 3.2); ``None`` disables the orientation check.
-    scale_rate_threshold : float, default 1.5
-        Relative-scale factor (Sec. 3.2); ``None`` disables the scale check.
+        Confidence threshold of the adaptive inlier selection (t_tau, Sec. 3.3).
+    orientation_threshold, scale_rate_threshold : float or None, default 30 and 1.5
+        Degrees and relative-scale factor of the neighbourhood checks (Sec. 3.2); ``None`` disables one.
     detected_scale_rate_threshold : float, default 5
-        Minimal maps whose singular values leave [1/5, 5] are not recovered as exact fits; refitted maps that
-        do are replaced by the identity (as in the reference).
+        Maps with a singular value outside [1/5, 5] are no exact fits, and refits become the identity.
     seed_threshold : float, default 0.8
-        Seeds must have ``score < seed_threshold`` (ratio test of the reference implementation), an NNR
-        ratio read on the scale of the scores (0.8 / 1.8 on D+ blob scores).
+        Seeds need ``score < seed_threshold``, an NNR ratio read on the scale of the scores.
     refit : bool, default True
         Refit the best hypothesis of each neighbourhood on its inliers (Sec. 3.3).
     similarity : {"keypoints", "map"}, default "keypoints"
-        How a match's relative orientation and scale are read from the shapes (see above).
+        Orientation and scale from each keypoint's shape ``A`` (the rotation closest to ``A``,
+        ``sqrt(|det A|)``), as the reference reads detector frames, or from the map ``A2 A1^-1``.
     rng : None, int or numpy.random.Generator, default 0
-        Seed of the random order of equal scores inside a neighbourhood (all scores tie when ``scores`` is
-        None); the fixed default makes the result deterministic.
+        Seed of the order of equal scores inside a neighbourhood.
 
     Returns
     -------
     keep : ndarray of shape (K,), bool
-        With no valid neighbourhood (e.g. fewer than ``min_inliers`` matches) nothing is kept.
+        Nothing is kept without a valid neighbourhood.
 
     References
     ----------
-    L. Cavalli, V. Larsson, M. R. Oswald, T. Sattler, M. Pollefeys, "Handcrafted outlier detection
-    revisited", ECCV 2020.
+    L. Cavalli et al., "Handcrafted outlier detection revisited", ECCV 2020.
 
     Examples
     --------
@@ -240,27 +226,10 @@ def adalam_filter(
 
 
 class _Locations:
-    """The distinct image-1 locations of the matches (a candidate set holds several matches per keypoint).
-
-    Distances between matches are those between their locations, computed alike, so that searches over the
-    locations decide as searches over the matches would, with several times fewer points and pairs.
-
-    Parameters
-    ----------
-    x : ndarray of shape (K, 2)
-        Image-1 keypoint of each match.
-
-    Attributes
-    ----------
-    tree : scipy.spatial.cKDTree
-        k-d tree over the distinct locations.
-    inv : ndarray of shape (K,), int64
-        Location of each match.
-    by_loc : ndarray of shape (K,), int64
-        The matches grouped by location, in index order within a location.
-    starts : ndarray of shape (L + 1,), int64
-        Start of each location's group in ``by_loc``, then the end.
-    """
+    """The distinct image-1 locations ``x`` (K, 2) of the matches: searches over them decide as searches over
+    the matches would, with several times fewer points. ``tree``: k-d tree of the locations; ``inv``: the
+    location of each match; ``by_loc``: the matches grouped by location (index order within), group ``l``
+    spanning ``by_loc[starts[l]:starts[l + 1]]``."""
 
     def __init__(self, x: np.ndarray):
         loc, inv = np.unique(x, axis=0, return_inverse=True)
@@ -270,18 +239,8 @@ class _Locations:
         self.starts = np.r_[0, np.cumsum(np.bincount(self.inv, minlength=len(loc)))]
 
     def members(self, lists) -> tuple[np.ndarray, np.ndarray]:
-        """The matches at the locations of each list.
-
-        Parameters
-        ----------
-        lists : sequence of sequences of int
-            Location indices (e.g. from ``tree.query_ball_point``).
-
-        Returns
-        -------
-        lid, mid : ndarray of shape (P,), int64
-            For every match at a location of a list, the list's index and the match's, list by list.
-        """
+        """``(lid, mid)``: for every match at a location of each list of location indices (e.g. from
+        ``tree.query_ball_point``), the list's index and the match's, list by list."""
         lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
         lid = np.repeat(np.arange(len(lists)), lens)
         ll = np.concatenate([np.asarray(v, np.int64) for v in lists]) if len(lists) else np.zeros(0, np.int64)
@@ -291,9 +250,8 @@ class _Locations:
 
 
 def _seeds(locs: _Locations, s, R1: float, seed_threshold: float) -> np.ndarray:
-    """Matches that no other match within ``R1`` in image 1 beats strictly (lower score) and that pass
-    ``seed_threshold``; equal scores do not beat each other (as in the reference). A match is beaten when its
-    score exceeds the best score at its own location or at a location closer than ``R1``."""
+    """Matches passing ``seed_threshold`` whose score is the best at their location and at every location
+    closer than ``R1`` in image 1 (equal scores do not beat each other, as in the reference)."""
     pairs = locs.tree.query_pairs(np.nextafter(R1, 0.0), output_type="ndarray")  # distance < R1
     beaten = beaten_by_neighbours(np.ascontiguousarray(s, dtype=np.float64), locs.inv,
                                   np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), len(locs.starts) - 1)
@@ -302,13 +260,9 @@ def _seeds(locs: _Locations, s, R1: float, seed_threshold: float) -> np.ndarray:
 
 def _neighbourhoods(ms, locs: _Locations, seeds, rank, r1: float, r2: float, min_inliers, orientation_threshold,
                     scale_rate_threshold, similarity: str = "keypoints"):
-    """The matches of each seed's neighbourhood (Sec. 3.2): within ``r1`` of the seed in image 1 and ``r2``
-    in image 2, agreeing in orientation and scale when shapes are known; seeds with fewer than
-    ``max(min_inliers, 3)`` are dropped.
-
-    Returns ``None`` when no seed is left, else ``(seeds, sid, mid, sizes, pos)``: for each member, its
-    seed's index in ``seeds``, its match index and its position in its group (seed last, best first).
-    """
+    """The neighbourhood of each seed (Sec. 3.2), seeds with fewer than ``max(min_inliers, 3)`` members
+    dropped: ``None`` when none is left, else ``(seeds, sid, mid, sizes, pos)``, for each member its seed's
+    index in ``seeds``, its match index and its position in its group (best score first)."""
     x, y = ms.x, ms.y
     sid, mid = locs.members(locs.tree.query_ball_point(x[seeds], r1))
     ok = ((y[mid] - y[seeds[sid]]) ** 2).sum(1) < r2 ** 2

@@ -1,51 +1,20 @@
 """GMS: Grid-based Motion Statistics (Bian et al., CVPR 2017; IJCV 2020).
 
-Image 1 is split into a ``grid_size x grid_size`` grid, image 2 into a grid scaled by the assumed relative
-scale. Every match votes for the pair (cell of its image-1 keypoint, cell of its image-2 keypoint). For each
-image-1 cell the most voted image-2 cell is its candidate; the pair is accepted when the votes summed over
-the 3x3 block of neighbouring cell pairs reach ``alpha * sqrt(n)``, ``n`` the mean number of matches in the
-nine image-1 cells. A match is kept when its cell pair is an accepted candidate pair. The grid is run four
-times, shifted by half a cell in x, y and both, and the results are OR-ed (grid-occlusion fix of the CVPR
-paper, Sec. 4).
+Every match votes for its pair of cells (image-1 grid of ``grid_size x grid_size``, image-2 grid scaled by
+the relative scale). The most voted image-2 cell of each image-1 cell is accepted when the votes over the
+3x3 block of neighbouring cell pairs reach ``alpha * sqrt(n)``, ``n`` the mean number of matches in the
+nine image-1 cells (CVPR 2017, Eq. (5)); the matches of accepted pairs are kept. Four grids shifted by half
+a cell are OR-ed (CVPR 2017, Sec. 4). Optionally (IJCV 2020, Sec. 5) the image-2 grid is scaled by each of
+``scale_ratios`` and the 3x3 kernel rotated by multiples of 45 degrees; the combination keeping most wins.
 
-Scale and rotation (IJCV 2020, Sec. 5, "multi-scale and multi-rotation" motion kernels): the image-2 grid
-is scaled by each ratio of ``scale_ratios`` (default {1, 1/2, 1/sqrt 2, sqrt 2, 2}), and the 3x3
-neighbourhood of the image-2 cell is rotated by multiples of 45 degrees (8 kernels); the combination with
-the most inliers wins. Both are off by default, as in the authors' code.
-
-Notes
------
-Aligned with the authors' code (issue 22): the paper ran "the original code ... only modified to work with
-blob matches as input" (Sec. 5.3), the authors' Python ``GmsMatcher`` (github JiawangBian/GMS-Feature-Matcher),
-whose entry point calls ``get_inlier_mask(with_scale=False, with_rotation=False)``; the same algorithm ships as
-``cv2.xfeatures2d.matchGMS`` (defaults ``withRotation=False, withScale=False, thresholdFactor=6``). The paper
-describes GMS's multi-scale grids (Sec. 2) but does not say it switched them on, so the reference's setting is
-the default and the multi-scale / multi-rotation runs stay options (``with_scale``, ``with_rotation``). Cell
-indices follow the reference too: a keypoint at ``x`` falls in cell ``floor(g x / width)`` (OpenCV keypoints
-share our pixel-centre origin), the image-2 grid has ``int(grid_size * ratio)`` cells per side, ties between
-image-2 cells go to the lowest index, and every candidate row votes, so coincident keypoints and repeated rows
-count as many times as they appear (``distinct_votes=True`` counts each distinct pair of locations once).
-
-Measured with ``benchmarks/bench_filters_ref.py --ref gms=PYTHON --pairs 12 --configs baseline best``
-(opencv-contrib-python-headless 5.0, ``cv2.xfeatures2d.matchGMS``) on the same blob candidates of the shared
-real pairs (12 pairs per dataset, 1500 keypoints, CPU, one thread). Before the alignment (``with_scale=True``,
-cells from ``(x + 0.5) / width``) precision / recall were 69.7 / 42.1 (planar) and 77.2 / 31.0 (non-planar)
-against the reference's 64.6 / 37.9 and 44.9 / 24.9 in the baseline configuration, mean Jaccard of the keep
-masks 0.765 and 0.481 (0.745 and 0.614 in the best configuration), and ours took 13-16x the reference's CPU
-time. Now the keep masks are identical (Jaccard 1.000) in both configurations, and with ``with_scale`` /
-``with_rotation`` on both sides; ours (a compiled O(K) pass per grid) takes 0.44-0.86x the CPU time of the
-C++ call (the reference's time excludes building its ``KeyPoint`` / ``DMatch`` lists). On the duplicated-outlier case (300 correct planted matches plus one wrong match repeated on 8
-coincident keypoint copies, or the same row repeated 8 times) matchGMS keeps the 8 copies: they outvote the
-sparse correct matches of their cell (about 0.75 per cell) and pass ``6 sqrt(n)``; with 1 or 3 copies it
-rejects them. Ours keeps the same rows by default; ``distinct_votes=True`` rejects them.
-
-Distance from the paper's Table 2 row: at the paper's scale (1500 keypoints, SIFT + RootSIFT, baseline blob
-candidates, 55 shared pairs; ``figures/paper/tables.md``) ours is 14.5 / 13.7 points above the row in
-precision / recall on the planar pairs and 25.8 points below it in precision on the non-planar ones (no
-model). matchGMS run on the same candidates of all 55 pairs (``bench_filters_ref.py --ref gms=PYTHON --pairs 40
---configs baseline``) keeps the same rows (Jaccard 1.000; 60.0 / 29.4 planar, 43.0 / 19.1 non-planar on both
-sides), so the original code does the same on our data: the gap lies in the inputs (our pairs and features),
-not in this re-implementation.
+The paper ran "the original code ... only modified to work with blob matches as input" (Sec. 5.3): the
+authors' ``GmsMatcher`` with ``with_scale=False, with_rotation=False``, the algorithm of
+``cv2.xfeatures2d.matchGMS``, whose choices are the defaults: a keypoint at ``x`` falls in cell
+``floor(g x / width)`` (OpenCV keypoints share our pixel-centre origin), the image-2 grid has
+``int(grid_size * ratio)`` cells per side, ties between image-2 cells go to the lowest index, and every
+row votes, so copies of one wrong match can outvote the sparse correct matches of their cell
+(``distinct_votes=True`` counts a pair of locations once). The agreement with matchGMS:
+``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -80,13 +49,9 @@ with user_cache() as _cache:
 
     @numba.njit(cache=_cache, nogil=True)
     def _gms_kernel(c1, c2, g1w, g1h, g2w, g2h, off1, off2, alpha):
-        """The four shifted passes of one grid pair and kernel (CVPR 2017, Sec. 4), OR-ed.
-
-        ``c1`` (4, K): image-1 cell of each match in each shifted grid, -1 outside it; ``c2`` (K,): image-2
-        cell. The votes per cell pair live in one dense table, cleared after each pass by walking the matches
-        again, so a pass costs O(K) and not O(cells^2); the winning image-2 cell of an image-1 cell is kept up
-        to date while voting (the most voted, the lowest index on ties).
-        """
+        """The four shifted passes of one grid pair and kernel (CVPR 2017, Sec. 4), OR-ed; ``c1`` (4, K): the
+        image-1 cell of each match per shifted grid (-1 outside), ``c2`` (K,): its image-2 cell. The vote
+        table is cleared by walking the matches again, so a pass costs O(K), not O(cells^2)."""
         n1, n2 = g1w * g1h, g2w * g2h
         k = c2.shape[0]
         votes = np.zeros(n1 * n2, np.int32)
@@ -185,17 +150,13 @@ def gms_filter(
         Cells per side of the image-1 grid (20 x 20, CVPR 2017 Sec. 5, IJCV 2020 Sec. 6.1).
     alpha : float, default 6
         Threshold factor of ``tau = alpha * sqrt(n)`` (CVPR 2017 Eq. (5) and Sec. 5).
-    with_scale : bool, default False
-        Try every image-2 grid scale of ``scale_ratios`` and keep the best (IJCV 2020, Sec. 5); off in the
-        authors' code (see Notes).
-    with_rotation : bool, default False
-        Try the 8 rotated 3x3 motion kernels and keep the best (IJCV 2020, Sec. 5).
+    with_scale, with_rotation : bool, default False
+        Try every image-2 grid scale of ``scale_ratios``, the 8 rotated 3x3 kernels (IJCV 2020, Sec. 5).
     scale_ratios : sequence of float
         Relative scales tried when ``with_scale``.
     distinct_votes : bool, default False
-        Count the rows that join the same image-1 location to the same image-2 location (coincident keypoints,
-        repeated rows) as one vote; all of them get the verdict of that one. Off in the authors' code, where
-        each row votes.
+        The rows joining the same pair of locations vote once and share its verdict (the authors' code:
+        each row votes).
 
     Returns
     -------

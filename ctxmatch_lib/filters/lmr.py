@@ -381,7 +381,6 @@ def train_lmr(
     Returns
     -------
     LMRModel
-        The shipped model is ``train_lmr(**LMR_TRAIN_DEFAULTS)``.
     """
     n_pairs = check_positive(n_pairs, "n_pairs", integer=True)
     max_samples_per_pair = check_positive(max_samples_per_pair, "max_samples_per_pair", integer=True)
@@ -423,28 +422,25 @@ def lmr_filter(
     features: str = "mpc",
     network: str | Path | None = None,
 ) -> np.ndarray:
-    """LMR: classify every match from its multi-scale neighbourhood features, in two passes.
+    """LMR: classify every match from its multi-scale neighbourhood features (see the module notes).
 
     Parameters
     ----------
     %(common_unused)s
     threshold : float, default 0.5
-        Inlier probability above which a match is kept (both passes).
+        Inlier probability above which a match is kept (every pass).
     model : LMRModel, optional
-        The classifiers; default: the shipped model (trained by ``train_lmr(seed=0)`` on synthetic
-        pairs, see the module notes).
+        The classifiers; default: the shipped model (``train_lmr(**LMR_TRAIN_DEFAULTS)``).
     features : {"mpc", "lpm"}, default "mpc"
-        ``"mpc"``: the authors' match representation (:func:`mpc_features`, their ``MPC.m``), one pass, as
-        their code; ``"lpm"``: the former reading, :func:`lmr_features` in two passes (see the module notes).
+        ``"mpc"``: :func:`mpc_features` (the authors' ``MPC.m``), one pass, as their code; ``"lpm"``:
+        :func:`lmr_features` in two passes.
     network : path-like, optional
-        The authors' trained network, ``Trained_Model/Net.mat`` of a user's checkout of StaRainJ/LMR (not
-        shipped: the weights are theirs). Given, ``MPC.m``'s exact features (``mpc_features(..., exact=True)``)
-        are classified by that network, evaluated in NumPy, and a match is kept when its first output exceeds
-        its second, as their demo; ``model`` and ``threshold`` are then unused and ``features`` must be
-        ``"mpc"``. A network with input or output processing functions, a transfer function other than
-        ``tansig``, ``logsig``, ``purelin``, or shapes that do not chain 48 features to 2 outputs is refused.
-    merge_coincident : bool, default True
-        Decide coincident rows as one match (see Notes); ``False`` classifies every row, as the authors' code.
+        The authors' ``Trained_Model/Net.mat`` from a user's checkout of StaRainJ/LMR (not shipped). Given,
+        ``mpc_features(..., exact=True)`` is classified by that network in NumPy and a match is kept when its
+        first output exceeds its second, as their demo; ``model`` and ``threshold`` are unused and
+        ``features`` must be ``"mpc"``. Networks other than a feed-forward chain of ``tansig``, ``logsig``,
+        ``purelin`` layers from 48 features to 2 outputs, without processing functions, are refused.
+    %(merge_option)s
 
     Returns
     -------
@@ -453,47 +449,10 @@ def lmr_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods of the features. The authors' code (``MPC.m``) counts every
-    row, so there coincident copies of a wrong match are each other's shared neighbours; merging them is kept
-    (issue 22, item 4). The shipped model needs no retraining for it: its synthetic training pairs hold no
-    coincident rows.
-
-    Side by side with the authors' code (issue 22, item 1): ``benchmarks/bench_filters_ref.py --ref
-    lmr=DIR`` runs StaRainJ/LMR under Octave (``MPC.m`` and the demo's network ``Net.mat``; see
-    ``benchmarks/ref_lmr.py``) on the same baseline candidates of the 55 shared pairs. Their code stops with an
-    error on 14 of them (8 planar, 6 non-planar: its consensus stages leave fewer matches than its largest
-    scale needs, or none); on the other 41, former reading (``features="lpm"``) -> default (``"mpc"``): Jaccard
-    of the keep masks 0.714 -> 0.830 (planar) and 0.676 -> 0.722 (non-planar); P / R 80.8 / 88.8 -> 90.1 / 92.0
-    against the reference's 86.7 / 92.4, and 78.4 / 76.7 -> 84.2 / 77.8 against 79.7 / 80.2; ours 0.42-0.44x
-    the reference's CPU time. The best configuration (HarrisZ + SOSNet stand-in, ``paper-best-overlap``, 6
-    pairs per dataset) gives Jaccard 0.576 -> 0.681 and 0.272 -> 0.372, P / R 73.3 / 84.8 -> 80.6 / 86.9
-    against 83.8 / 77.2 and 43.9 / 43.5 -> 52.4 / 41.4 against 59.2 / 36.3 (default, all the pairs where the
-    reference runs, 26 planar and 19 non-planar: Jaccard 0.610 and 0.479, P / R 71.3 / 78.0 against
-    75.0 / 68.9 and 63.9 / 59.4 against 70.8 / 51.4). The targets (Jaccard 0.9, P / R
-    within 2 points) are not reached: the features are the authors', the classifier is not (their network's
-    weights are theirs), and coincident rows are merged here. Next to the paper's Table 2 (baseline, no model;
-    all 55 pairs, an empty output or a stopped reference counted as 0 %,
-    ``benchmarks/ablate_peer_filters.py --sweep 'lmr:features="mpc","lpm"'``): the default gives 66.8 / 68.3
-    (planar, 7 empty outputs) and 67.6 / 59.7 (non-planar, 4), ``"lpm"`` 64.2 / 73.4 and 66.7 / 65.5, the
-    paper 70.3 / 79.6 and 64.3 / 76.5, and the authors' code on the same candidates 64.3 / 68.6 and
-    59.8 / 60.1: the non-planar recall gap of the default (-16.8) is the original's own on our data (-16.4),
-    whose consensus stages leave too few matches on the hard pairs where both fail. ``threshold`` 0.3 / 0.7
-    moves the default to 65.2 / 69.9, 68.1 / 66.2 (planar) and 64.2 / 62.9, 71.3 / 57.0.
-
-    The authors' network (``network=<checkout>/Trained_Model/Net.mat``, their classifier on ``MPC.m``'s exact
-    values; the reference does not receive the option): ``OMP_NUM_THREADS=1 benchmarks/bench_filters_ref.py
-    --ref lmr=DIR --pairs 6 --configs baseline best --param lmr:network='"DIR/Trained_Model/Net.mat"'
-    [--param lmr:merge_coincident=false]`` (pairs where the reference runs: 5, 4, 6, 5). Jaccard baseline
-    planar / non-planar 0.879 / 0.807 (merged coincident rows) and 0.947 / 0.934 with
-    ``merge_coincident=False`` (P / R 93.9 / 90.9 against the reference's 92.6 / 90.3, 84.1 / 85.5 against
-    83.7 / 85.3); best 0.723 / 0.430 either way (83.0 / 76.2 against 83.8 / 77.2, 60.7 / 37.3 against
-    59.2 / 36.3): with ``merge_coincident=False`` P / R within 2 points in all four, Jaccard 0.90 on the
-    baseline only (merged, baseline non-planar 81.1 / 87.1 against 83.7 / 85.3); ours 0.39-0.41x the
-    reference's CPU time. The network alone is exact (fed ``MPC.m``'s own features, dumped from Octave, it
-    gives the reference's mask on every pair); what remains is the neighbour order among equidistant
-    matches: the many-to-many candidates repeat keypoints (homogr/LePoint2, best: 2270 rows on 481 distinct
-    image-1 positions), both k-d trees are exact but VLFeat's and SciPy's return different tied neighbours,
-    and ``MPC.m``'s counts depend on which.
+    A location counts once in the neighbourhoods of the features; ``MPC.m`` counts every row, so there the
+    copies of a wrong match are each other's shared neighbours. The synthetic training pairs hold no
+    coincident rows, so the model is the same either way. Agreement with the authors' code and with the
+    paper's Table 2 is in ``docs/filters.md``.
 
     References
     ----------
@@ -523,10 +482,8 @@ def lmr_filter(
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
-    # The rows best score first, equal scores in the order of their coordinates (x1, y1, x2, y2), the mask
-    # mapped back: neighbours at equal distances (one image-1 keypoint in several candidates) are then taken
-    # best first whatever the candidates' order (issue 31). Candidates sorted by score with distinct
-    # scores keep their order, so their masks are those of the input order.
+    # Rows best score first, ties by coordinates, the mask mapped back: equidistant neighbours (one image-1
+    # keypoint in several candidates) are taken best first whatever the input order.
     order = np.lexsort((ms.y[:, 1], ms.y[:, 0], ms.x[:, 1], ms.x[:, 0], ms.scores))
     x, y = ms.x[order], ms.y[order]
     if network is not None:

@@ -1,19 +1,16 @@
 """LPM (Locality Preserving Matching, Ma et al., IJCV 2019) and GLPM (Guided LPM, Ma et al., TGRS 2018).
 
-Both keep a match when the neighbourhood of its keypoint is preserved across the images: the ``K`` nearest
-matches of ``x_i`` in image 1 and those of ``y_i`` in image 2 should largely be the same matches.
+Both keep a match when the ``K`` nearest matches of ``x_i`` in image 1 and of ``y_i`` in image 2 are
+largely the same matches.
 
-LPM (IJCV 2019, Sec. 3.3 and 4): the cost of match ``i`` at scale ``K`` is ``(K - n_i + m_i) / K``, with
-``n_i`` the common neighbours and ``m_i`` the common neighbours whose motion vector disagrees with that of
-``i`` (consensus of neighbourhood topology, Eq. (13)-(15): ``min(|v_i|, |v_j|) / max(|v_i|, |v_j|) *
-cos(v_i, v_j) <= tau``). The costs are averaged over the scales ``K + 2, K, K - 2`` (multi-scale
-neighbourhoods, Sec. 4.2) and the match is kept when the mean is at most ``lambda``. A second iteration
-recomputes the neighbourhoods among the matches kept by the first (Sec. 4.3).
+LPM (IJCV 2019, Sec. 3.3-4.3): the cost at scale ``K`` is ``(K - n_i + m_i) / K``, ``n_i`` the common
+neighbours and ``m_i`` those whose motion disagrees with ``i``'s (Eq. (13)-(15): ``min(|v_i|, |v_j|) /
+max(|v_i|, |v_j|) cos(v_i, v_j) <= tau``), averaged over the scales ``K + 2, K, K - 2`` and compared with
+``lambda``; a second iteration takes the neighbours among the first's inliers.
 
-GLPM (TGRS 2018, Sec. III): a small, reliable putative set made by a strict ratio test is filtered by two
-locality-preserving passes; it then guides the filtering of the whole set, the neighbours of every match
-being searched only among the guide matches. Each pass keeps a match when its neighbourhood cost
-``2 (K - n_i)`` (both images, binary distances, Eq. (4)) is at most ``lambda``.
+GLPM (TGRS 2018, Sec. III): a small set made by a strict ratio test is filtered by two passes, then guides
+two passes over the whole set (neighbours searched among the guide only); a pass keeps a match when its
+cost ``2 (K - n_i)`` (Eq. (4)) is at most ``lambda``.
 """
 
 from __future__ import annotations
@@ -33,12 +30,11 @@ def _common_neighbours(nx: np.ndarray, ny: np.ndarray):
 
 
 def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: bool) -> np.ndarray:
-    """The neighbour lists of the authors' demos: the ``k + 1`` nearest ``candidates`` of every query (the
-    query itself included when it is a candidate), the first answer dropped for a candidate query, as taken
-    for the query itself; a query outside ``candidates`` drops it too if ``drop_outside`` (LPM), else keeps
-    its ``k`` nearest (GLPM's ffm2). The k-d tree ranks rows at one location in an order of its own; here in
-    index order, so a query with a smaller-index candidate at its location keeps itself in its list and drops
-    that copy instead (VLFeat's tree likewise answers first one row of each such group for all of them).
+    """The neighbour lists of the authors' demos: the ``k + 1`` nearest ``candidates`` of every query, the
+    first answer dropped as the query itself; a query outside ``candidates`` drops it too if ``drop_outside``
+    (LPM), else keeps its ``k`` nearest (GLPM's ffm2). Rows at one location rank in index order, so a query
+    with a smaller-index candidate at its location keeps itself and drops that copy (VLFeat's tree likewise
+    answers one row of such a group first for all of them).
     """
     q = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
@@ -76,17 +72,9 @@ def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: 
 
 def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
               tree_ties: bool = True) -> np.ndarray:
-    """Multi-scale LPM cost (IJCV 2019, Eq. (15)) with neighbours searched among ``candidates``.
-
-    ``reading="ijcv"``: the K nearest neighbours at every scale, length ratio ``min(|v_i|, |v_j|) /
-    max(|v_i|, |v_j|)`` (the text of the paper). ``reading="code"``: as the authors' ``LPM_cosF.m`` and
-    ``demo_LPM_v2.m`` compute it (see :func:`lpm_filter`, Notes): the ratio of the squared lengths, the scale
-    ``s`` taking the neighbours of ranks ``j .. j + s - 1`` (``j`` = 0, 1, 2 for ``K + 2, K, K - 2``: the list
-    is trimmed in place from one scale to the next), and a query that is not among ``candidates`` losing its
-    nearest candidate (the k-d tree's first answer is dropped as if it were the query itself). ``tree_ties``
-    (with ``"code"``): the first answer among rows at the query's location is the smallest-index one, which
-    may not be the query (:func:`_tree_neighbours`); otherwise the query is always the one dropped.
-    """
+    """Multi-scale LPM cost (IJCV 2019, Eq. (15)) with neighbours searched among ``candidates``, in the
+    ``reading`` and with the ``tree_ties`` of :func:`lpm_filter` (the scale ``s`` of index ``j`` takes the
+    neighbours of ranks ``j .. j + s - 1`` in the code's reading)."""
     v = y - x
     norm = np.hypot(v[:, 0], v[:, 1])
     scales = [s for s in (k + 2, k, k - 2) if s > 0]
@@ -117,7 +105,7 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
         sim = (v[:, None, 0] * vj[..., 0] + v[:, None, 1] * vj[..., 1]) / (ni * nj) * ratio
     # Two null motions agree; a null and a non-null one do not.
     sim = np.where(hi == 0, 1.0, np.where(lo == 0, 0.0, sim))
-    # The code counts a disagreement when s < tau; the old reading here, s <= tau (measure zero).
+    # The code counts a disagreement when s < tau, the IJCV reading when s <= tau (measure zero).
     disagree = (sim < tau) if code else (sim <= tau)
     cost = np.zeros(len(x))
     for j, s in enumerate(scales):
@@ -151,20 +139,17 @@ def lpm_filter(
     ----------
     %(common_unused)s
     k : int, default 6
-        Central neighbourhood size; the scales are ``k + 2, k, k - 2`` = {8, 6, 4} (Sec. 5.1).
+        Central neighbourhood size; the scales are ``k + 2, k, k - 2`` (Sec. 5.1).
     lambdas : (float, float), default (0.8, 0.5)
         Cost thresholds of the first and second iteration (Sec. 5.1).
     tau : float, default 0.2
         Motion-consistency threshold of Eq. (14) (Sec. 5.1).
     reading : {"code", "ijcv"}, default "code"
-        ``"code"``: the neighbourhoods and the motion similarity as the authors' MATLAB code computes them
-        (see Notes); ``"ijcv"``: as the text of the IJCV paper reads (the K nearest neighbours at each scale,
-        the ratio of the motion lengths), this filter's default before issue 22.
+        The neighbourhoods and motion similarity of the authors' MATLAB code (see Notes), or of the IJCV
+        text (the K nearest neighbours at each scale, the ratio of the motion lengths).
     tree_ties : bool, default True
-        With ``reading="code"``: the demo removes a query from its own neighbourhood by dropping the k-d
-        tree's first answer, which among the rows at the query's location (many-to-many candidates) is any
-        of them; True ranks them by index (the query stays in its list unless it has the smallest index
-        there), False always drops the query itself.
+        With ``"code"``: among rows at the query's location, the k-d tree answer dropped as the query itself
+        is the smallest-index one (True), or always the query (False).
 
     Returns
     -------
@@ -173,39 +158,15 @@ def lpm_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods. The authors' MATLAB demo (jiayi-ma/LPM, demo_LPM_v2.m and
-    LPM_cosF.m) has no step for them: it drops the k-d tree's first answer as the query itself, so copies are
-    neighbours of one another; it is silent, and counting them once is our choice.
+    A location counts once in the neighbourhoods (the authors' demo is silent on them).
 
-    Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref lpm=DIR`` runs the
-    filtering block of ``demo_LPM_v2.m`` with ``LPM_cosF.m`` (checkout of jiayi-ma/LPM, VLFeat's k-d tree built
-    with mkoctfile) under GNU Octave 7.3 on the same candidates. The reproduced paper used the original code
-    and says nothing of these details, so the default ``reading="code"`` follows the code where it departs
-    from the IJCV text: (i) ``LPM_cosF`` trims the neighbour lists in place from one scale to the next, so the
-    scales ``K + 2, K, K - 2`` use the neighbours of ranks 1..K+2, 2..K+1 and 3..K, not the ``K_m`` nearest;
-    (ii) the length ratio of Eq. (13) is that of the squared lengths; (iii) a disagreement is ``s < tau``;
-    (iv) the query leaves its own list only as the k-d tree's first answer, which is dropped: in the second
-    iteration that is the nearest first-pass inlier of a query that is not one, and among rows at one
-    location (many-to-many candidates) it is one of them for all (``tree_ties``, index order here). Same
-    constants (K = 6, lambda = 0.8 / 0.5, tau = 0.2, second iteration from K + 4 inliers), pixel coordinates,
-    every candidate row fed as one match. ``reading="ijcv"`` is the former default. Measured on 6 pairs per
-    dataset (``--pairs 6``), ours P / R, reference P / R, mean Jaccard of the keep masks, planar then
-    non-planar:
-
-    - baseline, before (``ijcv``): 62.4 / 80.6 vs 74.7 / 75.8, J 0.615; 60.5 / 82.5 vs 73.0 / 60.6, J 0.511.
-    - baseline, after: 77.6 / 75.4, J 0.778; 76.6 / 58.7, J 0.705; CPU time 0.92-0.94x the reference's.
-    - best, before: 73.6 / 81.2 vs 86.6 / 19.7, J 0.158; 54.1 / 37.7 vs 44.6 / 5.4, J 0.051.
-    - best, after: 84.4 / 35.2, J 0.209; 50.9 / 11.5, J 0.104; 0.68-0.71x the reference's time.
-
-    Why not closer: the reference depends on the order of its rows, through the tree's order among rows at
-    one location (17-20 % of the rows share an image-1 location in the baseline configuration, 78 % in the
-    best one). Run again on the same candidates with the rows permuted (``--permutations 2``), it agrees with
-    its unpermuted run at Jaccard 0.763-0.775 / 0.750-0.772 (baseline) and 0.204-0.206 / 0.096-0.109 (best),
-    the level reached here, and its P / R move to 67.2-68.0 / 74.0-74.2 and 76.7-77.3 / 59.5-59.8 (baseline),
-    83.7-87.4 / 40.2-41.2 and 45.2-47.1 / 12.2-12.7 (best), around ours. With ``tree_ties=False`` (the query
-    always the answer dropped) the best configuration gives 80.7 / 66.6 and 47.0 / 28.8, far from all of
-    these. Counting coincident copies once (above, 3 % of the rows in the baseline) raises the precision:
-    without it, 66.9 / 74.5 (J 0.777) and 70.3 / 64.5 (J 0.769).
+    The reproduced paper ran the authors' code, so ``reading="code"`` follows ``demo_LPM_v2.m`` and
+    ``LPM_cosF.m`` where they depart from the IJCV text: (i) the neighbour lists are trimmed in place from one
+    scale to the next, so the scales use the neighbours of ranks 1..K+2, 2..K+1 and 3..K; (ii) the length
+    ratio of Eq. (13) is that of the squared lengths; (iii) a disagreement is ``s < tau``; (iv) the query
+    leaves its list only as the tree's first answer, dropped: in the second iteration that is the nearest
+    first-pass inlier of a query that is not one. The second iteration needs K + 4 inliers, as in the code.
+    The agreement with the original: ``docs/filters.md``.
 
     References
     ----------
@@ -283,20 +244,16 @@ def glpm_filter(
     %(image_sizes)s
     %(shapes_unused)s
     ratio : float, default 1/1.5
-        Strict NNR threshold of the small putative set (ratio 1.5 between second and first distance in
-        Sec. IV of the paper; the large set is the whole input).
+        Strict NNR threshold of the small putative set (Sec. IV; the large set is the whole input).
     schedule : sequence of four (K, lambda)
-        Neighbourhood size and cost threshold (on ``2 (K - n_i)``) of the two small-set passes and of the
-        two guided passes, default ((4, 6), (4, 4), (6, 6), (5, 4)) as published.
+        Neighbourhood size and threshold of the cost ``2 (K - n_i)`` of the two small-set passes and the two
+        guided passes, default ((4, 6), (4, 4), (6, 6), (5, 4)) as published.
     guide : {"location", "rows"}, default "location"
-        How the small-set inliers guide the whole set. ``"location"``: every candidate at the image-1
-        location of a small-set inlier joins the guide, as the authors' demo hands the small-set result to
-        the whole set (by image-1 coordinates); ``"rows"``: the small-set inliers alone (this filter's
-        default before issue 22). The paper is silent; they differ on many-to-many candidates only.
+        The guide of the whole set: every candidate at the image-1 location of a small-set inlier, as the
+        authors' demo hands it on by coordinates, or the small-set inliers alone.
     tree_ties : bool, default True
-        The authors' ``ffm2`` skips the k-d tree's first answer of a guide member as the member itself; among
-        the guide rows at its location it is any of them. True ranks them by index (a member stays in its
-        own list unless it has the smallest index there), False always skips the member itself.
+        Among guide rows at a member's location, the k-d tree answer ``ffm2`` skips as the member itself is
+        the smallest-index one (True), or always the member (False).
 
     Returns
     -------
@@ -305,40 +262,11 @@ def glpm_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods and in the guide. The authors' demo (jiayi-ma/GLPM, demo.m)
-    has no step for them (silent: our choice).
+    A location counts once in the neighbourhoods and in the guide.
 
-    Alignment with the authors' code (issue 22). ``benchmarks/bench_filters_ref.py --ref glpm=DIR`` runs the
-    two filtering blocks of the authors' ``demo.m`` with their ``ffm2.cpp`` and VLFeat's k-d tree (checkout of
-    jiayi-ma/GLPM, compiled with mkoctfile) under GNU Octave 7.3 on the same candidates, the small set being
-    the rows with ``scores <= ratio``. The passes, their (K, lambda) and the cost already matched. Two
-    changes, both on many-to-many candidates only (the paper is silent): the demo hands the small-set inliers
-    to the whole set by their image-1 coordinates, which brings every candidate at those locations into the
-    guide (default ``guide="location"``; ``"rows"`` is the former default), and ``ffm2`` skips the tree's
-    first answer of a guide member as the member itself, which among guide rows at one location is one of
-    them for all (``tree_ties``, index order here). Measured on 6 pairs per dataset, ours P / R, reference
-    P / R, mean Jaccard, planar then non-planar:
-
-    - baseline, before (``rows``, no ``tree_ties``): 98.1 / 79.9 vs 95.6 / 83.5, J 0.864; 90.7 / 57.0 vs
-      86.0 / 60.5, J 0.825.
-    - baseline, after: 95.8 / 82.0, J 0.901; 87.3 / 59.8, J 0.905; CPU time 0.18-0.32x the reference's.
-    - best, before: 79.5 / 79.5 vs 62.3 / 70.6, J 0.489; 48.6 / 55.8 vs 34.5 / 37.5, J 0.216.
-    - best, after: 64.9 / 67.9, J 0.461; 36.0 / 39.5, J 0.259; 0.56-0.69x the reference's time.
-
-    The reference stops with an error on one planar pair (homogr/LePoint2: no small-set inlier, and VLFeat
-    cannot build a tree on nothing); that pair is left out above. In the best configuration (78 % of the rows
-    share an image-1 location) the reference depends on the order of its rows: run again with the rows
-    permuted (``--permutations 2``), it agrees with its unpermuted run at Jaccard 0.473-0.486 / 0.214-0.273
-    (0.984-0.989 / 0.938-0.971 in the baseline), the level reached here, with P / R 63.1-64.9 / 73.4-75.3 and
-    33.0-39.1 / 36.7-52.6, around ours. Without counting coincident copies once (above) the baseline gives
-    J 0.962 / 0.915.
-
-    The guide's ``ratio`` is an NNR ratio read on the scale of the scores (issue 32): on D+ blob scores
-    (``r / (1 + r)``) 1/1.5 becomes 0.4. The measurements above passed the scores as plain arrays, so 1/1.5
-    was read on the D+ scale there, where it holds every candidate of the best configuration. Read on their
-    scale (``benchmarks/ablate_peer_filters.py --config best --sweep glpm:ratio=0.6667,0.4 --pairs 40``,
-    HarrisZ + SOSNet stand-in, ``paper-best-overlap``): P / R 48.5 / 54.6 -> 55.8 / 63.1 (planar) and
-    43.7 / 44.7 -> 61.2 / 50.9 (non-planar).
+    The passes, their (K, lambda) and the cost are those of the authors' ``demo.m`` with ``ffm2.cpp``, and so
+    are, where the paper is silent, ``guide`` and ``tree_ties`` (they matter on many-to-many candidates
+    only). The agreement with the original: ``docs/filters.md``.
 
     References
     ----------

@@ -1,37 +1,27 @@
 """PFM: Progressive Feature Matching, incremental graph construction and optimization (Lee, Lim, Suh, TIP 2020).
 
-PFM grows a graph of reliable matches and optimises it repeatedly. Here, as a filter of given candidates
-(no new matches are generated), it runs as follows.
+PFM grows a graph of reliable matches and optimises it repeatedly; as a filter it generates no new matches.
 
-1. **Local affine maps.** Every match carries the local map ``A_i`` from image 1 to image 2 around its
-   keypoints: ``A_i = A2_i A1_i^-1`` from the keypoint shapes (patch ``{kpt + A u : |u| <= 1}``) when they
-   are given; otherwise the least-squares affine map of the edges to its neighbours shared by the ``k``
-   nearest matches in both images (LPM's neighbourhood, ``k = 8``), undefined below two such neighbours.
-2. **Pairwise consistency.** Two matches joined by an edge agree when each one's map predicts the other's
-   image-2 keypoint: with ``r_ij = |(y_j - y_i) - A_i (x_j - x_i)|`` over the mean of the observed and
-   predicted edge lengths, ``c_ij = exp(-(r_ij^2 + r_ji^2) / (2 sigma^2))`` (a direction whose map is
-   undefined is left out; both undefined: 0).
-3. **Graph optimisation.** Binary labels ``l`` (1: inlier) minimise
-   ``E(l) = sum_i t_i l_i - lam sum_(ij) c_ij l_i l_j``: a match is worth keeping when its consistency
-   with the other kept matches it is linked to exceeds ``t_i = t + beta (rank_i - 1/2)`` (``rank_i`` in
-   [0, 1], the score rank, best first; equal scores: 0 offset). The pairwise term is attractive
-   (submodular), so the global minimum is a minimum s-t cut (Boykov and Kolmogorov), computed exactly with
+1. **Local affine maps** (:func:`local_affines`): ``A_i = A2_i A1_i^-1`` from the keypoint shapes, else the
+   least-squares map of the edges to the neighbours shared by the ``k`` nearest matches in both images.
+2. **Pairwise consistency** of an edge: ``c_ij = exp(-(r_ij^2 + r_ji^2) / (2 sigma^2))``, with ``r_ij =
+   |(y_j - y_i) - A_i (x_j - x_i)|`` over the mean of the observed and predicted edge lengths (a direction
+   without a map is left out; both: 0).
+3. **Graph optimisation.** Labels ``l`` (1: inlier) minimise ``sum_i t_i l_i - lam sum_(ij) c_ij l_i l_j``,
+   ``t_i = t + beta (rank_i - 1/2)`` (``rank_i`` in [0, 1], best score first; all scores equal: ``t``). The
+   pairwise term is submodular, so the minimum is an exact minimum s-t cut (Boykov and Kolmogorov), with
    integer capacities by SciPy's maximum flow.
-4. **Progressive, incremental graph.** Round 0 takes the best-scored ``seed_fraction`` of the matches,
-   links them by the Delaunay triangulation of their image-1 keypoints and optimises. Each further round
-   doubles the candidates (score order): the graph is the Delaunay triangulation of the matches kept so
-   far, and each new candidate is inserted at the triangle containing its image-1 keypoint (its three
-   vertices; outside the hull, its three nearest kept keypoints); the whole graph is optimised again, so
-   earlier decisions can be revised. The last round holds every match.
+4. **Progressive graph.** Round 0 links the best-scored ``seed_fraction`` of the matches by the Delaunay
+   triangulation of their image-1 keypoints. Each further round doubles the candidates (score order): the
+   triangulation of the kept matches, each new candidate linked to the vertices of the triangle holding
+   its image-1 keypoint (outside the hull: the three nearest), is optimised again, so earlier decisions
+   can be revised.
 
-Constants the paper leaves to the implementation, chosen here: ``sigma = 0.5`` (relative transfer error,
-tolerant enough for the similarity frames of SIFT under perspective change: 0.3 lost most inliers of
-Graffiti 1-3), ``t = 1.5`` and ``lam = 1`` (a match needs the consistency of about two kept neighbours),
-``beta = 0.5`` (scores break near ties only), ``seed_fraction = 0.05`` (seeds few and reliable: with a
-quarter of 13 000 Graffiti candidates as seeds, outlier seeds cut the inliers apart and nothing survived
-on 1-4). When a round keeps fewer than three matches, the next, larger candidate set is triangulated
-afresh as a new seed graph. Matches sharing an image-1 keypoint (many-to-many input) are linked
-to the matches of the neighbouring keypoints, never to each other.
+Constants the paper leaves open: ``sigma = 0.5`` (tolerant of SIFT's similarity frames under perspective;
+0.3 loses most inliers of Graffiti 1-3), ``t = 1.5`` and ``lam = 1`` (a match needs about two consistent
+kept neighbours), ``beta = 0.5`` (scores break near ties only), ``seed_fraction = 0.05`` (a quarter of the
+candidates as seeds lets outlier seeds cut the inliers apart). A round keeping fewer than three matches
+makes the next one a fresh seed graph. Matches sharing an image-1 keypoint are never linked to each other.
 """
 
 from __future__ import annotations
@@ -51,8 +41,7 @@ __all__ = ["pfm_filter", "local_affines"]
 
 _CAP_SCALE = 10_000  # max-flow capacities are integers: energies are multiplied by this and rounded
 #: Without keypoint shapes, the share of candidates left with no local map above which PFM cannot decide (and
-#: warns). Measured on SIFT + RootSIFT at 1500 keypoints: over 99 % on blob matching's many-to-many (paper-best)
-#: candidates, 51-96 % on its one-to-one (baseline) ones, whose outliers have none.
+#: warns): over 99 % on blob matching's many-to-many candidates, 51-96 % on its one-to-one ones.
 NO_MAP_WARN = 0.9
 
 
@@ -234,21 +223,17 @@ def pfm_filter(
     %(kpts)s
     %(matches)s
     scores : ndarray of shape (K,) or None
-        Lower is better: the order in which candidates join the graph and a small bias of the labelling
-        (``None``: all equal, input order).
+        Lower is better: the order in which candidates join the graph, and a small bias of the labelling.
     %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Affine shapes of the keypoints: the local maps ``A2 A1^-1``. Without them the maps are fitted to
-        the neighbours shared in both images; where that leaves almost every candidate without a map (more
-        than 90 %: on many-to-many candidates such as blob matching's, whose nearest neighbours are other
-        candidates at one keypoint, or where nearly all are wrong), PFM cannot decide and says so
-        (``UserWarning`` naming ``shapes1``).
+        Affine shapes of the keypoints, for the local maps. Without them, where the fit leaves more than
+        :data:`NO_MAP_WARN` of the candidates without a map (many-to-many candidates, whose nearest
+        neighbours share their keypoint), PFM cannot decide and warns (``UserWarning``).
     sigma : float, default 0.5
-        Relative transfer error of the pairwise consistency (step 2 of the module notes).
-    t, lam : float, default 1.5 and 1
-        Cost of keeping a match and weight of the consistency between kept matches (step 3).
-    beta : float, default 0.5
-        Weight of the score rank in the cost of keeping a match.
+        Relative transfer error of the pairwise consistency (step 2 of the module docstring).
+    t, lam, beta : float, default 1.5, 1 and 0.5
+        Cost of keeping a match, weight of the consistency between kept matches, weight of the score rank
+        in the cost (step 3).
     seed_fraction : float, default 0.05
         Fraction of the best-scored matches in the first graph; each round doubles it (step 4).
     k : int, default 8
@@ -260,33 +245,16 @@ def pfm_filter(
 
     Notes
     -----
-    Next to the paper's Table 2 (issue 22, item 2). The authors' code is distributed from the first author's
-    Google Sites page (sites.google.com/view/sehyung, "progressive-feature-matching"), not on GitHub; it could
-    not be fetched here, so it was not run. Bellavia's paper says the original code was "only modified to
-    work with blob matches as input", not how. On the 55 shared real pairs (baseline configuration: SIFT +
-    RootSIFT, ``baseline`` blob candidates at 1500 keypoints, the SIFT shapes giving the local maps; an empty
-    output counts as 0 % precision, as in the paper's means) the defaults give P / R 75.0 / 68.2 (planar, 7
-    empty outputs) and 86.3 / 63.5 (non-planar, 2), the paper 75.4 / 35.4 and 76.0 / 35.1: the same precision,
-    twice the recall. What halves it: ``seed_fraction = 1`` (every candidate in the first graph, one
-    optimisation, no progressive rounds) gives 64.8 / 34.9 and 79.4 / 30.0, the paper's recall (-0.5 / -5.1)
-    at -10.6 / +3.4 precision; 0.25 / 0.5 give 71.3 / 61.1, 67.8 / 52.2 (planar) and 82.8 / 54.5,
-    75.4 / 46.1. A tighter consistency does it too: ``sigma`` 0.3 / 0.2 give 72.1 / 53.8, 59.2 / 37.0 and
-    76.2 / 48.6, 73.2 / 33.9. A larger cost ``t`` does not (2.5: 65.7 / 48.2, 72.3 / 42.2; 3.5: almost every
-    output empty). So the paper's row matches a graph built on all the blob candidates at once (the inliers'
-    Delaunay neighbours are then mostly wrong candidates, and fewer inliers gather the consistency ``t`` asks
-    for) rather than grown from the best-scored ones, which is one way of feeding blob matches to PFM; but
-    Bellavia's text does not say so and the PFM paper grows the graph from reliable seeds, so the default
-    stays progressive. Commands (``OMP_NUM_THREADS=1``, ``CTXMATCH_DATA`` set; all 55 pairs by default)::
-
-        python benchmarks/ablate_peer_filters.py --sweep pfm:seed_fraction=0.05,0.25,0.5,1.0
-        python benchmarks/ablate_peer_filters.py --sweep pfm:sigma=0.2,0.3,0.5 --sweep pfm:t=1.5,2.5,3.5
+    The authors' code (from the first author's Google Sites page) could not be fetched here, and Bellavia's
+    paper says only that it was "modified to work with blob matches as input". The paper's recall is that of
+    a graph built on every candidate at once (``seed_fraction=1``); the default grows it from reliable seeds,
+    as the PFM paper does. The distance from the paper's row and the sweeps are in ``docs/filters.md``.
 
     References
     ----------
     S. Lee, J. Lim, I. H. Suh, "Progressive feature matching: incremental graph construction and
-    optimization", IEEE TIP 29, 2020.
-    Y. Boykov, V. Kolmogorov, "An experimental comparison of min-cut/max-flow algorithms for energy
-    minimization in vision", IEEE TPAMI 26(9), 2004.
+    optimization", IEEE TIP 29, 2020. Y. Boykov, V. Kolmogorov, "An experimental comparison of
+    min-cut/max-flow algorithms for energy minimization in vision", IEEE TPAMI 26(9), 2004.
 
     Examples
     --------

@@ -1,26 +1,17 @@
 """PGM: Progressive Graph Matching (Cho & Lee, CVPR 2012) on a sparse k-nearest-neighbour affinity.
 
-PGM alternates two steps on an *active* subset of the candidates, starting from the best-scored candidate
-of every image-1 keypoint, until the objective ``X' W X`` of the discrete solution stops growing, the active
-set stops changing, or ``max_rounds``:
+From the best-scored candidate of every image-1 keypoint, PGM alternates graph matching (:func:`rrwm`,
+discretised by greedy assignment) and graph progression (CVPR 2012: every input candidate is voted for by
+the current matches near it, weighted by their RRWM scores and affinities, and the best voted of every
+keypoint form the next active set), until the objective ``X' W X`` stops growing, the active set stops
+changing, or ``max_rounds``. The output is that matching less the matches the others do not support.
 
-1. **Graph matching** by reweighted random walks (:func:`rrwm`, ECCV 2010 Alg. 1), discretised into a
-   one-to-one matching by greedy assignment.
-2. **Graph progression** by probabilistic voting (CVPR 2012): every input candidate receives the votes of
-   the current matches near it, weighted by their RRWM scores and pairwise affinities; the best voted
-   candidates of every keypoint form the next active set.
-
-The output is the best matching, less the matches its other matches do not support (``min_support``).
-
-Pairwise affinity: ``max(1 - d_ab / tau, 0)``, ``d_ab`` the mutual projection error of the local affine maps
-``A = shape2 inv(shape1)`` (Cho, Lee & Lee, ICCV 2009; RRWM's ``max(tau - d, 0)`` over ``tau``, to which
-RRWM is invariant). Without shapes, ``max(1 - d_ab / rho, 0)`` with ``d_ab`` the relative length distortion
-of the edge, ``|l1 - l2| / ((l1 + l2) / 2)`` (the rotation-invariant term of Leordeanu & Hebert, ICCV 2005,
-made relative because a 50-pixel cut-off accepts any pair of short edges).
-
-Sparse affinity (a deviation, for memory: the dense ``n x n`` matrix of 16000 candidates takes 2 GB): only
-between a candidate and its ``k`` nearest active candidates in either image, symmetrised. The pairs dropped
-are far ones, whose projection error mostly exceeds ``tau`` anyway; Bellavia (TPAMI 2022, Sec. 2) also
+Affinity: ``max(1 - d / tau, 0)``, ``d`` the mutual projection error of the local affine maps
+``shape2 inv(shape1)`` (ICCV 2009; RRWM's ``max(tau - d, 0)``, scaled); without shapes ``max(1 - d / rho,
+0)``, ``d = |l1 - l2| / ((l1 + l2) / 2)`` the relative length distortion of the edge (Leordeanu & Hebert,
+ICCV 2005, made relative because a 50-pixel cut-off accepts any short edges). A deviation, for memory (the
+dense matrix of 16000 candidates takes 2 GB): the affinity is sparse, between a candidate and its ``k``
+nearest in either image; the far pairs dropped mostly exceed ``tau`` anyway, and Bellavia (Sec. 2) also
 describes PGM's neighbourhoods as "defined by the k closest matches".
 """
 
@@ -81,13 +72,9 @@ def _affinity(x, y, T, m, k: int, tau: float, rho: float) -> sp.csr_matrix:
 
 
 def _sinkhorn(a: np.ndarray, g1: np.ndarray, g2: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
-    """Sinkhorn normalisation of the candidates ``a`` over the conflict groups, with slack.
-
-    The candidates are the non-zero entries ``(g1, g2)`` of an ``n1 x n2`` assignment matrix, made square
-    as in the authors' code by ``|n1 - n2|`` dummy rows (or columns) over the whole of the larger side,
-    each entry starting at 1 (the jump weight of a candidate without support). The dummy rows stay equal to
-    one another, so they are kept as one vector with a multiplicity: ``O(K + n)`` per iteration.
-    """
+    """Sinkhorn normalisation of the candidates ``a``, the entries ``(g1, g2)`` of an ``n1 x n2`` assignment
+    matrix made square as in the authors' code by ``|n1 - n2|`` dummy rows of ones; the dummy rows stay
+    equal, so they are kept as one vector with a multiplicity: ``O(K + n)`` per iteration."""
     return _pgm_sinkhorn(a, g1, g2, tol, max_iter)  # compiled, same arithmetic as the array form
 
 
@@ -103,34 +90,31 @@ def rrwm(
     sinkhorn_tol: float = 1e-3,
     sinkhorn_iter: int = 10,
 ) -> np.ndarray:
-    """Reweighted random walks graph matching on a (sparse) affinity matrix.
+    """Reweighted random walks graph matching (Cho, Lee & Lee, ECCV 2010, Alg. 1) on a sparse affinity.
+
+    With probability ``c`` the walker follows the affinities, else it jumps to a node drawn from the current
+    scores amplified by ``exp(amp_max x / max x)`` and made doubly stochastic over the conflict groups by
+    Sinkhorn normalisation (:func:`_sinkhorn`). Defaults are the authors' code's, but ``sinkhorn_iter``
+    (theirs 1000; see :func:`pgm_filter`).
 
     Parameters
     ----------
     W : sparse matrix of shape (n, n)
-        Non-negative symmetric affinity between candidate matches (zero between conflicting candidates).
+        Non-negative symmetric affinity between candidates (zero between conflicting ones).
     group1, group2 : ndarray of shape (n,), int
-        Conflict group of every candidate in image 1 and in image 2 (e.g. its keypoint index, compacted).
-    c : float, default 0.2
-        Weight of the plain walk step; ``1 - c`` is the weight of the reweighted jump (ECCV 2010; the
-        authors' code default).
-    amp_max : float, default 30
-        Inflation factor of the reweighting ``exp(amp_max x / max x)`` (ECCV 2010; authors' code default).
-    max_iter, tol : int, float
-        The walk stops after ``max_iter`` steps or when the squared change of the scores (against the last
-        two iterates, to stop oscillations) is below ``tol`` (authors' defaults 300 and 1e-25).
+        Conflict group of every candidate in image 1 and in image 2 (e.g. its keypoint index).
+    c, amp_max : float, default 0.2 and 30
+        Weight of the plain walk step and inflation factor of the reweighted jump.
+    max_iter, tol : int, float, default 300 and 1e-25
+        The walk stops after ``max_iter`` steps or when the squared change of the scores against either of
+        the last two iterates (against oscillations) is below ``tol``.
     sinkhorn_tol, sinkhorn_iter : float, int, default 1e-3 and 10
-        Stopping rule of the Sinkhorn normalisation of each step: the authors' tolerance, and a cap of 10
-        iterations instead of their 1000 (see the Notes of :func:`pgm_filter`).
+        Stopping rule of the Sinkhorn normalisation of each step.
 
     Returns
     -------
     x : ndarray of shape (n,)
         Stationary scores, summing to 1 (all zero when ``W`` has no edge).
-
-    References
-    ----------
-    M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010, Alg. 1.
     """
     W = sp.csr_matrix(W)
     n = W.shape[0]
@@ -162,10 +146,8 @@ def rrwm(
 
 
 def greedy_assignment(score: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """One-to-one discretisation: take the best remaining candidate, drop those sharing a keypoint.
-
-    Candidates with a zero score are never taken. Ties go to the lower index (stable sort).
-    """
+    """One-to-one discretisation: take the best remaining candidate (ties: the lower index; never a zero
+    score), drop those sharing a keypoint."""
     keep = np.zeros(len(score), bool)
     used1, used2 = set(), set()
     for i in np.argsort(-score, kind="stable"):
@@ -212,32 +194,29 @@ def pgm_filter(
     Parameters
     ----------
     %(kpts)s
-    matches : ndarray of shape (K, 2)
-        Candidate matches, indices into ``kpts1`` and ``kpts2``; many-to-many allowed (candidates sharing a
-        keypoint are the conflict groups of RRWM; the output is one-to-one).
+    %(matches)s
+        Candidates sharing a keypoint are the conflict groups of RRWM; the output is one-to-one.
     scores : ndarray of shape (K,) or None
-        Unused by PGM (validated only): the candidates are already those of the descriptor matcher.
+        Lower is better: the initial active set holds the ``n_init`` best-scored candidates of every image-1
+        keypoint; ``None``: all equal.
     %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Affine shapes of the keypoints; when both are given the affinity is the mutual projection error of
-        the local affine transformations, otherwise the edge length distortion.
+        Affine shapes of the keypoints, for the mutual projection error; without them, the length distortion.
     k : int, default 10
-        Neighbours of a candidate in each image that get an affinity entry (and that vote for it).
-    tau : float, default 50
-        Cut-off of the mutual projection error, in pixels (RRWM and PGM experiments); used with shapes.
-    rho : float, default 0.5
-        Cut-off of the relative length distortion; used without shapes.
+        Neighbours of a candidate in each image that get an affinity entry (and vote for it).
+    tau, rho : float, default 50 and 0.5
+        Cut-off of the mutual projection error in pixels (RRWM and PGM experiments), and of the relative
+        length distortion without shapes.
     max_rounds : int, default 3
-        Maximum number of matching/progression rounds (PGM stops earlier when the active set is stable).
+        Maximum number of matching/progression rounds.
     per_node : int, default 3
-        Best voted candidates kept per image-1 keypoint in the next active set.
+        Best voted candidates per image-1 keypoint in the next active set.
     n_init : int, default 1
         Best-scored candidates per image-1 keypoint in the initial active set.
     min_support : float, default 2
-        A match of the final matching is output when the sum of its affinities (each in [0, 1]) with its
-        neighbours in the final matching reaches this value.
+        A match of the final matching is output when its affinities with the others sum to this value.
     c, amp_max, max_iter : float, float, int
-        RRWM parameters, see :func:`rrwm` (defaults of ECCV 2010).
+        RRWM parameters, see :func:`rrwm`.
 
     Returns
     -------
@@ -245,124 +224,33 @@ def pgm_filter(
 
     Notes
     -----
-    Constants the papers leave to the implementation, chosen here:
-
-    - ``k = 10``: the sparse graph. Ten neighbours in each image give each inlier about twenty affinity
-      entries, enough for RRWM to separate the consistent cluster, at ``O(k K)`` memory.
-    - ``per_node = 3``: PGM keeps the top candidates of each feature by posterior (CVPR 2012); the
-      blob matcher of this project gives at most a handful of candidates per keypoint, so three keep every
-      plausible alternative without letting the active set grow.
-    - ``rho = 0.5``: a moderate viewpoint change (scale 0.9-1.1, shear) and half-pixel noise on edges of a
-      few pixels distort lengths by up to about 0.2; half keeps such edges at an affinity of 0.6 or more,
-      while a random edge falls within it with a probability of a few per cent.
-    - ``min_support = 2``: PGM outputs the whole discrete matching; on a filter's input, where more than half
-      of the candidates can be outliers, an isolated outlier can still be assigned (it conflicts with no one),
-      so a match is output only when its consistency with the other matches of the solution is worth at
-      least two perfectly consistent neighbours (on the planted-outlier case, the 1st percentile of the
-      correct matches is above 3, the median of the wrong ones below 1).
-    - ``n_init = 1``: PGM starts from a small, reliable graph and lets the progression grow it; the
-      initial active set is the best-scored candidate of every image-1 keypoint (with ``scores=None``, the
-      first one), and the other candidates enter only when the current matches vote for them. On four real
-      pairs (Graffiti 1-3 and 1-5, Brussels, booksh; paper-best blob candidates, SIFT shapes) this took the
-      first graph from all the candidates to a third of them and the running time down by 1.4x to 7x (one
-      measurement on a loaded machine), precision and recall moving by at most 0.02 down or 0.1 up.
-    - Stopping: the objective ``X' W X`` of the discrete solution must grow from one round to the next
-      (PGM), and ``max_rounds = 3`` bounds the rounds (the authors' demo allows 10). Three rounds, not the
-      five used before, for speed (issue 22, item 5): 1.4x - 1.6x faster on 23 000 - 30 000 candidates
-      (homogr/boat 5.2x -> 3.7x DTM's time), no cell worse by more than 0.1 point on the 55 shared pairs
-      (``benchmarks/ablate_peer_filters.py --sweep pgm:max_rounds=2,3,5``; planar / non-planar P / R in %):
-      baseline configuration at the paper's budget 71.6 / 83.1 and 72.9 / 74.6 with 3 or 5 rounds alike;
-      best configuration at the paper's budget 77.6 / 81.4 and 74.0 / 64.4 (3) against 77.5 / 81.5 and
-      73.5 / 64.1 (5); best configuration at 8 000 keypoints (``--max-keypoints 8000``) 78.7 / 81.1 and
-      74.3 / 67.9 (3) against 78.4 / 80.9 and 74.0 / 67.7 (5). Two rounds left one pair empty (best).
-    - The Sinkhorn normalisation of each RRWM step is capped at ``sinkhorn_iter = 10`` iterations (see
-      :func:`rrwm`): on sparse many-to-many candidate sets it rarely reaches the 1e-3 tolerance, so the
-      authors' cap of 1000 made it the dominant cost (a cap of 100 ran 3x to 6x slower than 10 on the
-      pairs above, precision and recall differing by at most 0.05).
-    - No randomness is involved, so there is no ``rng``: the result is deterministic (ties broken by
-      candidate order).
-
-    Without shapes the length-only affinity cannot see a rotation or a reflection: a wrong match whose
-    distances to its neighbours happen to be preserved in length is supported (for instance one match sent
-    from the corner of a small regular grid to the far side of it).
+    Constants the papers leave open: ``k = 10`` (about twenty affinity entries per inlier, enough for RRWM
+    to separate the consistent cluster); ``per_node = 3`` (blob matching gives a handful of candidates per
+    keypoint); ``rho = 0.5`` (a moderate viewpoint change distorts short edges by up to about 0.2, a random
+    edge falls within 0.5 a few per cent of the time); ``min_support = 2`` (an isolated outlier conflicts with
+    no one and can be assigned, so a match needs the consistency of two perfectly consistent neighbours);
+    ``n_init = 1`` (PGM starts from a small, reliable graph); ``max_rounds = 3`` and ``sinkhorn_iter = 10``,
+    for speed (their effect: ``docs/filters.md``). Without shapes the affinity cannot see a rotation or a
+    reflection that keeps edge lengths.
 
     %(coincident)s
     A group is decided with the keypoint indices and shapes of its best-scored copy, and a location counts once
-    in the affinity graph and the votes. The authors' code (below) drops such redundant candidates instead: a
-    candidate within 3 pixels of an already selected one in both images is not selected
-    (``redundancy_thres``); merging keeps the decision with every copy, our choice. The output stays
-    one-to-one: of the rows that repeat one keypoint pair only the best-scored is output, while copies on
-    distinct coincident keypoints are all output (distinct keypoints to the one-to-one constraint).
+    in the graph and the votes (the authors' code drops a candidate within 3 pixels of a selected one
+    instead). Of the rows that repeat one keypoint pair only the best-scored is output.
 
-    **Side by side with the authors' code and the paper (issue 22).** Cho's MATLAB release (ProgGM v1.0,
-    2013, with RRWM) is public today only as a copy inside a third-party thesis repository (GitHub
-    ``tikhoncheva/uni``, ``Master/IterativeApproach/Testing/RealImages/ver1/Methods/ProgGM_code`` and
-    ``.../GMAlgorithms/RRWM``), edited by that author (the progression's affinity there is an edge-length term
-    of her own, ``computeEuclidDistance``, 2015). It was read, not copied and not run as a reference: it is a
-    matcher, not a filter (after the first round, the matches vote in the space of *every* keypoint pair, the
-    25 image-1 neighbours of a match projected by its local affine transformation onto their 5 nearest
-    image-2 keypoints with weights ``exp(-distance)``, and up to ``max_candidates = 3000`` new candidates are
-    taken from that space, so its output leaves the input candidate set); it needs the keypoints' affine
-    frames, which the Octave interface of ``benchmarks/bench_filters_ref.py`` does not pass; and the copy is
-    not the pristine release. What follows what:
-
-    - As in its ``RRWM.m``: the walk (``c = 0.2``, ``amp_max = 30``, 300 iterations, ``1e-25`` on the
-      smaller of the last two squared changes), the walk matrix normalised by the maximum degree, conflicting
-      and diagonal entries removed from ``W``, the Sinkhorn normalisation with slack rows (``tolC = 1e-3``;
-      capped at 10 iterations here, 1000 there), the greedy discretisation (``greedyMapping``) and the
-      stopping rule of the progression (the score ``X' W X`` must grow; ``maxIterGM = 10`` there, 5 here).
-    - Differently: the affinity is ``max(1 - d / tau, 0)`` of the mutual projection error (RRWM paper,
-      ``max(50 - d, 0)``), where the release's ``dissim2affinity`` uses ``exp(-d / 0.15)`` (the paper's form
-      is there, commented out); the affinity is sparse (k-NN, module docstring) where the release builds the
-      dense matrix; the votes reach only the input candidates (each voted by the solution matches among its
-      ``k`` nearest, weighted by their scores and affinities; ``per_node`` kept per keypoint), where the
-      release's reach every keypoint pair; and the release outputs the whole discrete matching (its README:
-      "ProgGM does not explicitly consider outlier elimination"), where this filter drops the matches of
-      support below ``min_support``.
-
-    Measured divergence from the paper's Table 2 PGM row (baseline, the 55 shared pairs at the paper's
-    budget, ``figures/paper/tables.md``, "Next to the paper"): planar precision / recall -6.7 / -1.7 points
-    without a model and -4.3 / -4.4 with 1SAC, non-planar -2.4 / -14.2 and +1.5 / -12.5. No single constant
-    closes the non-planar recall gap: every setting that raises recall there lowers precision well below the
-    paper's, and none reaches both (``OMP_NUM_THREADS=1
-    CTXMATCH_DATA=... benchmarks/ablate_peer_filters.py --config baseline --sweep pgm:min_support=0,1,1.5,2``,
-    and likewise ``k``, ``tau``, ``max_rounds``; planar / non-planar P / R in %, the paper's 78.2 / 84.8 and
-    75.2 / 88.8):
-
-    ==============================  ===================  ===================
-    setting                         planar P / R         non-planar P / R
-    ==============================  ===================  ===================
-    ``min_support = 2`` (default)   71.6 / 83.1          72.9 / 74.6
-    ``min_support = 0`` (release)   33.7 / 98.5          34.5 / 94.2
-    ``min_support = 1``             55.0 / 92.0          55.8 / 84.3
-    ``min_support = 1.5``           64.2 / 87.6          64.7 / 80.0
-    ``k = 5`` / ``k = 20``          74.6 / 76.1,         77.1 / 66.8,
-                                    68.5 / 88.8          67.6 / 79.6
-    ``tau = 25`` / ``tau = 100``    81.5 / 76.6,         87.1 / 65.7,
-                                    50.5 / 90.3          50.5 / 82.9
-    ``max_rounds = 1`` / ``10``     71.4 / 83.0,         72.9 / 74.2,
-                                    71.6 / 83.1          72.9 / 74.6
-    ``max_rounds = 3`` (default)    71.6 / 83.1          72.9 / 74.6
-    ==============================  ===================  ===================
-
-    The progression itself moves little on these candidates (one round is within 0.4 points of ten). Our
-    hypothesis, untested since the release was not run: the paper's recall at its precision comes from what
-    the release does and a filter of given candidates does not (candidates grown over all keypoint pairs),
-    or from its ``exp(-d / 0.15)`` affinity.
-
-    Speed: the pairwise affinity, the votes and the Sinkhorn normalisation are compiled (numba,
-    ``_pgm_kernels.py``), bit-identical to their array form (keep masks unchanged on 165 real candidate sets:
-    the 55 shared pairs in three configurations); with five rounds, on the largest candidate set of
-    ``benchmarks/bench_filters_real.py`` (kusvod2/Leuven1, 30 155 rows) PGM went from 7.1x - 7.5x to 3.3x
-    DTM's time, the worst of the 17 shared pairs with 15 000 - 32 000 candidates from 10.9x to 5.2x
-    (homogr/boat); three rounds (above) bring it to 3.7x (single runs on a shared two-core machine).
+    The authors' release (ProgGM v1.0, an edited copy in GitHub ``tikhoncheva/uni``) was read, not run: it is
+    a matcher whose progression takes new candidates from every keypoint pair. As there: the walk, Sinkhorn
+    with slack rows (1000 iterations there), the greedy discretisation and the stopping rule
+    (``maxIterGM = 10`` there, ``max_rounds = 3`` here). Differently: the affinity (the RRWM paper's, not the
+    release's ``exp(-d / 0.15)``; sparse), votes for the input candidates only, and ``min_support``, where the
+    release outputs the whole matching. The distance from the paper's row: ``docs/filters.md``.
 
     References
     ----------
     M. Cho, K. M. Lee, "Progressive graph matching: Making a move of graphs via probabilistic voting",
-    CVPR 2012. M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010.
-    M. Cho, J. Lee, K. M. Lee, "Feature correspondence and deformable object matching via agglomerative
-    correspondence clustering", ICCV 2009 (mutual projection error).
+    CVPR 2012. M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010;
+    "Feature correspondence and deformable object matching via agglomerative correspondence clustering",
+    ICCV 2009.
 
     Examples
     --------
@@ -391,8 +279,7 @@ def pgm_filter(
         return np.zeros(n, bool)
     x, y, m = ms.x, ms.y, ms.matches
     T = _local_affines(ms.A1, ms.A2)
-    # Initial active set: the best-scored candidate of every image-1 keypoint (the descriptor matches PGM
-    # starts from); the progression then brings in the alternatives that the matching supports.
+    # Initial active set: the best-scored candidate of every image-1 keypoint.
     active = _top_per_keypoint(-ms.scores, m[:, 0], n_init, positive=False)
     solution = np.zeros(n, bool)
     best = -1.0
@@ -434,12 +321,8 @@ def pgm_filter(
 
 
 def _votes(x, y, T, m, sol: np.ndarray, weight: np.ndarray, k: int, tau: float, rho: float) -> np.ndarray:
-    """Probabilistic vote of the current matches ``sol`` (scores ``weight``) for every candidate.
-
-    The vote of candidate ``a`` is ``sum_j w(a, j) x_j`` over the matches ``j`` of the current solution
-    among its ``k`` nearest in image 1 or in image 2 (each counted once), ``w`` the pairwise affinity and
-    ``x_j`` the RRWM score; a match does not vote for itself nor for a candidate it conflicts with.
-    """
+    """Vote ``sum_j w(a, j) weight_j`` for every candidate ``a`` of the matches ``j`` of ``sol`` among its
+    ``k`` nearest in either image (once each, none for itself or a conflicting candidate)."""
     n = len(x)
     kk = min(k, len(sol))
     nbs = []

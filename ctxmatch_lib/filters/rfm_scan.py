@@ -1,40 +1,18 @@
 """RFM-SCAN: Robust Feature Matching using SpatialClustering with heavy outliers (Jiang et al., TIP 2020).
 
-Each match becomes a point of a motion space made of its two keypoints and its motion vector,
-``[x, y, y - x]``, every coordinate min-max normalised to [0, 1] over the matches (Sec. III-A). The distance
-between two matches adds the keypoint distances in both images and the motion-vector distance, the latter
-amplified when the matches are close (Eq. (3)):
+Each match is a point ``[x, y, y - x]`` of a motion space, every coordinate min-max normalised to [0, 1]
+(Sec. III-A), with the distance of Eq. (3), where the motion term weighs more between close matches:
+``d_ij = |x_i - x_j| + |y_i - y_j| + (1 + gamma exp(-min(|x_i - x_j|, |y_i - y_j|))) |v_i - v_j|``.
+DBSCAN (Ester et al., KDD 1996) keeps the core matches (``MinPts`` matches, itself included, within
+``eps``) and those within ``eps`` of one, with adaptive parameters (Sec. III-B): ``MinPts = clip(round(pct
+N), 3, 30)`` and ``eps = min L + mu (max L - min L)``, ``L_i`` the distance to the ``MinPts``-th nearest
+match. A second round (Sec. III-C) pushes the matches the first left unclustered away (distances times 100)
+and clusters again. As in the authors' demo, ``round(min(0.05 N, 20))`` seeded random matches are added,
+so that ``eps`` stays meaningful on nearly outlier-free input; they are never returned.
 
-    d_ij = |x_i - x_j| + |y_i - y_j| + (1 + gamma * exp(-min(|x_i - x_j|, |y_i - y_j|))) * |v_i - v_j|.
-
-Inliers form dense clusters, outliers are sparse: DBSCAN (Ester et al., KDD 1996) keeps the matches that are
-core points (at least ``MinPts`` matches, itself included, within ``eps``) or lie within ``eps`` of a core
-point. The parameters are adaptive (Sec. III-B): ``MinPts = clip(round(pct * N), 3, 30)`` and, with
-``L_i`` the distance of match ``i`` to its ``MinPts``-th nearest match, ``eps = min L + mu * (max L - min
-L)``. A second round (Sec. III-C) recomputes ``L`` and ``eps`` (``mu = 0.08``) with the matches not
-clustered by the first round pushed away (their distances multiplied by 100), and clusters again.
-
-As in the authors' demo, a few uniform random matches (``round(min(0.05 N, 20))``, seeded) are added before
-clustering so that the adaptive ``eps`` stays meaningful when the input is almost outlier-free; they are
-never returned. Only the kept/rejected mask is needed, so DBSCAN's cluster labels are not built: a match is
-kept when it is a core point or is within ``eps`` of one, which is exactly the set DBSCAN assigns to some
-cluster.
-
-No K x K matrix is built and the result is the dense computation's, bit for bit. Only the exact ``min L``
-and ``max L`` (hence ``eps``), each match's core status and its reachability decide, and every decision is
-either taken on the float32 distances of the dense formula or proven from bounds:
-
-- upper bounds of ``L_i`` from k approximate nearest neighbours (a k-d tree over an embedding of the
-  points; any k distances bound the k-th), the distances in float64 times ``1 + margin``; in the second
-  round most matches get a coarse bound (``MinPts`` matches surely within a radius just below a known
-  ``L``), which the search for ``max L`` passes by;
-- ``min L``: a ball search of radius ``min upper`` where a grid count finds ``MinPts`` matches possibly
-  within it; ``max L``: whole rows of distances for the few matches with the largest bounds (to the second
-  round's clustered matches only; the others, at 100 times their distance, ball-searched within the bound);
-- core and reach: neighbours counted on uniform grids over the keypoint in image 1 and the motion vector
-  (:mod:`ctxmatch_lib.filters._rfm_kernels`, compiled, float64): a match is counted when surely within
-  ``eps`` (a relative margin below) or possibly (above); the rare counts the margin leaves open are
-  settled on the float32 distances (whole rows, or a ball search in the L1 embedding).
+No K x K matrix is built, and the result is the dense computation's bit for bit: every decision is taken on
+the float32 distances of the dense formula or proven from bounds (k-NN upper bounds of ``L``,
+:class:`_MotionSpace`; grid counts, :mod:`._rfm_kernels`).
 """
 
 from __future__ import annotations
@@ -58,15 +36,12 @@ _P_SCALE = {2: 1.0, 1: float(np.sqrt(2.0))}
 
 
 class _MotionSpace:
-    """Distances of Eq. (3) between normalised motion-space points, computed on demand, with k-d trees.
+    """Distances of Eq. (3) between motion-space points (float32, as the dense formula), with k-d trees.
 
-    A match ``j`` within ``r`` of ``i`` has ``|dx| + |dy| <= r``, hence ``min(|dx|, |dy|) <= r / 2`` and a
-    motion weight of at least ``c(r) = 1 + gamma exp(-r / 2)``, so ``d_ij`` is at least the Euclidean
-    distance between the embeddings ``[x, y, c(r) v]`` (a sum of norms bounds the norm of the
-    concatenation): a ball of radius ``r`` there holds every match within ``r``. So does the ball of radius
-    ``sqrt(2) r`` in the L1 distance between the embeddings (a 2-D norm is at least the L1 norm over
-    ``sqrt(2)``), often the smaller ball of the two (``p=1``). The true distances of the matches found are
-    computed in float32 with the operations of the dense row blocks they replace.
+    A match within ``r`` has ``min(|dx|, |dy|) <= r / 2``, hence a motion weight of at least
+    ``c(r) = 1 + gamma exp(-r / 2)``: the Euclidean ball of radius ``r`` around the embedding
+    ``[x, y, c(r) v]`` holds every match within ``r``, and so does the L1 ball of radius ``sqrt(2) r``
+    (``p=1``, often the smaller).
     """
 
     def __init__(self, feats: np.ndarray, gamma: float) -> None:
@@ -130,12 +105,8 @@ class _Round:
         self.groups = [(np.float32(s), np.flatnonzero(scale == s)) for s in np.unique(scale)]
 
     def upper(self) -> np.ndarray:
-        """An upper bound of every ``L_i``: the largest true distance to k (approximately) nearest matches.
-
-        The neighbours come from the least-scaled group alone when it has enough matches (a distance
-        multiplied by 100 rarely helps and any k true distances give an upper bound). In that case (the
-        second round), most matches get a coarse bound instead (see :meth:`coarse_upper`).
-        """
+        """An upper bound of every ``L_i``: the largest true distance to k approximate nearest matches
+        (:meth:`tree_upper`), or :meth:`coarse_upper` in the second round."""
         sp = self.space
         self.coarse = np.zeros(sp.n, bool)
         if len(self.groups) > 1 and len(self.groups[0][1]) >= self.k:
@@ -143,7 +114,8 @@ class _Round:
         return self.tree_upper(np.arange(sp.n) if sp.order is None else sp.order)
 
     def tree_upper(self, rows: np.ndarray) -> np.ndarray:
-        """The k-NN upper bound of ``L`` (see :meth:`upper`) of ``rows``, in their order."""
+        """The k-NN upper bound of ``L`` of ``rows``, in their order; the neighbours come from the least-scaled
+        group alone when it has ``MinPts`` matches (any k true distances bound the k-th)."""
         sp, n = self.space, self.space.n
         groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
         cand, cscale = [], []
@@ -152,7 +124,7 @@ class _Round:
             tree = sp.tree(s, g, 0.0)
             if sp.order is None and len(g) == n:
                 # Queries in the leaf order of a tree over every match (the first round's) walk the same
-                # nodes one after another (about 10 % faster than in row order; the same neighbours).
+                # nodes one after another (faster than in row order; the same neighbours).
                 sp.order = g[tree.indices]
                 if len(rows) == n:
                     rows = sp.order
@@ -169,14 +141,10 @@ class _Round:
         return out[rows] if len(rows) < n else out
 
     def coarse_upper(self) -> np.ndarray:
-        """Upper bounds of ``L`` where the least-scaled group has ``MinPts`` matches or more (second round).
-
-        k-NN bounds (:meth:`tree_upper`) for seeds: the matches densest in the previous round (the smallest
-        ``L`` lie among them) and a spread sample. Every other match with ``MinPts`` matches surely within
-        ``R`` (just below the largest exact ``L`` of a few seeds; grid counts, cheap at that radius) gets
-        ``R`` (marked coarse: refined by :meth:`refine` should the search for ``max L`` reach them), the
-        rest k-NN bounds.
-        """
+        """Upper bounds of ``L`` where the least-scaled group has ``MinPts`` matches (second round): k-NN
+        bounds for seeds (the previous round's densest matches and a spread sample); ``R``, just below the
+        largest exact ``L`` of a few seeds, for every match with ``MinPts`` matches surely within ``R``
+        (marked coarse, see :meth:`refine`); k-NN bounds for the rest."""
         sp, n = self.space, self.space.n
         out = np.empty(n, np.float32)
         order = np.arange(n) if sp.order is None else sp.order
@@ -263,11 +231,8 @@ class _Round:
         return out
 
     def ball_core(self, queries: np.ndarray, radius: float, p: int = 2) -> np.ndarray:
-        """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances).
-
-        The same test as ``ball_kth(queries, radius) <= radius`` (the k-th smallest of the same float32
-        distances is within ``radius`` exactly when k of them are), by counting instead of sorting.
-        """
+        """``ball_kth(queries, radius) <= radius`` (at least ``MinPts`` matches within ``radius``), by counting
+        instead of sorting."""
         count = np.zeros(len(queries), np.int64)
         for s, g in self.groups:
             for sel, lens, j in self.space.ball(s, g, queries, np.full(len(queries), radius / s), p=p):
@@ -277,12 +242,9 @@ class _Round:
         return count >= self.k
 
     def dense_kth(self, queries: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        """Exact ``L`` of ``queries`` (for the few far matches) from whole rows of distances to the least-scaled
-        group, and from the matches of the other groups within ``upper`` (their ``L`` bound; a ball search).
-
-        Only the matches within ``L`` decide the k-th smallest, and ``upper >= L``; when the least-scaled group
-        has fewer than ``MinPts`` matches (``upper`` then comes from every group), the rows are whole.
-        """
+        """Exact ``L`` of a few ``queries`` from whole rows of distances to the least-scaled group and the
+        matches of the other groups within ``upper >= L`` (whole rows when that group has fewer than
+        ``MinPts`` matches)."""
         k = self.k
         split = len(self.groups) > 1 and len(self.groups[0][1]) >= k
         cols = self.groups[0][1] if split else np.arange(self.space.n)
@@ -323,14 +285,8 @@ class _Round:
             kth[batch] = self.dense_kth(batch, upper)
 
     def clustered(self, mu: float) -> np.ndarray:
-        """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation.
-
-        ``min L`` is found by a ball search of radius ``min upper`` (small), ``max L`` from whole rows of
-        distances, taken from the largest upper bound down until no upper bound exceeds the largest ``L``
-        found (a few rows; in the second round, the coarse bounds last). A match is core when at least
-        ``MinPts`` matches lie within ``eps`` (scaled; counted on grids, see :meth:`core`), and clustered
-        when it is core or within ``eps`` of a core match (counted on a grid of the core matches).
-        """
+        """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation:
+        core matches (:meth:`core`) and those within ``eps`` of one."""
         n = self.space.n
         everyone = np.arange(n)
         upper = self.upper()
@@ -382,22 +338,16 @@ class _Round:
 
 
 def _clustered(space: _MotionSpace, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
-    """Matches that DBSCAN puts in a cluster, with the adaptive eps of Sec. III-B.
-
-    ``col_scale`` multiplies the distances *to* each match (second round: 1 or 100); a non-core match ``j``
-    is clustered when some core ``i`` has ``d_ij * col_scale[j] <= eps``.
-    """
+    """Matches that DBSCAN clusters with the adaptive eps of Sec. III-B, the distances *to* each match
+    multiplied by ``col_scale`` (second round: 1 or 100)."""
     scale = np.ones(space.n, np.float32) if col_scale is None else col_scale.astype(np.float32)
     return _Round(space, scale, min_pts).clustered(mu)
 
 
 def _added_matches(x: np.ndarray, y: np.ndarray, n_noise: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """The demo's random matches: uniform in ``[0, max]`` of each coordinate of the real matches, image 1 first.
-
-    An integer ``rng`` draws as GNU Octave's ``rand`` after ``rand('state', rng)`` (and as Python's
-    ``random.Random(rng)``: the Mersenne twister seeded by ``init_by_array([rng])``, 53-bit doubles); a
-    ``rand(n, 2)`` fills its first column, then its second.
-    """
+    """The demo's random matches: uniform in ``[0, max]`` of each coordinate of the real matches, image 1
+    first. An integer ``rng`` draws as Octave's ``rand`` after ``rand('state', rng)``, which is Python's
+    ``random.Random(rng)`` (the same Mersenne twister); ``rand(n, 2)`` fills column by column."""
     if isinstance(rng, np.random.Generator):
         u = rng.random(4 * n_noise)
     else:
@@ -425,28 +375,20 @@ def rfm_scan_filter(
     %(kpts)s
     %(matches)s
     %(scores_unused)s
-    image_size1, image_size2 : (int, int)
-        Image sizes (width, height); validated only (the added random matches span the matches' own
-        coordinates, as in the authors' demo).
+    %(image_sizes)s
     %(shapes_unused)s
     gamma : float, default 10
-        Amplification of the motion distance for nearby matches, Eq. (3) (Sec. IV-A).
-    pct : float, default 0.05
-        ``MinPts`` as a fraction of the matches (Sec. IV-A: 0.02-0.05).
-    min_pts_bounds : (int, int), default (3, 30)
-        Range of ``MinPts``.
+        Amplification of the motion distance of nearby matches, Eq. (3) (Sec. IV-A).
+    pct, min_pts_bounds : float and (int, int), default 0.05 and (3, 30)
+        ``MinPts`` as a fraction of the matches (Sec. IV-A: 0.02-0.05), and its range.
     mu : (float, float), default (0.1, 0.08)
         ``eps`` rates of the two rounds (Sec. III-B, IV-A).
     add_noise : bool, default True
         Add ``round(min(0.05 K, 20))`` uniform random matches before clustering (authors' demo).
     rng : None, int or numpy.random.Generator, default 0
-        Seed of the added matches. An integer ``s`` (or None: fresh entropy) draws them as GNU Octave's
-        ``rand`` after ``rand('state', s)`` (Python's ``random.Random(s)``, the same Mersenne twister), so
-        the default reproduces the authors' demo run under Octave with its random state reset to 0; a
-        Generator draws with its ``random``.
-    merge_coincident : bool, default True
-        Decide coincident candidates once (see Notes); False clusters the rows as given, as the authors'
-        code does.
+        Seed of the added matches. An integer ``s`` (None: fresh entropy) draws them as GNU Octave's ``rand``
+        after ``rand('state', s)``, so the default reproduces the authors' demo under Octave.
+    %(merge_option)s
 
     Returns
     -------
@@ -455,58 +397,19 @@ def rfm_scan_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the density counts. The authors' demo (StaRainJ/RFM-SCAN, Demo_main.m) clusters
-    the rows as given, with no step for them (silent: our choice). Without it, MinPts copies of a row (3 below
-    about 65 candidates) are a core point of DBSCAN by themselves. ``N`` (for MinPts and the added random
-    matches) counts distinct matches. ``merge_coincident=False`` clusters the rows as given, as the authors'
-    code does.
+    A location counts once in the density counts and in ``N``: otherwise MinPts copies of a row (3 below about
+    65 candidates) are a core point by themselves.
 
-    The authors' code (StaRainJ/RFM-SCAN: ``Demo_main.m``, ``myDist.m``, ``GetParamater.m``, ``DBSCAN.m``),
-    where Bellavia's paper and Jiang et al.'s are silent: ``mapminmax`` of every coordinate of ``[x, y, y - x]``
-    to [0, 1]; Eq. (3) with Euclidean keypoint and motion distances; ``MinPts = min(max(round(pct N'), 3),
-    30)`` with ``N'`` the rows including the added random matches (MATLAB's ``round``, halves away from zero);
-    ``L`` the ``MinPts``-th smallest distance of each row, itself (0) included, over every row (the added
-    matches too); DBSCAN's clusters are every core row (``MinPts`` rows within ``eps``, ``<=``) and every row
-    within ``eps`` of one, whatever the visiting order; the second round multiplies by 100 the distances to
-    the rows (columns) that the first round left unclustered, the added matches always among them; the kept
-    rows are the real ones in a cluster. The added matches (``round(min(0.05 N, 20))``) are uniform in ``[0,
-    max]`` of each coordinate of the real keypoints, image 1 drawn before image 2; with ``rng=0`` they are
-    Octave's draws after ``rand('state', 0)``. Our port follows all of this (before this alignment: the added
-    matches spanned the image sizes, drawn by NumPy, and Python's ``round``).
-
-    Measured against the authors' code under GNU Octave 7.3 (``benchmarks/ref_rfm_scan.py``; 6 shared pairs
-    per dataset, 1500 keypoints; Jaccard of the keep masks, P / R ours vs theirs)::
-
-        OMP_NUM_THREADS=1 CTXMATCH_DATA=... python benchmarks/bench_filters_ref.py \
-            --ref rfm_scan=/tmp/ref/RFM-SCAN --pairs 6 --configs baseline best [--param rfm_scan:merge_coincident=false]
-
-    ``merge_coincident=False``: every mask identical (Jaccard 1.000) in the four configuration x dataset cells.
-    Default: 1.000 on ``best`` (HarrisZ + SOSNet, no coincident rows); baseline (SIFT, 2-5 % coincident rows)
-    planar 0.986 (P / R 71.6 / 86.6 vs 72.2 / 86.9), non-planar 0.866 (43.9 / 77.4 vs 47.9 / 76.6: kusvod2/zoom
-    and booksh, where the copies are dense enough to move ``eps``). The original is random: over Octave states
-    0-5 its masks agree with its state-0 mask at Jaccard 0.95-0.985 (means per cell). Its masks do not depend
-    on the row order (``--permutations 1``: Jaccard 1.000). Before this alignment: Jaccard 0.962 / 0.846 /
-    0.975 / 0.954 (baseline planar / non-planar, best planar / non-planar). Ours takes 1-7 % of its CPU time.
-    At the paper's scale (the 55 shared pairs, baseline, no model; ``benchmarks/ablate_peer_filters.py --sweep
-    rfm_scan:merge_coincident=true,false --pairs 40``): planar P / R 54.2 / 91.1, non-planar 49.2 / 80.6 by
-    default; 55.0 / 93.1 and 51.0 / 79.9 with ``merge_coincident=False`` (the original's own result on our
-    candidates); 52.3 / 93.8 and 45.1 / 85.7 before this alignment (``figures/paper/tables.md``); the paper's
-    Table 2 (as quoted there) 57.7 / 92.8 and 54.0 / 92.7. The non-planar recall gap (12 points) is the
-    original's on our data.
-
-    Speed at real sizes (issues 22 and 33; ``CTXMATCH_DATA=... python benchmarks/bench_filters_real.py
-    --pairs 3 --repeat 2 --filters rfm_scan``, process time; sift-rootsift, paper-best-overlap, 8000
-    keypoints, 19 033 - 30 155 candidates): 2.33 - 2.38x DTM's time summed over the three pairs, 2.42 -
-    2.47x on the worst pair (three runs), with the same keep masks as before (4.85x / 6.25x before the grid
-    counts and coarse bounds; in one process, the earlier code 6.10x / 4.60x / 4.02x DTM on
-    kusvod2/Brussels / Leuven1 / hpatches v_wormhole 1-4, this one 2.44x / 2.40x / 2.19x).
+    Where the papers are silent, the authors' code (StaRainJ/RFM-SCAN) is followed: Euclidean distances in
+    Eq. (3); ``MinPts`` counts the added matches, with MATLAB's ``round``; ``L`` over every row, itself
+    included; ``<=`` against ``eps``; the added matches, uniform in ``[0, max]`` of each coordinate, always
+    pushed away in the second round. The agreement with the original: ``docs/filters.md``.
 
     References
     ----------
     X. Jiang, J. Ma, J. Jiang, X. Guo, "Robust feature matching using spatial clustering with heavy
-    outliers", IEEE TIP 29, 2020.
-    M. Ester, H.-P. Kriegel, J. Sander, X. Xu, "A density-based algorithm for discovering clusters in large
-    spatial databases with noise", KDD 1996.
+    outliers", IEEE TIP 29, 2020. M. Ester et al., "A density-based algorithm for discovering clusters in
+    large spatial databases with noise", KDD 1996.
 
     Examples
     --------

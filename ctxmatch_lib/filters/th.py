@@ -1,11 +1,7 @@
-"""``th``: the plain NNR-like threshold on the blob score, the paper's reference "filter".
+"""``th``: the NNR ratio threshold on the blob score, the paper's reference "filter" (Sec. 5.1).
 
-Not a spatial filter: it keeps a match when its NNR ratio is at most 0.8, the classical ratio threshold of
-Lowe. It is listed next to the spatial filters in Sec. 5.1 of the paper. Blob scores made with D+ or D+≥
-(Eq. 14) live on another scale, ``r / (1 + r)`` for an NNR ratio ``r``; the scores blob matching returns say
-so (they carry their ``ratio``), and the same 0.8 NNR threshold is applied to them (0.8 / 1.8 on their
-scale); a plain array is read as NNR ratios unless ``ratio`` is passed.
-"""
+Not a spatial filter: a match is kept when its NNR ratio is at most 0.8 (Lowe), read on the scores' scale
+(D+ and D+≥ blob scores, Eq. 14, are ``r / (1 + r)``: 0.8 / 1.8)."""
 
 from __future__ import annotations
 
@@ -30,21 +26,15 @@ def th_filter(ms: MatchSet, *, threshold: float = 0.8) -> np.ndarray:
     %(image_sizes)s
     %(shapes_unused)s
     threshold : float, default 0.8
-        The NNR ratio threshold of Lowe (IJCV 2004, Sec. 7.1), "th" in Sec. 5.1 of the paper.
+        The NNR ratio threshold of Lowe ("Distinctive image features from scale-invariant keypoints", IJCV
+        60(2), 2004, Sec. 7.1), "th" in Sec. 5.1 of the paper.
     ratio : {"D>=", "D+>=", "D+"}, optional
-        The blob ratio that produced ``scores``; by default the one the scores carry, else ``"D>="``. For
-        ``"D+"`` and ``"D+>="`` (scores ``r / (1 + r)``) the threshold is mapped to
-        ``threshold / (1 + threshold)``, the same NNR ratio on their scale. One that contradicts the ratio
-        the scores carry is a ``ValueError``.
+        The blob ratio that produced ``scores``; by default the one the scores carry, else ``"D>="``. One
+        that contradicts the ratio the scores carry is a ``ValueError``.
 
     Returns
     -------
     %(keep)s
-
-    References
-    ----------
-    D. G. Lowe, "Distinctive image features from scale-invariant keypoints", IJCV 60(2), 2004, Sec. 7.1.
-    F. Bellavia, "SIFT Matching by Context Exposed", TPAMI 2022, Sec. 5.1 ("th").
 
     Examples
     --------

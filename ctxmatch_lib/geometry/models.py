@@ -50,17 +50,9 @@ CONSISTENCY_THRESHOLD_PX = 15.0
 class ModelFit:
     """Result of a model step.
 
-    Attributes
-    ----------
-    keep : ndarray of shape (K,), bool
-        Matches consistent with the model (all ``False`` without a model).
-    model : ndarray of shape (3, 3) or None
-        ``H``, ``F`` or ``E`` (``x2n^T E x1n = 0`` on intrinsics-normalised points); ``None`` on failure.
-    kind : {"H", "F", "E"}
-    sample : ndarray of shape (S,), int64
-        Indices into the matches of the fitting sample; for RANSAC, its inliers.
-    errors : ndarray of shape (K,)
-        Per-match error against the model (``inf`` without a model).
+    ``keep`` (K,) marks the matches consistent with ``model``: the ``H``, ``F`` or ``E`` (on
+    intrinsics-normalised points) that ``kind`` names, ``None`` on failure. ``sample`` indexes the fitting
+    sample (for RANSAC, its inliers); ``errors`` (K,) is each match's error (``inf`` without a model).
     """
 
     keep: np.ndarray
@@ -68,9 +60,6 @@ class ModelFit:
     kind: str
     sample: np.ndarray
     errors: np.ndarray
-
-
-# --------------------------------------------------------------------------------------------- fitting
 
 
 def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
@@ -81,8 +70,7 @@ def normalise_points(pts) -> tuple[np.ndarray, np.ndarray]:
     return hartley_normalise(as_points(pts, "pts"))
 
 
-# Public functions validate their arguments once; the private ``_name`` versions they call (and that call
-# each other inside 1SAC, RANSAC and the pipeline) take clean float64 arrays and skip the checks.
+# Public functions validate their arguments; the private ``_name`` versions take clean float64 arrays.
 
 
 def _point_pair(pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
@@ -118,15 +106,12 @@ def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
 def fit_homography(pts1, pts2) -> np.ndarray | None:
     """Least-squares homography by the normalised DLT (Hartley & Zisserman, Alg. 4.2).
 
+    Returns ``H`` (image 1 -> image 2, ``H[2, 2] = 1`` when possible), or ``None`` for fewer than 4 points
+    or a degenerate configuration.
+
     Parameters
     ----------
     %(pts)s
-
-    Returns
-    -------
-    H : ndarray of shape (3, 3) or None
-        Image 1 -> image 2, ``H[2, 2] = 1`` when possible; ``None`` for fewer than 4 points or a
-        degenerate configuration (no unique solution).
 
     Examples
     --------
@@ -206,17 +191,14 @@ def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
 
 @shared_doc
 def fit_fundamental(pts1, pts2) -> np.ndarray | None:
-    """Least-squares fundamental matrix by the normalised 8-point algorithm with rank-2 enforcement.
+    """Least-squares fundamental matrix by the normalised 8-point algorithm (Hartley & Zisserman, Alg. 11.1).
+
+    Returns ``F`` (rank 2, ``x2^T F x1 = 0``, unit Frobenius norm), or ``None`` for fewer than 8 points or
+    a degenerate configuration.
 
     Parameters
     ----------
     %(pts)s
-
-    Returns
-    -------
-    F : ndarray of shape (3, 3) or None
-        Rank 2, ``x2^T F x1 = 0``, unit Frobenius norm; ``None`` for fewer than 8 points or a degenerate
-        configuration.
     """
     return _fit_fundamental(*_point_pair(pts1, pts2))
 
@@ -241,9 +223,6 @@ def _fit_fundamental(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
     return F / nrm if nrm > 0 else None
 
 
-# ---------------------------------------------------------------------------------------------- errors
-
-
 def apply_homography(H, pts) -> np.ndarray:
     """Map ``(N, 2)`` (x, y) points through ``H``; points sent to infinity come back as ``inf``."""
     pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
@@ -257,17 +236,12 @@ def apply_homography(H, pts) -> np.ndarray:
 
 @shared_doc
 def homography_transfer_errors(H, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
-    """Reprojection errors of corresponding points through ``H`` (image 1 -> image 2), both directions.
+    """Reprojection errors ``(||H x1 - x2||, ||H^-1 x2 - x1||)`` in pixels (backward ``inf`` for a singular
+    ``H``) of corresponding points through ``H`` (image 1 -> image 2).
 
     Parameters
     ----------
-    H : array_like of shape (3, 3)
     %(pts)s
-
-    Returns
-    -------
-    forward, backward : ndarray of shape (K,)
-        ``||H x1 - x2||`` and ``||H^-1 x2 - x1||`` in pixels (backward ``inf`` when ``H`` is singular).
     """
     return transfer_errors(np.asarray(H, dtype=np.float64), *_point_pair(pts1, pts2))
 
@@ -284,17 +258,12 @@ def transfer_errors(H: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[
 
 @shared_doc
 def epipolar_distances(F, pts1, pts2) -> tuple[np.ndarray, np.ndarray]:
-    """Point-to-epipolar-line distances under ``F`` (``x2^T F x1 = 0``) in both images.
+    """Point-to-epipolar-line distances ``(d2, d1)`` under ``F`` (``x2^T F x1 = 0``): of ``x2`` from the line
+    ``F x1`` and of ``x1`` from ``F^T x2``; ``inf`` for a degenerate line.
 
     Parameters
     ----------
-    F : array_like of shape (3, 3)
     %(pts)s
-
-    Returns
-    -------
-    d2, d1 : ndarray of shape (K,)
-        Distance of ``x2`` from the line ``F x1`` and of ``x1`` from ``F^T x2``; ``inf`` for a degenerate line.
     """
     return epipolar_errors(np.asarray(F, dtype=np.float64), *_point_pair(pts1, pts2))
 
@@ -332,9 +301,6 @@ def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np
     return np.maximum(a, b)
 
 
-# -------------------------------------------------------------------------------------------- sampling
-
-
 def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
     """Indices of the shortest top-ranked prefix holding ``size`` matches once normalised.
 
@@ -361,9 +327,6 @@ def _top_ranked_sample(matches: np.ndarray, scores: np.ndarray, size: int) -> np
     reached = np.flatnonzero(count >= size)
     stop = reached[0] + 1 if len(reached) else len(order)
     return order[:stop].astype(np.int64)
-
-
-# ---------------------------------------------------------------------------------------- model steps
 
 
 def _fit(kind: ModelKind, p1: np.ndarray, p2: np.ndarray) -> np.ndarray | None:
@@ -396,8 +359,8 @@ def one_sac(
     """1SAC: fit one model on the top-ranked matches and keep those consistent with it (Sec. 5.1).
 
     The sample is :func:`top_ranked_sample` of ``sample_factor * q`` matches (``q = 4`` for ``H``, 8 for
-    ``F``); the matches whose :func:`model_errors` is at most ``threshold`` pixels are kept. Without ``q``
-    normalised matches or with a degenerate sample nothing is kept.
+    ``F``); the :class:`ModelFit` keeps the matches whose :func:`model_errors` is at most ``threshold``
+    pixels, none without ``q`` normalised matches or with a degenerate sample.
 
     Parameters
     ----------
@@ -407,14 +370,8 @@ def one_sac(
         ``None`` ranks by the given order.
     kind : {"H", "F"}
         Homography (planar pairs) or fundamental matrix.
-    threshold : float
-        Consistency threshold in pixels.
-    sample_factor : int
-        3 in the paper.
-
-    Returns
-    -------
-    ModelFit
+    threshold, sample_factor : float, int
+        Consistency threshold in pixels; sample size factor (3 in the paper).
 
     Examples
     --------

@@ -1,26 +1,7 @@
-"""Relative camera pose from two calibrated views, and its error against the ground truth.
+"""Relative camera pose of a calibrated pair (:func:`pose_from_model`) and its error, as SuperGlue reports it.
 
-The pose accuracy of a calibrated pair (issue 44, item 3), as the field reports it after a robust estimator
-(SuperGlue, LoFTR, glue-factory, fb82/MiHo):
-
-* an essential matrix ``E`` -- fitted on points normalised by the intrinsics (the ``essential`` model step,
-  :func:`~ctxmatch_lib.geometry.apply_model_step`), or ``E = K2^T F K1`` from a fundamental matrix fitted on
-  pixels (:func:`essential_from_fundamental`) -- is decomposed into its four ``(R, t)`` candidates and the one
-  with the most points in front of both cameras is kept (:func:`recover_relative_pose`,
-  :func:`pose_from_model`);
-* the **rotation error** is the angle of ``R_est^T R_gt``, the **translation error** the angle between the
-  two translation directions, folded to ``min(e, 180 - e)`` because an essential matrix fixes ``t`` only up
-  to sign, and the **pose error** is the larger of the two (:func:`relative_pose_error`, :func:`pose_error`;
-  SuperGlue's ``compute_pose_error``, ``models/utils.py`` of magicleap/SuperGluePretrainedNetwork). A pair
-  without an estimate has both errors at :data:`POSE_FAILURE_DEG` (180 degrees), so it stays in the
-  denominator of :func:`~ctxmatch_lib.geometry_metrics.pose_auc` below every threshold, as SuperGlue's
-  ``inf`` does.
-
-The relative pose follows SuperGlue's ``T_0to1``: a point ``X1`` in camera-1 coordinates is
-``X2 = R @ X1 + t`` in camera-2 coordinates, pixels are ``x ~ K @ X``; ``E = [t]x R`` satisfies
-``x2n^T E x1n = 0`` on normalised points and ``F = K2^-T E K1^-1`` satisfies ``x2^T F x1 = 0`` on pixels.
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel, and the
-intrinsics ``K`` must use the same convention (principal point measured from that centre).
+SuperGlue's ``T_0to1``: ``X2 = R @ X1 + t``, pixels ``x ~ K @ X``, ``E = [t]x R`` with ``x2n^T E x1n = 0``;
+``K``'s principal point is measured from the centre of the top-left pixel, like the keypoints.
 """
 
 from __future__ import annotations
@@ -42,64 +23,29 @@ __all__ = [
     "pose_error",
 ]
 
-#: The rotation and translation errors, in degrees, of a pair without an estimated pose. Any threshold of the
-#: pose AUC (5, 10, 20 degrees) counts it as a failure, as SuperGlue's ``inf`` does, while the rows stay finite.
+#: Rotation and translation errors (degrees) of a pair without a pose: a failure at every AUC threshold, as
+#: SuperGlue's ``inf``, while the rows stay finite.
 POSE_FAILURE_DEG = 180.0
 
-#: Fewest correspondences from which a pose is recovered: the five-point solver's minimal sample. Below it the
-#: essential matrix is not determined and the chirality vote of :func:`recover_relative_pose` would rest on at
-#: most four points.
+#: Fewest correspondences a pose is recovered from: the five-point solver's minimal sample.
 POSE_MIN_POINTS = 5
 
-# OpenCV's recoverPose counts a triangulated point as in front only when its depth is under distanceThresh
-# (in units of the baseline, |t| = 1); its default of 50 drops the far points of narrow baselines from the
-# vote. SuperGlue passes 1e9 to disable the cut and so do we.
+# recoverPose's depth cut, in baselines: its default of 50 drops the far points of narrow baselines from the
+# vote; SuperGlue disables it with 1e9.
 _DISTANCE_THRESH = 1e9
 
 
 def check_intrinsics(K, name: str = "K") -> np.ndarray:
     """``K`` as a float64 ``(3, 3)`` intrinsic matrix, divided by ``K[2, 2]``.
 
-    Parameters
-    ----------
-    K : array_like of shape (3, 3)
-        Upper-triangular intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in the package's pixel
-        convention (origin at the centre of the top-left pixel).
-    name : str
-        Named in the error messages (``"K1"``, ``"K2"``).
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-
-    Raises
-    ------
-    ValueError
-        ``K`` is missing, of the wrong shape, not finite, not upper triangular or has a zero focal; the
-        message names ``name``.
-
-    Examples
-    --------
-    >>> check_intrinsics([[500, 0, 320], [0, 500, 240], [0, 0, 1]], "K1")[0].tolist()
-    [500.0, 0.0, 320.0]
+    ``K`` is ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; a ``ValueError`` naming ``name`` is raised when it is
+    missing, of the wrong shape, not finite, not upper triangular or has a zero focal.
     """
     return as_intrinsics(K, name)
 
 
 def normalise_by_intrinsics(pts, K) -> np.ndarray:
-    """Pixels to normalised camera coordinates: ``K^-1 [x, y, 1]^T``, dehomogenised.
-
-    Parameters
-    ----------
-    pts : array_like of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    K : array_like of shape (3, 3)
-        Intrinsics in the same convention (:func:`check_intrinsics`); a skew term is honoured.
-
-    Returns
-    -------
-    ndarray of shape (N, 2)
-        ``((x - cx - s (y - cy) / fy) / fx, (y - cy) / fy)``.
+    """``(N, 2)`` pixels to normalised camera coordinates, ``K^-1 [x, y, 1]^T`` dehomogenised (skew honoured).
 
     Examples
     --------
@@ -116,23 +62,8 @@ def _normalise_by_intrinsics(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def essential_from_fundamental(F, K1, K2) -> np.ndarray:
-    """The essential matrix ``E = K2^T F K1`` of a fundamental matrix fitted on pixels.
+    """The essential matrix ``E = K2^T F K1`` (``F``'s scale) of a fundamental matrix fitted on pixels.
 
-    Parameters
-    ----------
-    F : array_like of shape (3, 3)
-        ``x2^T F x1 = 0`` on (x, y) pixels, origin at the centre of the top-left pixel.
-    K1, K2 : array_like of shape (3, 3)
-        Intrinsics of images 1 and 2 in the same convention.
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        ``x2n^T E x1n = 0`` on points normalised by :func:`normalise_by_intrinsics`; its scale is ``F``'s
-        (an essential matrix is defined up to scale, and :func:`recover_relative_pose` ignores it).
-
-    References
-    ----------
     Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., Eq. (9.12).
     """
     F = as_matrix3(F, "F")
@@ -140,23 +71,8 @@ def essential_from_fundamental(F, K1, K2) -> np.ndarray:
 
 
 def fundamental_from_essential(E, K1, K2) -> np.ndarray:
-    """The fundamental matrix ``F = K2^-T E K1^-1`` on pixels, scaled to unit Frobenius norm.
-
-    The inverse of :func:`essential_from_fundamental` up to scale; the model errors of an ``E`` fit are the
-    epipolar distances, in pixels, to this ``F``.
-
-    Parameters
-    ----------
-    E : array_like of shape (3, 3)
-        ``x2n^T E x1n = 0`` on normalised camera coordinates.
-    K1, K2 : array_like of shape (3, 3)
-        Intrinsics of images 1 and 2 ((x, y) pixels, origin at the centre of the top-left pixel).
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        Unit Frobenius norm (all zeros when ``E`` is).
-    """
+    """The fundamental matrix ``F = K2^-T E K1^-1``, unit Frobenius norm (zero for a zero ``E``): the
+    inverse of :func:`essential_from_fundamental` up to scale, which an ``E`` fit's errors are measured by."""
     return _fundamental_from_essential(as_matrix3(E, "E"), check_intrinsics(K1, "K1"),
                                        check_intrinsics(K2, "K2"))
 
@@ -170,37 +86,11 @@ def _fundamental_from_essential(E: np.ndarray, K1: np.ndarray, K2: np.ndarray) -
 def recover_relative_pose(E, pts1, pts2, K1, K2) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The pose among the four decompositions of ``E`` with the most points in front of both cameras.
 
-    The points are normalised by their intrinsics and handed to ``cv2.recoverPose`` with the identity camera
-    matrix, which decomposes ``E`` (``cv2.decomposeEssentialMat``: ``R1``, ``R2`` and ``+-t``), triangulates
-    every correspondence under each candidate and keeps the candidate with the most points of positive depth
-    in both cameras (ties: the first of ``(R1, t)``, ``(R2, t)``, ``(R1, -t)``, ``(R2, -t)``). Points at any
-    distance vote: OpenCV's default ``distanceThresh`` of 50 baselines would drop the far points of narrow
-    baselines, so ``1e9`` is passed, as SuperGlue's ``estimate_pose`` means to. (On OpenCV 5 its positional
-    ``recoverPose(E, p1, p2, I, 1e9, mask=mask)`` resolves to the overload without ``distanceThresh`` and keeps
-    the cut at 50; the keyword here does not.)
-
-    Parameters
-    ----------
-    E : array_like of shape (3, 3)
-        Essential matrix on normalised coordinates (``x2n^T E x1n = 0``), any scale.
-    pts1, pts2 : array_like of shape (N, 2)
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel: the inliers of the model
-        ``E`` comes from.
-    K1, K2 : array_like of shape (3, 3)
-        Intrinsics of images 1 and 2 in the same convention.
-
-    Returns
-    -------
-    (R, t, n_in_front) or None
-        ``R`` ndarray of shape (3, 3), ``t`` ndarray of shape (3,) with unit norm (``X2 = R X1 + t``, scale
-        unknown), ``n_in_front`` the number of points in front of both cameras under it. ``None`` for fewer
-        than :data:`POSE_MIN_POINTS` correspondences, an ``E`` of rank below 2 (no unique decomposition) or
-        no point in front under any candidate.
-
-    References
-    ----------
-    Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., Sec. 9.6.2 (Result 9.19, the four solutions);
-    Nistér, "An efficient solution to the five-point relative pose problem", TPAMI 2004, Sec. 3.
+    ``cv2.recoverPose`` triangulates the model's inliers ``pts1``, ``pts2`` (pixels, normalised by ``K1``,
+    ``K2``) under the candidates ``(R1 | R2, +-t)`` (Hartley & Zisserman, Result 9.19), the first on ties.
+    ``distanceThresh`` goes by keyword: a positional ``1e9``, as in SuperGlue's ``estimate_pose``, resolves
+    on OpenCV 5 to the overload without it. Returns ``(R, t, n_in_front)`` with ``|t| = 1``, or ``None``
+    below :data:`POSE_MIN_POINTS` points, for an ``E`` of rank below 2 or with no point in front.
 
     Examples
     --------
@@ -241,34 +131,10 @@ def _recover_relative_pose(E: np.ndarray, n1: np.ndarray, n2: np.ndarray):
 
 
 def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, np.ndarray] | None:
-    """The relative pose of a fitted two-view model: MiHo's ``AUC^F`` (kind ``"F"``) and ``AUC^E`` (``"E"``)
-    routes.
-
-    ``"F"``: ``E = K2^T F K1`` (:func:`essential_from_fundamental`), then :func:`recover_relative_pose`;
-    ``"E"``: :func:`recover_relative_pose` directly.
-
-    Parameters
-    ----------
-    model : array_like of shape (3, 3) or None
-        A model step's ``ModelFit.model``; ``None`` (no model) gives ``None``.
-    kind : {"F", "E"}
-        ``ModelFit.kind``.
-    pts1, pts2 : array_like of shape (N, 2)
-        The model's inlier correspondences, (x, y) pixels, origin at the centre of the top-left pixel.
-    K1, K2 : array_like of shape (3, 3)
-        Intrinsics of images 1 and 2 in the same convention.
-
-    Returns
-    -------
-    (R, t) or None
-        ``R`` of shape (3, 3), ``t`` of shape (3,), unit norm; ``None`` when there is no model or
-        :func:`recover_relative_pose` finds no pose.
-
-    Raises
-    ------
-    ValueError
-        ``kind`` is not ``"F"`` or ``"E"``, or an argument is malformed (the message names it).
-    """
+    """The relative pose ``(R, t)`` of a model step's ``model`` and ``kind`` on its inliers ``pts1``,
+    ``pts2``: MiHo's ``AUC^F`` route (``E = K2^T F K1``) or ``AUC^E`` route (``E`` directly), then
+    :func:`recover_relative_pose`. ``None`` without a model or a pose; ``ValueError`` for another ``kind``
+    or a malformed argument."""
     if kind not in ("F", "E"):
         raise ValueError(f"kind must be 'F' or 'E' (a homography has no unique relative pose), got {kind!r}")
     if model is None:
@@ -279,10 +145,8 @@ def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, n
 
 
 def _rotation_angle_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
-    # SuperGlue's formula, kept so that the errors (and the AUC) are the field's to the last digit. Its arccos
-    # of the trace is sensitive to a ground truth that is a rotation only to its printed digits: Strecha's R,
-    # orthonormal to ~1e-6, moves a 0.05 degree error by up to 0.03 degree (an atan2 of the sine and cosine
-    # would not), far below the 5 degree step of the AUC.
+    # SuperGlue's arccos of the trace, so the errors are the field's to the last digit (an atan2 would be
+    # less sensitive to a ground truth that is a rotation only to its printed digits).
     cos = np.clip((np.trace(R_est.T @ R_gt) - 1.0) / 2.0, -1.0, 1.0)
     return float(np.degrees(np.arccos(cos)))
 
@@ -295,39 +159,10 @@ def _direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
     """Rotation and translation-direction errors of an estimated relative pose, in degrees.
 
-    SuperGlue's ``compute_pose_error``: the rotation error is the angle of ``R_est^T R_gt``; the translation
-    error is the angle ``e`` between ``t_est`` and ``t_gt``, reported as ``min(e, 180 - e)`` since an essential
-    matrix fixes ``t`` only up to sign (so it lies in [0, 90]). Both angles are SuperGlue's arccos of the
-    clipped cosine (``(trace(R_est^T R_gt) - 1) / 2`` and the normalised dot product), so the errors equal its
-    own on the same inputs; a ground-truth ``R`` that is orthonormal only to a few digits biases the smallest
-    rotation errors by about the square root of that residual (radians).
-
-    Parameters
-    ----------
-    R_est : array_like of shape (3, 3) or None
-        Estimated rotation (``X2 = R X1 + t``); ``None`` when there is no estimate.
-    t_est : array_like of shape (3,) or None
-        Estimated translation, any scale; ``None`` when there is no estimate.
-    R_gt : array_like of shape (3, 3)
-        Ground-truth rotation.
-    t_gt : array_like of shape (3,)
-        Ground-truth translation, non-zero.
-
-    Returns
-    -------
-    err_R, err_t : float
-        Degrees. Without an estimate (``None``, non-finite values) both are :data:`POSE_FAILURE_DEG`; a zero
-        ``t_est`` has no direction, and its ``err_t`` is :data:`POSE_FAILURE_DEG`.
-
-    Raises
-    ------
-    ValueError
-        ``R_gt`` or ``t_gt`` malformed, or ``t_gt`` zero (a pure rotation has no translation direction).
-
-    References
-    ----------
-    Sarlin et al., "SuperGlue: Learning feature matching with graph neural networks", CVPR 2020, Sec. 5.2
-    (``compute_pose_error`` in ``models/utils.py`` of magicleap/SuperGluePretrainedNetwork).
+    SuperGlue's ``compute_pose_error`` (Sarlin et al., CVPR 2020, Sec. 5.2): the angle of ``R_est^T R_gt``
+    and the angle ``e`` between ``t_est`` and ``t_gt`` as ``min(e, 180 - e)``, since ``E`` fixes ``t`` only
+    up to sign. Without an estimate (``None``, non-finite) both are :data:`POSE_FAILURE_DEG`, and so is the
+    ``err_t`` of a zero ``t_est``. ``ValueError`` for a malformed ``R_gt`` / ``t_gt`` or a zero ``t_gt``.
 
     Examples
     --------
@@ -360,8 +195,7 @@ def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
 
 
 def pose_error(R_est, t_est, R_gt, t_gt) -> float:
-    """The pose error of SuperGlue's and MiHo's AUC: the larger of :func:`relative_pose_error`'s two angles,
-    in degrees (:data:`POSE_FAILURE_DEG` without an estimate).
+    """The pose error of SuperGlue's and MiHo's AUC: the larger of :func:`relative_pose_error`'s angles.
 
     Examples
     --------

@@ -1,16 +1,5 @@
-"""Seeded robust model fitting with OpenCV's USAC, and the model steps of the evaluation.
-
-:func:`ransac` fits ``H`` or ``F`` with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation,
-uniform or PROSAC sampling), seeded so that reruns are identical. :data:`USAC_PRESETS` names the settings the
-model steps use: ``ransac`` and ``prosac`` (3 px, confidence 0.999: the project's model step since issue 11)
-and ``magsac``, the settings of fb82/MiHo's benchmark (``cv2.USAC_MAGSAC``, 1 px, confidence 0.9999, 100 000
-iterations: ``magsac_module(px_th=1.00)`` in MiHo's ``save_bench.py`` / ``src/base_modules.py``), fixed from
-that source and not tuned on the evaluation pairs. The ``essential`` step fits an essential matrix ``E`` with
-the same estimator and settings on points normalised by the intrinsics (calibrated pairs; fb82/MiHo's AUC^E).
-:func:`apply_model_step` runs any step by name.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""Seeded robust model fitting with OpenCV's USAC (:func:`ransac`), and the model steps of the evaluation
+(:func:`apply_model_step`). ``magsac`` takes fb82/MiHo's settings (``magsac_module(px_th=1.00)``), untuned."""
 
 from __future__ import annotations
 
@@ -28,32 +17,17 @@ from .pose import _fundamental_from_essential, _normalise_by_intrinsics, check_i
 __all__ = ["MODEL_STEPS", "ROBUST_STEPS", "UsacSettings", "USAC_PRESETS", "usac_settings", "ransac",
            "model_kind_for", "apply_model_step"]
 
-#: Names accepted by :func:`apply_model_step`: ``none`` keeps the filter output as it is, ``1sac`` is the
-#: paper's, ``ransac`` OpenCV's USAC_MAGSAC (uniform sampling, 3 px), ``prosac`` the same with PROSAC
-#: sampling by the match ranking, ``magsac`` USAC_MAGSAC with fb82/MiHo's settings (1 px, 0.9999, 100 000),
-#: ``essential`` the same estimator fitting ``E`` on points normalised by the intrinsics (calibrated pairs only).
+#: Names accepted by :func:`apply_model_step` (see there).
 MODEL_STEPS = ("none", "1sac", "ransac", "prosac", "magsac", "essential")
 
-#: The model steps run by OpenCV's USAC (:data:`USAC_PRESETS`); their threshold, confidence and iteration cap
-#: can be overridden (:func:`usac_settings`).
+#: The model steps run by USAC, with settings in :data:`USAC_PRESETS`.
 ROBUST_STEPS = ("ransac", "prosac", "magsac", "essential")
 
 
 @dataclass(frozen=True)
 class UsacSettings:
-    """Settings of one USAC estimator; the defaults are the ``ransac`` model step's, and :func:`ransac`'s.
-
-    Attributes
-    ----------
-    sampler : {"uniform", "prosac"}
-        Uniform sampling (OpenCV's ``USAC_MAGSAC`` preset) or PROSAC by the match ranking.
-    threshold : float
-        USAC's noise bound in pixels (``ransacReprojThreshold``).
-    confidence : float
-        RANSAC confidence in (0, 1).
-    max_iters : int
-        Iteration cap.
-    """
+    """Settings of one USAC estimator (defaults: the ``ransac`` step's): ``sampler`` (``"uniform"`` or
+    ``"prosac"``), ``threshold`` (noise bound in pixels), ``confidence`` in (0, 1), ``max_iters``."""
 
     sampler: str = "uniform"
     threshold: float = 3.0
@@ -61,9 +35,7 @@ class UsacSettings:
     max_iters: int = 100_000
 
 
-#: The USAC settings of each robust model step. ``magsac`` is fb82/MiHo's (see the module docstring); with
-#: ``randomGeneratorState`` 0 it returns the same model as ``cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 1.0,
-#: 0.9999, 100000)`` (checked on OpenCV 5.0.0).
+#: The USAC settings of each robust model step (``magsac``: fb82/MiHo's).
 USAC_PRESETS = {
     "ransac": UsacSettings(),
     "prosac": UsacSettings(sampler="prosac"),
@@ -75,7 +47,7 @@ USAC_PRESETS = {
 
 def usac_settings(name: str, overrides: Mapping | None = None) -> UsacSettings:
     """The settings of the robust step ``name`` with ``overrides`` (``threshold``, ``confidence``,
-    ``max_iters``) applied; raises ``ValueError`` naming a bad key or value.
+    ``max_iters``); ``ValueError`` names a bad key or value.
 
     Examples
     --------
@@ -116,33 +88,20 @@ def ransac(
 ) -> ModelFit:
     """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
 
-    The model is estimated by USAC with ``magsac_threshold`` as its noise bound; the matches kept are then
-    chosen with the same rule as :func:`one_sac` (error at most ``threshold`` pixels against the returned
-    model), so that 1SAC and RANSAC differ only in how the model is estimated.
+    USAC estimates the model with ``magsac_threshold`` as its noise bound; the :class:`ModelFit` keeps the
+    matches by :func:`one_sac`'s rule (error at most ``threshold`` pixels), its ``sample`` is USAC's inliers.
 
     Parameters
     ----------
     kpts1, kpts2, matches, scores, kind, threshold
-        As in :func:`one_sac`; ``scores`` are used only by the PROSAC sampler.
-    magsac_threshold : float
-        USAC's threshold in pixels.
-    confidence : float
-        RANSAC confidence.
-    max_iters : int
-        Iteration cap. The default is high because blob candidates are many-to-many with inlier ratios
-        near 10 %, where uniform 4-samples are all-inlier with probability ~1e-4; MAGSAC's adaptive
-        termination stops far earlier on easy pairs.
+        As in :func:`one_sac`; ``scores`` only rank the PROSAC samples.
+    magsac_threshold, confidence, max_iters
+        USAC's threshold in pixels, confidence and iteration cap (high for the ~10 % inlier ratios of
+        many-to-many candidates; MAGSAC stops earlier).
     sampler : {"uniform", "prosac"}
-        ``"uniform"`` is OpenCV's ``USAC_MAGSAC`` preset; ``"prosac"`` draws samples from the best-ranked
-        matches first (by ``scores``), which copes far better with the ~10 % inlier ratios of many-to-many
-        candidates, especially for ``F``.
+        Uniform (OpenCV's ``USAC_MAGSAC`` preset) or best-ranked first, better at low inlier ratios.
     rng : None, int or numpy.random.Generator
-        Seeds USAC's own generator, so results are reproducible for a given seed.
-
-    Returns
-    -------
-    ModelFit
-        ``sample`` holds the inliers reported by USAC.
+        Seeds USAC's generator.
     """
     kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if sampler not in ("uniform", "prosac"):
@@ -152,8 +111,7 @@ def ransac(
 
 
 def _usac_params(settings: UsacSettings, rng, threshold: float | None = None):
-    """OpenCV's ``UsacParams`` for ``settings`` (MAGSAC++ scoring, sigma-consensus local optimisation and
-    polishing, one thread), seeded from ``rng``; ``threshold`` replaces ``settings.threshold`` when given."""
+    """OpenCV's ``UsacParams`` for ``settings``, one thread, seeded from ``rng``; ``threshold`` overrides."""
     import cv2
 
     params = cv2.UsacParams()
@@ -198,12 +156,7 @@ def _ransac(kpts1, kpts2, matches, scores, kind, threshold, settings: UsacSettin
 
 
 def _essential(kpts1, kpts2, matches, scores, threshold, settings: UsacSettings, rng, K1, K2) -> ModelFit:
-    """The ``essential`` step: ``E`` by USAC on points normalised by ``K1`` / ``K2`` (validated by the caller).
-
-    USAC's threshold is ``settings.threshold`` pixels over the mean focal length (SuperGlue's ``estimate_pose``
-    does the same, from ``K1``'s fx and ``K2``'s fy only); the matches kept are those within ``threshold``
-    pixels of the epipolar lines of ``F = K2^-T E K1^-1``, the rule of :func:`ransac`.
-    """
+    """The ``essential`` step (see :func:`apply_model_step`); ``K1``, ``K2`` validated by the caller."""
     import cv2
 
     k = len(matches)
@@ -254,31 +207,14 @@ def apply_model_step(
 ) -> ModelFit:
     """Run the model step ``name`` (one of :data:`MODEL_STEPS`) on the matches.
 
-    ``"none"`` keeps every match (``model`` is ``None``); ``"1sac"`` calls :func:`one_sac`; ``"ransac"``,
-    ``"prosac"`` and ``"magsac"`` call :func:`ransac` with ``rng`` and their :data:`USAC_PRESETS`, updated by
-    ``estimator`` (``threshold``, ``confidence``, ``max_iters``; see :func:`usac_settings`), which the other
-    steps ignore.
-
-    ``"essential"`` fits an essential matrix with the same USAC estimator (``cv2.findEssentialMat``, its
-    five-point solver) on the points normalised by the intrinsics ``K1`` and ``K2`` (required; any ``kind``
-    is accepted, the fit is of kind ``"E"``), with USAC's threshold in pixels divided by the mean focal length
-    (of fx and fy of both cameras); its errors are the epipolar distances in pixels to ``F = K2^-T E K1^-1``
-    (:func:`model_errors`) and it keeps the matches within ``threshold`` of them. Its pose:
-    :func:`~ctxmatch_lib.geometry.pose_from_model` on its inliers (``sample``).
-
-    Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; ``K1`` and ``K2`` must use the
-    same convention.
-
-    Raises
-    ------
-    ValueError
-        An unknown step, a malformed argument, or for ``"essential"`` a missing ``K1`` / ``K2`` or one with
-        a zero focal (the message names it).
-
-    References
-    ----------
-    Nistér, "An efficient solution to the five-point relative pose problem", TPAMI 2004 (the ``E`` solver);
-    Barath et al., "MAGSAC++, a fast, reliable and accurate robust estimator", CVPR 2020 (the scoring).
+    ``"none"`` keeps every match (no model); ``"1sac"`` is :func:`one_sac`; ``"ransac"``, ``"prosac"`` and
+    ``"magsac"`` are :func:`ransac` with their :data:`USAC_PRESETS` updated by ``estimator``
+    (:func:`usac_settings`). ``"essential"`` (calibrated pairs; any ``kind``, the fit is ``"E"``) runs
+    ``cv2.findEssentialMat``'s USAC (Nistér's five-point solver, TPAMI 2004; MAGSAC++ scoring, Barath et al.,
+    CVPR 2020) on points normalised by ``K1`` and ``K2``, its threshold divided by the mean of the four focal
+    lengths (SuperGlue's ``estimate_pose`` uses ``K1``'s fx and ``K2``'s fy), and keeps the matches within
+    ``threshold`` pixels of the epipolar lines of ``F = K2^-T E K1^-1``. ``ValueError`` for an unknown step
+    or a malformed argument.
     """
     if name not in MODEL_STEPS:
         raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")

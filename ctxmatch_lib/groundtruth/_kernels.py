@@ -1,13 +1,9 @@
 """Compiled (numba) loops of the region-overlap ground truth (methods B and C).
 
-* :func:`overlap_kernel`: overlap error of pairs of ellipses by ray integration from a common interior
-  point (the method is described in :mod:`ctxmatch_lib.groundtruth.regions`);
-* :func:`homography_ellipse_kernel`: exact image of ellipses under a homography (conic pull-back);
-* :func:`flow_transfer_kernel`: ellipses carried by a dense flow and its Jacobian;
-* :func:`flow_label_kernel`: methods B and C on a flow pair, transfer, centre distance and overlap fused.
-
-One pass over the pairs, constant memory per pair. Compiled code is cached on disk under the ctxmatch
-cache directory (``$CTXMATCH_CACHE/numba``) unless ``NUMBA_CACHE_DIR`` is set, as for the DTM kernels.
+:func:`overlap_kernel` (ray integration, :mod:`ctxmatch_lib.groundtruth.regions`),
+:func:`homography_ellipse_kernel` (conic pull-back), :func:`flow_transfer_kernel` (flow and its Jacobian)
+and :func:`flow_label_kernel` (methods B and C on a flow pair, fused). One pass, constant memory per pair;
+compiled code is cached as for the DTM kernels (:func:`ctxmatch_lib._numerics.jit.user_cache`).
 """
 
 from __future__ import annotations
@@ -41,10 +37,9 @@ with user_cache() as _cache:
 
     @numba.njit(cache=_cache, nogil=True, error_model="numpy")
     def _ray_sum(px, py, q1, n00, n01, n11, nvx, nvy, q2, cos_t, sin_t):
-        """Sum over the rays of angles ``theta`` and ``theta + pi`` of ``min(r1, r2)^2``, one IEEE operation at
-        a time in a fixed order (no ``fastmath``: a fused multiply-add or a sum reordered for the CPU's vector
-        width would move the overlap error, which a threshold reads, with the CPU). ``error_model="numpy"``
-        drops numba's division-by-zero check (``a > 0``: ``N`` is positive definite)."""
+        """Sum of ``min(r1, r2)^2`` over the rays ``theta`` and ``theta + pi``, in a fixed order and without
+        ``fastmath`` (a reordered sum would move, with the CPU, the error a threshold reads);
+        ``error_model="numpy"`` drops the zero-division check (``a > 0``, ``N`` positive definite)."""
         acc = 0.0
         for j in range(cos_t.shape[0]):
             c, s = cos_t[j], sin_t[j]
@@ -119,14 +114,9 @@ with user_cache() as _cache:
     @_jit
     def overlap_kernel(c1, A1, c2, A2, cos_t, sin_t, reject_above):
         """Overlap error of ``{c1 + A1 u}`` and ``{c2 + A2 u}`` (``|u| <= 1``) per pair; 1 where the
-        bounding circles are disjoint or a value is not finite, NaN where no common interior point was
-        found (the caller falls back to polygons).
-
-        ``cos_t, sin_t`` hold the first half of the ray angles (``[0, pi)``); each ray is integrated with
-        its opposite (``theta + pi``), which shares both square roots. Pairs whose overlap error is
-        provably larger than ``reject_above`` (a lower bound from the area ratio, ``1 - min/max``, and from
-        the lens of the unit disk and the circle bounding the other ellipse) get 1 without integration;
-        ``reject_above >= 1`` turns this off (exact values for every pair)."""
+        bounding circles are disjoint, a value is not finite or the error provably exceeds ``reject_above``
+        (area-ratio and lens bounds; ``>= 1``: off), NaN where no common interior point was found (the
+        caller falls back to polygons). ``cos_t, sin_t``: the ray angles in ``[0, pi)``."""
         n = c1.shape[0]
         out = np.ones(n)
         for k in range(n):
@@ -162,11 +152,10 @@ with user_cache() as _cache:
     @_jit
     def flow_label_kernel(flow12, flow21, kpts1, kpts2, S1, S2, i1, i2, scale, centre_max, cos_t, sin_t,
                           reject_above):
-        """Methods B and C on a flow pair in one pass (no temporaries): per match ``(i1[k], i2[k])``, the
-        overlap error (the smaller of the two directions; ``flow21`` with zero rows: image 1 -> 2 only) of
-        the regions scaled by ``scale``, computed only where the centre distance (the smaller of the two
-        transfers) is at most ``centre_max`` (``inf``: everywhere, method B). Returns the overlap errors (1
-        where skipped, NaN where a direction needs the polygon fallback) and the centre distances."""
+        """Methods B and C on a flow pair in one pass: per match ``(i1[k], i2[k])`` the centre distance (the
+        smaller transfer) and, where it is at most ``centre_max`` (``inf``: method B), the overlap error of
+        the regions scaled by ``scale`` (the smaller direction; ``flow21`` with zero rows: 1 -> 2 only).
+        Returns the overlap errors (1 where skipped, NaN for the polygon fallback) and centre distances."""
         n = i1.shape[0]
         err = np.ones(n)
         cen = np.full(n, np.inf)

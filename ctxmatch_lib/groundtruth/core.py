@@ -96,11 +96,10 @@ def label_epipolar(
     F : array_like of shape (3, 3)
         ``x2^T F x1 = 0``.
     hand_pts1, hand_pts2 : array_like of shape (M, 2), optional
-        Hand-taken correspondences for the localisation check (required when ``localise``).
+        Hand-taken correspondences, required when ``localise``.
     threshold : float
         Epipolar distance threshold in pixels (inclusive), in both images.
     localise : bool
-        Apply :func:`localisation_check` (method D) or not (method A).
     ratio : float
         Passed to :func:`localisation_check`.
 

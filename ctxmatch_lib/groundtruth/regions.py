@@ -1,60 +1,29 @@
 """Ground-truth methods B and C: overlap of the keypoints' support regions (Sec. 5.1 and Appendix
 "Ground truth estimation methods").
 
-Method B is the protocol of Bellavia & Colombo (IJCV 2020) as the paper describes it: a match is correct
-when the **overlap error** ``1 - |E1' ∩ E2| / |E1' ∪ E2|`` of the two support regions is at most 50 %,
-where ``E1'`` is the region of the keypoint in image 1 carried into image 2 by the pair's ground truth.
-Method C adds the centre-distance constraint of the pair's kind, at most 30 px. The regions are the
-keypoints' affine shapes (the patch of keypoint ``k`` is ``{kpts[k] + A[k] u : |u| <= 1}``) with their size
-**doubled** (``shape_scale = 2``), as the caption of the Appendix figure ``setup_imgs`` states.
+Method B (Bellavia & Colombo, IJCV 2020): a match is correct when the overlap error
+``1 - |E1' ∩ E2| / |E1' ∪ E2|`` is at most 50 %, ``E1'`` the image-1 support region carried into image 2;
+the regions are the keypoints' affine shapes **doubled** (``shape_scale = 2``, caption of the Appendix
+figure). Method C adds the centre rule of method D with 30 px and no localisation check (the overlap
+already localises the match), so ``C = B ∩ centre``. ``E1`` is carried:
 
-How ``E1`` is carried into image 2, per ground-truth type:
+* planar (:class:`~ctxmatch_lib.datasets.HomographyGT`): exactly, the conic pulled through ``H`` (the
+  paper's "true overlap"); an unbounded image (across the vanishing line) has overlap error 1;
+* non-planar (:class:`~ctxmatch_lib.datasets.EpipolarGT`): by the local affine map of the hand points'
+  :class:`~ctxmatch_lib.groundtruth.PiecewiseAffineMap`, its centre **moved onto the epipolar line**
+  (our choice where the paper is silent: the true position lies on that line, the coarse map is used
+  only along it); without a map every match has overlap error 1;
+* dense (:class:`~ctxmatch_lib.datasets.FlowGT`): by the flow and its Jacobian (central differences at the
+  nearest pixel); with ``flow21`` the smaller error of the two directions, as in method D; NaN flow gives 1.
 
-* :class:`~ctxmatch_lib.datasets.HomographyGT` (planar): exactly. A homography maps an ellipse onto a conic;
-  the conic is pulled through ``H`` in homogeneous coordinates and read back as an ellipse (the "true
-  overlap" of the paper). A region whose image is not bounded (it crosses the vanishing line) counts as
-  overlap error 1.
-* :class:`~ctxmatch_lib.datasets.EpipolarGT` (non-planar): approximately, through the local affine map of
-  the piecewise-affine map of the hand-taken correspondences
-  (:class:`~ctxmatch_lib.groundtruth.PiecewiseAffineMap`, the triangle holding the keypoint, as method D's
-  localisation check uses it). Our choice where the paper is silent: the carried centre is the
-  piecewise-affine image of the keypoint **moved onto its epipolar line** in image 2 (its closest point),
-  because the true position lies on that line and the coarse map is only used along it. With fewer than
-  three (or collinear) hand points no map exists and every match gets overlap error 1. The map is only as
-  good as the hand points: on kusvod2 (7 to 14 points per pair) its position error along the line, for the
-  matches method D accepts, has a median of 10 to 70 px against doubled SIFT regions of 7 to 13 px radius,
-  so B and C keep far fewer matches than D there (``notebooks/fig_gt_methods.ipynb`` with the real data).
-* :class:`~ctxmatch_lib.datasets.FlowGT` (depth, synthetic): through the dense displacement field, its
-  Jacobian giving the local affine map (central differences on the pixel grid at the keypoint's nearest
-  pixel, one-sided at the border). As method D does on these pairs, either direction may pass: with
-  ``flow21`` the overlap error is the smaller of ``E1 -> image 2`` and ``E2 -> image 1``. Unknown flow
-  (NaN) gives overlap error 1 for that direction.
-
-Centre constraint of method C (threshold 30 px, inclusive): the larger of the two reprojection errors
-(planar), the larger of the two epipolar distances (non-planar, no localisation check: the overlap already
-localises the match), the flow transfer in either direction (depth), i.e. the centre rule of method D with
-30 px in place of 15 px (and without D's localisation check). Hence ``C = B ∩ centre`` by construction;
-:func:`label_regions` tests the centre first and computes the overlap only where it holds (same labels).
-
-Overlap areas are computed in closed form per ray, not with polygons: the problem is mapped affinely so
-that ``E1'`` is the unit disk (the overlap error is affine-invariant), a point ``p`` inside both regions is
-found (the minimiser of the sum of the two ellipses' quadratic forms), and the area of the convex
-intersection is ``1/2 ∫ min(r1(θ), r2(θ))² dθ`` with ``r_i`` the exact distance from ``p`` to each boundary
-along the ray of angle ``θ``, integrated by the trapezoid rule on :data:`N_ANGLES` angles (each ray with its
-opposite, which shares both square roots; spectrally
-accurate except at the two to four boundary crossings: absolute error below 2e-3 against shapely polygons
-within 0.2 of the 50 % threshold, below 5e-3 everywhere on well-conditioned shapes,
-``tests/test_groundtruth_regions.py``). Pairs whose bounding circles are disjoint get exactly 1; the rare
-pairs where that interior point misses the intersection fall back to
-:func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error` (32-gon polygons and shapely, about 1e-4, but
-about 20x slower, too slow for the 3x-method-D budget). When only labels are wanted (:func:`label_regions`),
-a pair is not integrated when a lower bound of its overlap error already exceeds the threshold by more than
-the integration's error (the area ratio, error >= 1 - min(area) / max(area), and the lens of the unit disk
-with the circle bounding the other ellipse): same labels, most wrong candidates and most polygon fallbacks
-skipped. The loops are compiled (numba, :mod:`~ctxmatch_lib.groundtruth._kernels`; on flow pairs transfer,
-centre and overlap in one pass), O(K) memory; ``benchmarks/bench_groundtruth.py`` measures B and C against D.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+Overlap areas are integrated per ray, not with polygons: an affine map makes ``E1'`` the unit disk (the
+overlap error is affine-invariant), ``p`` is a point inside both regions (the minimiser of the sum of the
+two quadratic forms), and the intersection area ``1/2 ∫ min(r1(θ), r2(θ))² dθ``, ``r_i`` the distance from
+``p`` to each boundary, is summed by the trapezoid rule on :data:`N_ANGLES` angles. Disjoint bounding
+circles give exactly 1; the rare pairs where ``p`` misses the intersection fall back to
+:func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error` (polygons). For labels only, a pair whose overlap
+error provably exceeds the threshold (area ratio, lens bound) is not integrated. The loops are compiled
+(:mod:`~ctxmatch_lib.groundtruth._kernels`). Accuracy and cost: ``docs/evaluation.md`` (Ground truth).
 """
 
 from __future__ import annotations
@@ -64,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._numerics.fixedmath import sincos
+from .._numerics.docstrings import shared_doc
 from .._numerics.validation import as_matches, as_points
 from ..blob.overlap import as_shapes, ellipse_overlap_error
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
@@ -92,19 +62,17 @@ SHAPE_SCALE = 2.0
 #: Angles of the ray integration of the intersection area.
 N_ANGLES = 64
 
-# The kernel takes the first half of the angles: each ray is integrated with its opposite. The tables come
-# from _fixedmath (the same bits on any CPU), as the overlap errors that a threshold reads.
+# Half the angles (each ray goes with its opposite), from _fixedmath: the same bits on any CPU.
 _SIN, _COS = sincos(np.linspace(0.0, 2.0 * np.pi, N_ANGLES, endpoint=False)[: N_ANGLES // 2])
-#: Methods B and C skip the integration where a lower bound of the overlap error exceeds the threshold by
-#: more than this (the integration's own error is below 5e-3), so the labels are those of the full computation.
+#: Margin over the threshold of the skip bound, above the integration's error (< 5e-3): labels unchanged.
 _REJECT_MARGIN = 0.01
 
 
 def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.ndarray:
     """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of ellipses, element-wise (compiled loop).
 
-    Ellipse ``E = {c + A u : |u| <= 1}``; see the module docstring for the ray integration. Same contract
-    as :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error`, several times faster.
+    Ellipse ``E = {c + A u : |u| <= 1}``, ray integration of the module docstring; the contract of
+    :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error`.
 
     Parameters
     ----------
@@ -113,9 +81,7 @@ def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.nda
     A1, A2 : array_like of shape (P, 2, 2)
         Affine shapes (non-singular).
     reject_above : float
-        Pairs whose overlap error provably exceeds this (a lower bound from the areas and from the centre
-        distance) get 1 without computing the intersection; the default 1 computes every value. Labelling
-        needs only ``error <= threshold``: methods B and C pass the threshold plus a margin.
+        Pairs whose overlap error provably exceeds this get 1 without integration (default 1: none).
 
     Returns
     -------
@@ -156,8 +122,7 @@ def homography_ellipses(H, centres, shapes) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     centres, shapes : ndarray of shape (P, 2), (P, 2, 2)
-        The image ellipses (its shape is the lower Cholesky factor, one of the equivalent shapes). NaN where
-        the image is unbounded (the ellipse meets the vanishing line) or ``H`` is singular.
+        The image ellipses, shapes as lower Cholesky factors; NaN where unbounded or ``H`` is singular.
     """
     H = np.asarray(H, dtype=np.float64)
     if H.shape != (3, 3):
@@ -182,8 +147,7 @@ class RegionErrors:
     centre : ndarray of shape (K,)
         Centre distance of method C in pixels (reprojection, epipolar or flow transfer), inf if unknown.
     centres2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
-        The region of the image-1 keypoint carried into image 2 (scaled; NaN where unknown), the dashed
-        ellipse of the Appendix figure.
+        The scaled image-1 region carried into image 2 (NaN where unknown; dashed in the Appendix figure).
     """
 
     overlap: np.ndarray
@@ -204,8 +168,8 @@ def _as_flow(flow, name):
 
 
 def _as_shapes(shapes, n, name):
-    """``(N, 2, 2)`` shapes as float64 (radii converted); non-finite or singular shapes are not rejected
-    here, they get overlap error 1 (validating every shape would cost more than method D itself)."""
+    """``(N, 2, 2)`` float64 shapes (radii converted); bad shapes are not rejected (checking each would cost
+    more than method D), they get overlap error 1."""
     arr = np.asarray(shapes, dtype=np.float64)
     if arr.ndim == 3:
         if arr.shape != (n, 2, 2):
@@ -214,6 +178,7 @@ def _as_shapes(shapes, n, name):
     return as_shapes(arr, n, name)
 
 
+@shared_doc
 def region_errors(
     kpts1, kpts2, matches, gt, shapes1, shapes2, *, shape_scale: float = SHAPE_SCALE
 ) -> RegionErrors:
@@ -221,13 +186,11 @@ def region_errors(
 
     Parameters
     ----------
-    kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : array_like of shape (K, 2), int
-        Indices into ``kpts1``/``kpts2``.
+    %(kpts)s
+    %(matches)s
     gt : HomographyGT, EpipolarGT or FlowGT
-    shapes1, shapes2 : array_like of shape (N1, 2, 2), (N2, 2, 2)
-        Affine shapes of the support regions (or ``(N,)`` radii).
+    %(shapes)s
+        Or ``(N,)`` radii.
     shape_scale : float
         Linear factor on the shapes (2 in the paper).
 
@@ -361,9 +324,8 @@ def label_regions(
 
 
 def _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method, overlap, centre_threshold, rej):
-    """:func:`label_regions` on a flow pair: transfer, centre and overlap fused in one compiled pass
-    (:func:`~ctxmatch_lib.groundtruth._kernels.flow_label_kernel`; C computes the overlap only where the centre
-    holds), the polygon fallback on the few pairs that need it. Same labels as :func:`region_errors`."""
+    """:func:`label_regions` on a flow pair, fused in one compiled pass (:func:`.flow_label_kernel`), plus
+    the polygon fallback where needed."""
     kpts1, kpts2, S1, S2, matches = _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
     flow12 = _as_flow(gt.flow12, "gt.flow12")
     flow21 = np.empty((0, 0, 2)) if gt.flow21 is None else _as_flow(gt.flow21, "gt.flow21")

@@ -1,24 +1,17 @@
 """Exports for structure-from-motion pipelines: hloc's HDF5 files and a COLMAP database.
 
-- **hloc** (:func:`write_hloc`, :func:`read_hloc`): a features file with one group per image name holding
-  ``keypoints`` (N, 2) float32 and ``image_size`` (width, height), and a matches file with one group per pair
-  ``"name0/name1"`` (hloc's ``names_to_pair``: ``/`` inside a name becomes ``-``) holding ``matches0`` (N0,)
-  int16 (the image-1 row of each image-0 keypoint, ``-1`` when unmatched) and ``matching_scores0`` (N0,)
-  float16, as hloc's ``match_features`` writes them. hloc's keypoints use ctxmatch's pixel-centre origin, so
-  they are stored unchanged. hloc scores are confidences (higher is better): ``matching_scores0 = 1 - score``
-  (blob scores are ratios in [0, 1], lower is better). ``matches0`` holds one match per image-0 keypoint,
-  so many-to-many blob matches must be reduced: ``duplicates="best"`` keeps the best-scored match of each
-  image-0 keypoint. Needs ``h5py`` (``pip install 'ctxmatch[export]'``).
-- **COLMAP** (:func:`write_colmap`, :func:`read_colmap`): the documented SQLite schema (``doc/database.rst``
-  of COLMAP), written with the standard library's ``sqlite3``: one ``SIMPLE_RADIAL`` camera per image (focal
-  length 1.2 max(w, h), as COLMAP guesses without EXIF), ``images`` by name, ``keypoints`` as row-major
-  float32 (N, 2) blobs in COLMAP's corner origin (x + 0.5, y + 0.5), ``matches`` as uint32 (K, 2) blobs
-  under ``pair_id = 2147483647 * min(id1, id2) + max(id1, id2)`` with the columns swapped when
-  ``id1 > id2``. Many-to-many matches are written as they are. COLMAP (4.x) adds its newer tables
-  (rigs, frames) to such a database when it opens it and builds trivial rigs for images without one.
+- **hloc** (:func:`write_hloc`, :func:`read_hloc`, needs ``h5py``): ``features.h5`` with ``keypoints``
+  (float32, hloc's origin is ours) and ``image_size`` per image; ``matches.h5`` with ``matches0`` (int16, -1
+  when unmatched) and ``matching_scores0`` (float16 confidence ``1 - score``) per pair
+  (:func:`names_to_pair`), as hloc's ``match_features`` writes them. ``matches0`` holds one match per
+  image-0 keypoint, so ``duplicates="best"`` reduces many-to-many matches to the best-scored one.
+- **COLMAP** (:func:`write_colmap`, :func:`read_colmap`): its documented SQLite schema (``doc/database.rst``)
+  through ``sqlite3``: one ``SIMPLE_RADIAL`` camera per image (focal 1.2 max(w, h), COLMAP's guess without
+  EXIF), keypoints in COLMAP's corner origin (+0.5), uint32 matches under :func:`colmap_pair_id`, columns
+  swapped when ``id1 > id2``; many-to-many kept. COLMAP 4.x adds its rig and frame tables on opening.
 
-Keypoints given to the writers are ``(N, 2)`` (x, y) pixels with the origin at the centre of the top-left
-pixel; matches are ``(K, 2)`` rows into the two keypoint arrays; scores are lower-is-better.
+Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; scores are lower-is-better.
+Formats and commands: ``docs/interop.md``.
 """
 
 from __future__ import annotations
@@ -29,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._numerics.docstrings import shared_doc
 from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = [
@@ -49,18 +43,8 @@ _SIMPLE_RADIAL = 2
 
 
 def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
-    """hloc's pair key: ``"name0/name1"`` with ``/`` inside each name replaced by ``-``.
-
-    Parameters
-    ----------
-    name0, name1 : str
-        Image names (paths relative to the image folder).
-    separator : str, default "/"
-        hloc's current separator (``"_"`` in its older files).
-
-    Returns
-    -------
-    str
+    """hloc's pair key: ``"name0/name1"`` with ``/`` inside each name replaced by ``-`` (``separator``: hloc's,
+    ``"_"`` in its older files).
 
     Examples
     --------
@@ -112,20 +96,9 @@ def check_export_paths(h5_dir=None, colmap_db=None, *, h5_name: str = "h5_dir",
                        colmap_name: str = "colmap_db") -> None:
     """Check the targets of :func:`export_results` before any work; nothing is created.
 
-    Parameters
-    ----------
-    h5_dir : str or Path, optional
-        Folder for hloc's ``features.h5`` and ``matches.h5``: a folder (or creatable), whose two files, where
-        they exist, are HDF5 files.
-    colmap_db : str or Path, optional
-        COLMAP database: a new or empty file, or an SQLite database.
-    h5_name, colmap_name : str
-        The argument or flag names the messages start with (``"--export-h5"`` from the command line).
-
-    Raises
-    ------
-    ValueError
-        Naming the argument and what is wrong with the path.
+    ``h5_dir`` must be a (creatable) folder whose ``features.h5`` / ``matches.h5``, where they exist, are
+    HDF5; ``colmap_db`` a new or empty file or an SQLite database. A ``ValueError`` starts with ``h5_name``
+    or ``colmap_name`` (``"--export-h5"`` from the command line) and says what is wrong.
     """
     if h5_dir is not None:
         from ..cache import check_writable
@@ -162,6 +135,7 @@ def _write_h5_features(fd, name: str, kpts: np.ndarray, image_size) -> None:
         grp.create_dataset("image_size", data=np.asarray(image_size, np.int64))
 
 
+@shared_doc
 def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2, matches, scores=None, *,
                image_size1=None, image_size2=None, duplicates: str = "error") -> int:
     """Add one pair to hloc-style ``features.h5`` and ``matches.h5`` files (created when absent).
@@ -172,17 +146,15 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
         hloc's features and matches files. An image already present must have the same keypoints.
     name1, name2 : str
         Image names (hloc: paths relative to the image folder).
-    kpts1, kpts2 : array_like of shape (N1, 2) and (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel (hloc's convention too).
-    matches : array_like of shape (K, 2), int
-        Rows into ``kpts1`` and ``kpts2``.
+    %(kpts)s
+    %(matches)s
     scores : array_like of shape (K,), optional
-        Lower is better; stored as the confidence ``1 - score`` in ``matching_scores0``. Default 0 (confidence 1).
+        Lower is better; stored as the confidence ``1 - score``. Default 0 (confidence 1).
     image_size1, image_size2 : (int, int), optional
         (width, height), stored as hloc's ``image_size``.
     duplicates : {"error", "best"}
-        What to do with an image-1 keypoint that has several matches, which ``matches0`` cannot hold:
-        raise ``ValueError``, or keep its best-scored match.
+        An image-1 keypoint with several matches, which ``matches0`` cannot hold: raise ``ValueError``, or
+        keep its best-scored match.
 
     Returns
     -------
@@ -226,13 +198,8 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
 
 
 def read_hloc(features_path, matches_path, name1: str, name2: str):
-    """Read one pair back from hloc's files, as hloc's ``get_keypoints`` / ``get_matches`` do.
-
-    Parameters
-    ----------
-    features_path, matches_path : str or Path
-    name1, name2 : str
-        A pair stored in either order.
+    """Read one pair (stored in either order) back from hloc's files, as hloc's ``get_keypoints`` /
+    ``get_matches`` do.
 
     Returns
     -------
@@ -276,17 +243,8 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
 
 
 def colmap_pair_id(image_id1: int, image_id2: int) -> int:
-    """COLMAP's ``pair_id`` of two image ids (symmetric).
-
-    Parameters
-    ----------
-    image_id1, image_id2 : int
-        COLMAP image ids (1 <= id < 2147483647).
-
-    Returns
-    -------
-    int
-        ``2147483647 * min(ids) + max(ids)`` (COLMAP's ``doc/database.rst``).
+    """COLMAP's symmetric ``pair_id`` of two image ids (1 <= id < 2147483647): ``2147483647 * min(ids) +
+    max(ids)`` (COLMAP's ``doc/database.rst``).
 
     Examples
     --------
@@ -349,6 +307,7 @@ def _colmap_image(con: sqlite3.Connection, name: str, kpts: np.ndarray, image_si
     return image_id
 
 
+@shared_doc
 def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *, image_size1=None,
                  image_size2=None) -> tuple[int, int]:
     """Add one pair to a COLMAP database (created with COLMAP's schema when absent).
@@ -360,11 +319,10 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
         keypoints) or a new file.
     name1, name2 : str
         Image names: paths relative to COLMAP's image folder.
-    kpts1, kpts2 : array_like of shape (N1, 2) and (N2, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel (stored + 0.5, COLMAP's corner origin).
-    matches : array_like of shape (K, 2), int
-        Rows into ``kpts1`` and ``kpts2``; stored in the ``matches`` table (COLMAP's geometric
-        verification, e.g. ``colmap matches_importer``, fills ``two_view_geometries`` from it).
+    %(kpts)s
+    %(matches)s
+        Stored in ``matches``; COLMAP's geometric verification (``colmap matches_importer``) fills
+        ``two_view_geometries`` from it.
     image_size1, image_size2 : (int, int), optional
         (width, height); required for an image not yet in the database (its camera).
 
@@ -376,8 +334,7 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
     Raises
     ------
     ValueError
-        Bad arrays or names; or a ``database_path`` that cannot be written (a folder, under a file, not
-        writable, an existing file that is not an SQLite database, a locked database), named in the message.
+        Bad arrays or names, or a ``database_path`` that cannot be written (not writable, not SQLite, locked).
     """
     k1, k2, m, _ = _check_pair(kpts1, kpts2, matches, None)
     if name1 == name2:
@@ -403,11 +360,6 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
 
 def read_colmap(database_path, name1: str, name2: str):
     """Read one pair back from a COLMAP database.
-
-    Parameters
-    ----------
-    database_path : str or Path
-    name1, name2 : str
 
     Returns
     -------
@@ -452,21 +404,9 @@ def read_colmap(database_path, name1: str, name2: str):
 def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates: str = "best") -> list[str]:
     """Export ``.npz`` results of :func:`ctxmatch_lib.match.save_result` to hloc and/or COLMAP.
 
-    Parameters
-    ----------
-    results : mapping of (str, str) -> path
-        Image names -> the pair's ``.npz``.
-    h5_dir : str or Path, optional
-        Folder for hloc's ``features.h5`` and ``matches.h5``.
-    colmap_db : str or Path, optional
-        COLMAP database file.
-    duplicates : {"best", "error"}
-        For hloc (see :func:`write_hloc`).
-
-    Returns
-    -------
-    list of str
-        One summary line per export.
+    ``results`` maps image names ``(name1, name2)`` to the pair's ``.npz``; ``h5_dir`` is the folder of hloc's
+    two files, ``colmap_db`` the database, ``duplicates`` as in :func:`write_hloc`. Returns one summary line
+    per export.
     """
     from ..match import load_result
 

@@ -1,43 +1,28 @@
 """Glue to OpenCV and kornia: keypoints, matches and local affine frames in their formats and back.
 
-ctxmatch's own formats: keypoints are ``(N, 2)`` float64 (x, y) pixels with the origin at the centre of the
-top-left pixel (OpenCV's and kornia's convention too, so coordinates are never shifted); the patch of
-keypoint ``k`` is ``{kpts[k] + shapes[k] @ u : |u| <= 1}`` with ``shapes[k] = patch_radius * sigma * R(angle)``
-(``patch_radius = 3``: the 3 sigma support of a SIFT blob, :class:`~ctxmatch_lib.features.FeatureConfig`);
-matches are ``(K, 2)`` int64 rows ``(i, j)`` into the keypoints of image 1 and image 2; scores are
-lower-is-better.
+Keypoints are (x, y) pixels, origin at the centre of the top-left pixel (OpenCV's and kornia's too, so never
+shifted); the patch of keypoint ``k`` is ``{kpts[k] + shapes[k] @ u : |u| <= 1}`` with ``shapes[k] =
+patch_radius * sigma * R(angle)`` (``patch_radius = 3``, :class:`~ctxmatch_lib.features.FeatureConfig`).
 
-OpenCV (needs only ``cv2``, a core dependency):
+- OpenCV: :func:`from_cv2_keypoints` / :func:`to_cv2_keypoints` (``size`` is the diameter ``2 sigma``,
+  ``angle`` degrees in [0, 360) clockwise on screen, ``-1`` for none); :func:`to_cv2_matches` /
+  :func:`from_cv2_matches` (``queryIdx`` in image 1, ``trainIdx`` in image 2, ``distance`` the score).
+- kornia (``pip install 'ctxmatch[kornia]'``, imported when called): :func:`from_kornia_lafs` /
+  :func:`to_kornia_lafs` (``[A | c]`` frames); :func:`match_blob`, blob matching (Sec. 3) returning
+  ``(dists, idxs)`` like ``kornia.feature.match_smnn``.
 
-- :func:`from_cv2_keypoints` / :func:`to_cv2_keypoints`: ``cv2.KeyPoint`` lists. OpenCV's ``size`` is the
-  diameter ``2 sigma``; ``angle`` is in degrees in [0, 360), clockwise on screen (y down), ``-1`` when the
-  detector gives none.
-- :func:`to_cv2_matches` / :func:`from_cv2_matches`: ``cv2.DMatch`` lists (``queryIdx`` in image 1,
-  ``trainIdx`` in image 2, ``distance`` the score).
-
-kornia (needs ``torch`` and ``kornia``: ``pip install 'ctxmatch[kornia]'``; imported only when called):
-
-- :func:`from_kornia_lafs` / :func:`to_kornia_lafs`: local affine frames ``(B, N, 2, 3)``, ``[A | c]``.
-- :func:`match_blob`: blob matching (Sec. 3) with kornia's matcher interface, returning ``(dists, idxs)``
-  like ``kornia.feature.match_smnn``.
-
-The LAF scale convention is an explicit, required argument ``mr_size``: the half-size of the LAF in units
-of the keypoint's Gaussian sigma, ``A_laf = mr_size * sigma * R``. kornia's scale-space detectors
-(``ScaleSpaceDetector``, ``SIFTFeatureScaleSpace``) use ``mr_size=6``; kornia_moons'
-``laf_from_opencv_SIFT_kpts`` multiplies OpenCV's size (2 sigma) by 6, i.e. ``mr_size=12``, four times the
-project's 3 sigma patch (a SIFT keypoint of sigma 1.9 has ``|A| = 22.6`` there and 5.6 here). Reading such
-LAFs as if they were ctxmatch shapes would silently change the overlap-FGINN of blob matching
-(``t_o_kind="overlap"``), hence no default. Detectors whose LAF size is not a multiple of a blob sigma
-(kornia's ``SIFTFeature``, ``KeyNet``: a fixed size per pyramid level) have no true ``mr_size``: pick the one
-that makes the patch the region you want compared. Only the overlap test reads the LAF size: the default
-blob setup (FGINN in pixels) and the built-in filters (only AdaLAM reads shapes, as scale *ratios*) do not
-depend on it.
+``mr_size``, the LAF half-size in keypoint sigmas (``A = mr_size * sigma * R``), has no default: kornia's
+scale-space detectors use 6, kornia_moons' ``laf_from_opencv_SIFT_kpts`` 12, and reading such LAFs as
+ctxmatch shapes would silently change the overlap-FGINN (``t_o_kind="overlap"``), the only step that reads
+the LAF size. For detectors with a fixed LAF size per level (``SIFTFeature``, ``KeyNet``) pick the value
+that makes the patch the region to compare.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .._numerics.docstrings import shared_doc
 from .._numerics.validation import as_matches, as_points, as_scores
 
 __all__ = [
@@ -77,13 +62,12 @@ def from_cv2_keypoints(keypoints, *, patch_radius: float = 3.0):
     keypoints : sequence of cv2.KeyPoint
         E.g. the output of ``cv2.SIFT_create().detect(img)``.
     patch_radius : float, default 3
-        Radius of the patch in units of the keypoint sigma (OpenCV's ``size / 2``), as in
-        :class:`~ctxmatch_lib.features.FeatureConfig`.
+        Radius of the patch in keypoint sigmas (OpenCV's ``size / 2``).
 
     Returns
     -------
     kpts : ndarray of shape (N, 2), float64
-        ``KeyPoint.pt``: (x, y) pixels, origin at the centre of the top-left pixel.
+        ``KeyPoint.pt``.
     shapes : ndarray of shape (N, 2, 2), float64
         ``patch_radius * size / 2 * R(angle)``; keypoints with no orientation (``angle == -1``) get angle 0.
     angles : ndarray of shape (N,), float64
@@ -117,17 +101,16 @@ def from_cv2_keypoints(keypoints, *, patch_radius: float = 3.0):
     return kpts, shapes.reshape(n, 2, 2), angles, resp
 
 
+@shared_doc
 def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_radius: float = 3.0) -> list:
     """A list of ``cv2.KeyPoint`` from ctxmatch keypoints.
 
     Parameters
     ----------
-    kpts : array_like of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts_one)s
     shapes : array_like of shape (N, 2, 2), optional
-        Affine shapes; ``size = 2 sqrt(|det A|) / patch_radius`` and the angle of the first axis give
-        OpenCV's ``size`` and ``angle`` (an anisotropic shape keeps only its area and first axis). Without
-        shapes every keypoint gets ``size = 1`` and ``angle = -1`` (no orientation).
+        Affine shapes: ``size = 2 sqrt(|det A|) / patch_radius``, ``angle`` that of the first axis (an
+        anisotropic shape keeps only its area and first axis). Default: ``size = 1``, ``angle = -1``.
     angles : array_like of shape (N,), optional
         Radians as returned by :func:`from_cv2_keypoints`; overrides the angle of ``shapes`` (NaN -> -1).
     responses : array_like of shape (N,), optional
@@ -138,12 +121,8 @@ def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_ra
     Returns
     -------
     list of cv2.KeyPoint
-        ``octave`` is 0: OpenCV's SIFT ``compute`` on these recomputes no pyramid level from it.
-
-    Notes
-    -----
-    ``to_cv2_keypoints(*from_cv2_keypoints(kps)[:2], angles=..., responses=...)`` gives back ``pt``,
-    ``size``, ``angle`` and ``response`` exactly (OpenCV stores float32).
+        ``octave`` 0. ``to_cv2_keypoints(*from_cv2_keypoints(kps)[:2], angles=..., responses=...)`` gives
+        back ``pt``, ``size``, ``angle`` and ``response`` exactly.
     """
     import cv2
 
@@ -177,17 +156,8 @@ def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_ra
 def to_cv2_matches(matches, scores=None) -> list:
     """A list of ``cv2.DMatch`` (``queryIdx`` = image-1 row, ``trainIdx`` = image-2 row, ``distance`` = score).
 
-    Parameters
-    ----------
-    matches : array_like of shape (K, 2), int
-        Rows into the keypoints of image 1 and image 2.
-    scores : array_like of shape (K,), optional
-        Lower is better, as OpenCV's distance; 0 when omitted.
-
-    Returns
-    -------
-    list of cv2.DMatch
-        Ready for ``cv2.drawMatches``.
+    ``matches`` are rows into the keypoints of images 1 and 2, ``scores`` (lower is better, as OpenCV's
+    distance) default to 0. The list is ready for ``cv2.drawMatches``.
 
     Examples
     --------
@@ -264,11 +234,10 @@ def from_kornia_lafs(lafs, *, mr_size: float, patch_radius: float = 3.0):
     lafs : torch.Tensor or ndarray of shape (1, N, 2, 3) or (N, 2, 3)
         ``[A | c]``: centre ``c`` (x, y) pixels, ``A`` mapping the unit disc onto the region.
     mr_size : float
-        Scale convention of ``lafs``: ``A = mr_size * sigma * R`` (kornia's ``ScaleSpaceDetector``: 6;
-        kornia_moons' ``laf_from_opencv_SIFT_kpts``: 12; LAFs made by :func:`to_kornia_lafs` with
-        ``mr_size=m``: m).
+        Scale convention of ``lafs``, ``A = mr_size * sigma * R`` (kornia's ``ScaleSpaceDetector``: 6;
+        kornia_moons' ``laf_from_opencv_SIFT_kpts``: 12).
     patch_radius : float, default 3
-        Radius of the returned shapes in sigmas (the project's convention).
+        Radius of the returned shapes in sigmas.
 
     Returns
     -------
@@ -291,25 +260,20 @@ def from_kornia_lafs(lafs, *, mr_size: float, patch_radius: float = 3.0):
     return np.ascontiguousarray(arr[:, :, 2]), np.ascontiguousarray(arr[:, :, :2] * (r / mr))
 
 
+@shared_doc
 def to_kornia_lafs(kpts, shapes, *, mr_size: float, patch_radius: float = 3.0, dtype=None, device=None):
     """kornia local affine frames ``(1, N, 2, 3)`` from keypoints and shapes.
 
     Parameters
     ----------
-    kpts : array_like of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
+    %(kpts_one)s
     shapes : array_like of shape (N, 2, 2)
         ctxmatch shapes (``patch_radius`` sigmas).
     mr_size : float
-        Scale convention of the LAFs to make (see :func:`from_kornia_lafs`); ``mr_size=patch_radius`` keeps
-        the shapes as they are.
+        Scale convention of the LAFs (:func:`from_kornia_lafs`); ``mr_size=patch_radius`` keeps the shapes.
     patch_radius : float, default 3
     dtype, device : torch dtype and device, optional
         Default ``torch.float64`` (exact round trips) on the CPU.
-
-    Returns
-    -------
-    torch.Tensor of shape (1, N, 2, 3)
     """
     import torch
 

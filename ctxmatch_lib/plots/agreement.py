@@ -1,10 +1,4 @@
-"""Our per-method precision and recall against the paper's Tables 1-3: one panel per (configuration, kind).
-
-x is the paper's value, y ours, on the y = x line where the two agree; each method keeps its colour and marker
-of the scatter plots (:func:`ctxmatch_lib.plots.eval.method_style`), hollow without a model and filled after
-1SAC as in :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`; precision and recall have rows of their own. The
-panel title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.paper.rank_agreement`).
-"""
+"""Our per-method precision and recall against the paper's Tables 1-3 (:func:`plot_agreement`)."""
 
 from __future__ import annotations
 
@@ -13,7 +7,7 @@ from matplotlib.legend_handler import HandlerTuple
 from matplotlib.lines import Line2D
 
 from ..report.tables import KIND_LABELS, method_label, method_order
-from ..report.paper import rank_agreement
+from ..report.paper import method_rank_agreement
 from .eval import method_style
 
 __all__ = ["plot_agreement"]
@@ -22,35 +16,31 @@ __all__ = ["plot_agreement"]
 def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, ms: float = 14,
                    panel_size: float = 2.0, figsize=None,
                    metrics=("precision", "recall")):
-    """Ours (y) against the paper (x) per method (Tables 1-3, Fig. 7): one row of panels per kind of pair and
-    metric, one column per configuration; each method in its colour and marker of the scatter plots, hollow
-    without a model and filled after 1SAC (the convention of :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`).
+    """Ours (y) against the paper (x) per method, around y = x: one row of panels per kind and metric, one
+    column per configuration, methods styled as in :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`; each
+    title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.paper.method_rank_agreement`).
 
     Parameters
     ----------
     side : DataFrame
         A :func:`ctxmatch_lib.report.paper.side_by_side` frame (index setup, kind, model, method).
     setups : sequence of str, optional
-        The configurations, one column of panels each (default: those in ``side``, in order).
+        The configurations (default: those in ``side``).
     models : sequence of str
-        The models drawn (default no model only): ``"none"`` hollow, any other (1SAC) filled.
+        ``"none"`` drawn hollow, any other filled.
     blob : bool
-        Draw the blob candidates too (default no: their recall is 100 % by definition).
+        Draw the blob candidates too (their recall is 100 % by definition).
     ms : float
         Marker area in points².
     panel_size : float
-        Width and height of one panel in inches, when ``figsize`` is not given.
+        Panel side in inches when ``figsize`` is not given.
     figsize : (float, float), optional
-        The figure's size (e.g. :func:`~ctxmatch_lib.plots.base.figsize` for a paper figure); the panels
-        share it under the constrained layout, the legend below them.
+        The figure's size, e.g. :func:`~ctxmatch_lib.plots.base.figsize`.
     metrics : sequence of {"precision", "recall"}
-        One row of panels per kind and metric, in this order.
 
     Returns
     -------
     Figure
-        (kinds × metrics) × ``len(setups)`` panels sharing the 0-100 % axes; one legend below them. Each
-        panel's title gives Spearman's ρ of its metric over the filters without a model.
     """
     from ..report.tables import MODEL_LABELS
 
@@ -63,7 +53,7 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
         raise ValueError(f"metrics must be 'precision' and/or 'recall', got {bad}")
     kinds = [k for k in dict.fromkeys(side.index.get_level_values("kind"))]
     rows = [(kind, metric) for kind in kinds for metric in metrics]
-    rho = rank_agreement(side)
+    rho = method_rank_agreement(side)
     if figsize is None:
         figsize = (panel_size * len(setups), panel_size * len(rows) + 0.8)
     fig, axes = plt.subplots(len(rows), len(setups), figsize=figsize, squeeze=False, sharex=True, sharey=True,
@@ -84,7 +74,6 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
                 for method in method_order(d.index):
                     colour, marker = method_style(method)
                     row = d.loc[method]
-                    # Filled under hollow, so that a ring on a filled marker stays visible.
                     ax.scatter(row[f"{metric} paper (%)"], row[f"{metric} ours (%)"], s=ms, marker=marker,
                                c=[colour] if filled else "none", edgecolors=colour,
                                linewidths=0.3 if filled else 0.8, zorder=3 if filled else 4)
@@ -92,7 +81,6 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
             key = (setup, kind, models[0])
             col = f"ρ {metric}"
             text = f"ρ = {rho.loc[key, col]:.2f}" if key in rho.index else "ρ –"
-            # The configuration heads its column; each panel names its kind and metric.
             ax.set_title((f"{setup}\n" if r == 0 else "") + f"{KIND_LABELS.get(kind, kind)} {metric}: {text}",
                          fontsize=7)
             ax.set_xlim(0, 102)

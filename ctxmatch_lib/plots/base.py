@@ -1,6 +1,5 @@
-"""Figure I/O and the paper style: where figures go, how they are saved (PNG + vector PDF with their
-provenance), the IEEE column sizes, and the toy example of Fig. 1a. Plot helpers take an ``ax`` (or build a
-figure) and never call ``plt.show``; :func:`save_figure` shows the figure once in a notebook and writes it."""
+"""Figure I/O and the paper style: output paths, :func:`save_figure` (PNG + vector PDF with provenance), the
+IEEE column sizes, and the toy example of Fig. 1a."""
 
 from __future__ import annotations
 
@@ -38,8 +37,8 @@ __all__ = [
 COLUMN_WIDTHS = {1: 3.5, 2: 7.16}
 #: Smallest font size, in points, that a paper figure may use at its printed size.
 MIN_FONT_PT = 7.0
-#: Matplotlib settings of the paper figures: 7-8 pt text at the printed size, thin lines, TrueType fonts
-#: embedded in the PDF (publishers reject Type-3 fonts), and a layout engine that keeps every label inside.
+#: Matplotlib settings of the paper figures: 7-8 pt text, thin lines, embedded TrueType fonts (publishers
+#: reject Type-3), constrained layout.
 PAPER_RC = {
     "font.size": 7.5,
     "axes.titlesize": 7.5,
@@ -72,14 +71,8 @@ def paper_style() -> None:
 
 
 def figsize(columns: int = 2, height: float | None = None, *, aspect: float = 0.62) -> tuple[float, float]:
-    """``(width, height)`` in inches of a figure one or two IEEE columns wide.
-
-    Parameters
-    ----------
-    columns : {1, 2}
-        3.5 in (one column) or 7.16 in (two columns, ``figure*``).
-    height : float, optional
-        Height in inches; by default ``aspect`` × width.
+    """``(width, height)`` in inches of a figure ``columns`` (1 or 2) IEEE columns wide; ``height`` defaults
+    to ``aspect`` × width.
 
     Examples
     --------
@@ -115,19 +108,15 @@ def check_paper_figure(fig, columns: int) -> None:
         raise ValueError(f"texts under {MIN_FONT_PT:g} pt at the printed size: {small[:5]}")
 
 
-#: The paths whose content makes the figures: a commit that changes none of them (one that only commits
-#: regenerated figures, or edits the README) leaves the provenance, and so the figure files, unchanged.
+#: The paths whose content makes the figures: a commit touching none of them leaves the provenance unchanged.
 SOURCE_PATHS = ("ctxmatch_lib", "notebooks", "pyproject.toml", "environment.txt")
 
 
 @functools.lru_cache(maxsize=1)
 def source_commit() -> str:
     """The last commit that changed the figures' sources (:data:`SOURCE_PATHS`), 12 hex digits, with
-    ``-dirty`` when tracked files among them differ from it; ``""`` outside a git checkout.
-
-    Not ``HEAD``: committing the regenerated figures makes a new ``HEAD``, and a provenance that named it would
-    change every figure file on the next run although no number changed.
-    """
+    ``-dirty`` when tracked files among them differ from it; ``""`` outside a git checkout. Not ``HEAD``,
+    which committing the regenerated figures would change."""
     root = repo_root()
     if root is None or not (root / ".git").exists():
         return ""
@@ -141,11 +130,8 @@ def source_commit() -> str:
 
 
 def provenance(**fields) -> dict:
-    """What produced a figure or table, from its source and never from the clock: ``version`` (of
-    ``ctxmatch_lib``), ``git_commit`` (:func:`source_commit`, the last commit that changed the sources) plus
-    ``fields`` (dataset, feature preset, blob setup, ...; lists are joined with ", ").
-
-    A rerun that computes the same numbers therefore writes the same record (no date, no running time).
+    """What produced a figure or table: ``version``, ``git_commit`` (:func:`source_commit`) and ``fields``
+    (lists joined with ", "). No date or time, so a rerun with the same numbers writes the same record.
 
     Examples
     --------
@@ -168,9 +154,8 @@ _provenance = provenance  # save_figure's argument of the same name shadows it
 
 
 def default_figure_dir() -> Path:
-    """Where figures go when a notebook is given no ``output_dir``: ``$CTXMATCH_FIGURES`` if set, else
-    ``build/figures`` of the checkout (never the tracked ``figures/``, which only ``ctxmatch figures`` /
-    ``make figures`` rewrites), else ``ctxmatch-figures`` in the current folder for a plain install."""
+    """Where figures go without ``output_dir``: ``$CTXMATCH_FIGURES``, else the checkout's ``build/figures``
+    (never the tracked ``figures/``), else ``./ctxmatch-figures``."""
     env = os.environ.get("CTXMATCH_FIGURES")
     if env:
         return Path(env).expanduser()
@@ -179,8 +164,7 @@ def default_figure_dir() -> Path:
 
 
 def figure_path(name: str, output_dir: str | os.PathLike | None = None) -> Path:
-    """Where figure or table ``name`` goes: ``output_dir`` when given, else :func:`default_figure_dir`.
-    The folder is created."""
+    """Path of ``name`` in ``output_dir`` (default :func:`default_figure_dir`), the folder created."""
     base = Path(output_dir).expanduser() if output_dir else default_figure_dir()
     path = base / name
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -233,9 +217,8 @@ def _figure_colors(fig, limit: int = 96) -> list:
 
 
 def _quantize_png(path: Path, colors: int, meta: dict, keep=()) -> None:
-    """Rewrite the PNG ``path`` with a palette of ``colors`` colours: the colours ``keep`` (RGB 0-255, the
-    figure's own drawing colours, so that a rare legend colour is not merged into a frequent one) plus an
-    adaptive palette of the image for the rest; text chunks and dpi are kept."""
+    """Rewrite the PNG ``path`` with ``colors`` colours: ``keep`` (the figure's drawing colours, so a rare legend
+    colour survives) plus an adaptive palette; text chunks and dpi are kept."""
     from PIL import Image, PngImagePlugin
 
     if not 2 <= colors <= 256:
@@ -259,38 +242,32 @@ def _quantize_png(path: Path, colors: int, meta: dict, keep=()) -> None:
 def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, dpi: int = 300,
                 formats=("png", "pdf"), provenance: dict | None = None, columns: int | None = None,
                 show: bool | None = None, png_colors: int | None = None) -> Path:
-    """Show ``fig`` (in a notebook), write it as ``<output_dir>/<name>.png`` and a vector ``.pdf`` beside
-    it, then close it.
+    """Show ``fig`` (in a notebook), write ``<output_dir>/<name>.png`` and a vector ``.pdf`` atomically, close it.
 
     Parameters
     ----------
-    fig : matplotlib Figure
     name : str
-        File stem (a suffix such as ``.png`` is dropped; ``formats`` decides).
+        File stem (a suffix is dropped; ``formats`` decides).
     output_dir : path, optional
-        See :func:`figure_path` (default: :func:`default_figure_dir`).
+        See :func:`figure_path`.
     dpi : int
         Resolution of the PNG (and of images embedded in the PDF).
     formats : sequence of str
-        Formats written, the first one's path is returned.
+        Formats written; the first one's path is returned.
     provenance : dict, optional
-        Extra provenance (dataset, feature preset, blob setup, ...) merged into :func:`provenance`; the
-        whole record is written as JSON into the PNG text chunk ``ctxmatch:provenance`` and the PDF
-        ``Subject``.
+        Merged into :func:`provenance`; the record goes as JSON into the PNG text chunk
+        ``ctxmatch:provenance`` and the PDF ``Subject``.
     columns : {1, 2}, optional
-        A paper figure: checked with :func:`check_paper_figure` and saved at its exact size (no tight
-        bounding box), so that it prints one or two IEEE columns wide with text of at least 7 pt.
+        A paper figure: checked with :func:`check_paper_figure` and saved at its exact size.
     show : bool, optional
-        Display the figure before saving it; default: when running in a Jupyter kernel.
+        Display before saving; default: in a Jupyter kernel.
     png_colors : int, optional
-        Store the PNG with an adaptive palette of this many colours (at most 256, no dithering): figures made
-        of photographs shrink several times, and the PDF keeps the full colours.
+        Store the PNG with an adaptive palette of this many colours (≤ 256): photo figures shrink several
+        times; the PDF keeps full colour.
 
     Returns
     -------
     Path
-        The file of the first format. Each file is written to a temporary name and moved into place, so an
-        interrupted run leaves no half-written figure.
     """
     if columns is not None:
         check_paper_figure(fig, columns)
@@ -326,9 +303,8 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
 
 
 def plot_toy_matrix(ax, D: np.ndarray, matches=(), *, title: str = "D", fontsize: float = 7.5) -> None:
-    """Draw the distance matrix ``D`` (rows: keypoints of image 1, columns: keypoints of image 2) as a table,
-    circling ``matches`` (1-based (row, col) pairs); each number is black or white, whichever contrasts more
-    with its cell."""
+    """Draw the distance matrix ``D`` (rows: image-1 keypoints) as a table, circling ``matches`` (1-based
+    (row, col) pairs)."""
     from matplotlib.colors import Normalize
 
     D = np.asarray(D, np.float64)
@@ -352,8 +328,7 @@ def plot_toy_matrix(ax, D: np.ndarray, matches=(), *, title: str = "D", fontsize
 
 
 def plot_toy_table(ax, table, *, fontsize: float = 7.0) -> None:
-    """Render the table of Fig. 1a (a :func:`ctxmatch_lib.blob.toy.toy_table` frame) as text; G lists
-    (row, column) = (image-1 keypoint, image-2 keypoint) pairs, 1-based."""
+    """Render the table of Fig. 1a (:func:`ctxmatch_lib.blob.toy.toy_table`); G lists 1-based (i, j) pairs."""
     ax.axis("off")
     cells = [[r.setup, ", ".join(f"({i},{j})" for i, j in r.computed), "✓" if r.agrees else "✗"]
              for r in table.itertuples()]

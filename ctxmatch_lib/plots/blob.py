@@ -1,6 +1,5 @@
-"""Plot helpers for the blob-matching sweep (Sec. 5.2): the mAP heat map of Fig. 5 and the per-parameter
-bands of Fig. 6. Each takes an ``ax`` and never calls ``plt.show``; inputs come from
-:func:`ctxmatch_lib.report.blob.heatmap_matrix` (mAP in %, rows f × f', columns t_o × D × W)."""
+"""Plots of the blob-matching sweep (Sec. 5.2): the mAP heat map of Fig. 5 and the bands of Fig. 6, from
+:func:`ctxmatch_lib.report.blob.heatmap_matrix` (mAP %, rows f × f', columns t_o × D × W)."""
 
 from __future__ import annotations
 
@@ -10,8 +9,7 @@ from .palette import OKABE_ITO
 
 __all__ = ["plot_blob_heatmap", "heatmap_key", "plot_blob_bands", "W_LABELS", "FEATURE_LABELS"]
 
-#: Figure titles of the feature presets of :data:`ctxmatch_lib.features.FEATURE_PRESETS`. The paper's learned
-#: orientation and its HardNet2/SOSNet weights are not obtainable here: the blocks that use stand-ins say so.
+#: Figure titles of :data:`ctxmatch_lib.features.FEATURE_PRESETS`, naming the stand-ins.
 FEATURE_LABELS = {
     "sift-rootsift": "SIFT + RootSIFT",
     "sift-rootsift-upright": "upright SIFT + RootSIFT",
@@ -42,9 +40,7 @@ def _groups(labels):
     return out
 
 
-#: Colours of the W key strip of the heat map (five per D band): the Okabe–Ito colours that D does not use,
-#: told apart at print size and with a colour-vision deficiency (five greys were not), and f' greys (three per
-#: f group).
+#: Colours of the heat map's W key strip (the Okabe–Ito colours D does not use) and f' greys.
 _W_COLOURS = {"a": OKABE_ITO["sky_blue"], "b": OKABE_ITO["yellow"], "min": OKABE_ITO["vermillion"],
               "max": OKABE_ITO["reddish_purple"], "harmonic": OKABE_ITO["black"]}
 _FP_GREYS = ("0.85", "0.55", "0.15")
@@ -60,26 +56,17 @@ def _w_key(label) -> str:
 def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap: str = "viridis",
                       mark_best: bool = True, row_labels: bool = True, col_labels: bool = True,
                       key_strips: bool = True):
-    """Draw one detector+descriptor block of the heat map of Fig. 5.
-
-    Every one of the 27 rows and 90 columns is told by key strips drawn beside the block (at print size there
-    is no room for 117 texts): under the columns, a strip coloured by D (:data:`_D_COLOURS`, the colours of
-    Fig. 6) and a strip coloured by W (:data:`_W_COLOURS`: a sky blue, b yellow, min vermillion, max reddish
-    purple, 2ab/(a+b) black); left of the rows, a strip in three greys by f' (light to dark: 1, 3, 5).
-    :func:`heatmap_key` draws their legend.
+    """Draw one detector+descriptor block of the heat map of Fig. 5; key strips (no room for texts) give each
+    column its D and W colour and each row its f' grey, explained by :func:`heatmap_key`.
 
     Parameters
     ----------
-    ax : matplotlib Axes
     matrix : DataFrame
-        mAP (%) with a (f, f') row index and a (t_o, D, W) column index
-        (:func:`~ctxmatch_lib.report.blob.heatmap_matrix`).
-    title : str
+        mAP (%), rows (f, f'), columns (t_o, D, W) (:func:`~ctxmatch_lib.report.blob.heatmap_matrix`).
     vmin, vmax : float, optional
-        Colour range (default: this block's own range; one shared range washes out the better blocks).
+        Colour range (default: the block's own; a shared one washes out the better blocks).
     mark_best : bool
-        Outline the best cell and point at its row and column from outside the block (the value belongs in
-        the title: no text covers the map).
+        Outline the best cell and mark its column above the block.
     row_labels, col_labels : bool
         Tick labels on the left (f) and at the bottom (t_o).
     key_strips : bool
@@ -142,15 +129,13 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
         r, c = np.unravel_index(np.nanargmax(values), values.shape)
         ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec=_BEST_COLOR, lw=1.0, zorder=4,
                                clip_on=False))
-        # A triangle just above the block points at the best column (the outline alone is one small cell).
         ax.plot([c], [-0.5], marker="v", ms=4, color=_BEST_COLOR, mec="black", mew=0.3, clip_on=False, zorder=5)
     ax.set_title(title, pad=4)
     return im
 
 
 def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
-    """The legend of the key strips of :func:`plot_blob_heatmap` (D and W colours, f' greys) and of the
-    best-cell marker; ``kwargs`` go to ``legend``."""
+    """The legend of :func:`plot_blob_heatmap`'s key strips and best-cell marker; ``kwargs`` go to ``legend``."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -171,18 +156,9 @@ def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
 
 
 def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True):
-    """Per-parameter mAP bands of Fig. 6 for one (f, f') row: t_o groups, D sub-bands, W in order.
-
-    Parameters
-    ----------
-    ax : matplotlib Axes
-    row : Series
-        mAP (%) indexed by (t_o, D, W) labels: one row of :func:`~ctxmatch_lib.report.blob.heatmap_matrix`.
-    title : str
-    ylim : (float, float), optional
-    legend : bool
-        Legends for D (colours) and W (markers).
-    """
+    """Per-parameter mAP bands of Fig. 6 for one (f, f') ``row`` of
+    :func:`~ctxmatch_lib.report.blob.heatmap_matrix`: t_o groups, D sub-bands (colours), W (markers, legend
+    with ``legend``)."""
     from matplotlib.lines import Line2D
 
     labels = list(row.index)

@@ -188,8 +188,6 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
         Ground-truth correctness of every input match.
     image : {1, 2}
         Which image the overlay is for (its triangulation; flows start at its keypoints).
-    dropped_lw, dropped_alpha : float
-        Line width and alpha of the removed matches.
     max_dropped_lines : int or None
         Above this many removed matches they are drawn as dots at their keypoints (thousands of long lines
         would hide everything); ``None``: always lines.
@@ -197,7 +195,7 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     Returns
     -------
     bool
-        Whether the removed matches were drawn as dots only (say so in the panel's title).
+        Whether the removed matches were drawn as dots only.
     """
     tri = iteration.tri1 if image == 1 else iteration.tri2
     plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)

@@ -1,14 +1,7 @@
-"""Plot helpers for the filter evaluation (Sec. 5.3, Appendix "DTM evaluation"): the precision/recall
-scatter of Fig. 7 (``pr_plot``) and the inlier-ratio histograms (``inl_plot``). Each helper draws on a given
-``ax`` from a table of :mod:`ctxmatch_lib.report` and never calls ``plt.show()``.
-
-As in the paper's Fig. 7, every method has one colour and one marker, named once in one legend, and no point
-carries a text: the model step is told by the fill, hollow without a model and filled after 1SAC (the same
-convention in every figure of the package). Colours are the colour-blind-safe Okabe–Ito palette
-(:data:`~ctxmatch_lib.plots.palette.OKABE_ITO`, yellow left out, too pale on white) and two dark colours of Paul
-Tol's; nine colours and nine markers give each of the paper's 18 methods its own pair
-(:data:`PAPER_METHOD_STYLES`): no colour is worn by more than two of them, the two with markers of different
-shape families, and methods next to each other in the paper's order differ in both.
+"""Plots of the filter evaluation (Sec. 5.3, Appendix "DTM evaluation") from :mod:`ctxmatch_lib.report`
+tables: the precision/recall scatter of Fig. 7 (``pr_plot``) and the inlier-ratio histograms (``inl_plot``).
+As in Fig. 7, each method has one colour and marker (:func:`method_style`) named in one legend; hollow
+markers mean no model, filled ones 1SAC.
 """
 
 from __future__ import annotations
@@ -36,17 +29,14 @@ __all__ = [
     "plot_pair_share",
 ]
 
-#: The colours of the methods: Okabe–Ito without yellow (too pale on white) and two dark colours of Paul Tol's
-#: palettes (indigo, wine), at least ΔE 23 from the others with normal vision and simulated deutan/protan
-#: dichromacy (palette.delta_e). Nine colours, each worn by two of the paper's 18 methods at most.
+#: The colours of the methods: Okabe–Ito without yellow (too pale on white) plus Paul Tol's indigo and wine.
 METHOD_COLORS = tuple(OKABE_ITO[k] for k in ("black", "blue", "vermillion", "bluish_green", "reddish_purple",
                                              "orange", "sky_blue")) + ("#332288", "#882255")
 #: The markers of the methods, all fillable (hollow = no model, filled = 1SAC).
 METHOD_MARKERS = ("o", "s", "^", "D", "v", "p", "h", "<", ">")
 _K, _B, _V, _G, _P, _O, _S, _I, _W = METHOD_COLORS
-#: The paper's methods (Tables 1-3 order, the blob candidates first) and their fixed (colour, marker): the two
-#: methods that share a colour have markers of different families (round / square / triangle), and methods
-#: next to each other in the paper's order differ in both.
+#: The paper's methods (Tables 1-3 order) and their (colour, marker): a colour is shared by two methods at most,
+#: with markers of different families, and neighbours in the paper's order differ in both.
 PAPER_METHOD_STYLES = {
     "blob": (_K, "o"), "th": (_B, "s"), "dtm1": (_V, "^"), "dtm2": (_G, "D"), "lmr": (_P, "v"), "lpm": (_O, "p"),
     "glpm": (_S, "h"), "gms": (_I, "<"), "vfc": (_W, ">"), "llt": (_K, "^"), "rfm_scan": (_B, "o"),
@@ -61,8 +51,7 @@ EMPTY_COLOR = "0.35"
 
 
 def method_style(name: str) -> tuple[str, str]:
-    """``(colour, marker)`` of a method: fixed for the paper's methods (:data:`PAPER_METHOD_STYLES`: 18 pairs,
-    nine colours), deterministic for any other name (a pair no paper method has).
+    """``(colour, marker)`` of a method: :data:`PAPER_METHOD_STYLES`, else a deterministic unused pair.
 
     Examples
     --------
@@ -110,8 +99,7 @@ def fit_limits(values, *, pad: float = 0.06, min_span: float = 10.0, bounds=(0.0
     return (round(lo_lim, 3), round(hi_lim, 3))
 
 
-#: Short column headers of the configurations of :data:`ctxmatch_lib.report.SETUPS` (their full definitions:
-#: ``SETUP_TITLES`` there, and the notebook's text).
+#: Short column headers of :data:`ctxmatch_lib.report.SETUPS` (full titles: ``SETUP_TITLES`` there).
 SETUP_HEADERS = {
     "global": "global: every block,\nbaseline and best blob setups",
     "baseline": "baseline: SIFT+RootSIFT,\none-to-one NNR",
@@ -128,32 +116,27 @@ def _points(table, models=("none", "1sac")):
 
 
 def row_limits(tables, models=("none", "1sac")) -> tuple[tuple[float, float], tuple[float, float]]:
-    """``(xlim, ylim)`` that show every point of every table (:func:`fit_limits`): one range for the panels of a
-    row of :func:`plot_pr_scatter`, so that positions compare across the row."""
+    """``(xlim, ylim)`` showing every point of every table (:func:`fit_limits`): one range for a row of panels."""
     pts = [p for t in tables for p in _points(t, models)]
     return fit_limits([p[2] for p in pts]), fit_limits([p[3] for p in pts])
 
 
 def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sac"), ms: float = 18,
                     lim=None, xlim=None, ylim=None, connect: bool = False) -> list:
-    """Mean precision (y) against mean recall (x): one colour and marker per method (:func:`method_style`),
-    hollow without a model, filled after 1SAC, as the paper's Fig. 7; no text at the points (the legend of
-    :func:`pr_legend` names the methods).
+    """Mean precision (y) against mean recall (x) per method and model, as Fig. 7 (names: :func:`pr_legend`).
 
     Parameters
     ----------
     table : DataFrame
-        A :func:`ctxmatch_lib.report.method_table` restricted to one kind: index (model, method) (a
-        (kind, model, method) index with a single kind also works).
+        A :func:`ctxmatch_lib.report.method_table` of one kind, index (model, method) or (kind, model, method).
     models : sequence of str
-        Models to draw: ``"none"`` hollow, any other (1SAC) filled.
+        ``"none"`` drawn hollow, any other filled.
     ms : float
         Marker area (points²).
     lim : (float, float) or None
-        Limits of both axes; ``None``: each axis fitted to show every point (:func:`fit_limits`), the blob
-        candidates included.
+        Limits of both axes; ``None``: fitted to every point (:func:`fit_limits`).
     xlim, ylim : (float, float) or None
-        Limits of one axis (over ``lim``), e.g. shared by a row of panels (:func:`row_limits`).
+        Limits of one axis over ``lim``, e.g. from :func:`row_limits`.
     connect : bool
         A thin grey line from each method's no-model point to its 1SAC point.
 
@@ -174,7 +157,7 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
     for model, m, x, y in pts:
         colour, marker = method_style(m)
         filled = model != "none"
-        # Filled markers under hollow ones, so that a hollow ring on a filled one stays visible.
+        # Hollow markers over filled ones stay visible.
         ax.scatter(x, y, marker=marker, s=ms, c=[colour] if filled else "none", edgecolors=colour,
                    linewidths=0.3 if filled else 0.8, zorder=3 if filled else 4, clip_on=False)
     if connect and {"none", "1sac"} <= set(models):
@@ -197,9 +180,8 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
 
 def pr_legend(fig_or_ax, methods, *, times: dict | None = None, models=("none", "1sac"), ms: float = 5,
               **kwargs):
-    """One legend for the scatter: per method its hollow (no model) and filled (1SAC) marker side by side and
-    its name, optionally with ``times[method]`` (a string); the title says which fill is which model.
-    ``kwargs`` go to ``legend``."""
+    """The scatter's legend: per method its hollow and filled markers and its name (with ``times[method]``
+    if given); ``kwargs`` go to ``legend``."""
     from matplotlib.legend_handler import HandlerTuple
     from matplotlib.lines import Line2D
 
@@ -228,9 +210,8 @@ def _bins(table, drop_empty: bool) -> list:
 
 
 def shared_bins(tables, drop_empty: bool = True) -> list:
-    """The bins to draw in every column of a figure of several :func:`~ctxmatch_lib.report.inlier_bin_table`
-    tables: every bin populated in at least one of them (all bins with ``drop_empty=False``), in order, so that
-    all columns share one x axis."""
+    """The bins shared by the columns of several :func:`~ctxmatch_lib.report.inlier_bin_table` tables: those
+    populated in any of them (all with ``drop_empty=False``), in order."""
     tables = list(tables)
     order = list(dict.fromkeys(b for t in tables for b in t.index.get_level_values("bin")))
     if not drop_empty:
@@ -245,9 +226,8 @@ def _bin_name(b) -> str:
 
 
 def _bin_edge_ticks(ax, bins, labels: bool = True) -> None:
-    """Ticks at the edges of consecutive bins, labelled with the edge values ("0", "10", ..., "100"): six short
-    labels fit under a narrow panel where five "10–20" names collide. Bins that are not consecutive (an empty
-    bin dropped between them) keep their names under their centres."""
+    """Ticks at the edges of consecutive bins labelled "0", "10", ... (short labels fit a narrow panel); bins
+    that are not consecutive keep their names under their centres."""
     names = [_bin_name(b) for b in bins]
     edges = [n.split("–") for n in names]
     ax.set_xlim(-0.5, len(bins) - 0.5)
@@ -260,23 +240,19 @@ def _bin_edge_ticks(ax, bins, labels: bool = True) -> None:
 def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1sac"),
                        metrics=("precision (%)", "recall (%)"), title: str | None = None, min_n: int = 1,
                        tick_labels: bool = True) -> None:
-    """One small panel of the inlier-ratio histograms (``inl_plot``) for one method: per inlier-ratio bin, a
-    bar per metric (colour, :data:`METRIC_COLORS`) and model (hollow: no model, filled: 1SAC, as in
-    :func:`plot_pr_scatter`), so that every bar can be told apart at print size.
+    """One method's panel of the inlier-ratio histograms (``inl_plot``): per bin a bar per metric
+    (:data:`METRIC_COLORS`) and model (hollow: no model, filled: 1SAC).
 
     Parameters
     ----------
     table : DataFrame
         A :func:`ctxmatch_lib.report.inlier_bin_table` (index bin, model, method).
-    method : str
     bins : sequence, optional
-        The bins drawn, the same in every panel (:func:`shared_bins`); default: the populated bins of ``table``.
-    models, metrics : sequence of str
+        The bins drawn (:func:`shared_bins`); default: the populated bins of ``table``.
     min_n : int
-        A bin with fewer cases has no value: a grey cross marks it, as a bin where the method kept no match
-        (precision undefined); a true 0 % is a stroke on the axis, so that neither looks like the other.
+        A bin with fewer cases, or without a value (nothing kept), gets a grey cross; a true 0 % a stroke.
     tick_labels : bool
-        Bin names under the axis (only on the bottom row of a grid).
+        Bin names under the axis (bottom row of a grid).
     """
     bins = list(bins) if bins is not None else _bins(table, True)
     width = 0.84 / (len(metrics) * len(models))
@@ -292,8 +268,7 @@ def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1s
             xs = x - 0.42 + (k + 0.5) * width
             ax.bar(xs, np.nan_to_num(vals), width * 0.92,
                    color=colour if filled else "white", edgecolor=colour, linewidth=0 if filled else 0.6)
-            # A bar of height 0 is invisible, and so is a missing one: a true 0 % gets a stroke on the axis in
-            # its colour, a bin without a value (no case, or nothing kept: no precision) a grey cross.
+            # Zero and missing bars are invisible: a stroke marks 0 %, a grey cross a missing value.
             zero, empty = vals == 0, np.isnan(vals)
             if zero.any():
                 ax.hlines(np.zeros(zero.sum()), xs[zero] - 0.46 * width, xs[zero] + 0.46 * width, colors=colour,
@@ -333,8 +308,7 @@ def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)
 
 
 def bin_axis_label(edges, what: str = "inlier ratio of the blob candidates") -> str:
-    """The x label of the inlier-ratio panels: ``what`` in %, and, when the bins (``edges`` in [0, 1]) are not
-    equally wide, that they are drawn so (the edge values under the axis give their true extent).
+    """The x label of the inlier-ratio panels, noting unequal bins (``edges`` in [0, 1]) drawn equally wide.
 
     Examples
     --------
@@ -350,9 +324,8 @@ def bin_axis_label(edges, what: str = "inlier ratio of the blob candidates") -> 
 
 def plot_pair_share(ax, table, *, color="0.45", title: str | None = None, drop_empty: bool = True, bins=None,
                     fontsize: float = 7.0, xlabel: bool = True) -> None:
-    """Bars of the share (%) of (pair, setup) cases per inlier-ratio bin (``share (%)`` of an
-    :func:`~ctxmatch_lib.report.inlier_bin_table`), the number of cases written above each bar; with
-    ``drop_empty`` bins without any case are not drawn; ``bins`` fixes the bins (:func:`shared_bins`)."""
+    """Bars of the share (%) of (pair, setup) cases per inlier-ratio bin of an
+    :func:`~ctxmatch_lib.report.inlier_bin_table`, case counts above; ``bins``: see :func:`shared_bins`."""
     share = table.groupby(level="bin", sort=False, observed=True)["share (%)"].first()
     share = share.reindex(list(bins) if bins is not None else _bins(table, drop_empty)).fillna(0.0)
     n = table.groupby(level="bin", sort=False, observed=True)["n"].max().reindex(share.index).fillna(0)

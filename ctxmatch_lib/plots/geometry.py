@@ -1,6 +1,6 @@
 """Plots of the model's accuracy after the model step: per-method AUCs, accuracy against the time to
 geometry, and cumulative corner-error curves, from engine rows or
-:func:`~ctxmatch_lib.geometry_metrics.geometry_table`. Methods keep their :func:`~ctxmatch_lib.plots.eval.method_style`."""
+:func:`~ctxmatch_lib.geometry_metrics.geometry_table`; methods keep their :func:`~.eval.method_style`."""
 
 from __future__ import annotations
 
@@ -146,25 +146,10 @@ def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kw
 
 def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5.0, ms: float = 22,
                           title: str | None = None) -> list:
-    """The model's accuracy (y, :func:`accuracy_column`) against the mean time to geometry per pair (x, log),
-    one point per method.
-
-    Parameters
-    ----------
-    table : DataFrame
-        :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model), one blob setup.
-    kind : {"planar", "nonplanar", "depth", "calibrated"}
-    model : str
-    auc_px : float
-        Planar pairs: the AUC threshold (one of the table's).
-    ms : float
-        Marker area (points²).
-
-    Returns
-    -------
-    list of (method, time, accuracy)
-        The points drawn (methods without a finite time or accuracy are left out).
-    """
+    """The model's accuracy (y, :func:`accuracy_column` with ``auc_px``) against the mean time to geometry per
+    pair (x, log), one point (area ``ms``) per method of a :func:`~ctxmatch_lib.geometry_metrics.geometry_table`
+    (index kind, method, model; one blob setup). Returns the ``(method, time, accuracy)`` points drawn
+    (methods without a finite time or accuracy are left out)."""
     col, label = accuracy_column(kind, auc_px)
     t = table.xs((kind, model), level=("kind", "model"))
     pts = []
@@ -187,18 +172,8 @@ def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5
 def plot_cumulative_errors(ax, rows, methods, *, model: str, max_px: float = 10.0, title: str | None = None) -> dict:
     """The share of planar pairs whose mean corner error is below ``e`` (y) for ``e`` in [0, ``max_px``]: the
     curve whose area :func:`~ctxmatch_lib.geometry_metrics.pose_auc` measures (pairs without a model count in
-    the denominator only).
-
-    Parameters
-    ----------
-    rows : DataFrame
-        Engine rows of planar pairs, one blob setup.
-
-    Returns
-    -------
-    dict of str -> float
-        Per method, the share of pairs below ``max_px``.
-    """
+    the denominator only). ``rows``: engine rows of planar pairs, one blob setup. Returns, per method, the
+    share of pairs below ``max_px``."""
     out = {}
     for method in methods:
         e = np.sort(rows.loc[(rows["method"] == method) & (rows["model"] == model), "corner_error"].to_numpy())

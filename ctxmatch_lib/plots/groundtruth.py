@@ -1,12 +1,6 @@
-"""Plots of the ground-truth comparison (Appendix "Ground truth estimation methods", figure ``setup_imgs``).
-
-The caption's groups of matches (:func:`ctxmatch_lib.report.gt_compare.method_groups`) drawn as coloured motion flows
-on image 1 (:func:`plot_gt_flows`), and the support regions of their matches on image 2 with the region
-carried over from image 1 dashed (:func:`plot_support_regions`). One colour per group, the same in every
-panel (:data:`GROUP_COLORS`, Okabe–Ito); every helper takes an ``ax`` and never calls ``plt.show()``.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""Plots of the ground-truth comparison (Appendix "Ground truth estimation methods", ``setup_imgs``): the
+groups of :func:`ctxmatch_lib.report.gt_compare.method_groups` as flows on image 1 (:func:`plot_gt_flows`) and
+their support regions on image 2 (:func:`plot_support_regions`), one colour per group (:data:`GROUP_COLORS`)."""
 
 from __future__ import annotations
 
@@ -47,16 +41,14 @@ def ellipse_polylines(centres, shapes, n: int = 48) -> np.ndarray:
 
 def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7, ps: float = 2.0,
                   dim: float = 0.55, counts: bool = True, legend: bool = True) -> None:
-    """Matches of each group as motion flows on image 1 (from the keypoint in image 1 to its match's
-    position in image 2), one colour per group.
+    """Each group's matches as flows on image 1 (:func:`~ctxmatch_lib.plots.viz2d.plot_flow`), one colour per group.
 
     Parameters
     ----------
-    ax : matplotlib Axes
     img : ndarray
         Image 1.
     kpts1, kpts2 : ndarray of shape (K, 2)
-        Matched keypoints (row k is a match), (x, y) pixels.
+        Matched keypoints, (x, y) pixels.
     groups : dict of str to ndarray of shape (K,), bool
         Disjoint groups (:func:`ctxmatch_lib.report.gt_compare.method_groups`), drawn in order.
     colors : dict, optional
@@ -64,8 +56,7 @@ def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7
     counts : bool
         Put each group's size in the legend label.
     legend : bool
-        A legend on the photo (lower left); without it, draw one key for the figure with :func:`groups_legend`
-        and give the sizes elsewhere (e.g. the panel title).
+        A legend on the photo; without it use :func:`groups_legend`.
     """
     colors = GROUP_COLORS if colors is None else colors
     plot_image(ax, img, dim=dim)
@@ -92,17 +83,15 @@ def groups_legend(fig_or_ax, names, *, colors=None, **kwargs):
 
 def plot_support_regions(ax, img, kpts2, shapes2, carried_centres, carried_shapes, groups, worst, *,
                          colors=None, dim: float = 0.55, lw: float = 0.35, lw_worst: float = 1.4) -> None:
-    """Support regions on image 2: each match's region (solid) and the region of its image-1 keypoint
-    carried into image 2 by the ground truth (dashed), thin for every match of a group and thick for the
-    group's worst match.
+    """Support regions on image 2: thin for every match of a group; for its worst match, thick, with its
+    image-1 region carried into image 2 by the ground truth dashed.
 
     Parameters
     ----------
-    ax : matplotlib Axes
     img : ndarray
         Image 2.
     kpts2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
-        The image-2 keypoint of each match and its region (as compared, i.e. already scaled).
+        The image-2 keypoint of each match and its (already scaled) region.
     carried_centres, carried_shapes : ndarray of shape (K, 2), (K, 2, 2)
         The image-1 regions carried into image 2 (:class:`ctxmatch_lib.groundtruth.RegionErrors`).
     groups : dict of str to ndarray of shape (K,), bool

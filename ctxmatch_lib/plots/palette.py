@@ -1,12 +1,6 @@
-"""Colour-blind-safe colours of the figures, and the tools that check them.
-
-The match colours follow the Okabe–Ito palette (Okabe & Ito 2008, "Color Universal Design"): the paper's
-green / red code for correct / wrong matches collapses for deuteranopes (CIE ΔE ≈ 12 between the two under
-the simulation below), sky blue / vermillion stays far apart (ΔE ≈ 100).
-:func:`simulate_cvd` applies the colour-vision-deficiency matrices of Machado, Oliveira & Fernandes 2009 ("A
-physiologically-based model for simulation of color vision deficiency", IEEE TVCG 15(6), severity 1.0) in
-linear sRGB; :func:`delta_e` is the CIE 1976 colour difference in CIELAB (D65 white).
-"""
+"""Colour-blind-safe colours of the figures (Okabe & Ito 2008, "Color Universal Design") and their check:
+:func:`simulate_cvd` (Machado, Oliveira & Fernandes 2009, IEEE TVCG 15(6), severity 1.0, linear sRGB) and
+:func:`delta_e` (CIE 1976 ΔE in CIELAB, D65 white)."""
 
 from __future__ import annotations
 
@@ -60,18 +54,8 @@ def _from_linear(c: np.ndarray) -> np.ndarray:
 
 
 def simulate_cvd(colors, kind: str = "deuteranopia") -> np.ndarray:
-    """How ``colors`` look with a full dichromacy (Machado et al. 2009, severity 1).
-
-    Parameters
-    ----------
-    colors : colour or sequence of colours
-        Anything :func:`matplotlib.colors.to_rgb` accepts (``"#22c02c"``, ``"tab:red"``, RGB tuples).
-    kind : {"deuteranopia", "protanopia", "tritanopia"}
-
-    Returns
-    -------
-    ndarray of shape (N, 3)
-        Simulated sRGB in [0, 1].
+    """Simulated sRGB ``(N, 3)`` in [0, 1] of ``colors`` (anything ``to_rgb`` accepts) seen with the full
+    dichromacy ``kind`` ("deuteranopia", "protanopia", "tritanopia").
 
     Examples
     --------

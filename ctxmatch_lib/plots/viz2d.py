@@ -1,17 +1,9 @@
-"""Drawing images, keypoints and matches, after LightGlue's ``viz2d``: each helper draws on a given ``ax``
-and never calls ``plt.show()``.
+"""Drawing images, keypoints and matches on an ``ax``, after LightGlue's ``viz2d``.
 
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel,
-which is exactly where ``imshow`` puts pixel ``(0, 0)``, so points are drawn without any shift. An image
-pair is drawn side by side in *one* axes (:func:`plot_image_pair`), so that match lines are plain line
-segments and a grid of pairs is a plain grid of axes; image-2 points are drawn shifted by the returned
-offset.
-
-Match colours keep the meaning of the paper's figures (Fig. 3, the appendix match grids) in a colour-blind-safe
-palette (Okabe–Ito, :mod:`ctxmatch_lib.plots.palette`): correct matches that are kept sky blue (the paper: green),
-wrong ones kept vermillion (red), correct ones dropped (by a DTM iteration, by 1SAC) yellow, wrong ones dropped
-reddish purple (light red) (:data:`MATCH_COLORS`, :func:`match_colors`). The paper's green / red are ΔE ≈ 12 apart
-for a deuteranope, sky blue / vermillion ΔE ≈ 100.
+Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel, where ``imshow`` puts pixel
+``(0, 0)``, so they are drawn unshifted. A pair is drawn side by side in one axes (:func:`plot_image_pair`),
+image-2 points shifted by the returned offset. Match colours keep the paper's four roles (Fig. 3, appendix
+grids) in Okabe–Ito colours (:data:`MATCH_COLORS`).
 """
 
 from __future__ import annotations
@@ -45,19 +37,8 @@ MATCH_COLORS = {
 
 
 def match_colors(correct, kept=None) -> np.ndarray:
-    """RGBA colour per match from its ground-truth label and whether a later step kept it.
-
-    Parameters
-    ----------
-    correct : array_like of shape (K,) bool
-        Ground-truth label of each match.
-    kept : array_like of shape (K,) bool, optional
-        Whether the match survived the later step (a DTM iteration, 1SAC); all ``True`` by default.
-
-    Returns
-    -------
-    ndarray of shape (K, 4)
-        Colours from :data:`MATCH_COLORS`.
+    """``(K, 4)`` RGBA colours (:data:`MATCH_COLORS`) of matches from their ground-truth label ``correct`` and
+    whether a later step (a DTM iteration, 1SAC) ``kept`` them (default all).
 
     Examples
     --------
@@ -99,14 +80,8 @@ def plot_image(ax, img, *, title: str | None = None, dim: float = 1.0, alpha: fl
 
 
 def plot_image_pair(ax, img1, img2, *, gap: int = 16, dim: float = 1.0, titles=None) -> np.ndarray:
-    """Draw two images side by side in one axes, image 2 to the right of image 1 with ``gap`` pixels
-    between them, tops aligned.
-
-    Returns
-    -------
-    ndarray of shape (2,)
-        The (x, y) offset to add to image-2 points.
-    """
+    """Draw two images side by side in one axes, ``gap`` pixels apart, tops aligned; returns the (x, y) offset
+    to add to image-2 points."""
     h1, w1 = np.asarray(img1).shape[:2]
     h2, w2 = np.asarray(img2).shape[:2]
     offset = np.array([w1 + gap, 0.0])
@@ -128,11 +103,8 @@ def plot_keypoints(ax, kpts, *, color="lime", ps: float = 4, offset=(0.0, 0.0), 
 
 def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float = 0.0, alpha: float = 1.0,
                  offset=(0.0, 0.0), zorder: float = 2, linestyle="solid") -> None:
-    """Lines from ``kpts1[k]`` to ``kpts2[k] + offset`` (both ``(K, 2)`` (x, y) pixels).
-
-    ``color`` is one colour or one per match (``(K, 4)``, e.g. :func:`match_colors`); ``ps`` > 0 also marks
-    the endpoints; ``linestyle`` is any matplotlib line style. Use with :func:`plot_image_pair` and its offset.
-    """
+    """Lines from ``kpts1[k]`` to ``kpts2[k] + offset`` (``(K, 2)`` pixels); ``color``: one or one per match
+    (e.g. :func:`match_colors`); ``ps`` > 0 also marks the endpoints."""
     p1 = np.asarray(kpts1, np.float64).reshape(-1, 2)
     p2 = np.asarray(kpts2, np.float64).reshape(-1, 2) + np.asarray(offset, np.float64)
     if len(p1) != len(p2):
@@ -149,9 +121,8 @@ def plot_matches(ax, kpts1, kpts2, *, color="lime", lw: float = 0.6, ps: float =
 
 def plot_flow(ax, kpts_from, kpts_to, *, color="lime", lw: float = 0.8, ps: float = 3.0, alpha: float = 1.0,
               zorder: float = 2, linestyle="solid") -> None:
-    """Motion-flow vectors drawn on one image: a segment from each keypoint ``kpts_from[k]`` of this
-    image to the position ``kpts_to[k]`` of its match in the other image, with a dot at the keypoint
-    (the paper's Fig. 3 style). Both are ``(K, 2)`` (x, y) pixels."""
+    """Flow vectors on one image (Fig. 3 style): a segment from each keypoint ``kpts_from[k]`` to its match's
+    position ``kpts_to[k]`` in the other image, with a dot at the keypoint."""
     plot_matches(ax, kpts_from, kpts_to, color=color, lw=lw, alpha=alpha, zorder=zorder, linestyle=linestyle)
     p = np.asarray(kpts_from, np.float64).reshape(-1, 2)
     if ps > 0 and len(p):
@@ -181,29 +152,14 @@ def color_legend(ax_or_fig, labels: dict, **kwargs):
     return ax_or_fig.legend(handles, list(labels), **kwargs)
 
 
-#: How :func:`plot_match_result` draws the matches that the model step rejected (they are not good matches,
-#: and must not look like them): vermillion, thin, dashed, under the kept ones.
+#: How :func:`plot_match_result` draws the matches the model step rejected: thin, dashed, under the kept ones.
 REJECTED_STYLE = {"color": OKABE_ITO["vermillion"], "lw": 0.5, "linestyle": (0, (2.0, 1.5)), "alpha": 0.8}
 
 
 def plot_scored_matches(ax, kpts1, kpts2, scores, *, offset=(0.0, 0.0), cmap="viridis_r", norm=None,
                         lw: float = 0.7, ps: float = 2.0, zorder: float = 3):
-    """Match lines coloured by their score (lower is better, as every ctxmatch score): the best on top in the
-    bright end of ``cmap``, the worst underneath in its dark end.
-
-    Parameters
-    ----------
-    kpts1, kpts2 : array_like of shape (K, 2)
-        Endpoints, (x, y) pixels; ``kpts2`` is shifted by ``offset`` (:func:`plot_image_pair`).
-    scores : array_like of shape (K,)
-    norm : matplotlib.colors.Normalize, optional
-        Default: the range of ``scores``.
-
-    Returns
-    -------
-    matplotlib.cm.ScalarMappable
-        For a colour bar.
-    """
+    """Match lines coloured by ``scores`` (lower is better), the best drawn on top; ``kpts2`` is shifted by
+    ``offset``, ``norm`` defaults to the scores' range. Returns a ``ScalarMappable`` for a colour bar."""
     import matplotlib
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
@@ -233,14 +189,13 @@ def plot_match_result(result, image1, image2, *, ax=None, cmap="viridis_r", lw: 
     Parameters
     ----------
     result : MatchResult
-        Of :func:`ctxmatch_lib.match.match_images`: ``kpts1``, ``kpts2``, ``candidates``,
-        ``candidate_scores``, ``keep`` and, when a model step ran, ``model_input`` (the candidates given to it).
+        Of :func:`ctxmatch_lib.match.match_images` (``model_input``: the candidates given to the model step).
     image1, image2 : ndarray
-        The two images (``(H, W)`` gray or ``(H, W, 3)`` RGB).
+        ``(H, W)`` gray or ``(H, W, 3)`` RGB.
     ax : matplotlib Axes, optional
-        Where to draw; a new figure is made when omitted.
+        Default: a new figure.
     title : str, optional
-        Default: the counts and the settings' filters and model.
+        Default: the counts, filters and model.
 
     Returns
     -------

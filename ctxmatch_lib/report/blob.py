@@ -1,8 +1,5 @@
-"""Tables of a blob-matching sweep (Sec. 5.2): the mAP of every setup and the heat-map layout of Fig. 5.
-
-Pure pandas over the rows of the evaluation engine (:data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`),
-as :mod:`ctxmatch_lib.report` is for the filter tables; :mod:`ctxmatch_lib.plots.blob` draws them.
-"""
+"""Tables of a blob-matching sweep (Sec. 5.2): the mAP of every setup (:func:`blob_map`) and the heat-map
+layout of Fig. 5 (:func:`heatmap_matrix`), which :mod:`ctxmatch_lib.plots.blob` draws."""
 
 from __future__ import annotations
 
@@ -14,14 +11,10 @@ __all__ = ["blob_map", "heatmap_matrix"]
 def blob_map(df, *, metric: str = "ap_star", method: str = "blob", model: str = "none"):
     """mAP of every (features, blob setup): the mean over pairs of the AP (NaN APs skipped), in %.
 
-    ``metric="ap_star"`` (default, the heat map of Fig. 5) ranks each setup's candidates against the
-    correct matches of *all* setups of the sweep on the pair (the recall* reference), so a setup that
-    misses correct matches is penalised: one-to-one matching can score lower than many-to-many.
-    ``metric="ap"`` uses each setup's own correct candidates, which rewards small, precise candidate
-    sets (mutual nearest neighbours score close to 100 %).
-
-    Returns a frame with the blob fields, ``mAP`` and ``pairs`` (pairs with a defined AP), in the order of
-    first appearance (the grid order for a grid sweep).
+    ``metric="ap_star"`` (default, Fig. 5) ranks each setup's candidates against the correct matches of all
+    setups on the pair (the recall* reference), so a setup that misses correct matches is penalised;
+    ``"ap"`` uses each setup's own correct candidates, which rewards small, precise sets. Returns the blob
+    fields, ``mAP`` and ``pairs`` (with a defined AP), in the order of first appearance.
     """
     import pandas as pd
 

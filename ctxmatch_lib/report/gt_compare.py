@@ -1,16 +1,11 @@
 """Comparing the ground-truth methods A, B, C and D (Sec. 5.1, Appendix "Ground truth estimation methods").
 
-Three helpers for the notebook ``fig_gt_methods``:
-
-* :func:`method_groups`: the disjoint groups of matches that the caption of the Appendix figure
-  ``setup_imgs`` colours (e.g. "C ∩ D", "B ∖ C", "D ∖ C");
-* :func:`correct_per_pair`: the table of mean correct matches per pair under each method, per dataset kind
-  and feature block, from the rows of :func:`ctxmatch_lib.evaluation.run_sweep` run once per method;
-* :func:`rank_agreement`: the Spearman rank correlation of the blob setups' mAP under two methods, per
-  feature block (the paper: "for method C a similar ranking has been obtained", Sec. 5.2).
-
-Sets by construction (:mod:`ctxmatch_lib.groundtruth`): ``C = B ∩ {centre <= 30 px}`` and D's centre rule
-implies C's, so ``B ∩ D ⊆ C``: the groups "B ∖ C" and "D ∖ C" never share a match.
+For the notebook ``fig_gt_methods``: :func:`method_groups`, the disjoint groups of matches the caption of
+the Appendix figure ``setup_imgs`` colours; :func:`correct_per_pair`, mean correct matches per pair under
+each method; :func:`setup_rank_agreement`, the Spearman correlation of the blob setups' mAP under two
+methods (Sec. 5.2: "for method C a similar ranking has been obtained"). By construction
+(:mod:`ctxmatch_lib.groundtruth`) ``C = B ∩ {centre <= 30 px}`` and D's centre rule implies C's, so
+``B ∩ D ⊆ C``: the groups "B ∖ C" and "D ∖ C" never share a match.
 """
 
 from __future__ import annotations
@@ -20,7 +15,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-__all__ = ["GROUP_SCHEMES", "method_groups", "worst_in_groups", "correct_per_pair", "rank_agreement"]
+__all__ = ["GROUP_SCHEMES", "method_groups", "worst_in_groups", "correct_per_pair", "setup_rank_agreement"]
 
 #: The caption's groupings: rows 1 and 4 of the figure compare B, C and D; row 3 compares A and D.
 GROUP_SCHEMES = {
@@ -83,18 +78,9 @@ def worst_in_groups(groups: Mapping[str, np.ndarray], error) -> dict[str, int]:
 def correct_per_pair(rows: pd.DataFrame, *, method: str = "blob", model: str = "none") -> pd.DataFrame:
     """Mean correct matches per pair, per dataset kind, feature block and ground-truth method.
 
-    Parameters
-    ----------
-    rows : pandas.DataFrame
-        Sweep rows (:data:`ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`) of one or more runs that differ by
-        ``gt_method``, each with a single blob setup per feature block.
-    method, model : str
-        The rows counted (default: the unfiltered blob candidates).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index (kind, features), one column per ground-truth method (sorted A, B, C, D), plus ``pairs``.
+    ``rows`` are sweep rows of runs that differ by ``gt_method``, one blob setup per feature block;
+    ``method`` and ``model`` select the rows counted (default: the blob candidates). Index (kind, features),
+    one column per ground-truth method (A, B, C, D), plus ``pairs``.
     """
     need = {"kind", "features", "gt_method", "correct", "pair_id", "method", "model"}
     if missing := need - set(rows.columns):
@@ -108,18 +94,11 @@ def correct_per_pair(rows: pd.DataFrame, *, method: str = "blob", model: str = "
     return table.assign(pairs=pairs.reindex(table.index).to_numpy())
 
 
-def rank_agreement(map_a: pd.DataFrame, map_b: pd.DataFrame, *, value: str = "mAP") -> pd.DataFrame:
+def setup_rank_agreement(map_a: pd.DataFrame, map_b: pd.DataFrame, *, value: str = "mAP") -> pd.DataFrame:
     """Spearman rank correlation of the blob setups' ``value`` under two ground-truth methods, per block.
 
-    Parameters
-    ----------
-    map_a, map_b : pandas.DataFrame
-        :func:`ctxmatch_lib.report.blob.blob_map` tables (columns ``features``, ``blob`` and ``value``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per feature block: ``setups`` (compared), ``spearman`` and the best setup under each.
+    ``map_a``, ``map_b`` are :func:`ctxmatch_lib.report.blob.blob_map` tables; one row per feature block:
+    ``setups`` (compared), ``spearman`` and the best setup under each.
     """
     from scipy.stats import spearmanr
 

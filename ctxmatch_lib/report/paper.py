@@ -6,10 +6,8 @@
   :func:`ctxmatch_lib.report.paper_table` and :data:`ctxmatch_lib.report.PAPER_GT_COUNTS` read.
 - :func:`side_by_side` puts each cell of our :func:`~ctxmatch_lib.report.method_table` beside the paper's
   (precision, recall, failures as a share of the pairs, since the pair counts differ, :data:`PAPER_PAIRS`);
-  :func:`rank_agreement` gives Spearman's ρ over the 17 filters per (configuration, kind, model).
+  :func:`method_rank_agreement` gives Spearman's ρ over the 17 filters per (configuration, kind, model).
 - :func:`check_claims` checks the observations of Sec. 5.3 (a)-(h) on our tables and on the paper's own.
-
-Pure pandas / NumPy / scipy.stats, in the report layer.
 """
 
 from __future__ import annotations
@@ -35,7 +33,7 @@ __all__ = [
     "write_paper_data",
     "paper_tables",
     "side_by_side",
-    "rank_agreement",
+    "method_rank_agreement",
     "check_claims",
     "tables_markdown",
 ]
@@ -152,10 +150,8 @@ def _parse_table(block: str, label: str) -> pd.DataFrame:
 
 
 def parse_paper_tables(tex) -> pd.DataFrame:
-    """The paper's Tables 1-3 (Appendix "DTM evaluation"), read from its LaTeX source.
-
-    Each table is found by its ``\\label`` (:data:`PAPER_TABLE_LABELS`); its rows are ``& & name & numbers
-    \\\\`` and the kind ("planar" / "non-planar") and model ("no model" / "1SAC") come from the
+    """The paper's Tables 1-3 (Appendix "DTM evaluation"), read from its LaTeX source: each table by its
+    ``\\label`` (:data:`PAPER_TABLE_LABELS`), rows ``& & name & numbers \\\\``, kind and model from the
     ``\\multirow`` markers of the first two cells (a negative span covers the rows above the marker).
 
     Parameters
@@ -190,11 +186,8 @@ def parse_paper_gt_counts(tex) -> pd.DataFrame:
     """Mean ground-truth matches per pair in the captions of Tables 1-3 ("... is 293/214 (blob, for recall),
     740/519 (all matches, for recall$^\\star$)").
 
-    Returns
-    -------
-    DataFrame
-        Columns ``setup``, ``kind``, ``n_gt`` (the recall reference: the blob candidates) and ``n_gt_star``
-        (the recall* reference: all matches), one row per setup and kind (planar first).
+    Returns a frame with columns ``setup``, ``kind`` (planar first), ``n_gt`` (recall) and ``n_gt_star``
+    (recall*).
     """
     text = _read_tex(tex)
     rows = []
@@ -271,7 +264,7 @@ def side_by_side(tables: dict, pairs: dict | None = None, *, paper: dict | None 
         Index (setup, kind, model, method), the rows present in both ours and the paper's table, in our order;
         columns :data:`SIDE_COLUMNS`. Failures are shares of the pairs in %: ours (failures + empty) / pairs,
         the paper's failures / ``pairs[kind]``. ``blob`` flags the blob candidates (not a filter, left out of
-        :func:`rank_agreement`).
+        :func:`method_rank_agreement`).
     """
     pairs = dict(PAPER_PAIRS if pairs is None else pairs)
     paper = paper_tables(list(tables)) if paper is None else paper
@@ -309,7 +302,7 @@ def _spearman(x, y) -> float:
     return float(stats.spearmanr(x, y)[0])
 
 
-def rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
+def method_rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
     """Spearman's ρ between our and the paper's per-method precision and recall, over the filters (the blob
     row left out), per (setup, kind, model) of a :func:`side_by_side` frame.
 
@@ -346,7 +339,7 @@ def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.Data
         ``{configuration: frame}``: :func:`~ctxmatch_lib.report.method_table` without the time column and
         :func:`~ctxmatch_lib.report.gt_counts` (mean ground-truth matches per pair and kind).
     side, rho : DataFrame
-        :func:`side_by_side` of ``tables`` and its :func:`rank_agreement`.
+        :func:`side_by_side` of ``tables`` and its :func:`method_rank_agreement`.
     provenance : dict
         Printed on the provenance line (:func:`~ctxmatch_lib.plots.base.provenance`).
     data_label : str

@@ -1,16 +1,10 @@
 """Tables and per-figure summaries of the result rows of :mod:`ctxmatch_lib.pipeline`: pure pandas.
 
-The input everywhere is a results frame with the pipeline's columns (``pair_id``, ``kind``, ``blob``,
-``method``, ``model``, ``precision``, ``recall``, ``recall_star``, ``correct``, ``output``, ``failure``,
-``time_s``, ...; optionally ``features``), one row per (pair, feature setup, blob setup, method, model), as
-written by ``ctxmatch eval`` or :func:`ctxmatch_lib.evaluation.evaluate_cached`.
-
-- :func:`setup_rows` selects the rows of the paper's configurations (Sec. 5.3, :data:`SETUPS`): ``"global"``
-  (every evaluated block, baseline and best blob setups), ``"baseline"``, ``"best"`` and ``"best-rootsgloh2"``.
-- :func:`method_table` builds the analogue of Tables 1-3 (precision, recall, recall*, correct, output,
-  failures, time per kind, model and method); :func:`markdown_table` renders it; :func:`paper_table` holds
-  the paper's own Tables 1-3 for comparison; :func:`gt_counts` the numbers of their captions.
-- :func:`with_inlier_ratio` and :func:`inlier_bin_table` give the inlier-ratio histograms of ``inl_plot``.
+The input is a results frame, one row per (pair, feature setup, blob setup, method, model), as written by
+``ctxmatch eval`` or :func:`ctxmatch_lib.evaluation.evaluate_cached`. :func:`setup_rows` selects the paper's
+configurations (Sec. 5.3, :data:`SETUPS`); :func:`method_table` builds the analogue of Tables 1-3 and
+:func:`markdown_table` renders it; :func:`paper_table` and :data:`PAPER_GT_COUNTS` hold the paper's own;
+:func:`with_inlier_ratio` and :func:`inlier_bin_table` give the inlier-ratio histograms of ``inl_plot``.
 """
 
 from __future__ import annotations
@@ -69,12 +63,9 @@ MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac"
                 "essential": "MAGSAC on E"}
 
 #: Row selections of the paper's three configurations (Sec. 5.3, Tables 1-3): column -> required value (or a
-#: tuple of accepted values). "global" pools every evaluated feature block under the two blob setups the
-#: configurations use (the paper: "averaging the results over all the considered detectors, descriptors and blob
-#: matching setups"; its Table 1 counts, 3806 / 3834 candidates and 457 / 382 correct ones, lie near the means
-#: of Tables 2 and 3, 3705 / 3652 and 463 / 393, which points to these two setups). "best" is Table 3's
-#: HarrisZ + SOSNet (stand-in weights here) and "best-rootsgloh2" the same blob setup on HarrisZ + RootsGLOH2
-#: (no stand-in), a second "best" column the paper does not have.
+#: tuple of accepted values). "global" pools every feature block under the two blob setups of the others
+#: (Table 1's candidate and correct counts lie near the means of Tables 2 and 3). "best" is Table 3's
+#: HarrisZ + SOSNet (stand-in weights here); "best-rootsgloh2" the same on HarrisZ + RootsGLOH2 (no stand-in).
 SETUPS = {
     "global": {"blob": ("baseline", "paper-best-overlap")},
     "baseline": {"blob": "baseline", "features": "sift-rootsift"},
@@ -121,11 +112,8 @@ def method_order(names) -> list:
 
 
 def setup_rows(df: pd.DataFrame, setup="global") -> pd.DataFrame:
-    """The rows of one setting: a name of :data:`SETUPS` or a dict column -> value (or a tuple of values).
-
-    A required column that the frame lacks (``features`` in a ``ctxmatch eval`` file, which has one feature
-    setup) is ignored.
-    """
+    """The rows of one setting: a name of :data:`SETUPS` or a dict column -> value (or a tuple of values); a
+    column the frame lacks (``features`` in a ``ctxmatch eval`` file) is ignored."""
     if isinstance(setup, str) and setup not in SETUPS:
         raise ValueError(f"setup must be one of {list(SETUPS)} or a dict column -> value, got {setup!r}")
     cond = SETUPS[setup] if isinstance(setup, str) else dict(setup)
@@ -144,23 +132,20 @@ def _config_keys(df: pd.DataFrame) -> list:
 def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
     """The analogue of the paper's Tables 1-3 for the given rows.
 
-    Means over the rows of each (kind, model, method) group: precision, recall and recall* in %, correct
-    and output match counts. An empty output enters the means as 0 % precision and 0 % recall (the
-    paper's convention). ``failures`` is the number of pairs whose output is not empty but holds no correct
-    match and ``empty`` the number of pairs with an empty output (the paper's failures are their sum),
-    each divided by the number of (feature, blob) setups pooled in the group (so it is the plain count for
-    one setup, and the mean count per setup for the global setting). Rows with an ``error`` (pairs that
-    could not be evaluated) are left out; ``time (s)`` is the mean running time of
-    the method itself, shown on the "no model" rows only (the paper's "--" on the 1SAC rows). ``pairs`` is
-    the number of distinct pairs. Recall means skip NaN (pairs without any correct candidate).
+    Means over each (kind, model, method) group: precision, recall and recall* in % (an empty output counts
+    0 %, as the paper; NaN recalls skipped), correct and output counts. ``failures`` (non-empty outputs
+    without a correct match) and ``empty`` (empty outputs) count pairs, divided by the number of (feature,
+    blob) setups pooled (the paper's failures are their sum). Rows with an ``error`` are left out. ``time
+    (s)`` is the method's own mean time, on the "no model" rows only (the paper's "--" on 1SAC rows);
+    ``pairs`` counts distinct pairs.
 
     Parameters
     ----------
     df : DataFrame
         Result rows.
     models, kinds : sequence of str, optional
-        Restrict and order the models / kinds (default: those present, kinds in the order planar,
-        nonplanar, depth; models none, 1sac, ransac).
+        Restrict and order the models / kinds (default: those present, in :data:`KIND_LABELS`' order;
+        models none, 1sac, ransac).
 
     Returns
     -------
@@ -203,9 +188,8 @@ def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
 
 
 def gt_counts(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean number of ground-truth matches per pair and kind, as in the captions of Tables 1-3:
-    ``n_gt`` among the candidates of the blob setup (the recall reference) and ``n_gt_star`` among all the
-    setups evaluated on the pair (the recall* reference). One row per kind."""
+    """Mean ground-truth matches per pair, one row per kind, as in the captions of Tables 1-3: ``n_gt`` (the
+    recall reference) and ``n_gt_star`` (the recall* reference)."""
     d = df[(df["method"] == "blob") & (df["model"] == df["model"].iloc[0])] if len(df) else df
     return d.groupby("kind", sort=False)[["n_gt", "n_gt_star"]].mean()
 
@@ -220,25 +204,10 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True, bl
                    missing: str = "–") -> str:
     """Render a :func:`method_table` (or any frame with a (kind, model, method) index) as a Markdown table.
 
-    Parameters
-    ----------
-    table : DataFrame
-        One row per table row; every index level becomes a left-aligned column, every column a right-aligned
-        one.
-    formats : dict, optional
-        Column -> format spec (default: 2 decimals for %, 0 for counts, 3 significant digits for failures,
-        3 decimals for time, ``.4g`` for any other column).
-    labels : bool
-        Show the kind, model and method names as the paper's display names.
-    blank_repeats : bool
-        Leave an index cell blank where it repeats the row above (every level but the last), as in the
-        paper's tables.
-    missing : str
-        The cell of a missing (NaN) value.
-
-    Returns
-    -------
-    str
+    Index levels become left-aligned columns, columns right-aligned ones. ``formats`` maps columns to format
+    specs (default: 2 decimals for %, 0 for counts, 3 significant digits for failures, 3 decimals for time,
+    ``.4g`` otherwise); ``labels`` shows the paper's display names; ``blank_repeats`` blanks an index cell
+    that repeats the row above (every level but the last); ``missing`` is the cell of a NaN.
     """
     fmts = {"precision (%)": ".2f", "recall (%)": ".2f", "recall* (%)": ".2f", "correct": ".0f", "output": ".0f",
             "failures": ".3g", "empty": ".3g", "time (s)": ".3f", "pairs": ".0f", "n": ".0f"}
@@ -264,8 +233,7 @@ def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True, bl
     return "\n".join(lines) + "\n"
 
 
-#: The paper's Tables 1-3 and caption counts, parsed from its LaTeX source by ``python -m
-#: ctxmatch_lib.report.paper TEX`` (:func:`ctxmatch_lib.report.paper.parse_paper_tables`), shipped as package data.
+#: The paper's Tables 1-3 and caption counts as package data, written by ``python -m ctxmatch_lib.report.paper TEX``.
 _PAPER_DATA = Path(__file__).resolve().parents[1] / "data"
 _PAPER_TABLES_CSV = _PAPER_DATA / "paper_tables.csv"
 _PAPER_GT_COUNTS_CSV = _PAPER_DATA / "paper_gt_counts.csv"
@@ -279,19 +247,17 @@ def _read_gt_counts() -> dict:
             for setup, g in c.groupby("setup", sort=False)}
 
 
-#: Mean numbers of ground-truth matches per pair in the captions of the paper's Tables 1-3:
-#: (planar, non-planar) for the recall reference (blob) and the recall* reference (all matches).
+#: Mean ground-truth matches per pair in the captions of Tables 1-3: setup -> {"n_gt" (recall), "n_gt_star"
+#: (recall*)} -> (planar, non-planar).
 PAPER_GT_COUNTS = _read_gt_counts()
 
 
 def paper_table(setup: str | None = None) -> pd.DataFrame:
-    """The paper's Tables 1-3 (Appendix "DTM evaluation"): ``setup`` is ``"global"`` (Table 1),
-    ``"baseline"`` (Table 2, SIFT+RootSIFT) or ``"best"`` (Table 3, HarrisZ+SOSNet); ``None`` gives all three
-    with a ``setup`` column. Same layout as :func:`method_table` (kinds ``planar`` / ``nonplanar``, models
-    ``none`` / ``1sac``, the paper's 18 methods); ``time (s)`` is NaN where the paper prints "--". The paper
-    does not count empty outputs apart: its ``failures`` are pairs without a correct match, empty outputs
-    included, and ``empty`` is NaN. Read from the package data ``ctxmatch_lib/data/paper_tables.csv``, parsed
-    from the paper's LaTeX source (:mod:`ctxmatch_lib.report.paper`)."""
+    """The paper's Tables 1-3 (Appendix "DTM evaluation") in :func:`method_table`'s layout: ``setup`` is
+    ``"global"`` (Table 1), ``"baseline"`` (Table 2) or ``"best"`` (Table 3); ``None`` gives all three with a
+    ``setup`` column. ``time (s)`` is NaN where the paper prints "--"; ``empty`` is NaN (the paper's
+    ``failures`` include empty outputs). Read from ``ctxmatch_lib/data/paper_tables.csv``
+    (:mod:`ctxmatch_lib.report.paper`)."""
     t = pd.read_csv(_PAPER_TABLES_CSV)
     t = t.rename(columns={"precision": "precision (%)", "recall": "recall (%)", "recall_star": "recall* (%)",
                           "time_s": "time (s)"})
@@ -305,9 +271,8 @@ def paper_table(setup: str | None = None) -> pd.DataFrame:
 
 
 def with_inlier_ratio(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with an ``inlier_ratio`` column: the precision of the unfiltered blob candidates (method
-    ``blob``, model ``none``) of the same pair and setup, i.e. the share of correct candidates (Sec. 5.3: "blob
-    matching precision gives an indication of the average inlier ratio")."""
+    """``df`` with an ``inlier_ratio`` column: the precision of the blob candidates (model ``none``) of the
+    same pair and setup (Sec. 5.3: "blob matching precision gives an indication of the average inlier ratio")."""
     keys = ["pair_id"] + _config_keys(df)
     ref = df[(df["method"] == "blob") & (df["model"] == "none")][keys + ["precision"]]
     ref = ref.rename(columns={"precision": "inlier_ratio"}).drop_duplicates(keys)
@@ -320,18 +285,15 @@ def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> p
     Parameters
     ----------
     df : DataFrame
-        Result rows (with or without ``inlier_ratio``; it is added by :func:`with_inlier_ratio`).
+        Result rows (``inlier_ratio`` is added by :func:`with_inlier_ratio` when missing).
     bins : sequence of float
-        Increasing bin edges on the inlier ratio in [0, 1]; bins are closed on the left, the last one on
-        both sides.
+        Increasing edges in [0, 1]; bins are closed on the left, the last one on both sides.
 
     Returns
     -------
     DataFrame
-        Index (bin, model, method), bins labelled like ``"10-20 %"``; columns ``precision (%)``,
-        ``recall (%)`` (means over the pairs and setups in the bin), ``n`` (how many) and ``share (%)``
-        (the share of all (pair, setup) cases that fall in the bin, the same on every row of a bin). Empty
-        bins are kept with NaN means, ``n`` = 0.
+        Index (bin, model, method), bins labelled like ``"10-20 %"``; columns ``precision (%)``, ``recall
+        (%)`` (means in the bin), ``n`` and ``share (%)`` (of all (pair, setup) cases). Empty bins are kept.
     """
     edges = np.asarray(bins, np.float64)
     if edges.ndim != 1 or len(edges) < 2 or np.any(np.diff(edges) <= 0):
@@ -358,39 +320,19 @@ def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> p
     return out
 
 
-#: Columns of :func:`~ctxmatch_lib.geometry_metrics.geometry_table` that hold running times: they change from
-#: run to run, so the tracked geometry tables leave them out (the notebook writes them under ``executed/``).
+#: Running-time columns of :func:`~ctxmatch_lib.geometry_metrics.geometry_table`, left out of tracked tables.
 GEOMETRY_TIME_COLUMNS = ("geometry_time_s", "geometry_time_median_s")
 
 
 def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "",
                       keep_times: bool = False) -> str:
-    """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report (``geometry.md``), the
-    running times left out (:data:`GEOMETRY_TIME_COLUMNS`) unless ``keep_times``: the same numbers give the
-    same bytes.
-
-    Parameters
-    ----------
-    table : DataFrame
-        Indexed by (setup, kind, method, model) or any index; AUCs and shares in %, ``pairs``, ``no_model``.
-    title : str
-        The first heading.
-    provenance : dict
-        Printed on the provenance line.
-    notes : str
-        A paragraph under the provenance line.
-    keep_times : bool
-        Keep the running-time columns (seconds, 3 decimals): the report of the times themselves, which
-        changes from run to run (``executed/geometry_times.md``).
-
-    Returns
-    -------
-    str
-    """
+    """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report (``geometry.md``) under
+    the heading ``title``, a provenance line and ``notes``. The running times
+    (:data:`GEOMETRY_TIME_COLUMNS`) are left out, so the same numbers give the same bytes, unless
+    ``keep_times`` (``executed/geometry_times.md``)."""
     dropped = () if keep_times else GEOMETRY_TIME_COLUMNS
     t = table.drop(columns=[c for c in dropped if c in table.columns]).dropna(axis=1, how="all")
-    # Each line names its setup, kind, method and model in full, so that a line read alone (grep, diff) says
-    # what it is.
+    # Every line names its setup, kind, method and model in full (readable alone in grep or diff).
     for level, names in (("kind", KIND_LABELS), ("model", MODEL_LABELS), ("method", METHOD_LABELS)):
         if level in t.index.names:
             t = t.rename(index=names, level=level)

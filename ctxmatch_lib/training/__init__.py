@@ -1,17 +1,10 @@
 """Training sets built from the project's own pipeline, above the evaluation engine.
 
-The learned filters (:mod:`ctxmatch_lib.filters.learned`) sit under the engine: their training loop takes
-its sets as arguments and never builds candidates. This package builds them with the engine's per-pair steps
-(:mod:`.blobsets`: blob candidates of SIFT / HarrisZ features on warped and layered scenes of scikit-image's
-photos, labelled by the known warp) and hands them to the training loop:
-
-* :func:`blob_training_sets`: the sets of ``n_scenes`` generated scenes, split into training and held-out
-  validation scenes;
-* :func:`train_on_blob_candidates`: those sets, then
-  :func:`ctxmatch_lib.filters.learned.train_learned_filter` with ``data="blob"`` (needs torch).
-
-Nothing here reads ``CTXMATCH_DATA`` (the evaluation data). Keypoints are (x, y) pixels, origin at the centre
-of the top-left pixel.
+The learned filters sit under the engine and never build candidates; this package builds their training sets
+with the engine's per-pair steps (:mod:`.blobsets`) and hands them over: :func:`blob_training_sets` (training
+and held-out validation sets) and :func:`train_on_blob_candidates` (those sets, then
+:func:`ctxmatch_lib.filters.learned.train_learned_filter` with ``data="blob"``; needs torch). Nothing here
+reads ``CTXMATCH_DATA``.
 """
 
 from __future__ import annotations
@@ -33,26 +26,13 @@ def blob_training_sets(n_scenes: int = BLOB_SCENES, seed: int = 0, *, min_candid
     """Training and validation blob sets of ``n_scenes`` generated scenes (:func:`.blobsets.build_sets`).
 
     The last ``val_fraction`` of the scenes (at least one when ``n_scenes > 1``) are held out; sets with fewer
-    than ``min_candidates`` rows or no inlier are left out of both.
-
-    Parameters
-    ----------
-    n_scenes : int, default :data:`BLOB_SCENES`
-        Generated image pairs; each gives :func:`.blobsets.scene_count` sets.
-    seed : int, default 0
-        Scene ``i`` draws from ``np.random.SeedSequence([seed, i])``.
-    min_candidates : int, default :data:`BLOB_MIN_CANDIDATES`
-    val_fraction : float, default :data:`BLOB_VAL_FRACTION`
-    cache_dir : str or Path, optional
-        Where the sets are cached (default: the user's cache, ``learned-sets``).
-    progress : bool, default False
-        A progress bar while scenes are computed.
+    than ``min_candidates`` rows or no inlier are left out. ``n_scenes``, ``seed``, ``cache_dir``,
+    ``progress``: as in :func:`.blobsets.build_sets`.
 
     Returns
     -------
     (list of BlobSet, list of BlobSet, dict)
-        The training sets, the validation sets and the generator's description (``n_scenes`` and
-        :func:`.blobsets.describe`), the ``blob_sets`` argument of
+        Training sets, validation sets, description: the ``blob_sets`` argument of
         :func:`~ctxmatch_lib.filters.learned.train_learned_filter`.
     """
     if not 0 <= val_fraction < 1:

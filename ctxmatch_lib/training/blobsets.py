@@ -1,35 +1,19 @@
 """Training candidate sets like the real ones: the project's own blob candidates on generated image pairs.
 
-The learned filters trained here are meant to filter the candidates of the evaluation (Sec. 5.1): blob
-matching (:mod:`ctxmatch_lib.blob`, presets ``baseline`` and ``paper-best-overlap``) of SIFT / HarrisZ
-features at the paper's keypoint budget (1500, :data:`ctxmatch_lib.features.KEYPOINT_BUDGETS`). This module
-builds such candidate sets on image pairs made here, so that the networks see, in training, what they
-filter: many-to-many candidates on clustered keypoints, SIFT's coincident orientation copies, the blob score
-(read as its rank), near misses on repeated texture.
+The networks should see in training what they filter (Sec. 5.1): blob candidates (presets ``baseline`` and
+``paper-best-overlap``) of SIFT / HarrisZ features at the paper's budget, with their many-to-many rows,
+orientation copies and near misses on repeated texture. Never reads ``CTXMATCH_DATA``: the images are
+scikit-image's photos (:data:`SOURCE_IMAGES`), longer side 1024 px as the real pairs. A scene
+(:func:`make_scene`) is a random **homography** (:func:`~ctxmatch_lib.filters.learned.data.random_homography`)
+or a **layered** scene (one to three elliptical layers cut from other photos, each with its own homography
+over the background's, drawn in order so each hides what lies behind it); image 2 also gets a photometric
+change. A candidate is an inlier within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` of the true position
+of its image-1 keypoint (none when it leaves the image or is occluded).
 
-Nothing here reads ``CTXMATCH_DATA`` (the evaluation data). The images are scikit-image's bundled photos
-(:data:`SOURCE_IMAGES`), scaled so that the longer side is 1024 px (the real pairs' size). Each scene draws:
-
-* **homography** (planar): image 2 is image 1 under a random homography
-  (:func:`~ctxmatch_lib.filters.learned.data.random_homography`, the generator of
-  :mod:`ctxmatch_lib.filters.learned.data`);
-* **layered** (non-planar): image 1 is a background photo with one to three elliptical foreground layers cut
-  from other photos pasted on it; in image 2 the background moves by a homography and every layer by its
-  own homography on top of it (an extra shift of up to 12 % of the image), the layers drawn in order, so
-  that each hides what lies behind it. A keypoint of image 1 belongs to the topmost layer at its position;
-  its true position in image 2 is that layer's homography applied to it, and it has none when it leaves the
-  image or when another layer covers that position in image 2 (occlusion).
-
-Image 2 also gets a photometric change (gain, bias, gamma, Gaussian blur, noise). A candidate is labelled
-an inlier when its image-2 keypoint lies within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` of the
-true position of its image-1 keypoint, the evaluation's threshold.
-
-Sets are cached as ``.npz`` under ``ctxmatch_lib.cache.cache_dir("learned-sets")``, one per (scene,
-feature preset, blob preset), keyed by :data:`GENERATOR_VERSION`, the seed and the scene index, so a
-training run reads them instead of recomputing features; each scene draws from its own
-``SeedSequence([seed, index])`` stream, so set ``i`` is the same whatever the number of scenes asked for.
-
-Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; image sizes are (width, height).
+Sets are cached as ``.npz`` under ``cache_dir("learned-sets")``, one file per scene, keyed by
+:data:`GENERATOR_VERSION`, the seed and the scene index; scene ``i`` draws from ``SeedSequence([seed, i])``,
+so it is the same whatever the number of scenes. Keypoints are (x, y) pixels, origin at the centre of the
+top-left pixel; image sizes are (width, height).
 """
 
 from __future__ import annotations

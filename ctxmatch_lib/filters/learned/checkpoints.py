@@ -1,24 +1,19 @@
 """Loading and saving the learned filters' weights (imports torch: reach it through the lazy public face).
 
-The filters run in numpy (:mod:`.npnets`); this module is the torch side: training output, the torch
-checkpoints, and their conversion to the ``.npz`` format read without torch (:func:`convert_to_npz`, also
-``python -m ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz``). Four formats are read by
-:func:`load_model`:
+The torch side of the weights: training output, torch checkpoints, and their conversion to the ``.npz``
+read without torch (:func:`convert_to_npz`; ``python -m ctxmatch_lib.filters.learned.checkpoints ARCH
+WEIGHTS OUT.npz``). :func:`load_model` reads four formats:
 
-* **ctxmatch .npz** (the weights trained here, shipped as ``weights/{oanet,acne}_trained_here.npz``): the
-  ``state_dict`` arrays and a JSON ``__meta__`` (:func:`.npnets.save_npz`).
-* **ctxmatch .pt**: a ``torch.save`` dict ``{"format": "ctxmatch-learned-filter", "version": 1, "arch",
-  "config", "state_dict", "input", "label", "training"}``; ``input`` says how coordinates are normalised and
-  which side channels follow.
-* **OANet release** (zjhthu/OANet, PyTorch): ``torch.save({"epoch", "state_dict", "best_acc",
-  "optimizer"})`` of ``OANet`` (``model_best.pth``), or a bare ``state_dict``; the network shape (channels,
-  depth, clusters, iterations, side channels) is read off the parameter shapes. Their demo normalises each
-  image's keypoints to zero mean and mean distance sqrt(2) (``normalization="hartley"``) and, with side
-  information, feeds the ratio-test value and the mutual-check flag (``side="ratio_mutual"``).
-* **ACNe release** (vcg-uvic/acne, TensorFlow 1): a ``tf.train.Saver`` checkpoint (prefix, ``.index`` file
-  or folder), read by :mod:`.tfbundle` without TensorFlow; variables under ``Matchnet/`` are mapped onto
-  :class:`~.nets.ACNe` (TensorFlow conv kernels ``[1, 1, in, out]`` become ``(out, in, 1)``). Only the
-  released configuration (group normalisation, no extra output non-linearity) is supported.
+* **ctxmatch .npz** (the shipped weights): ``state_dict`` arrays and a JSON ``__meta__``
+  (:func:`.npnets.save_npz`);
+* **ctxmatch .pt**: a ``torch.save`` dict ``{"format": FORMAT, "version": 1, "arch", "config",
+  "state_dict", "input", "label", "training"}``, ``input`` naming the normalisation and side channels;
+* **OANet release** (zjhthu/OANet): ``model_best.pth`` or a bare ``state_dict``, the shape read off the
+  parameters; their demo's input is ``normalization="hartley"`` and, with side information,
+  ``side="ratio_mutual"``;
+* **ACNe release** (vcg-uvic/acne, TensorFlow 1): a ``tf.train.Saver`` checkpoint read by :mod:`.tfbundle`,
+  ``Matchnet/`` variables mapped onto :class:`~.nets.ACNe`; only the released configuration (group
+  normalisation, no output non-linearity).
 """
 
 from __future__ import annotations
@@ -92,11 +87,7 @@ def acne_to_tf_tensors(net: ACNe) -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------------------------- API
 def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None = None,
                normalization: str = "image", side: str | None = None) -> Path:
-    """Save ``net`` labelled "trained here"; returns the path.
-
-    A path ending in ``.npz`` gets the numpy format that the filters read without torch
-    (:func:`.npnets.save_npz`); any other path a ``torch.save`` checkpoint in the ctxmatch format.
-    """
+    """Save ``net`` labelled "trained here" (``.npz``: :func:`.npnets.save_npz`, else ``torch.save``)."""
     from ...cache import atomic_path
 
     if side is None:
@@ -127,13 +118,7 @@ def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None =
 
 
 def convert_to_npz(arch: str, weights, output) -> Path:
-    """Convert a torch checkpoint that :func:`load_model` reads (ours, the OANet authors') to the ``.npz`` format
-    the filters read without torch; metadata (label, input convention, training record) is kept.
-
-    Examples
-    --------
-    ``python -m ctxmatch_lib.filters.learned.checkpoints oanet model_best.pth oanet.npz``
-    """
+    """Convert a checkpoint :func:`load_model` reads to the ``.npz`` read without torch, metadata kept."""
     m = load_model(arch, weights)
     training = {}
     if Path(weights).suffix not in (".npz",) and not is_tf_checkpoint(Path(weights)):

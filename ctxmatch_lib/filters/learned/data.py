@@ -1,27 +1,15 @@
 """Training correspondences the project generates itself (numpy only), for the learned filters trained here.
 
-Nothing here reads the evaluation data under ``CTXMATCH_DATA``. The keypoint positions come from the images
-of the embedded offline dataset (:mod:`ctxmatch_lib.datasets.embedded`, scikit-image's bundled photos):
-OpenCV SIFT keypoints of each image, so the correspondences sit where real keypoints sit (on texture, in
-clusters), not on a uniform grid. Each training set then draws a random geometry of its own:
-
-* **homography**: a random planar view change (rotation, anisotropic zoom, shear, perspective, shift);
-* **layered**: a non-planar scene of two or three independently moving planar layers (the background and
-  one or two elliptical foreground regions, each with its own homography on top of the background's), with
-  occlusion: a background point hidden by a foreground layer in image 2 has no true correspondence.
-
-Inliers are true correspondences moved by Gaussian noise (sigma 0.3 to 2.5 px, per set). Planted outliers
-mix three kinds, in random proportions per set: a keypoint matched to a uniform random position; a keypoint
-matched to another keypoint's position (the outliers of descriptor matching land on keypoints); and a
-near miss 20-100 px from the true position (repeated texture), sharing its image-1 keypoint with an inlier
-(blob matching is many-to-many). The inlier ratio is drawn uniformly in [5 %, 60 %]. A candidate is
-labelled an inlier when it lies within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` of its true
-position, the threshold of the evaluation.
-
-Scores (lower is better) are drawn per set with a random informativeness ``q`` in [0, 1]: inliers
-``u ** (1 + 3q)``, outliers ``u ** (1 / (1 + 3q))`` for ``u ~ U(0, 1)``; one set in ten has all scores
-equal (no score given). The networks see only the scores' ranks (:func:`score_rank`), so the scale of a
-real matcher's score does not matter.
+Never reads ``CTXMATCH_DATA``. Keypoint positions are OpenCV SIFT keypoints of the embedded dataset's
+images (:func:`keypoint_pool`), so correspondences sit where real keypoints sit. Each set
+(:func:`random_training_set`) draws its geometry: a random **homography**, or a **layered** scene (one or
+two elliptical foreground layers moving on their own over the background, with occlusion). Inliers: true
+positions plus Gaussian noise (0.3-2.5 px); outliers, in random proportions: a uniform position, another
+keypoint's position (descriptor outliers land on keypoints), or a near miss 20-100 px off that shares an
+inlier's image-1 keypoint (many-to-many). Inlier ratio uniform in 5-60 %; labels by the evaluation's
+:data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX`. Scores (lower is better) carry a random informativeness
+``q``: inliers ``u ** (1 + 3q)``, outliers ``u ** (1 / (1 + 3q))``; one set in ten has none. The networks
+read only their ranks (:func:`score_rank`).
 
 Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; image sizes are (width, height).
 """
@@ -69,8 +57,8 @@ def normalise_coordinates(pts: np.ndarray, image_size, mode: str = "image") -> n
         (width, height) of the image the points belong to.
     mode : {"image", "hartley"}
         ``"image"`` (the weights trained here): ``(p + 0.5 - size / 2) / (max(width, height) / 2)``, the
-        image centre at 0 and the longer side spanning [-1, 1], aspect ratio kept. ``"hartley"`` (the OANet
-        authors' demo): zero mean and mean distance sqrt(2) from it, over the points given.
+        longer side spanning [-1, 1]. ``"hartley"`` (the OANet authors' demo): zero mean, mean distance
+        sqrt(2).
 
     Returns
     -------
@@ -245,23 +233,10 @@ def _true_positions(pts, size, rng, kind):
 
 def random_training_set(pool, n_candidates: int, rng=None, *, kind: str | None = None,
                         inlier_ratio: float | None = None) -> TrainingSet:
-    """One generated candidate set (see the module docstring).
+    """One generated :class:`TrainingSet` of ``n_candidates`` rows (see the module notes).
 
-    Parameters
-    ----------
-    pool : sequence of (ndarray (M, 2), (w, h))
-        Keypoint positions per image, e.g. :func:`keypoint_pool`.
-    n_candidates : int
-        K, the number of candidates.
-    rng : None, int or numpy Generator
-    kind : {"homography", "layered"}, optional
-        Default: either, with equal probability.
-    inlier_ratio : float, optional
-        Default: uniform in [0.05, 0.60].
-
-    Returns
-    -------
-    TrainingSet
+    ``pool``: keypoint positions and size per image (:func:`keypoint_pool`); ``rng``: None, int or Generator;
+    ``kind`` (default: either, equally likely) and ``inlier_ratio`` (default: uniform in 5-60 %) fix a draw.
     """
     rng = np.random.default_rng(rng)
     kind = kind or ("homography" if rng.uniform() < 0.5 else "layered")

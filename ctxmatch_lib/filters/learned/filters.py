@@ -1,17 +1,10 @@
 """The ``oanet`` and ``acne`` entries of the filter registry (numpy inference: torch is not needed).
 
 Both filters score every candidate with a permutation-equivariant network and keep those whose inlier logit
-is above ``threshold`` (default 0, i.e. an inlier probability above 1/2; the OANet and ACNe authors' test
-threshold). Without ``weights`` they use the weights **trained here** (shipped in
-``ctxmatch_lib/filters/learned/weights/``, trained by :func:`~ctxmatch_lib.filters.learned.train_learned_filter`
-on correspondences generated from the embedded images; not the authors' weights, which are not obtainable
-here). ``weights=`` accepts the authors' released checkpoints in their own formats (see
-:mod:`.checkpoints`; the OANet authors' torch checkpoint needs torch to be read, or a one-time conversion to
-``.npz``).
-
-The networks run in numpy (:mod:`.npnets`), so the figures and tables need no torch and give the same
-numbers with or without it; ``backend="torch"`` runs the torch modules of :mod:`.nets` instead (the training
-code's, for checking the two agree).
+exceeds ``threshold`` (default 0: inlier probability above 1/2, the authors' test threshold). Default
+weights: **trained here** (``weights/``); ``weights=`` also reads the authors' checkpoints
+(:mod:`.checkpoints`). Inference is numpy (:mod:`.npnets`); ``learned_logits(..., backend="torch")`` runs
+the training modules of :mod:`.nets` instead, to check that the two agree.
 """
 
 from __future__ import annotations
@@ -91,19 +84,13 @@ def _load_numpy(arch: str, path: Path):
 
 
 def load_numpy_model_cached(arch: str, weights=None):
-    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached.
-
-    ``.npz`` and the ACNe authors' TensorFlow checkpoints load with numpy alone; torch checkpoints (``.pt``,
-    ``.pth``) need torch to be read (they then run in numpy too).
-    """
+    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached by
+    path and modification time; reading a ``.pt``/``.pth`` checkpoint needs torch."""
     return _cached("numpy", _load_numpy, arch, weights)
 
 
 def load_learned_model(arch: str, weights=None):
-    """The torch :class:`~.checkpoints.LoadedModel` for ``arch`` from ``weights`` (default: trained here), cached.
-
-    Needs torch; the filters themselves use :func:`load_numpy_model_cached`.
-    """
+    """The torch :class:`~.checkpoints.LoadedModel` for ``arch`` from ``weights``, cached (needs torch)."""
     require_torch()
     from .checkpoints import load_model
 
@@ -112,8 +99,7 @@ def load_learned_model(arch: str, weights=None):
 
 @contextmanager
 def _one_thread(torch):
-    # One intra-op thread: the same sums in the same order whatever the machine, so results do not depend on
-    # the thread count; at K = 2000 the networks run well under a second anyway.
+    # One intra-op thread: the same sums in the same order, whatever the machine's thread count.
     old = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -126,10 +112,8 @@ def learned_logits(arch: str, kpts1, kpts2, matches, scores=None, *, image_size1
                    normalization: str | None = None, backend: str = "numpy") -> np.ndarray:
     """Inlier logits of the candidates, shape ``(K,)``, from the network ``arch`` ("oanet" or "acne").
 
-    Parameters are those of :func:`oanet_filter`, and ``backend``: ``"numpy"`` (default, no torch needed) or
-    ``"torch"`` (the torch modules the networks are trained with; torch's instance normalisation refuses
-    K = 1, so a single candidate is always scored by numpy). Returns float64 logits; ``logit > 0`` means
-    inlier probability above 1/2.
+    Parameters are those of :func:`oanet_filter`, and ``backend``: ``"numpy"`` (default) or ``"torch"`` (the
+    training modules; a single candidate is scored by numpy, torch's instance norm refuses K = 1).
     """
     if backend not in _BACKENDS:
         raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
@@ -168,11 +152,10 @@ def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2
                  weights=None, threshold: float = 0.0, normalization: str | None = None) -> np.ndarray:
     """OANet (Zhang et al., ICCV 2019) as a match filter; default weights **trained here**.
 
-    The network reads, per candidate, the normalised coordinates of its two keypoints and, as side
-    information, the rank of its score among the candidates (the weights trained here; the authors'
-    side-information models read the ratio-test value and the mutual-check flag instead). It runs its two
-    stages (the second adds the epipolar residuals of the first stage's weighted eight-point fit) and keeps
-    the candidates whose last-stage logit exceeds ``threshold``.
+    The network reads each candidate's normalised coordinates and, as side information, its score rank (the
+    weights trained here; the authors' side-information models read the ratio-test value and the
+    mutual-check flag). The second stage adds the epipolar residuals of the first stage's weighted
+    eight-point fit; the candidates whose last-stage logit exceeds ``threshold`` are kept.
 
     Parameters
     ----------
@@ -183,27 +166,20 @@ def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2
     scores : ndarray of shape (K,) or None
         Lower is better; only their ranks are used. ``None``: all equal.
     image_size1, image_size2 : (int, int)
-        (width, height); coordinates are normalised by them: ``(p + 0.5 - size / 2) / (max(size) / 2)``.
+        (width, height), for the coordinate normalisation (:func:`.data.normalise_coordinates`).
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
         Unused.
     weights : str or Path, optional
-        A checkpoint: ours (``ctxmatch train oanet``, ``.npz`` or ``.pt``) or the authors' ``model_best.pth``
-        (reading a ``.pt``/``.pth`` needs torch). Default: the weights trained here,
-        ``weights/oanet_trained_here.npz``.
+        Ours (``.npz`` or ``.pt``) or the authors' ``model_best.pth`` (``.pt``/``.pth`` need torch: else
+        ``ImportError``). Default: ``weights/oanet_trained_here.npz``.
     threshold : float, default 0
-        Keep ``logit > threshold`` (0: inlier probability above 1/2, the authors' test threshold).
+        Keep ``logit > threshold``.
     normalization : {"image", "hartley"}, optional
-        Override the checkpoint's coordinate normalisation (``"image"`` for the weights trained here,
-        ``"hartley"`` for the authors').
+        Override the checkpoint's coordinate normalisation.
 
     Returns
     -------
     keep : ndarray of shape (K,), bool
-
-    Raises
-    ------
-    ImportError
-        ``weights`` is a torch checkpoint (``.pt``/``.pth``) and PyTorch is not installed.
 
     References
     ----------
@@ -217,22 +193,17 @@ def acne_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
                 weights=None, threshold: float = 0.0, normalization: str | None = None) -> np.ndarray:
     """ACNe (Sun et al., CVPR 2020) as a match filter; default weights **trained here**.
 
-    The network reads only the normalised coordinates of each candidate's two keypoints (ACNe uses no side
-    information; ``scores`` are validated and ignored) and keeps the candidates whose inlier logit (the local
-    attention of the output layer) exceeds ``threshold``.
+    The network reads only the normalised coordinates (no side information: ``scores`` are validated and
+    ignored) and keeps the candidates whose inlier logit (the output layer's local attention) exceeds
+    ``threshold``.
 
     Parameters
     ----------
-    kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2
+    kpts1, kpts2, matches, scores, image_size1, image_size2, shapes1, shapes2, threshold, normalization
         As in :func:`oanet_filter`.
     weights : str or Path, optional
-        A checkpoint: ours (``ctxmatch train acne``) or the authors' TensorFlow checkpoint (prefix, ``.index``
-        file or folder; read without TensorFlow or torch). Default: the weights trained here,
-        ``weights/acne_trained_here.npz``.
-    threshold : float, default 0
-        Keep ``logit > threshold`` (sigmoid above 1/2, as the authors' inlier test).
-    normalization : {"image", "hartley"}, optional
-        As in :func:`oanet_filter`.
+        Ours (``.npz`` or ``.pt``) or the authors' TensorFlow checkpoint (prefix, ``.index`` file or folder;
+        read without TensorFlow). Default: ``weights/acne_trained_here.npz``.
 
     Returns
     -------

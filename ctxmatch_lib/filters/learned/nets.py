@@ -1,29 +1,16 @@
 """The OANet and ACNe networks as torch modules (imports torch: load it through the lazy public face).
 
-Both networks are permutation equivariant: every layer is a per-correspondence linear map (1x1
-convolution) or a normalisation/pooling whose statistics are sums over the correspondences, so shuffling
-the input rows shuffles the output logits the same way.
+Both are permutation equivariant: every layer is a 1x1 convolution or a normalisation/pooling over the
+correspondences. Input ``(B, 4 + side, N)`` (normalised x1, y1, x2, y2, then side channels), output inlier
+logits ``(B, N)``.
 
-OANet (Zhang et al., ICCV 2019, Sec. 3-4) — ``OANet``:
-    PointCN blocks (instance "context" normalisation, batch normalisation, ReLU, 1x1 conv; residual), a
-    DiffPool layer softly assigning the N correspondences to M clusters (softmax over the correspondences),
-    Order-Aware Filtering blocks on the M clusters (PointCN across channels plus a "spatial correlation" 1x1
-    conv across the cluster axis), DiffUnpool back to the N correspondences (softmax over the clusters),
-    then PointCN blocks on the concatenation. The iterative variant runs a second block whose input adds
-    the symmetric epipolar residual of the weighted eight-point estimate of the first block and its
-    weights ``relu(tanh(logit))``. Module and parameter names follow the authors' release, so their
-    ``state_dict`` loads unchanged.
+:class:`OANet` (Zhang et al., ICCV 2019, Sec. 3-4): PointCN blocks, DiffPool to M clusters (Eq. (3)),
+Order-Aware Filtering on the clusters, DiffUnpool (Eq. (6)), PointCN on the concatenation; the second stage
+adds the epipolar residual of the first's weighted eight-point fit (Eq. (9)) and its weights
+``relu(tanh(logit))``. Names follow the authors' release, so their ``state_dict`` loads unchanged.
 
-ACNe (Sun et al., CVPR 2020, Sec. 3-4) — ``ACNe``:
-    Residual blocks of two (1x1 conv, Attentive Context Normalisation, group normalisation, ReLU) layers.
-    ACN normalises each channel by the mean and variance over the correspondences weighted by
-    ``w_i = softmax_i(g_i) * sigmoid(l_i)`` (global times local attention, Eq. (5)-(7)), with ``g, l`` from a
-    1x1 conv of the layer's features. The output is the inlier logit (local attention of the last layer)
-    and a global-attention logit used by the weighted eight-point algorithm.
-
-Inputs are ``(B, C_in, N)`` float tensors: the 4 normalised coordinates (x1, y1, x2, y2) of each
-correspondence, then any side channels. Outputs are inlier logits of shape ``(B, N)``; the filters keep
-``logit > 0``.
+:class:`ACNe` (Sun et al., CVPR 2020, Sec. 3-4): residual blocks of (1x1 conv, ACN, group norm, ReLU)
+layers; ACN normalises by the statistics weighted by ``softmax_i(g_i) * sigmoid(l_i)`` (Eq. (5)-(7)).
 """
 
 from __future__ import annotations
@@ -39,20 +26,10 @@ __all__ = ["OANetConfig", "ACNeConfig", "OANet", "ACNe", "weighted_eight_point",
 
 # --------------------------------------------------------------------------------------------- geometry
 def weighted_eight_point(x: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Weighted eight-point estimate of the fundamental/essential matrix (OANet Eq. (9), after Yi et al.).
+    """Weighted eight-point estimate (OANet Eq. (9), after Yi et al.), in float64.
 
-    Parameters
-    ----------
-    x : Tensor of shape (B, N, 4)
-        Normalised (x1, y1, x2, y2) of each correspondence.
-    weights : Tensor of shape (B, N)
-        Non-negative weights.
-
-    Returns
-    -------
-    Tensor of shape (B, 3, 3)
-        Unit-Frobenius-norm matrix ``F`` minimising ``sum_i w_i (x2_i^T F x1_i)^2``: the eigenvector of the
-        smallest eigenvalue of ``X^T W X``. Computed in float64.
+    ``x`` (B, N, 4) normalised (x1, y1, x2, y2), ``weights`` (B, N) non-negative; returns (B, 3, 3) unit
+    Frobenius norm ``F`` minimising ``sum_i w_i (x2_i^T F x1_i)^2`` (smallest eigenvector of ``X^T W X``).
     """
     x = x.double()
     x1, y1, x2, y2 = x.unbind(-1)

@@ -1,24 +1,15 @@
 """OANet and ACNe inference in numpy: the default engine of the ``oanet`` and ``acne`` filters (no torch).
 
-The layers are those of :mod:`.nets` (the torch modules, used for training), evaluated on one candidate set
-of shape ``(C, K)`` from the same parameters (the torch ``state_dict`` names, as numpy arrays); the
-parameters are stored in float32 and the input is rounded to float32 as in training, but :meth:`NumpyModel.logits`
-evaluates the layers in float64 (issue 31): in float32 the logits moved by up to 5e-4 with the OpenBLAS kernel
-(SkylakeX against Nehalem on real candidate sets whose smallest ``|logit|`` was 2e-4), in float64 by 1e-10, so
-the keep decision ``logit > threshold`` no longer follows the CPU:
+The layers of :mod:`.nets` on one candidate set ``(C, K)``, from the same parameters (``state_dict`` names,
+float32 arrays); the input is rounded to float32 as in training, but :meth:`NumpyModel.logits` evaluates in
+float64, so that the decision ``logit > threshold`` does not follow the BLAS kernel (docs/filters.md). A 1x1
+convolution is ``W @ x + b``; context normalisation uses the biased variance over the K candidates (0 for
+one candidate, which torch refuses); batch normalisation its running statistics, group normalisation
+(ACNe) each group's statistics over the candidates; OANet's second stage reads
+the epipolar residual of the first's weighted eight-point fit (Eq. (9)).
 
-* a 1x1 convolution is ``W @ x + b``;
-* context (instance) normalisation subtracts the per-channel mean over the K candidates and divides by
-  ``sqrt(var + 1e-3)`` (biased variance); with one candidate the result is 0, where torch's instance norm
-  refuses a single element;
-* batch normalisation uses the running statistics (evaluation mode), group normalisation (ACNe) the
-  statistics of each channel group over the candidates;
-* OANet's second stage reads the symmetric epipolar residual of the weighted eight-point estimate of the
-  first (OANet Eq. (9)), computed in float64 as in :func:`.nets.weighted_eight_point`.
-
-Weights load from the ctxmatch ``.npz`` format (:func:`save_npz`, :func:`load_npz`; the weights trained here
-ship in it), from the ACNe authors' TensorFlow checkpoints (read by :mod:`.tfbundle`, no TensorFlow), or
-from any torch checkpoint :func:`.checkpoints.load_model` reads (that needs torch).
+Weights: the ctxmatch ``.npz`` (:func:`save_npz`, :func:`load_npz`), the ACNe authors' TensorFlow
+checkpoints (:mod:`.tfbundle`), or a torch checkpoint through :func:`.checkpoints.load_model` (needs torch).
 """
 
 from __future__ import annotations
@@ -73,8 +64,8 @@ def _softmax(x: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _gated(s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``s * sigmoid(x)`` without overflow: ``s / (1 + exp(-x))`` where ``x >= -80`` (the plain form, whose
-    values are kept), ``s exp(x) / (1 + exp(x))`` below, where ``exp(-x)`` overflows float32 (from -88.7)."""
+    """``s * sigmoid(x)`` without overflow: ``s / (1 + exp(-x))`` for ``x >= -80``, ``s exp(x) / (1 + exp(x))``
+    below (``exp(-x)`` overflows float32 from -88.7)."""
     low = x < _F32(-80)
     e = np.exp(np.where(low, x, -x))
     return np.where(low, s * e, s) / (_F32(1) + e)
@@ -120,20 +111,8 @@ def _oan_block(p, name, data):
 
 
 def weighted_eight_point(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Weighted eight-point estimate (OANet Eq. (9)); numpy twin of :func:`.nets.weighted_eight_point`.
-
-    Parameters
-    ----------
-    x : ndarray of shape (K, 4)
-        Normalised (x1, y1, x2, y2) of each correspondence.
-    weights : ndarray of shape (K,)
-        Non-negative weights.
-
-    Returns
-    -------
-    ndarray of shape (3, 3)
-        Unit-Frobenius-norm ``F`` minimising ``sum_i w_i (x2_i^T F x1_i)^2`` (float64; defined up to sign).
-    """
+    """Weighted eight-point estimate (OANet Eq. (9)) of ``x`` (K, 4) with ``weights`` (K,): ``F`` (3, 3),
+    float64, defined up to sign; the numpy twin of :func:`.nets.weighted_eight_point` (one set, no batch)."""
     x1, y1, x2, y2 = np.asarray(x, np.float64).T
     X = np.stack([x2 * x1, x2 * y1, x2, y2 * x1, y2 * y1, y2, x1, y1, np.ones_like(x1)], axis=1)
     XwX = X.T @ (np.asarray(weights, np.float64)[:, None] * X)
@@ -214,11 +193,8 @@ class NumpyModel:
     source: str
 
     def logits(self, x: np.ndarray) -> np.ndarray:
-        """Inlier logits ``(K,)`` (float64) of the input ``(C_in, K)``; ``logit > 0``: inlier.
-
-        The layers run in float64 (the float32 parameters converted once per model): float32 products round
-        differently under each OpenBLAS kernel and thread count, and the keep masks must not follow them.
-        BLAS runs on one thread."""
+        """Inlier logits ``(K,)`` of the input ``(C_in, K)``, in float64 on one BLAS thread (the float32
+        products would round differently under each BLAS kernel and thread count)."""
         params = self._float64_params()
         with one_blas_thread():
             if self.arch == "oanet":
@@ -358,9 +334,8 @@ def from_state_dict(arch: str, config: dict, sd: dict, *, normalization: str, si
 
 
 def load_numpy_model(arch: str, weights) -> NumpyModel:
-    """The :class:`NumpyModel` of ``weights``: a ctxmatch ``.npz`` or an ACNe authors' TensorFlow checkpoint.
-
-    (Torch checkpoints, ``.pt``/``.pth``, are read by :func:`.filters.load_numpy_model_cached` with torch.)
+    """The :class:`NumpyModel` of ``weights``: a ctxmatch ``.npz`` or an ACNe authors' TensorFlow checkpoint
+    (torch checkpoints: :func:`.filters.load_numpy_model_cached`).
 
     Raises
     ------

@@ -1,23 +1,14 @@
 """TensorFlow checkpoints (tensor bundles) read and written with numpy alone, for the ACNe weights.
 
-The ACNe authors publish TensorFlow 1 checkpoints written by ``tf.train.Saver``: a prefix ``P`` with the files
-``P.index`` and ``P.data-00000-of-00001`` (and a ``P.meta`` graph this module does not need). This module
-reads them without TensorFlow, and writes the same format (used by the tests to check the reader on files
-laid out as TensorFlow lays them out, and to export weights for TensorFlow users).
-
-Format, as documented by TensorFlow (``tensorflow/core/util/tensor_bundle``, ``core/lib/io/table``):
-
-* ``P.index`` is a LevelDB-style sorted table: data blocks of prefix-compressed entries (``shared``,
-  ``non_shared``, ``value_length`` varints, the key suffix, the value) ending in an array of ``uint32``
-  restart offsets and their count; each block is followed by a 5-byte trailer (compression type, masked
-  CRC32C); the file ends in a 48-byte footer (meta-index and index block handles, zero padding, the magic
-  number ``0xdb4775248b80fb57``). The index block maps a separator key to each data block's handle.
-* The entry of the empty key is a ``BundleHeaderProto``; every other key is a tensor name whose value is a
-  ``BundleEntryProto`` (dtype, shape, shard, byte offset and size in the data file, masked CRC32C).
-* ``P.data-0000k-of-0000n`` holds the raw little-endian tensor bytes.
-
-Only uncompressed tables, unpartitioned tensors and numeric dtypes are supported; anything else raises
-``ValueError`` naming what was found.
+The ACNe authors publish ``tf.train.Saver`` checkpoints: a prefix ``P`` with ``P.index`` and
+``P.data-00000-of-00001`` (``P.meta`` is not needed). :func:`read_tf_checkpoint` reads them without
+TensorFlow; :func:`write_tf_checkpoint` writes the same layout (for the tests and for TensorFlow users).
+Format (TensorFlow's ``core/util/tensor_bundle`` and ``core/lib/io/table``): ``P.index`` is a LevelDB-style
+sorted table (blocks of prefix-compressed entries and restart offsets, each with a 5-byte trailer of
+compression type and masked CRC32C; a 48-byte footer with the block handles and the magic number); the
+empty key holds a ``BundleHeaderProto``, every tensor name a ``BundleEntryProto`` (dtype, shape, shard,
+offset, size, CRC); ``P.data-*`` holds the raw little-endian bytes. Compressed tables and partitioned
+tensors raise ``ValueError``; non-numeric tensors are skipped.
 """
 
 from __future__ import annotations

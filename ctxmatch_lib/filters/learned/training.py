@@ -1,26 +1,15 @@
 """Training OANet and ACNe here (imports torch).
 
 Reach it through :func:`ctxmatch_lib.filters.learned.train_learned_filter` or ``ctxmatch train oanet|acne``.
-Two kinds of training sets, neither read from ``CTXMATCH_DATA``:
+Training sets (never from ``CTXMATCH_DATA``): ``data="generated"`` (the shipped weights) draws the sets of
+:mod:`.data` afresh at every step; ``data="blob"`` draws ``batch_size`` of the given ``blob_sets`` (built
+above the evaluation engine by :mod:`ctxmatch_lib.training`) and cuts them to a common K.
 
-* ``data="generated"`` (``ctxmatch train``'s recipe, the shipped weights): the sets of :mod:`.data`
-  (random homographies and layered non-planar scenes on the embedded images' SIFT keypoints, planted
-  outliers, inlier ratios 5-60 %), drawn afresh at every step from one seeded generator;
-* ``data="blob"``: given sets of the project's own blob candidates on generated image pairs, built above the
-  evaluation engine by :mod:`ctxmatch_lib.training` (:func:`ctxmatch_lib.training.train_on_blob_candidates`,
-  which holds the last
-  :data:`~ctxmatch_lib.training.BLOB_VAL_FRACTION` of the scenes out for the validation) and passed in as
-  ``blob_sets``; each step draws ``batch_size`` sets and cuts them to a common K (a random subset of rows).
-  This module never builds candidates itself: the filters sit under the engine.
-
-The loss is the binary cross-entropy of every stage's inlier logits against the labels (OANet: both stages,
-as the authors' classification loss; ACNe: the output logits plus, with weight 1, the local-attention logits
-of every ACN layer, the authors' "multi-logit" loss), plain or, with ``balanced=True``, balanced as the
-OANet / CNe authors balance it (the mean over inliers and the mean over outliers, half each). The authors'
-geometric (essential-matrix) loss is not used: the labels here are exact. Adam, learning rate ``lr`` with
-cosine decay to ``lr / 10``; ``init`` starts from given weights (fine-tuning).
-
-Runs are deterministic for a given seed and thread count (``num_threads``, default 1).
+Loss: binary cross-entropy of every stage's inlier logits (OANet: both stages, the authors'
+classification loss; ACNe: the output plus the mean over the ACN layers' local-attention logits, the
+authors' "multi-logit" loss), optionally balanced as the OANet / CNe authors do. The authors' geometric
+loss is not used: the labels here are exact. Adam, cosine decay from ``lr`` to ``lr / 10``. Runs are
+deterministic for a given seed and thread count.
 """
 
 from __future__ import annotations
@@ -74,8 +63,7 @@ def _batch(pool, rng, batch_size, k, side):
 
 
 def _blob_batch(sets, rng, batch_size, k_max, side):
-    """``batch_size`` blob sets drawn at random, each cut to the same K (a random subset of its rows):
-    K = the smallest of their sizes, at most ``k_max``."""
+    """``batch_size`` random blob sets, each cut to a random subset of K = min(sizes, ``k_max``) rows."""
     chosen = [sets[i] for i in rng.integers(len(sets), size=batch_size)]
     k = min(k_max, min(len(s.x1) for s in chosen))
     xs, ys = [], []
@@ -89,8 +77,7 @@ def _blob_batch(sets, rng, batch_size, k_max, side):
 def _bce(logits, y, balanced):
     if not balanced:
         return F.binary_cross_entropy_with_logits(logits, y)
-    # The OANet / CNe authors' classification loss: the mean loss of the positives and that of the
-    # negatives, averaged with weight 1/2 each (per set), so that rare inliers weigh as much as the outliers.
+    # The OANet / CNe authors' balanced loss: half the positives' mean, half the negatives' (per set).
     per = F.binary_cross_entropy_with_logits(logits, y, reduction="none")
     pos = (per * y).sum(-1) / y.sum(-1).clamp(min=1)
     neg = (per * (1 - y)).sum(-1) / (1 - y).sum(-1).clamp(min=1)
@@ -172,11 +159,10 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
           seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
           num_threads: int = 1, progress: bool = True, validate: bool = True, data: str = "generated",
           balanced: bool = False, init=None, blob_sets=None) -> TrainResult:
-    """Train ``arch`` ("oanet" or "acne") from scratch; see :func:`ctxmatch_lib.filters.learned.train_learned_filter`.
+    """Train ``arch`` ("oanet" or "acne"); see :func:`ctxmatch_lib.filters.learned.train_learned_filter`.
 
-    With ``data="blob"``, ``blob_sets`` is ``(train_sets, val_sets, info)``: lists of blob sets (objects with
-    ``x1``, ``x2``, ``scores``, ``is_inlier``, ``size1``, ``size2``, ``inlier_ratio``) and a dict recorded in the
-    weights' metadata (:func:`ctxmatch_lib.training.blob_training_sets` builds them).
+    ``blob_sets`` holds objects with ``x1``, ``x2``, ``scores``, ``is_inlier``, ``size1``, ``size2``,
+    ``inlier_ratio`` (:class:`ctxmatch_lib.training.BlobSet`).
     """
     steps = TRAINED_HERE_STEPS[arch] if steps is None and arch in TRAINED_HERE_STEPS else steps
     k_lo, k_hi = _check(arch, steps, batch_size, num_threads, n_candidates, lr, data)
