@@ -1,17 +1,12 @@
 """ctxmatch: SIFT Matching by Context Exposed (F. Bellavia, IEEE TPAMI 2022).
 
-Blob matching (Sec. 3), Delaunay Triangulation Matching (Sec. 4) and the evaluation of Sec. 5.
-Keypoints everywhere are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the
-top-left pixel.
-
-``ctxmatch_lib.dtm`` is the DTM subpackage (``ctxmatch_lib.dtm.boundary``, ``.core``, ``.triangulation``);
-the function is ``ctxmatch_lib.dtm.dtm``. Glue for OpenCV and kornia is in :mod:`ctxmatch_lib.io.interop`,
-hloc and COLMAP exports in :mod:`ctxmatch_lib.io.export`, two images to filtered matches in
-:func:`ctxmatch_lib.match.match_images` (``ctxmatch match`` on the command line).
+Blob matching (Sec. 3), Delaunay Triangulation Matching (Sec. 4, ``ctxmatch_lib.dtm.dtm``) and the evaluation
+of Sec. 5; two images to filtered matches in :func:`ctxmatch_lib.match.match_images`, OpenCV / kornia glue in
+:mod:`ctxmatch_lib.io.interop`, hloc / COLMAP exports in :mod:`ctxmatch_lib.io.export`. Keypoints everywhere
+are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
 """
 
-# The one source of the version: pyproject.toml reads it (setuptools dynamic version), and so does
-# ``ctxmatch --version``.
+# The one source of the version (pyproject.toml and ``ctxmatch --version`` read it).
 __version__ = "0.1.0"
 
 from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching

@@ -261,8 +261,18 @@ def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn"))
 
 def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX,
                    pose_thresholds=POSE_AUC_THRESHOLDS_DEG):
-    """The model's accuracy over pairs, per group of ``by`` columns of the engine's ``rows`` (model ``none``
-    and rows with an ``error`` left out).
+    """The model's accuracy over pairs, per group of ``by`` columns.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Rows of the evaluation engine; rows with model ``none`` or an ``error`` are left out.
+    by : sequence of str
+        Grouping columns.
+    thresholds : sequence of float
+        Of the AUC of the corner error, in pixels.
+    pose_thresholds : sequence of float
+        Of the AUC of the pose error, in degrees.
 
     Returns
     -------

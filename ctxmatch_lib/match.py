@@ -1,13 +1,9 @@
-"""Two images in, filtered matches out: features -> blob matching -> spatial filters -> optional model step.
+"""Two images in, filtered matches out (``ctxmatch match``): features -> blob matching (Sec. 3) -> filters
+(Sec. 4) -> optional model step (Sec. 5.1).
 
-The library side of ``ctxmatch match``: :func:`match_images` runs the paper's pipeline (Sec. 3 blob
-matching, Sec. 4 DTM or any registered filter, the model step of Sec. 5.1) on a pair of images of your own
-and returns a :class:`MatchResult`; :func:`save_result` / :func:`load_result` write and read it as ``.npz``,
-:func:`plot_result` draws it, and :func:`match_pairs` runs a whole ``pairs.txt`` (hloc's "name1 name2" per
-line) resumably, one ``.npz`` per pair.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels with the origin at the centre of the top-left pixel;
-image sizes are (width, height) and always read from the images; scores are lower-is-better.
+:func:`match_images` returns a :class:`MatchResult`; :func:`save_result` / :func:`load_result` write and read
+it as ``.npz``, :func:`plot_result` draws it, :func:`match_pairs` runs hloc's ``pairs.txt`` resumably.
+Image sizes are (width, height), read from the images; scores are lower-is-better.
 """
 
 from __future__ import annotations
@@ -44,27 +40,22 @@ class MatchResult:
     Attributes
     ----------
     kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
-        Keypoints (x, y) in pixels, origin at the centre of the top-left pixel.
     shapes1, shapes2 : ndarray of shape (N1, 2, 2) and (N2, 2, 2), float64
         Affine shape ``A`` of each keypoint: its patch is ``{kpt + A @ u : |u| <= 1}`` (3 sigma for SIFT).
-    matches : ndarray of shape (K, 2), int64
-        Kept matches, rows into ``kpts1`` / ``kpts2``, sorted by score.
-    scores : ndarray of shape (K,), float64
-        Blob-matching score of each kept match (lower is better).
-    candidates : ndarray of shape (M, 2), int64
+    matches, scores : ndarray of shape (K, 2), int64, and (K,), float64
+        Kept matches (rows into ``kpts1`` / ``kpts2``) and their blob scores, sorted by score.
+    candidates, candidate_scores : ndarray of shape (M, 2), int64, and (M,), float64
         The blob-matching candidates the filters started from.
-    candidate_scores : ndarray of shape (M,), float64
     keep : ndarray of shape (M,), bool
-        Which candidates were kept: ``matches == candidates[keep]``.
+        ``matches == candidates[keep]``.
     image_size1, image_size2 : tuple of int
-        (width, height) read from the images.
+        (width, height).
     model : ndarray of shape (3, 3) or None
-        The fitted ``H`` or ``F`` of the model step (``None`` for ``model="none"`` or a failed fit).
+        The fitted ``H`` or ``F`` (``None`` without a model step or fit).
     settings : dict
-        The settings used (features, blob setup, filters, model), JSON-serialisable.
+        The settings used, JSON-serialisable.
     model_input : ndarray of shape (M,) bool or None
-        The candidates the model step was given (the filters' output), so that ``model_input & ~keep`` are
-        the ones it rejected; ``None`` without a model step.
+        The candidates given to the model step (``model_input & ~keep``: those it rejected).
     """
 
     kpts1: np.ndarray
@@ -95,13 +86,9 @@ def resolve_features(features="sift-rootsift", *, max_keypoints: int | None = No
     Parameters
     ----------
     features : str or FeatureConfig
-        A name of :data:`~ctxmatch_lib.features.FEATURE_PRESETS` (``"sift-rootsift"``, ...) or a config.
+        A name of :data:`~ctxmatch_lib.features.FEATURE_PRESETS` or a config.
     max_keypoints : int, optional
         Overrides the preset's keypoint cap (0: no cap).
-
-    Returns
-    -------
-    FeatureConfig
     """
     from dataclasses import replace
 
@@ -134,19 +121,9 @@ def _parse_value(text: str):
 
 
 def resolve_blob(blob="paper-best"):
-    """A :class:`~ctxmatch_lib.blob.BlobConfig` from a preset, a spec string, a dict or a config.
-
-    Parameters
-    ----------
-    blob : str, dict or BlobConfig
-        A name of :data:`~ctxmatch_lib.blob.BLOB_PRESETS`; or ``"NAME:key=value,..."`` /
-        ``"key=value,..."`` overriding fields of that preset (of ``"paper-best"`` when no name is given),
-        e.g. ``"paper-best:t_o=none"`` or ``"f=omega,f_prime=1,ratio=D>=,t_o=none,combine=a"``; or a dict
-        of :class:`~ctxmatch_lib.blob.BlobConfig` fields; or a config.
-
-    Returns
-    -------
-    BlobConfig
+    """A :class:`~ctxmatch_lib.blob.BlobConfig` from a name of :data:`~ctxmatch_lib.blob.BLOB_PRESETS`, a
+    spec ``"NAME:key=value,..."`` or ``"key=value,..."`` (overriding fields of that preset, else of
+    ``"paper-best"``; e.g. ``"f=omega,f_prime=1,ratio=D>=,t_o=none,combine=a"``), a dict of fields or a config.
 
     Examples
     --------
@@ -238,15 +215,13 @@ def match_images(
     Parameters
     ----------
     image1, image2 : str, Path or ndarray
-        Image files, or pixels (``(H, W)`` gray or ``(H, W, 3|4)`` RGB(A)). Image sizes are taken from them.
+        Image files, or pixels (``(H, W)`` gray or ``(H, W, 3|4)`` RGB(A)).
     features : str or FeatureConfig
         Feature preset (:data:`~ctxmatch_lib.features.FEATURE_PRESETS`) or configuration.
     blob : str, dict or BlobConfig
-        Blob-matching setup (:func:`resolve_blob`); default the paper's best, f = 10∪, f' = 5, D+,
-        t_o = 10 px, harmonic W.
+        Blob-matching setup (:func:`resolve_blob`); default the paper's best.
     filters : sequence of str, str or None
-        Registered filters (:data:`~ctxmatch_lib.filters.FILTERS`) applied one after the other, each to the
-        output of the previous one; ``None``, ``()`` or ``"none"`` keeps the blob candidates.
+        Registered filters applied one after the other; ``None``, ``()`` or ``"none"``: none.
     model : {"none", "1sac", "ransac", "prosac", "magsac"}
         Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`).
     model_kind : {"F", "H"}
@@ -265,8 +240,7 @@ def match_images(
     Returns
     -------
     MatchResult
-        ``matches`` (K, 2) int64 rows into ``kpts1`` / ``kpts2``, ``scores`` (K,) lower is better. No
-        keypoint or no candidate gives K = 0, not an error.
+        No keypoint or no candidate gives no match, not an error.
 
     Examples
     --------
@@ -339,23 +313,15 @@ def match_images(
 
 
 def save_result(result: MatchResult, path, **extra) -> Path:
-    """Write ``result`` to ``path`` (``.npz``) atomically.
-
-    Keys: ``kpts1``, ``kpts2``, ``shapes1``, ``shapes2``, ``matches`` (K, 2) int64, ``scores`` (K,),
-    ``image_size1``, ``image_size2`` (width, height), ``settings`` (a JSON string), plus ``model`` when one
-    was fitted and any ``extra`` arrays (e.g. image names).
+    """Write ``result`` to ``path`` (``.npz``, keys :data:`NPZ_KEYS`, plus ``model`` when fitted) atomically.
 
     Parameters
     ----------
     result : MatchResult
     path : str or Path
-        Output file; missing folders are created. A run killed while writing leaves the old file (or none).
+        Output file; missing folders are created.
     **extra
-        More arrays to store.
-
-    Returns
-    -------
-    Path
+        More arrays to store (e.g. image names).
     """
     from .cache import atomic_path
 
@@ -386,16 +352,7 @@ def _honour_umask(path: Path) -> None:
 
 
 def load_result(path) -> dict:
-    """Read a ``.npz`` of :func:`save_result` into a dict of arrays; ``settings`` is parsed back to a dict.
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    dict
-    """
+    """Read a ``.npz`` of :func:`save_result` into a dict of arrays, ``settings`` parsed back to a dict."""
     with np.load(path, allow_pickle=False) as z:
         out = {k: z[k] for k in z.files}
     out["settings"] = json.loads(str(out["settings"]))
@@ -403,8 +360,8 @@ def load_result(path) -> dict:
 
 
 def plot_result(result: MatchResult, image1, image2, *, ax=None, title: str | None = None):
-    """Draw the two images side by side with the kept matches coloured by score and, after a model step, the
-    matches it rejected (:func:`ctxmatch_lib.plots.viz2d.plot_match_result`).
+    """Draw the images side by side with the kept matches and those the model step rejected
+    (:func:`ctxmatch_lib.plots.viz2d.plot_match_result`); returns the figure.
 
     Parameters
     ----------
@@ -412,13 +369,9 @@ def plot_result(result: MatchResult, image1, image2, *, ax=None, title: str | No
     image1, image2 : str, Path or ndarray
         The images the result was computed on (paths are read in colour).
     ax : matplotlib Axes, optional
-        Where to draw; a new figure is made when omitted.
+        Where to draw; a new figure when omitted.
     title : str, optional
         Default: the number of kept matches out of the candidates.
-
-    Returns
-    -------
-    matplotlib Figure
     """
     from .features import load_image
     from .plots.viz2d import plot_match_result
@@ -445,21 +398,13 @@ def save_plot(fig, path, *, dpi: int = 150) -> Path:
 
 
 def read_pairs(path) -> list[tuple[str, str]]:
-    """Read hloc's pairs file: one ``name1 name2`` per line; blank lines and ``#`` comments are skipped.
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    list of (str, str)
-        Image names relative to the image folder, in file order, duplicates removed.
+    """Read hloc's pairs file (``name1 name2`` per line; blank lines and ``#`` comments skipped) into a list
+    of name pairs in file order, duplicates removed.
 
     Raises
     ------
     FileNotFoundError
-        ``path`` does not exist (or is not a file).
+        ``path`` is not a file.
     ValueError
         A line that is not two names, or a file that is not text.
     """
@@ -487,17 +432,12 @@ def read_pairs(path) -> list[tuple[str, str]]:
 
 
 def pair_filename(name1: str, name2: str) -> str:
-    """File name of a pair's result in folder mode.
+    """File name of a pair's result in folder mode: ``"{name1}__{name2}.npz"``, ``/`` turned into ``-``.
 
     Parameters
     ----------
     name1, name2 : str
         Image names of the pairs file.
-
-    Returns
-    -------
-    str
-        ``"{name1}__{name2}.npz"`` with ``/`` turned into ``-`` (hloc's ``names_to_pair`` escaping).
 
     Examples
     --------
@@ -516,12 +456,10 @@ def match_pairs(
     on_pair: Callable[[str, str, Path, bool], None] | None = None,
     **kwargs,
 ) -> dict:
-    """Match every pair of a pairs list, one ``.npz`` per pair in ``out_dir``; resumable.
+    """Match every pair of a pairs list, one ``.npz`` per pair in ``out_dir``, written atomically; resumable.
 
-    A pair whose file already exists with the same settings is skipped, so a run killed at any moment
-    (even by SIGKILL) loses nothing already written and a re-run does only the rest; a pair written with
-    other settings is redone. Files are written atomically, so a half-written file never exists under its
-    final name. A pair is known by its image names: delete its file to redo it after changing an image.
+    A pair whose file exists with the same settings is skipped, one with other settings redone. A pair is
+    known by its image names: delete its file to redo it after changing an image.
 
     Parameters
     ----------
@@ -531,7 +469,7 @@ def match_pairs(
     out_dir : str or Path
         Output folder (created); file names from :func:`pair_filename`.
     progress : bool
-        Show a tqdm progress bar on stderr.
+        A tqdm progress bar on stderr.
     on_pair : callable, optional
         Called as ``on_pair(name1, name2, path, skipped)`` after each pair.
     **kwargs

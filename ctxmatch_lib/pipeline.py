@@ -1,21 +1,11 @@
-"""The per-pair evaluation of Sec. 5.1 (features -> blob -> filters -> model -> ground truth -> metrics) as a
-thin face over the evaluation engine of :mod:`ctxmatch_lib.evaluation`.
+"""The per-pair evaluation of Sec. 5.1 (features -> blob -> filters -> model -> ground truth -> metrics), a thin
+face over :mod:`ctxmatch_lib.evaluation`.
 
-:func:`evaluate_pair` runs one pair through the engine's unit and keeps every intermediate result in a
-:class:`PairEvaluation`; :func:`evaluate_dataset` runs a whole dataset on the engine (per-pair parts in the
-cache, resumable) into one row per (pair, blob setup, method, model); :func:`summary_table` averages the rows
-as the Appendix tables. The steps (:func:`pair_features`, :func:`blob_candidates`, :func:`run_filter`,
-:func:`run_model`, :func:`label_candidates`) live in :mod:`ctxmatch_lib.evaluation.steps` and are
-re-exported here.
-
-* the ground truth labels the **blob candidates** once; every later output (a filter's mask, then a model's
-  mask) is a subset of them, so its labels are read off, never recomputed;
-* the recall reference of a row is the set of correct candidates of its own blob setup (Sec. 5.3), the
-  recall* reference their union over the blob setups evaluated on the pair;
-* the unfiltered candidates are method ``"blob"``; a model step is fitted on the method's output, ``H`` for
-  planar pairs, ``F`` otherwise;
-* ``time_s`` is the time of the method itself (blob matching, or the filter alone), ``model_time_s`` of the
-  model step.
+:func:`evaluate_pair` keeps every intermediate of one pair, :func:`evaluate_dataset` runs a dataset on the
+engine (resumable), :func:`summary_table` averages the rows as the Appendix tables; the steps of
+:mod:`ctxmatch_lib.evaluation.steps` are re-exported. The ground truth labels the blob candidates once (every
+later output is a subset); the recall reference of a row is the correct candidates of its blob setup
+(Sec. 5.3), recall*'s their union over the pair's setups.
 """
 
 from __future__ import annotations
@@ -62,11 +52,8 @@ ROW_COLUMNS = (
     "precision", "recall", "recall_star", "ap", "correct", "correct_norm", "output", "failure", "empty_output",
     "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method", "error",
 )
-"""Units: ``precision``, ``recall``, ``recall_star`` and ``ap`` are fractions in [0, 1] (NaN when
-undefined); ``correct`` is a plain count, ``correct_norm`` the normalised count of Sec. 5.1; ``failure`` a
-non-empty output without a correct match, ``empty_output`` an output with no match at all; ``time_s`` (the method)
-and ``model_time_s`` (the model step) in seconds; ``error`` is empty, or says why the row could not be
-evaluated (its metrics are then NaN). :func:`summary_table` prints percentages under ``*_pct`` names."""
+"""Units as in :mod:`ctxmatch_lib.evaluation.rows`; ``correct_norm`` is the normalised count of Sec. 5.1,
+``failure`` a non-empty output without a correct match, ``empty_output`` an output with no match."""
 
 
 @dataclass
@@ -100,8 +87,7 @@ def evaluate_pair(
     cache_dir=None,
     precomputed_features: tuple | None = None,
 ) -> PairEvaluation:
-    """Evaluate one pair and keep every intermediate: the engine's unit (:func:`~ctxmatch_lib.evaluation.run_unit`,
-    nothing cached) with its blob stages recorded.
+    """Evaluate one pair (:func:`~ctxmatch_lib.evaluation.run_unit`, nothing cached), keeping every intermediate.
 
     Parameters
     ----------
@@ -113,29 +99,28 @@ def evaluate_pair(
         Registered filter names; ``"blob"`` (no filter) is always included.
     models : sequence of str
         Model steps among :data:`~ctxmatch_lib.geometry.MODEL_STEPS`.
-    gt_method : {"D", "A", "B", "C"}
-        Ground-truth method; ``gt_threshold`` its distance in pixels (D and A).
+    gt_method, gt_threshold : {"D", "A", "B", "C"}, float
+        Ground-truth method and its distance in pixels (D and A).
     model_threshold : float
-        Consistency threshold of 1SAC / RANSAC in pixels.
+        Consistency threshold of the model step in pixels.
     filter_params : dict of str -> dict, optional
         Extra keyword arguments per filter.
     seed : int
         RANSAC seed; combined with ``pair.pair_id``.
     cache_dir
-        Feature cache (see :func:`~ctxmatch_lib.features.extract_features`).
+        Feature cache (:func:`~ctxmatch_lib.features.extract_features`).
     precomputed_features : (Features, Features), optional
         Skip extraction.
 
     Returns
     -------
     PairEvaluation
-        ``.stages[blob]`` is a :class:`~ctxmatch_lib.evaluation.unit.BlobStage` (candidates in score order,
-        labels, every mask and model fit); ``.rows`` the result rows (see :data:`ROW_COLUMNS`).
+        ``.stages[blob]``: a :class:`~ctxmatch_lib.evaluation.unit.BlobStage`; ``.rows``: :data:`ROW_COLUMNS`.
 
     Raises
     ------
     RuntimeError
-        When a filter or model step raises on the pair (the engine records it as an error row instead).
+        When a filter or model step raises on the pair.
     """
     (unit,) = plan_units([pair], features=features, blobs=resolve_blobs(blobs), filters=tuple(filters),
                          models=tuple(models), gt_method=gt_method, gt_threshold=gt_threshold,
@@ -164,37 +149,27 @@ def evaluate_dataset(
     n_jobs: int = 1,
     **kwargs,
 ):
-    """Evaluate every pair of ``dataset``; returns a ``pandas.DataFrame`` of all rows.
-
-    Runs on the one evaluation engine of :func:`ctxmatch_lib.evaluation.run_units` (shared with
-    ``ctxmatch eval``, ``ctxmatch sweep`` and the report notebooks): each pair is a work unit whose rows
-    are kept as a Parquet part in the evaluation cache, so an interrupted run resumes with no lost and no duplicated rows and a rerun
-    only reads. A pair that cannot be evaluated (unreadable image, 0 keypoints, a filter that raised) is
-    reported with a ``RuntimeWarning`` naming it, the image and the reason, and gets rows with NaN metrics
-    and a non-empty ``error``; the run goes on.
+    """Evaluate every pair of ``dataset`` on the engine (:func:`ctxmatch_lib.evaluation.run_units`: resumable,
+    a pair that cannot be evaluated gets error rows and a ``RuntimeWarning``).
 
     Parameters
     ----------
     dataset : Dataset or iterable of Pair
     progress : bool
-        A tqdm bar on stderr naming the pair in progress.
+        A tqdm bar on stderr.
     results_dir : path, None or False
-        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False`` keeps
-        nothing on disk (and cannot resume).
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False``: none.
     recompute : bool
-        Ignore the cached rows of these pairs and settings.
+        Ignore the cached rows.
     n_jobs : int
         Local worker processes (``-1``: all cores).
     **kwargs
-        As :func:`evaluate_pair`: ``features``, ``blobs``, ``filters``, ``models``, ``gt_method``,
-        ``gt_threshold``, ``model_threshold``, ``filter_params``, ``seed``, and ``cache_dir`` (the
-        feature cache). All are validated before any work.
+        As :func:`evaluate_pair` (``cache_dir`` is the feature cache), validated before any work.
 
     Returns
     -------
     pandas.DataFrame
-        :data:`ctxmatch_lib.evaluation.SWEEP_COLUMNS` (which include :data:`ROW_COLUMNS`), one row per (pair,
-        blob setup, method, model), in dataset order.
+        :data:`ctxmatch_lib.evaluation.SWEEP_COLUMNS`, one row per (pair, blob setup, method, model).
     """
     known = {"features", "blobs", "filters", "models", "gt_method", "gt_threshold", "model_threshold",
              "filter_params", "seed", "cache_dir"}
@@ -212,22 +187,13 @@ def evaluate_dataset(
 
 
 def summary_table(df):
-    """Per-kind, per-method (and model) means, as the Appendix tables: one row per group.
+    """Per-kind, per-method (and model) means, as the Appendix tables; also per ``features`` and ``blob``
+    where several are present.
 
-    Columns (units in the names; the rows themselves hold fractions):
-
-    * ``pairs``: pairs evaluated in the group (rows with an ``error`` excluded);
-    * ``precision_pct``, ``recall_pct``, ``recall_star_pct``, ``mAP_pct``: means over those pairs, in %.
-      An empty output counts as 0 % precision and 0 % recall (the paper's convention); recall, recall*
-      and AP are NaN, and skipped, on a pair without any correct candidate;
-    * ``correct``, ``correct_norm`` (the normalised count of Sec. 5.1), ``output``: mean match counts;
-    * ``failures``: pairs whose output is not empty but holds no correct match; ``empty_outputs``: pairs with
-      an empty output (the paper's failures are ``failures + empty_outputs``); ``errors``: pairs that could not be
-      evaluated (see the ``error`` column);
-    * ``time_s``: mean seconds of the method itself; ``model_time_s``: of the model step alone.
-
-    Grouped by ``blob`` too when several blob setups are present, and by ``features`` when several feature
-    setups are.
+    Columns: ``pairs`` (without an ``error``); ``precision_pct``, ``recall_pct``, ``recall_star_pct``,
+    ``mAP_pct`` (means in %; an empty output counts as 0 % precision and recall, the paper's convention);
+    ``correct``, ``correct_norm``, ``output`` (mean counts); ``failures``, ``empty_outputs`` (the paper's
+    failures are their sum), ``errors`` (pair counts); ``time_s``, ``model_time_s`` (mean seconds).
     """
     import pandas as pd
 
@@ -236,7 +202,7 @@ def summary_table(df):
     keys = (["kind"] + [k for k in ("features", "blob") if k in df.columns and df[k].nunique() > 1]
             + ["method", "model"])
     d = df.copy()
-    # Keep the order of appearance (blob first, filters as given, models as given) rather than sorting.
+    # Groups in order of appearance, not sorted.
     for k in keys:
         d[k] = pd.Categorical(d[k], categories=list(dict.fromkeys(d[k])), ordered=True)
     err = d["error"].astype(str) != "" if "error" in d.columns else pd.Series(False, index=d.index)

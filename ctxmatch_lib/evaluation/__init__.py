@@ -1,22 +1,10 @@
-"""The evaluation engine: plan units, key and cache them, run them (here, with joblib or on Dask), collect rows.
+"""The evaluation engine of Sec. 5: plan units, key and cache them, run them (here, joblib or Dask), collect rows.
 
-One module per job, each importing only those listed before it (and the method modules below the engine):
-
-* :mod:`~ctxmatch_lib.evaluation.steps`: the per-pair steps (features, blob candidates, filters, model,
-  ground-truth labels) and the argument checks shared with the command line;
-* :mod:`~ctxmatch_lib.evaluation.cache`: deterministic keys and atomic cache files;
-* :mod:`~ctxmatch_lib.evaluation.rows`: the row columns, error rows, the fast ranked AP;
-* :mod:`~ctxmatch_lib.evaluation.overlap`: FGINN by overlap, tabulated per image;
-* :mod:`~ctxmatch_lib.evaluation.plan`: settings checked once, pairs selected, units keyed;
-* :mod:`~ctxmatch_lib.evaluation.unit`: one unit (one pair, every setup, filter and model);
-* :mod:`~ctxmatch_lib.evaluation.run`: many units, resumable, local or on Dask;
-* :mod:`~ctxmatch_lib.evaluation.frontends`: :func:`run_sweep` (a grid) and :func:`evaluate_cached`
-  (named presets), with :func:`check_output`.
-
-``ctxmatch eval``, ``ctxmatch sweep``, :func:`ctxmatch_lib.pipeline.evaluate_dataset` and the report
-notebooks all run here, with the same unit keys, so each reuses what the others computed.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+Modules, each importing only those before it: ``steps`` (per-pair steps, argument checks), ``cache`` (keys,
+atomic files), ``rows`` (columns, error rows, ranked AP), ``overlap`` (tabulated FGINN by overlap), ``plan``
+(settings, pairs, units), ``unit`` (one pair), ``run`` (many units) and ``frontends`` (:func:`run_sweep`,
+:func:`evaluate_cached`, :func:`check_output`). ``ctxmatch eval``, ``ctxmatch sweep``,
+:func:`ctxmatch_lib.pipeline.evaluate_dataset` and the report notebooks share its unit keys and cache.
 """
 
 from .cache import source_digest

@@ -1,15 +1,11 @@
-"""The evaluation cache: deterministic keys and atomic files (hloc's skip-what-exists, per unit).
+"""The evaluation cache: deterministic keys (SHA-1 of what a file depends on, :func:`digest`) and atomic files.
 
-Every cached file is named by a SHA-1 of what its content depends on (:func:`digest`), written to a
-temporary name and moved into place, so a run killed at any moment leaves whole files only and a rerun
-skips what exists. Layout under ``ctxmatch_lib.cache.cache_dir("sweep")`` (features are cached by
-:mod:`ctxmatch_lib.features` in its own folder)::
+Layout under ``ctxmatch_lib.cache.cache_dir("sweep")``::
 
     results/<unit-hash>.parquet      one part per finished unit (rows of one pair)
-    candidates/<pair-hash>.npz       candidate sets G (matches, distances) per (f, ∩/∪, f') of a pair
-    overlap/<image-hash>.npz         overlap errors of every pair of keypoints of an image whose patches
-                                     can overlap (FGINN by overlap looks them up instead of recomputing)
-    filters/<hash>.npz               filter masks per blob setup, per (pair, filter, filter parameters)
+    candidates/<pair-hash>.npz       candidate sets G per (f, ∩/∪, f') of a pair
+    overlap/<image-hash>.npz         overlap errors of an image's keypoint pairs that may overlap
+    filters/<hash>.npz               filter masks per (pair, filters, parameters), per blob setup
 """
 
 from __future__ import annotations
@@ -58,19 +54,16 @@ def pair_digest(pair: Pair) -> str:
 
 
 def features_digest(*feats: Features) -> str:
-    # The metric enters only when it is not L2, so the L2 digests (and cached candidate sets) are unchanged.
+    # The metric enters only when it is not L2 (L2 digests match those without a metric).
     extra = [f.metric for f in feats if f.metric != "l2"]
     return digest(*[a for f in feats for a in (f.kpts, f.shapes, f.desc)], *extra)
 
 
-#: Modules a unit's key never follows into: the front door (it re-exports everything), the filters' registry
-#: (it imports every filter; a unit's key takes the filters it runs one by one) and the cache folder's module
-#: (paths and atomic writes, no numbers).
+#: Modules a unit's key never follows into: the front door and the filters' registry (they import
+#: everything; a unit's key takes its filters one by one) and the cache folder's module (no numbers).
 _KEY_CUTS = ("ctxmatch_lib", "ctxmatch_lib.filters", "ctxmatch_lib.cache")
-#: The code every unit runs: the unit and, through its imports, the steps and the methods below them.
+#: The code every unit runs (with its imports).
 _UNIT_ROOT = "ctxmatch_lib.evaluation.unit"
-
-
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -128,15 +121,11 @@ def _filter_module(name: str) -> str | None:
 
 @functools.lru_cache(maxsize=64)
 def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAGE_ROOT) -> str:
-    """SHA-1 of the code a unit runs: the import closure of the unit (:func:`code_closure`: the steps, blob
-    matching, features, models, ground truth and metrics), of each filter it runs (the module that implements
-    the filter and its own imports), and the shipped models (``.npz``) of the packages in that closure.
+    """SHA-1 of the code a unit runs: the import closure (:func:`code_closure`) of the unit and of each of
+    its ``filters``, and the shipped ``.npz`` models of the packages in it.
 
-    Python files enter by their syntax tree without docstrings and comments: a documentation edit keeps the
-    cache, any code edit (a constant, a default) renews it. The command line, plots, reports, export and
-    interop, the cache folder's module and the filters a unit does not run are outside the closure, so editing
-    them keeps its rows. A filter registered from outside the library enters by its module's name.
-    ``package_root``: the package folder to read (a copy of ``ctxmatch_lib``, in the tests)."""
+    Files enter by :func:`_code_bytes`, so documentation edits keep the cache and code edits renew it; a
+    filter registered outside the library enters by its module's name. ``package_root``: the package folder."""
     root, graph = _import_graph(Path(package_root))
     modules = [_filter_module(n) for n in filters]
     closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in graph)], package_root=Path(package_root))
@@ -156,8 +145,7 @@ def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAG
 
 
 def _code_bytes(path: Path) -> bytes:
-    """The code of a Python file without its docstrings, comments and layout (its syntax tree, docstrings
-    removed), so that editing documentation keeps the cached evaluation rows."""
+    """The syntax tree of a Python file without docstrings, comments and layout, dumped."""
     tree = ast.parse(path.read_bytes(), filename=str(path))
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
@@ -207,9 +195,7 @@ def candidate_sets(ctx_factory, keys, cache: Path | None, feats_digest: str, sal
         ctx, t_ctx = ctx_factory()
         t0 = time.perf_counter()
         matches, dist = ctx.candidates(*key)
-        # The context (all descriptor distances) serves every key; each key's time includes building it once,
-        # as a standalone blob_matching call would (it was counted twice for the first key and not at all
-        # for the others before).
+        # Each key's time includes building the shared context once, as a standalone blob_matching call would.
         t = time.perf_counter() - t0 + t_ctx
         out[key] = (matches, dist, t)
         stored[f"m_{name}"] = matches.astype(np.int32)

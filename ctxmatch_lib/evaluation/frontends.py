@@ -1,11 +1,6 @@
-"""The engine's entry points: on a grid (:func:`run_sweep`, ``ctxmatch sweep``) and on named presets
-(:func:`evaluate_cached`, the report notebooks; ``ctxmatch eval`` plans with
-:func:`~ctxmatch_lib.evaluation.plan.plan_sweep` directly), and the check of an output file.
-
-All of them plan units with :mod:`~ctxmatch_lib.evaluation.plan` and run them with
-:func:`~ctxmatch_lib.evaluation.run.run_units`, so the same settings give the same unit keys, and each
-reuses what the others computed.
-"""
+"""The engine's entry points: :func:`run_sweep` (a grid, ``ctxmatch sweep``), :func:`evaluate_cached` (named
+presets, the report notebooks) and :func:`check_output`; both plan with :mod:`~ctxmatch_lib.evaluation.plan`
+and run with :func:`~ctxmatch_lib.evaluation.run.run_units`, so they share unit keys."""
 
 from __future__ import annotations
 
@@ -23,17 +18,9 @@ __all__ = ["check_output", "run_sweep", "evaluate_cached"]
 
 
 def check_output(path, name: str = "out", suffix: str = ".parquet") -> Path:
-    """Check, before any work, that ``path`` can be written: the right suffix, then
-    :func:`ctxmatch_lib.cache.check_writable` (not a folder; its first existing ancestor a writable folder,
-    missing folders being created when it is written).
-
-    ``name`` is what the error calls it (``"--out"`` on the command line). Returns the path.
-
-    Raises
-    ------
-    ValueError
-        Naming ``name``, the path and the reason.
-    """
+    """Check, before any work, that ``path`` has ``suffix`` and can be written
+    (:func:`ctxmatch_lib.cache.check_writable`); returns the path. A ``ValueError`` names ``name`` (``"--out"``
+    on the command line), the path and the reason."""
     if suffix and Path(path).suffix.lower() != suffix:
         raise ValueError(f"{name} must end with {suffix}, got {path}")
     return check_writable(path, name)
@@ -52,50 +39,44 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     datasets : str or list of str
         Registered dataset names or custom folders (``"embedded"``, ``"planar,nonplanar"``, ...).
     features : str, FeatureConfig, list or dict
-        Detector+descriptor configurations (:func:`~ctxmatch_lib.evaluation.plan.resolve_feature_configs`).
+        See :func:`~ctxmatch_lib.evaluation.plan.resolve_feature_configs`.
     blobs : str, BlobConfig or list
-        ``"grid"`` (the 2430 setups of Sec. 5.2), preset names or configs (:func:`~ctxmatch_lib.evaluation.plan.resolve_blob_configs`).
-    filters : sequence of str
-        Registered filters run on every setup's candidates (the unfiltered candidates are always the
-        method ``"blob"``); ``filter_params`` gives extra keyword arguments per filter.
+        ``"grid"`` (the 2430 setups of Sec. 5.2), preset names or configs.
+    filters, filter_params
+        Registered filters run on every setup's candidates (method ``"blob"`` is always there) and extra
+        keyword arguments per filter.
     models : sequence of str
-        Model steps (``"none"``, ``"1sac"``, ``"ransac"``, ``"prosac"``, ``"magsac"``) after each method; every
-        row with a model carries its accuracy (:data:`~ctxmatch_lib.evaluation.rows.GEOMETRY_COLUMNS`).
+        Model steps (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`) after each method.
     matchers : sequence of str
-        Alternative matchers evaluated as methods beside the blob candidates and the filters
-        (``"opencv_ratio"``, ``"opencv_mnn"``: :mod:`ctxmatch_lib.opencv_matchers`).
+        Alternative matchers evaluated as methods (:mod:`ctxmatch_lib.opencv_matchers`).
     estimator : dict, optional
         USAC overrides of the robust model steps (``threshold``, ``confidence``, ``max_iters``).
     max_keypoints : int or str, optional
-        Override the keypoint cap of every feature configuration: an integer (0: none; small values for quick
-        runs) or a budget name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` (``"paper"``).
-    pairs : None, int or list of str
-        Pair subset (:func:`~ctxmatch_lib.evaluation.plan.select_pairs`): ``N`` evenly spread pairs, or pair ids; ``kinds`` keeps only
-        some pair kinds.
+        Keypoint cap of every feature configuration (0: none) or a name of
+        :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS`.
+    pairs, kinds
+        Pair subset (:func:`~ctxmatch_lib.evaluation.plan.select_pairs`) and pair kinds kept.
     gt_method, gt_threshold, model_threshold, seed
         As in :func:`ctxmatch_lib.pipeline.evaluate_pair`.
     n_jobs : int
-        Local worker processes (joblib, loky backend); ``1`` runs in this process, ``-1`` uses every core.
+        Local worker processes (joblib, loky); ``-1``: every core.
     dask : str or distributed.Client, optional
-        Run the units on a Dask cluster instead: a scheduler address (``"tcp://host:8786"``) or a client.
-        Workers must see the data and image paths the driver sees; each worker keeps its own caches.
-    cache_dir : path, optional
-        The sweep cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``feature_cache_dir`` the
-        feature cache (default: that of :mod:`ctxmatch_lib.features`).
+        A Dask scheduler address (``"tcp://host:8786"``) or client; workers must see the driver's paths.
+    cache_dir, feature_cache_dir : path, optional
+        The sweep cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``) and the feature cache.
     out : path, optional
-        Also write the table to this Parquet file (atomically), with the sweep settings as metadata.
+        Also write the table to this Parquet file, with the settings as metadata.
     progress : bool
-        A tqdm bar over the units, with ETA, on stderr; it names the pair in progress.
+        A tqdm bar over the units on stderr.
+    data_root : path, optional
+        Root of the datasets (:func:`~ctxmatch_lib.datasets.load_dataset`).
     recompute : bool
-        Ignore (and overwrite) the existing result parts of this sweep.
+        Ignore (and overwrite) the existing result parts.
 
     Returns
     -------
     pandas.DataFrame
-        One row per (pair, features, blob setup, method, model), in the sweep's order whatever the order
-        in which units finished: identical for serial, joblib and Dask runs, and for a resumed run. A pair
-        that could not be evaluated has rows with NaN metrics and a non-empty ``error`` (see
-        :func:`~ctxmatch_lib.evaluation.run.run_units`).
+        One row per (pair, features, blob setup, method, model), in the sweep's order, whatever the runner.
     """
     check_runner(n_jobs, dask)
     if out is not None:
@@ -137,35 +118,28 @@ def evaluate_cached(
     pairs : iterable of Pair
         E.g. from :func:`~ctxmatch_lib.evaluation.plan.select_pairs`.
     features : sequence of str or FeatureConfig
-        Feature setups (names of :data:`~ctxmatch_lib.features.FEATURE_PRESETS`); results get a
-        ``features`` column with the name.
+        Feature setups (names of :data:`~ctxmatch_lib.features.FEATURE_PRESETS`), named in ``features``.
     blobs, models, kwargs
         As :func:`ctxmatch_lib.pipeline.evaluate_pair` (``gt_method``, ``gt_threshold``,
-        ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``);
-        the ``blob`` column holds the preset names.
+        ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``).
     filters : "all" or sequence of str
         See :func:`~ctxmatch_lib.evaluation.steps.resolve_filters`.
     max_keypoints : int or str, optional
-        Keypoint cap of every feature setup: an integer (0: none) or a budget name of
-        :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` (``"paper"``: the calibrated budget of the paper-scale
-        runs); ``None``: each preset's own.
+        As in :func:`run_sweep`; ``None``: each preset's own.
     cache : bool
-        Read and write the cache (``False``: always recompute, write nothing).
+        Read and write the cache (``False``: recompute, write nothing).
     cache_dir : path, optional
-        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``, shared with ``ctxmatch
-        eval`` and ``ctxmatch sweep``).
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``).
     progress : bool
-        A tqdm bar over (feature setup, pair), naming the pair in progress.
+        A tqdm bar over (feature setup, pair).
     n_jobs : int
-        Worker processes (joblib; -1: all cores). The rows do not depend on it.
+        Worker processes (joblib; -1: all cores).
 
     Returns
     -------
     pandas.DataFrame
-        :data:`ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`, which include the pipeline's
-        :data:`~ctxmatch_lib.pipeline.ROW_COLUMNS` and ``features``; ``time_s`` is the time measured when
-        the row was computed, possibly by an earlier run. Pairs that could not be evaluated have a
-        non-empty ``error`` (and a ``RuntimeWarning``).
+        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``time_s`` is the time measured when the row
+        was computed, possibly by an earlier run.
     """
     known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed", "matchers", "estimator"}
     unknown = sorted(set(kwargs) - known)

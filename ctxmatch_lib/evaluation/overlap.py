@@ -1,7 +1,4 @@
-"""FGINN by overlap, tabulated: the overlap errors of each image computed once and looked up (Sec. 3).
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
-"""
+"""FGINN by overlap (Sec. 3), tabulated: the overlap errors of each image computed once and looked up."""
 
 from __future__ import annotations
 
@@ -18,11 +15,8 @@ __all__ = ["overlap_table", "TabulatedContext"]
 
 
 def overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.ndarray]:
-    """Overlap errors of every keypoint pair of one image whose patches may overlap, both orders.
-
-    Returns ``keys`` (sorted, ``p * N + q``) and ``err``; any pair not listed has overlap error exactly 1
-    (disjoint bounding circles), as :func:`~ctxmatch_lib.blob.ellipse_overlap_error` returns for it.
-    """
+    """Overlap errors of every keypoint pair of one image whose patches may overlap, both orders: ``keys``
+    (sorted, ``p * N + q``) and ``err``. A pair not listed has error 1 (disjoint bounding circles)."""
     n = len(feats)
     path = None
     if cache is not None:
@@ -35,8 +29,7 @@ def overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.n
     else:
         from scipy.spatial import cKDTree
 
-        # The Frobenius norm bounds the spectral norm (the bounding radius), so this finds a superset
-        # of the pairs ellipse_overlap_error treats as near; it returns exactly 1 for the others.
+        # The Frobenius norm bounds the spectral norm (the bounding radius): a superset of the near pairs.
         r = np.sqrt(np.sum(feats.shapes ** 2, axis=(1, 2)))
         tree = cKDTree(feats.kpts)
         nb = tree.query_ball_point(feats.kpts, 2 * r)
@@ -51,7 +44,7 @@ def overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.n
         pq = np.unique(p * n + q)
         p, q = pq // n, pq % n
         e = ellipse_overlap_error(feats.kpts[p], feats.shapes[p], feats.kpts[q], feats.shapes[q])
-        # The error is symmetric (the two one-sided estimates are averaged), so one value serves both orders.
+        # The error is symmetric: one value serves both orders.
         keys = np.concatenate([p * n + q, q * n + p])
         err = np.concatenate([e, e])
         order = np.argsort(keys)
@@ -64,11 +57,8 @@ def overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.n
 class TabulatedContext(BlobContext):
     """A :class:`BlobContext` whose :meth:`overlap_errors` looks the errors up in per-image tables.
 
-    The overlap error of two keypoints of one image depends neither on the candidate set, nor on the
-    ratio, nor on the threshold ``t_o``; the grid asks for it 27 × 9 × 2 times per pair, so it is
-    computed once per image (and cached on disk). The values are those of
-    :func:`~ctxmatch_lib.blob.ellipse_overlap_error` on the same arguments, so the scores are identical to
-    :func:`~ctxmatch_lib.blob.match_context` on a plain context (tested).
+    The error depends on neither the candidate set, the ratio nor ``t_o``, and the grid asks for it
+    27 × 9 × 2 times per pair; the scores equal those of a plain context.
     """
 
     def __init__(self, *args, overlap_tables=None, **kwargs):
@@ -78,12 +68,8 @@ class TabulatedContext(BlobContext):
         self._second: dict = {}
 
     def second_best(self, side, anchors, others, dist, **kwargs):
-        """:meth:`BlobContext.second_best`, reusing the previous call of the same side on the same arguments.
-
-        The grid's ratios D≥ and D+≥ both restrict the second-best entry to values ``>= D_ij``: for a
-        candidate set and ``t_o`` they ask for the very same entries one after the other (the grid's order
-        puts the ratio inside ``t_o``), so the second asks for a copy of the first's answer.
-        """
+        """:meth:`BlobContext.second_best`, reusing the previous call of the same side on the same arguments
+        (the grid's ratios D≥ and D+≥ ask for the same entries one after the other)."""
         key = (side, tuple(sorted(kwargs.items())))
         last = self._second.get(side)
         if last is not None and last[0] == key and all(
@@ -94,8 +80,7 @@ class TabulatedContext(BlobContext):
         return out
 
     def overlap_near(self, img, other, cand, t_o):
-        """Decided on the tabulated errors themselves (no bounds: a look-up is as cheap, and the grid's
-        repeated look-ups are reused)."""
+        """Decided on the tabulated errors themselves (a look-up is as cheap as the bounds)."""
         if self._tables is None:
             return super().overlap_near(img, other, cand, t_o)
         return self.overlap_errors(img, other, cand[:, None]).reshape(-1) <= t_o

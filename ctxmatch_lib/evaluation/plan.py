@@ -1,12 +1,7 @@
 """Planning the engine's work: settings checked once, pairs selected, work units keyed.
 
-Work is split into **units**, one per (dataset, pair, feature configuration), each holding every blob
-setup, filter and model of the evaluation for that pair. A unit's ``key`` hashes the pair's images and
-ground truth and every setting its rows depend on (not the names shown in the ``features`` and ``blob``
-columns, which are applied when the rows are read), so ``ctxmatch eval``, ``ctxmatch sweep`` and the report
-notebooks asking for the same numbers share one cached part.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+A unit is one (dataset, pair, feature configuration) with every blob setup, filter and model; its ``key``
+(:class:`SweepUnit`) lets every front end asking for the same numbers share one cached part.
 """
 
 from __future__ import annotations
@@ -31,14 +26,9 @@ __all__ = ["SweepUnit", "resolve_feature_configs", "resolve_blob_configs", "sele
 
 
 def resolve_feature_configs(features) -> dict[str, FeatureConfig]:
-    """Named feature configurations: a preset name (``"sift-rootsift"``, ``"sift-rootsift-upright"``,
-    ``"sift"``), a :class:`FeatureConfig`, a list of them, or a dict name -> config.
-
-    Returns
-    -------
-    dict of str -> FeatureConfig
-        In the given order; a bare config is named by the preset it equals, else by its ``key()``.
-    """
+    """Named feature configurations (``{name: FeatureConfig}``, in order) from a preset name, a
+    :class:`FeatureConfig`, a list of them or a dict; a bare config is named by the preset it equals, else
+    by its ``key()``."""
     def default_name(f: FeatureConfig) -> str:
         return next((k for k, v in FEATURE_PRESETS.items() if v == f), None) or f.key()
 
@@ -78,32 +68,20 @@ def resolve_blob_configs(blobs) -> list[BlobConfig]:
 
 def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: Sequence[str] | None = None) \
         -> list[Pair]:
-    """A reproducible subset of the pairs of ``dataset`` (the one pair selector of ``ctxmatch eval``,
-    ``ctxmatch sweep`` and the report notebooks).
+    """A reproducible subset of the pairs of ``dataset`` (``ctxmatch eval``, ``ctxmatch sweep``, the notebooks).
 
     Parameters
     ----------
     dataset : Dataset, sequence of Pair, str or list of str
-        Pairs, or a registered dataset name / custom folder (:func:`~ctxmatch_lib.datasets.load_dataset`),
-        or a list of names (their pairs concatenated, e.g. ``["planar", "nonplanar"]``).
+        Pairs, or dataset names / custom folders (:func:`~ctxmatch_lib.datasets.load_dataset`), concatenated.
     select : None, int or sequence of str
-        ``None``: all; an int ``N``: ``N`` pairs evenly spread over the list (so every kind and sequence
-        of a dataset is represented), in list order; strings: those pair ids, in the given order.
+        ``None``: all; ``N``: ``N`` pairs evenly spread over the list, in list order; strings: those pair ids.
     step : int
-        Keep every ``step``-th pair of each kind (in dataset order; the first pair of each kind is kept).
+        Keep every ``step``-th pair of each kind, the first included.
     kinds : str or iterable of str, optional
         Keep only these kinds (``"planar"``, ``"nonplanar"``, ``"depth"``) first.
     pair_ids : sequence of str, optional
         Same as strings in ``select``.
-
-    Returns
-    -------
-    list of Pair
-
-    Raises
-    ------
-    ValueError
-        Unknown pair ids, ``select`` < 1 or ``step`` < 1.
 
     Examples
     --------
@@ -159,15 +137,12 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
 class SweepUnit:
     """One work unit: every blob setup, filter and model of a sweep on one pair with one feature config.
 
-    ``key`` names its part file; it hashes the pair's images and ground truth and every setting the rows
-    depend on. ``features_name`` and ``blob_names`` (optional, one per blob setup) are what the
-    ``features`` and ``blob`` columns show (``ctxmatch eval`` and the report notebooks show preset names);
-    they are applied when the rows are read, so they are not part of the key and parts are shared whatever
-    the names. ``salt`` joins the key and the keys of the cached candidate sets and filter masks: the
-    planners put :func:`~ctxmatch_lib.evaluation.cache.source_digest` there, so that editing the library
-    invalidates the rows it computed. ``matchers`` names alternative candidate sets evaluated beside the
-    blob setups (the OpenCV matchers, :func:`~ctxmatch_lib.evaluation.steps.check_matchers`); ``estimator``
-    holds the USAC overrides of the robust model steps (:func:`~ctxmatch_lib.evaluation.steps.check_estimator`).
+    ``key`` names its part file: a hash of the pair's images and ground truth and every setting the rows
+    depend on. ``features_name`` and ``blob_names`` (shown in the ``features`` and ``blob`` columns) are
+    applied when the rows are read, so they are not in the key. ``salt`` (the planners put
+    :func:`~ctxmatch_lib.evaluation.cache.source_digest` there) joins the key and the keys of the cached
+    candidate sets and filter masks. ``matchers``: alternative matchers evaluated beside the blob setups;
+    ``estimator``: USAC overrides (:func:`~ctxmatch_lib.evaluation.steps.check_estimator`).
     """
 
     dataset: str
@@ -195,8 +170,7 @@ class SweepUnit:
 
 def unit_key(u: SweepUnit, pair_hash: str) -> str:
     """The name of the unit's part file: a hash of everything its rows depend on (names aside)."""
-    # The dataset as the rows show it: a pair planned from a dataset name or from a list of its pairs
-    # (pair.dataset set) gives the same key.
+    # The dataset as the rows show it: planned from a name or from its pairs, the key is the same.
     return digest(
         FORMAT, u.pair.dataset or u.dataset, u.pair.pair_id, pair_hash, u.features.key(),
         [c.kwargs() for c in u.blobs], u.filters, u.models, u.filter_params, u.gt_method, float(u.gt_threshold),
@@ -259,10 +233,9 @@ def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(
                estimator: Mapping | None = None) -> list[SweepUnit]:
     """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
 
-    The arguments are those of :func:`run_sweep`; ``blobs`` may also be a dict name -> ``BlobConfig``
-    (:func:`ctxmatch_lib.pipeline.resolve_blobs`), whose names then fill the ``blob`` column; ``salt``
-    joins the units' keys (default: :func:`~ctxmatch_lib.evaluation.cache.source_digest`; see
-    :class:`SweepUnit`; ``matchers`` and ``estimator`` too). Every argument is validated here, before any work.
+    Arguments as :func:`~ctxmatch_lib.evaluation.frontends.run_sweep`, validated before any work; ``blobs``
+    may be a dict name -> ``BlobConfig`` (names fill the ``blob`` column); ``salt``: see :class:`SweepUnit`
+    (default :func:`~ctxmatch_lib.evaluation.cache.source_digest`).
     """
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
@@ -279,12 +252,8 @@ def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", f
                model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
                max_keypoints: int | None = None, data_root=None, salt: str | None = None, matchers=(),
                estimator: Mapping | None = None) -> list[SweepUnit]:
-    """The work units of a sweep, in the order of its result table (dataset, features, pair).
-
-    Every argument is validated here, before any work; see :func:`run_sweep` for their meaning and
-    :func:`plan_units` for ``blobs`` given as a dict, ``salt``, ``matchers`` and ``estimator``. ``ctxmatch eval``
-    and ``ctxmatch sweep`` both plan here, so the same settings give the same units (and keys).
-    """
+    """The work units of a sweep, in table order (dataset, features, pair); arguments as
+    :func:`~ctxmatch_lib.evaluation.frontends.run_sweep` and :func:`plan_units`, validated before any work."""
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
                          seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator)
@@ -313,7 +282,7 @@ def keyed(units: list[SweepUnit]) -> list[SweepUnit]:
             try:
                 digests[pid] = pair_digest(u.pair)
             except OSError as exc:
-                # A missing or unreadable file: the unit runs (and reports it), its part is never written.
+                # The unit runs and reports the unreadable file; its part is never written.
                 digests[pid] = f"unreadable:{exc}"
         out.append(replace(u, key=unit_key(u, digests[pid])))
     return out

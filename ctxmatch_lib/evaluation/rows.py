@@ -1,19 +1,9 @@
 """Result rows of the engine: the columns, the typed frame, error rows, and the fast ranked AP.
 
-Units: ``precision``, ``recall``, ``recall_star``, ``ap`` and ``ap_star`` are fractions in [0, 1] (NaN
-when undefined); ``time_s`` (the method) and ``model_time_s`` (the model step) in seconds; ``error`` is
-empty, or says why the row could not be evaluated (its metrics are then NaN).
-
-The geometry columns (:data:`GEOMETRY_COLUMNS`, issue 30) say how good the model of the row's model step is
-(NaN for model ``none`` and where a column does not apply; see
-:func:`~ctxmatch_lib.evaluation.steps.model_accuracy`): ``model_inliers`` (the estimator's inlier count),
-``corner_error`` (planar: mean corner error of ``H`` in px, ``inf`` without a model), ``epi_share_mean`` and
-``epi_share_<t>`` (other kinds: share of ground-truth correspondences within 1 ... 19 px, resp. ``t`` px,
-of the estimated ``F``; 0 without a model); ``pose_err_R``, ``pose_err_t`` and ``pose_err`` (calibrated pairs:
-rotation, translation-direction and pose error of the relative pose in degrees, 180 without a pose). The
-time to geometry of a row is its ``model_time_s`` plus its
-``time_s``, plus the ``time_s`` of the blob row of its setup for a filter
-(:func:`~ctxmatch_lib.geometry_metrics.time_to_geometry`).
+``precision``, ``recall``, ``recall_star``, ``ap``, ``ap_star`` are fractions in [0, 1] (NaN when
+undefined); ``time_s`` (the method) and ``model_time_s`` (the model step) are seconds; a non-empty ``error``
+says why the row could not be evaluated (its metrics are NaN). The geometry columns
+(:data:`GEOMETRY_COLUMNS`) are described in :func:`~ctxmatch_lib.evaluation.steps.model_accuracy`.
 """
 
 from __future__ import annotations
@@ -27,7 +17,7 @@ from .steps import EPI_SHARE_AT_PX, POSE_COLUMNS
 __all__ = ["SWEEP_COLUMNS", "GEOMETRY_COLUMNS", "INT_COLUMNS", "blob_record", "error_rows", "error_row", "frame",
            "ranked_ap", "ranked_aps"]
 
-#: The columns of the model's accuracy (issue 30), in :data:`SWEEP_COLUMNS` after ``model_time_s``.
+#: The columns of the model's accuracy, in :data:`SWEEP_COLUMNS` after ``model_time_s``.
 GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_share_{t}" for t in EPI_SHARE_AT_PX),
                     *POSE_COLUMNS)
 
@@ -87,17 +77,13 @@ def frame(rows):
 
 
 def ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:
-    """:func:`~ctxmatch_lib.metrics.average_precision` with a precomputed reference size, in O(K log K).
-
-    The same arithmetic in the same order, so the value is bit-identical (tested); ties in ``scores`` keep
-    the given order, as there.
-    """
+    """:func:`~ctxmatch_lib.metrics.average_precision` with a precomputed reference size, in O(K log K);
+    bit-identical to it (same arithmetic and tie order)."""
     return ranked_aps(rows, cols, lab, scores, (den,))[0]
 
 
 def ranked_aps(rows, cols, lab, scores, dens) -> list[float]:
-    """:func:`ranked_ap` against several reference sizes ``dens`` (the setup's own and the unit's recall*
-    reference): the ranking and its area (:func:`~ctxmatch_lib.metrics.ranked_area`) are computed once."""
+    """:func:`ranked_ap` against several reference sizes ``dens``, the ranked area computed once."""
     if all(den == 0 for den in dens):
         return [float("nan")] * len(dens)
     if len(lab) == 0:

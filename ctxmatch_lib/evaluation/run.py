@@ -1,19 +1,4 @@
-"""Running the engine's units: in this process, on local workers (joblib) or on a Dask cluster.
-
-A unit's rows are written as one Parquet *part file* (temporary name, then ``os.replace``) named by its
-key (:func:`~ctxmatch_lib.evaluation.plan.unit_key`), so
-
-* a run killed at any moment loses at most the units in flight, and rerunning skips the units whose part
-  exists: no lost and no duplicated rows;
-* evaluations sharing units (``ctxmatch eval``, ``ctxmatch sweep``, the report notebooks, the benchmarks)
-  share their results;
-* the final table is the concatenation of the parts in the units' own order, whatever order they
-  finished in, so serial, joblib and Dask runs give identical tables;
-* nothing is lost to one bad pair: an unreadable image, an image without keypoints, keypoints outside the
-  pair's (width, height), or a filter or model step that raises gives that pair (or that method) rows
-  with NaN metrics and an ``error`` naming the image and the reason, a ``RuntimeWarning``, and the run
-  goes on; such a unit's part is not written, so the next run tries it again.
-"""
+"""Running the engine's units (:func:`run_units`): in this process, on local workers (joblib) or on Dask."""
 
 from __future__ import annotations
 
@@ -64,8 +49,8 @@ def check_runner(n_jobs, dask):
 
 
 def named_rows(df, unit: SweepUnit):
-    """The unit's rows with its names: ``features_name`` in the ``features`` column, ``blob_names`` in
-    the ``blob`` column (names are not part of the key: the part may come from a unit named otherwise)."""
+    """The unit's rows with its ``features_name`` and ``blob_names`` (a part may come from a unit named
+    otherwise)."""
     if len(df) and (df["features"] != unit.features_name).any():
         df = df.assign(features=unit.features_name)
     if unit.blob_names:
@@ -98,7 +83,6 @@ def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> No
             done(key, df)
     else:
         for u in todo:
-            # Named before it runs: the bar shows the pair in progress.
             bar.set_postfix_str(u.label(), refresh=True)
             key, df, _ = _unit_task(u, cache_arg, feature_cache_dir)
             done(key, df)
@@ -106,26 +90,18 @@ def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> No
 
 def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=None, n_jobs: int = 1, dask=None,
               progress: bool = True, recompute: bool = False, desc: str = "ctxmatch sweep"):
-    """Run (or resume) work units and return their rows, in the units' order.
+    """Run (or resume) work units and return their rows, in the units' order whatever the runner.
 
-    The one evaluation engine behind ``ctxmatch eval`` and ``ctxmatch sweep``
-    (:func:`~ctxmatch_lib.evaluation.frontends.run_sweep`), :func:`ctxmatch_lib.pipeline.evaluate_dataset`
-    and the report notebooks (:func:`~ctxmatch_lib.evaluation.frontends.evaluate_cached`).
-
-    Each finished unit is written as one Parquet part under ``<cache_dir>/results`` (atomically), so a
-    run killed at any moment resumes with no lost and no duplicated rows. A unit whose rows carry an
-    ``error`` (unreadable image, 0 keypoints, a filter or model step that raised) is reported with a
-    ``RuntimeWarning`` naming the pair, the image and the reason; its rows are returned but its part is
-    not written, so the next run tries it again. The other units go on.
+    Each finished unit is one Parquet part under ``<cache_dir>/results``, written atomically, so a killed
+    run resumes with no lost and no duplicated rows. A unit whose rows carry an ``error`` gives a
+    ``RuntimeWarning`` and no part (the next run tries it again); the other units go on.
 
     Parameters
     ----------
     units : sequence of SweepUnit
-        From :func:`~ctxmatch_lib.evaluation.plan.plan_sweep` or
-        :func:`~ctxmatch_lib.evaluation.plan.plan_units`.
+        From :func:`~ctxmatch_lib.evaluation.plan.plan_sweep` or ``plan_units``.
     cache_dir : path, None or False
-        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False``: no cache at
-        all (nothing read, nothing written).
+        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False``: none.
     feature_cache_dir : path, optional
         The feature cache (default: that of :mod:`ctxmatch_lib.features`).
     n_jobs, dask, progress, recompute
@@ -134,8 +110,8 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
     Returns
     -------
     pandas.DataFrame
-        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``attrs["units"]`` counts the distinct units
-        and ``attrs["units_computed"]`` those this call computed (the others were read from the cache).
+        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``attrs["units"]`` and
+        ``attrs["units_computed"]`` count the distinct units and those this call computed.
     """
     import pandas as pd
     from tqdm.auto import tqdm
@@ -167,7 +143,6 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
         if errors or not use_cache:
             in_memory[key] = df
         else:
-            # One part per unit, written atomically: a kill leaves whole parts only.
             write_parquet_atomic(df, part[key])
         if errors:
             pid = f"{df['dataset'].iloc[0]}/{df['pair_id'].iloc[0]}" if len(df) else key
@@ -187,6 +162,5 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
 
     frames = [named_rows(in_memory[u.key] if u.key in in_memory else pd.read_parquet(part[u.key]), u) for u in units]
     out = pd.concat(frames, ignore_index=True)
-    # What this run computed (the others were read from the cache): for progress reports and tests.
     out.attrs.update(units=n_total, units_computed=len(todo))
     return out

@@ -1,12 +1,5 @@
-"""The per-pair steps of the evaluation of Sec. 5.1: features -> blob -> filters -> model -> ground truth.
-
-Each step is a function that can be called on its own (:func:`pair_features`, :func:`blob_candidates`,
-:func:`run_filter`, :func:`run_model`, :func:`label_candidates`), with the argument checks the engine and
-the command line share (:func:`check_filters`, :func:`check_models`, :func:`check_pair_keypoints`,
-:func:`resolve_blobs`, :func:`resolve_filters`). This is the bottom layer of the evaluation: it imports the
-method modules (features, blob, dtm, filters, geometry, groundtruth) and nothing above them.
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+"""The per-pair steps of Sec. 5.1 (features -> blob -> filters -> model -> ground truth) and the argument
+checks shared with the command line; the bottom layer of the engine, above the method modules only.
 """
 
 from __future__ import annotations
@@ -47,12 +40,10 @@ __all__ = [
     "label_candidates",
 ]
 
-#: The thresholds (px) whose share of consistent ground-truth correspondences gets its own column
-#: (``epi_share_<t>``), beside the mean over 1 ... 19 px (``epi_share_mean``).
+#: Thresholds (px) with their own ``epi_share_<t>`` column, beside the mean over 1 ... 19 px.
 EPI_SHARE_AT_PX = (1, 3, 5, 10)
 
-#: The pose columns of a calibrated pair's row (degrees): rotation error, translation-direction error, and
-#: their maximum, the pose error of SuperGlue and MiHo.
+#: Pose errors of a calibrated pair (degrees): rotation, translation direction, their maximum (SuperGlue's).
 POSE_COLUMNS = ("pose_err_R", "pose_err_t", "pose_err")
 
 #: Method name of the unfiltered blob candidates.
@@ -67,13 +58,8 @@ PAPER_FILTER_ORDER = ("th", "dtm1", "dtm2", "lmr", "lpm", "glpm", "gms", "vfc", 
 
 
 def resolve_blobs(blobs) -> dict:
-    """Named blob setups: ``"paper-best"``, ``["paper-best", "baseline"]``, a ``BlobConfig`` or a dict.
-
-    Returns
-    -------
-    dict of str -> BlobConfig
-        In the given order; a bare ``BlobConfig`` is named by its ``label``.
-    """
+    """Named blob setups (``{name: BlobConfig}``, in order) from a preset name, a ``BlobConfig``, a list of
+    them or a dict; a bare ``BlobConfig`` is named by its ``label``."""
     from ..blob import BLOB_PRESETS, BlobConfig
 
     return named_configs(blobs, BLOB_PRESETS, BlobConfig, argument="blobs", kind="blob", noun="blob setup",
@@ -82,10 +68,8 @@ def resolve_blobs(blobs) -> dict:
 
 def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: str, noun: str,
                   default_name: Callable) -> dict:
-    """``{name: config}`` from a preset name, a ``cls`` instance, a list of them or a dict name -> either,
-    in the given order: a preset is named by its key, a bare config by ``default_name(config)``; errors name
-    ``argument`` (the :func:`resolve_blobs` and :func:`~ctxmatch_lib.evaluation.plan.resolve_feature_configs`
-    rule)."""
+    """The rule of :func:`resolve_blobs`: presets named by their key, bare configs by ``default_name``;
+    errors name ``argument``."""
     if isinstance(configs, (str, cls)):
         configs = [configs]
     items = configs.items() if isinstance(configs, Mapping) else [(None, c) for c in configs]
@@ -101,7 +85,6 @@ def named_configs(configs, presets: Mapping, cls: type, *, argument: str, kind: 
     if not out:
         raise ValueError(f"{argument} must name at least one {noun}")
     return out
-
 
 
 def check_filters(filters: Iterable[str]) -> tuple[str, ...]:
@@ -138,8 +121,7 @@ def check_models(models: Iterable[str]) -> tuple[str, ...]:
 
 
 def check_matchers(matchers) -> tuple[str, ...]:
-    """Validate the names of the alternative matchers
-    (:data:`~ctxmatch_lib.opencv_matchers.OPENCV_MATCHERS`: ``opencv_ratio``, ``opencv_mnn``)."""
+    """Validate alternative matcher names (:data:`~ctxmatch_lib.opencv_matchers.OPENCV_MATCHERS`)."""
     from ..opencv_matchers import OPENCV_MATCHERS
 
     names = (matchers,) if isinstance(matchers, str) else tuple(matchers or ())
@@ -152,9 +134,8 @@ def check_matchers(matchers) -> tuple[str, ...]:
 
 
 def check_estimator(estimator) -> tuple:
-    """The USAC overrides (``threshold``, ``confidence``, ``max_iters``) of the robust model steps as sorted
-    ``(key, value)`` pairs, validated (:func:`~ctxmatch_lib.geometry.usac_settings`); ``None`` or ``{}``: the
-    presets' own settings."""
+    """USAC overrides (``threshold``, ``confidence``, ``max_iters``) as sorted, validated ``(key, value)``
+    pairs (:func:`~ctxmatch_lib.geometry.usac_settings`); ``None``: the presets' own."""
     from ..geometry import usac_settings
 
     items = dict(estimator or {})
@@ -163,11 +144,8 @@ def check_estimator(estimator) -> tuple:
 
 
 def resolve_filters(filters="all") -> tuple[str, ...]:
-    """Filter names to evaluate.
-
-    ``"all"`` is every registered filter, with ``dtm`` replaced by its two stages ``dtm1`` and ``dtm2``, in
-    the order of the paper's tables (:data:`PAPER_FILTER_ORDER`), then any others alphabetically (the learned
-    filters ``oanet`` and ``acne`` included: they run without torch). A list is validated and returned as given.
+    """Filter names to evaluate: ``"all"`` is every registered filter (``dtm`` as ``dtm1`` and ``dtm2``) in
+    :data:`PAPER_FILTER_ORDER`, then the others alphabetically; a list is validated and kept.
 
     Examples
     --------
@@ -177,7 +155,6 @@ def resolve_filters(filters="all") -> tuple[str, ...]:
     from ..filters import FILTERS
 
     if isinstance(filters, str) and filters == "all":
-        # The learned filters run in numpy (no torch needed): "all" is every registered filter.
         names = [n for n in FILTERS if n != "dtm"]
         rank = {n: i for i, n in enumerate(PAPER_FILTER_ORDER)}
         return tuple(sorted(names, key=lambda n: (rank.get(n, len(rank)), n)))
@@ -185,11 +162,8 @@ def resolve_filters(filters="all") -> tuple[str, ...]:
 
 
 def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
-    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2``.
-
-    Sizes are (width, height) and keypoints (x, y) pixel centres, so x must lie in [-0.5, width - 0.5]
-    (:func:`ctxmatch_lib._numerics.validation.check_inside`); a size given as (height, width) is the usual cause.
-    """
+    """Raise ``ValueError`` when keypoints fall outside ``pair.image_size1`` / ``image_size2`` (width,
+    height; :func:`ctxmatch_lib._numerics.validation.check_inside`)."""
     from .._numerics.validation import check_inside
 
     check_inside(f1.kpts, pair.image_size1, f"keypoints of image1 of pair {pair.pair_id!r}")
@@ -213,15 +187,8 @@ def pair_features(pair: Pair, config: FeatureConfig = FeatureConfig(), *, cache_
 
 
 def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.ndarray, float]:
-    """Blob matching of two feature sets.
-
-    Returns
-    -------
-    matches : ndarray of shape (K, 2), int64
-    scores : ndarray of shape (K,), lower is better, sorted; it carries the blob ratio that made it
-        (``BlobMatches.scores``)
-    time_s : float
-    """
+    """Blob matching of two feature sets: matches (K, 2) int64, sorted scores (lower is better, carrying the
+    blob ratio, as ``BlobMatches.scores``) and the wall time."""
     from ..blob import blob_matching
 
     t0 = time.perf_counter()
@@ -229,7 +196,7 @@ def blob_candidates(f1: Features, f2: Features, config) -> tuple[np.ndarray, np.
         return np.empty((0, 2), np.int64), np.empty(0), time.perf_counter() - t0
     bm = blob_matching(f1.desc, f2.desc, kpts1=f1.kpts, kpts2=f2.kpts, shapes1=f1.shapes, shapes2=f2.shapes,
                        distance=f1.distance(), **config.kwargs())
-    # asanyarray: the scores keep the blob ratio that made them (their scale, read by the filters' thresholds).
+    # asanyarray keeps the scores' blob ratio (their scale, read by the filters' thresholds).
     return np.asarray(bm.matches, np.int64), np.asanyarray(bm.scores, np.float64), time.perf_counter() - t0
 
 
@@ -251,21 +218,16 @@ def run_filter(
 ) -> tuple[np.ndarray, float]:
     """Run the registered filter ``name`` on candidate matches.
 
-    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters that read their scores
-    on the NNR scale (those with ``uses_blob_ratio = True``, e.g. ``th``), unless ``params`` sets it, and the
-    scores of the filters with NNR thresholds (``nnr_thresholds``: ``th``, ``glpm``, ``adalam``) are tagged
-    with it, as ``blob_matching`` returns them (cached candidates come back as plain arrays).
-
-    The first call of each filter in a process runs it once more, untimed, before the timed call: compiled
-    (numba) kernels are compiled or loaded from the disk cache on their first call, which would otherwise be
-    charged to whichever pair a worker process meets first (up to five times a filter's time per pair on a
-    cold cache). The filters are deterministic, so the output is the same.
+    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters with
+    ``uses_blob_ratio`` unless ``params`` sets it, and tags the scores of filters with ``nnr_thresholds`` (cached
+    candidates come back as plain arrays). The first call of a filter in a process runs it once untimed, so
+    that compiling its kernels is not charged to a pair (the filters are deterministic).
 
     Returns
     -------
     keep : ndarray of shape (K,), bool
     time_s : float
-        Wall time of the filter call alone (first-call compilation excluded, see above).
+        Wall time of the filter call alone.
     """
     from ..filters import FILTERS
 
@@ -278,7 +240,7 @@ def run_filter(
     if k == 0:
         return np.zeros(0, bool), 0.0
     call = (name, func)
-    if call not in _WARM:  # compile / load the filter's kernels outside the timing (see above)
+    if call not in _WARM:  # compile / load the filter's kernels outside the timing
         func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
              shapes1=f1.shapes, shapes2=f2.shapes, **params)
         _WARM.add(call)
@@ -305,12 +267,10 @@ def run_model(
     estimator=None,
     intrinsics=None,
 ) -> tuple[ModelFit, float]:
-    """Model step ``name`` (one of :data:`~ctxmatch_lib.geometry.MODEL_STEPS`) on a match set.
+    """Model step ``name`` (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`) on a match set, with its wall time.
 
     ``H`` for planar pairs, ``F`` for the others (:func:`~ctxmatch_lib.geometry.model_kind_for`), ``E`` for
-    the ``essential`` step, which needs ``intrinsics`` = ``(K1, K2)`` (a calibrated pair's
-    :class:`~ctxmatch_lib.datasets.PoseGT` gives them); ``estimator`` overrides the USAC settings of the
-    robust steps (:func:`check_estimator`).
+    the ``essential`` step, which needs ``intrinsics`` = ``(K1, K2)``; ``estimator``: :func:`check_estimator`.
     """
     extra = {} if intrinsics is None else {"K1": intrinsics[0], "K2": intrinsics[1]}
     t0 = time.perf_counter()
@@ -330,19 +290,17 @@ def run_matcher(name: str, f1: Features, f2: Features) -> tuple[np.ndarray, np.n
 
 
 def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr, pts=None) -> dict:
-    """The geometry columns of a row: how good the model of step ``model`` is against the pair's ground truth.
+    """The geometry columns of a row: how good the model of step ``model`` is against the pair's ground truth
+    (NaN where a column does not apply, e.g. model ``none``).
 
-    ``inliers``: the estimator's inliers (USAC's inlier mask; for 1SAC the matches within its threshold);
-    ``corner_error``: planar pairs, :func:`~ctxmatch_lib.geometry_metrics.homography_corner_error` of the
-    estimated ``H`` (``inf`` without a model); ``epi_share_*``: other pairs with ground-truth correspondences
-    ``corr`` (:func:`~ctxmatch_lib.geometry_metrics.gt_correspondences`), the share consistent with the
-    estimated ``F`` (:func:`~ctxmatch_lib.geometry_metrics.epipolar_consistency`; 0 without a model), its mean
-    over 1 ... 19 px and at :data:`EPI_SHARE_AT_PX`; ``pose_err_R``, ``pose_err_t``, ``pose_err``: calibrated
-    pairs (:class:`~ctxmatch_lib.datasets.PoseGT`), the rotation and translation-direction errors in degrees
-    of the relative pose recovered from the model and its inliers ``pts`` = ``(pts1, pts2)``, the matched
-    points given to the model step (:func:`~ctxmatch_lib.geometry.pose_from_model`: ``F`` through
-    ``E = K2^T F K1``, MiHo's AUC^F; ``E`` directly, its AUC^E), and their maximum (SuperGlue's pose error);
-    180° (:data:`~ctxmatch_lib.geometry.POSE_FAILURE_DEG`) without a model or a pose. NaN where a column does not apply (model ``none``).
+    * ``model_inliers``: the estimator's inliers (for 1SAC the matches within its threshold);
+    * ``corner_error`` (planar): :func:`~ctxmatch_lib.geometry_metrics.homography_corner_error` of ``H``,
+      ``inf`` without a model;
+    * ``epi_share_mean``, ``epi_share_<t>`` (other pairs, ground-truth correspondences ``corr``): the share
+      consistent with ``F`` (:func:`~ctxmatch_lib.geometry_metrics.epipolar_consistency`), mean over
+      1 ... 19 px and at :data:`EPI_SHARE_AT_PX`; 0 without a model;
+    * :data:`POSE_COLUMNS` (calibrated pairs): errors in degrees of the pose recovered from the model and the
+      inliers of ``pts = (pts1, pts2)`` (:func:`~ctxmatch_lib.geometry.pose_from_model`); 180 without a pose.
     """
     nan = float("nan")
     out = {"model_inliers": nan, "corner_error": nan, "epi_share_mean": nan,
@@ -375,7 +333,6 @@ def _pose_columns(fit: ModelFit, inliers: np.ndarray, gt: PoseGT, pts) -> dict:
     pose = None
     if fit.model is not None and pts is not None and len(inliers):
         pose = pose_from_model(fit.model, fit.kind, pts[0][inliers], pts[1][inliers], gt.K1, gt.K2)
-    # Without a pose both errors are POSE_FAILURE_DEG (180°): a failure at every AUC threshold.
     err_R, err_t = relative_pose_error(*(pose or (None, None)), gt.R, gt.t)
     return {"pose_err_R": float(err_R), "pose_err_t": float(err_t), "pose_err": float(max(err_R, err_t))}
 

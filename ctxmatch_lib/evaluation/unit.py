@@ -1,14 +1,9 @@
 """One work unit: every blob setup, filter and model of an evaluation on one pair (Sec. 5.1, 5.2).
 
-The blob-matching grid of Sec. 5.2 (:func:`~ctxmatch_lib.blob.blob_grid`, 2430 setups) is evaluated by
-exploiting its structure: on each image pair one :class:`~ctxmatch_lib.blob.BlobContext` serves every
-setup, the candidate set G is built once per (f, ∩/∪, f') (27 sets), the NNR-like ratios (a, b) once per
-(t_o, D) on each set, and the five combinations W(a, b) reuse them. Each setup's candidates are ranked by
-their score and the ranking's average precision (:func:`~ctxmatch_lib.metrics.average_precision`, with
-the unit's ground-truth labels) is one row: ``ap`` against the setup's own correct candidates, ``ap_star``
-against the correct candidates of all setups of the unit (the recall* reference).
-
-Keypoints are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-left pixel.
+The 2430-setup grid of Sec. 5.2 shares its work: one :class:`~ctxmatch_lib.blob.BlobContext` per pair, the
+candidate set G once per (f, ∩/∪, f') (27 sets), the ratios (a, b) once per (t_o, D) on each set, reused by
+the five W(a, b). ``ap`` ranks a setup's candidates against its own correct candidates, ``ap_star`` against
+those of all setups of the unit (the recall* reference).
 """
 
 from __future__ import annotations
@@ -38,10 +33,9 @@ __all__ = ["BlobStage", "PairError", "unit_features", "run_unit"]
 class BlobStage:
     """Everything computed for one blob setup on one pair, kept when :func:`run_unit` is given ``stages``.
 
-    ``matches``, ``scores`` and ``labels`` are the setup's candidates in score order; ``keeps[method]`` masks
-    them (``keeps["blob"]`` is all ``True``; a filter that raised holds its message); ``fits[(method, model)]``
-    is the :class:`~ctxmatch_lib.geometry.ModelFit` over the method's output, whose ``keep`` masks that
-    output; :meth:`final_mask` combines the two into a mask over the candidates.
+    ``matches``, ``scores``, ``labels``: the candidates in score order; ``keeps[method]``: a mask over them
+    (or a filter's error message); ``fits[(method, model)]``: the :class:`~ctxmatch_lib.geometry.ModelFit`
+    over the method's output.
     """
 
     name: str
@@ -114,13 +108,12 @@ def _context_factory(unit: SweepUnit, f1, f2, cache):
     cand_keys = list(dict.fromkeys(c.candidate_key for c in blobs))
     needs_overlap = any(c.t_o is not None and c.t_o_kind == "overlap" for c in blobs)
     depth = max([k[0] for k in cand_keys if k[0] != "omega"] + [k[2] for k in cand_keys] + [1])
-    # f = Ω walks whole rows: kept by the one pass over D (on the L2 path its 16-bit codes, written as the
-    # tiles are scanned) rather than computed again by a second product when first needed.
+    # f = Ω walks whole rows: keep them from the one pass over D rather than a second product.
     keep_dense = True if any(k[0] == "omega" for k in cand_keys) else None
     state = {}
 
     def ctx():
-        """The blob context (built on the first call) and the seconds its building took, on every call."""
+        """The blob context and the seconds its building took."""
         if "ctx" not in state:
             t0 = time.perf_counter()
             tables = (overlap_table(f1, cache), overlap_table(f2, cache)) if needs_overlap else None
@@ -141,8 +134,7 @@ def _labelled_sets(unit: SweepUnit, f1, f2, cands: dict):
     union_lab = label_candidates(unit.pair, f1, f2, union, method=unit.gt_method, threshold=unit.gt_threshold)
     sets = {}
     for key, (matches, dist, t_cand) in cands.items():
-        # Candidates ordered by (row, column): a stable sort by score then reproduces blob_matching's
-        # order (score, row, column), hence the same tie-break in the AP and for the filters.
+        # Ordered by (row, column): a stable sort by score then gives blob_matching's tie-break.
         base = np.lexsort((matches[:, 1], matches[:, 0]))
         mt, dt = matches[base], dist[base]
         if len(mt):
@@ -156,8 +148,7 @@ def _labelled_sets(unit: SweepUnit, f1, f2, cands: dict):
 
 
 def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: float) -> dict:
-    """The blob row of a setup when the unit has no filter and no model (the grid's case): ``ap`` and
-    ``ap_star`` from one ranking (:func:`~ctxmatch_lib.evaluation.rows.ranked_aps`)."""
+    """The blob row of a setup of a unit without filters and models (the grid), both APs from one ranking."""
     correct = int(lab.sum())
     ap, ap_star = ranked_aps(mt[:, 0], mt[:, 1], lab, scores, (n_gt, d.n_gt_star))
     return {**common, "method": "blob", "model": "none",
@@ -171,8 +162,8 @@ def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: fl
 
 
 def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tuple[dict, bool]:
-    """Each method's mask over the setup's sorted candidates and its time (from ``masks`` when cached);
-    a filter that raised gets its message instead of a mask. Returns the keeps and whether ``masks`` grew."""
+    """Each method's mask (or error message) over the sorted candidates and its time, cached in ``masks``;
+    and whether ``masks`` grew."""
     pair, added = d.unit.pair, False
     keeps = {"blob": (np.ones(len(sm), bool), t_blob)}
     for name in d.unit.filters:
@@ -193,11 +184,8 @@ def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tupl
 
 
 def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage=None) -> list[dict]:
-    """The rows of every (method, model) of one setup; a step that raised gives an error row.
-
-    ``keeps`` maps the blob candidates and each filter to a mask over ``sm`` (or an error message) and its
-    time; :func:`_matcher_sets` adds the alternative matchers, with their own matches, scores and labels.
-    """
+    """The rows of every (method, model) of one setup, the alternative matchers included; a step that
+    raised gives an error row."""
     unit, n, m = d.unit, len(d.f1), len(d.f2)
     known = {"n_candidates": common["n_candidates"], "n_gt": common["n_gt"], "n_gt_star": d.n_gt_star}
     ref = sm[sl]
@@ -247,16 +235,14 @@ def _fit(d: _PairData, method: str, model: str, matches, scores, shared: bool):
 
 
 def _points(d: _PairData, matches: np.ndarray):
-    """The matched points ``(pts1, pts2)`` of ``matches`` (the relative pose of a calibrated pair needs
-    them), or ``None`` for other pairs."""
+    """The matched points ``(pts1, pts2)`` of a calibrated pair (for its pose), else ``None``."""
     if not isinstance(d.unit.pair.gt, PoseGT):
         return None
     return d.f1.kpts[matches[:, 0]], d.f2.kpts[matches[:, 1]]
 
 
 def _matcher_sets(d: _PairData) -> dict:
-    """Each alternative matcher of the unit: (matches, scores, labels, all-True mask, its time), computed and
-    labelled once per unit."""
+    """Each alternative matcher's (matches, scores, labels, all-True mask, time), once per unit."""
     if d.matcher_sets is None:
         out = {}
         for name in d.unit.matchers:
@@ -279,24 +265,15 @@ def _mask_store(unit: SweepUnit, feats_digest: str, cache):
 
 
 def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None, features=None, stages=None):
-    """Evaluate one :class:`~ctxmatch_lib.evaluation.plan.SweepUnit`; returns a ``pandas.DataFrame``
-    with :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`.
+    """Evaluate one :class:`~ctxmatch_lib.evaluation.plan.SweepUnit` into a ``pandas.DataFrame`` of
+    :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`: per blob setup, method ``"blob"`` then each filter,
+    each with the unit's models.
 
-    Rows come in the unit's blob order; for each setup, the unfiltered candidates (method ``"blob"``) and
-    then each filter, each with the unit's models. The AP of a row is that of its output ranked by the
-    blob score; the recall reference is the setup's correct candidates, recall* the union of the correct
-    candidates of all setups of the unit.
-
-    Nothing raises for one pair's sake: an unreadable image or an image with 0 keypoints gives rows with
-    NaN metrics whose ``error`` names the image and the reason; a filter or model step that raises gives
-    such rows for that method (or method + model) only, and the other methods are evaluated as usual.
-
-    ``cache_dir``: the evaluation cache (``None``: the default; ``False``: no cache). ``features``: the two
-    images' :class:`~ctxmatch_lib.features.Features`, used as given instead of extracted. ``stages``: a dict
-    that receives a :class:`BlobStage` per blob setup, every intermediate mask and model fit kept.
-
-    BLAS runs on one thread inside a unit (the engine runs units in parallel instead): OpenBLAS's float32
-    rounding depends on its thread count, and the numbers must not.
+    Nothing raises for one pair's sake: an unreadable image, 0 keypoints, or a filter or model step that
+    raises gives rows (of the pair, or of that method) with NaN metrics and an ``error``.
+    ``cache_dir``: ``None`` the default, ``False`` none; ``features``: the two images'
+    :class:`~ctxmatch_lib.features.Features`, used as given; ``stages``: a dict receiving a :class:`BlobStage`
+    per blob setup. BLAS runs on one thread, as OpenBLAS's float32 rounding depends on its thread count.
     """
     with threadpool_limits(1):
         return _run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, features=features,
@@ -333,7 +310,7 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir, features, stages
         mt, dt, lab, n_gt, t_cand = sets[cfg.candidate_key]
         rk = (cfg.candidate_key, cfg.ratio, cfg.t_o, cfg.t_o_kind)
         if rk not in ranks:
-            # Built (when the sets came from the cache) outside the timer: the candidates' time holds it.
+            # Built outside the timer: the candidates' time holds it.
             context = ctx()[0] if len(mt) else None
             t0 = time.perf_counter()
             ab = (rank_candidates(context, mt, dt, ratio=cfg.ratio, t_o=cfg.t_o, t_o_kind=cfg.t_o_kind)

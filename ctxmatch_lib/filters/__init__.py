@@ -91,8 +91,21 @@ FILTERS = _Registry()
 
 
 def register_filter(name: str, func: Callable | None = None):
-    """Register ``func``, a filter with the common signature, under ``name`` (``FILTERS[name]``,
-    ``--filters name``); without ``func``, return a decorator (``@register_filter("mine")``)."""
+    """Register ``func`` under ``name`` (usable as a decorator: ``@register_filter("mine")``).
+
+    Parameters
+    ----------
+    name : str
+        The registry key (``FILTERS[name]``, ``--filters name``).
+    func : callable, optional
+        A filter with the common signature ``func(kpts1, kpts2, matches, scores, *, image_size1,
+        image_size2, shapes1=None, shapes2=None, **params) -> keep``; omitted, a decorator is returned.
+
+    Returns
+    -------
+    callable
+        ``func``, or the decorator.
+    """
 
     def _add(f: Callable) -> Callable:
         FILTERS._loaded[name] = f

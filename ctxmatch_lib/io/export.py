@@ -43,8 +43,14 @@ _SIMPLE_RADIAL = 2
 
 
 def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
-    """hloc's pair key: ``"name0/name1"`` with ``/`` inside each name replaced by ``-`` (``separator``: hloc's,
-    ``"_"`` in its older files).
+    """hloc's pair key: ``"name0/name1"`` with ``/`` inside each name replaced by ``-``.
+
+    Parameters
+    ----------
+    name0, name1 : str
+        Image names (paths relative to the image folder).
+    separator : str, default "/"
+        hloc's separator (``"_"`` in its older files).
 
     Examples
     --------
@@ -96,9 +102,14 @@ def check_export_paths(h5_dir=None, colmap_db=None, *, h5_name: str = "h5_dir",
                        colmap_name: str = "colmap_db") -> None:
     """Check the targets of :func:`export_results` before any work; nothing is created.
 
-    ``h5_dir`` must be a (creatable) folder whose ``features.h5`` / ``matches.h5``, where they exist, are
-    HDF5; ``colmap_db`` a new or empty file or an SQLite database. A ``ValueError`` starts with ``h5_name``
-    or ``colmap_name`` (``"--export-h5"`` from the command line) and says what is wrong.
+    Parameters
+    ----------
+    h5_dir : str or Path, optional
+        A (creatable) folder whose ``features.h5`` / ``matches.h5``, where they exist, are HDF5.
+    colmap_db : str or Path, optional
+        A new or empty file, or an SQLite database.
+    h5_name, colmap_name : str
+        The names the ``ValueError`` messages start with (``"--export-h5"`` from the command line).
     """
     if h5_dir is not None:
         from ..cache import check_writable
@@ -198,8 +209,13 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
 
 
 def read_hloc(features_path, matches_path, name1: str, name2: str):
-    """Read one pair (stored in either order) back from hloc's files, as hloc's ``get_keypoints`` /
-    ``get_matches`` do.
+    """Read one pair back from hloc's files, as hloc's ``get_keypoints`` / ``get_matches`` do.
+
+    Parameters
+    ----------
+    features_path, matches_path : str or Path
+    name1, name2 : str
+        A pair stored in either order.
 
     Returns
     -------
@@ -243,8 +259,12 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
 
 
 def colmap_pair_id(image_id1: int, image_id2: int) -> int:
-    """COLMAP's symmetric ``pair_id`` of two image ids (1 <= id < 2147483647): ``2147483647 * min(ids) +
-    max(ids)`` (COLMAP's ``doc/database.rst``).
+    """COLMAP's symmetric ``pair_id``: ``2147483647 * min(ids) + max(ids)`` (COLMAP's ``doc/database.rst``).
+
+    Parameters
+    ----------
+    image_id1, image_id2 : int
+        COLMAP image ids (1 <= id < 2147483647).
 
     Examples
     --------
@@ -361,6 +381,11 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
 def read_colmap(database_path, name1: str, name2: str):
     """Read one pair back from a COLMAP database.
 
+    Parameters
+    ----------
+    database_path : str or Path
+    name1, name2 : str
+
     Returns
     -------
     kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
@@ -404,9 +429,21 @@ def read_colmap(database_path, name1: str, name2: str):
 def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates: str = "best") -> list[str]:
     """Export ``.npz`` results of :func:`ctxmatch_lib.match.save_result` to hloc and/or COLMAP.
 
-    ``results`` maps image names ``(name1, name2)`` to the pair's ``.npz``; ``h5_dir`` is the folder of hloc's
-    two files, ``colmap_db`` the database, ``duplicates`` as in :func:`write_hloc`. Returns one summary line
-    per export.
+    Parameters
+    ----------
+    results : mapping of (str, str) -> path
+        Image names ``(name1, name2)`` -> the pair's ``.npz``.
+    h5_dir : str or Path, optional
+        Folder for hloc's ``features.h5`` and ``matches.h5``.
+    colmap_db : str or Path, optional
+        COLMAP database file.
+    duplicates : {"best", "error"}
+        As in :func:`write_hloc`.
+
+    Returns
+    -------
+    list of str
+        One summary line per export.
     """
     from ..match import load_result
 

@@ -156,8 +156,17 @@ def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_ra
 def to_cv2_matches(matches, scores=None) -> list:
     """A list of ``cv2.DMatch`` (``queryIdx`` = image-1 row, ``trainIdx`` = image-2 row, ``distance`` = score).
 
-    ``matches`` are rows into the keypoints of images 1 and 2, ``scores`` (lower is better, as OpenCV's
-    distance) default to 0. The list is ready for ``cv2.drawMatches``.
+    Parameters
+    ----------
+    matches : array_like of shape (K, 2), int
+        Rows into the keypoints of image 1 and image 2.
+    scores : array_like of shape (K,), optional
+        Lower is better, as OpenCV's distance; 0 when omitted.
+
+    Returns
+    -------
+    list of cv2.DMatch
+        Ready for ``cv2.drawMatches``.
 
     Examples
     --------
