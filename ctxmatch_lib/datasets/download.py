@@ -20,7 +20,6 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 from urllib.request import url2pathname
 
-from ._strecha_manifest import STRECHA_COMMIT, STRECHA_FILES, STRECHA_PREFIX, STRECHA_REPOSITORY
 
 __all__ = ["Source", "FileSet", "SOURCES", "DOWNLOAD_GROUPS", "STRECHA_BASE_URL", "download_dataset",
            "download_names"]
@@ -45,6 +44,13 @@ class FileSet:
     dest: str  # relative to the data root
 
 
+#: The Strecha scenes' pinned source: repository, commit, folder; their file list (SHA-256, size, path) is
+#: ``data/strecha_files.txt``, hashed from the repository's blobs at that commit.
+STRECHA_REPOSITORY = "openMVG/SfM_quality_evaluation"
+STRECHA_COMMIT = "348a981ef51112e9848acfb20004f4ed6fbc6ce3"
+STRECHA_PREFIX = "Benchmarking_Camera_Calibration_2008"
+STRECHA_FILES = "\n".join(line for line in (Path(__file__).with_name("data") / "strecha_files.txt").read_text().splitlines()
+                          if line and not line.startswith("#"))
 #: Raw files of openMVG/SfM_quality_evaluation at the pinned commit; a mirror replaces it (``url=``).
 STRECHA_BASE_URL = (f"https://raw.githubusercontent.com/{STRECHA_REPOSITORY}/{STRECHA_COMMIT}/{STRECHA_PREFIX}")
 

@@ -158,17 +158,6 @@ def adalam_filter(
     References
     ----------
     L. Cavalli et al., "Handcrafted outlier detection revisited", ECCV 2020.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + (7.0, -3.0)
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = adalam_filter(g, y, np.c_[np.arange(64), np.arange(64)], None, image_size1=(400, 300),
-    ...                      image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 63)
     """
     area_ratio = check_positive(area_ratio, "area_ratio")
     lam = check_positive(search_expansion, "search_expansion")

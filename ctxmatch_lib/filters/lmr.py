@@ -459,17 +459,6 @@ def lmr_filter(
     J. Ma, X. Jiang, J. Jiang, J. Zhao, X. Guo, "LMR: learning a two-class classifier for mismatch
     removal", IEEE TIP 28(8), 2019.
     J. Ma, J. Zhao, J. Jiang, H. Zhou, X. Guo, "Locality preserving matching", IJCV 127(5), 2019.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + (7.0, -3.0)
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = lmr_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
-    ...                   image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 63)
     """
     threshold = check_positive(threshold, "threshold", allow_zero=True)
     if features not in ("mpc", "lpm"):

@@ -171,17 +171,6 @@ def lpm_filter(
     References
     ----------
     J. Ma, J. Zhao, J. Jiang, H. Zhou, X. Guo, "Locality preserving matching", IJCV 127(5), 2019.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(6) * 20.0, np.arange(6) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + 7.0
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = lpm_filter(g, y, np.c_[np.arange(36), np.arange(36)], image_size1=(400, 300),
-    ...                   image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 35)
     """
     k = check_positive(k, "k", integer=True)
     lam = [check_positive(v, "lambdas", allow_zero=True) for v in np.atleast_1d(lambdas)]
@@ -272,17 +261,6 @@ def glpm_filter(
     ----------
     J. Ma, J. Jiang, H. Zhou, J. Zhao, X. Guo, "Guided locality preserving feature matching for remote
     sensing image registration", IEEE TGRS 56(8), 2018.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(6) * 20.0, np.arange(6) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + 7.0
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = glpm_filter(g, y, np.c_[np.arange(36), np.arange(36)], None, image_size1=(400, 300),
-    ...                    image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 35)
     """
     ratio = check_positive(ratio, "ratio")
     sched = [(check_positive(kk, "schedule", integer=True), check_positive(lam, "schedule", allow_zero=True))

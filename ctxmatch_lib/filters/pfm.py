@@ -255,17 +255,6 @@ def pfm_filter(
     S. Lee, J. Lim, I. H. Suh, "Progressive feature matching: incremental graph construction and
     optimization", IEEE TIP 29, 2020. Y. Boykov, V. Kolmogorov, "An experimental comparison of
     min-cut/max-flow algorithms for energy minimization in vision", IEEE TPAMI 26(9), 2004.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + (7.0, -3.0)
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = pfm_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
-    ...                   image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 63)
     """
     sigma, lam = check_positive(sigma, "sigma"), check_positive(lam, "lam")
     t = check_positive(t, "t")

@@ -251,18 +251,6 @@ def pgm_filter(
     CVPR 2012. M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010;
     "Feature correspondence and deformable object matching via agglomerative correspondence clustering",
     ICCV 2009.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + (7.0, -3.0)
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> shapes = np.tile(3.0 * np.eye(2), (64, 1, 1))  # keypoint frames: scale 3, upright
-    >>> keep = pgm_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
-    ...                   image_size2=(400, 300), shapes1=shapes, shapes2=shapes)
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 63)
     """
     k = check_positive(k, "k", integer=True)
     tau = check_positive(tau, "tau")

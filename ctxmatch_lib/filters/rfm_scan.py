@@ -410,17 +410,6 @@ def rfm_scan_filter(
     X. Jiang, J. Ma, J. Jiang, X. Guo, "Robust feature matching using spatial clustering with heavy
     outliers", IEEE TIP 29, 2020. M. Ester et al., "A density-based algorithm for discovering clusters in
     large spatial databases with noise", KDD 1996.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> g = np.stack(np.meshgrid(np.arange(8) * 20.0, np.arange(8) * 20.0), -1).reshape(-1, 2)
-    >>> y = g + (7.0, -3.0)
-    >>> y[0] = (300.0, 200.0)  # one outlier
-    >>> keep = rfm_scan_filter(g, y, np.c_[np.arange(64), np.arange(64)], image_size1=(400, 300),
-    ...                        image_size2=(400, 300))
-    >>> bool(keep[0]), int(keep[1:].sum())
-    (False, 63)
     """
     gamma = check_positive(gamma, "gamma", allow_zero=True)
     pct = check_positive(pct, "pct", allow_zero=True)
