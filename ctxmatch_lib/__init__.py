@@ -64,3 +64,48 @@ __all__ = [
     "summary_table",
     "__version__",
 ]
+
+
+# ----------------------------------------------------------------------------------- moved modules
+# Modules the README and the docs named under their former paths keep importing, with a FutureWarning, until the
+# next release: ``import ctxmatch_lib.export`` gives ``ctxmatch_lib.io.export`` itself.
+_MOVED = {
+    "ctxmatch_lib.export": "ctxmatch_lib.io.export",
+    "ctxmatch_lib.interop": "ctxmatch_lib.io.interop",
+    "ctxmatch_lib.usercache": "ctxmatch_lib.cache",
+    "ctxmatch_lib.report_blob": "ctxmatch_lib.report.blob",
+    "ctxmatch_lib.report_paper": "ctxmatch_lib.report.paper",
+}
+
+
+def _install_moved_modules() -> None:
+    import importlib
+    import importlib.abc
+    import importlib.util
+    import sys
+    import warnings
+
+    class MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+        """Finds a former module path and loads the module that replaced it."""
+
+        specs: dict = {}
+
+        def find_spec(self, name, path=None, target=None):
+            return importlib.util.spec_from_loader(name, self) if name in _MOVED else None
+
+        def create_module(self, spec):
+            warnings.warn(f"{spec.name} moved to {_MOVED[spec.name]}; the old path goes in the next release",
+                          FutureWarning, stacklevel=3)
+            module = importlib.import_module(_MOVED[spec.name])
+            self.specs[module.__name__] = module.__spec__
+            return module
+
+        def exec_module(self, module):
+            # The import machinery set the alias's spec on the module: the module keeps its own.
+            module.__spec__ = self.specs[module.__name__]
+
+    if not any(type(f).__name__ == "MovedModules" for f in sys.meta_path):
+        sys.meta_path.append(MovedModules())
+
+
+_install_moved_modules()

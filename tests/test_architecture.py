@@ -287,3 +287,26 @@ def test_the_filters_room_never_imports_the_engine():
 ])
 def test_public_names_keep_working(statement):
     exec(statement, {})
+
+
+@pytest.mark.parametrize("old, new", [("ctxmatch_lib.export", "ctxmatch_lib.io.export"),
+                                      ("ctxmatch_lib.interop", "ctxmatch_lib.io.interop"),
+                                      ("ctxmatch_lib.usercache", "ctxmatch_lib.cache"),
+                                      ("ctxmatch_lib.report_blob", "ctxmatch_lib.report.blob"),
+                                      ("ctxmatch_lib.report_paper", "ctxmatch_lib.report.paper")])
+def test_modules_the_docs_named_before_the_move_still_import_with_a_warning(old, new, monkeypatch):
+    import importlib
+    import sys
+
+    monkeypatch.delitem(sys.modules, old, raising=False)
+    with pytest.warns(FutureWarning, match=rf"{old} moved to {new}"):
+        module = importlib.import_module(old)
+    assert module is importlib.import_module(new) and module.__spec__.name == new
+
+
+def test_removed_faces_are_gone():
+    import importlib
+
+    for name in ("ctxmatch_lib.sweep", "ctxmatch_lib.evalcache"):
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(name)
