@@ -1,11 +1,7 @@
 """The user's cache folder (:func:`cache_root`), atomic writes (:func:`atomic_path`), the real-data root
 (:func:`data_root`), output-path checks (:func:`check_writable`) and the parts of the cache
-(:data:`CACHE_PARTS`) that ``ctxmatch cache`` shows (:func:`cache_usage`) and clears (:func:`clear_cache`).
-
-Clearing never reaches outside the cache folder: links are removed as links, never followed, other file
-systems are skipped, and a folder without the cache's marker (:data:`CACHE_MARKER`) is refused. It is safe
-while another process writes: files are written under a temporary name and renamed into place, temporary
-files younger than :data:`IN_PROGRESS_GRACE` are kept, and a file removed under a reader is a cache miss.
+(:data:`CACHE_PARTS`) that ``ctxmatch cache`` shows (:func:`cache_usage`) and clears (:func:`clear_cache`):
+never outside the marked cache folder, and safe while another process writes (see docs/setup.md).
 """
 
 from __future__ import annotations
@@ -62,8 +58,7 @@ def cache_root() -> Path:
 
 
 def cache_dir(sub: str | None = None) -> Path:
-    """The cache folder (:func:`cache_root`), created with its marker (:func:`mark_cache`), or its sub-folder
-    ``sub`` (:data:`CACHE_SUBFOLDERS`, created on demand)."""
+    """The cache folder, created and marked, or its sub-folder ``sub`` (created on demand)."""
     base = cache_root()
     base.mkdir(parents=True, exist_ok=True)
     if str(base) not in _CHECKED:
@@ -75,8 +70,7 @@ def cache_dir(sub: str | None = None) -> Path:
 
 
 def is_marked_cache(folder) -> bool:
-    """Whether ``folder`` holds the marker of a ctxmatch cache (:data:`CACHE_MARKER`, a regular file, not a
-    link, that ctxmatch wrote)."""
+    """Whether ``folder`` holds ctxmatch's :data:`CACHE_MARKER` (a regular file, not a link)."""
     marker = Path(folder) / CACHE_MARKER
     try:
         if not marker.is_file() or marker.is_symlink():
@@ -88,9 +82,7 @@ def is_marked_cache(folder) -> bool:
 
 
 def mark_cache(folder) -> bool:
-    """Write the cache's marker into ``folder`` when it is clearly the cache's: empty, or holding nothing but
-    real folders of :data:`CACHE_SUBFOLDERS`. Returns whether it is marked; ``ctxmatch cache clear``
-    refuses to delete in an unmarked folder."""
+    """Mark ``folder`` when it is empty or holds only :data:`CACHE_SUBFOLDERS`; return whether it is marked."""
     folder = Path(folder)
     if is_marked_cache(folder):
         return True
@@ -126,29 +118,15 @@ def data_root(required: bool = False) -> Path | None:
 
 
 def check_writable(path, name: str, *, folder: bool = False) -> Path:
-    """Check, before any work and without creating anything, that ``path`` can be written.
-
-    The path must be a writable file (a folder with ``folder=True``) or be creatable: its nearest existing
-    ancestor a writable folder. Commands call this on every output path first, so a bad path fails at once.
+    """``path`` with ``~`` expanded, checked without creating anything to be writable or creatable.
 
     Parameters
     ----------
     path : str or Path
-        The output path.
     name : str
-        The argument or flag it came from (``"--out"``, ``"database_path"``): every message starts with it.
+        The argument or flag it came from (``"--out"``); every ``ValueError`` message starts with it.
     folder : bool
         Whether ``path`` is an output folder rather than a file.
-
-    Returns
-    -------
-    Path
-        ``path`` with ``~`` expanded.
-
-    Raises
-    ------
-    ValueError
-        Naming ``name`` and the reason (a folder for a file or the reverse, a file in the way, no permission).
 
     Examples
     --------
@@ -206,9 +184,8 @@ def _umask() -> int:
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path`` in one ``os.replace``.
 
-    Readers never see a half-written file and an interrupted write leaves nothing. The name is hidden and
-    ends in ``.tmp`` (writers that infer the format from the suffix must be told it); the file gets
-    ``open(path, "w")``'s mode (``0o666`` less the umask), not ``0o600``.
+    The name is hidden and ends in ``.tmp`` (writers that infer the format from the suffix must be told it);
+    the file gets ``open(path, "w")``'s mode, not ``0o600``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -224,9 +201,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def write_parquet_atomic(df, path, metadata: dict | None = None) -> Path:
-    """Write ``df`` to ``path`` (Parquet) atomically; ``metadata`` (dataset, feature preset, blob setup, ...)
-    goes, as JSON, under the ``ctxmatch`` key of the schema metadata, and :func:`build_info` (version, git
-    commit, date) under ``ctxmatch_provenance``."""
+    """Write ``df`` to ``path`` (Parquet) atomically, ``metadata`` and :func:`build_info` as JSON in the schema
+    metadata (keys ``ctxmatch``, ``ctxmatch_provenance``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -310,8 +286,7 @@ class PartUsage:
 
 @dataclass(frozen=True)
 class CacheUsage:
-    """What :func:`cache_usage` found: the cache folder, whether :func:`clear_cache` may delete in it (it holds
-    the cache's marker, or nothing but the cache's own sub-folders), and each part."""
+    """What :func:`cache_usage` found; ``clearable``: whether :func:`clear_cache` may delete in ``root``."""
 
     root: Path
     exists: bool
@@ -329,8 +304,7 @@ class CacheUsage:
 
 @dataclass(frozen=True)
 class ClearResult:
-    """What :func:`clear_cache` removed (or would, ``dry_run``) per selected part; ``kept_in_progress``
-    counts temporary files a process may still be writing, ``skipped`` the folders on another file system."""
+    """What :func:`clear_cache` removed (or would), per part; ``skipped``: folders on another file system."""
 
     root: Path
     dry_run: bool
@@ -349,13 +323,7 @@ class ClearResult:
 
 
 def parse_age(age) -> float:
-    """An age in seconds from ``"30s"``, ``"30m"``, ``"12h"``, ``"7d"``, ``"2w"``, a number of seconds or a
-    ``timedelta``.
-
-    Raises
-    ------
-    ValueError
-        Naming ``older_than`` when the age is not one of these or is negative.
+    """An age in seconds from ``"30s"``, ``"30m"``, ``"12h"``, ``"7d"``, ``"2w"``, seconds or a ``timedelta``.
 
     Examples
     --------
@@ -492,8 +460,7 @@ def _at(name: str, handle) -> tuple:
 
 
 def _open_folder(name: str, handle, st: os.stat_result):
-    """Open the sub-folder ``name`` of ``handle`` without following a link, and check it is the folder that
-    was listed (``st``)."""
+    """Open the sub-folder ``name`` without following a link; check it is the one listed (``st``)."""
     if _BY_FD:
         fd = os.open(name, os.O_RDONLY | os.O_DIRECTORY | getattr(os, "O_NOFOLLOW", 0), dir_fd=handle)
         now = os.fstat(fd)
@@ -525,18 +492,8 @@ def _parts(tally: dict, names: Iterable[str]) -> tuple[PartUsage, ...]:
 
 
 def cache_usage(root=None) -> CacheUsage:
-    """The size of each part of the cache (:data:`CACHE_PARTS`), reading only: nothing is created or removed.
-
-    Parameters
-    ----------
-    root : str or Path, optional
-        The cache folder; default :func:`cache_root`.
-
-    Returns
-    -------
-    CacheUsage
-        Per part, the apparent size in bytes and the number of files (links count as files, never
-        followed); a missing folder gives zeros with ``exists=False``.
+    """Apparent bytes and files of each part of the cache (:data:`CACHE_PARTS`) under ``root`` (default
+    :func:`cache_root`), read only; links count as files, never followed.
 
     Examples
     --------
@@ -562,30 +519,19 @@ def _only_ours(root: Path) -> bool:
 
 
 def clear_cache(parts, *, older_than=None, dry_run: bool = False, root=None) -> ClearResult:
-    """Remove parts of the cache, or only their files older than an age.
+    """Remove parts of the cache, or their files older than an age; ``ValueError``, removing nothing, for a
+    folder that is not clearly the cache's (:func:`mark_cache`).
 
     Parameters
     ----------
     parts : iterable of str, or "all"
-        Names of :data:`CACHE_PARTS`, or ``"all"`` for every part (the whole cache but its marker).
+        Names of :data:`CACHE_PARTS`.
     older_than : str, float, timedelta or None
-        Remove only files last modified longer ago than this (``"7d"``, ``"12h"``, ``"30m"``, seconds; see
-        :func:`parse_age`); ``None``: every file of the parts. Folders left empty go too, but the parts' own
-        folders stay.
+        Remove only files not modified for that long (:func:`parse_age`); empty folders go too.
     dry_run : bool
         Count what would be removed, remove nothing.
     root : str or Path, optional
-        The cache folder; default :func:`cache_root`.
-
-    Returns
-    -------
-    ClearResult
-
-    Raises
-    ------
-    ValueError
-        An unknown part, a bad ``older_than``, or a cache folder that is not clearly the cache's
-        (:func:`mark_cache`): nothing is removed then.
+        Default :func:`cache_root`.
 
     Examples
     --------

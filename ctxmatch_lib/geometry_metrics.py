@@ -1,16 +1,8 @@
 """Accuracy of an estimated two-view model against the ground truth, and its AUC over pairs.
 
-The metrics the field reports after a robust estimator, beside the paper's match-level numbers:
-
-* planar pairs: the mean corner error of a homography (:func:`homography_corner_error`, glue-factory's);
-* pairs with ground-truth correspondences (hand-taken points, or dense flow sampled by
-  :func:`gt_correspondences`): the share consistent with an estimated F within 1 ... 19 px
-  (:func:`epipolar_consistency`, the WxBS benchmark's ``fraction_of_gt_corrs_consisent_with_F``);
-* over pairs: the AUC of the cumulative error curve (:func:`pose_auc`, SuperGlue's), pairs without a model
-  at an infinite error.
-
-Points are (x, y) pixels, origin at the centre of the top-left pixel; ``H`` maps image 1 to image 2 and
-``F`` satisfies ``x2^T F x1 = 0``.
+:func:`homography_corner_error` (glue-factory's), :func:`epipolar_consistency` (the WxBS benchmark's share
+of ground-truth correspondences consistent with F), :func:`pose_auc` (SuperGlue's AUC) and
+:func:`geometry_table`. ``H`` maps image 1 to image 2, ``x2^T F x1 = 0``. See docs/evaluation.md.
 """
 
 from __future__ import annotations
@@ -51,8 +43,7 @@ FLOW_SAMPLE_POINTS = 2000
 
 
 def image_corners(image_size) -> np.ndarray:
-    """The four outer corners, ``(4, 2)``, of an image of ``(width, height)`` pixels, clockwise from the top
-    left: the image spans ``[-0.5, width - 0.5]`` by ``[-0.5, height - 0.5]``.
+    """The four outer corners ``(4, 2)`` of a ``(width, height)`` image, clockwise from the top left.
 
     Examples
     --------
@@ -72,23 +63,15 @@ def image_corners(image_size) -> np.ndarray:
 def homography_corner_error(H, H_gt, image_size) -> float:
     """Mean distance between the image-1 corners mapped by ``H`` and by ``H_gt``, in image-2 pixels.
 
-    glue-factory's ``homography_corner_error`` (``gluefactory/geometry/homography.py``, the HPatches metric
-    of SuperPoint, LoFTR and LightGlue) on the corners of :func:`image_corners`; the same homographies in
-    glue-factory's corner origin give the same value.
+    glue-factory's ``homography_corner_error`` (the HPatches metric) on the corners of :func:`image_corners`.
 
     Parameters
     ----------
     H : array_like of shape (3, 3) or None
-        The estimate (image 1 -> image 2); ``None`` when the estimator found no model.
+        The estimate; ``None`` when there is no model (error ``inf``).
     H_gt : array_like of shape (3, 3)
-        The ground truth.
     image_size : (int, int)
         (width, height) of image 1.
-
-    Returns
-    -------
-    float
-        ``inf`` when there is no model or a corner is mapped to infinity.
 
     Examples
     --------
@@ -117,21 +100,14 @@ def _matrix(M, name: str) -> np.ndarray:
 
 @shared_doc
 def symmetric_epipolar_distance(F, pts1, pts2) -> np.ndarray:
-    """``sqrt(d1^2 + d2^2)``: the two point-to-epipolar-line distances of each correspondence combined.
+    """``sqrt(d1^2 + d2^2)`` of the two point-to-epipolar-line distances (``inf`` at an epipole).
 
-    ``d2`` is the distance of ``x2`` from the line ``F x1``, ``d1`` that of ``x1`` from ``F^T x2``
-    (:func:`~ctxmatch_lib.geometry.epipolar_distances`): kornia's ``symmetrical_epipolar_distance(...,
-    squared=False)``, the distance the WxBS benchmark thresholds.
+    kornia's ``symmetrical_epipolar_distance(..., squared=False)``.
 
     Parameters
     ----------
     F : array_like of shape (3, 3)
     %(pts)s
-
-    Returns
-    -------
-    ndarray of shape (N,)
-        ``inf`` where a point lies at an epipole (degenerate line).
 
     Examples
     --------
@@ -146,21 +122,16 @@ def symmetric_epipolar_distance(F, pts1, pts2) -> np.ndarray:
 
 @shared_doc
 def epipolar_consistency(F, pts1, pts2, thresholds=EPIPOLAR_THRESHOLDS_PX) -> np.ndarray:
-    """Share of ground-truth correspondences whose symmetric epipolar distance under ``F`` is at most
-    each threshold (the WxBS benchmark's score of a fundamental matrix).
+    """Share of ground-truth correspondences within each threshold of ``F``'s epipolar lines (WxBS's score);
+    NaN without correspondences.
 
     Parameters
     ----------
     F : array_like of shape (3, 3) or None
-        The estimate; ``None`` when the estimator found no model (every share is then 0).
+        The estimate; ``None`` when there is no model (every share 0).
     %(pts)s
     thresholds : array_like of shape (T,)
         In pixels.
-
-    Returns
-    -------
-    ndarray of shape (T,)
-        Fractions in [0, 1]; NaN when there is no correspondence.
 
     Examples
     --------
@@ -181,12 +152,8 @@ def epipolar_consistency(F, pts1, pts2, thresholds=EPIPOLAR_THRESHOLDS_PX) -> np
 
 
 def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
-    """Ground-truth correspondences to score a fundamental matrix on, or ``None``.
-
-    ``EpipolarGT``: its hand-taken points. ``FlowGT``: up to ``max_points`` pixels of image 1 with a known
-    displacement, evenly spaced in row-major order, and their targets ``x + flow12``. ``HomographyGT`` and
-    ``PoseGT``: ``None`` (scored by the corner error and the relative pose).
-    """
+    """Ground-truth correspondences to score F on: ``EpipolarGT``'s points, up to ``max_points`` evenly spaced
+    known pixels of a ``FlowGT`` and their targets, or ``None`` (``HomographyGT``, ``PoseGT``)."""
     if isinstance(gt, EpipolarGT):
         return np.asarray(gt.pts1, np.float64), np.asarray(gt.pts2, np.float64)
     if isinstance(gt, (HomographyGT, PoseGT)):
@@ -207,21 +174,14 @@ def gt_correspondences(gt, *, max_points: int = FLOW_SAMPLE_POINTS):
 def pose_auc(errors, thresholds) -> np.ndarray:
     """Area under the cumulative error curve up to each threshold, divided by the threshold.
 
-    SuperGlue's ``pose_auc`` (``models/utils.py`` of magicleap/SuperGluePretrainedNetwork): the share of pairs
-    with an error below ``e``, linearly interpolated from ``(0, 0)`` between the sorted errors. Every pair
-    stays in the denominator (NaN counts as ``inf``); an error equal to ``t`` counts from above, as there.
+    SuperGlue's ``pose_auc``: every pair stays in the denominator (NaN counts as ``inf``); NaN without pairs.
 
     Parameters
     ----------
     errors : array_like of shape (N,)
-        Non-negative errors, one per pair (``inf`` for a failure).
+        Non-negative, one per pair (``inf`` for a failure).
     thresholds : array_like of shape (T,)
         Positive.
-
-    Returns
-    -------
-    ndarray of shape (T,)
-        In [0, 1]; NaN for every threshold when there is no pair.
 
     Examples
     --------
@@ -248,10 +208,8 @@ def pose_auc(errors, thresholds) -> np.ndarray:
 
 
 def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn")):
-    """Seconds from the features to the model, per row of ``rows``
-    (:data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`): ``time_s + model_time_s``, plus for a filter the
-    ``time_s`` of the ``blob`` row it filtered (methods in ``standalone`` do not run on the blob candidates).
-    NaN for model ``none``; a Series aligned with ``rows``."""
+    """Seconds from the features to the model per row: ``time_s + model_time_s``, plus the ``blob`` row's
+    ``time_s`` for a filter (not for ``standalone`` methods); NaN for model ``none``."""
     keys = ["dataset", "pair_id", "features", "blob"]
     blob_time = rows[rows["method"] == "blob"].groupby(keys)["time_s"].first().rename("_blob_time_s")
     base = rows[keys].join(blob_time, on=keys)["_blob_time_s"].where(~rows["method"].isin(standalone), 0.0)
@@ -266,9 +224,8 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
     Parameters
     ----------
     rows : pandas.DataFrame
-        Rows of the evaluation engine; rows with model ``none`` or an ``error`` are left out.
+        Evaluation rows; those with model ``none`` or an ``error`` are left out.
     by : sequence of str
-        Grouping columns.
     thresholds : sequence of float
         Of the AUC of the corner error, in pixels.
     pose_thresholds : sequence of float
@@ -277,12 +234,8 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
     Returns
     -------
     pandas.DataFrame
-        Indexed by ``by``: ``pairs``; ``auc_<t>px_pct`` (planar: :func:`pose_auc` of ``corner_error`` at
-        ``thresholds`` px, in %); ``epi_share_mean_pct``, ``epi_share_<t>_pct`` (other kinds: means over pairs
-        in %); ``auc_<t>deg_pct`` (calibrated: :func:`pose_auc` of ``pose_err`` at ``pose_thresholds``
-        degrees, in %); ``no_model`` (pairs without a model); ``geometry_time_s`` and
-        ``geometry_time_median_s`` (mean and median :func:`time_to_geometry`; the mean carries one-off costs
-        such as compiling kernels on a cold cache).
+        Indexed by ``by``: ``pairs``, ``auc_<t>px_pct`` (planar), ``epi_share_*_pct`` (other kinds),
+        ``auc_<t>deg_pct`` (calibrated), ``no_model``, mean and median :func:`time_to_geometry`; in %.
     """
     import pandas as pd
 

@@ -39,21 +39,16 @@ class MatchResult:
 
     Attributes
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
-    shapes1, shapes2 : ndarray of shape (N1, 2, 2) and (N2, 2, 2), float64
-        Affine shape ``A`` of each keypoint: its patch is ``{kpt + A @ u : |u| <= 1}`` (3 sigma for SIFT).
+    kpts1, kpts2, shapes1, shapes2 : ndarray of shape (N, 2) and (N, 2, 2), float64
+        Keypoints and affine shapes: a patch is ``{kpt + A @ u : |u| <= 1}`` (3 sigma for SIFT).
     matches, scores : ndarray of shape (K, 2), int64, and (K,), float64
-        Kept matches (rows into ``kpts1`` / ``kpts2``) and their blob scores, sorted by score.
-    candidates, candidate_scores : ndarray of shape (M, 2), int64, and (M,), float64
-        The blob-matching candidates the filters started from.
-    keep : ndarray of shape (M,), bool
-        ``matches == candidates[keep]``.
+        Kept matches and their blob scores, sorted by score.
+    candidates, candidate_scores, keep : ndarray of shape (M, 2), (M,), (M,) bool
+        The blob-matching candidates; ``matches == candidates[keep]``.
     image_size1, image_size2 : tuple of int
         (width, height).
-    model : ndarray of shape (3, 3) or None
-        The fitted ``H`` or ``F`` (``None`` without a model step or fit).
-    settings : dict
-        The settings used, JSON-serialisable.
+    model, settings : ndarray of shape (3, 3) or None, dict
+        The fitted ``H`` or ``F``; the settings used (JSON-serialisable).
     model_input : ndarray of shape (M,) bool or None
         The candidates given to the model step (``model_input & ~keep``: those it rejected).
     """
@@ -121,9 +116,8 @@ def _parse_value(text: str):
 
 
 def resolve_blob(blob="paper-best"):
-    """A :class:`~ctxmatch_lib.blob.BlobConfig` from a name of :data:`~ctxmatch_lib.blob.BLOB_PRESETS`, a
-    spec ``"NAME:key=value,..."`` or ``"key=value,..."`` (overriding fields of that preset, else of
-    ``"paper-best"``; e.g. ``"f=omega,f_prime=1,ratio=D>=,t_o=none,combine=a"``), a dict of fields or a config.
+    """A :class:`~ctxmatch_lib.blob.BlobConfig` from a preset name, ``"NAME:key=value,..."`` or
+    ``"key=value,..."`` (overrides of that preset, else of ``"paper-best"``), a dict of fields or a config.
 
     Examples
     --------
@@ -216,22 +210,16 @@ def match_images(
     ----------
     image1, image2 : str, Path or ndarray
         Image files, or pixels (``(H, W)`` gray or ``(H, W, 3|4)`` RGB(A)).
-    features : str or FeatureConfig
-        Feature preset (:data:`~ctxmatch_lib.features.FEATURE_PRESETS`) or configuration.
+    features, max_keypoints : str or FeatureConfig, int, optional
+        Feature preset or configuration (:func:`resolve_features`) and a keypoint cap overriding it.
     blob : str, dict or BlobConfig
         Blob-matching setup (:func:`resolve_blob`); default the paper's best.
-    filters : sequence of str, str or None
-        Registered filters applied one after the other; ``None``, ``()`` or ``"none"``: none.
-    model : {"none", "1sac", "ransac", "prosac", "magsac"}
-        Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`).
-    model_kind : {"F", "H"}
-        Fundamental matrix (any scene) or homography (planar scenes, pure rotations).
+    filters, filter_params : sequence of str, str or None; dict of str -> dict, optional
+        Registered filters applied in turn (``None``, ``()`` or ``"none"``: none); extra arguments per filter.
+    model, model_kind : {"none", "1sac", "ransac", "prosac", "magsac"}, {"F", "H"}
+        Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`) and its model.
     model_threshold : float, optional
         Consistency threshold of the model step in pixels (default 15, Sec. 5.1).
-    filter_params : dict of str -> dict, optional
-        Extra keyword arguments per filter.
-    max_keypoints : int, optional
-        Overrides the keypoint cap of the feature preset.
     cache_dir : str, Path, None or False
         Feature cache (:func:`~ctxmatch_lib.features.extract_features`); ``False`` disables it.
     rng : None, int or numpy.random.Generator
@@ -240,7 +228,7 @@ def match_images(
     Returns
     -------
     MatchResult
-        No keypoint or no candidate gives no match, not an error.
+        Empty (not an error) without keypoints or candidates.
 
     Examples
     --------
@@ -368,10 +356,8 @@ def plot_result(result: MatchResult, image1, image2, *, ax=None, title: str | No
     result : MatchResult
     image1, image2 : str, Path or ndarray
         The images the result was computed on (paths are read in colour).
-    ax : matplotlib Axes, optional
-        Where to draw; a new figure when omitted.
-    title : str, optional
-        Default: the number of kept matches out of the candidates.
+    ax, title : matplotlib Axes, str, optional
+        Where to draw (default a new figure); default title: kept matches out of the candidates.
     """
     from .features import load_image
     from .plots.viz2d import plot_match_result
@@ -398,16 +384,8 @@ def save_plot(fig, path, *, dpi: int = 150) -> Path:
 
 
 def read_pairs(path) -> list[tuple[str, str]]:
-    """Read hloc's pairs file (``name1 name2`` per line; blank lines and ``#`` comments skipped) into a list
-    of name pairs in file order, duplicates removed.
-
-    Raises
-    ------
-    FileNotFoundError
-        ``path`` is not a file.
-    ValueError
-        A line that is not two names, or a file that is not text.
-    """
+    """Read hloc's pairs file (``name1 name2`` per line, ``#`` comments) into name pairs, in file order,
+    without duplicates. ``FileNotFoundError`` if not a file, ``ValueError`` for a malformed line or file."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"pairs file not found: {path}" if not path.exists()
@@ -458,16 +436,14 @@ def match_pairs(
 ) -> dict:
     """Match every pair of a pairs list, one ``.npz`` per pair in ``out_dir``, written atomically; resumable.
 
-    A pair whose file exists with the same settings is skipped, one with other settings redone. A pair is
-    known by its image names: delete its file to redo it after changing an image.
+    A pair whose file holds the same settings is skipped (pairs are known by image names only).
 
     Parameters
     ----------
     pairs : iterable of (str, str)
         Image names relative to ``image_dir`` (:func:`read_pairs`).
-    image_dir : str or Path
-    out_dir : str or Path
-        Output folder (created); file names from :func:`pair_filename`.
+    image_dir, out_dir : str or Path
+        Image folder; output folder (created), file names from :func:`pair_filename`.
     progress : bool
         A tqdm progress bar on stderr.
     on_pair : callable, optional

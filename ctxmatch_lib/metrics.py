@@ -1,18 +1,10 @@
 """Match-set statistics of Sec. 5.1 and Appendix "DTM evaluation": precision, normalised recall, recall*,
 correct/output counts, failure, AP and mAP.
 
-With many-to-many matches (Sec. 5.1, Fig. 4) a set ``Z`` of correct matches counts ``min(|Z_rows|,
-|Z_cols|)``, its distinct image-1 or image-2 keypoints, whichever fewer (the usual count for one-to-one
-matches), in both terms of the recall; the precision is ``correct / output``. The recall reference is the
-correct blob candidates of the same pipeline (Sec. 5.3); recall* uses the union of the correct matches over
-all configurations tested on the pair (Appendix, Tables 1-3).
-
-Degenerate cases, so that means over pairs are defined:
-
-* empty output: ``empty_output`` True, ``failure`` False, precision, recall and AP 0 (as the paper's means);
-  tables count empty outputs in their own column;
-* wrong output (matches, none correct): ``failure`` True; the paper's failure is ``failure or empty_output``;
-* empty reference: recall, recall* and AP are NaN (pandas' mean skips them).
+A set of many-to-many matches counts ``min(|Z_rows|, |Z_cols|)`` (:func:`normalised_count`, Fig. 4) in both
+terms of the recall; the reference is the correct blob candidates (recall) or the union over configurations
+(recall*). An empty output has precision, recall and AP 0 and ``empty_output`` set; ``failure`` means
+matches, none correct (the paper's failure is either); an empty reference gives NaN. See docs/evaluation.md.
 """
 
 from __future__ import annotations
@@ -38,13 +30,10 @@ __all__ = [
 
 
 def normalised_count(matches) -> int:
-    """``min(|Z_rows|, |Z_cols|)`` of ``(K, 2)`` matches: distinct image-1 or image-2 keypoints, whichever
-    fewer (Sec. 5.1, Fig. 4).
+    """``min(|Z_rows|, |Z_cols|)``: distinct image-1 or image-2 keypoints, whichever fewer (Sec. 5.1, Fig. 4).
 
     Examples
     --------
-    The example of Fig. 4: rows {0, 1, 2, 3}, columns {0, 1, 2, 3, 4}.
-
     >>> normalised_count([[0, 0], [0, 1], [1, 2], [2, 3], [3, 4], [3, 0]])
     4
     """
@@ -87,17 +76,9 @@ def recall(matches, is_correct, reference) -> float:
     Parameters
     ----------
     matches : array_like of shape (K, 2), int
-        The output matches.
     is_correct : array_like of shape (K,), bool
-        Ground-truth label of each output match.
     reference : array_like of shape (M, 2), int
-        The ground-truth-correct matches to recall: the correct blob candidates (recall) or the union over
-        configurations from :func:`ground_truth_union` (recall*).
-
-    Returns
-    -------
-    float
-        NaN when ``reference`` is empty.
+        The correct matches to recall (for recall*, :func:`ground_truth_union`); NaN when empty.
 
     Examples
     --------
@@ -113,8 +94,7 @@ def recall(matches, is_correct, reference) -> float:
 
 
 def ground_truth_union(*correct_sets) -> np.ndarray:
-    """Union of ``(M_i, 2)`` sets of correct matches on the same keypoints (e.g. over the configurations
-    tested on a pair): the distinct matches, int64, sorted lexicographically."""
+    """Union of ``(M_i, 2)`` sets of correct matches: the distinct matches, sorted lexicographically."""
     sets = [as_matches(s, name=f"correct_sets[{i}]") for i, s in enumerate(correct_sets)]
     if not sets:
         return np.empty((0, 2), np.int64)
@@ -125,13 +105,10 @@ def ground_truth_union(*correct_sets) -> np.ndarray:
 
 
 def average_precision(matches, is_correct, scores, reference) -> float:
-    """Average precision of the ranking of ``matches`` by ascending score, with the normalised recall.
+    """Average precision of the ranking by ascending score, with the normalised recall of Sec. 5.1.
 
-    With ``P_k = (#correct in the top k) / k`` (stable sort) and ``N_k`` the normalised count of the correct
-    matches in the top ``k`` (:func:`cumulative_normalised_count`),
-    ``AP = sum_k P_k * (N_k - N_{k-1}) / normalised_count(reference)``: the area under the precision-recall
-    curve with the recall of Sec. 5.1 (a correct match repeating a counted keypoint adds none). For the blob
-    candidates themselves AP is 1 exactly when every correct match ranks before every wrong one.
+    ``AP = sum_k P_k (N_k - N_{k-1}) / normalised_count(reference)``, ``P_k`` the precision of the top ``k``
+    (stable sort), ``N_k`` the normalised count of its correct matches.
 
     Parameters
     ----------
@@ -141,11 +118,6 @@ def average_precision(matches, is_correct, scores, reference) -> float:
         Lower is better; ``None`` keeps the given order.
     reference : array_like of shape (M, 2), int
         As in :func:`recall`.
-
-    Returns
-    -------
-    float
-        NaN when ``reference`` is empty; 0 for an empty output.
 
     Examples
     --------
@@ -178,11 +150,8 @@ def _area_terms_numpy(rows, cols, lab, scores) -> np.ndarray:
 
 
 def ranked_area(rows, cols, lab, scores) -> np.float64:
-    """``sum_k P_k * (N_k - N_{k-1})``, the numerator of :func:`average_precision`, for candidates given by
-    their ``rows``, ``cols`` (int arrays), labels ``lab`` (bool) and float64 ``scores`` (lower first, ties in
-    the given order). The terms come from one compiled pass (:func:`ctxmatch_lib._numerics.ranking.area_terms`;
-    NaN scores the direct way, :func:`_area_terms_numpy`), bit-identical to the direct ones.
-    """
+    """``sum_k P_k * (N_k - N_{k-1})``, the numerator of :func:`average_precision` (compiled terms,
+    :func:`ctxmatch_lib._numerics.ranking.area_terms`, bit-identical to :func:`_area_terms_numpy`)."""
     lab = np.asarray(lab, bool)
     scores = np.asarray(scores, np.float64)
     if not lab.any():
@@ -206,15 +175,13 @@ class MatchMetrics:
     Attributes
     ----------
     precision, recall, recall_star, ap : float
-        In [0, 1]; recall, recall* and AP are NaN when their reference is empty.
     correct, correct_norm, output : int
-        Correct output matches (plain and normalised count, the recall numerator), output matches.
+        Correct output matches (plain and normalised count), output matches.
     failure, empty_output : bool
-        Matches, none correct; no match at all (see the module).
+        Matches, none correct; no match at all.
     n_gt, n_gt_star : int
         Normalised size of the recall and recall* references.
     time_s : float
-        Running time of the step, seconds (NaN when not measured).
     """
 
     precision: float
@@ -248,21 +215,14 @@ def evaluate_matches(
     Parameters
     ----------
     matches : array_like of shape (K, 2), int
-        The output matches.
     is_correct : array_like of shape (K,), bool
-        Their ground-truth labels.
     reference : array_like of shape (M, 2), int
-        Correct blob candidates of the same configuration (the recall reference).
+        Correct blob candidates of the same configuration (recall).
     reference_star : array_like of shape (M*, 2), int, optional
-        Union of correct matches over all configurations (recall*); defaults to ``reference``.
+        Union of correct matches over all configurations (recall*); default ``reference``.
     scores : array_like of shape (K,), optional
         Ranking for the AP, lower is better; ``None`` keeps the given order.
     time_s : float
-        Running time to report.
-
-    Returns
-    -------
-    MatchMetrics
 
     Examples
     --------

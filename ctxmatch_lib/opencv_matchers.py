@@ -1,10 +1,7 @@
 """The matchers a user would pick instead of blob matching + a filter: OpenCV's brute-force matcher.
 
-Each replaces blob matching and the filter on the same descriptors; its output goes to the same model step
-and ground truth. ``opencv_ratio`` is Lowe's ratio test (:func:`opencv_ratio_matches`), ``opencv_mnn``
-mutual nearest neighbours (:func:`opencv_mnn_matches`), both OpenCV's code as a user calls it (float32 L2,
-whatever the features' own metric). Matches are ``(K, 2)`` int64, scores lower-is-better, rows sorted by
-(score, row, column).
+:func:`opencv_ratio_matches` (Lowe's ratio test) and :func:`opencv_mnn_matches` (mutual nearest
+neighbours), float32 L2 as a user calls them; rows sorted by (score, row, column).
 """
 
 from __future__ import annotations
@@ -42,21 +39,18 @@ def _empty() -> tuple[np.ndarray, np.ndarray]:
 
 
 def opencv_ratio_matches(desc1, desc2, *, ratio: float = LOWE_RATIO) -> tuple[np.ndarray, np.ndarray]:
-    """``cv2.BFMatcher(cv2.NORM_L2).knnMatch(k=2)`` with Lowe's ratio test ``d1 < ratio d2`` (Lowe 2004,
-    Sec. 7.1).
+    """``cv2.BFMatcher(cv2.NORM_L2).knnMatch(k=2)`` with Lowe's test ``d1 < ratio d2`` (Lowe 2004, Sec. 7.1).
 
     Parameters
     ----------
     desc1, desc2 : array_like of shape (N, D), (M, D)
-        Descriptors of images 1 and 2 (converted to float32, as OpenCV needs).
     ratio : float
-        Lowe's 0.8 by default.
 
     Returns
     -------
     matches : ndarray of shape (K, 2), int64
     scores : ndarray of shape (K,)
-        ``d1 / d2``, lower is better; sorted.
+        ``d1 / d2``.
 
     Examples
     --------
@@ -87,13 +81,10 @@ def opencv_ratio_matches(desc1, desc2, *, ratio: float = LOWE_RATIO) -> tuple[np
 
 
 def opencv_mnn_matches(desc1, desc2) -> tuple[np.ndarray, np.ndarray]:
-    """Mutual nearest neighbours, ``BFMatcher(NORM_L2, crossCheck=True).match``: ``(matches, scores)``, the
-    score the descriptor distance, sorted.
+    """Mutual nearest neighbours (``BFMatcher(NORM_L2, crossCheck=True)``): ``(matches, distances)``.
 
     Examples
     --------
-    Descriptor 1 of image 1 is nearest to descriptor 0 of image 2, whose own nearest is descriptor 0:
-
     >>> import numpy as np
     >>> matches, scores = opencv_mnn_matches([[0.0, 0.0], [1.0, 0.0]], [[0.2, 0.0], [5.0, 5.0]])
     >>> matches, scores.round(2)

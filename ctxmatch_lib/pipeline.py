@@ -3,9 +3,7 @@ face over :mod:`ctxmatch_lib.evaluation`.
 
 :func:`evaluate_pair` keeps every intermediate of one pair, :func:`evaluate_dataset` runs a dataset on the
 engine (resumable), :func:`summary_table` averages the rows as the Appendix tables; the steps of
-:mod:`ctxmatch_lib.evaluation.steps` are re-exported. The ground truth labels the blob candidates once (every
-later output is a subset); the recall reference of a row is the correct candidates of its blob setup
-(Sec. 5.3), recall*'s their union over the pair's setups.
+:mod:`ctxmatch_lib.evaluation.steps` are re-exported.
 """
 
 from __future__ import annotations
@@ -52,8 +50,7 @@ ROW_COLUMNS = (
     "precision", "recall", "recall_star", "ap", "correct", "correct_norm", "output", "failure", "empty_output",
     "time_s", "model_time_s", "n_kpts1", "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method", "error",
 )
-"""Units as in :mod:`ctxmatch_lib.evaluation.rows`; ``correct_norm`` is the normalised count of Sec. 5.1,
-``failure`` a non-empty output without a correct match, ``empty_output`` an output with no match."""
+"""Units as in :mod:`ctxmatch_lib.evaluation.rows` (docs/evaluation.md, Result rows)."""
 
 
 @dataclass
@@ -95,10 +92,8 @@ def evaluate_pair(
     features : FeatureConfig
     blobs : str, BlobConfig, list or dict
         Blob setups (:func:`resolve_blobs`).
-    filters : sequence of str
-        Registered filter names; ``"blob"`` (no filter) is always included.
-    models : sequence of str
-        Model steps among :data:`~ctxmatch_lib.geometry.MODEL_STEPS`.
+    filters, models : sequence of str
+        Registered filters (``"blob"``, no filter, always included); :data:`~ctxmatch_lib.geometry.MODEL_STEPS`.
     gt_method, gt_threshold : {"D", "A", "B", "C"}, float
         Ground-truth method and its distance in pixels (D and A).
     model_threshold : float
@@ -107,20 +102,14 @@ def evaluate_pair(
         Extra keyword arguments per filter.
     seed : int
         RANSAC seed; combined with ``pair.pair_id``.
-    cache_dir
-        Feature cache (:func:`~ctxmatch_lib.features.extract_features`).
-    precomputed_features : (Features, Features), optional
-        Skip extraction.
+    cache_dir, precomputed_features : path, (Features, Features), optional
+        Feature cache (:func:`~ctxmatch_lib.features.extract_features`); features that skip extraction.
 
     Returns
     -------
     PairEvaluation
         ``.stages[blob]``: a :class:`~ctxmatch_lib.evaluation.unit.BlobStage`; ``.rows``: :data:`ROW_COLUMNS`.
-
-    Raises
-    ------
-    RuntimeError
-        When a filter or model step raises on the pair.
+        A filter or model step that raises gives a ``RuntimeError``.
     """
     (unit,) = plan_units([pair], features=features, blobs=resolve_blobs(blobs), filters=tuple(filters),
                          models=tuple(models), gt_method=gt_method, gt_threshold=gt_threshold,
@@ -155,12 +144,10 @@ def evaluate_dataset(
     Parameters
     ----------
     dataset : Dataset or iterable of Pair
-    progress : bool
-        A tqdm bar on stderr.
+    progress, recompute : bool
+        A tqdm bar on stderr; ignore the cached rows.
     results_dir : path, None or False
         The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``); ``False``: none.
-    recompute : bool
-        Ignore the cached rows.
     n_jobs : int
         Local worker processes (``-1``: all cores).
     **kwargs
@@ -190,10 +177,8 @@ def summary_table(df):
     """Per-kind, per-method (and model) means, as the Appendix tables; also per ``features`` and ``blob``
     where several are present.
 
-    Columns: ``pairs`` (without an ``error``); ``precision_pct``, ``recall_pct``, ``recall_star_pct``,
-    ``mAP_pct`` (means in %; an empty output counts as 0 % precision and recall, the paper's convention);
-    ``correct``, ``correct_norm``, ``output`` (mean counts); ``failures``, ``empty_outputs`` (the paper's
-    failures are their sum), ``errors`` (pair counts); ``time_s``, ``model_time_s`` (mean seconds).
+    Means in % under ``*_pct`` names (an empty output counts as 0 %), mean counts, pair counts of
+    ``failures``, ``empty_outputs`` and ``errors`` (see docs/evaluation.md, Result rows).
     """
     import pandas as pd
 

@@ -34,13 +34,8 @@ def planted_homography_matches(
     informative_scores: bool = False,
     rng=None,
 ) -> PlantedMatches:
-    """Planted-outlier case: a homography moves ``inlier_ratio`` of the matches, the rest are uniform.
-
-    Inlier keypoints are drawn uniformly in image 1 among those whose image under ``H`` stays inside image
-    2, then moved by ``H`` plus Gaussian noise of ``noise`` pixels. Outliers have independent uniform
-    keypoints in both images. Each match has its own keypoints (one-to-one). Scores are uniform in [0, 1]
-    for everyone, or, with ``informative_scores``, lower on average for the inliers.
-    """
+    """One-to-one matches, ``inlier_ratio`` of them moved by ``H`` plus Gaussian ``noise`` (pixels) inside
+    both images, the rest uniform; scores uniform in [0, 1], lower for inliers with ``informative_scores``."""
     rng = np.random.default_rng(rng)
     w, h = image_size
     if H is None:

@@ -8,6 +8,25 @@ from hypothesis import HealthCheck, settings
 
 matplotlib.use("Agg")
 
+# One cache of compiled kernels for the whole run, shared by the workers and by every subprocess a test starts:
+# a test that points CTXMATCH_CACHE at a fresh folder reuses the machine code instead of compiling it again
+# (the tests of where numba caches unset the variable themselves).
+if "NUMBA_CACHE_DIR" not in os.environ:
+    from ctxmatch_lib.cache import cache_dir
+
+    os.environ["NUMBA_CACHE_DIR"] = str(cache_dir("numba"))
+
+# The longest files first: the suite runs a file per worker (pytest-xdist --dist loadfile), and a long file
+# started last would keep one worker busy after the other has finished.
+_LONG_FIRST = ("test_blas_kernels.py", "fig_blob_heatmap.ipynb", "test_docs.py", "fig_geometry.ipynb",
+               "fig_gt_methods.ipynb", "test_sweep.py", "test_match_cli.py", "test_datasets_calibrated.py",
+               "fig_agreement.ipynb", "test_notebooks.py", "test_eval.py", "fig_match_examples.ipynb")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: i for i, name in enumerate(_LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(Path(str(item.fspath)).name, len(rank)))
+
 # Deterministic property tests in CI: the same examples every run.
 settings.register_profile("ci", derandomize=True, deadline=None, max_examples=60,
                           suppress_health_check=[HealthCheck.too_slow])

@@ -14,10 +14,8 @@ _modules = -1  # len(sys.modules) when the controller was made
 
 
 def one_blas_thread():
-    """Context manager limiting every thread pool (BLAS, OpenMP) to one thread, as
-    ``threadpoolctl.threadpool_limits(1)``, through a controller kept between calls (making one inspects
-    every loaded library). It is made again when modules have been imported since (torch brings its own
-    thread pools)."""
+    """``threadpoolctl.threadpool_limits(1)`` through a cached controller, remade when modules were imported
+    since (torch brings its own thread pools)."""
     global _controller, _modules
     if _controller is None or len(sys.modules) != _modules:
         _controller = ThreadpoolController()
@@ -28,9 +26,8 @@ def one_blas_thread():
 def accumulate_product(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """``out += a @ b.T`` in place, for C-contiguous float32 ``a`` (R, d), ``b`` (C, d) and ``out`` (R, C).
 
-    BLAS's ``sgemm`` with ``beta = 1`` through SciPy (``matmul`` has no ``beta``): with ``beta = 0`` OpenBLAS
-    zeroes the whole tile in a pass of its own, whereas blob matching's scan zeroes each row while it is in
-    cache; into zeros the sum is the product itself.
+    ``sgemm`` with ``beta = 1``: the scan zeroes each row of ``out`` while it is in cache, which OpenBLAS's
+    ``beta = 0`` would do in a pass of its own.
     """
     for name, arr in (("a", a), ("b", b), ("out", out)):
         if arr.dtype != np.float32 or arr.ndim != 2 or not arr.flags.c_contiguous:

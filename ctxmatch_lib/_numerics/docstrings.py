@@ -1,9 +1,5 @@
-"""Parameter texts shared by many docstrings, written once and composed in (as scipy's ``_lib/doccer``).
-
-A docstring line holding only ``%(name)s`` becomes the entry ``name`` of a table, indented as that line
-(:func:`compose_doc`, :func:`shared_doc`); :data:`SHARED` holds the library's conventions, and a package adds
-its own entries (``compose_doc(doc, {**SHARED, ...})``).
-"""
+"""Parameter texts shared by many docstrings (as scipy's ``_lib/doccer``): :data:`SHARED`,
+:func:`compose_doc` and the decorator :func:`shared_doc`."""
 
 from __future__ import annotations
 
@@ -41,10 +37,8 @@ _PLACEHOLDER = re.compile(r"^([ \t]*)%\((\w+)\)s[ \t]*$", re.M)
 
 
 def compose_doc(doc: str | None, docs: Mapping[str, str] = SHARED, **fields) -> str | None:
-    """``doc`` with every line that holds only ``%(name)s`` replaced by ``docs[name]``.
-
-    The entry is indented as the placeholder, formatted with ``fields`` (``{label}``, ...) and may itself
-    hold placeholders. Other ``%`` signs in ``doc`` are left alone (percentages in Notes).
+    """``doc`` with every line holding only ``%(name)s`` replaced by ``docs[name]``, indented alike and
+    formatted with ``fields``; entries may hold placeholders, other ``%`` signs are left alone.
 
     Examples
     --------

@@ -1,12 +1,9 @@
 """Elementary functions whose bits do not depend on the CPU: ``exp``, ``log``, ``tanh``, ``sin``/``cos``, ``atan2``.
 
-numpy's transcendental ufuncs dispatch by CPU (AVX-512, AVX2 or baseline loops, and the C library's FMA or
-plain variants behind them) and differ in the last bit. These functions use only correctly rounded IEEE
-operations (``+ − × ÷``, ``rint``, ``floor``, ``ldexp``, comparisons), one ufunc per operation, so no step
-fuses a multiply with an add and every CPU gives the same bits. ``exp`` and ``tanh`` run the same operations
-in a compiled loop (:mod:`.fixedmath_kernels`). The algorithms are fdlibm's (as in musl): argument reduction
-and minimax polynomials, error below one unit in the last place. Inputs are float64 (float32 widened
-exactly); finite inputs are expected. :func:`opencv_baseline` does the same for OpenCV, which dispatches too.
+numpy's transcendental ufuncs dispatch by CPU and differ in the last bit; these use fdlibm's algorithms (as
+in musl, error below 1 ulp) with only correctly rounded IEEE operations, one ufunc per operation (``exp`` and
+``tanh`` in a compiled loop, :mod:`.fixedmath_kernels`), so no multiply-add is fused. Inputs are float64.
+:func:`opencv_baseline` pins OpenCV, which dispatches too.
 """
 
 from __future__ import annotations
@@ -27,13 +24,8 @@ _CV_USERS = [0, True, 1]  # blocks inside opencv_baseline; the settings to resto
 
 @contextmanager
 def opencv_baseline():
-    """Run the block with OpenCV on its baseline code and one thread, the settings restored after.
-
-    OpenCV's SSE4 / AVX2 / AVX-512 builds and Intel IPP move SIFT's keypoints and descriptors in the last
-    bits; ``cv2.setUseOptimized(False)`` runs the baseline (SSE3) code on every CPU, repeatable only on one
-    thread (``cv2.setNumThreads(1)``). Both settings are global: blocks in several threads share them, and
-    the last one to leave restores them.
-    """
+    """Run the block with OpenCV on its baseline code and one thread (dispatched builds move SIFT's last
+    bits); the global settings are shared by concurrent blocks and restored by the last one to leave."""
     import cv2
 
     with _CV_LOCK:
@@ -108,10 +100,7 @@ def _kernel_cos(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def sincos(x) -> tuple[np.ndarray, np.ndarray]:
-    """``(sin x, cos x)`` of angles ``x`` in radians, float64 of ``x``'s shape, the same bits on any CPU.
-
-    The argument is reduced by the nearest multiple of pi/2 (Cody and Waite, pi/2 in two parts: accurate for
-    ``|x| < 2**20``).
+    """``(sin x, cos x)`` in radians, the same bits on any CPU; Cody-Waite reduction, for ``|x| < 2**20``.
 
     Examples
     --------
@@ -161,7 +150,7 @@ def _atan_pos(x: np.ndarray) -> np.ndarray:
 
 
 def atan(x) -> np.ndarray:
-    """``atan x`` in ``[-pi/2, pi/2]`` (float64), the same bits on any CPU (fdlibm's ``atan``); NaN stays NaN.
+    """``atan x``, the same bits on any CPU (fdlibm's ``atan``).
 
     Examples
     --------
@@ -176,8 +165,7 @@ def atan(x) -> np.ndarray:
 
 
 def atan2(y, x) -> np.ndarray:
-    """The angle of the vector ``(x, y)`` (broadcast together), float64 in ``[-pi, pi]``, the same bits on any
-    CPU (fdlibm's ``atan2``): ``atan2(±0, +0) = ±0`` and ``atan2(±0, -0) = ±pi`` as in C; NaN where either is.
+    """The angle of ``(x, y)`` in ``[-pi, pi]``, the same bits on any CPU (fdlibm's ``atan2``, signed zeros as in C).
 
     Examples
     --------
@@ -200,9 +188,7 @@ def atan2(y, x) -> np.ndarray:
 
 
 def exp(x) -> np.ndarray:
-    """``e ** x`` (float64), the same bits on any CPU (fdlibm's ``exp``: ``x = k ln 2 + r``, a rational
-    approximation of ``e ** r``, then an exact scaling by ``2 ** k``), by the compiled loop of
-    :mod:`.fixedmath_kernels`; :func:`_exp_ufuncs` is its reference, one ufunc per operation.
+    """``e ** x``, the same bits on any CPU (fdlibm's ``exp``), compiled; :func:`_exp_ufuncs` is the reference.
 
     Examples
     --------
@@ -232,12 +218,7 @@ def _exp_ufuncs(x) -> np.ndarray:
 
 
 def log(x) -> np.ndarray:
-    """Natural logarithm (float64), the same bits on any CPU (fdlibm's ``log``).
-
-    ``x = 2 ** k (1 + f)`` with ``sqrt(2) / 2 <= 1 + f < sqrt(2)`` (exact), then ``log(1 + f) = f - f^2 / 2 +
-    s (f^2 / 2 + R(s^2))`` with ``s = f / (2 + f)`` and fdlibm's minimax ``R``, and ``k ln 2`` in two parts.
-
-    ``log 0 = -inf``, ``log inf = inf``, NaN for negative inputs and NaN; subnormals are exact.
+    """Natural logarithm, the same bits on any CPU (fdlibm's ``log``); NaN for negative inputs.
 
     Examples
     --------
@@ -266,8 +247,7 @@ def log(x) -> np.ndarray:
 
 
 def tanh(x) -> np.ndarray:
-    """``tanh x`` (float64), the same bits on any CPU: ``(1 - e) / (1 + e)`` with ``e = exp(-2|x|)``, and the
-    odd Taylor polynomial near zero, where that quotient loses relative accuracy.
+    """``tanh x``, the same bits on any CPU: ``(1 - e) / (1 + e)``, ``e = exp(-2|x|)``, Taylor near zero.
 
     Examples
     --------
@@ -292,8 +272,7 @@ def _tanh_ufuncs(x) -> np.ndarray:
 
 
 def hypot(x, y) -> np.ndarray:
-    """``sqrt(x² + y²)`` in float64, each step correctly rounded (``np.hypot``'s C variant may follow the
-    CPU). No scaling: for image gradients and matrix entries the squares neither overflow nor underflow."""
+    """``sqrt(x² + y²)``, each step correctly rounded, unscaled (``np.hypot`` may follow the CPU)."""
     x, y = _f64(x), _f64(y)
     return np.sqrt(x * x + y * y)
 

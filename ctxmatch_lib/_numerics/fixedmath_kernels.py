@@ -1,11 +1,8 @@
 """Compiled (numba) loops behind :func:`.fixedmath.exp` and :func:`.fixedmath.tanh` (the patch networks' activations).
 
-Each value goes through the ufunc forms' operations (``fixedmath._exp_ufuncs``, ``_tanh_ufuncs``) in the same
-order with the same constants, in one loop instead of one pass over memory per operation. Without
-``fastmath`` LLVM neither reassociates nor fuses a multiply with an add, so every x86-64 CPU gives the same
-bits (``tests/test_fixedmath.py`` compares them value for value). ``tanh``'s loop has no branch, table or
-integer conversion (:func:`_pow2` writes ``2 ** k`` from its bits), so LLVM vectorises it (AVX2).
-Compiled code is cached in ``$CTXMATCH_CACHE/numba`` (:mod:`.jit`).
+The same operations as ``fixedmath._exp_ufuncs`` / ``_tanh_ufuncs``, in one loop; without ``fastmath``
+nothing is reassociated or fused, so every x86-64 CPU gives the same bits. ``tanh``'s loop has no branch or
+integer conversion (:func:`_pow2`), so LLVM vectorises it.
 """
 
 from __future__ import annotations
@@ -33,9 +30,8 @@ _POW2 = np.ldexp(1.0, np.arange(-_POW2_BIAS, _POW2_BIAS + 1))
 
 @intrinsic
 def _pow2(typingctx, k):
-    """``2.0 ** k`` for an integer-valued float64 ``k`` in [-1022, 1023]: ``k + 1.5 * 2**52`` holds ``k`` in its
-    low bits, so ``(bits - bits(1.5 * 2**52) + 1023) << 52`` are the bits of ``2 ** k``. No integer
-    conversion (AVX2 has no packed float64 -> int64) and no table, so a loop using it vectorises."""
+    """``2.0 ** k`` for an integer-valued float64 ``k`` in [-1022, 1023], from the bits of ``k + 1.5 * 2**52``
+    (no integer conversion, which AVX2 lacks, so a loop using it vectorises)."""
     sig = types.float64(types.float64)
 
     def codegen(context, builder, sig, args):

@@ -13,9 +13,8 @@ __all__ = ["user_cache"]
 
 @contextmanager
 def user_cache():
-    """Point numba's on-disk cache at ``cache_dir("numba")`` while kernels are decorated (when numba picks
-    their cache location), unless ``NUMBA_CACHE_DIR`` is set. Yields whether to cache at all: not when that
-    folder cannot be created (numba would fall back to the package's own folder)."""
+    """Point numba's cache at ``cache_dir("numba")`` while kernels are decorated, unless ``NUMBA_CACHE_DIR``
+    is set; yield whether to cache (not when the folder cannot be created)."""
     previous = numba.config.CACHE_DIR
     if previous:
         yield True

@@ -9,28 +9,21 @@ __all__ = ["canonical_order", "spread_back"]
 
 
 def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | None]:
-    """The order of candidate rows a filter decides in, which depends only on the set of rows.
-
-    The rows are sorted (``np.lexsort``, in float64) by score, image-1 keypoint (x, y), image-2 keypoint
-    (x, y), then the two keypoint indices. Rows equal in every key are one candidate given twice; their
-    relative order is all that is left to the input, and :func:`spread_back` gives them one decision.
+    """Rows sorted by score, image-1 (x, y), image-2 (x, y), then the keypoint indices (float64 lexsort).
 
     Parameters
     ----------
     x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoint of each row, (x, y) pixels.
+        Image-1 and image-2 keypoint of each row.
     matches : ndarray of shape (K, 2)
-        Keypoint indices of each row.
     scores : ndarray of shape (K,)
-        Score of each row (lower is better; zeros when none were given).
 
     Returns
     -------
     order : ndarray of shape (K,) int64
-        The rows in canonical order: row ``order[j]`` of the input is row ``j`` of the sorted set.
+        Row ``order[j]`` of the input is row ``j`` of the sorted set.
     twins : ndarray of shape (K,) int64, or None
-        None when no two rows are equal in every key; else the group of each *sorted* row, numbered
-        ``0, 1, ...`` in order, equal rows sharing a group.
+        Group of each sorted row, rows equal in every key sharing one; None when there are none.
 
     Examples
     --------
@@ -57,11 +50,7 @@ def canonical_order(x, y, matches, scores) -> tuple[np.ndarray, np.ndarray | Non
 
 
 def spread_back(keep: np.ndarray, order: np.ndarray, twins: np.ndarray | None) -> np.ndarray:
-    """The decisions ``keep`` made on the rows in canonical order (:func:`canonical_order`), in input order.
-
-    Rows equal in every key (``twins``) are one candidate: all are kept when any is (a one-to-one core keeps
-    one copy), so the mask never depends on the input order.
-    """
+    """The decisions ``keep`` made in canonical order, in input order; twins are all kept when any is."""
     keep = np.asarray(keep, bool)
     if twins is not None:
         keep = (np.bincount(twins, weights=keep) > 0)[twins]

@@ -1,10 +1,5 @@
-"""Compiled (numba) loop behind :func:`ctxmatch_lib.metrics.ranked_area`, called once per blob setup in a sweep.
-
-One pass gives each correct candidate's term ``P_k * (N_k - N_{k-1})`` at its rank in the stable ascending
-order of the scores: the same float64 operations on the same integers as
-:func:`ctxmatch_lib.metrics._area_terms_numpy` (``tests/test_metrics.py`` compares them bit for bit); the
-caller sums them with numpy. Compiled code is cached in ``$CTXMATCH_CACHE/numba`` (:mod:`.jit`).
-"""
+"""Compiled (numba) loop behind :func:`ctxmatch_lib.metrics.ranked_area`: each correct candidate's term
+``P_k * (N_k - N_{k-1})`` at its stable rank, bit-identical to :func:`ctxmatch_lib.metrics._area_terms_numpy`."""
 
 from __future__ import annotations
 

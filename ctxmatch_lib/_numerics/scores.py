@@ -1,10 +1,7 @@
 """Match scores that carry the scale of the ratio that made them (used by ``blob`` and ``filters``).
 
-Blob matching's scores (Sec. 3, Eq. 14) are, with ``"D>="``, the NNR ratio ``r`` (first over second
-distance), and with ``"D+>="`` / ``"D+"`` ``r / (1 + r)`` (first distance over the sum of both). A threshold
-on the NNR scale (Lowe's 0.8, GLPM's 1/1.5, AdaLAM's seed test) maps to ``t / (1 + t)`` on the D+ scales
-(:func:`nnr_threshold`). :class:`NNRScores` remembers its ``ratio`` so a filter can map its thresholds
-without being told.
+With ``"D>="`` the scores (Sec. 3, Eq. 14) are the NNR ratio ``r``, with ``"D+>="`` / ``"D+"`` ``r / (1 + r)``;
+:class:`NNRScores` carries its ``ratio`` so that a filter maps its NNR thresholds (:func:`nnr_threshold`).
 """
 
 from __future__ import annotations
@@ -24,11 +21,8 @@ def check_ratio(ratio, name: str = "ratio") -> str:
 
 
 class NNRScores(np.ndarray):
-    """A float64 score array with the blob ``ratio`` that made it (``"D>="``, ``"D+>="`` or ``"D+"``).
-
-    Views, slices, fancy indexing, sorting and copies keep ``ratio``; ufuncs and reductions return plain
-    arrays and scalars. Pickling keeps it (the evaluation engine ships scores to worker processes).
-    """
+    """A float64 score array with the blob ``ratio`` that made it; indexing, sorting, copies and pickling
+    keep it, ufuncs and reductions return plain arrays."""
 
     ratio: str | None
 
@@ -60,9 +54,7 @@ class NNRScores(np.ndarray):
 
 
 def nnr_scores(scores, ratio: str) -> NNRScores:
-    """``scores`` as a float64 :class:`NNRScores` made by the blob ratio ``ratio``.
-
-    Raises ``ValueError`` when ``scores`` already carries another ratio.
+    """``scores`` as :class:`NNRScores` of ``ratio`` (``ValueError`` if they carry another).
 
     Examples
     --------
@@ -85,8 +77,7 @@ def score_ratio(scores) -> str | None:
 
 
 def nnr_threshold(threshold: float, ratio: str) -> float:
-    """A threshold ``t`` on the NNR ratio, mapped to the scale of scores made by ``ratio`` (``t`` for
-    ``"D>="``, ``t / (1 + t)`` for ``"D+>="`` / ``"D+"``).
+    """A threshold ``t`` on the NNR ratio on ``ratio``'s scale: ``t`` or ``t / (1 + t)``.
 
     Examples
     --------

@@ -1,18 +1,12 @@
 """Numba intrinsics for fixed-order float64 sums in SIMD registers, and blob matching's 16-lane work.
 
-numba leaves LLVM's SLP vectoriser off, so running sums held in scalar variables stay scalar chains; here
-they are the lanes of one LLVM vector: :class:`Vec8` for blob matching's exact distances, :class:`Vec4` for
-the EM filters' weighted Gram matrices and the patch networks' convolutions, :class:`Vec16` for a sorted
-line of blob matching's scan (:func:`band16` compares sixteen 16-bit codes at once; :func:`fma16`,
-:func:`row_flags`, :func:`row_reflag`, :func:`row_codes` are its fused float32 product, which only proposes,
-so it fuses multiply-adds). Elsewhere a lane-wise operation is the scalar IEEE one (no fast-math flags), so
-the bits are the scalar loop's on any x86-64 CPU.
+numba leaves LLVM's SLP vectoriser off; here running sums are the lanes of one LLVM vector (:class:`Vec8`,
+:class:`Vec4`, :class:`Vec16`), each lane-wise operation the scalar IEEE one, so the bits are the scalar
+loop's on any x86-64 CPU. Only :func:`fma16` and the fused product that uses it (which only proposes) fuse.
 
-numba's disk cache checks the timestamp of a kernel's own file only: after an edit here, touch the kernel
-files that use these intrinsics (``blob/_kernels.py``, ``blob/_walk_kernels.py``, ``blob/_fused_kernels.py``,
-``filters/_em_kernels.py``, ``filters/_llt_kernels.py``, ``features/_conv_kernels.py``) or clear
-``$CTXMATCH_CACHE/numba``. Never rename or remove a type below: numba unpickles a cached index before it
-compares timestamps, and an index naming a missing type raises ``AttributeError`` instead of recompiling.
+numba's disk cache checks only a kernel's own file: after an edit here, touch the ``*_kernels.py`` files
+that use these intrinsics or clear ``$CTXMATCH_CACHE/numba``. Never rename or remove a type below (a
+cached index naming a missing type raises ``AttributeError`` instead of recompiling).
 """
 
 from __future__ import annotations

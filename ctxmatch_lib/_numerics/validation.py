@@ -1,5 +1,4 @@
-"""Argument checks shared by every stage: each returns a clean array or raises a ``ValueError`` naming the
-argument."""
+"""Argument checks: each returns a clean array or raises a ``ValueError`` naming the argument."""
 
 from __future__ import annotations
 
@@ -10,8 +9,7 @@ __all__ = ["Presets", "as_points", "as_matches", "as_scores", "as_image_size", "
 
 
 class Presets(dict):
-    """A ``dict`` of named presets (hloc-style ``confs``) whose missing-key error lists the known names;
-    ``what`` names a key in that message (``"blob preset"``), the other arguments are ``dict``'s.
+    """A ``dict`` of presets whose ``KeyError`` names ``what`` and lists the known keys.
 
     Examples
     --------
@@ -72,8 +70,7 @@ def as_vector3(v, name: str) -> np.ndarray:
 
 
 def as_intrinsics(K, name: str = "K") -> np.ndarray:
-    """``K`` as a float64 upper-triangular ``(3, 3)`` intrinsic matrix with non-zero focals, divided by
-    ``K[2, 2]`` (behind :func:`ctxmatch_lib.geometry.pose.check_intrinsics` and the calibrated datasets).
+    """``K`` as an upper-triangular intrinsic matrix with non-zero focals, divided by ``K[2, 2]``.
 
     Examples
     --------
@@ -96,8 +93,7 @@ def as_intrinsics(K, name: str = "K") -> np.ndarray:
 
 
 def as_rotation(R, name: str = "R", tol: float = 1e-6) -> np.ndarray:
-    """``R`` as a float64 rotation matrix: ``R^T R`` within ``tol`` of the identity (largest entry) and a
-    positive determinant; the error names ``name`` (a scale, a shear, a reflection)."""
+    """``R`` as a rotation: ``R^T R`` within ``tol`` of the identity, positive determinant."""
     arr = as_matrix3(R, name)
     err = float(np.abs(arr.T @ arr - np.eye(3)).max())
     if err > tol:
@@ -123,8 +119,7 @@ def _first_cv2_object(x, cls: str) -> bool:
 
 
 def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
-    """Keypoints as a float64 ``(N, 2)`` array of (x, y) pixels; extra columns (scale, angle) are dropped,
-    ``None`` or empty input gives ``(0, 2)``."""
+    """Keypoints as float64 ``(N, 2)``; extra columns are dropped, ``None`` gives ``(0, 2)``."""
     if x is None:
         arr = np.empty((0, 2))
     else:
@@ -193,11 +188,7 @@ def as_image_size(size, name: str) -> tuple[int, int]:
 
 
 def check_inside(kpts, image_size, name: str = "kpts", *, tol: float = 0.5) -> np.ndarray:
-    """Raise ``ValueError`` unless every keypoint lies inside its image; returns ``kpts`` as ``(N, 2)``.
-
-    With the origin at the centre of the top-left pixel, a ``(width, height)`` image covers ``x`` in
-    ``[-0.5, width - 0.5]``; ``tol`` (default: that half pixel) is how far beyond the outer pixel centres a
-    keypoint may lie. ``name`` names ``kpts`` in the message, which suggests a (height, width) mix-up.
+    """``kpts`` as ``(N, 2)``; ``ValueError`` unless each lies within ``tol`` of the outer pixel centres.
 
     Examples
     --------
@@ -229,8 +220,7 @@ def check_inside(kpts, image_size, name: str = "kpts", *, tol: float = 0.5) -> n
 
 
 def cumulative_distinct(values) -> np.ndarray:
-    """``out[k]`` = number of distinct values among ``values[:k + 1]`` (non-negative ints), in O(K + max):
-    the normalised counts of ranked lists (``metrics``, 1SAC's sample, the sweep's AP).
+    """``out[k]`` = number of distinct values among ``values[:k + 1]`` (non-negative ints), in O(K + max).
 
     Examples
     --------

@@ -1,8 +1,5 @@
-"""Blob matching (paper Sec. 3): descriptor-space context for candidate matches.
-
->>> from ctxmatch_lib.blob import blob_matching, BLOB_PRESETS
->>> # out = blob_matching(desc1, desc2, kpts1=k1, kpts2=k2, **BLOB_PRESETS["paper-best"].kwargs())
-"""
+"""Blob matching (Sec. 3): :func:`blob_matching` with :data:`BLOB_PRESETS`, :class:`BlobContext`, and the
+FGINN-by-overlap patches (:func:`shapes_from_scale_angle`, :func:`ellipse_overlap_error`)."""
 
 from .config import BLOB_PRESETS, BlobConfig, blob_grid
 from .context import BlobContext

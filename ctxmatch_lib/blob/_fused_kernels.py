@@ -1,12 +1,8 @@
 """Blob matching's one pass with the product in registers: a compiled float32 GEMM fused with the scan.
 
-:func:`product_scan` does what the GEMM tiles and :func:`~._kernels.scan_tile` do together: the dot products
-of four rows of ``d1`` with 64 columns of ``d2`` stay in sixteen 16-lane registers (``fma16``), the
-approximate squared distances are flagged there against the lines' thresholds (``row_flags``), and only the
-flagged entries are walked, in the tile path's order. The product only proposes (the bound of
-:mod:`._kernels` holds for any order, with or without FMA), so the results are the tile path's, bit for bit.
-Columns go in chunks of :data:`CHUNK` blocks swept by every row. The accumulators fit in registers only with
-AVX-512 (:func:`fused_product_fast`).
+:func:`product_scan` does what the GEMM tiles and :func:`~._kernels.scan_tile` do together, keeping 4 x 64
+blocks of ``d1 @ d2.T`` in 16-lane registers and walking only the flagged entries; the results are the tile
+path's, bit for bit. Needs AVX-512 (:func:`fused_product_fast`); see docs/blob-matching.md.
 """
 
 from __future__ import annotations
@@ -113,11 +109,10 @@ with user_cache() as _cache:
     @njit(cache=_cache, nogil=True)
     def _sweep(A, Bp, b0, b1, i_lo, i_hi, n1, n2p, X, early, rv, ri, rthr, cv, ci, cthr, shut, Kr, Kc, cols, M,
                dense, keep, qoff, qinv, pv, pi, pc, tv, tx):
-        """Rows ``i_lo .. i_hi - 1``, four at a time, against column blocks ``b0 .. b1 - 1`` (one call: no
-        reference counting per row group). Distances go into ``X`` (``F``'s rows with ``early``), flags into
-        ``M`` (``M[0]``: below the row's threshold, ``M[1]``: the column's), codes into ``dense`` with
-        ``keep``; the flagged entries then go to the rows' and (``cols``) columns' K best, as ``scan_tile``'s.
-        """
+        """Rows ``i_lo .. i_hi - 1``, four at a time, against column blocks ``b0 .. b1 - 1``.
+
+        Distances go into ``X`` (``F``'s rows with ``early``), flags into ``M`` (``M[0]``: row, ``M[1]``:
+        column), codes into ``dense`` with ``keep``; flagged entries go to the lines' K best."""
         n, m = rv.shape[0], cv.shape[0]
         nblk, c0 = b1 - b0, b0 * NR
         w = min(nblk * NR, m - c0)

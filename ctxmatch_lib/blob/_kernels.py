@@ -1,13 +1,10 @@
 """Compiled kernels of blob matching: the scan of float32 GEMM tiles and the exact float64 decisions.
 
-The float32 product only *proposes*: each line (row or column of D) keeps its ``K`` smallest approximate
-squared distances, and the entries that can be among the ``T`` best under the certified bound ``E`` are
-recomputed in float64 in a fixed order without BLAS (:func:`_exact_sq`) and ranked by (distance, index), so
-the decisions are the same on any CPU. Bound (Higham, *Accuracy and Stability*, Sec. 3.1): a float32 dot
-product of length ``d``, in any order with or without FMA, is within ``γ_d |a||b|`` (``γ_d = d u / (1 - d u)``,
-``u = 2^-24``), so ``|a|² + |b|² − 2 a·b`` is within ``(2 γ_d + 8u)(|a|² + |b|²)`` (``+ 4u`` for float64
-input); :func:`error_scale` doubles that. Look-ups beyond the lists read 16-bit codes of the approximations
-(:func:`code_scale`).
+The float32 product only *proposes* each line's ``K`` smallest entries; those that can be among the ``T``
+best under the certified bound are recomputed in float64 without BLAS (:func:`_exact_sq`) and ranked by
+(distance, index), so decisions are the same on any CPU. Bound (Higham, *Accuracy and Stability*, Sec. 3.1):
+``|a|² + |b|² − 2 a·b`` in float32 is within ``(2 γ_d + 8u)(|a|² + |b|²)``, ``γ_d = d u / (1 - d u)``,
+``u = 2^-24`` (``+ 4u`` for float64 input); :func:`error_scale` doubles it.
 """
 
 from __future__ import annotations
@@ -40,9 +37,8 @@ _S56, _S58 = np.uint64(56), np.uint64(58)
 def code_scale(lo: float, hi: float) -> tuple[np.float32, np.float32, float]:
     """``(qoff, qinv, step)`` of the 16-bit codes of approximate squared distances in ``[lo, hi]``.
 
-    :func:`code` gives ``q = floor((v - qoff) qinv + 1/2)`` in float32, so ``qoff + q step`` lies within
-    ``0.51 step`` of ``v`` (three float32 roundings below 2^16 add at most 0.01): codes add ``step`` to the
-    bound. ``qinv`` leaves two codes of headroom below :data:`TAKEN`.
+    ``qoff + q step`` lies within ``0.51 step`` of ``v``, so codes add ``step`` to the bound; ``qinv`` leaves
+    two codes of headroom below :data:`TAKEN`.
     """
     qoff = np.nextafter(np.float32(lo), np.float32(-np.inf))
     qinv = np.float32((TAKEN - 2) / max(hi - float(qoff), 1e-30))
@@ -236,12 +232,9 @@ with user_cache() as _cache:
     def scan_tile(G, r0, c0, n1, n2, rv, ri, rthr, cv, ci, cthr, Kr, Kc, dense, keep, qoff, qinv):
         """Feed the GEMM tile ``G = d1[r0:r0+B] @ d2[c0:c0+C].T`` to the rows' and columns' K best.
 
-        ``v = |a|² + |b|² − 2 a·b`` in float32. Entries below their row's or column's threshold (a full
-        line's K-th value) are flagged in a vectorisable pass, then inserted into ``rv[i, :Kr]`` /
-        ``cv[j, :Kc]`` (sorted, +inf in empty slots); lines of at most 16 entries in 16-lane registers
-        (:func:`~ctxmatch_lib._numerics.simd.insert16`), columns a bucket of ``P`` at a time. With ``keep``
-        the 16-bit :func:`code` of every ``v`` goes to ``dense`` (f = Ω). Each row of ``G`` is zeroed once
-        read, for the next tile's accumulation (:func:`~ctxmatch_lib._numerics.blas.accumulate_product`).
+        Entries of ``v = |a|² + |b|² − 2 a·b`` (float32) below their line's threshold are inserted into
+        ``rv[i, :Kr]`` / ``cv[j, :Kc]`` (sorted, +inf in empty slots); with ``keep`` every ``v``'s 16-bit
+        :func:`code` goes to ``dense``. Each row of ``G`` is zeroed once read, for the next accumulation.
         """
         B, C = G.shape
         reg = Kr <= 16
@@ -362,9 +355,8 @@ with user_cache() as _cache:
     def certify_lines(A, B, hv, hi, cnt, K, T, norm_a, max_norm_b, scale, out_idx, out_val):
         """The exact T best entries of every line (rows of ``A`` against ``B``) from its K approximate ones.
 
-        The exact T best all have approximate values ``<= τ + 2E`` (``τ``: the T-th approximate value); when
-        the K entries reach past that, those alone are recomputed, else the whole line. Returns the number
-        of exact distances computed.
+        The exact T best have approximate values ``<= τ + 2E`` (``τ``: the T-th approximate value): only
+        those are recomputed when the K entries reach past it, else the whole line. Returns the count.
         """
         n, m, d = A.shape[0], B.shape[0], B.shape[1]
         step = max(1, 64 // B.itemsize)  # entries per 64-byte cache line

@@ -1,10 +1,7 @@
-"""Compiled look-ups of blob matching beyond the sorted lists: f = Ω's greedy (:func:`greedy_dense`) and the
-second best past a list (:func:`next_in_lines`) take a line's next entry in (exact distance, index) order
-with :func:`next_in_line`, where 16-bit codes (:func:`._kernels.code_scale`) propose and exact float64
-distances decide.
+"""Compiled look-ups beyond the sorted lists: f = Ω's greedy (:func:`greedy_dense`) and the second best
+(:func:`next_in_lines`), through :func:`next_in_line` (16-bit codes propose, float64 distances decide).
 
-numba's disk cache checks only a kernel's own file: after editing ``_kernels`` or ``_numerics.simd``, touch
-this file (or clear ``$CTXMATCH_CACHE/numba``).
+numba's disk cache checks only this file: after editing ``_kernels`` or ``_numerics.simd``, touch it.
 """
 
 from __future__ import annotations
@@ -89,11 +86,9 @@ with user_cache() as _cache:
     def next_in_line(Q, r, A, line, B, E, d, j, strict, skip, pen, pts, t_o2, qoff, step, band):
         """The next entry of line ``line`` after ``(d, j)`` in (exact distance, index) order.
 
-        ``Q[r]``: the line's codes (``qoff + q step`` within ``E`` of the exact squared distance).
-        Candidates: ``pen[k] == 0`` (``TAKEN`` takes ``k`` out), ``k != skip``, not within ``sqrt(t_o2)``
-        pixels of ``skip`` (FGINN) and after ``(d, j)`` (``strict``) or ``>= d``. Exact distances are
-        computed only in the band of codes the least unseen code cannot rule out (:func:`_band_from`;
-        ``band``: int64 scratch of ``Q.shape[1]``). Returns ``(distance, index)``, ``(inf, -1)`` for none.
+        ``Q[r]``: the line's codes. Candidates: ``pen[k] == 0``, ``k != skip``, not within ``sqrt(t_o2)`` px
+        of ``skip`` (FGINN), after ``(d, j)`` (``strict``) or ``>= d``. ``band``: int64 scratch of
+        ``Q.shape[1]``. Returns ``(distance, index)``, ``(inf, -1)`` for none.
         """
         held = np.uint16(0)
         if skip >= 0:

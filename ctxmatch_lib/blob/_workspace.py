@@ -1,10 +1,7 @@
 """One buffer for f = Ω's 16-bit codes of D, reused from one call of blob matching to the next.
 
-f = Ω's greedy reads all of D, as 16-bit codes on the L2 path; a fresh array each call costs page faults
-about as large as writing the codes. :func:`blob_matching` hands its buffer back
-(:meth:`.context.BlobContext.release`) and the next call takes it over, as a GEMM's caller keeps its
-output: at most :data:`HOLD_BYTES`, one per thread (:func:`free_workspace` drops it). The codes are
-rewritten in full each pass, so reuse changes no result.
+A fresh array each call costs page faults about as large as writing the codes; at most :data:`HOLD_BYTES`
+are held, one buffer per thread (:func:`free_workspace` drops it). Codes are rewritten in full each pass.
 """
 
 from __future__ import annotations

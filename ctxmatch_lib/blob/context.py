@@ -1,8 +1,6 @@
 """The per-pair state of blob matching (Sec. 3): :class:`BlobContext` keeps the ``T`` best entries of every
 row and column of D from one pass over it (Eqs. 10-11 and 13-14 read only those, and rarely a whole line).
-On the L2 path float32 products propose and exact float64 distances decide (:mod:`._kernels`). The setups
-of Sec. 5.2 share one context: G depends only on (f, ∩/∪, f'), the ranking only on (t_o, D, W).
-"""
+The setups of Sec. 5.2 share one context: G depends only on (f, ∩/∪, f'), the ranking on (t_o, D, W)."""
 
 from __future__ import annotations
 
@@ -41,22 +39,19 @@ class BlobContext:
     Parameters
     ----------
     desc1, desc2, distances, distance, kpts1, kpts2, shapes1, shapes2
-        As :func:`~ctxmatch_lib.blob.blob_matching` (which validates them). A ``distance`` hook is called
-        on row blocks of about ``block_bytes`` and on a few rows or columns (``distance(desc1,
-        desc2[cols])``), so D is never held whole unless ``keep_dense``.
+        As :func:`~ctxmatch_lib.blob.blob_matching` (which validates them).
     depth : int
         Largest ``f`` (and ``f'``) this context will serve.
     keep_dense : bool, optional
-        Keep D (needed by f = Ω); default: when it takes at most 256 MiB. The L2 path keeps 16-bit codes of
-        its float32 approximations instead, in the buffer of :mod:`._workspace`.
+        Keep D, or its 16-bit codes on the L2 path (needed by f = Ω); default: when D fits 256 MiB.
     max_dense_bytes : int
         Above this size (of D, or of its codes) f = Ω raises ``MemoryError``.
+    block_bytes : int
+        Size of the row blocks a ``distance`` hook is called on.
     margin : int, optional
-        Entries kept per line beyond ``depth`` (default :attr:`margin`), where the second best of step 3 is
-        looked for before the whole line; speed only.
+        Entries kept per line beyond ``depth`` (default :attr:`margin`); speed only.
     columns : bool, default True
-        Keep the columns' lists too; the pre-filter (f < Ω) and image 2's ratio need them, f = Ω with W = a
-        does not.
+        Keep the columns' lists too (the pre-filter and image 2's ratio need them).
     """
 
     #: Default entries per line beyond ``depth``, so that FGINN and D≥ rarely need a whole line.
@@ -185,9 +180,8 @@ class BlobContext:
     #: Entries per line beyond the T kept: room for the certified band of the float32 rounding (with fewer
     #: than 2, many lines fail the band test and are recomputed whole).
     slack = 4
-    #: The pass's float32 product: ``"tiles"`` (BLAS GEMM tiles), ``"fused"`` (in registers, fused with the
-    #: scan, :mod:`._fused_kernels`) or ``"auto"``: fused where :func:`fused_product_fast`, else the tiles.
-    #: The results are the same either way (the product only proposes).
+    #: The pass's float32 product: ``"tiles"`` (BLAS GEMM tiles), ``"fused"`` (:mod:`._fused_kernels`) or
+    #: ``"auto"`` (fused where :func:`fused_product_fast`); the results are the same either way.
     product = "auto"
 
     def _scan_exact(self, keep_dense: bool) -> None:
@@ -300,8 +294,7 @@ class BlobContext:
         return dense
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
-        """Whole rows (side 0) or columns (side 1) of D as float64 distances (precomputed D or a distance
-        hook; the L2 path never needs whole lines exactly, see :meth:`second_best`)."""
+        """Whole rows (side 0) or columns (side 1) of D as float64 (precomputed D or distance hook only)."""
         if self._dense is not None:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
         elif self._metric is not None:
@@ -320,12 +313,8 @@ class BlobContext:
     def candidates(self, f, prefilter: str = "cup", f_prime: int = 5) -> tuple[np.ndarray, np.ndarray]:
         """Steps 1-2 of Sec. 3: pre-filter F (Eq. 10 or 11) and greedy many-to-many selection with f'.
 
-        Returns
-        -------
-        matches : ndarray of shape (K, 2)
-            G in the order the greedy accepted it (increasing distance; ties by row, then column).
-        dist : ndarray of shape (K,)
-            D entries of the matches.
+        Returns G ``(K, 2)`` in the order the greedy accepted it (distance, then row, column) and its
+        D entries ``(K,)``.
         """
         n, m = self.n, self.m
         if n == 0 or m == 0:
@@ -346,7 +335,7 @@ class BlobContext:
 
     def _greedy_dense(self, f_prime: int):
         """Greedy over all of D (f = Ω) without sorting it: a heap of each row's next entry in (value, column)
-        order, skipping saturated columns (compiled on the L2 path, :func:`._walk_kernels.greedy_dense`)."""
+        order, skipping saturated columns."""
         if self._exact:
             X1, X2 = self._X
             gi, gj, gd = _walk_kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
@@ -436,9 +425,8 @@ class BlobContext:
 
     def _second_best_lines(self, side: int, anchors: np.ndarray, others: np.ndarray, dist: np.ndarray,
                            geq: bool, t_o, t_o_kind: str) -> np.ndarray:
-        """:meth:`second_best` on whole lines (chunks of about 8 MiB), for anchors whose list holds none. The
-        entries go in (distance, index) order (:func:`._walk_kernels.next_in_lines` on the L2 path); FGINN by
-        overlap computes overlaps until one is above ``t_o``."""
+        """:meth:`second_best` on whole lines, for anchors whose list holds none; entries are visited in
+        (distance, index) order."""
         size = self.m if side == 0 else self.n
         out = np.full(len(anchors), np.inf)
         by_overlap = t_o is not None and t_o_kind == "overlap"
@@ -499,9 +487,8 @@ class BlobContext:
 
     def _first_not_overlapping(self, img: int, lists: SortedLists, anchors: np.ndarray, others: np.ndarray,
                                dist: np.ndarray, geq: bool, t_o: float) -> np.ndarray:
-        """FGINN by overlap on sorted lists: per anchor line, the position of the first entry that is not the
-        match, not below ``dist`` (``geq``) and with overlap error above ``t_o`` (``-1``: none). Overlaps are
-        computed lazily, in list order; disjoint bounding circles give exactly 1 (decided in the kernel)."""
+        """FGINN by overlap on sorted lists: per anchor, the position of the first entry that is not the match,
+        not below ``dist`` (``geq``) and with overlap error above ``t_o`` (``-1``: none)."""
         K, L = len(anchors), lists.idx.shape[1]
         first = np.full(K, -1, np.int64)
         pos = np.zeros(K, np.int64)

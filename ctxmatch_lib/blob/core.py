@@ -25,8 +25,7 @@ class BlobMatches:
     matches : ndarray of shape (K, 2), int64
         Row into image 1 (keypoint / descriptor index), row into image 2.
     scores : ndarray of shape (K,), float64
-        The final similarity D̄ of Eq. (15), lower is better; rows sorted by score, then row, then column.
-        An ``NNRScores`` carrying its ``ratio`` (the scale filters read NNR thresholds on).
+        D̄ of Eq. (15), lower is better, sorted (ties: row, column); an ``NNRScores`` carrying its ``ratio``.
     """
 
     matches: np.ndarray
@@ -97,25 +96,20 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
                   combine="harmonic", max_dense_bytes: int = 1 << 30, distance=None) -> BlobMatches:
     """Blob matching (Sec. 3): pre-filter, greedy many-to-many selection, NNR-like ratio, combination.
 
-    1. Pre-filter D to the entries among the ``f`` best of their row and column (F∩, Eq. 10) or of their
-       row or column (F∪, Eq. 11).
-    2. Greedily accept surviving entries by increasing distance while no row or column is used more than
-       ``f_prime`` times (f' = 1: S_gNN of Eq. 5).
-    3. Score each match with D≥ (Eq. 13) or D+ / D+≥ (Eq. 14), with FGINN (Eq. 9) when ``t_o`` is set,
-       once with each image as reference.
-    4. Combine the two with W(a, b) (Eq. 15).
+    Steps: pre-filter D with F∩/F∪ (Eqs. 10-11); greedily accept entries by increasing distance, each row
+    and column at most ``f_prime`` times; score each match with D≥ (Eq. 13) or D+ / D+≥ (Eq. 14), with
+    FGINN (Eq. 9), once per reference image; combine the two with W(a, b) (Eq. 15).
 
     Parameters
     ----------
     desc1, desc2 : ndarray of shape (n, d) and (m, d), optional
-        Descriptors; D is their L2 distance (Hellinger on RootSIFT) or ``distance``. Or give ``distances``.
+        Descriptors; D is their L2 distance or ``distance``. Or give ``distances``.
     distances : ndarray of shape (n, m), optional
         Precomputed non-negative distance matrix.
     kpts1, kpts2 : ndarray of shape (n, 2) and (m, 2), optional
         Keypoints (x, y) in pixels, origin at the centre of the top-left pixel; required when ``t_o`` is set.
     shapes1, shapes2 : ndarray of shape (n, 2, 2) and (m, 2, 2), optional
-        Affine shapes of the patches ``{kpts[k] + A[k] @ u : |u| <= 1}`` (:func:`shapes_from_scale_angle`),
-        or ``(n,)`` radii; required when ``t_o_kind="overlap"``.
+        Affine patch shapes (:func:`shapes_from_scale_angle`) or ``(n,)`` radii; for ``t_o_kind="overlap"``.
     f : int or "omega", default 10
         Pre-filter depth; ``"omega"`` (Ω = max(n, m)) disables the pre-filter.
     prefilter : {"cup", "cap"}, default "cup"
@@ -127,29 +121,24 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
     t_o : float or None, default 10.0
         FGINN threshold; ``None`` or ``math.inf`` turns FGINN off.
     t_o_kind : {"px", "overlap"}, default "px"
-        ``"px"``: skip keypoints closer than ``t_o`` pixels to the matched keypoint (same image);
-        ``"overlap"``: skip those whose patch has overlap error ``1 - IoU <= t_o`` with its patch.
+        Skip keypoints closer than ``t_o`` pixels (``"px"``) or with overlap error ``<= t_o`` (``"overlap"``).
     combine : {"harmonic", "a", "b", "min", "max"}, default "harmonic"
         W(a, b) of Eq. (15).
     max_dense_bytes : int
-        f = Ω needs the whole D (on the L2 path as 16-bit codes, whose buffer of up to 128 MiB is kept for
-        the next call, :func:`free_workspace`); above this size it raises ``MemoryError``.
+        Memory cap for the whole D that f = Ω needs; above it, ``MemoryError``.
     distance : callable, optional
-        The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)`` non-negative
-        (e.g. ``Features.distance()`` of RootsGLOH2); default L2.
+        The descriptors' own distance, ``distance(desc1_rows, desc2) -> (rows, m)``; default L2.
 
     Returns
     -------
     BlobMatches
-        ``matches`` (K, 2) int64 and ``scores`` (K,) float64, sorted by score (lower is better).
+        Sorted by score (lower is better).
 
     Notes
     -----
-    Ties are broken by value, then row, then column, so "the f best of a row" are exactly min(f, m). With
-    no admissible second best (m = 1, or FGINN excludes all) the ratio is 0. On the L2 path every decision
-    is taken on float64 distances computed in a fixed order without BLAS; the float32 product only proposes
-    within a certified rounding bound (:mod:`._kernels`), so the output does not depend on the BLAS kernel
-    or thread count. Memory is O((n + m) f), plus the codes of D for f = Ω (:class:`BlobContext`).
+    Ties are broken by value, then row, then column; with no admissible second best the ratio is 0. Every
+    decision is taken on exact float64 distances, so the output does not depend on the BLAS kernel or
+    thread count (docs/blob-matching.md).
 
     References
     ----------
@@ -211,9 +200,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
 
 
 def _margin(cfg: BlobConfig, dense: bool) -> int:
-    """Entries kept per line beyond the depth (speed only; the results do not depend on it). D+'s second
-    best is nearly always in the list already; D≥'s and D+≥'s may lie anywhere past ``D_ij``, so a few more
-    entries save whole-line look-ups."""
+    """Entries kept per line beyond the depth (speed only): D≥'s and D+≥'s second best may lie far past
+    ``D_ij``, D+'s is nearly always in the list."""
     return 2 if cfg.ratio == "D+" and not dense else 8
 
 

@@ -10,9 +10,8 @@ __all__ = ["as_shapes", "shapes_from_scale_angle", "ellipse_overlap_error", "cir
 
 
 def shapes_from_scale_angle(scale, angle=None) -> np.ndarray:
-    """Affine shapes ``A = scale * R(angle)``, ``(N, 2, 2)``, of circular patches of radius ``scale``
-    (pixels; ``keypoint.size / 2`` for OpenCV SIFT) and orientation ``angle`` (radians, default 0): the patch
-    of keypoint ``k`` is ``{kpts[k] + A[k] @ u : |u| <= 1}``."""
+    """Affine shapes ``A = scale * R(angle)`` ``(N, 2, 2)`` of circular patches ``{kpts[k] + A[k] @ u : |u| <= 1}``;
+    ``scale`` in pixels (``keypoint.size / 2`` for OpenCV SIFT), ``angle`` in radians (default 0)."""
     scale = np.asarray(scale, dtype=np.float64).reshape(-1)
     angle = np.zeros_like(scale) if angle is None else np.asarray(angle, dtype=np.float64).reshape(-1)
     s, c = sincos(angle)  # _fixedmath's: the same shapes on any CPU
@@ -40,8 +39,7 @@ def as_shapes(shapes, n: int, name: str) -> np.ndarray:
 
 
 def _bounding_circles(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
-    """Squared centre distances of the pairs, and whether their bounding circles intersect (else the overlap
-    error is exactly 1); the one test of :func:`ellipse_overlap_error` and :func:`circle_overlap_bounds`."""
+    """Squared centre distances of the pairs, and whether their bounding circles intersect (else error 1)."""
     r1, r2 = _largest_singular_value(A1), _largest_singular_value(A2)
     d2 = np.sum((c1 - c2) ** 2, axis=1)
     return d2, d2 < (r1 + r2) ** 2
@@ -79,21 +77,9 @@ def _det(A: np.ndarray) -> np.ndarray:
 def ellipse_overlap_error(c1, A1, c2, A2, *, chunk: int = 16384) -> np.ndarray:
     """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of elliptical patches, element-wise.
 
-    Ellipse ``E = {c + A u : |u| <= 1}``, approximated by the image of a 32-gon of the unit disk's area; the
-    intersection area comes from GEOS, the union is ``|E1| + |E2| - |E1 ∩ E2|`` with the exact areas
-    ``pi |det A|``. Pairs whose bounding circles are disjoint get exactly 1.
-
-    Parameters
-    ----------
-    c1, c2 : ndarray of shape (P, 2)
-        Centres (x, y) in pixels.
-    A1, A2 : ndarray of shape (P, 2, 2)
-        Affine shapes.
-
-    Returns
-    -------
-    ndarray of shape (P,)
-        Overlap errors in [0, 1].
+    Ellipses ``E = {c + A u : |u| <= 1}`` with centres ``c1, c2`` ``(P, 2)`` and shapes ``A1, A2``
+    ``(P, 2, 2)``; the intersection is that of 32-gons of equal area (GEOS), the areas are exact
+    ``pi |det A|``. Disjoint bounding circles give exactly 1. Returns ``(P,)`` errors in [0, 1].
 
     Examples
     --------
@@ -144,9 +130,8 @@ def _lens_area(r1: np.ndarray, r2: np.ndarray, dist: np.ndarray) -> np.ndarray:
 def circle_overlap_bounds(c1, A1, c2, A2) -> tuple[np.ndarray, np.ndarray]:
     """Bounds ``lo <= e <= hi`` of :func:`ellipse_overlap_error`'s ``e`` for each pair, without polygons.
 
-    For circular patches (``A = s R(θ)``, :func:`shapes_from_scale_angle`) each 32-gon lies between the
-    circles of its inradius and circumradius, so ``e`` lies between the values of the two lens areas (widened
-    by ``1e-6`` for rounding). Disjoint bounding circles give ``lo = hi = 1``; other shapes ``(0, 1)``.
+    For circular patches each 32-gon lies between its in- and circumcircle, so ``e`` lies between two lens
+    values. Disjoint bounding circles give ``lo = hi = 1``; non-circular shapes ``(0, 1)``.
     """
     c1, c2 = np.asarray(c1, float).reshape(-1, 2), np.asarray(c2, float).reshape(-1, 2)
     A1, A2 = np.asarray(A1, float).reshape(-1, 2, 2), np.asarray(A2, float).reshape(-1, 2, 2)

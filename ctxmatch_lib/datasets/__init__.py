@@ -1,11 +1,7 @@
-"""Datasets: image pairs with ground truth (embedded offline default, real loaders, custom folders).
+"""Datasets: image pairs with ground truth (Sec. 5.1), see ``docs/evaluation.md`` (Datasets).
 
-:func:`load_dataset` reads a registered name (:func:`list_datasets`): the offline default ``embedded`` and
-its subsets ``embedded-planar``, ``-nonplanar``, ``-depth``, ``-calibrated`` (:mod:`.embedded`); the real
-``hpatches``, ``oxford``, ``homogr``, ``kusvod2`` (:mod:`.real`), ``strecha`` and ``strecha-half``
-(:mod:`.strecha`, :mod:`.downscaled`) under ``$CTXMATCH_DATA``; the groups ``planar``, ``nonplanar``,
-``calibrated``. It also reads a custom folder (:mod:`.custom`), a pairs-with-ground-truth file
-(:mod:`.posefile`) or a Strecha-layout folder. Overview: ``docs/evaluation.md`` (Datasets).
+:func:`load_dataset` reads a registered name (:func:`list_datasets`: embedded, real, groups) or a custom
+folder (:mod:`.custom`), a pairs-with-ground-truth file (:mod:`.posefile`) or a Strecha-layout folder.
 """
 
 from __future__ import annotations
@@ -35,8 +31,7 @@ _GROUPS = {"planar": ("hpatches", "oxford", "homogr"), "nonplanar": ("kusvod2",)
 
 
 def load_strecha(root=None, **kwargs) -> list:
-    """The Strecha calibrated pairs under ``root`` (the data root, its ``calibrated/strecha`` folder, a
-    folder of scenes or one scene; default ``$CTXMATCH_DATA``), see :func:`.strecha.load_strecha_folder`."""
+    """The Strecha pairs under ``root`` (default ``$CTXMATCH_DATA``), see :func:`.strecha.load_strecha_folder`."""
     folder = _resolve(root, "calibrated/strecha", lambda d: bool(strecha_scenes(d)))
     return load_strecha_folder(folder, **kwargs)
 
@@ -67,19 +62,15 @@ def load_dataset(name_or_path=DEFAULT_DATASET, *, root=None) -> Dataset:
     ----------
     name_or_path : str or Path
     root : str or Path, optional
-        Real datasets: the data root (default ``$CTXMATCH_DATA``) or the dataset folder; embedded ones: the
-        parent folder it is generated into (default the ``datasets`` cache). Ignored for a path.
-
-    Returns
-    -------
-    Dataset
+        Real datasets: the data root (default ``$CTXMATCH_DATA``); embedded: the folder generated into
+        (default the ``datasets`` cache). Ignored for a path.
 
     Raises
     ------
     ValueError
         Neither a registered name nor a readable folder or file.
     FileNotFoundError
-        The real data are not found (``CTXMATCH_DATA`` unset or wrong), or a listed file is missing.
+        Real data not found, or a listed file missing.
 
     Examples
     --------

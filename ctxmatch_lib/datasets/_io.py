@@ -79,16 +79,9 @@ def flow_gt(flow12, flow21, source):
 
 
 def read_vpts(path):
-    """Read a Lebeda ``*_vpts.mat`` file.
-
-    Returns
-    -------
-    ptsA, ptsB : ndarray of shape (N, 2)
-        Hand-taken points of images A and B, (x, y) pixels, origin at the centre of the top-left pixel
-        (no MATLAB one-pixel shift: checked against SIFT matches on homogr's zoom pairs).
-    model : ndarray of shape (3, 3) or None
-        ``validation.model`` when present and not all zeros.
-    """
+    """Read a Lebeda ``*_vpts.mat`` file as ``(ptsA, ptsB, model)``: the hand points ``(N, 2)`` of images A
+    and B in (x, y) pixels, no MATLAB one-pixel shift (checked against SIFT matches on homogr's zoom pairs),
+    and ``validation.model`` (3, 3), ``None`` when absent or all zeros."""
     import scipy.io
 
     path = Path(path)
@@ -191,18 +184,12 @@ def _refine(F0, x1, x2):
 
 
 def fundamental_from_hand_points(pts1, pts2) -> np.ndarray:
-    """Ground-truth fundamental matrix (``x2^T F x1 = 0``, unit Frobenius norm) from hand-taken points.
+    """Ground-truth F (``x2^T F x1 = 0``, unit Frobenius norm) from ``N >= 7`` hand points ``(N, 2)``.
 
-    N >= 8: normalised 8-point (Hartley 1997), rank 2, refined on the symmetric point-to-line distances
-    over rank-2 matrices (Bartoli & Sturm 2004): with 8-14 hand points truncating to rank 2 can move the
-    lines by pixels. N = 7: of the 7-point roots, those meeting the oriented epipolar constraint (Chum,
-    Werner & Matas 2004), then the one with the epipoles farthest from the points (the lateral motion of a
-    wide-baseline pair). Unlike :func:`ctxmatch_lib.geometry.fit_fundamental` (inside RANSAC).
-
-    Parameters
-    ----------
-    pts1, pts2 : ndarray of shape (N, 2)
-        Corresponding (x, y) pixels, N >= 7.
+    N >= 8: normalised 8-point (Hartley 1997) refined over rank-2 matrices on the symmetric point-to-line
+    distances (Bartoli & Sturm 2004; with few points, plain rank-2 truncation moves the lines by pixels).
+    N = 7: the roots meeting the oriented epipolar constraint (Chum, Werner & Matas 2004), then the one with
+    the epipoles farthest from the points (a wide-baseline pair's lateral motion).
     """
     pts1 = np.asarray(pts1, np.float64).reshape(-1, 2)
     pts2 = np.asarray(pts2, np.float64).reshape(-1, 2)

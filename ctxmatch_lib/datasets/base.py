@@ -1,8 +1,6 @@
-"""Image pairs and their ground-truth objects, shared by every dataset loader.
-
-Pixel convention everywhere: x right, y down, (0, 0) the centre of the top-left pixel; keypoints are
-``(N, 2)`` float arrays of (x, y).
-"""
+"""Image pairs (:class:`Pair`, :class:`Dataset`) and their ground truth (:class:`HomographyGT`,
+:class:`EpipolarGT`, :class:`FlowGT`, :class:`PoseGT`). Pixels: x right, y down, (0, 0) the centre of the
+top-left pixel."""
 
 from __future__ import annotations
 
@@ -140,23 +138,19 @@ class PoseGT:
     Parameters
     ----------
     K1, K2 : ndarray of shape (3, 3)
-        Intrinsics (upper triangular, non-zero focals; stored divided by ``K[2, 2]``).
+        Intrinsics, upper triangular (stored divided by ``K[2, 2]``).
     R : ndarray of shape (3, 3)
-        Rotation (``R^T R = I`` within 1e-6, determinant +1).
+        Rotation (``R^T R = I`` within 1e-6).
     t : ndarray of shape (3,)
-        Translation, non-zero; only its direction enters the pose error.
+        Non-zero; only its direction enters the pose error.
     threshold_scale : float
         Factor on the paper's pixel thresholds, set on images about 1000 px wide (Sec. 5.1).
     difficulty : str
-        ``"easy"``, ``"medium"``, ``"hard"`` or ``""`` (:func:`ctxmatch_lib.datasets.pose_difficulty`).
+        Band, see :func:`ctxmatch_lib.datasets.pose_difficulty`.
     rotations : tuple of int
         Quarter turns ``(rot0, rot1)`` of a pairs-with-ground-truth line, kept to write it back.
 
-    Raises
-    ------
-    ValueError
-        A field of the wrong shape, not finite, a zero focal, a non-rotation ``R``, a zero ``t`` or a
-        non-positive ``threshold_scale``; the message names the field.
+    A bad field raises ValueError naming it.
     """
 
     K1: np.ndarray

@@ -1,11 +1,5 @@
-"""The custom folder format: run your own image pairs without writing code.
-
-``pairs.csv`` has the header ``pair_id,image1,image2,kind,gt`` and an optional ``F`` column, paths relative
-to the folder. ``gt`` per ``kind``: ``planar``, a 3×3 text homography image1 → image2; ``nonplanar``, an N×4
-text file ``x1 y1 x2 y2`` of hand-taken points (N >= 7), F fitted to them unless ``F`` names a 3×3 text
-file; ``calibrated``, the 36 numbers of a pairs-with-ground-truth line after its names (:mod:`.posefile`);
-any kind, including ``depth``, a ``.npz`` with ``flow12`` and optionally ``flow21`` (:class:`.FlowGT`).
-Example::
+"""The custom folder format (:func:`read_custom_dataset`, :func:`write_custom_dataset`): a ``pairs.csv``
+with ``pair_id,image1,image2,kind,gt[,F]``, described in ``docs/evaluation.md`` (Datasets). Example::
 
     pair_id,image1,image2,kind,gt,F
     graf-1-2,graf/img1.png,graf/img2.png,planar,graf/H1to2.txt,
@@ -111,15 +105,8 @@ def _read_pose(path: Path) -> PoseGT:
 
 
 def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
-    """Load the folder holding ``pairs.csv`` (module docstring), named ``name`` (default: the folder's).
-
-    Raises
-    ------
-    FileNotFoundError
-        No ``pairs.csv``, or a listed image or ground-truth file is missing (the message names it).
-    ValueError
-        ``pairs.csv`` has no rows, misses a column, has an unknown kind; an image or gt file is corrupt.
-    """
+    """Load the folder holding ``pairs.csv``, named ``name`` (default: the folder's). A missing file raises
+    FileNotFoundError, a bad ``pairs.csv``, image or gt file ValueError; both name the file."""
     folder = Path(folder).expanduser()
     csv_path = folder / "pairs.csv"
     if not csv_path.is_file():

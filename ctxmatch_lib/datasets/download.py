@@ -1,10 +1,7 @@
-"""Download the public real datasets into the data-root layout the loaders read (``ctxmatch data download``).
-
-Archives (:class:`Source`) are fetched with pooch, checked against pinned SHA-256 hashes (published by
-independent third parties) and unpacked, path-traversal safe, through a temporary folder renamed into
-place. The Strecha scenes (:class:`FileSet`) are fetched file by file from a pinned commit, each file
-checked against its hash. An archive with no pinned hash is refused unless ``sha256=`` or
-``allow_unpinned=True`` is given; then the hash of the download is reported, to be pinned here.
+"""Download the public real datasets into the data-root layout (:func:`download_dataset`,
+``ctxmatch data download``): archives (:class:`Source`) and the Strecha files (:class:`FileSet`) are checked
+against pinned SHA-256 hashes and unpacked path-traversal safe, atomically. An unpinned archive needs
+``sha256=`` or ``allow_unpinned=True`` (its hash is then reported).
 """
 
 from __future__ import annotations
@@ -214,17 +211,16 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
     Parameters
     ----------
     name : str
-        One of :func:`download_names` (:data:`SOURCES` and the groups :data:`DOWNLOAD_GROUPS`).
+        One of :func:`download_names`.
     root : str or Path, optional
-        Data root to fill; default ``$CTXMATCH_DATA`` when set, else ``cache_dir("data")``.
+        Default ``$CTXMATCH_DATA`` when set, else ``cache_dir("data")``.
     url, sha256 : str, optional
-        Override the archive URL (``http(s)://``, ``ftp://`` or ``file://``) and its SHA-256, for a single
-        archive; a mirror is trusted only through the hash. For the Strecha scenes ``url`` is a mirror of
-        the ``Benchmarking_Camera_Calibration_2008`` folder and the pinned per-file hashes apply.
+        A single archive's URL (``http(s)``, ``ftp``, ``file``) and hash; for Strecha, ``url`` is a mirror of
+        ``Benchmarking_Camera_Calibration_2008`` and the pinned per-file hashes apply.
     allow_unpinned : bool
         Accept an archive with no pinned hash.
     force : bool
-        Replace a dataset folder that already exists.
+        Replace an existing dataset folder.
     progress : bool
     log : callable
         Receives one line per step.
@@ -232,7 +228,7 @@ def download_dataset(name: str, *, root=None, url: str | None = None, sha256: st
     Returns
     -------
     list of Path
-        The dataset folders written (or found already present).
+        The dataset folders written or already present.
     """
     import pooch
 

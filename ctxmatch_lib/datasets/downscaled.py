@@ -1,10 +1,6 @@
-"""Calibrated pairs at a lower resolution: images downscaled by an integer factor, intrinsics to match.
-
-The paper's pixel thresholds were set on images about 1000 px wide (Sec. 5.1) and SIFT's cost grows with
-the pixel count: :func:`downscale_pairs` gives, e.g., Strecha's 3072 × 2048 pairs at 1536 × 1024 (the
-registered ``strecha-half``), each image reduced once in integer arithmetic (the same bytes on every CPU)
-into the ``datasets`` cache, the pose unchanged and ``K`` mapped to the new grid.
-"""
+"""Calibrated pairs downscaled by an integer factor, intrinsics mapped to match (:func:`downscale_pairs`,
+``strecha-half``): the paper's pixel thresholds refer to images about 1000 px wide (Sec. 5.1). See
+``docs/evaluation.md`` (Calibrated pairs)."""
 
 from __future__ import annotations
 
@@ -92,22 +88,11 @@ def _downscaled_file(image: Path, factor: int, folder: Path) -> Path:
 
 
 def downscale_pairs(pairs, factor: int = 2, *, folder=None, suffix: str = "half") -> list[Pair]:
-    """Calibrated pairs with their images downscaled by ``factor`` and their intrinsics mapped to match.
+    """Calibrated (``PoseGT``) pairs with their images downscaled by ``factor`` and ``K`` mapped to match.
 
-    Parameters
-    ----------
-    pairs : iterable of Pair
-        Pairs with :class:`~ctxmatch_lib.datasets.base.PoseGT` (others raise ValueError).
-    factor : int
-    folder : str or Path, optional
-        Where the images go (default: ``<cache>/datasets/downscaled-<factor>``).
-    suffix : str
-        Appended to each pair's dataset name (``strecha-half``), so the two resolutions never mix.
-
-    Returns
-    -------
-    list of Pair
-        Same ids, ``threshold_scale`` the longer side / :data:`PAPER_IMAGE_SIDE`.
+    Images go to ``folder`` (default ``<cache>/datasets/downscaled-<factor>``); ``suffix`` is appended to the
+    dataset name so the resolutions never mix. Pair ids are kept; ``threshold_scale`` becomes the longer side /
+    :data:`PAPER_IMAGE_SIDE`.
     """
     from ..cache import cache_dir
 

@@ -1,18 +1,8 @@
-"""The embedded offline default: image pairs with exact ground truth built from scikit-image's bundled photos.
-
-Generated deterministically into the cache on first use (:func:`embedded_root`), in the custom format
-(:mod:`.custom`), from ``skimage.data`` only:
-
-- **planar**: three HPatches-like sequences of six 640×480 views of a textured plane, growing viewpoint
-  change (rotation up to 30°, zoom up to 1.4, foreshortening up to 45 %) plus illumination, blur or noise;
-  exact ``H_1k``;
-- **nonplanar**: four scenes of two or three independently moving planar layers with occlusion; exact
-  dense :class:`FlowGT` both ways, NaN where a point leaves the image or is hidden;
-- **depth**: the Middlebury 2014 motorcycle stereo pair (741×500) with its disparity as :class:`FlowGT`
-  (:func:`motorcycle_flows`). The left pixel (x, y) is the right pixel (x - d, y), checked against the
-  images (``stereo_motorcycle``'s docstring reads as the opposite sign).
-
-Rendering is anti-aliased (2× supersampling, area downsampling), pixel centres at integers.
+"""The embedded offline default, generated deterministically from ``skimage.data`` into the cache in the
+custom format (:func:`embedded_root`, :func:`generate_embedded`): 15 planar pairs (three six-view
+sequences, exact ``H``), 4 layered non-planar scenes (exact dense :class:`FlowGT` with occlusion) and the
+Middlebury motorcycle stereo pair (:func:`motorcycle_flows`); see ``docs/evaluation.md`` (Datasets).
+Rendering: 2× supersampling, area downsampling, pixel centres at integers.
 """
 
 from __future__ import annotations
@@ -378,18 +368,12 @@ def _write_nonplanar(folder: Path, rows: list) -> None:
 
 # ---------------------------------------------------------------------------------------------- depth
 def motorcycle_flows(disp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Left → right and right → left flows of a rectified pair from the left disparity map.
+    """Left → right and right → left flows ``(H, W, 2)`` float32 of a rectified pair from the left disparity
+    ``disp`` ``(H, W)`` (NaN/inf unknown): the left pixel (x, y) is the right pixel (x - d, y), checked
+    against the images (``stereo_motorcycle``'s docstring reads as the opposite sign).
 
-    Parameters
-    ----------
-    disp : ndarray of shape (H, W)
-        Left disparity: the left pixel (x, y) is the right pixel (x - d, y); NaN or inf where unknown.
-
-    Returns
-    -------
-    flow12, flow21 : ndarray of shape (H, W, 2), float32
-        ``flow12 = (-d, 0)``. ``flow21`` inverts it scanline by scanline, interpolating between adjacent
-        left pixels of one surface (disparities within 1 px), the nearest surface winning; NaN elsewhere.
+    ``flow12 = (-d, 0)``; ``flow21`` inverts it per scanline between adjacent left pixels of one surface
+    (disparities within 1 px), the nearest surface winning; NaN elsewhere.
     """
     disp = np.asarray(disp, np.float64)
     h, w = disp.shape
@@ -474,8 +458,8 @@ def generate_embedded(folder) -> Path:
 
 
 def embedded_root(root=None) -> Path:
-    """``root/embedded-v<EMBEDDED_VERSION>`` (default root: the ``datasets`` cache), generated first if
-    needed into a temporary sibling renamed into place (safe against interruption and concurrent runs)."""
+    """``root/embedded-v<EMBEDDED_VERSION>`` (default root: the ``datasets`` cache), generated if needed
+    into a temporary sibling renamed into place (safe against interruption and concurrent runs)."""
     if root is None:
         from ..cache import cache_dir
 

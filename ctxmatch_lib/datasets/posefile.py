@@ -1,15 +1,8 @@
-"""Calibrated pairs as text: the pairs-with-ground-truth format of SuperGlue and LoFTR, read and written.
+"""SuperGlue's / LoFTR's pairs-with-ground-truth text format: one pair per line,
+``name0 name1 rot0 rot1 K0(9) K1(9) T_0to1(16)`` (:func:`read_pairs_with_gt`, :func:`write_pairs_with_gt`).
 
-One pair per line, 38 whitespace-separated tokens::
-
-    name0 name1 rot0 rot1 K0(9) K1(9) T_0to1(16)
-
-Names are relative to the image folder (default: the file's); matrices row by row, ``T_0to1`` taking
-camera-0 to camera-1 coordinates. ``K`` and ``T_0to1`` describe the images **as stored**: the quarter
-turns ``rot0``/``rot1`` SuperGlue applies before matching are kept and written back but change nothing.
-Pixel centres are at integers, as in SuperGlue. Blank lines and ``#`` lines are skipped. Each pair gets a
-:class:`~ctxmatch_lib.datasets.PoseGT` with :func:`.strecha.threshold_scale_for` and
-:func:`.strecha.rotation_band`.
+``K`` and ``T_0to1`` describe the images as stored (``rot0``/``rot1`` are kept, never applied); pixel
+centres at integers; blank and ``#`` lines skipped. Format: ``docs/evaluation.md`` (Calibrated pairs).
 """
 
 from __future__ import annotations
@@ -32,13 +25,8 @@ POSE_LINE_TOKENS = 38
 
 
 def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = None) -> PoseGT:
-    """A :class:`PoseGT` from the 36 numeric tokens ``rot0 rot1 K0(9) K1(9) T_0to1(16)``.
-
-    Raises
-    ------
-    ValueError
-        Bad tokens or geometry; the message names the field, callers prefix the file and line.
-    """
+    """A :class:`PoseGT` from the 36 numeric tokens ``rot0 rot1 K0(9) K1(9) T_0to1(16)``; bad tokens or
+    geometry raise ValueError naming the field (callers prefix the file and line)."""
     if len(tokens) != POSE_LINE_TOKENS - 2:
         raise ValueError(f"expected {POSE_LINE_TOKENS - 2} numbers 'rot0 rot1 K0(9) K1(9) T_0to1(16)', "
                          f"got {len(tokens)}")
@@ -83,15 +71,8 @@ def format_pose_tokens(gt: PoseGT) -> list[str]:
 
 def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Dataset:
     """Read a pairs-with-ground-truth file as calibrated pairs, images relative to ``image_dir`` (default:
-    the file's folder), ids ``<name>/<stem0>-<stem1>`` (default name: the image folder's).
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file, or a listed image is missing.
-    ValueError
-        A bad line (named with its file and number), a duplicate pair, or no pair at all.
-    """
+    the file's folder), ids ``<name>/<stem0>-<stem1>`` (default name: the image folder's). A missing file
+    raises FileNotFoundError; a bad line (named), a duplicate or no pair ValueError."""
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"pairs-with-ground-truth file not found: {path}")

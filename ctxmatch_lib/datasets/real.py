@@ -1,17 +1,6 @@
-"""Loaders for the public real datasets, in the formats their authors distribute.
-
-Each loader takes the data root (default ``$CTXMATCH_DATA``) or the dataset folder and returns pairs in
-the conventions of :mod:`ctxmatch_lib.datasets.base`.
-
-==========  ===================================  ===========================================================
-name        layout                               ground truth
-==========  ===================================  ===========================================================
-hpatches    ``<seq>/1.ppm … 6.ppm``, ``H_1_k``   ``H_1_k`` maps image 1 to image k (pairs 1→2 … 1→6)
-oxford      ``<seq>/img1.* … img6.*``, ``H1tokp`` ``H1tokp`` maps image 1 to image k (pairs 1→2 … 1→6)
-homogr      ``<n>A.*``, ``<n>B.*``, ``<n>_vpts``  the model maps **B to A**: image 1 = A gets ``inv(model)``
-kusvod2     ``<n>A.*``, ``<n>B.*``, ``<n>_vpts``  ``xA^T F xB = 0``: image 1 = A gets ``F^T``; fitted from the
-                                                 hand points (normalised 8-point) when absent or all zeros
-==========  ===================================  ===========================================================
+"""Loaders of the public real datasets in their authors' formats (:data:`REAL_LOADERS`: HPatches, Oxford,
+Lebeda's homogr and kusvod2), each taking the data root (default ``$CTXMATCH_DATA``) or the dataset folder.
+Lebeda's files relate B to A; image 1 is A, so homogr gets ``inv(model)`` and kusvod2 ``F^T``.
 """
 
 from __future__ import annotations

@@ -1,16 +1,8 @@
-"""Calibrated pairs from the Strecha et al. (CVPR 2008) multi-view scenes, in openMVG's layout.
+"""Calibrated pairs from the Strecha et al. (CVPR 2008) scenes in openMVG's layout, standing in for the
+paper's SUN3D (Sec. 5.1): :func:`load_strecha_folder`, the pair rule :func:`select_pairs`, the bands
+:data:`DIFFICULTY_BANDS`. Layout, ``.camera`` format and pair rule: ``docs/evaluation.md`` (Calibrated pairs).
 
-They stand in for the paper's calibrated SUN3D (Sec. 5.1, not obtainable). Layout:
-``<scene>/images/0000.jpg`` (3072 x 2048) and ``<scene>/gt_dense_cameras/0000.jpg.camera``, 9 lines: ``K``
-(3), the distortion (1, zeros), the camera-to-world ``R`` (3), the centre ``C`` (1), ``width height`` (1);
-``P = K [R^T | -R^T C]``, principal point used as published (``docs/evaluation.md``, Calibrated pairs).
-
-**Pair rule** (:func:`select_pairs`), from the cameras alone: views ``i < j`` whose optical axes converge in
-front of both cameras, baseline at least :data:`MIN_BASELINE_RATIO` of the fixation depth (a defined
-translation direction), relative rotation at most 60 degrees (SIFT's repeatability vanishes beyond,
-Mikolajczyk et al., IJCV 2005); the rotation gives the band (:data:`DIFFICULTY_BANDS`); per scene and band
-at most :data:`MAX_PAIRS_PER_BAND` pairs, evenly over the angles. ``PoseGT.threshold_scale`` is
-``max(width, height) / 1024`` (:func:`threshold_scale_for`).
+The 60° cap on the relative rotation: SIFT's repeatability vanishes beyond (Mikolajczyk et al., IJCV 2005).
 """
 
 from __future__ import annotations
@@ -78,15 +70,8 @@ def _numbers(lines: list[str], start: int, stop: int, count: int, path: Path) ->
 
 
 def read_strecha_camera(path) -> Camera:
-    """Read one ``.camera`` file (module docstring) as a :class:`Camera`.
-
-    Raises
-    ------
-    FileNotFoundError
-    ValueError
-        Fewer than 9 lines, a line with the wrong count of numbers, non-zero distortion, a zero focal, a
-        non-rotation ``R`` or a non-positive size; the message names the file and line.
-    """
+    """Read one ``.camera`` file (9 lines: K, distortion, R, C, size) as a :class:`Camera`; a malformed file
+    raises ValueError naming the file and line."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"camera file not found: {path}")
@@ -159,8 +144,9 @@ def pose_difficulty(pair) -> str:
 
 
 def select_pairs(cameras, *, max_per_band: int | None = MAX_PAIRS_PER_BAND) -> list[tuple[int, int, str]]:
-    """The pairs ``(i, j, band)`` of one scene's cameras under the pair rule (module docstring), sorted;
-    ``max_per_band=None`` keeps every qualifying pair."""
+    """The pairs ``(i, j, band)`` of one scene's cameras, sorted: axes converging in front of both cameras,
+    baseline ≥ :data:`MIN_BASELINE_RATIO` × fixation depth, rotation in a band; at most ``max_per_band``
+    (``None``: all) per band, evenly over the angles."""
     by_band: dict[str, list[tuple[float, int, int]]] = {name: [] for name, _, _ in DIFFICULTY_BANDS}
     for i in range(len(cameras)):
         for j in range(i + 1, len(cameras)):
@@ -216,27 +202,11 @@ def _scene_views(scene: Path) -> tuple[list[Path], list[Camera]]:
 
 def load_strecha_folder(folder, *, dataset: str = "strecha",
                         max_per_band: int | None = MAX_PAIRS_PER_BAND) -> list[Pair]:
-    """Calibrated pairs of a scene folder or a folder of scenes in the Strecha / openMVG layout.
+    """Calibrated pairs of a scene (``images/``, ``gt_dense_cameras/``) or a folder of scenes, ids
+    ``<dataset>/<scene>/<i>-<j>``; ``max_per_band``: see :func:`select_pairs`.
 
-    Parameters
-    ----------
-    folder : str or Path
-        A scene (``images/``, ``gt_dense_cameras/``) or a folder of scenes.
-    dataset : str
-        Name stored in each pair; pair ids are ``<dataset>/<scene>/<i>-<j>``.
-    max_per_band : int or None
-        See :func:`select_pairs`.
-
-    Returns
-    -------
-    list of Pair
-
-    Raises
-    ------
-    FileNotFoundError
-        No scene in ``folder``, or a view without its ``.camera`` file.
-    ValueError
-        A malformed ``.camera`` file (named, with the line) or a size that disagrees with its image.
+    Raises FileNotFoundError (no scene, a missing ``.camera``) or ValueError (a malformed ``.camera``, a
+    size that disagrees with its image).
     """
     scenes = strecha_scenes(folder)
     if not scenes:

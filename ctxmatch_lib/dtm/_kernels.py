@@ -1,8 +1,6 @@
-"""Compiled (numba) graph walks of DTM: triangle adjacency and alpha shapes (:mod:`.boundary`), point
-location (:meth:`~ctxmatch_lib.dtm.triangulation.Triangulation.find_simplex`), DTM1 steps 3-6 and DTM2
-step 2 (:mod:`.core`), vertex neighbourhoods and hull edges. Without ``fastmath`` (no reassociation, no
-FMA contraction), so the results are the same bits on any machine; cached on disk under
-``$CTXMATCH_CACHE/numba`` (:func:`ctxmatch_lib.cache.cache_dir`) unless ``NUMBA_CACHE_DIR`` is set.
+"""Compiled (numba) graph walks of DTM: triangle adjacency, alpha shapes, point location, DTM1 steps 3-6,
+DTM2 step 2, vertex neighbourhoods and hull edges. No ``fastmath``, so the same bits on any machine;
+cached under ``$CTXMATCH_CACHE/numba`` unless ``NUMBA_CACHE_DIR`` is set.
 """
 
 from __future__ import annotations

@@ -45,18 +45,12 @@ class AlphaShape:
 
     Attributes
     ----------
-    points : ndarray of shape (N, 2)
-        The input points.
-    simplices : ndarray of shape (T, 3)
-        Their Delaunay triangles (rows into ``points``).
-    radii : ndarray of shape (T,)
-        Circumradius of each triangle.
+    points, simplices, radii : ndarray of shape (N, 2), (T, 3), (T,)
+        The input points, their Delaunay triangles and the triangles' circumradii.
     alpha : float
         The alpha radius used; triangles with ``radii <= alpha`` form the shape (``inf`` if degenerate).
-    inside : ndarray of shape (T,) bool
-        Triangles of the shape, holes filled.
-    edges : ndarray of shape (E, 2)
-        Boundary edges of the shape (rows into ``points``).
+    inside, edges : ndarray of shape (T,) bool, (E, 2)
+        Triangles of the shape (holes filled) and its boundary edges (rows into ``points``).
     """
 
     points: np.ndarray
@@ -74,30 +68,19 @@ class Boundary:
     Attributes
     ----------
     points : ndarray of shape (Q, 2)
-        The final boundary set ``B`` (purple vertices in Fig. 2), (x, y) pixels.
-    method : str
-        One of :data:`BOUNDARY_METHODS`.
-    s : float
-        Fattening distance and segment length ``min(width, height) / 10`` (footnote 3).
-    vertices : ndarray of shape (V, 2)
-        The vertex set ``V`` the boundary was built for.
-    vertex_simplices : ndarray of shape (T, 3)
-        Delaunay triangles of ``V`` alone (blue in Fig. 2; empty when not computed).
-    hull_edges : ndarray of shape (H, 2)
-        Convex-hull edges of ``V`` (red in Fig. 2), rows into ``vertices``.
-    alpha : float
-        Alpha radius of the first shape (``inf`` for ``"convex"``, ``nan`` when not computed).
+        The final boundary set ``B`` (purple vertices in Fig. 2).
+    method, s : str, float
+        One of :data:`BOUNDARY_METHODS`; the step ``min(width, height) / 10`` (footnote 3).
+    vertices, vertex_simplices, hull_edges : ndarray
+        ``V``, its Delaunay triangles (blue in Fig. 2; may be empty) and hull edges (red), rows into ``V``.
+    alpha, contour_alpha : float
+        Alpha radii of the first and second shapes (``nan`` when not computed).
     shape_edges : ndarray of shape (E, 2)
-        Boundary edges of the first shape (solid orange in Fig. 2; the hull for ``"convex"``), rows into
-        ``vertices``.
+        Boundary edges of the first shape (solid orange in Fig. 2), rows into ``vertices``.
     fattened : ndarray of shape (F, 2)
-        ``B'`` (dashed orange in Fig. 2): rows ``4e:4e+4`` are ``(v0 + s n, v1 + s n, v0 - s n, v1 - s n)``
-        for ``shape_edges[e]`` with unit normal ``n``.
+        ``B'`` (dashed orange): rows ``4e:4e+4`` are ``(v0 + s n, v1 + s n, v0 - s n, v1 - s n)`` of edge ``e``.
     contour : list of ndarray of shape (R, 2)
-        Closed rings (first point repeated) of the boundary of ``V ∪ B'`` (purple in Fig. 2) that
-        ``points`` samples; for ``"canvas"``/``"corners"`` the image border.
-    contour_alpha : float
-        Alpha radius of the second shape (``nan`` when not computed).
+        Closed rings of the boundary of ``V ∪ B'`` (purple in Fig. 2) that ``points`` samples.
     """
 
     points: np.ndarray
@@ -126,17 +109,10 @@ def _circumradii(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
 
 def matlab_boundary_alpha(radii: np.ndarray, simplices: np.ndarray, neighbors: np.ndarray,
                           n_points: int, shrink: float = 0.5) -> float:
-    """Alpha radius that MATLAB ``boundary(P, shrink)`` picks for a Delaunay triangulation.
+    """Alpha radius that MATLAB ``boundary(P, shrink)`` picks for a Delaunay triangulation (docs/dtm.md).
 
-    The candidate alphas (MATLAB's *alpha spectrum*) are the distinct triangle circumradii; the critical
-    alpha ``a_c`` is the smallest whose shape (the triangles of circumradius ``<= alpha``) encloses every
-    point in one edge-connected region. Of the values ``a_c = v_1 < ... < v_n``, MATLAB uses ``v_k``,
-    ``k = max(ceil((1 - shrink) n), 1)``: ``shrink = 0`` gives the convex hull, 1 the tightest single region.
-    ``a_c`` is found exactly by a union-find over the triangles
-    (:func:`~ctxmatch_lib.dtm._kernels.alpha_shapes_kernel`).
-
-    ``radii``: the ``(T,)`` circumradii of the triangles ``simplices`` with adjacency ``neighbors``
-    (scipy's conventions) over ``n_points`` points. Returns the alpha (``inf`` without triangles).
+    ``radii``: the ``(T,)`` circumradii of ``simplices`` with adjacency ``neighbors`` (scipy's conventions)
+    over ``n_points`` points. Returns the alpha (``inf`` without triangles).
     """
     if not 0.0 <= shrink <= 1.0:
         raise ValueError(f"shrink must be in [0, 1], got {shrink}")
@@ -164,9 +140,8 @@ def alpha_shape(points: np.ndarray, shrink: float = 0.5, *, tri: DelaunayMesh | 
 
 def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
                   neighbors: np.ndarray | None = None) -> tuple[list, list]:
-    """:func:`alpha_shape` of several triangulated point sets in one compiled pass over their disjoint union
-    (each shape as alone). ``neighbors``: the union's triangle adjacency, when known. Returns the shapes and
-    each mesh's triangle adjacency."""
+    """:func:`alpha_shape` of several triangulated point sets in one compiled pass; returns the shapes and
+    each mesh's triangle adjacency (``neighbors``: the union's, when known)."""
     n_groups = len(points_list)
     p_off = np.array([0, *itertools.accumulate(len(p) for p in points_list)], np.int64)
     t_off = np.array([0, *itertools.accumulate(len(s) for s in simplices_list)], np.int64)
@@ -192,10 +167,8 @@ def _alpha_shapes(points_list: list, simplices_list: list, shrink: float,
 
 
 def _outside_shape(b: np.ndarray, dist: np.ndarray, vertices: np.ndarray, shape: AlphaShape) -> np.ndarray:
-    """Drop the boundary samples inside the first alpha shape of ``V`` (see :func:`dtm_boundary`).
-
-    ``dist`` is each sample's distance to its nearest vertex; a sample farther than the shape's largest
-    circumradius from every vertex is outside it, so only the others are tested against the polygons."""
+    """Drop the boundary samples ``b`` inside the first alpha shape of ``V``; ``dist``: each sample's
+    distance to its nearest vertex (beyond the largest circumradius means outside, untested)."""
     if len(b) == 0 or len(shape.edges) == 0:
         return b
     reach = float(shape.radii[shape.inside].max())
@@ -245,15 +218,12 @@ def _row_keys(points: np.ndarray) -> np.ndarray:
 
 
 def keypoint_boundary(vertices, image_size, keypoints, *, collapsed: bool = False) -> Boundary:
-    """Boundary set of the author's Python port of DTM (``boundary="keypoints"``).
+    """Boundary set of the author's Python port of DTM (``boundary="keypoints"``, ``prepare_data_shaped``).
 
-    As the port (github fb82/DTM, ``prepare_data_shaped``), ``B`` is (1) the image frame
-    ``[0, width] x [0, height]`` split into equal segments of about ``ceil(sqrt(width * height / |V|))``
-    pixels (the mean vertex spacing), rounded to integers, plus (2) the image's other keypoints ``O``
-    (rounded, not in ``V``) on a Delaunay triangle of ``V ∪ O ∪ frame`` with a frame vertex and no ``V``
-    vertex: the unmatched detections just inside the frame. ``keypoints``: all of the image's (``collapsed``:
-    already rounded and distinct). In the returned :class:`Boundary`, ``.points`` is ``B`` (frame points
-    first), ``.contour`` the frame ring and ``.fattened`` the keypoints taken into ``B``.
+    ``B`` is the image frame sampled every ``ceil(sqrt(w h / |V|))`` px, rounded, plus the other keypoints
+    (not in ``V``) on a Delaunay triangle with a frame vertex and no ``V`` vertex. ``keypoints``: all of the
+    image's (``collapsed``: already rounded and distinct). ``.points``: frame points first, then the taken
+    keypoints (also in ``.fattened``); ``.contour``: the frame ring.
 
     Examples
     --------
@@ -308,14 +278,12 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
     image_size : tuple of int
         ``(width, height)``; sets ``s = min(width, height) / 10`` (footnote 3) and the canvas.
     method : {"alpha", "convex", "canvas", "corners", "keypoints"}
-        ``"alpha"`` is DTM's (Fig. 2): the alpha-shape edges of ``V`` (MATLAB ``boundary``, footnote 2),
-        each fattened into the four points at distance ``s`` on the perpendiculars through its ends
-        (``B'``), then the alpha-shape contour of ``V ∪ B'`` split into segments of length at most ``s``.
-        ``"convex"``: the same with the convex hull (Fig. 11c-d); ``"canvas"``: the image border split into
-        segments of at most ``s`` (Fig. 11b); ``"corners"``: the image corners (Fig. 11a); ``"keypoints"``:
-        :func:`keypoint_boundary`.
+        ``"alpha"``: DTM's (Fig. 2), the alpha-shape edges of ``V`` fattened by ``s`` (``B'``), then the
+        alpha-shape contour of ``V ∪ B'`` sampled every ``s`` at most; ``"convex"``: the same with the hull
+        (Fig. 11c-d); ``"canvas"``: the sampled image border (Fig. 11b); ``"corners"``: the image corners
+        (Fig. 11a); ``"keypoints"``: :func:`keypoint_boundary`.
     shrink : float
-        MATLAB shrink factor for ``"alpha"`` (MATLAB's default 0.5, footnote 2).
+        MATLAB ``boundary`` shrink factor for ``"alpha"`` (footnote 2).
     keypoints : array_like of shape (N, 2), optional
         All keypoints of the image; required by ``"keypoints"``, ignored otherwise.
 
@@ -326,17 +294,9 @@ def dtm_boundary(vertices, image_size, method: str = "alpha", *, shrink: float =
 
     Notes
     -----
-    Choices the paper leaves open:
-
-    - The contour of ``V ∪ B'`` cuts the convex corners of ``B'`` with chords closer than ``s`` to ``V``
-      (``0.71 s`` at a right angle): samples closer than ``s`` are pushed radially out to ``s`` from their
-      nearest vertex, and any still closer than ``s/2`` dropped.
-    - On sparse ``V`` (vertices more than about ``2 s`` apart) the contour can cut into the shape of ``V``:
-      samples inside the first shape are dropped, so ``B`` bounds it from outside, as Fig. 2 intends.
-    - Constructed points are rounded to float32 (under 4e-5 px at image scale), the coordinates the fast
-      triangulation (:func:`~ctxmatch_lib.dtm.triangulation.delaunay_simplices`) is exact on.
-    - Fewer than three or collinear vertices have no alpha shape: the contour is then that of the
-      ``s``-buffer of ``V`` (a circle or a stadium). An empty ``V`` gives an empty ``B``.
+    Samples closer than ``s`` to ``V`` are pushed out to ``s``, samples inside the first shape dropped,
+    points rounded to float32; fewer than three or collinear vertices get the ``s``-buffer of ``V``
+    (see docs/dtm.md, "The boundary").
 
     Examples
     --------

@@ -25,25 +25,19 @@ class DTM1Iteration:
     ----------
     iteration : int
         ``i``, from 1.
-    active : ndarray of shape (n,)
-        ``M^{i-1}``, the matches entering the iteration (increasing).
+    active, kept : ndarray
+        ``M^{i-1}`` entering and ``M^i`` leaving the iteration (increasing).
     vertex1, vertex2 : ndarray of shape (n,)
-        Vertex of ``tri1``/``tri2`` each active match collapsed into (``active[k]`` -> ``vertex1[k]``).
-    boundary1, boundary2 : Boundary
-        ``B^i_1``, ``B^i_2`` and their construction (Fig. 2 / Appendix A).
-    tri1, tri2 : Triangulation
-        ``T_1``, ``T_2``: Delaunay triangulations of ``V ∪ B^i`` (Fig. 3, blue).
-    consistency : ndarray of shape (n,)
-        ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` of each active match (step 4).
-    rank : ndarray of shape (n,)
-        Active matches in ranking order ``r(m)`` (step 4; ties by keypoint coordinates, then indices).
+        Vertex of ``tri1``/``tri2`` each active match collapsed into.
+    boundary1, boundary2, tri1, tri2 : Boundary, Triangulation
+        ``B^i`` (Fig. 2) and the triangulations of ``V ∪ B^i`` (Fig. 3, blue).
+    consistency, rank : ndarray of shape (n,)
+        ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` per active match, and the ranking order (step 4).
     contraction : ndarray of shape (t,)
-        ``T`` in the order it was built (step 5; orange in Fig. 3).
+        ``T`` in build order (step 5; orange in Fig. 3).
     cluster_ptr, cluster_members : ndarray
-        Expansion clusters (step 6; yellow in Fig. 3) as CSR: the cluster of ``contraction[c]`` is
-        ``cluster_members[cluster_ptr[c]:cluster_ptr[c + 1]]`` = ``M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}``.
-    kept : ndarray of shape (n',)
-        ``M^i``, the union of the clusters (increasing).
+        CSR expansion clusters (step 6; yellow in Fig. 3): ``contraction[c]``'s is
+        ``cluster_members[cluster_ptr[c]:cluster_ptr[c + 1]]``.
     """
 
     iteration: int
@@ -75,15 +69,10 @@ class DTM2Level:
     ----------
     level : int
         ``i``: the DTM1 iteration whose removed matches are re-examined.
-    base : ndarray of shape (e,)
-        ``E^i``: the matches triangulated at this level (increasing).
-    tri1, tri2 : Triangulation
-        ``T'_1``, ``T'_2``: Delaunay triangulations of the collapsed ``E^i`` keypoints plus boundaries built
-        around them (``dtm2_boundary="current"``) or DTM1's ``B^i_1``, ``B^i_2`` (``"stored"``), DTM2 step 1.
-    candidates : ndarray of shape (c,)
-        ``M^{i-1} \\ M^i``, the matches DTM1 iteration ``i`` removed.
-    added : ndarray of shape (a,)
-        The candidates that passed the two-way triangle test (DTM2 step 2); ``E^{i-1} = E^i ∪ added``.
+    base, tri1, tri2 : ndarray, Triangulation
+        ``E^i`` (increasing) and its triangulations with boundaries ``T'_1``, ``T'_2`` (DTM2 step 1).
+    candidates, added : ndarray
+        ``M^{i-1} \\ M^i``, and those passing the two-way test (step 2): ``E^{i-1} = E^i ∪ added``.
     """
 
     level: int
@@ -100,11 +89,8 @@ class DTMTrace:
 
     Attributes
     ----------
-    iterations : tuple of DTM1Iteration
-        DTM1 iterations ``1..ī`` in order (the last one changes nothing, by definition of ``ī``; when an
-        iteration empties the set, it is the last one recorded).
-    levels : tuple of DTM2Level
-        DTM2 levels in the order run (``ī - 1`` down to 1); empty with ``stages=1``.
+    iterations, levels : tuple of DTM1Iteration, tuple of DTM2Level
+        DTM1 iterations ``1..ī``; DTM2 levels ``ī - 1`` down to 1 (empty with ``stages=1``).
     image_size1, image_size2 : tuple of int
         ``(width, height)`` of the two images.
     """
@@ -122,15 +108,13 @@ class DTMResult:
     Attributes
     ----------
     keep : ndarray of shape (K,) bool
-        The DTM2 output ``E`` (the DTM1 output ``M^ī`` with ``stages=1``): ``matches[keep]``.
-    removed_at : ndarray of shape (K,) int
-        0 if the match survived DTM1, else the DTM1 iteration ``i`` that removed it.
-    readded_at : ndarray of shape (K,) int
-        0 if DTM2 did not re-add the match, else the level ``i`` that did.
+        The output ``E`` (``M^ī`` with ``stages=1``): ``matches[keep]``.
+    removed_at, readded_at : ndarray of shape (K,) int
+        The DTM1 iteration that removed / DTM2 level that re-added each match, 0 for none.
     trace : DTMTrace or None
         The per-step record with ``trace=True``.
     whole_set : bool
-        Whether the whole-set rule (:func:`dtm`) kept every match; the other fields say what DTM alone did.
+        Whether the whole-set rule (:func:`dtm`) kept every match (the other fields: DTM alone).
     """
 
     keep: np.ndarray
@@ -158,8 +142,7 @@ def _neighbourhood_pairs(tri: Triangulation, other: Triangulation, vertex: np.nd
 
 @dataclass(frozen=True)
 class _Setup:
-    """What every triangulation of one :func:`dtm` run needs besides its vertices, and the triangulations
-    the run has built so far."""
+    """Per-run boundary settings and a cache of the triangulations built so far."""
 
     size1: tuple
     size2: tuple
@@ -170,8 +153,7 @@ class _Setup:
     built: dict = field(default_factory=dict, compare=False, repr=False)
 
     def triangulations(self, v1: np.ndarray, v2: np.ndarray):
-        """Boundaries ``B_1``, ``B_2`` and the triangulations of ``V ∪ B`` (steps 1-2), built once per vertex
-        set and run (they depend on the vertex set alone)."""
+        """``(B_1, B_2, T_1, T_2)`` for vertex sets ``v1``, ``v2`` (steps 1-2), built once per vertex set."""
         keys = [(0, v1.shape, v1.tobytes()), (1, v2.shape, v2.tobytes())]
         new = [j for j in (0, 1) if keys[j] not in self.built]
         vs, sizes, others = (v1, v2), (self.size1, self.size2), (self.others1, self.others2)
@@ -223,9 +205,8 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
 
 
 def _shared_keypoint_spread(p1: np.ndarray, p2: np.ndarray, canon: np.ndarray, tol: float) -> bool:
-    """Whether two matches share an image-1 keypoint but have image-2 keypoints more than ``2 tol`` apart,
-    so that no map fits both within ``tol`` and the whole-set rule's fit is skipped (``canon`` ranks the
-    matches by image-1 keypoint first)."""
+    """Whether two matches share an image-1 keypoint with image-2 keypoints over ``2 tol`` apart (no map fits
+    both, so the whole-set fit is skipped); ``canon`` ranks the matches by image-1 keypoint first."""
     order = np.empty(len(canon), np.int64)
     order[canon] = np.arange(len(canon))
     a, b = p1[order], p2[order]
@@ -237,9 +218,8 @@ def _shared_keypoint_spread(p1: np.ndarray, p2: np.ndarray, canon: np.ndarray, t
 def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
     """Whether one proper homography maps every ``p1`` onto its ``p2`` within ``tol`` pixels, and back.
 
-    The normalised DLT fit (Hartley & Zisserman, Alg. 4.2) of all pairs, from the 9 x 9 normal matrix
-    summed without BLAS (independent of the thread count). *Proper*: unique (1-D null space), every ``p1``
-    in front of the horizon (one sign of ``w``) and not mirrored (``det H > 0``).
+    Normalised DLT of all pairs (Hartley & Zisserman, Alg. 4.2). *Proper*: unique, every ``p1`` in front
+    of the horizon and ``det H > 0``.
     """
     if len(p1) < 4:
         return False
@@ -260,21 +240,12 @@ def _one_homography(p1: np.ndarray, p2: np.ndarray, tol: float) -> bool:
 
 def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray, base_src: np.ndarray,
                    base_dst: np.ndarray, base_vertex: np.ndarray) -> np.ndarray:
-    """DTM2 step 2 in one direction: the candidates ``(q_src, q_dst)`` that pass.
+    """DTM2 step 2 in one direction: the mask of candidates ``(q_src, q_dst)`` that pass.
 
-    ``W`` is the triangle of ``tri_src`` (the base matches' vertices plus ``B``) holding ``q_src``.
-
-    - ``W`` with three keypoint vertices: the candidate passes if ``q_dst`` lies strictly inside a triangle
-      formed by the destination keypoints of base matches collapsed onto the three vertices (every
-      combination, many-to-many) that turns the same way as ``W``.
-    - ``W`` with one or two boundary vertices, which have no partner: the candidate passes if translating
-      ``q_dst`` by the motion of a base match whose vertex is adjacent to the keypoint vertex of ``W``
-      nearest to ``q_src`` lands strictly inside ``W``.
-    - ``W`` of boundary vertices only, or no ``W``: the candidate fails.
-
-    The paper states only the first case; the rest follows the author's Python port (see :func:`dtm`).
-    "Strictly inside": the three edge cross products times the orientation of ``W`` (0 for a flat ``W``,
-    which holds nothing) are positive.
+    With ``W`` the triangle of ``tri_src`` holding ``q_src``: three keypoint vertices -> ``q_dst`` must lie
+    strictly inside a same-orientation partner triangle of base-match keypoints; one or two boundary
+    vertices -> ``q_dst`` translated by a base match adjacent to ``W``'s nearest keypoint vertex must land
+    strictly inside ``W`` (the author's port; the paper states only the first case); otherwise it fails.
     """
     if len(q_src) == 0 or len(base_src) == 0 or tri_src.delaunay is None:
         return np.zeros(len(q_src), bool)
@@ -287,10 +258,10 @@ def _transfer_test(tri_src: Triangulation, q_src: np.ndarray, q_dst: np.ndarray,
 
 
 def _dtm2_level(base, cand, kp1, kp2, setup: _Setup, stored, tris=None):
-    """One DTM2 level: triangulate ``E`` with its boundaries in both images, two-way test the candidates.
+    """One DTM2 level: triangulate ``E`` (``base``) in both images and two-way test the candidates.
 
-    ``stored`` is ``(B_1^i, B_2^i)`` from DTM1, or ``None`` to build the boundaries around ``E``; ``tris``
-    are the triangulations of ``E`` with its own boundaries when already known."""
+    ``stored``: DTM1's ``(B_1^i, B_2^i)``, or ``None`` to build boundaries around ``E``; ``tris``: known
+    triangulations of ``E`` to reuse."""
     v1, vl = collapse_vertices(kp1[base])
     v2, vr = collapse_vertices(kp2[base])
     if tris is not None:
@@ -312,37 +283,29 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
         whole_set_tol: float | None = 1.0, trace: bool = False) -> DTMResult:
     """Delaunay Triangulation Matching (Sec. 4): keep matches whose Delaunay neighbourhoods agree.
 
-    DTM1 (steps 1-6) repeats, until nothing changes: collapse the keypoints of the surviving matches
-    ``M^{i-1}`` into rounded vertices ``V_1``, ``V_2``; add the boundary sets ``B^i`` (Fig. 2) and
-    triangulate; take the neighbourhood ``A_v`` of each vertex and the matches ``M_{A_v}`` collapsed into
-    it; rank the matches by score, then by ``|M_{A^1_{v_l}} ∩ M_{A^2_{v_r}}|`` descending; *contract*:
-    greedily pick the best remaining match into ``T`` and discard ``(M_{A^1} ∪ M_{A^2}) \\ (M_{A^1} ∩
-    M_{A^2})`` around it; *expand*: ``M^i`` is the union of ``M_{A^1} ∩ M_{A^2}`` over ``T``. DTM2 then
-    walks the iterations backwards, ``i = ī - 1 .. 1``: it triangulates the current output ``E`` with a
-    boundary and re-adds each match removed at iteration ``i`` whose keypoint in one image falls
-    in a triangle whose partner triangle in the other image holds its other keypoint, both ways (DTM2
-    steps 1-2).
+    DTM1 (steps 1-6) triangulates the rounded keypoints of the surviving matches plus a boundary (Fig. 2),
+    ranks the matches by score and neighbourhood consistency, and contracts/expands until nothing changes.
+    DTM2 walks the iterations back and re-adds removed matches that fall in corresponding triangles of
+    both images (steps 1-2).
 
     Parameters
     ----------
     kpts1, kpts2 : array_like of shape (N1, 2), (N2, 2)
-        Keypoints, (x, y) pixels, origin at the centre of the top-left pixel (extra columns ignored). All
-        must lie on their image (``-0.5 <= x <= width - 0.5``, same for y).
+        Keypoints, (x, y) pixels, origin at the centre of the top-left pixel; all must lie on their image.
     matches : array_like of shape (K, 2)
         Indices into ``kpts1``/``kpts2``; many-to-many allowed.
     scores : array_like of shape (K,), optional
-        Descriptor distances, lower is better (step 4); ``None``: all equal (purely spatial DTM).
+        Descriptor distances, lower is better (step 4); ``None``: all equal.
     image_size1, image_size2 : tuple of int
         ``(width, height)``; they set the boundary distance ``s = min(w, h) / 10``.
     stages : {1, 2}
         1 runs DTM1 only, 2 also DTM2.
     boundary : {"alpha", "convex", "canvas", "corners", "keypoints"}
-        Boundary construction (:func:`~ctxmatch_lib.dtm.boundary.dtm_boundary`); ``"alpha"`` is the
-        paper's, ``"keypoints"`` the author's Python port's.
+        See :func:`~ctxmatch_lib.dtm.boundary.dtm_boundary`; ``"alpha"`` is the paper's.
     shrink : float
         MATLAB ``boundary`` shrink factor of the alpha shape (footnote 2).
     dtm2_boundary : {"current", "stored"}
-        DTM2's boundaries: built around ``E^i`` (as the port) or DTM1's ``B^i`` (the paper's text; Notes).
+        DTM2's boundaries: built around ``E^i`` (as the port) or DTM1's ``B^i`` (the paper's text).
     whole_set_tol : float or None
         Transfer error in pixels of the whole-set rule (Notes); ``None`` turns it off.
     trace : bool
@@ -351,51 +314,25 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
     Returns
     -------
     DTMResult
-        ``keep`` (K,) bool, ``removed_at`` (K,) int, ``readded_at`` (K,) int, ``trace``.
 
     Raises
     ------
     ValueError
-        On keypoints outside their image (typically an image size given as (height, width)), and on
-        arguments out of their domains.
+        On keypoints outside their image (e.g. a size given as (height, width)) or arguments out of domain.
 
     Notes
     -----
-    Where the paper leaves a choice open, DTM follows the author's Python port (github fb82/DTM,
-    ``src/dtm.py``; compared on the real pairs in ``docs/dtm.md``):
-
-    - *Neighbourhoods.* The paper's ``A_v`` includes ``v`` itself (step 3); taken literally, every match
-      supports itself and DTM1 never removes an outlier ranked above its neighbours. Only the matches on
-      *adjacent* vertices count, not ``m`` nor the others collapsed onto its vertex.
-    - *DTM2 near the boundary.* A triangle ``W`` with one or two boundary vertices has no partner: the
-      candidate passes when translating its other keypoint by the motion of a base match adjacent to the
-      keypoint vertex of ``W`` nearest to it lands in ``W`` (:func:`_transfer_test`).
-    - *Inside* is strict, and a partner triangle must turn the same way as ``W`` (not mirrored).
-    - *DTM2 boundaries.* The paper's text keeps DTM1's ``B^i`` (``"stored"``); drawn around the larger
-      ``M^{i-1}``, they leave wide boundary triangles around ``E^i`` through which the translation rule
-      re-adds gross outliers, so the default builds them around ``E^i``, as the port does.
-
-    The result does not depend on the order of the matches: vertices are sorted, and ranking ties are broken
-    by the keypoint coordinates, then indices. Keypoints are rounded half away from zero (the paper's
-    ``⌈·⌋``). The triangulations are exact (:class:`~ctxmatch_lib.dtm.triangulation.IncrementalDelaunay`);
-    the diagonal of cocircular vertices, a tie the method leaves open, follows the insertion order.
-
-    **Small sets.** The boundary always surrounds the vertices (for ``"alpha"``: a circle around a single
-    vertex, a stadium around collinear ones). A match is kept only when another supports it, so a single
-    match is removed, and so are matches all collapsed onto one vertex pair; when DTM1 empties the set the
-    output is empty. The alpha boundary lies at ``s`` whatever the vertices' spacing, so a few matches
-    spread over the image lose their Delaunay edges to it. Hence the **whole-set rule**: when DTM removes
-    some of ``K >= 4`` matches (on at least four distinct vertices per image) and one proper homography
-    (a unique normalised-DLT fit of all of them, every point in front of the horizon, not mirrored) maps
-    each onto its partner within ``whole_set_tol`` pixels in both images, every match is kept
-    (``result.whole_set``; ``removed_at``, ``readded_at`` and the trace keep what DTM alone did). The paper
-    is silent here and the port has no such rule. One match off the homography stops it from ``K = 5`` on;
-    at ``K = 4`` any four matches with a proper homography are kept.
+    Where the paper leaves a choice open, DTM follows the author's Python port (see docs/dtm.md): only
+    matches on *adjacent* vertices count as neighbours (step 3), DTM2 tests triangles touching the boundary
+    by translation (:func:`_transfer_test`), "inside" is strict and unmirrored, and DTM2's boundaries are
+    built around ``E^i``. Ties are broken by keypoint coordinates, then indices, so the result does not
+    depend on the match order. **Whole-set rule** (not in the paper): when one proper homography maps all
+    ``K >= 4`` matches (on 4+ distinct vertices per image) within ``whole_set_tol`` pixels both ways, every
+    match is kept (``result.whole_set``); it saves small sets that the boundary cuts (docs/dtm.md).
 
     References
     ----------
-    F. Bellavia, "SIFT Matching by Context Exposed", IEEE TPAMI 2022, Sec. 4 (DTM1 steps 1-6, DTM2
-    steps 1-2), Fig. 2-3, Appendix A. F. Bellavia, DTM Python port, https://github.com/fb82/DTM.
+    Bellavia, TPAMI 2022, Sec. 4, Fig. 2-3, App. A; DTM Python port, https://github.com/fb82/DTM.
 
     Examples
     --------
@@ -489,16 +426,10 @@ def dtm(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, stages:
 
 def dtm_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None,
                **params) -> np.ndarray:
-    """DTM behind the common filter signature of :data:`ctxmatch_lib.filters.FILTERS` (``"dtm"``).
+    """:func:`dtm`'s keep mask (K,) bool behind the common filter signature (``FILTERS["dtm"]``).
 
-    Arguments as :func:`dtm` (``params``: its keywords); ``shapes1``, ``shapes2`` are ignored. It decides on
-    the rows in their canonical order (:func:`ctxmatch_lib._numerics.order.canonical_order`), so a repeated
-    row gets one decision and the mask does not depend on the order of the rows.
-
-    Returns
-    -------
-    ndarray of shape (K,) bool
-        The keep mask, ``matches[keep]``.
+    Arguments as :func:`dtm`; ``shapes1``, ``shapes2`` are ignored. Rows are decided in their canonical
+    order, so repeated rows get one decision and the mask does not depend on the row order.
     """
 
     kp1, kp2 = as_points(kpts1, "kpts1"), as_points(kpts2, "kpts2")

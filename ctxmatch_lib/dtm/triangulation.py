@@ -45,19 +45,10 @@ def round_half_away(x: np.ndarray) -> np.ndarray:
 
 
 def collapse_vertices(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Round points to integer pixels and merge duplicates (DTM1 step 2).
+    """Round ``(N, 2)`` points to integer pixels and merge duplicates (DTM1 step 2).
 
-    Parameters
-    ----------
-    points : ndarray of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-
-    Returns
-    -------
-    vertices : ndarray of shape (V, 2)
-        The distinct rounded points, sorted by (x, y) (independent of the order of ``points``).
-    inverse : ndarray of shape (N,)
-        ``vertices[inverse[n]]`` is the vertex point ``n`` collapsed into.
+    Returns the distinct rounded points ``(V, 2)`` sorted by (x, y), and ``inverse`` ``(N,)``:
+    ``vertices[inverse[n]]`` is the vertex point ``n`` collapsed into.
 
     Examples
     --------
@@ -152,18 +143,9 @@ def _float32_exact(points: np.ndarray) -> bool:
 class IncrementalDelaunay:
     """Delaunay triangulation of a point set that can grow by insertion (OpenCV ``Subdiv2D``, Qhull fallback).
 
-    DTM triangulates ``V`` (for the alpha shape), then ``V ∪ B`` by inserting ``B``. ``Subdiv2D`` is exact on
-    float32-exact points (integer pixels, the float32-rounded boundary points); its result is accepted when
-    its triangles use every point and cover the convex hull (by area), else, and for duplicates or other
-    input, Qhull triangulates. The two may split cocircular points along different diagonals, a tie the
-    method leaves open.
-
-    Parameters
-    ----------
-    points : ndarray of shape (P, 2)
-        Initial points, (x, y) pixels.
-    pad : float
-        How far outside the bounding box of ``points`` later insertions may fall (farther: Qhull).
+    ``Subdiv2D`` (exact on float32-exact points) is used when its triangles use every point and cover the
+    hull; otherwise Qhull. ``pad``: how far outside the bounding box of ``points`` later insertions may
+    fall (farther: Qhull).
     """
 
     def __init__(self, points: np.ndarray, pad: float = 0.0):
@@ -308,18 +290,12 @@ class Triangulation:
 
     Attributes
     ----------
-    points : ndarray of shape (P, 2)
-        Triangulation vertices, (x, y) pixels: rows ``[:n_vertices]`` are the collapsed keypoints ``V``,
-        the remaining rows the boundary points ``B`` (never matches).
-    n_vertices : int
-        ``|V|``.
-    simplices : ndarray of shape (T, 3)
-        Triangles as rows into ``points`` (empty when degenerate).
+    points, n_vertices : ndarray of shape (P, 2), int
+        Rows ``[:n_vertices]``: the collapsed keypoints ``V``; the rest: the boundary points ``B``.
+    simplices, delaunay : ndarray of shape (T, 3), DelaunayMesh or None
+        Triangles as rows into ``points``, and the mesh with its adjacency (empty / ``None`` if degenerate).
     indptr, indices : ndarray
-        CSR neighbourhoods over ``V``: ``indices[indptr[v]:indptr[v + 1]]`` are the ``V`` vertices adjacent
-        to ``v``, *including ``v`` itself* (``A_v`` of DTM1 step 3; boundary vertices dropped).
-    delaunay : DelaunayMesh or None
-        The triangulation with its triangle adjacency; ``None`` when degenerate.
+        CSR ``A_v`` (step 3): the ``V`` vertices adjacent to ``v``, *including ``v`` itself*.
     """
 
     points: np.ndarray
@@ -337,10 +313,8 @@ class Triangulation:
     def find_simplex(self, xy: np.ndarray) -> np.ndarray:
         """Index of the triangle holding each point of ``xy`` (``(Q, 2)``), ``-1`` outside or degenerate.
 
-        A visibility walk (:func:`~ctxmatch_lib.dtm._kernels.locate_kernel`) from a triangle around the
-        query's nearest vertex; it terminates on a Delaunay triangulation. Points on an edge count as inside
-        (either triangle). Queries still walking after many steps (near-degenerate slivers) are tested
-        against every triangle.
+        A visibility walk from the query's nearest vertex; points on an edge count as inside (either
+        triangle); queries still walking after many steps are tested against every triangle.
         """
         xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
         out = np.full(len(xy), -1, np.int64)
@@ -370,21 +344,10 @@ class Triangulation:
 
 def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
                 simplices: np.ndarray | None = None) -> Triangulation:
-    """Delaunay triangulation of ``V ∪ B`` and the neighbourhoods ``A_v`` of the ``V`` vertices.
+    """Delaunay triangulation of ``V ∪ B`` and the neighbourhoods ``A_v`` of the ``V`` vertices (step 3).
 
-    Parameters
-    ----------
-    vertices : ndarray of shape (V, 2)
-        Distinct vertex points (x, y) pixels, e.g. from :func:`collapse_vertices`.
-    boundary : ndarray of shape (Q, 2), optional
-        Boundary points ``B`` (Fig. 2): triangulated, but in no neighbourhood (they carry no match).
-    simplices : ndarray of shape (T, 3), optional
-        The Delaunay triangles of ``V ∪ B`` (rows into ``vertices`` then ``boundary``) when already known.
-
-    Returns
-    -------
-    Triangulation
-        With ``A_v`` as CSR arrays; degenerate input gives no triangles and ``A_v = {v}``.
+    ``boundary`` points are triangulated but in no neighbourhood; ``simplices``: the triangles of
+    ``V ∪ B`` when already known. Degenerate input gives no triangles and ``A_v = {v}``.
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 2)
     boundary = np.empty((0, 2)) if boundary is None else np.asarray(boundary, np.float64).reshape(-1, 2)

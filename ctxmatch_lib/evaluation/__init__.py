@@ -1,10 +1,8 @@
 """The evaluation engine of Sec. 5: plan units, key and cache them, run them (here, joblib or Dask), collect rows.
 
-Modules, each importing only those before it: ``steps`` (per-pair steps, argument checks), ``cache`` (keys,
-atomic files), ``rows`` (columns, error rows, ranked AP), ``overlap`` (tabulated FGINN by overlap), ``plan``
-(settings, pairs, units), ``unit`` (one pair), ``run`` (many units) and ``frontends`` (:func:`run_sweep`,
-:func:`evaluate_cached`, :func:`check_output`). ``ctxmatch eval``, ``ctxmatch sweep``,
-:func:`ctxmatch_lib.pipeline.evaluate_dataset` and the report notebooks share its unit keys and cache.
+Modules, each importing only those before it: ``steps``, ``cache``, ``rows``, ``overlap``, ``plan``, ``unit``
+(one pair), ``run`` (many units), ``frontends`` (:func:`run_sweep`, :func:`evaluate_cached`). Every front end
+shares its unit keys and cache (docs/evaluation.md).
 """
 
 from .cache import source_digest

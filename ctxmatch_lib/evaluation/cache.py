@@ -121,11 +121,9 @@ def _filter_module(name: str) -> str | None:
 
 @functools.lru_cache(maxsize=64)
 def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAGE_ROOT) -> str:
-    """SHA-1 of the code a unit runs: the import closure (:func:`code_closure`) of the unit and of each of
-    its ``filters``, and the shipped ``.npz`` models of the packages in it.
-
-    Files enter by :func:`_code_bytes`, so documentation edits keep the cache and code edits renew it; a
-    filter registered outside the library enters by its module's name. ``package_root``: the package folder."""
+    """SHA-1 of the code a unit runs: the import closure (:func:`code_closure`) of the unit and its
+    ``filters``, and the shipped ``.npz`` models in it; documentation edits keep the cache (:func:`_code_bytes`).
+    """
     root, graph = _import_graph(Path(package_root))
     modules = [_filter_module(n) for n in filters]
     closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in graph)], package_root=Path(package_root))

@@ -18,9 +18,7 @@ __all__ = ["check_output", "run_sweep", "evaluate_cached"]
 
 
 def check_output(path, name: str = "out", suffix: str = ".parquet") -> Path:
-    """Check, before any work, that ``path`` has ``suffix`` and can be written
-    (:func:`ctxmatch_lib.cache.check_writable`); returns the path. A ``ValueError`` names ``name`` (``"--out"``
-    on the command line), the path and the reason."""
+    """``path`` checked, before any work, to have ``suffix`` and be writable; errors name ``name``."""
     if suffix and Path(path).suffix.lower() != suffix:
         raise ValueError(f"{name} must end with {suffix}, got {path}")
     return check_writable(path, name)
@@ -43,40 +41,30 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     blobs : str, BlobConfig or list
         ``"grid"`` (the 2430 setups of Sec. 5.2), preset names or configs.
     filters, filter_params
-        Registered filters run on every setup's candidates (method ``"blob"`` is always there) and extra
-        keyword arguments per filter.
-    models : sequence of str
-        Model steps (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`) after each method.
-    matchers : sequence of str
-        Alternative matchers evaluated as methods (:mod:`ctxmatch_lib.opencv_matchers`).
+        Registered filters (method ``"blob"`` is always there) and extra keyword arguments per filter.
+    models, matchers : sequence of str
+        Model steps (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`); extra matchers (:mod:`ctxmatch_lib.opencv_matchers`).
     estimator : dict, optional
         USAC overrides of the robust model steps (``threshold``, ``confidence``, ``max_iters``).
     max_keypoints : int or str, optional
-        Keypoint cap of every feature configuration (0: none) or a name of
-        :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS`.
+        Keypoint cap (0: none) or a name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS`.
     pairs, kinds
         Pair subset (:func:`~ctxmatch_lib.evaluation.plan.select_pairs`) and pair kinds kept.
     gt_method, gt_threshold, model_threshold, seed
         As in :func:`ctxmatch_lib.pipeline.evaluate_pair`.
-    n_jobs : int
-        Local worker processes (joblib, loky); ``-1``: every core.
-    dask : str or distributed.Client, optional
-        A Dask scheduler address (``"tcp://host:8786"``) or client; workers must see the driver's paths.
+    n_jobs, dask
+        Local worker processes (-1: every core); or a Dask scheduler address or client.
     cache_dir, feature_cache_dir : path, optional
         The sweep cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``) and the feature cache.
     out : path, optional
         Also write the table to this Parquet file, with the settings as metadata.
-    progress : bool
-        A tqdm bar over the units on stderr.
-    data_root : path, optional
-        Root of the datasets (:func:`~ctxmatch_lib.datasets.load_dataset`).
-    recompute : bool
-        Ignore (and overwrite) the existing result parts.
+    progress, recompute, data_root
+        A tqdm bar; ignore existing result parts; root of the datasets.
 
     Returns
     -------
     pandas.DataFrame
-        One row per (pair, features, blob setup, method, model), in the sweep's order, whatever the runner.
+        One row per (pair, features, blob setup, method, model), in the sweep's order.
     """
     check_runner(n_jobs, dask)
     if out is not None:
@@ -124,22 +112,15 @@ def evaluate_cached(
         ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``).
     filters : "all" or sequence of str
         See :func:`~ctxmatch_lib.evaluation.steps.resolve_filters`.
-    max_keypoints : int or str, optional
-        As in :func:`run_sweep`; ``None``: each preset's own.
+    max_keypoints, cache_dir, progress, n_jobs
+        As in :func:`run_sweep`.
     cache : bool
         Read and write the cache (``False``: recompute, write nothing).
-    cache_dir : path, optional
-        The evaluation cache (default ``ctxmatch_lib.cache.cache_dir("sweep")``).
-    progress : bool
-        A tqdm bar over (feature setup, pair).
-    n_jobs : int
-        Worker processes (joblib; -1: all cores).
 
     Returns
     -------
     pandas.DataFrame
-        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``time_s`` is the time measured when the row
-        was computed, possibly by an earlier run.
+        :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``time_s`` as measured when the row was computed.
     """
     known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed", "matchers", "estimator"}
     unknown = sorted(set(kwargs) - known)

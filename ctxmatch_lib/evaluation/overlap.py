@@ -55,11 +55,8 @@ def overlap_table(feats: Features, cache: Path | None) -> tuple[np.ndarray, np.n
 
 
 class TabulatedContext(BlobContext):
-    """A :class:`BlobContext` whose :meth:`overlap_errors` looks the errors up in per-image tables.
-
-    The error depends on neither the candidate set, the ratio nor ``t_o``, and the grid asks for it
-    27 × 9 × 2 times per pair; the scores equal those of a plain context.
-    """
+    """A :class:`BlobContext` whose :meth:`overlap_errors` looks the errors up in per-image tables (the grid
+    asks for the same errors 27 × 9 × 2 times per pair); the scores equal those of a plain context."""
 
     def __init__(self, *args, overlap_tables=None, **kwargs):
         super().__init__(*args, **kwargs)

@@ -26,9 +26,8 @@ __all__ = ["SweepUnit", "resolve_feature_configs", "resolve_blob_configs", "sele
 
 
 def resolve_feature_configs(features) -> dict[str, FeatureConfig]:
-    """Named feature configurations (``{name: FeatureConfig}``, in order) from a preset name, a
-    :class:`FeatureConfig`, a list of them or a dict; a bare config is named by the preset it equals, else
-    by its ``key()``."""
+    """``{name: FeatureConfig}`` by the rule of :func:`~ctxmatch_lib.evaluation.steps.resolve_blobs`; a bare
+    config is named by the preset it equals, else by its ``key()``."""
     def default_name(f: FeatureConfig) -> str:
         return next((k for k, v in FEATURE_PRESETS.items() if v == f), None) or f.key()
 
@@ -75,13 +74,9 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
     dataset : Dataset, sequence of Pair, str or list of str
         Pairs, or dataset names / custom folders (:func:`~ctxmatch_lib.datasets.load_dataset`), concatenated.
     select : None, int or sequence of str
-        ``None``: all; ``N``: ``N`` pairs evenly spread over the list, in list order; strings: those pair ids.
-    step : int
-        Keep every ``step``-th pair of each kind, the first included.
-    kinds : str or iterable of str, optional
-        Keep only these kinds (``"planar"``, ``"nonplanar"``, ``"depth"``) first.
-    pair_ids : sequence of str, optional
-        Same as strings in ``select``.
+        ``None``: all; ``N``: ``N`` pairs evenly spread, in list order; strings: those pair ids.
+    step, kinds, pair_ids
+        Every ``step``-th pair of each kind; only these kinds (applied first); as strings in ``select``.
 
     Examples
     --------
@@ -137,12 +132,9 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
 class SweepUnit:
     """One work unit: every blob setup, filter and model of a sweep on one pair with one feature config.
 
-    ``key`` names its part file: a hash of the pair's images and ground truth and every setting the rows
-    depend on. ``features_name`` and ``blob_names`` (shown in the ``features`` and ``blob`` columns) are
-    applied when the rows are read, so they are not in the key. ``salt`` (the planners put
-    :func:`~ctxmatch_lib.evaluation.cache.source_digest` there) joins the key and the keys of the cached
-    candidate sets and filter masks. ``matchers``: alternative matchers evaluated beside the blob setups;
-    ``estimator``: USAC overrides (:func:`~ctxmatch_lib.evaluation.steps.check_estimator`).
+    ``key`` (:func:`unit_key`) names its part file; ``features_name`` and ``blob_names`` are applied when the
+    rows are read, so they are not in it. ``salt`` (:func:`~ctxmatch_lib.evaluation.cache.source_digest`)
+    joins every cache key; ``estimator``: :func:`~ctxmatch_lib.evaluation.steps.check_estimator`'s pairs.
     """
 
     dataset: str
@@ -234,8 +226,7 @@ def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(
     """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
 
     Arguments as :func:`~ctxmatch_lib.evaluation.frontends.run_sweep`, validated before any work; ``blobs``
-    may be a dict name -> ``BlobConfig`` (names fill the ``blob`` column); ``salt``: see :class:`SweepUnit`
-    (default :func:`~ctxmatch_lib.evaluation.cache.source_digest`).
+    may be a dict name -> ``BlobConfig``; ``salt``: see :class:`SweepUnit`.
     """
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,

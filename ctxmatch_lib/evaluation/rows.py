@@ -1,9 +1,6 @@
 """Result rows of the engine: the columns, the typed frame, error rows, and the fast ranked AP.
 
-``precision``, ``recall``, ``recall_star``, ``ap``, ``ap_star`` are fractions in [0, 1] (NaN when
-undefined); ``time_s`` (the method) and ``model_time_s`` (the model step) are seconds; a non-empty ``error``
-says why the row could not be evaluated (its metrics are NaN). The geometry columns
-(:data:`GEOMETRY_COLUMNS`) are described in :func:`~ctxmatch_lib.evaluation.steps.model_accuracy`.
+Units and meaning of the columns: docs/evaluation.md (Result rows; Geometry after the model step).
 """
 
 from __future__ import annotations

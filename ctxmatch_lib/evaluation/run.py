@@ -92,9 +92,8 @@ def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=N
               progress: bool = True, recompute: bool = False, desc: str = "ctxmatch sweep"):
     """Run (or resume) work units and return their rows, in the units' order whatever the runner.
 
-    Each finished unit is one Parquet part under ``<cache_dir>/results``, written atomically, so a killed
-    run resumes with no lost and no duplicated rows. A unit whose rows carry an ``error`` gives a
-    ``RuntimeWarning`` and no part (the next run tries it again); the other units go on.
+    Each finished unit is one Parquet part under ``<cache_dir>/results``, written atomically; a unit with an
+    ``error`` gives a ``RuntimeWarning`` and no part (the next run retries it).
 
     Parameters
     ----------

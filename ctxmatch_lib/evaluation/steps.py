@@ -218,16 +218,9 @@ def run_filter(
 ) -> tuple[np.ndarray, float]:
     """Run the registered filter ``name`` on candidate matches.
 
-    ``blob_ratio`` (the blob setup's ``ratio``) is passed as ``ratio=`` to filters with
-    ``uses_blob_ratio`` unless ``params`` sets it, and tags the scores of filters with ``nnr_thresholds`` (cached
-    candidates come back as plain arrays). The first call of a filter in a process runs it once untimed, so
-    that compiling its kernels is not charged to a pair (the filters are deterministic).
-
-    Returns
-    -------
-    keep : ndarray of shape (K,), bool
-    time_s : float
-        Wall time of the filter call alone.
+    ``blob_ratio`` is passed as ``ratio=`` to filters with ``uses_blob_ratio`` and tags the scores of filters
+    with ``nnr_thresholds``. The first call of a filter in a process runs once untimed, so that compiling its
+    kernels is not charged to a pair. Returns ``(keep, time_s)``: a (K,) bool mask and the call's wall time.
     """
     from ..filters import FILTERS
 
@@ -290,18 +283,10 @@ def run_matcher(name: str, f1: Features, f2: Features) -> tuple[np.ndarray, np.n
 
 
 def model_accuracy(model: str, fit: ModelFit | None, pair: Pair, corr, pts=None) -> dict:
-    """The geometry columns of a row: how good the model of step ``model`` is against the pair's ground truth
-    (NaN where a column does not apply, e.g. model ``none``).
-
-    * ``model_inliers``: the estimator's inliers (for 1SAC the matches within its threshold);
-    * ``corner_error`` (planar): :func:`~ctxmatch_lib.geometry_metrics.homography_corner_error` of ``H``,
-      ``inf`` without a model;
-    * ``epi_share_mean``, ``epi_share_<t>`` (other pairs, ground-truth correspondences ``corr``): the share
-      consistent with ``F`` (:func:`~ctxmatch_lib.geometry_metrics.epipolar_consistency`), mean over
-      1 ... 19 px and at :data:`EPI_SHARE_AT_PX`; 0 without a model;
-    * :data:`POSE_COLUMNS` (calibrated pairs): errors in degrees of the pose recovered from the model and the
-      inliers of ``pts = (pts1, pts2)`` (:func:`~ctxmatch_lib.geometry.pose_from_model`); 180 without a pose.
-    """
+    """The geometry columns of a row (NaN where one does not apply): ``model_inliers``, ``corner_error``
+    (planar), ``epi_share_*`` (against the ground-truth correspondences ``corr``) or :data:`POSE_COLUMNS`
+    (calibrated, from the inliers of ``pts = (pts1, pts2)``); see docs/evaluation.md (Geometry after the
+    model step)."""
     nan = float("nan")
     out = {"model_inliers": nan, "corner_error": nan, "epi_share_mean": nan,
            **{f"epi_share_{t}": nan for t in EPI_SHARE_AT_PX}, **{c: nan for c in POSE_COLUMNS}}

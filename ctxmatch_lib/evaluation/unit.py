@@ -1,9 +1,8 @@
 """One work unit: every blob setup, filter and model of an evaluation on one pair (Sec. 5.1, 5.2).
 
-The 2430-setup grid of Sec. 5.2 shares its work: one :class:`~ctxmatch_lib.blob.BlobContext` per pair, the
-candidate set G once per (f, ∩/∪, f') (27 sets), the ratios (a, b) once per (t_o, D) on each set, reused by
-the five W(a, b). ``ap`` ranks a setup's candidates against its own correct candidates, ``ap_star`` against
-those of all setups of the unit (the recall* reference).
+:func:`run_unit` shares the grid's work: one :class:`~ctxmatch_lib.blob.BlobContext` per pair, one candidate
+set per (f, ∩/∪, f'), the ratios once per (t_o, D) for the five W. ``ap_star`` ranks against the correct
+candidates of all setups of the unit (the recall* reference).
 """
 
 from __future__ import annotations
@@ -31,11 +30,10 @@ __all__ = ["BlobStage", "PairError", "unit_features", "run_unit"]
 
 @dataclass
 class BlobStage:
-    """Everything computed for one blob setup on one pair, kept when :func:`run_unit` is given ``stages``.
+    """Everything computed for one blob setup on one pair (:func:`run_unit`'s ``stages``).
 
     ``matches``, ``scores``, ``labels``: the candidates in score order; ``keeps[method]``: a mask over them
-    (or a filter's error message); ``fits[(method, model)]``: the :class:`~ctxmatch_lib.geometry.ModelFit`
-    over the method's output.
+    (or an error message); ``fits[(method, model)]``: the :class:`~ctxmatch_lib.geometry.ModelFit`.
     """
 
     name: str
@@ -162,8 +160,7 @@ def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: fl
 
 
 def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tuple[dict, bool]:
-    """Each method's mask (or error message) over the sorted candidates and its time, cached in ``masks``;
-    and whether ``masks`` grew."""
+    """Each method's mask (or error) and time, cached in ``masks``; and whether ``masks`` grew."""
     pair, added = d.unit.pair, False
     keeps = {"blob": (np.ones(len(sm), bool), t_blob)}
     for name in d.unit.filters:
@@ -184,8 +181,7 @@ def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tupl
 
 
 def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage=None) -> list[dict]:
-    """The rows of every (method, model) of one setup, the alternative matchers included; a step that
-    raised gives an error row."""
+    """The rows of every (method, model) of one setup, matchers included; a failed step gives an error row."""
     unit, n, m = d.unit, len(d.f1), len(d.f2)
     known = {"n_candidates": common["n_candidates"], "n_gt": common["n_gt"], "n_gt_star": d.n_gt_star}
     ref = sm[sl]
@@ -269,11 +265,9 @@ def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None, feature
     :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`: per blob setup, method ``"blob"`` then each filter,
     each with the unit's models.
 
-    Nothing raises for one pair's sake: an unreadable image, 0 keypoints, or a filter or model step that
-    raises gives rows (of the pair, or of that method) with NaN metrics and an ``error``.
-    ``cache_dir``: ``None`` the default, ``False`` none; ``features``: the two images'
-    :class:`~ctxmatch_lib.features.Features`, used as given; ``stages``: a dict receiving a :class:`BlobStage`
-    per blob setup. BLAS runs on one thread, as OpenBLAS's float32 rounding depends on its thread count.
+    A pair or method that fails gives rows with NaN metrics and an ``error``, never an exception.
+    ``cache_dir``: ``None`` the default, ``False`` none; ``features``: the two images' features, used as
+    given; ``stages``: a dict receiving a :class:`BlobStage` per blob setup. BLAS runs on one thread.
     """
     with threadpool_limits(1):
         return _run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, features=features,

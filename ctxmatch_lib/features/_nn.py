@@ -27,8 +27,7 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
            padding: int = 0) -> np.ndarray:
     """2-D cross-correlation of ``x`` (N, H, W, C) with torch-layout weights ``w`` (O, C, kh, kw) -> (N, H', W', O).
 
-    An ``im2col`` product; with few input channels, a small kernel and a multiple of 8 outputs (OriNet's
-    first layers) the im2col copy costs more than its product, and :func:`._conv_kernels.direct_conv2d` runs.
+    An ``im2col`` product, or :func:`._conv_kernels.direct_conv2d` where the im2col copy costs more (OriNet).
     """
     if padding:
         x = np.pad(x, ((0, 0), (padding, padding), (padding, padding), (0, 0)))
@@ -53,8 +52,7 @@ def conv2d(x: np.ndarray, w: np.ndarray, b: np.ndarray | None = None, *, stride:
 
 
 def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` of float32 matrices in float64, rounded once to float32: a float32 GEMM rounds differently
-    under each OpenBLAS kernel, while the float64 kernels' last-bit differences vanish in the rounding."""
+    """``a @ b`` of float32 matrices in float64, rounded once to float32 (same on any CPU, docs/features.md)."""
     return (a.astype(np.float64, copy=False) @ b.astype(np.float64)).astype(np.float32)
 
 
@@ -188,10 +186,8 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def pyramid_patches(img: np.ndarray, kpts: np.ndarray, A: np.ndarray, ps: int = 32) -> np.ndarray:
     """Square patches sampled as kornia's ``extract_patches_from_pyramid`` samples LAFs ``[A | kpt]``.
 
-    Cell ``(i, j)`` of the ``(N, ps, ps)`` float32 result samples ``kpt + A @ (u_j, u_i)``,
-    ``u_k = (2k + 1) / ps - 1``, bilinearly, from pyramid level ``floor(log2(2 sqrt|det A| / ps))`` (clamped);
-    level ``l`` (side ``n_l``) holds image position ``x`` at ``(x + 0.5) n_l / n - 0.5``; outside the image
-    the border pixel is read.
+    Cell ``(i, j)`` of the ``(N, ps, ps)`` result samples ``kpt + A @ (u_j, u_i)``, ``u_k = (2k + 1) / ps - 1``,
+    bilinearly from level ``floor(log2(2 sqrt|det A| / ps))`` (clamped); outside, the border pixel is read.
     """
     img = np.ascontiguousarray(img, np.float32)
     h, w = img.shape

@@ -37,23 +37,21 @@ class FeatureConfig:
     detector : {"sift", "harrisz"}
         OpenCV's SIFT (DoG) or :func:`.harrisz.harrisz`.
     descriptor : {"rootsift", "sift", "rootsgloh2", "hardnet2", "sosnet"}
-        RootSIFT (Arandjelović & Zisserman 2012: Euclidean distance = Hellinger distance), L2-normalised
-        SIFT, RootsGLOH2 (:mod:`.sgloh`) or the deep descriptors of :mod:`.deep`.
+        RootSIFT (Arandjelović & Zisserman 2012), L2-normalised SIFT, RootsGLOH2 (:mod:`.sgloh`) or :mod:`.deep`.
     upright : bool
         Angle 0 for every keypoint; keypoints that differ only by orientation are merged.
     max_keypoints : int
         Cap (0: none), strongest first for SIFT, finest scale then strongest for HarrisZ.
     n_octave_layers, contrast_threshold, edge_threshold, sigma, precise_upscale
-        OpenCV ``SIFT_create`` parameters; the precise first-octave upscaling avoids the quarter-pixel bias.
+        OpenCV ``SIFT_create`` parameters (precise upscaling avoids the quarter-pixel bias).
     patch_radius : float
         Patch radius in units of the keypoint scale (SIFT's 3σ blob); HarrisZ's major semi-axis.
     orientation : {"auto", "sift", "dominant", "orinet", "none"}
-        SIFT's own, the dominant gradient (:func:`.patches.dominant_orientation`), OriNet or none.
-        ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT + (Root)SIFT, dominant for
+        ``"auto"``: none for RootsGLOH2 and upright, SIFT's for SIFT + (Root)SIFT, dominant gradient for
         HarrisZ + (Root)SIFT, OriNet for the deep descriptors.
     weights, orinet_weights, net : str, optional
-        Deep descriptor and OriNet weights (:func:`.deep.resolve_weights`; ``None``: kornia's published
-        ones; their hash is part of :meth:`key`) and the architecture of ``weights``.
+        Deep descriptor and OriNet weights (:func:`.deep.resolve_weights`; ``None``: kornia's) and the
+        architecture of ``weights``.
     support : float
         Patch descriptors sample ``support × A``.
     """
@@ -177,8 +175,7 @@ PAPER_FEATURE_BLOCKS = ("sift-rootsift", "sift-rootsgloh2", "harrisz-rootsift", 
 
 
 def paper_feature_blocks(deep: bool | None = None) -> list[str]:
-    """The keys of :data:`PAPER_FEATURE_BLOCKS` that can run here: the HardNet2 / SOSNet blocks when
-    ``deep`` is true, or is ``None`` and their weights are found.
+    """The keys of :data:`PAPER_FEATURE_BLOCKS` that can run here (deep ones if ``deep``, or ``None`` and found).
 
     Examples
     --------
@@ -203,8 +200,7 @@ KEYPOINT_BUDGETS = {"paper": 1500, "dense": 8000}
 
 
 def keypoint_budget(value, *, argument: str = "max_keypoints") -> int | None:
-    """A keypoint cap from a name of :data:`KEYPOINT_BUDGETS` or a non-negative integer (0: no cap;
-    ``None``: each preset's own). Errors name ``argument``.
+    """A keypoint cap from a :data:`KEYPOINT_BUDGETS` name or an integer (0: none; ``None``: the preset's).
 
     Examples
     --------

@@ -197,11 +197,8 @@ def _descriptor_net(descriptor: str, net: str, path: str | None):
 
 
 def load_descriptor_net(descriptor: str, *, net: str = "auto", weights=None):
-    """The torch module of ``descriptor`` (``"hardnet2"``, ``"sosnet"``) in evaluation mode, cached.
-
-    ``net`` is the architecture (``"auto"``: kornia's HardNet / SOSNet); ``weights`` a file
-    (:func:`resolve_weights`), ``None`` for kornia's published weights.
-    """
+    """The torch module of ``descriptor`` (``"hardnet2"``, ``"sosnet"``) in evaluation mode, cached; ``net``
+    ``"auto"``: kornia's architecture; ``weights=None``: kornia's published weights."""
     _require_torch()
     if descriptor not in _DEFAULT_NET:
         raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
@@ -245,11 +242,8 @@ def _image(gray):
 
 def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, weights=None, support: float = 2.0,
                   batch: int = 512, backend: str = "auto") -> np.ndarray:
-    """OriNet angle θ of each keypoint's patch ``support × A`` (as kornia's LAFOrienter): the oriented shape
-    is ``A @ R(θ)``, ``R(θ) = [[cos, -sin], [sin, cos]]``.
-
-    ``weights``: OriNet's (:func:`resolve_weights`), ``None`` for kornia's published ones (torch);
-    ``backend="auto"`` runs numpy whenever ``weights`` are given.
+    """OriNet angle θ of each keypoint's patch ``support × A`` (kornia's LAFOrienter): the oriented shape is
+    ``A @ R(θ)``. ``weights=None``: kornia's published ones (torch); ``backend="auto"``: numpy if ``weights``.
     """
     n = len(kpts)
     if n == 0:
@@ -353,8 +347,7 @@ def deep_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, 
 def export_npz(source, output, net: str) -> Path:
     """Convert the published weights ``source`` of architecture ``net`` to the ``.npz`` ``output`` (torch).
 
-    The arrays are the module's ``state_dict`` after the torch path's loading; ``__meta__`` (JSON) records the
-    architecture, the source's name and SHA-1 and, for the shipped stand-ins, origin and copyright (MIT).
+    Arrays: the loaded ``state_dict``; ``__meta__`` (JSON): architecture, source name and SHA-1, licence.
     """
     from ..cache import atomic_path
 

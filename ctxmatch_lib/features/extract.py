@@ -36,8 +36,7 @@ def _extract(gray: np.ndarray, config: FeatureConfig, memo: Path | None = None) 
 def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
     """``compute()`` (a dict of arrays), or what a call with the same ``what`` and ``parts`` stored.
 
-    Keeps the steps several blocks of an image share (detections, OriNet angles). The key hashes all the
-    step reads, so a stored value is ``compute``'s; ``check`` says whether a loaded one is whole.
+    Shares steps between blocks of an image (detections, OriNet angles); ``check`` validates a loaded value.
     """
     if memo is None:
         return compute()

@@ -34,9 +34,8 @@ def extract_patches(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, size
     """``(N, size, size)`` float32 patches: pixel ``(c, r)`` of patch ``k`` is the image at
     ``kpt_k + support A_k u``, ``u = ((c, r) - (size - 1) / 2) / radius`` (default radius ``(size - 1) / 2``).
 
-    Sampled bilinearly from the Gaussian-pyramid level whose pixel is at most the sampling step, so large
-    patches are not aliased; the border is mirrored. ``support`` 2 maps a 3σ SIFT disc to the descriptor's
-    6σ reach; ``chunk`` keypoints per remap call bound the maps' memory.
+    Bilinear, from the Gaussian-pyramid level whose pixel is at most the sampling step (no aliasing); border
+    mirrored; ``chunk`` keypoints per remap call bound the memory.
     """
     import cv2
 
@@ -83,10 +82,9 @@ def dominant_orientation(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray,
                          n_bins: int = 36) -> np.ndarray:
     """Dominant gradient orientation of each affine-normalised patch (SIFT's rule, one peak per keypoint).
 
-    A stand-in for the learned orientation of Yi et al. (CVPR 2016) that the paper uses: a 36-bin histogram
-    weighted by magnitude and a Gaussian of σ = 1/8 of the support (SIFT's 1.5σ for a 3σ disc), smoothed,
-    with a parabolic peak. Returns θ in (−π, π]: the oriented shape ``A @ R(θ)`` (:func:`rotation_shapes`)
-    has its first axis along the dominant gradient.
+    Stand-in for the paper's learned orientation (Yi et al., CVPR 2016): a smoothed 36-bin histogram, Gaussian
+    σ = 1/8 of the support, parabolic peak. Returns θ in (−π, π]: ``A @ R(θ)`` (:func:`rotation_shapes`) has
+    its first axis along the dominant gradient.
     """
     n = len(kpts)
     if n == 0:

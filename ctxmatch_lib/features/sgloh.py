@@ -1,13 +1,10 @@
 """RootsGLOH2: the shifting Gradient Local Orientation Histogram with RootSIFT square rooting.
 
-sGLOH (Bellavia & Colombo, "Rethinking the sGLOH descriptor", TPAMI 40(4), 2018) splits a non-oriented
-circular patch into 2 rings × 8 sectors, each with an 8-bin orientation histogram relative to the sector, so
-a rotation by one sector permutes the descriptor; sGLOH2 adds the half-sector offset copy, and the distance
-is the minimum over the 16 rotations by π/8. RootsGLOH2 ("RootsGLOH2: embedding RootSIFT 'square rooting'
-in sGLOH2", IET CV 14(4), 2020) L1-normalises and square-roots each half.
-
-Layout ``[half k][ring r][sector j][bin w]``: sector ``j`` covers φ/s in [j + k/2, j + 1 + k/2) (s = π/4,
-φ from +x towards +y), bin ``w`` is centred on (w + j + k/2) s. Ring radii and soft binning: fb82/sGLOH.
+sGLOH (Bellavia & Colombo, TPAMI 40(4), 2018): 2 rings × 8 sectors × 8 orientation bins on a non-oriented
+patch, so a rotation by one sector permutes the descriptor; sGLOH2 adds the half-sector offset copy, the
+distance is the minimum over 16 rotations by π/8 (:class:`SGLOH2Distance`). RootsGLOH2 (IET CV 14(4), 2020)
+L1-normalises and square-roots each half. Layout ``[half k][ring r][sector j][bin w]``: sector ``j`` covers
+φ/s in [j + k/2, j + 1 + k/2) (s = π/4), bin ``w`` centred on (w + j + k/2) s; radii and binning: fb82/sGLOH.
 """
 
 from __future__ import annotations
@@ -32,10 +29,9 @@ _FINE = 8  # (power of two) sub-bins per orientation bin of the fine histogram t
 
 
 def _region_maps() -> tuple[np.ndarray, np.ndarray]:
-    """Ring (−1 outside, and at the centre) and sector of each pixel of the 41×41 grid, for both halves.
+    """Ring (−1 outside and at the centre) and sector of each pixel of the 41×41 grid, for both halves.
 
-    Decided in integers on one quadrant and rotated, so a 90° turn is an exact relabelling even on the
-    sector boundaries (``arctan2``'s last bit follows the CPU).
+    Decided in integers on one quadrant and rotated, so a 90° turn is an exact relabelling on any CPU.
     """
     R = _PATCH_RADIUS
     off = np.arange(-R, R + 1)
@@ -68,9 +64,8 @@ _RING, _SECTOR = _region_maps()
 def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 64) -> np.ndarray:
     """sGLOH2 (``root=False``, halves L2-normalised) or RootsGLOH2 descriptors of ``(N, 43, 43)`` patches.
 
-    The 41×41 grid plus a pixel of margin for the central differences. Each half of the ``(N, 256)`` result
-    has norm 1/√2 (zero for a flat patch). ``chunk`` patches per step keep the temporaries in cache.
-    """
+    41×41 grid plus a margin pixel for the differences; each half of the ``(N, 256)`` result has norm 1/√2
+    (zero for a flat patch); ``chunk`` patches per step keep the temporaries in cache."""
     p = np.asarray(patches, np.float32)
     side = 2 * _PATCH_RADIUS + 3
     if p.ndim != 3 or p.shape[1:] != (side, side):
@@ -132,9 +127,7 @@ def sgloh_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *,
                       root: bool = True, smooth: float = 1.0) -> np.ndarray:
     """RootsGLOH2 (``root=False``: sGLOH2) descriptors ``(N, 256)`` of keypoints on non-oriented patches.
 
-    The outer ring covers ``support × A`` of each shape (2: SIFT's 6σ reach for a 3σ shape); the sampled
-    patch is blurred by ``smooth`` (σ in patch pixels) before the gradients.
-    """
+    The outer ring covers ``support × A`` of each shape; ``smooth``: blur σ in patch pixels."""
     from scipy.ndimage import gaussian_filter
 
     from .patches import extract_patches
@@ -168,12 +161,11 @@ def _first_half_shifts(desc1: np.ndarray, shifts) -> dict[int, np.ndarray]:
 
 
 class SGLOH2Distance:
-    """The sGLOH2 matching distance: ``min_a ‖h1 − rot_a(h2)‖₂`` over half 0, for the allowed rotations.
+    """The sGLOH2 matching distance ``min_a ‖h1 − rot_a(h2)‖₂`` over half 0 (distance hook of
+    :func:`ctxmatch_lib.blob.blob_matching`), one GEMM per rotation with a running minimum.
 
-    The distance hook of :func:`ctxmatch_lib.blob.blob_matching`: ``dist(desc1_rows, desc2)`` is the float32
-    block, one GEMM per rotation with a running minimum. Since ``h1 · rot_a(h2) = roll(h1, −⌈a/2⌉) ·
-    h2[half a mod 2]``, desc1's half 0 is rolled instead of desc2. ``rotations`` (steps of π/8, default all
-    16) around 0 give the upright-biased sGOr2 variants of the paper.
+    ``h1 · rot_a(h2) = roll(h1, −⌈a/2⌉) · h2[half a mod 2]``, so desc1 is rolled instead of desc2.
+    ``rotations`` (steps of π/8, default all 16) around 0 give the paper's upright-biased sGOr2 variants.
     """
 
     def __init__(self, rotations=None):

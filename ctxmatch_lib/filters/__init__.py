@@ -5,15 +5,11 @@ Every filter has the same signature::
     FILTERS[name](kpts1, kpts2, matches, scores, *, image_size1, image_size2,
                   shapes1=None, shapes2=None, **params) -> keep  # (K,) bool
 
-``kpts*`` are ``(N, 2)`` (x, y) pixels with the origin at the centre of the top-left pixel, ``matches`` is
-``(K, 2)`` int64 into ``kpts1``/``kpts2`` (many-to-many allowed), ``scores`` is ``(K,)``, lower is better
-(``None``: all equal), image sizes are ``(width, height)``; ``matches[keep]`` are the kept matches. The
-filters that read a threshold on the NNR ratio (``th``, ``glpm``, ``adalam``) read it on the scale the
-scores carry (:func:`ctxmatch_lib.blob.blob_matching`'s, or :func:`nnr_scores`). Filters are imported on
-first use; :func:`register_filter` adds one.
+``kpts*`` are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel; ``matches`` ``(K, 2)``
+indices (many-to-many allowed); ``scores`` ``(K,)``, lower is better; ``matches[keep]`` are kept. NNR
+thresholds (``th``, ``glpm``, ``adalam``) are read on the scores' scale (:func:`nnr_scores`). Filters are
+imported on first use; :func:`register_filter` adds one. Guide: ``docs/filters.md``.
 
-Examples
---------
 Every spatial filter drops the one outlier of a translated grid and keeps the rest:
 
 >>> import numpy as np
@@ -98,13 +94,7 @@ def register_filter(name: str, func: Callable | None = None):
     name : str
         The registry key (``FILTERS[name]``, ``--filters name``).
     func : callable, optional
-        A filter with the common signature ``func(kpts1, kpts2, matches, scores, *, image_size1,
-        image_size2, shapes1=None, shapes2=None, **params) -> keep``; omitted, a decorator is returned.
-
-    Returns
-    -------
-    callable
-        ``func``, or the decorator.
+        A filter with the common signature (module docstring); omitted, a decorator is returned.
     """
 
     def _add(f: Callable) -> Callable:

@@ -1,11 +1,6 @@
-"""Compiled (numba) kernels of AdaLAM (see :mod:`.adalam`): the confidence-based inlier count of the local
-maps, and the seed test over distinct locations.
-
-The count uses the expressions of a plain implementation (same residuals, half-precision runs and sums in
-the same order, no fast-math), so its decisions are bit-identical to it
-(``tests/test_filters_adalam_kernels.py``). Only the best map of each neighbourhood is used, so a map is
-skipped when a bound of its count (members that are not exact fits with ``r^2 * min_conf <= 1``, then the
-tighter :func:`_count_bound`) does not exceed the best count so far.
+"""Compiled (numba) kernels of AdaLAM (:mod:`.adalam`): the confidence-based inlier count of the local maps
+(:func:`best_confident_maps`) and the seed test (:func:`beaten_by_neighbours`). Same expressions and
+summation order as the array form, no fast-math: bit-identical (``tests/test_filters_adalam_kernels.py``).
 """
 
 from __future__ import annotations
@@ -28,10 +23,9 @@ with user_cache() as _cache:
 
     @_jit
     def half_keys(y, keys):  # pragma: no cover - compiled
-        """Integer keys of the float32 values ``y >= 0`` (NaN allowed), nondecreasing in ``y``, written to
-        ``keys`` (int64): equal exactly when the values round to the same half-precision value (as the
-        reference's float16 cast: nearest even at bit 13 of the float32 pattern, spacing ``2^-24`` below
-        ``2^-14``, inf from 65520 on); each NaN gets a key of its own."""
+        """Int64 keys of float32 ``y >= 0`` into ``keys``, nondecreasing, equal iff equal as float16.
+
+        Rounding as the reference's float16 cast; each NaN gets a key of its own."""
         bits = y.view(np.int32)
         for k in range(len(y)):
             v = y[k]
@@ -47,8 +41,7 @@ with user_cache() as _cache:
 
     @_jit
     def _count(sv, w, y, keys, min_conf):  # pragma: no cover - compiled
-        """Inlier count and confidence of the residuals ``sv`` sorted in increasing order (``w``, ``y``,
-        ``keys``: scratch of at least that length)."""
+        """Inlier count and confidence of the sorted residuals ``sv`` (``w``, ``y``, ``keys``: scratch)."""
         n = len(sv)
         # Votes: runs of equal half-precision squared residuals (float32 squares, as the reference) share one;
         # exact fits have none.
@@ -83,10 +76,9 @@ with user_cache() as _cache:
 
     @_jit
     def _split(res, min_conf, sv, y, keys, marks, stamp):  # pragma: no cover - compiled
-        """Residuals that may be counted (``r^2 * min_conf <= 1`` or exact fits: a prefix of the sorted order)
-        sorted to the front of ``sv``, the others behind them unsorted, their half-precision keys marked
-        ``stamp`` in ``marks``. Returns ``(p, runs)``: how many may be counted, and the number of distinct keys
-        among the others (the runs they form in the sorted order, each a vote; NaN each a run of its own)."""
+        """Countable residuals (``r^2 * min_conf <= 1`` or exact) sorted to the front of ``sv``, then the rest.
+
+        Returns ``(p, runs)``: how many are countable, distinct keys of the rest (marked ``stamp`` in ``marks``)."""
         n = len(res)
         p, q = 0, n
         for i in range(n):
@@ -112,13 +104,9 @@ with user_cache() as _cache:
 
     @_jit
     def _count_bound(sv, runs, w, y, keys, marks, stamp, min_conf):  # pragma: no cover - compiled
-        """An upper bound of the count of :func:`_count` from the sorted residuals that may be counted
-        (``sv``) and the ``runs`` of the others (see :func:`_split`).
+        """Upper bound of :func:`_count` from the countable sorted ``sv`` and the ``runs`` of :func:`_split`.
 
-        The votes are at least those of the runs of ``sv`` but its last, plus one per run of the others (no
-        exact fit among them), plus the last run's when no other residual shares its key; ending the last
-        run at ``p`` overstates the votes so far. ``1e-9`` of slack covers the rounding of the sums.
-        """
+        It underestimates the total votes and overstates the votes so far; ``1e-9`` covers rounding."""
         p = len(sv)
         for k in range(p):
             y[k] = np.float32(sv[k] * sv[k])
@@ -153,20 +141,10 @@ with user_cache() as _cache:
     def best_confident_maps(A, U, V, ns, usable, distinct, min_conf):  # pragma: no cover - compiled
         """The best map of every neighbourhood under the confidence-based inlier count.
 
-        ``A`` (B, T, 2, 2): ``T`` maps per neighbourhood, of which ``usable`` (B, T) exist (the others put
-        every member at residual 2); ``U``, ``V`` (B, M, 2): the members, the first ``ns[b]`` rows;
-        ``distinct`` (B, M): the members counted in ``near_distinct``; ``min_conf``: the threshold.
-
-        Returns
-        -------
-        count, conf : ndarray of shape (B,)
-            Inlier count and confidence of the best map (the first of the largest count; count 0 and
-            confidence 0 where no map has an inlier).
-        order : ndarray of shape (B, M), int64
-            Stable sorting permutation of the best map's residuals (then the absent rows in order).
-        near, near_distinct : ndarray of shape (B, T), int64
-            Number of residuals up to ``2^-12`` of every map, of all members and of the ``distinct`` ones.
-        """
+        ``A`` (B, T, 2, 2) maps, ``usable`` (B, T) (others: residual 2); ``U``, ``V`` (B, M, 2) members, the
+        first ``ns[b]`` rows. Returns ``count, conf`` (B,) of the best map (the first of the largest count; 0
+        without inlier), ``order`` (B, M) the stable sort of its residuals (then the absent rows), and
+        ``near, near_distinct`` (B, T): residuals up to ``2^-12`` per map, of all and of ``distinct`` members."""
         B, T = A.shape[0], A.shape[1]
         M = U.shape[1]
         order = np.empty((B, M), np.int64)
@@ -224,8 +202,7 @@ with user_cache() as _cache:
 
     @_jit
     def beaten_by_neighbours(s, inv, pairs, n_loc):  # pragma: no cover - compiled
-        """``(K,)`` bool: matches whose score ``s`` (lower is better, no NaN) exceeds the best score at their
-        location ``inv`` (in ``0 .. n_loc - 1``) or at one paired with it in ``pairs`` (P, 2)."""
+        """``(K,)`` bool: score ``s`` above the best at the match's location ``inv`` or one paired in ``pairs``."""
         best = np.full(n_loc, np.inf)
         for i in range(len(s)):
             if s[i] < best[inv[i]]:

@@ -91,10 +91,10 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
 
 
 def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries: np.ndarray | None = None):
-    """Indices into ``points`` (``(len(queries), min(k, len(candidates) - 1))``, nearest first) of the ``k``
-    nearest ``candidates`` of every query (default: every point), the query excluded. Ties are broken by the
-    smaller index, not by the k-d tree's traversal order (scipy-build dependent): the tree holds the distinct
-    locations, and a row whose locations may tie ranks every candidate within its k-th distance.
+    """The ``k`` nearest ``candidates`` of every query (default: every point), the query excluded.
+
+    Indices into ``points``, shape ``(len(queries), min(k, len(candidates) - 1))``, nearest first; ties go
+    to the smaller index, not to the k-d tree's traversal order (which depends on the scipy build).
     """
     queries = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
@@ -206,12 +206,10 @@ DOCS: dict[str, str] = {
 scores : ndarray of shape (K,) or None
     Unused by {label} (validated only).""",
     "nnr_scale": """\
-Thresholds on the NNR ratio ({thresholds}) are read on the scale of the scores: the
-blob ratio they carry (``blob_matching(...).scores``; ``"D>="`` scores are the NNR ratio
-``r``, ``"D+>="`` and ``"D+"`` scores ``r / (1 + r)``, where a threshold ``t`` reads
-``t / (1 + t)``), else ``"D>="``, the ratio of Lowe's test (OpenCV's). A plain array whose
-scores all lie at or below 1/2 (the D+ range) and that the ``"D>="`` reading would keep whole
-warns (``UserWarning``); ``ctxmatch_lib.filters.nnr_scores(scores, ratio)`` tags one.""",
+Thresholds on the NNR ratio ({thresholds}) are read on the scores' scale: the blob ratio they
+carry (``"D+>="`` and ``"D+"`` scores are ``r / (1 + r)``, so ``t`` reads ``t / (1 + t)``), else
+``"D>="`` (Lowe's ratio), with a ``UserWarning`` when every score is at most 1/2 and would be
+kept; ``ctxmatch_lib.filters.nnr_scores(scores, ratio)`` tags a plain array.""",
     "image_sizes": """\
 image_size1, image_size2 : (int, int)
     Image sizes (width, height), validated only.""",
@@ -227,11 +225,9 @@ merge_coincident : bool, default True
 keep : ndarray of shape (K,), bool
     The kept matches: ``matches[keep]``.""",
     "coincident": """\
-Coincident candidates: rows whose keypoints coincide in both images (SIFT's orientation copies of one
-correspondence, on distinct keypoint indices, or a row the matcher repeated) are one match here. The filter
-decides the distinct matches (each with the best score of its copies) and gives every copy the decision of
-its match, so a wrong correspondence cannot support itself through its own copies. The result on inputs
-without coincident rows is unchanged.""",
+Rows whose keypoints coincide in both images (SIFT's orientation copies, repeated rows) are decided
+as one match, with the best score of its copies, so a wrong correspondence cannot support itself
+through its own copies.""",
     # The EM of VFC and LLT: a Gaussian-inlier / uniform-outlier mixture on normalised coordinates.
     "em_mixture": """\
 beta : float, default 0.1
@@ -248,16 +244,9 @@ rng : None, int or numpy.random.Generator, default 0
 }
 
 def compose_doc(doc: str | None, **fields) -> str | None:
-    """``doc`` with every line that holds only ``%(name)s`` replaced by :data:`DOCS` ``[name]`` (see
-    :func:`ctxmatch_lib._numerics.docstrings.compose_doc`).
+    """``doc`` with every line that holds only ``%(name)s`` replaced by :data:`DOCS` ``[name]``, indented alike.
 
-    Examples
-    --------
-    >>> print(compose_doc('''Parameters
-    ...     ----------
-    ...     %(scores_unused)s''', label="BM"))
-    Parameters
-        ----------
+    >>> print(compose_doc("    %(scores_unused)s", label="BM"))
         scores : ndarray of shape (K,) or None
             Unused by BM (validated only).
     """
@@ -279,15 +268,11 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
                  ratio_param: str | None = None, shapes: str = "match", scores_required: bool = False):
     """Decorator: the public filter with the common signature around ``core(ms, *, **params) -> keep``.
 
-    The public function takes the common arguments, then the core's keyword parameters, and (1) validates
-    the common arguments (:func:`prepare`); (2) maps the NNR-ratio thresholds named in ``nnr`` to the scale
-    of the scores: the ratio of the public parameter ``ratio_param``, else the one the scores carry, else
-    ``"D>="`` (see :func:`_scale`); (3) sorts the rows into their canonical order (:func:`canonical_order`);
-    (4) merges coincident rows (:func:`merge_coincident`) when ``merge`` is True or names a public boolean
-    parameter (default True) that is, keeping with ``one_to_one`` only :func:`first_of_pair`; (5) returns the
-    core's mask in the order given (:func:`spread_back`). ``shapes``: ``"match"`` (gathered per match,
-    ``ms.A1`` / ``ms.A2``), ``"check"`` (checked only) or ``"both"`` (``"match"``, both or neither). The
-    docstring is the core's, composed by :func:`compose_doc`; ``.core`` is the core.
+    The public function (1) validates the common arguments (:func:`prepare`); (2) reads the NNR thresholds
+    named in ``nnr`` on the scores' scale (:func:`_scale`); (3) sorts the rows canonically; (4) merges
+    coincident rows when ``merge`` is True or names a public boolean parameter (``one_to_one``: keep
+    :func:`first_of_pair` only); (5) spreads the mask back. ``shapes``: ``"match"`` (``ms.A1``/``ms.A2``),
+    ``"check"`` (validated only) or ``"both"`` (both or neither). Docstring: the core's, composed.
     """
     if shapes not in ("match", "check", "both"):
         raise ValueError(f"shapes must be 'match', 'check' or 'both', got {shapes!r}")

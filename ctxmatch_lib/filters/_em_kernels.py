@@ -1,11 +1,8 @@
 """Compiled (numba) linear algebra of the EM filters (VFC, LLT) whose result does not depend on the BLAS kernel.
 
-The EM loops of VFC and LLT iterate hundreds of times on small, ill-conditioned systems, so the last bits of
-a product, which OpenBLAS sums in an order that depends on the CPU's SIMD kernel, grow into a different
-decision ``p > tau``. Here every product sums in a fixed order (row order, or four interleaved partial sums,
-the lanes of a :class:`ctxmatch_lib._numerics.simd.Vec4`, for the weighted Gram matrices), without
-``fastmath``, and the small systems are solved by Gaussian elimination with partial pivoting (ties: the lowest
-row): the same bits on any x86-64 CPU. Compiled code is cached on disk (``$CTXMATCH_CACHE/numba``).
+The EM loops amplify last bits into a different ``p > tau``, so products sum in a fixed order (four
+interleaved partial sums for the weighted Gram matrices) and small systems are solved by Gaussian
+elimination with partial pivoting (ties: the lowest row). See docs/filters.md, "under any BLAS kernel".
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
-"""Compiled (numba) steps of LLT: the locally linear reconstruction weights and the residuals of one EM
-iteration, the same operations in the same order as the numpy expressions they replace (no ``fastmath``).
+"""Compiled (numba) steps of LLT: reconstruction weights and EM residuals, with the bits of the numpy they replace.
 
-They compile in :mod:`ctxmatch_lib._numerics.simd` and :mod:`._em_kernels`; numba's cache checks this file's
-timestamp only, so an edit there needs this file touched (or the cache cleared).
+numba's cache checks this file's timestamp only: an edit of :mod:`._em_kernels` or
+:mod:`ctxmatch_lib._numerics.simd` needs this file touched (or the cache cleared).
 """
 
 from __future__ import annotations
@@ -105,24 +104,21 @@ def offset_norms(x: np.ndarray, nb: np.ndarray) -> np.ndarray:
 
 
 def lle_solve(x: np.ndarray, nb: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unnormalised locally linear reconstruction weights: ``(G_i + t_i I)^-1 1`` for every point ``i``.
+    """Unnormalised locally linear reconstruction weights ``(G_i + t_i I)^-1 1`` of every point ``i``.
 
-    ``G_i`` is the Gram matrix of the offsets ``x[nb[i, a]] - x[i]`` (points ``x`` (n, 2), neighbours ``nb``
-    (n, kk)), with the bits of numpy's stacked products and :func:`._em_kernels.solve_batched`, without a
-    (n, kk, kk) array. Returns ``w`` (n, kk) and ``ok`` (n,) bool, False where the system was singular or a
-    weight non-finite (rows to be solved by least squares).
+    ``G_i``: Gram matrix of the offsets ``x[nb[i, a]] - x[i]``. Returns ``w`` (n, kk) and ``ok`` (n,),
+    False where the system is singular or a weight non-finite (to be solved by least squares).
     """
     return _lle_solve(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nb, np.int64),
                       np.ascontiguousarray(t, np.float64))
 
 
 def em_residuals(GT: np.ndarray, C: np.ndarray, target: np.ndarray, BX: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Squared residuals of the fit and of the local constraint after an M-step of LLT.
+    """Squared residuals (n,) of the fit and of the local constraint after an M-step of LLT.
 
-    ``GT`` (m, 2n) is ``[U, BU]`` reshaped to (2n, m) and transposed (column ``2p`` is ``U_p``, ``2p + 1``
-    ``(BU)_p``), ``C`` (m, 2) the kernel coefficients, ``target`` and ``BX`` (n, 2) ``y - x`` and
-    ``(I - W) x``. With ``F = matmul_t(GT, C).reshape(n, 2, 2)``, returns the row-wise squared norms (n,)
-    of ``target - F[:, 0]`` and ``BX + F[:, 1]``, with numpy's bits, in one pass over ``GT``.
+    ``GT`` (m, 2n): ``[U, BU]`` reshaped to (2n, m), transposed; ``C`` (m, 2); ``target`` = ``y - x`` and
+    ``BX`` = ``(I - W) x`` (n, 2). With ``F = matmul_t(GT, C).reshape(n, 2, 2)``: the squared row norms
+    of ``target - F[:, 0]`` and ``BX + F[:, 1]``.
     """
     f64 = partial(np.ascontiguousarray, dtype=np.float64)
     return _em_residuals(f64(GT), f64(C), f64(target), f64(BX))

@@ -1,11 +1,7 @@
-"""The authors' LMR network (``Trained_Model/Net.mat`` of StaRainJ/LMR) evaluated in NumPy, and the exact
-``MPC.m`` values it was trained on.
+"""The authors' LMR network (``Trained_Model/Net.mat``, from a user's checkout of StaRainJ/LMR) in NumPy,
+and the exact ``MPC.m`` values it reads, for ``lmr_filter(..., network=PATH)``.
 
-For :func:`ctxmatch_lib.filters.lmr.lmr_filter` with ``network=PATH``: the weights are read from the user's
-checkout; nothing of theirs ships here. :func:`scipy.io.loadmat` gives the MATLAB ``network`` as an object
-or struct with ``IW``, ``LW``, ``b``, ``layers`` (``transferFcn``) and ``inputs`` / ``outputs``
-(``processFcns``); only a feed-forward chain without processing functions is evaluated,
-``a_1 = f_1(IW{1,1} x + b{1})``, ``a_l = f_l(LW{l,l-1} a_(l-1) + b{l})``.
+Only feed-forward chains are evaluated: ``a_1 = f_1(IW{1,1} x + b{1})``, ``a_l = f_l(LW{l,l-1} a_(l-1) + b{l})``.
 """
 
 from __future__ import annotations
@@ -34,16 +30,14 @@ MPC_DV = 1e-7
 
 
 def gaussmf(x: np.ndarray, sigma: float, c: float) -> np.ndarray:
-    """The Fuzzy Logic Toolbox's ``gaussmf(x, [sigma c])`` = ``exp(-(x - c)^2 / (2 sigma^2))`` (NaN stays
-    NaN; ``_fixedmath.exp``, the same bits on any CPU)."""
+    """MATLAB's ``gaussmf(x, [sigma c])`` = ``exp(-(x - c)^2 / (2 sigma^2))`` (NaN stays NaN)."""
     return exp(-((x - c) ** 2) / (2.0 * sigma**2))
 
 
 def mpc_motion(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Squared motion length ``d2`` and direction ``theta`` of every match (x, y: (K, 2)) as ``MPC.m``.
+    """Squared motion length ``d2`` and direction ``theta`` in [0, 2 pi) of every match, as ``MPC.m``.
 
-    ``vec = y - x + dv``, ``d2 = |vec|^2``, ``theta = atan((vec_y + dv) / (vec_x + dv))`` moved to
-    ``[0, 2 pi)`` by ``MPC.m``'s quadrant rules, with ``_fixedmath.atan`` (the same bits on any CPU).
+    ``vec = y - x + dv``, ``theta = atan((vec_y + dv) / (vec_x + dv))`` plus ``MPC.m``'s quadrant rules.
     """
     vec = (y - x) + MPC_DV
     d2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
@@ -124,9 +118,8 @@ def _matrix(v, arg: str, what: str) -> np.ndarray:
 
 
 def parse_network(net, arg: str = "network") -> LMRNetwork:
-    """An :class:`LMRNetwork` from a loaded MATLAB network (object or struct, as :func:`scipy.io.loadmat`
-    returns it); ``ValueError`` naming ``arg`` for processing functions, an unknown transfer function, a
-    connection other than the feed-forward chain, or inconsistent shapes."""
+    """An :class:`LMRNetwork` from a network as :func:`scipy.io.loadmat` returns it; ``ValueError`` naming
+    ``arg`` for anything but a feed-forward chain of known transfer functions with consistent shapes."""
     net = _unwrap(net)
     ports = _cells(_field(net, "inputs", arg)) + _cells(_field(net, "outputs", arg))
     for port in ports:
@@ -162,8 +155,7 @@ def parse_network(net, arg: str = "network") -> LMRNetwork:
 
 
 def load_network(path, n_inputs: int, arg: str = "network") -> LMRNetwork:
-    """The network ``net`` of the ``.mat`` file ``path`` (parsed once per resolved path, again when the file
-    changes), checked to take ``n_inputs`` features and to give two outputs (inlier, outlier)."""
+    """The network ``net`` of the ``.mat`` file ``path`` (cached), checked for ``n_inputs`` inputs, 2 outputs."""
     p = Path(path).expanduser()
     if not p.is_file():
         raise ValueError(f"{arg}: no such file {str(path)!r} (the authors' Trained_Model/Net.mat)")

@@ -1,8 +1,7 @@
 """Compiled (numba) kernels of PGM (see :mod:`.pgm`): pairwise affinities, votes, Sinkhorn normalisation.
 
-Each kernel evaluates the expressions of the array formulation (same operations in the same order, sums in
-numpy's order, no fast-math), so its results are bit-identical to it (``tests/test_filters_pgm.py``),
-without its temporaries and without the ``hypot`` calls of pairs whose affinity is certainly zero."""
+Same operations in the same order as the array form (sums in numpy's order, no fast-math), so the results
+are bit-identical (``tests/test_filters_pgm.py``)."""
 
 from __future__ import annotations
 
@@ -67,8 +66,7 @@ with user_cache() as _cache:
 
     @_jit
     def _block_sum(a, lo, n):  # pragma: no cover - compiled
-        """numpy's sum of a block of at most 128 values: in order below 8, else eight interleaved
-        accumulators combined pairwise, then the remainder in order."""
+        """numpy's sum of a block of at most 128 values (eight interleaved accumulators from 8 on)."""
         if n < 8:
             res = 0.0
             for i in range(lo, lo + n):
@@ -88,9 +86,7 @@ with user_cache() as _cache:
 
     @_jit
     def _pairwise_sum(a, lo, n):  # pragma: no cover - compiled
-        """``a[lo:lo + n].sum()`` bit for bit as numpy sums a contiguous float64 array: blocks of at most
-        128 (:func:`_block_sum`), halves (rounded down to a multiple of 8) summed pairwise. Iterative, with
-        an explicit stack: numba's on-disk cache cannot reload a recursive function."""
+        """``a[lo:lo + n].sum()`` bit for bit as numpy's pairwise sum; iterative, as numba caches no recursion."""
         if n <= 128:
             return _block_sum(a, lo, n)
         st_lo, st_n, st_ph = np.empty(128, np.int64), np.empty(128, np.int64), np.empty(128, np.int64)
@@ -166,14 +162,10 @@ with user_cache() as _cache:
 
 def pair_affinity(x: np.ndarray, y: np.ndarray, T: np.ndarray | None, a: np.ndarray, b: np.ndarray,
                   tau: float, rho: float) -> np.ndarray:
-    """Pairwise affinity in [0, 1] of the candidates ``a[i]`` and ``b[i]`` (arrays of indices).
+    """Pairwise affinity in [0, 1] of the candidates ``a[i]`` and ``b[i]``; ``x``, ``y`` (n, 2) pixels.
 
-    ``x``, ``y``: (n, 2) candidate keypoints in image 1 and 2, (x, y) pixels. With the local affine
-    transformations ``T`` (n, 2, 2): ``max(1 - d / tau, 0)``, ``d`` the mutual projection error in pixels
-    (infinite when not finite). Without (``T=None``): ``max(1 - d / rho, 0)``,
-    ``d = |l1 - l2| / ((l1 + l2) / 2)`` the relative length distortion of the edge (0 for two coincident
-    keypoints in both images).
-    """
+    With local affine maps ``T`` (n, 2, 2): ``max(1 - d / tau, 0)``, ``d`` the mutual projection error;
+    with ``T=None``: ``max(1 - d / rho, 0)``, ``d = |l1 - l2| / ((l1 + l2) / 2)``."""
     x = np.ascontiguousarray(x, np.float64)
     y = np.ascontiguousarray(y, np.float64)
     a = np.ascontiguousarray(a, np.int64)
@@ -188,10 +180,8 @@ def votes(x: np.ndarray, y: np.ndarray, T: np.ndarray | None, m: np.ndarray, nb:
           tau: float, rho: float) -> np.ndarray:
     """Vote ``sum_q pair_affinity(p, q) * score[q]`` of every candidate ``p`` over its neighbours ``nb[p]``.
 
-    ``nb`` (n, j): candidate indices, each row sorted ascending (a repeated index counts once); a neighbour
-    sharing a keypoint with ``p`` (``m`` (n, 2), keypoint indices) is skipped. ``score`` (n,): the voter's
-    weight. The sum runs in row order, so it equals ``np.bincount`` over the same pairs bit for bit.
-    """
+    ``nb`` (n, j): rows sorted ascending, a repeated index counted once; neighbours sharing a keypoint
+    (``m`` (n, 2)) are skipped. Summed in row order, as ``np.bincount`` over the same pairs."""
     x = np.ascontiguousarray(x, np.float64)
     y = np.ascontiguousarray(y, np.float64)
     m = np.ascontiguousarray(m, np.int64)
@@ -204,9 +194,8 @@ def votes(x: np.ndarray, y: np.ndarray, T: np.ndarray | None, m: np.ndarray, nb:
 
 
 def sinkhorn(a: np.ndarray, g1: np.ndarray, g2: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
-    """Sinkhorn normalisation with slack of the candidates ``a`` (K,) over their groups ``g1``, ``g2`` (K,)
-    (0-based, dense), as described in :func:`ctxmatch_lib.filters.pgm._sinkhorn`; the same arithmetic in the
-    same order as its array formulation, so the same values bit for bit."""
+    """Sinkhorn normalisation with slack of ``a`` (K,) over dense 0-based groups ``g1``, ``g2`` (see
+    :func:`ctxmatch_lib.filters.pgm._sinkhorn`)."""
     g1 = np.ascontiguousarray(g1, np.int64)
     g2 = np.ascontiguousarray(g2, np.int64)
     n1, n2 = int(g1.max()) + 1, int(g2.max()) + 1

@@ -1,14 +1,10 @@
 """Compiled (numba) neighbour counts of RFM-SCAN in its motion space, on a uniform grid.
 
-The points are rows ``[x, y, v]`` (the float32 values of :class:`.rfm_scan._MotionSpace` as float64), the
-distance Eq. (3) of Jiang et al. (TIP 2020), ``d = |dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``.
-A match within ``r`` has ``|dx| <= r`` and ``|dv| <= r / c(r)``, ``c(r) = 1 + gamma exp(-r / 2)``: the grid
-over ``(x, v)`` has cells of half those sizes, and a query visits the cells of ``x`` within ``r`` and, for
-each, those of ``v`` within what the distance to that cell leaves.
-
-The counts are of the members *surely* (``t <= eps (1 - MARGIN)``) and *possibly* (``t <= eps (1 +
-MARGIN)``) within the threshold, in float64: the filter's float32 distances differ relatively by far less
-than ``MARGIN``, and a count the two leave open goes to the caller's exact float32 test.
+Points are rows ``[x, y, v]`` (:class:`.rfm_scan._MotionSpace`'s float32 values as float64), distances
+Eq. (3) of Jiang et al. (TIP 2020). A match within ``r`` has ``|dx| <= r`` and ``|dv| <= r / c(r)``,
+``c(r) = 1 + gamma exp(-r / 2)``, which sets the grid cells over ``(x, v)``. Members are counted *surely*
+(``d <= eps (1 - MARGIN)``) and *possibly* (``d <= eps (1 + MARGIN)``) within ``eps``, in float64; the
+caller decides the open cases on its exact float32 distances.
 """
 
 from __future__ import annotations
@@ -38,10 +34,7 @@ def _box_radii(radius: float, gamma: float) -> np.ndarray:
 class MotionGrid:
     """The points ``members`` of ``feats`` (n, 6) sorted by the cells of a uniform grid over ``(x, v)``.
 
-    The cells are half the box of ``radius`` per coordinate (larger where that would make more than
-    ``cells_per_member`` cells per member); any radius can be queried. ``gamma``: Eq. (3)'s, the float32
-    value of the caller's distances.
-    """
+    Cells are half the box of ``radius`` (at most ``cells_per_member`` per member); any radius can be queried."""
 
     def __init__(self, feats: np.ndarray, members: np.ndarray, radius: float, gamma: float,
                  cells_per_member: float = 4.0) -> None:
@@ -195,12 +188,10 @@ with user_cache() as _cache:
 def count_within(grid: MotionGrid, qf: np.ndarray, qscale: np.ndarray, stop: np.ndarray, eps: float,
                  gamma: float, gscale: float = 1.0, sure: np.ndarray | None = None,
                  possible: np.ndarray | None = None, on_possible: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """``(sure, possible)``: members of ``grid`` with ``d * gscale * qscale`` at most ``eps (1 - MARGIN)`` and
-    at most ``eps (1 + MARGIN)`` from each query ``qf`` (q, 6).
+    """``(sure, possible)`` counts of ``grid`` members with ``d * gscale * qscale`` within ``eps (1 -/+ MARGIN)``.
 
-    A query stops counting once its sure count (possible count with ``on_possible``) reaches ``stop``
-    (none at 0). ``sure`` and ``possible`` given (int64) are added to in place. ``grid`` must be built for a
-    radius of at least ``eps / (gscale * qscale)``.
+    ``qf`` (q, 6): queries, each stopping once its sure (``on_possible``: possible) count reaches ``stop``
+    (0: never). Given ``sure``/``possible`` are added to; ``grid``'s radius must be ``>= eps / (gscale qscale)``.
     """
     n = len(qf)
     sure = np.zeros(n, np.int64) if sure is None else sure
@@ -215,9 +206,7 @@ def count_within(grid: MotionGrid, qf: np.ndarray, qscale: np.ndarray, stop: np.
 
 def upper_kth(feats: np.ndarray, rows: np.ndarray, cand: np.ndarray, cscale: np.ndarray, k: int,
               gamma: float) -> np.ndarray:
-    """``(r,)`` float32 upper bounds of the filter's ``k``-th smallest float32 distance from each of ``rows``
-    to its ``m >= k`` candidates ``cand`` (r, m), each times ``cscale`` (r, m): the float64 one times
-    ``1 + MARGIN``."""
+    """``(r,)`` float32 upper bounds of the ``k``-th smallest ``d * cscale`` of ``rows`` to ``cand`` (r, m)."""
     out = np.empty(len(rows))
     if len(rows):
         _kth_rows(np.ascontiguousarray(feats, np.float64), np.ascontiguousarray(rows, np.int64),

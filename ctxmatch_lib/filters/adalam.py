@@ -1,21 +1,9 @@
-"""AdaLAM: Adaptive Locally-Affine Matching (Cavalli et al., ECCV 2020).
+"""AdaLAM: Adaptive Locally-Affine Matching (Cavalli et al., ECCV 2020), :func:`adalam_filter`.
 
-1. Seeds (Sec. 3.1): matches whose score passes ``seed_threshold`` and that no match within
-   ``R1 = sqrt(w1 h1 / (pi * area_ratio))`` in image 1 beats with a strictly lower score.
-2. Neighbourhoods (Sec. 3.2): the matches within ``search_expansion * R1`` and ``* R2`` of a seed in both
-   images whose relative orientation and scale agree with the seed's when the shapes are known.
-3. Local affine verification (Sec. 3.3): ``ransac_iters`` maps ``v = A u`` through the seed, each from a
-   couple of members (best-ranked couples first, as PROSAC), in coordinates relative to the seed over the
-   neighbourhood radius. Along the sorted residuals a member is an inlier while its a-contrario confidence
-   (inlier rate so far over ``r^2``) reaches ``min_confidence``. The best map is refitted on its inliers,
-   which are accepted when ``count * (1 - 1 / confidence) >= min_inliers``.
-4. The output is the union of the accepted inliers.
-
-Where the paper is silent, the default is the reading of kornia's port of the authors' code
-(``kornia.feature.adalam``, the paper's "original code", Sec. 5.3): equal seed scores do not suppress each
-other; the sampled couples (:func:`_couples`); the inlier count (:func:`_confident_inliers`); an implausibly
-scaled refit becomes the identity; exactly fitted neighbourhoods are recovered (:func:`_exact_support`);
-orientation and scale per keypoint (``similarity``). Its agreement with kornia: ``docs/filters.md``.
+Seeds (Sec. 3.1: the best score within ``R1 = sqrt(w1 h1 / (pi area_ratio))``), their neighbourhoods
+(Sec. 3.2) and a local affine RANSAC with a-contrario confidence per neighbourhood (Sec. 3.3); the output is
+the union of the accepted inliers. Where the paper is silent, the defaults follow kornia's port of the
+authors' code (Sec. 5.3's "original code"); the agreement: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -33,10 +21,8 @@ __all__ = ["adalam_filter"]
 def _couples(n: int) -> np.ndarray:
     """The ``n`` sample couples ``(j, i)`` of positions in a score-sorted neighbourhood, best first.
 
-    Exhaustive over the first ``m + 1`` positions (``j = 1 .. m``, ``i < j``, ``m (m + 1) / 2 <= n``), then the
-    ``r = n - m (m + 1) / 2`` couples ``(r, 0 .. r - 1)``, as the reference implementation draws them; a
-    neighbourhood of ``d`` members takes them modulo ``d``.
-    """
+    All ``i < j <= m`` (``m (m + 1) / 2 <= n``), then ``(r, 0 .. r - 1)`` for the ``r`` left, as the
+    reference draws them; used modulo the neighbourhood size."""
     m = int(np.sqrt(2 * n + 0.25) - 0.5)
     r = n - m * (m + 1) // 2
     js = [j for j in range(1, m + 1) for _ in range(j)] + [r] * r
@@ -59,9 +45,7 @@ def _relative_similarity(A1: np.ndarray, A2: np.ndarray):
 
 
 def _keypoint_similarity(A1: np.ndarray, A2: np.ndarray):
-    """Orientation difference (degrees) and scale ratio of the two keypoints of each match, each keypoint's
-    orientation the angle of the rotation closest to its shape ``A`` (polar decomposition) and its scale
-    ``sqrt(|det A|)``; NaN where a shape is singular."""
+    """Orientation difference (degrees, polar decomposition) and ratio of ``sqrt(|det A|)``; NaN if singular."""
     def orient_scale(A):
         return (np.degrees(atan2(A[:, 1, 0] - A[:, 0, 1], A[:, 0, 0] + A[:, 1, 1])),
                 np.sqrt(np.abs(A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])))
@@ -84,13 +68,8 @@ def _residuals(A: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
 def _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf: float):
     """Confidence-based inlier count of the best map of each neighbourhood (Sec. 3.3), as the reference counts.
 
-    Along the sorted residuals ``r`` of a map, a member is good when ``r^2 * min_conf`` is at most the inlier
-    rate so far (``r^2`` is the rate of uniform outliers in the unit disc). Exact fits (``r^2 <= 1e-8``: the
-    seed and the sampled couple) add nothing, members whose squared residuals coincide in half precision
-    (copies of a duplicated match) share one vote; the count is the integer part of the good votes, the
-    inliers that many smallest residuals, the confidence ``count / (votes * r_c^2)``. Arguments and returns:
-    see :func:`._adalam_kernels.best_confident_maps`.
-    """
+    A member is good when ``r^2 * min_conf`` is at most the inlier rate so far along the sorted residuals.
+    Arguments and returns: see :func:`._adalam_kernels.best_confident_maps`."""
     return best_confident_maps(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
                               np.ascontiguousarray(Vb, dtype=np.float64), np.ascontiguousarray(nb, dtype=np.int64),
                               np.ascontiguousarray(usable, dtype=np.bool_),
@@ -123,17 +102,13 @@ def adalam_filter(
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better (seeds, sampling order); ``None``: all equal.
     image_size1, image_size2 : (int, int)
-        Image sizes (width, height), which set the radii ``R1`` and ``R2``.
+        Image sizes (width, height); they set the radii ``R1`` and ``R2``.
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Affine shapes of the keypoints, for the orientation and scale checks. Both or neither.
-    area_ratio : float, default 100
-        Image area over seed-disc area (Sec. 4).
-    search_expansion : float, default 4
-        Neighbourhood radius over seed radius (lambda, Sec. 3.2).
-    ransac_iters : int, default 128
-        Hypotheses per neighbourhood (Sec. 4).
-    min_inliers : int, default 6
-        Minimum neighbourhood size and confident inlier count (Sec. 4).
+        Keypoint shapes, for the orientation and scale checks. Both or neither.
+    area_ratio, search_expansion : float, default 100 and 4
+        Image area over seed-disc area (Sec. 4); neighbourhood over seed radius (lambda, Sec. 3.2).
+    ransac_iters, min_inliers : int, default 128 and 6
+        Hypotheses per neighbourhood; minimum neighbourhood size and confident inlier count (Sec. 4).
     min_confidence : float, default 200
         Confidence threshold of the adaptive inlier selection (t_tau, Sec. 3.3).
     orientation_threshold, scale_rate_threshold : float or None, default 30 and 1.5
@@ -145,15 +120,13 @@ def adalam_filter(
     refit : bool, default True
         Refit the best hypothesis of each neighbourhood on its inliers (Sec. 3.3).
     similarity : {"keypoints", "map"}, default "keypoints"
-        Orientation and scale from each keypoint's shape ``A`` (the rotation closest to ``A``,
-        ``sqrt(|det A|)``), as the reference reads detector frames, or from the map ``A2 A1^-1``.
+        Orientation and scale per keypoint shape, as the reference, or from the map ``A2 A1^-1``.
     rng : None, int or numpy.random.Generator, default 0
         Seed of the order of equal scores inside a neighbourhood.
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
-        Nothing is kept without a valid neighbourhood.
+    %(keep)s
 
     References
     ----------
@@ -215,10 +188,9 @@ def adalam_filter(
 
 
 class _Locations:
-    """The distinct image-1 locations ``x`` (K, 2) of the matches: searches over them decide as searches over
-    the matches would, with several times fewer points. ``tree``: k-d tree of the locations; ``inv``: the
-    location of each match; ``by_loc``: the matches grouped by location (index order within), group ``l``
-    spanning ``by_loc[starts[l]:starts[l + 1]]``."""
+    """Distinct image-1 locations: ``tree`` over them, ``inv`` each match's, ``by_loc``/``starts`` the groups.
+
+    Searched instead of the matches (fewer points); group ``l`` is ``by_loc[starts[l]:starts[l + 1]]``."""
 
     def __init__(self, x: np.ndarray):
         loc, inv = np.unique(x, axis=0, return_inverse=True)
@@ -228,8 +200,7 @@ class _Locations:
         self.starts = np.r_[0, np.cumsum(np.bincount(self.inv, minlength=len(loc)))]
 
     def members(self, lists) -> tuple[np.ndarray, np.ndarray]:
-        """``(lid, mid)``: for every match at a location of each list of location indices (e.g. from
-        ``tree.query_ball_point``), the list's index and the match's, list by list."""
+        """``(lid, mid)``: the list index and match index of every match at the locations of each list."""
         lens = np.fromiter((len(v) for v in lists), np.int64, len(lists))
         lid = np.repeat(np.arange(len(lists)), lens)
         ll = np.concatenate([np.asarray(v, np.int64) for v in lists]) if len(lists) else np.zeros(0, np.int64)
@@ -239,8 +210,7 @@ class _Locations:
 
 
 def _seeds(locs: _Locations, s, R1: float, seed_threshold: float) -> np.ndarray:
-    """Matches passing ``seed_threshold`` whose score is the best at their location and at every location
-    closer than ``R1`` in image 1 (equal scores do not beat each other, as in the reference)."""
+    """Matches passing ``seed_threshold`` with the best score within ``R1`` in image 1 (ties do not beat)."""
     pairs = locs.tree.query_pairs(np.nextafter(R1, 0.0), output_type="ndarray")  # distance < R1
     beaten = beaten_by_neighbours(np.ascontiguousarray(s, dtype=np.float64), locs.inv,
                                   np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), len(locs.starts) - 1)
@@ -249,9 +219,9 @@ def _seeds(locs: _Locations, s, R1: float, seed_threshold: float) -> np.ndarray:
 
 def _neighbourhoods(ms, locs: _Locations, seeds, rank, r1: float, r2: float, min_inliers, orientation_threshold,
                     scale_rate_threshold, similarity: str = "keypoints"):
-    """The neighbourhood of each seed (Sec. 3.2), seeds with fewer than ``max(min_inliers, 3)`` members
-    dropped: ``None`` when none is left, else ``(seeds, sid, mid, sizes, pos)``, for each member its seed's
-    index in ``seeds``, its match index and its position in its group (best score first)."""
+    """The neighbourhood of each seed with at least ``max(min_inliers, 3)`` members (Sec. 3.2), or None.
+
+    Returns ``(seeds, sid, mid, sizes, pos)``: per member its seed's index, match index and rank (best first)."""
     x, y = ms.x, ms.y
     sid, mid = locs.members(locs.tree.query_ball_point(x[seeds], r1))
     ok = ((y[mid] - y[seeds[sid]]) ** 2).sum(1) < r2 ** 2
@@ -296,12 +266,9 @@ def _distinct_members(Ub, Vb, Pb) -> np.ndarray:
 
 
 def _exact_support(raw, raw_distinct, valid, nb, min_inliers, min_conf: float):
-    """Neighbourhoods fitted exactly by one of their maps (the reference's recovery of exact local
-    affinities, which its confidence count would otherwise drop): residuals up to ``2^-12`` on at least
-    ``min_inliers + 3`` members (``raw``, (B, T)), of which at least ``min_inliers`` distinct locations
-    (``raw_distinct``) beyond the seed and the sampled couple, with the confidence of a residual area of
-    ``2^-24``. Returns ``(recover, best, raw, conf)`` per neighbourhood: whether to recover it, the map index,
-    the near-exact count and confidence."""
+    """``(recover, best, raw, conf)`` of neighbourhoods fitted exactly by a map, which the reference recovers.
+
+    ``raw``, ``raw_distinct`` (B, T): residuals up to ``2^-12`` per map, of all and of distinct members."""
     cand = (raw >= min_inliers + 3) & valid
     support = np.where(cand, np.maximum(raw_distinct - 3, 0), 0)
     best = support.argmax(1)
@@ -318,8 +285,7 @@ def _scale_ok(A: np.ndarray, det_thr: float) -> np.ndarray:
 
 
 def _select(A, usable, valid, distinct, Ub, Vb, Pb, nb, min_inliers, min_conf: float):
-    """Inliers of the best map of each neighbourhood: the confidence-based selection, or the exact recovery
-    where that finds more. Returns ``(inl (B, M), count, conf)``."""
+    """Inliers ``(inl (B, M), count, conf)`` of the best map per neighbourhood, confident or exact."""
     B, M = Pb.shape
     count_b, conf_b, order_b, near, near_distinct = _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf)
     inl = np.zeros((B, M), bool)
@@ -341,9 +307,7 @@ def _select(A, usable, valid, distinct, Ub, Vb, Pb, nb, min_inliers, min_conf: f
 def _local_ransac(Ub, Vb, Pb, nb, couples, min_conf: float, min_inliers, det_thr: float, refit: bool):
     """Local affine RANSAC of a block of neighbourhoods (Sec. 3.3); the accepted inliers, ``(B, M)`` bool.
 
-    ``Ub``, ``Vb``: normalised offsets to the seed in each image, ``(B, M, 2)``, members sorted best score
-    first; ``Pb`` marks the members present; ``nb`` the group sizes.
-    """
+    ``Ub``, ``Vb`` (B, M, 2): normalised offsets to the seed, best score first; ``Pb``: present; ``nb``: sizes."""
     B, M = Pb.shape
     rows = np.arange(B)[:, None]
     # Minimal fits through the seed (the origin) and a couple: v = A u, A = [v_i v_j][u_i u_j]^-1. Couples

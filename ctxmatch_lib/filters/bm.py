@@ -1,9 +1,8 @@
 """BM: bilateral functions for global motion modelling (Lin, Cheng, Lu, Yang, Do, Torr, ECCV 2014).
 
-Scene motion is piecewise smooth; lifted to the bilateral domain (image-1 position, motion ``y - x``) it is
-globally smooth: the motions of different objects lie far apart, and a false match lands in an empty region.
-:func:`bm_filter` fits the motion robustly on a bilateral grid (Chen, Paris, Durand, SIGGRAPH 2007), our
-reading of the method.
+Lifted to the bilateral domain (image-1 position, motion ``y - x``), piecewise smooth scene motion is
+globally smooth and a false match lands in an empty region. :func:`bm_filter` fits the motion robustly on
+a bilateral grid (Chen, Paris, Durand, SIGGRAPH 2007), our reading of the method.
 """
 
 from __future__ import annotations
@@ -41,9 +40,8 @@ def _blur_slice(flat: np.ndarray, shape, values: np.ndarray) -> np.ndarray:
 
 
 def _local_affine_fit(flat, shape, u, v, w, ridge: float):
-    """Leave-one-out local affine fit ``v ~ b_i + A_i (u - u_i)`` of the motion of the other matches around
-    each match ``i``, weighted by ``w`` and the blur kernel (a ``ridge`` on ``A_i`` relative to the mass), from
-    the blurred moments up to second order: the kernel mass of the others (K,) and ``b_i`` (K, 2)."""
+    """Leave-one-out local affine fit ``v ~ b_i + A_i (u - u_i)`` around each match ``i`` from the blurred
+    moments, weighted by ``w``: the kernel mass of the others (K,) and ``b_i`` (K, 2)."""
     ux, uy, vx, vy = u[:, 0], u[:, 1], v[:, 0], v[:, 1]
     own = np.c_[w, w * ux, w * uy, w * ux * ux, w * ux * uy, w * uy * uy,
                 w * vx, w * vy, w * ux * vx, w * ux * vy, w * uy * vx, w * uy * vy]
@@ -88,22 +86,16 @@ def bm_filter(
     image_size1, image_size2 : (int, int)
         Image sizes (width, height): the grid cells are fractions of the image diagonals.
     %(shapes_unused)s
-    sigma_s : float, default 0.1
-        Spatial cell of the bilateral grid, as a fraction of the image-1 diagonal.
-    sigma_r : float, default 0.05
-        Range (motion) cell, as a fraction of the mean image diagonal.
+    sigma_s, sigma_r : float, default 0.1 and 0.05
+        Spatial and motion cells of the grid, as fractions of the image-1 and the mean image diagonal.
     tau : float, default 0.25
-        Residual threshold and Welsch scale, in range cells (12.8 pixels for an 800 x 640 image).
+        Residual threshold and Welsch scale, in motion cells (12.8 px at 800 x 640).
     n_iter : int, default 3
         Reweighting rounds of the robust fit.
-    min_support : float, default 2
-        Minimum support of a kept match, in matches at the centre of its cell (one cell away counts 1/2).
-    density_ratio : float, default 3
-        The support must also be this many times that of ``K`` matches spread uniformly over the bilateral
-        domain (every image-1 position, every motion that stays within image 2).
+    min_support, density_ratio : float, default 2 and 3
+        Minimum support, in matches at the centre of the cell, and as a multiple of uniform ``K`` matches'.
     ridge : float, default 0.1
-        Ridge on the linear part of the local affine fits, relative to the mass (keeps collinear or tiny
-        neighbourhoods well posed).
+        Ridge on the linear part of the local affine fits, relative to the mass.
 
     Returns
     -------
@@ -111,25 +103,18 @@ def bm_filter(
 
     Notes
     -----
-    The paper fits the bilateral function by a global robust minimisation; here each of ``n_iter`` rounds
-    splats the weighted moments of the matches on a 4-D grid, blurs them with ``[1, 2, 1] / 4`` and slices
-    them at each match (:func:`_local_affine_fit`), linear in ``K``; Welsch weights follow the residuals.
-    Keypoint shapes are not used. The paper's kernel widths are for its own normalisation; here
-    ``sigma_s = 0.1`` keeps a surface's motion close to affine over 3 x 3 cells, ``sigma_r = 0.05`` (40 px at
-    640 x 480) separates motions more than a cell apart (other objects, most wrong matches), ``tau = 0.25``
-    keeps most of the precision of smaller values and more recall on hard pairs, ``min_support = 2`` asks for
-    two consistent neighbours, ``density_ratio = 3`` keeps the test meaningful in a full grid. The authors'
-    code (mmcheng.net/bfun) could not be fetched here. Sweeps: ``docs/filters.md``; example:
-    :mod:`ctxmatch_lib.filters`.
+    The paper's global robust fit is read as ``n_iter`` Welsch-reweighted rounds of local affine fits from
+    moments splatted on a 4-D grid and blurred by ``[1, 2, 1] / 4`` (:func:`_local_affine_fit`), linear in
+    ``K``. The paper's kernel widths are for its own normalisation: ``sigma_s`` keeps a surface near affine
+    over 3 x 3 cells, ``sigma_r`` (40 px at 640 x 480) separates other motions. The authors' code
+    (mmcheng.net/bfun) could not be fetched; sweeps: ``docs/filters.md``.
 
     %(coincident)s
-    A location counts once in the support and in the local fits of the others.
 
     References
     ----------
-    W.-Y. D. Lin, M.-M. Cheng, J. Lu, H. Yang, M. N. Do, P. Torr, "Bilateral functions for global motion
-    modeling", ECCV 2014. J. Chen, S. Paris, F. Durand, "Real-time edge-aware image processing with the
-    bilateral grid", SIGGRAPH 2007.
+    W.-Y. D. Lin et al., "Bilateral functions for global motion modeling", ECCV 2014.
+    J. Chen, S. Paris, F. Durand, "Real-time edge-aware image processing with the bilateral grid", SIGGRAPH 2007.
     """
     sigma_s = check_positive(sigma_s, "sigma_s")
     sigma_r = check_positive(sigma_r, "sigma_r")

@@ -1,20 +1,10 @@
 """GMS: Grid-based Motion Statistics (Bian et al., CVPR 2017; IJCV 2020).
 
-Every match votes for its pair of cells (image-1 grid of ``grid_size x grid_size``, image-2 grid scaled by
-the relative scale). The most voted image-2 cell of each image-1 cell is accepted when the votes over the
-3x3 block of neighbouring cell pairs reach ``alpha * sqrt(n)``, ``n`` the mean number of matches in the
-nine image-1 cells (CVPR 2017, Eq. (5)); the matches of accepted pairs are kept. Four grids shifted by half
-a cell are OR-ed (CVPR 2017, Sec. 4). Optionally (IJCV 2020, Sec. 5) the image-2 grid is scaled by each of
-``scale_ratios`` and the 3x3 kernel rotated by multiples of 45 degrees; the combination keeping most wins.
-
-The paper ran "the original code ... only modified to work with blob matches as input" (Sec. 5.3): the
-authors' ``GmsMatcher`` with ``with_scale=False, with_rotation=False``, the algorithm of
-``cv2.xfeatures2d.matchGMS``, whose choices are the defaults: a keypoint at ``x`` falls in cell
-``floor(g x / width)`` (OpenCV keypoints share our pixel-centre origin), the image-2 grid has
-``int(grid_size * ratio)`` cells per side, ties between image-2 cells go to the lowest index, and every
-row votes, so copies of one wrong match can outvote the sparse correct matches of their cell
-(``distinct_votes=True`` counts a pair of locations once). The agreement with matchGMS:
-``docs/filters.md``.
+:func:`gms_filter`: every match votes for its pair of grid cells; the most voted image-2 cell of each image-1
+cell is accepted when the votes of the 3x3 block reach ``alpha * sqrt(n)`` (CVPR 2017, Eq. (5)). Four
+half-cell-shifted grids are OR-ed (Sec. 4); optionally image-2 grid scales and rotated kernels (IJCV 2020,
+Sec. 5). The defaults follow ``cv2.xfeatures2d.matchGMS``, the authors' code the paper ran (Sec. 5.3);
+the agreement with it: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -49,9 +39,9 @@ with user_cache() as _cache:
 
     @numba.njit(cache=_cache, nogil=True)
     def _gms_kernel(c1, c2, g1w, g1h, g2w, g2h, off1, off2, alpha):
-        """The four shifted passes of one grid pair and kernel (CVPR 2017, Sec. 4), OR-ed; ``c1`` (4, K): the
-        image-1 cell of each match per shifted grid (-1 outside), ``c2`` (K,): its image-2 cell. The vote
-        table is cleared by walking the matches again, so a pass costs O(K), not O(cells^2)."""
+        """The four shifted passes of one grid pair and kernel (CVPR 2017, Sec. 4), OR-ed.
+
+        ``c1`` (4, K): image-1 cell per shifted grid (-1 outside); ``c2`` (K,): image-2 cell. O(K) per pass."""
         n1, n2 = g1w * g1h, g2w * g2h
         k = c2.shape[0]
         votes = np.zeros(n1 * n2, np.int32)
@@ -141,22 +131,22 @@ def gms_filter(
     ----------
     %(kpts)s
     matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2``; many-to-many matches simply vote several times.
+        Indices into ``kpts1`` and ``kpts2``; many-to-many matches vote several times.
     %(scores_unused)s
     image_size1, image_size2 : (int, int)
         Image sizes (width, height); the grids span the images.
     %(shapes_unused)s
     grid_size : int, default 20
-        Cells per side of the image-1 grid (20 x 20, CVPR 2017 Sec. 5, IJCV 2020 Sec. 6.1).
+        Cells per side of the image-1 grid (CVPR 2017 Sec. 5, IJCV 2020 Sec. 6.1).
     alpha : float, default 6
-        Threshold factor of ``tau = alpha * sqrt(n)`` (CVPR 2017 Eq. (5) and Sec. 5).
+        Threshold factor of ``tau = alpha * sqrt(n)`` (CVPR 2017 Eq. (5), Sec. 5).
     with_scale, with_rotation : bool, default False
-        Try every image-2 grid scale of ``scale_ratios``, the 8 rotated 3x3 kernels (IJCV 2020, Sec. 5).
-    scale_ratios : sequence of float
+        Try the image-2 grid scales ``scale_ratios`` / the 8 rotated kernels (IJCV 2020, Sec. 5).
+    scale_ratios : sequence of float, default :data:`GMS_SCALE_RATIOS`
         Relative scales tried when ``with_scale``.
     distinct_votes : bool, default False
-        The rows joining the same pair of locations vote once and share its verdict (the authors' code:
-        each row votes).
+        Rows joining the same pair of locations vote once (the authors' code: each row votes, so copies of a
+        wrong match can outvote sparse correct ones).
 
     Returns
     -------

@@ -23,9 +23,8 @@ __all__ = ["llt_filter", "lle_weights", "m_step"]
 def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     """Sparse (K, K) locally-linear-embedding weights of every point from its ``k`` nearest neighbours.
 
-    Each row sums to one and minimises ``|x_i - sum_j W_ij x_j|^2`` (Roweis and Saul, Science 2000), the
-    local Gram matrix regularised by ``reg`` times its trace (``k`` exceeds the dimension 2). A point's
-    coincident copies are its neighbours, as in the authors' dense sort; copies only get equal weights.
+    Rows sum to one and minimise ``|x_i - sum_j W_ij x_j|^2`` (Roweis and Saul, Science 2000), the local
+    Gram matrix regularised by ``reg`` times its trace.
     """
     n = len(x)
     nb = knn_without_self(x, np.arange(n), k)
@@ -68,19 +67,15 @@ def llt_filter(
     Parameters
     ----------
     %(common_unused)s
-    n_neighbors : int, default 15
-        Neighbours of the locally linear reconstruction (``conf.Kn`` of the authors' demo).
+    n_neighbors, reg : int, float, default 15 and 1e-5
+        Neighbours (``conf.Kn``) and regulariser (times the local Gram trace) of the linear reconstruction.
     lam : float, default 9e9
-        Weight of the local geometrical constraint as ``conf.lambda`` of ``LLTV.m`` (see :func:`m_step`);
-        ``lam=2000`` reads Eq. (7) as 1000 times the squared constraint.
+        Weight of the local geometrical constraint, ``conf.lambda`` of ``LLTV.m`` (see :func:`m_step`).
     %(em_mixture)s
     n_control : int, default 15
-        Control points of the sparse approximation (Sec. III-C; ``conf.M``), among the distinct keypoints.
+        Control points of the sparse approximation (Sec. III-C; ``conf.M``).
     max_iter, tol : int, float, default 500 and 1e-5
-        EM stopping rule of the authors' loop ``while iter < MaxIter && |dE / E| > ecr``: at most
-        ``max_iter - 1`` iterations, or a relative energy change of at most ``tol``.
-    reg : float, default 1e-5
-        Regulariser of the locally linear reconstruction, times the trace of the local Gram matrix.
+        At most ``max_iter - 1`` EM iterations, or until a relative energy change of at most ``tol``.
     %(em_rng)s
 
     Returns
@@ -90,15 +85,13 @@ def llt_filter(
     Notes
     -----
     The paper (and Bellavia's, Sec. 5.2) leaves the variant and constants open; they follow the
-    ``method = 'nonrigid'`` branch of the authors' ``demo.m`` (jiayi-ma/LLT), including its energy
-    ``E = sum p r^2 / (2 sigma^2) + sum p log sigma^2 - log(gamma) sum p - log(1 - gamma) sum (1 - p)
-    + lambda / 2 ||sqrt(P) (I - W) T(X)||_F`` (the norm not squared) and its stopping rule. The comparison
-    with that code is in ``docs/filters.md``; example: :mod:`ctxmatch_lib.filters`.
+    ``method = 'nonrigid'`` branch of the authors' ``demo.m`` (jiayi-ma/LLT), with its energy (Eq. (8)
+    with the constraint's norm not squared) and stopping rule. Comparison: ``docs/filters.md``.
 
     References
     ----------
-    J. Ma, H. Zhou, J. Zhao, Y. Gao, J. Jiang, J. Tian, "Robust feature matching for remote sensing image
-    registration via locally linear transforming", IEEE TGRS 53(12), 2015.
+    J. Ma et al., "Robust feature matching for remote sensing image registration via locally linear
+    transforming", IEEE TGRS 53(12), 2015.
     """
     n_neighbors = check_positive(n_neighbors, "n_neighbors", integer=True)
     lam = check_positive(lam, "lam", allow_zero=True)
@@ -124,10 +117,10 @@ def llt_filter(
 
 
 def m_step(G: np.ndarray, Z: np.ndarray, pw: np.ndarray, c: float) -> np.ndarray:
-    """M-step of LLTV (Sec. III-C) for the (m, 2) kernel coefficients ``C``, multiplied through by sigma^2.
+    """M-step of LLTV (Sec. III-C): the (m, 2) kernel coefficients ``C``.
 
-    Solves ``(U' P U + c (BU)' P (BU)) C = U' P (y - x) - c (BU)' P (B x)`` with ``G = [U, BU]`` (K, 2m),
-    ``Z = [y - x, B x]`` (K, 4), ``P = diag(pw)`` and ``c = lam sigma^2`` (:mod:`._em_kernels` arithmetic).
+    Solves ``(U' P U + c (BU)' P (BU)) C = U' P (y - x) - c (BU)' P (B x)``, ``G = [U, BU]`` (K, 2m),
+    ``Z = [y - x, B x]`` (K, 4), ``P = diag(pw)``, ``c = lam sigma^2``.
     """
     m = G.shape[1] // 2
     return _m_step(_stacked(G, Z), pw, c, m)

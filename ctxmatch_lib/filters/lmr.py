@@ -1,29 +1,9 @@
 """LMR: a learned two-class classifier for mismatch removal (Ma, Jiang, Jiang, Zhao, Guo, IEEE TIP 2019).
 
-Each putative match is classified from a general description of its neighbourhood, so one classifier
-trained on a few pairs serves any pair. Main functions: :func:`lmr_filter`, :func:`mpc_features`,
-:func:`lmr_features`, :func:`train_lmr`.
-
-**Features** (``features="mpc"``, default): the match representation of the authors' ``MPC.m``
-(StaRainJ/LMR, read, not copied). Three consensus stages (a match passes when more than 10 / 30 / 50 % of
-its 10 nearest matches in image 1 are among its 10 nearest in image 2, searched among the previous stage's
-survivors), then per scale ``k`` of :data:`MPC_SCALES`: the shared fraction, and the consistency of the
-squared motion length and of the motion direction with the shared neighbours' means. ``MPC.m`` maps the
-last two by Gaussians; here by ``1 / (1 + u^2)``: monotone in ``|u|`` as the Gaussian, so trees split
-alike, and made of correctly rounded operations (direction from ``_fixedmath.atan2``), so the features
-have the same bits on every CPU. ``features="lpm"``: the reading on LPM's neighbourhoods (Ma et al.
-IJCV 2019, Eq. (13)-(14)), two passes as LPM's two iterations (Sec. 4.3), see :func:`lmr_features`.
-
-**Classifier** (the paper leaves it replaceable; the authors' network weights are theirs and not shipped,
-``network=PATH`` reads them from a user's checkout, see :mod:`._lmr_network`): gradient boosted trees
-(scikit-learn, 60 trees of depth 3), trained without threads (bit-for-bit repeatable), stored as plain
-arrays in ``data/lmr_model.npz``; prediction is pure NumPy.
-
-**Training data** (:func:`train_lmr`): synthetic pairs from a seed, never evaluation data: a random
-homography, two planar layers, or a homography plus a smooth warp; 300-3000 matches, 5-90 % inliers,
-0.3-2 px noise, uniform or clustered keypoints; outliers uniform, near misses 15-120 px off, or second
-matches of inlier keypoints (many-to-many). The embedded images are not used: their features depend on the
-OpenCV build. ``python -m ctxmatch_lib.filters.lmr`` writes the shipped model (``train_lmr(seed=0)``).
+:func:`lmr_filter` classifies each match from its neighbourhood's features (:func:`mpc_features`, the
+authors' ``MPC.m``, or :func:`lmr_features`) by boosted trees trained on synthetic pairs (:func:`train_lmr`;
+``python -m ctxmatch_lib.filters.lmr`` writes ``data/lmr_model.npz``) or by the authors' network
+(:mod:`._lmr_network`). Details: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -61,22 +41,16 @@ LMR_TRAIN_DEFAULTS = dict(seed=0, n_pairs=60, max_samples_per_pair=400, n_estima
 def lmr_features(x: np.ndarray, y: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
     """The ``features="lpm"`` vectors of every match, on LPM's neighbourhoods (IJCV 2019, Eq. (13)-(14)).
 
-    With ``N_x``, ``N_y`` the ``k`` nearest matches of ``x_i`` and of ``y_i``: ``|N_x ∩ N_y| / k`` and
-    ``sum_j s(v_i, v_j) / k`` over the shared neighbours, ``s = min(|v_i|, |v_j|) / max(|v_i|, |v_j|) *
-    cos(v_i, v_j)``, ``v = y - x``.
+    (K, 10): per scale ``k`` of :data:`SCALES`, with ``N_x``, ``N_y`` the ``k`` nearest matches of ``x_i``,
+    ``y_i`` and ``v = y - x``: ``|N_x ∩ N_y| / k`` and the sum over the shared neighbours of
+    ``min(|v_i|, |v_j|) / max(|v_i|, |v_j|) * cos(v_i, v_j) / k``.
 
     Parameters
     ----------
     x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoints of each match, (x, y) pixels, origin at the centre of the top-left
-        pixel.
+        Image-1 and image-2 keypoints of each match.
     candidates : ndarray of int, optional
-        Matches among which the neighbours are searched (default: all; the second pass: the first's inliers).
-
-    Returns
-    -------
-    ndarray of shape (K, 10)
-        Per scale ``k`` in :data:`SCALES`: the two values above.
+        Matches among which neighbours are searched (default: all).
     """
     n = len(x)
     cand = np.arange(n) if candidates is None else np.asarray(candidates, np.int64)
@@ -117,22 +91,18 @@ def _shared_sorted(nx: np.ndarray, ny: np.ndarray):
 
 
 def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.ndarray:
-    """The authors' match representation (``MPC.m``), ``features="mpc"``; see the module notes.
+    """The authors' match representation (``MPC.m``), ``features="mpc"``: (K, 48) in ``MPC.m``'s column order.
+
+    After the consensus stages of :data:`MPC_CONSENSUS`: the shared fraction at each scale of
+    :data:`MPC_SCALES`, then per scale the squared-length and angle consistencies with the shared
+    neighbours, mapped by ``1 / (1 + u^2)`` (monotone as ``MPC.m``'s ``gaussmf``, the same bits on any CPU).
 
     Parameters
     ----------
     x, y : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoints of each match (as in :func:`lmr_features`).
+        Image-1 and image-2 keypoints of each match.
     exact : bool, default False
-        ``True``: ``MPC.m``'s own values (``gaussmf``, shift ``dv``, quadrant rules:
-        :func:`~ctxmatch_lib.filters._lmr_network.mpc_motion`), for the authors' network; ``False``: the
-        rational maps the shipped trees classify.
-
-    Returns
-    -------
-    ndarray of shape (K, 48)
-        The shared fraction at each scale of :data:`MPC_SCALES`, then per scale the length and angle
-        consistencies, in ``MPC.m``'s column order.
+        ``MPC.m``'s own values (:func:`._lmr_network.mpc_motion`), for the authors' network.
     """
     n = len(x)
     feats = np.zeros((n, 3 * len(MPC_SCALES)))
@@ -187,9 +157,8 @@ def mpc_features(x: np.ndarray, y: np.ndarray, *, exact: bool = False) -> np.nda
 class LMRModel:
     """The boosted-tree classifiers (stages 1 to 3, see :func:`train_lmr`) as flat arrays.
 
-    Each stage holds ``offsets`` (T + 1,) into the node arrays ``left``, ``right`` (-1 at leaves),
-    ``feature``, ``threshold`` (float64, compared with float32 features as scikit-learn does) and
-    ``value`` (leaf values), plus ``init`` (prior log-odds) and ``learning_rate``.
+    Per stage: ``offsets`` (T + 1,) into the node arrays ``left``, ``right`` (-1 at leaves), ``feature``,
+    ``threshold``, ``value``; ``init`` (prior log-odds), ``learning_rate``, ``depth``.
     """
 
     arrays: dict
@@ -302,10 +271,7 @@ def _motion(rng, w: int, h: int):
 
 
 def synthetic_pair(rng, size=(640, 480)):
-    """One synthetic training pair: ``(x, y, is_inlier)`` with ``x, y`` of shape (K, 2).
-
-    See the module notes for the distribution; every draw comes from ``rng``.
-    """
+    """One synthetic training pair ``(x, y, is_inlier)`` drawn from ``rng`` (distribution: ``docs/filters.md``)."""
     w, h = size
     move = _motion(rng, w, h)
     n = int(rng.integers(300, 3001))
@@ -362,25 +328,18 @@ def train_lmr(
 ) -> LMRModel:
     """Train the LMR classifiers on synthetic pairs drawn from ``seed``; same seed, same model.
 
-    Stage 3 classifies :func:`mpc_features` (``features="mpc"``), stages 1 and 2 the two passes of
-    :func:`lmr_features` (``features="lpm"``).
+    Stage 3 classifies :func:`mpc_features`, stages 1 and 2 the two passes of :func:`lmr_features`.
 
     Parameters
     ----------
     seed : int, default 0
-        Seed of the synthetic pairs, of the per-pair sample draw and of the boosting.
-    n_pairs : int, default 60
-        Synthetic pairs (:func:`synthetic_pair`).
-    max_samples_per_pair : int, default 400
-        Matches drawn from each pair for training (all of a pair's matches give the features).
+        Seed of the pairs, of the per-pair sample draw and of the boosting.
+    n_pairs, max_samples_per_pair : int, default 60 and 400
+        Synthetic pairs (:func:`synthetic_pair`); matches of each used for training.
     n_estimators, max_depth, learning_rate : int, int, float
         Gradient boosting.
     path : path-like, optional
         Where to write the model (``.npz``); ``None`` writes nothing.
-
-    Returns
-    -------
-    LMRModel
     """
     n_pairs = check_positive(n_pairs, "n_pairs", integer=True)
     max_samples_per_pair = check_positive(max_samples_per_pair, "max_samples_per_pair", integer=True)
@@ -422,24 +381,18 @@ def lmr_filter(
     features: str = "mpc",
     network: str | Path | None = None,
 ) -> np.ndarray:
-    """LMR: classify every match from its multi-scale neighbourhood features (see the module notes).
+    """LMR: classify every match from its multi-scale neighbourhood features.
 
     Parameters
     ----------
     %(common_unused)s
-    threshold : float, default 0.5
-        Inlier probability above which a match is kept (every pass).
-    model : LMRModel, optional
-        The classifiers; default: the shipped model (``train_lmr(**LMR_TRAIN_DEFAULTS)``).
+    threshold, model : float, default 0.5, and LMRModel, optional
+        Inlier probability above which a match is kept; the classifiers (default: the shipped model).
     features : {"mpc", "lpm"}, default "mpc"
-        ``"mpc"``: :func:`mpc_features` (the authors' ``MPC.m``), one pass, as their code; ``"lpm"``:
-        :func:`lmr_features` in two passes.
+        :func:`mpc_features` in one pass, as the authors' code, or :func:`lmr_features` in two passes.
     network : path-like, optional
-        The authors' ``Trained_Model/Net.mat`` from a user's checkout of StaRainJ/LMR (not shipped). Given,
-        ``mpc_features(..., exact=True)`` is classified by that network in NumPy and a match is kept when its
-        first output exceeds its second, as their demo; ``model`` and ``threshold`` are unused and
-        ``features`` must be ``"mpc"``. Networks other than a feed-forward chain of ``tansig``, ``logsig``,
-        ``purelin`` layers from 48 features to 2 outputs, without processing functions, are refused.
+        The authors' ``Trained_Model/Net.mat`` (not shipped), classifying ``mpc_features(..., exact=True)``
+        instead of ``model`` (first output above the second: inlier).
     %(merge_option)s
 
     Returns
@@ -449,16 +402,13 @@ def lmr_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods of the features; ``MPC.m`` counts every row, so there the
-    copies of a wrong match are each other's shared neighbours. The synthetic training pairs hold no
-    coincident rows, so the model is the same either way. Agreement with the authors' code and with the
-    paper's Table 2 is in ``docs/filters.md``.
+    ``MPC.m`` counts every row, so there the copies of a wrong match are each other's shared neighbours.
+    Agreement with the authors' code and with the paper's Table 2: ``docs/filters.md``.
 
     References
     ----------
-    J. Ma, X. Jiang, J. Jiang, J. Zhao, X. Guo, "LMR: learning a two-class classifier for mismatch
-    removal", IEEE TIP 28(8), 2019.
-    J. Ma, J. Zhao, J. Jiang, H. Zhou, X. Guo, "Locality preserving matching", IJCV 127(5), 2019.
+    J. Ma et al., "LMR: learning a two-class classifier for mismatch removal", IEEE TIP 28(8), 2019.
+    J. Ma et al., "Locality preserving matching", IJCV 127(5), 2019.
     """
     threshold = check_positive(threshold, "threshold", allow_zero=True)
     if features not in ("mpc", "lpm"):

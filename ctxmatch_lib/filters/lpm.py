@@ -1,16 +1,10 @@
 """LPM (Locality Preserving Matching, Ma et al., IJCV 2019) and GLPM (Guided LPM, Ma et al., TGRS 2018).
 
-Both keep a match when the ``K`` nearest matches of ``x_i`` in image 1 and of ``y_i`` in image 2 are
-largely the same matches.
-
-LPM (IJCV 2019, Sec. 3.3-4.3): the cost at scale ``K`` is ``(K - n_i + m_i) / K``, ``n_i`` the common
-neighbours and ``m_i`` those whose motion disagrees with ``i``'s (Eq. (13)-(15): ``min(|v_i|, |v_j|) /
-max(|v_i|, |v_j|) cos(v_i, v_j) <= tau``), averaged over the scales ``K + 2, K, K - 2`` and compared with
-``lambda``; a second iteration takes the neighbours among the first's inliers.
-
-GLPM (TGRS 2018, Sec. III): a small set made by a strict ratio test is filtered by two passes, then guides
-two passes over the whole set (neighbours searched among the guide only); a pass keeps a match when its
-cost ``2 (K - n_i)`` (Eq. (4)) is at most ``lambda``.
+Both keep a match whose ``K`` nearest matches in image 1 and in image 2 are largely the same.
+:func:`lpm_filter` (IJCV 2019, Sec. 3.3-4.3): cost ``(K - n_i + m_i) / K`` (Eq. (13)-(15)), ``m_i`` the
+common neighbours whose motion disagrees, over the scales ``K + 2, K, K - 2``, in two iterations.
+:func:`glpm_filter` (TGRS 2018, Sec. III): cost ``2 (K - n_i)`` (Eq. (4)), two passes on a small set of
+strict ratio-test matches, which then guides two passes over the whole set (:data:`GLPM_SCHEDULE`).
 """
 
 from __future__ import annotations
@@ -30,12 +24,10 @@ def _common_neighbours(nx: np.ndarray, ny: np.ndarray):
 
 
 def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: bool) -> np.ndarray:
-    """The neighbour lists of the authors' demos: the ``k + 1`` nearest ``candidates`` of every query, the
-    first answer dropped as the query itself; a query outside ``candidates`` drops it too if ``drop_outside``
-    (LPM), else keeps its ``k`` nearest (GLPM's ffm2). Rows at one location rank in index order, so a query
-    with a smaller-index candidate at its location keeps itself and drops that copy (VLFeat's tree likewise
-    answers one row of such a group first for all of them).
-    """
+    """The authors' demos' neighbour lists: the ``k + 1`` nearest ``candidates``, the first dropped as "self".
+
+    A query outside ``candidates`` drops it too if ``drop_outside`` (LPM), else keeps ``k`` (GLPM's ffm2);
+    among rows at one location the smallest index is the one dropped (as VLFeat's tree)."""
     q = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
     nb = knn_without_self(points, cand, k + 1, queries=q)
@@ -72,9 +64,7 @@ def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: 
 
 def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
               tree_ties: bool = True) -> np.ndarray:
-    """Multi-scale LPM cost (IJCV 2019, Eq. (15)) with neighbours searched among ``candidates``, in the
-    ``reading`` and with the ``tree_ties`` of :func:`lpm_filter` (the scale ``s`` of index ``j`` takes the
-    neighbours of ranks ``j .. j + s - 1`` in the code's reading)."""
+    """Multi-scale LPM cost (IJCV 2019, Eq. (15)), neighbours among ``candidates`` (see :func:`lpm_filter`)."""
     v = y - x
     norm = np.hypot(v[:, 0], v[:, 1])
     scales = [s for s in (k + 2, k, k - 2) if s > 0]
@@ -145,11 +135,10 @@ def lpm_filter(
     tau : float, default 0.2
         Motion-consistency threshold of Eq. (14) (Sec. 5.1).
     reading : {"code", "ijcv"}, default "code"
-        The neighbourhoods and motion similarity of the authors' MATLAB code (see Notes), or of the IJCV
-        text (the K nearest neighbours at each scale, the ratio of the motion lengths).
+        Neighbourhoods and motion similarity of the authors' MATLAB code (see Notes) or of the IJCV text.
     tree_ties : bool, default True
-        With ``"code"``: among rows at the query's location, the k-d tree answer dropped as the query itself
-        is the smallest-index one (True), or always the query (False).
+        With ``"code"``: the tree answer dropped as "self" is the smallest-index row at the query's
+        location (True), or always the query (False).
 
     Returns
     -------
@@ -158,15 +147,11 @@ def lpm_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods (the authors' demo is silent on them).
+    A location counts once in the neighbourhoods.
 
-    The reproduced paper ran the authors' code, so ``reading="code"`` follows ``demo_LPM_v2.m`` and
-    ``LPM_cosF.m`` where they depart from the IJCV text: (i) the neighbour lists are trimmed in place from one
-    scale to the next, so the scales use the neighbours of ranks 1..K+2, 2..K+1 and 3..K; (ii) the length
-    ratio of Eq. (13) is that of the squared lengths; (iii) a disagreement is ``s < tau``; (iv) the query
-    leaves its list only as the tree's first answer, dropped: in the second iteration that is the nearest
-    first-pass inlier of a query that is not one. The second iteration needs K + 4 inliers, as in the code.
-    The agreement with the original: ``docs/filters.md``.
+    The paper ran the authors' code, so ``reading="code"`` follows ``demo_LPM_v2.m``/``LPM_cosF.m``:
+    neighbour ranks 1..K+2, 2..K+1, 3..K per scale; squared length ratio in Eq. (13); ``s < tau``; the
+    tree's first answer dropped as "self"; a second iteration with K + 4 inliers (``docs/filters.md``).
 
     References
     ----------
@@ -190,8 +175,7 @@ def lpm_filter(
 
 
 def _glpm_pass(x, y, subset, candidates, k: int, lam: float, tree_ties: bool = True) -> np.ndarray:
-    """One GLPM pass over ``subset``: neighbourhood cost 2 (K - n_i) against guide ``candidates``; with
-    ``tree_ties`` the lists of ffm2 (see :func:`_tree_neighbours`), else the query always excluded."""
+    """One GLPM pass over ``subset``: cost ``2 (K - n_i)`` against the guide ``candidates`` (Eq. (4))."""
     if len(subset) == 0 or len(candidates) < 2:
         return np.zeros(len(subset), bool)
     if tree_ties:
@@ -227,22 +211,19 @@ def glpm_filter(
     %(kpts)s
     %(matches)s
     scores : ndarray of shape (K,) or None
-        NNR-like scores, lower is better. The guide is built from the matches with ``scores <= ratio``;
-        ``None`` (all equal) puts every match in it.
+        NNR-like scores, lower is better; ``scores <= ratio`` make the small set (``None``: every match).
         %(nnr_scale)s
     %(image_sizes)s
     %(shapes_unused)s
     ratio : float, default 1/1.5
-        Strict NNR threshold of the small putative set (Sec. IV; the large set is the whole input).
-    schedule : sequence of four (K, lambda)
-        Neighbourhood size and threshold of the cost ``2 (K - n_i)`` of the two small-set passes and the two
-        guided passes, default ((4, 6), (4, 4), (6, 6), (5, 4)) as published.
+        Strict NNR threshold of the small putative set (Sec. IV).
+    schedule : sequence of four (K, lambda), default :data:`GLPM_SCHEDULE`
+        Neighbourhood size and cost threshold of the two small-set and the two guided passes.
     guide : {"location", "rows"}, default "location"
-        The guide of the whole set: every candidate at the image-1 location of a small-set inlier, as the
-        authors' demo hands it on by coordinates, or the small-set inliers alone.
+        The guide of the whole set: every candidate at a small-set inlier's image-1 location (the demo), or
+        the small-set inliers alone.
     tree_ties : bool, default True
-        Among guide rows at a member's location, the k-d tree answer ``ffm2`` skips as the member itself is
-        the smallest-index one (True), or always the member (False).
+        As in :func:`lpm_filter`, for ``ffm2``'s skipped answer.
 
     Returns
     -------
@@ -251,11 +232,8 @@ def glpm_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the neighbourhoods and in the guide.
-
-    The passes, their (K, lambda) and the cost are those of the authors' ``demo.m`` with ``ffm2.cpp``, and so
-    are, where the paper is silent, ``guide`` and ``tree_ties`` (they matter on many-to-many candidates
-    only). The agreement with the original: ``docs/filters.md``.
+    A location counts once in the neighbourhoods and in the guide. Passes, schedule and cost follow the
+    authors' ``demo.m`` with ``ffm2.cpp``, as do ``guide`` and ``tree_ties``. Agreement: ``docs/filters.md``.
 
     References
     ----------

@@ -1,27 +1,11 @@
 """PFM: Progressive Feature Matching, incremental graph construction and optimization (Lee, Lim, Suh, TIP 2020).
 
-PFM grows a graph of reliable matches and optimises it repeatedly; as a filter it generates no new matches.
-
-1. **Local affine maps** (:func:`local_affines`): ``A_i = A2_i A1_i^-1`` from the keypoint shapes, else the
-   least-squares map of the edges to the neighbours shared by the ``k`` nearest matches in both images.
-2. **Pairwise consistency** of an edge: ``c_ij = exp(-(r_ij^2 + r_ji^2) / (2 sigma^2))``, with ``r_ij =
-   |(y_j - y_i) - A_i (x_j - x_i)|`` over the mean of the observed and predicted edge lengths (a direction
-   without a map is left out; both: 0).
-3. **Graph optimisation.** Labels ``l`` (1: inlier) minimise ``sum_i t_i l_i - lam sum_(ij) c_ij l_i l_j``,
-   ``t_i = t + beta (rank_i - 1/2)`` (``rank_i`` in [0, 1], best score first; all scores equal: ``t``). The
-   pairwise term is submodular, so the minimum is an exact minimum s-t cut (Boykov and Kolmogorov), with
-   integer capacities by SciPy's maximum flow.
-4. **Progressive graph.** Round 0 links the best-scored ``seed_fraction`` of the matches by the Delaunay
-   triangulation of their image-1 keypoints. Each further round doubles the candidates (score order): the
-   triangulation of the kept matches, each new candidate linked to the vertices of the triangle holding
-   its image-1 keypoint (outside the hull: the three nearest), is optimised again, so earlier decisions
-   can be revised.
-
-Constants the paper leaves open: ``sigma = 0.5`` (tolerant of SIFT's similarity frames under perspective;
-0.3 loses most inliers of Graffiti 1-3), ``t = 1.5`` and ``lam = 1`` (a match needs about two consistent
-kept neighbours), ``beta = 0.5`` (scores break near ties only), ``seed_fraction = 0.05`` (a quarter of the
-candidates as seeds lets outlier seeds cut the inliers apart). A round keeping fewer than three matches
-makes the next one a fresh seed graph. Matches sharing an image-1 keypoint are never linked to each other.
+:func:`pfm_filter` grows a Delaunay graph of the matches (round 0: the best-scored ``seed_fraction``; each
+round doubles the candidates, each new one linked to its enclosing triangle) and relabels it each round.
+Step 1: local affine maps (:func:`local_affines`). Step 2: edge consistency ``c_ij = exp(-(r_ij^2 + r_ji^2)
+/ (2 sigma^2))``, ``r_ij`` the relative transfer error. Step 3: labels minimising ``sum_i t_i l_i - lam
+sum_(ij) c_ij l_i l_j``, ``t_i = t + beta (rank_i - 1/2)``, by an exact minimum s-t cut (Boykov and
+Kolmogorov). Step 4: the progressive graph. Constants the paper leaves open: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -40,8 +24,7 @@ from ._common import MatchSet, check_positive, knn_without_self, match_filter
 __all__ = ["pfm_filter", "local_affines"]
 
 _CAP_SCALE = 10_000  # max-flow capacities are integers: energies are multiplied by this and rounded
-#: Without keypoint shapes, the share of candidates left with no local map above which PFM cannot decide (and
-#: warns): over 99 % on blob matching's many-to-many candidates, 51-96 % on its one-to-one ones.
+#: Without keypoint shapes, the share of candidates with no local map above which PFM warns.
 NO_MAP_WARN = 0.9
 
 
@@ -55,9 +38,8 @@ def _inv2(A: np.ndarray) -> np.ndarray:
 def local_affines(x: np.ndarray, y: np.ndarray, A1=None, A2=None, k: int = 8) -> np.ndarray:
     """Local affine map image 1 -> image 2 of every match, ``(K, 2, 2)``, NaN where undefined.
 
-    From the shapes (``A2 A1^-1``) when both are given, else fitted by least squares to the edges towards
-    the neighbours shared by the ``k`` nearest matches in both images (at least two, not collinear).
-    """
+    ``A2 A1^-1`` from the shapes, else least squares on the edges to the neighbours shared by the ``k``
+    nearest in both images (at least two, not collinear)."""
     n = len(x)
     if A1 is not None and A2 is not None:
         out = A2 @ _inv2(A1)
@@ -226,16 +208,14 @@ def pfm_filter(
         Lower is better: the order in which candidates join the graph, and a small bias of the labelling.
     %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Affine shapes of the keypoints, for the local maps. Without them, where the fit leaves more than
-        :data:`NO_MAP_WARN` of the candidates without a map (many-to-many candidates, whose nearest
-        neighbours share their keypoint), PFM cannot decide and warns (``UserWarning``).
+        Keypoint shapes, for the local maps. Without them, if more than :data:`NO_MAP_WARN` of the
+        candidates get no fitted map (e.g. many-to-many candidates), PFM warns (``UserWarning``).
     sigma : float, default 0.5
-        Relative transfer error of the pairwise consistency (step 2 of the module docstring).
+        Relative transfer error of the pairwise consistency (step 2).
     t, lam, beta : float, default 1.5, 1 and 0.5
-        Cost of keeping a match, weight of the consistency between kept matches, weight of the score rank
-        in the cost (step 3).
+        Cost of keeping a match, weight of the consistency, weight of the score rank (step 3).
     seed_fraction : float, default 0.05
-        Fraction of the best-scored matches in the first graph; each round doubles it (step 4).
+        Fraction of the best-scored matches in the first graph (step 4).
     k : int, default 8
         Neighbours of the shape-less local affine fit.
 
@@ -245,10 +225,8 @@ def pfm_filter(
 
     Notes
     -----
-    The authors' code (from the first author's Google Sites page) could not be fetched here, and Bellavia's
-    paper says only that it was "modified to work with blob matches as input". The paper's recall is that of
-    a graph built on every candidate at once (``seed_fraction=1``); the default grows it from reliable seeds,
-    as the PFM paper does. The distance from the paper's row and the sweeps are in ``docs/filters.md``.
+    The paper's recall is that of a graph built on every candidate at once (``seed_fraction=1``); the
+    default grows it from reliable seeds, as the PFM paper does (``docs/filters.md``).
 
     References
     ----------
@@ -272,9 +250,7 @@ def pfm_filter(
 
 
 def _warn_without_maps(A: np.ndarray) -> None:
-    """Warn (naming the shapes) when the shape-less fit leaves more than :data:`NO_MAP_WARN` of the
-    candidates without a local map: the consistency of their edges is then 0, and an empty or near-empty
-    output is no verdict on them."""
+    """Warn when more than :data:`NO_MAP_WARN` of the candidates have no fitted map (their edges score 0)."""
     none = int((~np.isfinite(A).all(axis=(1, 2))).sum())
     if none > NO_MAP_WARN * len(A):
         warnings.warn(f"PFM: called without shapes1 / shapes2, it fits the local affine maps to the neighbours "

@@ -1,18 +1,9 @@
-"""PGM: Progressive Graph Matching (Cho & Lee, CVPR 2012) on a sparse k-nearest-neighbour affinity.
+"""PGM: Progressive Graph Matching (Cho & Lee, CVPR 2012), :func:`pgm_filter`, with :func:`rrwm` (ECCV 2010).
 
-From the best-scored candidate of every image-1 keypoint, PGM alternates graph matching (:func:`rrwm`,
-discretised by greedy assignment) and graph progression (CVPR 2012: every input candidate is voted for by
-the current matches near it, weighted by their RRWM scores and affinities, and the best voted of every
-keypoint form the next active set), until the objective ``X' W X`` stops growing, the active set stops
-changing, or ``max_rounds``. The output is that matching less the matches the others do not support.
-
-Affinity: ``max(1 - d / tau, 0)``, ``d`` the mutual projection error of the local affine maps
-``shape2 inv(shape1)`` (ICCV 2009; RRWM's ``max(tau - d, 0)``, scaled); without shapes ``max(1 - d / rho,
-0)``, ``d = |l1 - l2| / ((l1 + l2) / 2)`` the relative length distortion of the edge (Leordeanu & Hebert,
-ICCV 2005, made relative because a 50-pixel cut-off accepts any short edges). A deviation, for memory (the
-dense matrix of 16000 candidates takes 2 GB): the affinity is sparse, between a candidate and its ``k``
-nearest in either image; the far pairs dropped mostly exceed ``tau`` anyway, and Bellavia (Sec. 2) also
-describes PGM's neighbourhoods as "defined by the k closest matches".
+Graph matching (RRWM, greedy discretisation) alternates with graph progression (votes of the matches pick
+the next active set) until ``X' W X`` stops growing. Affinity: the mutual projection error of the local
+affine maps (ICCV 2009), else the relative edge-length distortion (Leordeanu & Hebert, ICCV 2005); sparse,
+for memory, over each candidate's ``k`` nearest (Bellavia, Sec. 2: "defined by the k closest matches").
 """
 
 from __future__ import annotations
@@ -72,9 +63,9 @@ def _affinity(x, y, T, m, k: int, tau: float, rho: float) -> sp.csr_matrix:
 
 
 def _sinkhorn(a: np.ndarray, g1: np.ndarray, g2: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
-    """Sinkhorn normalisation of the candidates ``a``, the entries ``(g1, g2)`` of an ``n1 x n2`` assignment
-    matrix made square as in the authors' code by ``|n1 - n2|`` dummy rows of ones; the dummy rows stay
-    equal, so they are kept as one vector with a multiplicity: ``O(K + n)`` per iteration."""
+    """Sinkhorn normalisation of the entries ``a`` at ``(g1, g2)`` of an ``n1 x n2`` assignment matrix.
+
+    Made square by ``|n1 - n2|`` dummy rows of ones, as the authors' code; they stay equal, so one is kept."""
     return _pgm_sinkhorn(a, g1, g2, tol, max_iter)  # compiled, same arithmetic as the array form
 
 
@@ -92,10 +83,7 @@ def rrwm(
 ) -> np.ndarray:
     """Reweighted random walks graph matching (Cho, Lee & Lee, ECCV 2010, Alg. 1) on a sparse affinity.
 
-    With probability ``c`` the walker follows the affinities, else it jumps to a node drawn from the current
-    scores amplified by ``exp(amp_max x / max x)`` and made doubly stochastic over the conflict groups by
-    Sinkhorn normalisation (:func:`_sinkhorn`). Defaults are the authors' code's, but ``sinkhorn_iter``
-    (theirs 1000; see :func:`pgm_filter`).
+    Defaults are the authors' code's, but ``sinkhorn_iter`` (theirs 1000).
 
     Parameters
     ----------
@@ -104,10 +92,9 @@ def rrwm(
     group1, group2 : ndarray of shape (n,), int
         Conflict group of every candidate in image 1 and in image 2 (e.g. its keypoint index).
     c, amp_max : float, default 0.2 and 30
-        Weight of the plain walk step and inflation factor of the reweighted jump.
+        Probability of a plain walk step; inflation ``exp(amp_max x / max x)`` of the reweighted jump.
     max_iter, tol : int, float, default 300 and 1e-25
-        The walk stops after ``max_iter`` steps or when the squared change of the scores against either of
-        the last two iterates (against oscillations) is below ``tol``.
+        Step limit, and bound of the squared change against either of the last two iterates.
     sinkhorn_tol, sinkhorn_iter : float, int, default 1e-3 and 10
         Stopping rule of the Sinkhorn normalisation of each step.
 
@@ -146,8 +133,7 @@ def rrwm(
 
 
 def greedy_assignment(score: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """One-to-one discretisation: take the best remaining candidate (ties: the lower index; never a zero
-    score), drop those sharing a keypoint."""
+    """Greedy one-to-one discretisation of ``score`` > 0 (ties: the lower index)."""
     keep = np.zeros(len(score), bool)
     used1, used2 = set(), set()
     for i in np.argsort(-score, kind="stable"):
@@ -195,26 +181,22 @@ def pgm_filter(
     ----------
     %(kpts)s
     %(matches)s
-        Candidates sharing a keypoint are the conflict groups of RRWM; the output is one-to-one.
+        Candidates sharing a keypoint are RRWM's conflict groups; the output is one-to-one.
     scores : ndarray of shape (K,) or None
-        Lower is better: the initial active set holds the ``n_init`` best-scored candidates of every image-1
-        keypoint; ``None``: all equal.
+        Lower is better; they pick the initial active set. ``None``: all equal.
     %(image_sizes)s
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
-        Affine shapes of the keypoints, for the mutual projection error; without them, the length distortion.
+        Keypoint shapes, for the mutual projection error; without them, the length distortion.
     k : int, default 10
-        Neighbours of a candidate in each image that get an affinity entry (and vote for it).
+        Neighbours per image that get an affinity entry (and vote).
     tau, rho : float, default 50 and 0.5
-        Cut-off of the mutual projection error in pixels (RRWM and PGM experiments), and of the relative
-        length distortion without shapes.
+        Cut-offs of the mutual projection error (pixels) and of the relative length distortion.
     max_rounds : int, default 3
         Maximum number of matching/progression rounds.
-    per_node : int, default 3
-        Best voted candidates per image-1 keypoint in the next active set.
-    n_init : int, default 1
-        Best-scored candidates per image-1 keypoint in the initial active set.
+    per_node, n_init : int, default 3 and 1
+        Candidates per image-1 keypoint in the next active set (best voted) and the first (best scored).
     min_support : float, default 2
-        A match of the final matching is output when its affinities with the others sum to this value.
+        Affinity sum with the other matches needed to output a match of the final matching.
     c, amp_max, max_iter : float, float, int
         RRWM parameters, see :func:`rrwm`.
 
@@ -224,33 +206,15 @@ def pgm_filter(
 
     Notes
     -----
-    Constants the papers leave open: ``k = 10`` (about twenty affinity entries per inlier, enough for RRWM
-    to separate the consistent cluster); ``per_node = 3`` (blob matching gives a handful of candidates per
-    keypoint); ``rho = 0.5`` (a moderate viewpoint change distorts short edges by up to about 0.2, a random
-    edge falls within 0.5 a few per cent of the time); ``min_support = 2`` (an isolated outlier conflicts with
-    no one and can be assigned, so a match needs the consistency of two perfectly consistent neighbours);
-    ``n_init = 1`` (PGM starts from a small, reliable graph); ``max_rounds = 3`` and ``sinkhorn_iter = 10``,
-    for speed (their effect: ``docs/filters.md``). Without shapes the affinity cannot see a rotation or a
-    reflection that keeps edge lengths.
-
+    Constants and departures from the authors' release: ``docs/filters.md`` ("PGM and PFM ...").
     %(coincident)s
-    A group is decided with the keypoint indices and shapes of its best-scored copy, and a location counts once
-    in the graph and the votes (the authors' code drops a candidate within 3 pixels of a selected one
-    instead). Of the rows that repeat one keypoint pair only the best-scored is output.
-
-    The authors' release (ProgGM v1.0, an edited copy in GitHub ``tikhoncheva/uni``) was read, not run: it is
-    a matcher whose progression takes new candidates from every keypoint pair. As there: the walk, Sinkhorn
-    with slack rows (1000 iterations there), the greedy discretisation and the stopping rule
-    (``maxIterGM = 10`` there, ``max_rounds = 3`` here). Differently: the affinity (the RRWM paper's, not the
-    release's ``exp(-d / 0.15)``; sparse), votes for the input candidates only, and ``min_support``, where the
-    release outputs the whole matching. The distance from the paper's row: ``docs/filters.md``.
+    A location counts once in the graph and the votes; of rows repeating a keypoint pair only the best is output.
 
     References
     ----------
-    M. Cho, K. M. Lee, "Progressive graph matching: Making a move of graphs via probabilistic voting",
-    CVPR 2012. M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010;
-    "Feature correspondence and deformable object matching via agglomerative correspondence clustering",
-    ICCV 2009.
+    M. Cho, K. M. Lee, "Progressive graph matching: Making a move of graphs via probabilistic voting", CVPR 2012.
+    M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010; "Feature correspondence
+    and deformable object matching via agglomerative correspondence clustering", ICCV 2009.
     """
     k = check_positive(k, "k", integer=True)
     tau = check_positive(tau, "tau")
@@ -309,8 +273,7 @@ def pgm_filter(
 
 
 def _votes(x, y, T, m, sol: np.ndarray, weight: np.ndarray, k: int, tau: float, rho: float) -> np.ndarray:
-    """Vote ``sum_j w(a, j) weight_j`` for every candidate ``a`` of the matches ``j`` of ``sol`` among its
-    ``k`` nearest in either image (once each, none for itself or a conflicting candidate)."""
+    """Vote ``sum_j w(a, j) weight_j`` of every candidate ``a`` over its ``k`` nearest matches ``j`` of ``sol``."""
     n = len(x)
     kk = min(k, len(sol))
     nbs = []

@@ -1,18 +1,10 @@
-"""RFM-SCAN: Robust Feature Matching using SpatialClustering with heavy outliers (Jiang et al., TIP 2020).
+"""RFM-SCAN: Robust Feature Matching using Spatial Clustering (Jiang et al., TIP 2020), :func:`rfm_scan_filter`.
 
-Each match is a point ``[x, y, y - x]`` of a motion space, every coordinate min-max normalised to [0, 1]
-(Sec. III-A), with the distance of Eq. (3), where the motion term weighs more between close matches:
-``d_ij = |x_i - x_j| + |y_i - y_j| + (1 + gamma exp(-min(|x_i - x_j|, |y_i - y_j|))) |v_i - v_j|``.
-DBSCAN (Ester et al., KDD 1996) keeps the core matches (``MinPts`` matches, itself included, within
-``eps``) and those within ``eps`` of one, with adaptive parameters (Sec. III-B): ``MinPts = clip(round(pct
-N), 3, 30)`` and ``eps = min L + mu (max L - min L)``, ``L_i`` the distance to the ``MinPts``-th nearest
-match. A second round (Sec. III-C) pushes the matches the first left unclustered away (distances times 100)
-and clusters again. As in the authors' demo, ``round(min(0.05 N, 20))`` seeded random matches are added,
-so that ``eps`` stays meaningful on nearly outlier-free input; they are never returned.
-
-No K x K matrix is built, and the result is the dense computation's bit for bit: every decision is taken on
-the float32 distances of the dense formula or proven from bounds (k-NN upper bounds of ``L``,
-:class:`_MotionSpace`; grid counts, :mod:`._rfm_kernels`).
+Matches are points ``[x, y, y - x]`` of a min-max normalised motion space (Sec. III-A) with the distance
+of Eq. (3), ``|dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``. DBSCAN (Ester et al., KDD 1996) with
+adaptive ``MinPts`` and ``eps = min L + mu (max L - min L)`` (Sec. III-B) clusters them twice, the second
+time with the unclustered pushed away (Sec. III-C). Seeded random matches are added as in the authors' demo.
+No K x K matrix is built, yet every decision is the dense float32 computation's (bounds, :mod:`._rfm_kernels`).
 """
 
 from __future__ import annotations
@@ -38,11 +30,8 @@ _P_SCALE = {2: 1.0, 1: float(np.sqrt(2.0))}
 class _MotionSpace:
     """Distances of Eq. (3) between motion-space points (float32, as the dense formula), with k-d trees.
 
-    A match within ``r`` has ``min(|dx|, |dy|) <= r / 2``, hence a motion weight of at least
-    ``c(r) = 1 + gamma exp(-r / 2)``: the Euclidean ball of radius ``r`` around the embedding
-    ``[x, y, c(r) v]`` holds every match within ``r``, and so does the L1 ball of radius ``sqrt(2) r``
-    (``p=1``, often the smaller).
-    """
+    A match within ``r`` has a motion weight of at least ``c(r) = 1 + gamma exp(-r / 2)``, so the ball of
+    radius ``r`` (L1: ``sqrt(2) r``) around the embedding ``[x, y, c(r) v]`` holds every match within ``r``."""
 
     def __init__(self, feats: np.ndarray, gamma: float) -> None:
         self.f = feats.astype(np.float32)
@@ -78,11 +67,9 @@ class _MotionSpace:
         return self._trees[key, level]
 
     def ball(self, key, members: np.ndarray, queries: np.ndarray, radius: np.ndarray, chunk: int = 2048, p: int = 2):
-        """Members possibly within ``radius`` (true distance, per query) of each query, by radius level.
+        """Members possibly within ``radius`` (per query) of each query: yields ``(sel, lens, j)``.
 
-        Yields ``(sel, lens, j)``: the positions ``sel`` in ``queries``, the number of members found for
-        each and their indices ``j`` (concatenated), ``chunk`` queries at a time.
-        """
+        ``sel``: positions in ``queries``; ``lens``: members found for each; ``j``: their indices, concatenated."""
         r = np.asarray(radius, np.float64) * (1 + 1e-5) + 1e-6  # float32 rounding of the true distances
         # One tree per power-of-two level: c(level) holds for every radius up to the level.
         levels = np.exp2(np.ceil(np.log2(np.maximum(r, 1e-3))))
@@ -105,8 +92,7 @@ class _Round:
         self.groups = [(np.float32(s), np.flatnonzero(scale == s)) for s in np.unique(scale)]
 
     def upper(self) -> np.ndarray:
-        """An upper bound of every ``L_i``: the largest true distance to k approximate nearest matches
-        (:meth:`tree_upper`), or :meth:`coarse_upper` in the second round."""
+        """Upper bounds of every ``L_i`` (:meth:`tree_upper`, or :meth:`coarse_upper` in the second round)."""
         sp = self.space
         self.coarse = np.zeros(sp.n, bool)
         if len(self.groups) > 1 and len(self.groups[0][1]) >= self.k:
@@ -114,8 +100,7 @@ class _Round:
         return self.tree_upper(np.arange(sp.n) if sp.order is None else sp.order)
 
     def tree_upper(self, rows: np.ndarray) -> np.ndarray:
-        """The k-NN upper bound of ``L`` of ``rows``, in their order; the neighbours come from the least-scaled
-        group alone when it has ``MinPts`` matches (any k true distances bound the k-th)."""
+        """Upper bounds of ``L`` of ``rows`` (in their order): the k-th true distance to k approximate neighbours."""
         sp, n = self.space, self.space.n
         groups = self.groups[:1] if len(self.groups[0][1]) >= self.k else self.groups
         cand, cscale = [], []
@@ -141,10 +126,8 @@ class _Round:
         return out[rows] if len(rows) < n else out
 
     def coarse_upper(self) -> np.ndarray:
-        """Upper bounds of ``L`` where the least-scaled group has ``MinPts`` matches (second round): k-NN
-        bounds for seeds (the previous round's densest matches and a spread sample); ``R``, just below the
-        largest exact ``L`` of a few seeds, for every match with ``MinPts`` matches surely within ``R``
-        (marked coarse, see :meth:`refine`); k-NN bounds for the rest."""
+        """Second-round upper bounds of ``L``: k-NN bounds for seeds and the rest, ``R`` for the matches with
+        ``MinPts`` matches surely within ``R`` (just below the seeds' largest exact ``L``; marked coarse)."""
         sp, n = self.space, self.space.n
         out = np.empty(n, np.float32)
         order = np.arange(n) if sp.order is None else sp.order
@@ -216,9 +199,7 @@ class _Round:
         return sure, possible
 
     def core(self, queries: np.ndarray, radius: float) -> np.ndarray:
-        """Whether at least ``MinPts`` matches lie within ``radius`` of each query (scaled distances): the
-        grid counts, and where they do not settle it, the float32 distances (whole rows for a few queries,
-        :meth:`ball_core` for more)."""
+        """Whether ``MinPts`` matches lie within ``radius`` of each query: grid counts, else float32 distances."""
         sure, possible = self.counts(queries, radius)
         out = sure >= self.k
         und = np.flatnonzero(~out & (possible >= self.k))
@@ -231,8 +212,7 @@ class _Round:
         return out
 
     def ball_core(self, queries: np.ndarray, radius: float, p: int = 2) -> np.ndarray:
-        """``ball_kth(queries, radius) <= radius`` (at least ``MinPts`` matches within ``radius``), by counting
-        instead of sorting."""
+        """``ball_kth(queries, radius) <= radius``, by counting instead of sorting."""
         count = np.zeros(len(queries), np.int64)
         for s, g in self.groups:
             for sel, lens, j in self.space.ball(s, g, queries, np.full(len(queries), radius / s), p=p):
@@ -242,9 +222,7 @@ class _Round:
         return count >= self.k
 
     def dense_kth(self, queries: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        """Exact ``L`` of a few ``queries`` from whole rows of distances to the least-scaled group and the
-        matches of the other groups within ``upper >= L`` (whole rows when that group has fewer than
-        ``MinPts`` matches)."""
+        """Exact ``L`` of a few ``queries``: whole rows to the least-scaled group, ball searches for the rest."""
         k = self.k
         split = len(self.groups) > 1 and len(self.groups[0][1]) >= k
         cols = self.groups[0][1] if split else np.arange(self.space.n)
@@ -274,8 +252,7 @@ class _Round:
         return out
 
     def max_search(self, rows: np.ndarray, upper: np.ndarray, kth: np.ndarray) -> None:
-        """Exact ``L`` (into ``kth``) of ``rows`` from the largest upper bound down, until no bound left
-        reaches the largest ``L`` in ``kth``: the largest ``L`` of ``rows`` is then in ``kth``."""
+        """Exact ``L`` into ``kth`` of ``rows``, largest bound first, until the largest ``L`` is known."""
         rows = rows[np.argsort(-upper[rows], kind="stable")]
         for b in range(0, len(rows), 64):
             batch = rows[b : b + 64]
@@ -285,8 +262,7 @@ class _Round:
             kth[batch] = self.dense_kth(batch, upper)
 
     def clustered(self, mu: float) -> np.ndarray:
-        """Matches that DBSCAN clusters with ``eps = min L + mu (max L - min L)``, as the dense computation:
-        core matches (:meth:`core`) and those within ``eps`` of one."""
+        """Matches DBSCAN clusters with ``eps = min L + mu (max L - min L)``: core ones and those within ``eps``."""
         n = self.space.n
         everyone = np.arange(n)
         upper = self.upper()
@@ -338,16 +314,15 @@ class _Round:
 
 
 def _clustered(space: _MotionSpace, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
-    """Matches that DBSCAN clusters with the adaptive eps of Sec. III-B, the distances *to* each match
-    multiplied by ``col_scale`` (second round: 1 or 100)."""
+    """DBSCAN round of Sec. III-B, distances *to* each match times ``col_scale`` (second round: 1 or 100)."""
     scale = np.ones(space.n, np.float32) if col_scale is None else col_scale.astype(np.float32)
     return _Round(space, scale, min_pts).clustered(mu)
 
 
 def _added_matches(x: np.ndarray, y: np.ndarray, n_noise: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """The demo's random matches: uniform in ``[0, max]`` of each coordinate of the real matches, image 1
-    first. An integer ``rng`` draws as Octave's ``rand`` after ``rand('state', rng)``, which is Python's
-    ``random.Random(rng)`` (the same Mersenne twister); ``rand(n, 2)`` fills column by column."""
+    """The demo's random matches, uniform in ``[0, max]`` of each coordinate, image 1 first.
+
+    An integer ``rng`` draws as Octave's ``rand`` after ``rand('state', rng)`` (Python's Mersenne twister)."""
     if isinstance(rng, np.random.Generator):
         u = rng.random(4 * n_noise)
     else:
@@ -372,11 +347,7 @@ def rfm_scan_filter(
 
     Parameters
     ----------
-    %(kpts)s
-    %(matches)s
-    %(scores_unused)s
-    %(image_sizes)s
-    %(shapes_unused)s
+    %(common_unused)s
     gamma : float, default 10
         Amplification of the motion distance of nearby matches, Eq. (3) (Sec. IV-A).
     pct, min_pts_bounds : float and (int, int), default 0.05 and (3, 30)
@@ -386,8 +357,7 @@ def rfm_scan_filter(
     add_noise : bool, default True
         Add ``round(min(0.05 K, 20))`` uniform random matches before clustering (authors' demo).
     rng : None, int or numpy.random.Generator, default 0
-        Seed of the added matches. An integer ``s`` (None: fresh entropy) draws them as GNU Octave's ``rand``
-        after ``rand('state', s)``, so the default reproduces the authors' demo under Octave.
+        Seed of the added matches; an integer draws as Octave's ``rand('state', s)`` (the authors' demo).
     %(merge_option)s
 
     Returns
@@ -397,13 +367,10 @@ def rfm_scan_filter(
     Notes
     -----
     %(coincident)s
-    A location counts once in the density counts and in ``N``: otherwise MinPts copies of a row (3 below about
-    65 candidates) are a core point by themselves.
-
-    Where the papers are silent, the authors' code (StaRainJ/RFM-SCAN) is followed: Euclidean distances in
-    Eq. (3); ``MinPts`` counts the added matches, with MATLAB's ``round``; ``L`` over every row, itself
-    included; ``<=`` against ``eps``; the added matches, uniform in ``[0, max]`` of each coordinate, always
-    pushed away in the second round. The agreement with the original: ``docs/filters.md``.
+    A location counts once in the density counts and in ``N``. Where the papers are silent, the authors'
+    code (StaRainJ/RFM-SCAN) is followed: Euclidean distances in Eq. (3), MATLAB's ``round``, ``L``
+    including itself, ``<=`` against ``eps``, added matches always pushed away in the second round.
+    The agreement with the original: ``docs/filters.md``.
 
     References
     ----------

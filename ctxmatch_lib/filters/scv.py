@@ -1,8 +1,7 @@
 """SCV: sequential correspondence selection by cosegmentation (Čech, Matas, Perdoch, TPAMI 2010), geometric.
 
-Čech et al. grow corresponding regions around each correspondence and decide *sequentially* (Wald's SPRT)
-whether to accept it, reject it or grow further. **This is a match-based stand-in, not the pixel-based
-method**: the regions grow over the other matches (see :func:`scv_filter`).
+Regions grow around each correspondence and Wald's SPRT decides sequentially to accept, reject or grow.
+**A match-based stand-in, not the pixel-based method**: the regions grow over the other matches.
 """
 
 from __future__ import annotations
@@ -19,10 +18,7 @@ SCV_GROWTH = (4, 8, 16, 32, 64)
 
 
 def _shared_counts(n1: np.ndarray, n2: np.ndarray, sizes) -> np.ndarray:
-    """Matches common to the first ``s`` entries of ``n1`` and of ``n2``, for each ``s`` of ``sizes``.
-
-    Returns an array of shape (K, len(sizes)). Neighbour lists hold distinct match indices.
-    """
+    """(K, len(sizes)): matches common to the first ``s`` entries of ``n1`` and ``n2``, per ``s`` of ``sizes``."""
     out = np.zeros((len(n1), len(sizes)), np.int64)
     for t, s in enumerate(sizes):
         both = np.sort(np.concatenate([n1[:, :s], n2[:, :s]], axis=1), axis=1)
@@ -47,40 +43,29 @@ def scv_filter(
     %(common_unused)s
     growth : sequence of int, default (4, 8, 16, 32, 64)
         Increasing region sizes, in matches, of the growth steps (capped at ``K - 1``).
-    p1 : float, default 0.15
-        Probability that a match entering the image-1 region of a correct correspondence is also in its
-        image-2 region (hypothesis "correct").
-    p0 : float, default 0.03
-        The same for a wrong correspondence, raised to the chance level ``k_t / (K - 1)`` of step ``t`` when
-        larger; a chance level reaching ``p1`` ends the test.
+    p1, p0 : float, default 0.15 and 0.03
+        Probability that a new image-1 region member is in the image-2 region, for a correct / wrong match
+        (``p0`` raised to the chance level ``k_t / (K - 1)``; a chance level reaching ``p1`` ends the test).
     alpha, beta : float, default 0.05
         Probabilities of accepting a wrong / rejecting a correct correspondence (Wald's thresholds).
 
     Returns
     -------
-    keep : ndarray of shape (K,), bool
-        Correspondences accepted by the test. One still undecided after the last step is rejected.
+    %(keep)s
 
     Notes
     -----
-    At step ``t`` the region of match ``i`` is its ``k_t`` nearest matches around ``x_i`` in image 1 and
-    around ``y_i`` in image 2; each match that entered the image-1 region since the last step is a Bernoulli
-    trial, a success when it also lies in the image-2 region. The paper's constants belong to its pixel
-    statistics (and Bellavia's paper is silent); here growth doubles the region, as the paper's regions grow
-    geometrically, from 4 matches (more than one neighbour) to 64 (beyond which a region spans much of a
-    sparse image). ``p1 = 0.15``, ``p0 = 0.03``: paper-best blob candidates hold 5-15 % correct matches, while
-    random regions of ``k`` among ``K`` matches share about ``k / K``, plus margin for clustered wrong
-    matches. ``alpha = beta = 0.05`` is the usual SPRT operating point; undecided correspondences are
-    rejected, for precision. No code of the authors is public. Sweeps of ``p1`` and ``p0``:
-    ``docs/filters.md``; example: :mod:`ctxmatch_lib.filters`.
+    At step ``t`` the regions of match ``i`` are its ``k_t`` nearest matches around ``x_i`` and ``y_i``; each
+    new image-1 member is a Bernoulli trial, a success when also in the image-2 region; undecided matches are
+    rejected. The regions double, as the paper's grow geometrically; the paper's constants belong to its pixel
+    statistics (choices: ``docs/filters.md``). No code of the authors is public.
 
     %(coincident)s
-    A location counts once in the growing regions.
 
     References
     ----------
-    J. Čech, J. Matas, M. Perdoch, "Efficient sequential correspondence selection by cosegmentation", IEEE
-    TPAMI 32(9), 2010. A. Wald, "Sequential analysis", Wiley, 1947.
+    J. Čech et al., "Efficient sequential correspondence selection by cosegmentation", IEEE TPAMI 32(9), 2010.
+    A. Wald, "Sequential analysis", Wiley, 1947.
     """
     sizes = [check_positive(s, "growth", integer=True) for s in np.atleast_1d(growth)]
     if not sizes or any(b <= a for a, b in zip(sizes, sizes[1:])):

@@ -1,7 +1,5 @@
-"""``th``: the NNR ratio threshold on the blob score, the paper's reference "filter" (Sec. 5.1).
-
-Not a spatial filter: a match is kept when its NNR ratio is at most 0.8 (Lowe), read on the scores' scale
-(D+ and D+≥ blob scores, Eq. 14, are ``r / (1 + r)``: 0.8 / 1.8)."""
+"""``th``: the NNR ratio threshold 0.8 (Lowe) on the blob score, the paper's reference (Sec. 5.1), read on
+the scores' scale (D+ and D+≥ scores, Eq. 14, are ``r / (1 + r)``: 0.8 / 1.8)."""
 
 from __future__ import annotations
 
@@ -26,11 +24,10 @@ def th_filter(ms: MatchSet, *, threshold: float = 0.8) -> np.ndarray:
     %(image_sizes)s
     %(shapes_unused)s
     threshold : float, default 0.8
-        The NNR ratio threshold of Lowe ("Distinctive image features from scale-invariant keypoints", IJCV
-        60(2), 2004, Sec. 7.1), "th" in Sec. 5.1 of the paper.
+        The NNR ratio threshold of Lowe (IJCV 2004, Sec. 7.1), "th" in Sec. 5.1 of the paper.
     ratio : {"D>=", "D+>=", "D+"}, optional
-        The blob ratio that produced ``scores``; by default the one the scores carry, else ``"D>="``. One
-        that contradicts the ratio the scores carry is a ``ValueError``.
+        The blob ratio that made ``scores``; default: the one they carry, else ``"D>="`` (a contradiction
+        is a ``ValueError``).
 
     Returns
     -------

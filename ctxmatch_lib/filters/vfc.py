@@ -1,10 +1,8 @@
 """VFC: Vector Field Consensus (Ma et al., IEEE TIP 2014), in its sparse form (SparseVFC, Sec. IV-B).
 
-The motion vectors ``y_n - x_n`` (point sets normalised to zero mean and unit RMS norm) are a smooth field
-``f`` in a Gaussian RKHS plus Gaussian inlier noise and uniform outliers. EM alternates the inlier
-posteriors ``p_n`` (E-step, Eq. (9)) and the regularised weighted fit of ``f``, ``sigma^2`` and ``gamma``
-(M-step, Eq. (14)-(16)); inliers have ``p_n > tau``. ``f`` is spanned by the kernels of ``n_control``
-control points (Sec. IV-B): an ``n_control x n_control`` M-step, O(K) time and memory.
+:func:`vfc_filter`: the normalised motions ``y_n - x_n`` are a smooth field ``f`` in a Gaussian RKHS plus
+Gaussian noise and uniform outliers; EM alternates the posteriors ``p_n`` (Eq. (9)) and the fit of ``f``,
+``sigma^2``, ``gamma`` (Eq. (14)-(16)), ``f`` spanned by the kernels of ``n_control`` control points.
 """
 
 from __future__ import annotations
@@ -77,13 +75,11 @@ def vfc_filter(
     Notes
     -----
     Normalisation, constants and EM steps follow the authors' ``norm2.m``, ``VFC_init.m`` and ``SparseVFC.m``
-    (jiayi-ma/VFC), the control points drawn by a seeded generator instead of Octave's ``randperm``.
-    Comparison with that code: ``docs/filters.md``; example: :mod:`ctxmatch_lib.filters`.
+    (jiayi-ma/VFC), with a seeded draw of the control points. Comparison: ``docs/filters.md``.
 
     References
     ----------
-    J. Ma, J. Zhao, J. Tian, A. L. Yuille, Z. Tu, "Robust point matching via vector field consensus",
-    IEEE TIP 23(4), 2014.
+    J. Ma et al., "Robust point matching via vector field consensus", IEEE TIP 23(4), 2014.
     """
     beta, a = check_positive(beta, "beta"), check_positive(a, "a")
     lam = check_positive(lam, "lam", allow_zero=True)

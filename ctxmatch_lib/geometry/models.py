@@ -48,11 +48,8 @@ CONSISTENCY_THRESHOLD_PX = 15.0
 
 @dataclass(frozen=True)
 class ModelFit:
-    """Result of a model step.
-
-    ``keep`` (K,) marks the matches consistent with ``model``: the ``H``, ``F`` or ``E`` (on
-    intrinsics-normalised points) that ``kind`` names, ``None`` on failure. ``sample`` indexes the fitting
-    sample (for RANSAC, its inliers); ``errors`` (K,) is each match's error (``inf`` without a model).
+    """Result of a model step: ``keep`` (K,) the matches consistent with ``model`` (the ``kind`` named, ``None``
+    on failure), ``sample`` the fitting sample (RANSAC: its inliers), ``errors`` (K,) (``inf`` without model).
     """
 
     keep: np.ndarray
@@ -90,9 +87,7 @@ def hartley_normalise(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
-    """Right singular vector of the smallest singular value, or ``None`` if the null space is not 1-D.
-
-    A thin SVD: the full one would build the ``(M, M)`` left factor of the design matrix."""
+    """Right singular vector of the smallest singular value (thin SVD), ``None`` if the null space is not 1-D."""
     _, s, vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])
     n = A.shape[1]
     # Fewer rows than unknowns pads the spectrum with zeros.
@@ -104,10 +99,9 @@ def _null_vector(A: np.ndarray, min_gap: float = 1e-9) -> np.ndarray | None:
 
 @shared_doc
 def fit_homography(pts1, pts2) -> np.ndarray | None:
-    """Least-squares homography by the normalised DLT (Hartley & Zisserman, Alg. 4.2).
+    """Least-squares homography by the normalised DLT (Hartley & Zisserman, Alg. 4.2), or ``None``.
 
-    Returns ``H`` (image 1 -> image 2, ``H[2, 2] = 1`` when possible), or ``None`` for fewer than 4 points
-    or a degenerate configuration.
+    ``H`` maps image 1 to image 2 (``H[2, 2] = 1`` when possible); ``None`` below 4 points or if degenerate.
 
     Parameters
     ----------
@@ -138,10 +132,9 @@ def dlt_design(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
 
 
 def dlt_normal_matrix(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
-    """``A^T A`` of the DLT design matrix ``A`` (:func:`dlt_design`), from its block structure.
+    """``A^T A`` of the DLT design matrix (:func:`dlt_design`) from its blocks ``sum w q q^T``.
 
-    With ``q = (x, y, 1)`` a pair's rows are ``(-q, 0, u q)`` and ``(0, -q, v q)``, so the blocks are the
-    sums ``sum w q q^T``, ``w`` in ``1, u, v, u^2 + v^2``; summed by ``einsum``, not BLAS, so the result does
+    ``q = (x, y, 1)``, ``w`` in ``1, u, v, u^2 + v^2``; summed by ``einsum``, not BLAS, so the result does
     not depend on the thread count.
     """
     x, y = n1[:, 0], n1[:, 1]
@@ -193,8 +186,7 @@ def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
 def fit_fundamental(pts1, pts2) -> np.ndarray | None:
     """Least-squares fundamental matrix by the normalised 8-point algorithm (Hartley & Zisserman, Alg. 11.1).
 
-    Returns ``F`` (rank 2, ``x2^T F x1 = 0``, unit Frobenius norm), or ``None`` for fewer than 8 points or
-    a degenerate configuration.
+    ``F`` has rank 2 and unit Frobenius norm; ``None`` below 8 points or if degenerate.
 
     Parameters
     ----------
@@ -285,8 +277,7 @@ def epipolar_errors(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray) -> tuple[
 def model_errors(model, kind: ModelKind, pts1, pts2, *, K1=None, K2=None) -> np.ndarray:
     """Symmetric error in pixels of each correspondence: the larger of the two directions.
 
-    ``H``: reprojection errors; ``F``: epipolar distances; ``E``: the epipolar distances to
-    ``F = K2^-T E K1^-1`` (``K1``, ``K2`` required then, ignored otherwise).
+    Reprojection (``H``) or epipolar distances (``F``; ``E`` through ``F = K2^-T E K1^-1``, needs ``K1``, ``K2``).
     """
     kind = _check_kind(kind, MIN_SAMPLE)
     model = np.asarray(model, np.float64)
@@ -304,10 +295,8 @@ def _model_errors(model: np.ndarray, kind: ModelKind, pts1: np.ndarray, pts2: np
 def top_ranked_sample(matches, scores=None, *, size: int) -> np.ndarray:
     """Indices of the shortest top-ranked prefix holding ``size`` matches once normalised.
 
-    Matches are ranked by ascending score (stable; ``None`` keeps the given order). A prefix counts like
-    the recall of Sec. 5.1, ``min(#distinct image-1 keypoints, #distinct image-2 keypoints)``; the sample is
-    the shortest prefix counting ``size`` (``3 q`` for 1SAC), or every match. Returns indices into
-    ``matches``, best first.
+    Ranked by ascending score (stable); a prefix counts ``min(#distinct image-1, #distinct image-2
+    keypoints)`` as the recall of Sec. 5.1. Returns indices into ``matches``, best first (all if too few).
 
     Examples
     --------
@@ -358,18 +347,15 @@ def one_sac(
 ) -> ModelFit:
     """1SAC: fit one model on the top-ranked matches and keep those consistent with it (Sec. 5.1).
 
-    The sample is :func:`top_ranked_sample` of ``sample_factor * q`` matches (``q = 4`` for ``H``, 8 for
-    ``F``); the :class:`ModelFit` keeps the matches whose :func:`model_errors` is at most ``threshold``
-    pixels, none without ``q`` normalised matches or with a degenerate sample.
+    Fits on :func:`top_ranked_sample` of ``sample_factor * q`` matches; keeps those whose
+    :func:`model_errors` is at most ``threshold`` pixels (none for a too small or degenerate sample).
 
     Parameters
     ----------
     %(kpts)s
     %(matches)s
     %(scores)s
-        ``None`` ranks by the given order.
     kind : {"H", "F"}
-        Homography (planar pairs) or fundamental matrix.
     threshold, sample_factor : float, int
         Consistency threshold in pixels; sample size factor (3 in the paper).
 

@@ -36,11 +36,8 @@ _DISTANCE_THRESH = 1e9
 
 
 def check_intrinsics(K, name: str = "K") -> np.ndarray:
-    """``K`` as a float64 ``(3, 3)`` intrinsic matrix, divided by ``K[2, 2]``.
-
-    ``K`` is ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; a ``ValueError`` naming ``name`` is raised when it is
-    missing, of the wrong shape, not finite, not upper triangular or has a zero focal.
-    """
+    """``K`` (``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``) as float64 (3, 3) divided by ``K[2, 2]``; a malformed
+    one (missing, not finite, not upper triangular, zero focal) raises a ``ValueError`` naming ``name``."""
     return as_intrinsics(K, name)
 
 
@@ -62,10 +59,7 @@ def _normalise_by_intrinsics(pts: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def essential_from_fundamental(F, K1, K2) -> np.ndarray:
-    """The essential matrix ``E = K2^T F K1`` (``F``'s scale) of a fundamental matrix fitted on pixels.
-
-    Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., Eq. (9.12).
-    """
+    """The essential matrix ``E = K2^T F K1`` (Hartley & Zisserman, 2nd ed., Eq. 9.12), ``F``'s scale."""
     F = as_matrix3(F, "F")
     return check_intrinsics(K2, "K2").T @ F @ check_intrinsics(K1, "K1")
 
@@ -86,11 +80,9 @@ def _fundamental_from_essential(E: np.ndarray, K1: np.ndarray, K2: np.ndarray) -
 def recover_relative_pose(E, pts1, pts2, K1, K2) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The pose among the four decompositions of ``E`` with the most points in front of both cameras.
 
-    ``cv2.recoverPose`` triangulates the model's inliers ``pts1``, ``pts2`` (pixels, normalised by ``K1``,
-    ``K2``) under the candidates ``(R1 | R2, +-t)`` (Hartley & Zisserman, Result 9.19), the first on ties.
-    ``distanceThresh`` goes by keyword: a positional ``1e9``, as in SuperGlue's ``estimate_pose``, resolves
-    on OpenCV 5 to the overload without it. Returns ``(R, t, n_in_front)`` with ``|t| = 1``, or ``None``
-    below :data:`POSE_MIN_POINTS` points, for an ``E`` of rank below 2 or with no point in front.
+    ``cv2.recoverPose`` on the inliers ``pts1``, ``pts2`` (pixels; Hartley & Zisserman, Result 9.19), the first
+    candidate on ties. Returns ``(R, t, n_in_front)`` with ``|t| = 1``, or ``None`` below
+    :data:`POSE_MIN_POINTS` points, for an ``E`` of rank below 2 or with no point in front.
 
     Examples
     --------
@@ -122,6 +114,7 @@ def _recover_relative_pose(E: np.ndarray, n1: np.ndarray, n2: np.ndarray):
     if s[0] == 0 or s[1] <= 1e-9 * s[0]:
         return None
     try:
+        # By keyword: a positional 1e9 (SuperGlue's call) picks, on OpenCV 5, the overload without it.
         n, R, t, _, _ = cv2.recoverPose(E, n1, n2, np.eye(3), distanceThresh=_DISTANCE_THRESH)
     except cv2.error:
         return None
@@ -131,10 +124,9 @@ def _recover_relative_pose(E: np.ndarray, n1: np.ndarray, n2: np.ndarray):
 
 
 def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, np.ndarray] | None:
-    """The relative pose ``(R, t)`` of a model step's ``model`` and ``kind`` on its inliers ``pts1``,
-    ``pts2``: MiHo's ``AUC^F`` route (``E = K2^T F K1``) or ``AUC^E`` route (``E`` directly), then
-    :func:`recover_relative_pose`. ``None`` without a model or a pose; ``ValueError`` for another ``kind``
-    or a malformed argument."""
+    """The relative pose ``(R, t)`` of a model step's ``F`` or ``E`` on its inliers, or ``None``.
+
+    MiHo's ``AUC^F`` route (``E = K2^T F K1``) or ``AUC^E`` route, then :func:`recover_relative_pose`."""
     if kind not in ("F", "E"):
         raise ValueError(f"kind must be 'F' or 'E' (a homography has no unique relative pose), got {kind!r}")
     if model is None:
@@ -159,10 +151,9 @@ def _direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
     """Rotation and translation-direction errors of an estimated relative pose, in degrees.
 
-    SuperGlue's ``compute_pose_error`` (Sarlin et al., CVPR 2020, Sec. 5.2): the angle of ``R_est^T R_gt``
-    and the angle ``e`` between ``t_est`` and ``t_gt`` as ``min(e, 180 - e)``, since ``E`` fixes ``t`` only
-    up to sign. Without an estimate (``None``, non-finite) both are :data:`POSE_FAILURE_DEG`, and so is the
-    ``err_t`` of a zero ``t_est``. ``ValueError`` for a malformed ``R_gt`` / ``t_gt`` or a zero ``t_gt``.
+    SuperGlue's ``compute_pose_error`` (Sarlin et al., CVPR 2020): the angle of ``R_est^T R_gt`` and
+    ``min(e, 180 - e)``, ``e`` the angle between the ``t``'s (``E`` fixes ``t`` up to sign).
+    :data:`POSE_FAILURE_DEG` without an estimate (and for ``err_t`` of a zero ``t_est``).
 
     Examples
     --------

@@ -88,18 +88,17 @@ def ransac(
 ) -> ModelFit:
     """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
 
-    USAC estimates the model with ``magsac_threshold`` as its noise bound; the :class:`ModelFit` keeps the
-    matches by :func:`one_sac`'s rule (error at most ``threshold`` pixels), its ``sample`` is USAC's inliers.
+    The :class:`ModelFit` keeps the matches within ``threshold`` pixels (:func:`one_sac`'s rule); its
+    ``sample`` is USAC's inliers.
 
     Parameters
     ----------
     kpts1, kpts2, matches, scores, kind, threshold
         As in :func:`one_sac`; ``scores`` only rank the PROSAC samples.
     magsac_threshold, confidence, max_iters
-        USAC's threshold in pixels, confidence and iteration cap (high for the ~10 % inlier ratios of
-        many-to-many candidates; MAGSAC stops earlier).
+        USAC's noise bound in pixels, confidence and iteration cap.
     sampler : {"uniform", "prosac"}
-        Uniform (OpenCV's ``USAC_MAGSAC`` preset) or best-ranked first, better at low inlier ratios.
+        Uniform (OpenCV's ``USAC_MAGSAC`` preset) or best-ranked first.
     rng : None, int or numpy.random.Generator
         Seeds USAC's generator.
     """
@@ -207,14 +206,11 @@ def apply_model_step(
 ) -> ModelFit:
     """Run the model step ``name`` (one of :data:`MODEL_STEPS`) on the matches.
 
-    ``"none"`` keeps every match (no model); ``"1sac"`` is :func:`one_sac`; ``"ransac"``, ``"prosac"`` and
-    ``"magsac"`` are :func:`ransac` with their :data:`USAC_PRESETS` updated by ``estimator``
-    (:func:`usac_settings`). ``"essential"`` (calibrated pairs; any ``kind``, the fit is ``"E"``) runs
-    ``cv2.findEssentialMat``'s USAC (Nistér's five-point solver, TPAMI 2004; MAGSAC++ scoring, Barath et al.,
-    CVPR 2020) on points normalised by ``K1`` and ``K2``, its threshold divided by the mean of the four focal
-    lengths (SuperGlue's ``estimate_pose`` uses ``K1``'s fx and ``K2``'s fy), and keeps the matches within
-    ``threshold`` pixels of the epipolar lines of ``F = K2^-T E K1^-1``. ``ValueError`` for an unknown step
-    or a malformed argument.
+    ``"none"`` keeps every match; ``"1sac"`` is :func:`one_sac`; ``"ransac"``, ``"prosac"``, ``"magsac"`` are
+    :func:`ransac` with their :data:`USAC_PRESETS` updated by ``estimator``. ``"essential"`` (calibrated
+    pairs) fits ``E`` by ``cv2.findEssentialMat``'s USAC (Nistér's five-point solver, TPAMI 2004) on points
+    normalised by ``K1``, ``K2`` (threshold divided by the mean focal length) and keeps the matches within
+    ``threshold`` pixels of the epipolar lines of ``F = K2^-T E K1^-1``; see docs/evaluation.md (Model steps).
     """
     if name not in MODEL_STEPS:
         raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")

@@ -1,12 +1,9 @@
 """Ground-truth labels: is each match correct? (Sec. 5.1 and Appendix "Ground truth estimation methods").
 
-:func:`label_matches` selects one of the paper's four methods: ``"D"`` (the paper's: centre distance at
-most 15 px, plus a localisation check on non-planar pairs) and ``"A"`` (epipolar distance alone) in
-:mod:`~ctxmatch_lib.groundtruth.core`; ``"B"`` (overlap error of the doubled support regions at most 50 %)
-and ``"C"`` (B and centre distance at most 30 px) in :mod:`~ctxmatch_lib.groundtruth.regions`.
-Calibrated pairs (:class:`~ctxmatch_lib.datasets.PoseGT`) follow the paper's SUN3D rule without depth
-(Sec. 5.1): the larger epipolar distance to the lines of ``gt.F``, at most the threshold times
-``gt.threshold_scale``; A and D coincide there, B and C are refused.
+:func:`label_matches` selects one of the paper's four methods: ``"D"`` (the paper's) and ``"A"`` in
+:mod:`~ctxmatch_lib.groundtruth.core`, ``"B"`` and ``"C"`` in :mod:`~ctxmatch_lib.groundtruth.regions`.
+Calibrated pairs (:class:`~ctxmatch_lib.datasets.PoseGT`) follow the SUN3D rule without depth (Sec. 5.1):
+the larger epipolar distance to ``gt.F`` within the threshold times ``gt.threshold_scale`` (A = D; no B, C).
 """
 
 from __future__ import annotations
@@ -91,12 +88,8 @@ def label_matches(
         Localisation radius ratio (:func:`localisation_check`).
     %(shapes)s
         Needed by methods B and C only.
-    overlap : float
-        Methods B and C: largest overlap error (0.5 in the paper).
-    centre_threshold : float
-        Method C: largest centre distance in pixels (30 in the paper).
-    shape_scale : float
-        Methods B and C: linear factor on the shapes (2, the Appendix figure's caption).
+    overlap, centre_threshold, shape_scale : float
+        Methods B and C (:func:`label_regions`): largest overlap error, centre distance, factor on the shapes.
 
     Returns
     -------

@@ -1,12 +1,9 @@
 """Ground-truth methods A and D: centre distances only (Sec. 5.1 and Appendix "Ground truth estimation methods").
 
-Method D, threshold ``t = 15`` px inclusive: planar (:func:`label_homography`), reprojection error at most
-``t`` in **both** directions (the paper states one; both make the label independent of the image order);
-non-planar (:func:`label_epipolar`), the larger epipolar distance at most ``t`` **and** the localisation
-check against the hand-taken points (:func:`localisation_check`: the paper defers it to Bellavia & Colombo,
-IJCV 2020, the rule is ours); dense (:func:`label_flow`), **either** flow direction within ``t`` (Sec. 5.1,
-SUN3D protocol). Method A drops the localisation check, so it differs from D only on non-planar pairs; the
-Appendix figure draws it with ``threshold=7``.
+Method D, 15 px inclusive: :func:`label_homography` (reprojection in both directions, so the label does not
+depend on the image order), :func:`label_epipolar` (both epipolar distances plus :func:`localisation_check`,
+our rule: the paper defers it to Bellavia & Colombo, IJCV 2020), :func:`label_flow` (either flow direction,
+Sec. 5.1 SUN3D protocol). Method A drops the localisation check.
 """
 
 from __future__ import annotations
@@ -99,9 +96,8 @@ def label_epipolar(
         Hand-taken correspondences, required when ``localise``.
     threshold : float
         Epipolar distance threshold in pixels (inclusive), in both images.
-    localise : bool
-    ratio : float
-        Passed to :func:`localisation_check`.
+    localise, ratio : bool, float
+        Apply :func:`localisation_check`, with this ``ratio``.
 
     Returns
     -------
@@ -121,20 +117,10 @@ def label_epipolar(
 
 
 class PiecewiseAffineMap:
-    """Piecewise-affine map defined by the Delaunay triangulation of corresponding points.
+    """Piecewise-affine map from the Delaunay triangulation of corresponding points ``src``, ``dst`` (M, 2).
 
-    Each Delaunay triangle of ``src`` is sent affinely onto the triangle with the same vertices in ``dst``;
-    points outside the hull of ``src`` use the triangle owning the nearest hull edge.
-
-    Parameters
-    ----------
-    src, dst : array_like of shape (M, 2), M >= 3
-        Corresponding (x, y) pixels, origin at the centre of the top-left pixel.
-
-    Raises
-    ------
-    ValueError
-        Fewer than three points, or a degenerate (collinear or duplicated) ``src``.
+    Each triangle of ``src`` maps affinely onto the same vertices in ``dst``; points outside the hull use the
+    triangle owning the nearest hull edge. ValueError for M < 3 or a degenerate ``src``.
     """
 
     def __init__(self, src, dst):
@@ -169,9 +155,8 @@ class PiecewiseAffineMap:
     def locate(self, pts, *, bruteforce: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Triangle used for each point and its distance (pixels) outside the hull (0 inside).
 
-        ``bruteforce=True`` picks, for a point on a shared edge or vertex, the first triangle in order
-        whatever the batch (scipy's walk depends on the batch); methods B and C need that, their local
-        affine map changes with the triangle."""
+        ``bruteforce=True`` makes the triangle of a point on a shared edge independent of the batch
+        (methods B and C need it)."""
         pts = as_points(pts, "pts")
         simplex = self.tri.find_simplex(pts, bruteforce=bruteforce)
         dist = np.zeros(len(pts))
@@ -207,26 +192,18 @@ def localisation_check(
 ) -> np.ndarray:
     """Spatial-localisation check of method D against hand-taken correspondences (our rule).
 
-    A correspondence ``(x1, x2)`` passes when, in **both** directions (each with the
-    :class:`PiecewiseAffineMap` of its source image's hand points),
-
-    ``||A_T(x1) - x2|| <= max(threshold, ratio * L_T) + s_T * d_out``
-
-    with ``T`` the triangle used for ``x1`` (:meth:`PiecewiseAffineMap.locate`), ``A_T`` its affine map,
-    ``L_T`` its longest edge in the target image, ``s_T = sqrt(|det A_T|)`` and ``d_out`` the distance of
-    ``x1`` outside the hull. The radius grows with the triangle because the map is a coarse model of a
-    non-planar scene: the check rejects matches on the wrong part of the epipolar line. Without a
-    triangulation (fewer than three or collinear hand points) every correspondence passes (D = A).
+    ``(x1, x2)`` passes when, in both directions, ``||A_T(x1) - x2|| <= max(threshold, ratio * L_T) + s_T *
+    d_out``: ``A_T`` the affine map of the hand points' :class:`PiecewiseAffineMap` triangle used for ``x1``,
+    ``L_T`` its longest edge in the target image, ``s_T = sqrt(|det A_T|)``, ``d_out`` the distance of ``x1``
+    outside the hull. Without a triangulation every correspondence passes (D = A).
 
     Parameters
     ----------
     hand_pts1, hand_pts2 : array_like of shape (M, 2)
-        Hand-taken corresponding points, same convention as ``pts1``, ``pts2``.
+        Hand-taken corresponding points.
     %(pts)s
-    threshold : float
-        Minimum radius in pixels.
-    ratio : float
-        Radius as a fraction of the triangle's longest edge.
+    threshold, ratio : float
+        Minimum radius in pixels; radius as a fraction of the triangle's longest edge.
 
     Returns
     -------
@@ -252,19 +229,9 @@ def localisation_check(
 
 
 def sample_flow(flow, pts) -> np.ndarray:
-    """Displacement of each point read from a dense field at its nearest pixel.
+    """Displacement (N, 2) of each (x, y) point read from ``flow`` (H, W, 2) at its nearest pixel.
 
-    Parameters
-    ----------
-    flow : ndarray of shape (H, W, 2)
-        Displacement (dx, dy) per pixel, NaN where unknown.
-    pts : array_like of shape (N, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel: pixel (row r, col c) is x = c, y = r.
-
-    Returns
-    -------
-    ndarray of shape (N, 2)
-        NaN for points whose nearest pixel lies outside the field.
+    Pixel (row r, col c) is x = c, y = r; NaN outside the field.
     """
     flow = np.asarray(flow)
     if flow.ndim != 3 or flow.shape[2] != 2:
@@ -280,9 +247,7 @@ def sample_flow(flow, pts) -> np.ndarray:
 
 @shared_doc
 def label_flow(kpts1, kpts2, matches, flow12, flow21=None, *, threshold: float = GT_THRESHOLD_PX) -> np.ndarray:
-    """Dense ground truth (depth, synthetic): correct if either direction lands within ``threshold``.
-
-    Unknown displacement (NaN, outside the field) is a miss for that direction.
+    """Dense ground truth: correct if either direction lands within ``threshold`` (unknown: a miss).
 
     Parameters
     ----------

@@ -1,29 +1,12 @@
 """Ground-truth methods B and C: overlap of the keypoints' support regions (Sec. 5.1 and Appendix
 "Ground truth estimation methods").
 
-Method B (Bellavia & Colombo, IJCV 2020): a match is correct when the overlap error
-``1 - |E1' ∩ E2| / |E1' ∪ E2|`` is at most 50 %, ``E1'`` the image-1 support region carried into image 2;
-the regions are the keypoints' affine shapes **doubled** (``shape_scale = 2``, caption of the Appendix
-figure). Method C adds the centre rule of method D with 30 px and no localisation check (the overlap
-already localises the match), so ``C = B ∩ centre``. ``E1`` is carried:
-
-* planar (:class:`~ctxmatch_lib.datasets.HomographyGT`): exactly, the conic pulled through ``H`` (the
-  paper's "true overlap"); an unbounded image (across the vanishing line) has overlap error 1;
-* non-planar (:class:`~ctxmatch_lib.datasets.EpipolarGT`): by the local affine map of the hand points'
-  :class:`~ctxmatch_lib.groundtruth.PiecewiseAffineMap`, its centre **moved onto the epipolar line**
-  (our choice where the paper is silent: the true position lies on that line, the coarse map is used
-  only along it); without a map every match has overlap error 1;
-* dense (:class:`~ctxmatch_lib.datasets.FlowGT`): by the flow and its Jacobian (central differences at the
-  nearest pixel); with ``flow21`` the smaller error of the two directions, as in method D; NaN flow gives 1.
-
-Overlap areas are integrated per ray, not with polygons: an affine map makes ``E1'`` the unit disk (the
-overlap error is affine-invariant), ``p`` is a point inside both regions (the minimiser of the sum of the
-two quadratic forms), and the intersection area ``1/2 ∫ min(r1(θ), r2(θ))² dθ``, ``r_i`` the distance from
-``p`` to each boundary, is summed by the trapezoid rule on :data:`N_ANGLES` angles. Disjoint bounding
-circles give exactly 1; the rare pairs where ``p`` misses the intersection fall back to
-:func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error` (polygons). For labels only, a pair whose overlap
-error provably exceeds the threshold (area ratio, lens bound) is not integrated. The loops are compiled
-(:mod:`~ctxmatch_lib.groundtruth._kernels`). Accuracy and cost: ``docs/evaluation.md`` (Ground truth).
+Method B (Bellavia & Colombo, IJCV 2020): overlap error ``1 - |E1' ∩ E2| / |E1' ∪ E2|`` at most 50 %, ``E1'``
+the doubled image-1 support region carried into image 2 (exactly through ``H``; by the hand points'
+:class:`~ctxmatch_lib.groundtruth.PiecewiseAffineMap` with its centre moved onto the epipolar line, our
+choice; by the flow and its Jacobian). Method C adds the 30 px centre rule: ``C = B ∩ centre``. Where ``E1'``
+is unknown or unbounded the overlap error is 1. :func:`region_overlap_error` integrates areas along rays
+(compiled in :mod:`~ctxmatch_lib.groundtruth._kernels`); see docs/evaluation.md (Ground truth).
 """
 
 from __future__ import annotations
@@ -69,10 +52,9 @@ _REJECT_MARGIN = 0.01
 
 
 def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.ndarray:
-    """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of pairs of ellipses, element-wise (compiled loop).
+    """Overlap error ``1 - |E1 ∩ E2| / |E1 ∪ E2|`` of ellipses ``{c + A u : |u| <= 1}``, element-wise.
 
-    Ellipse ``E = {c + A u : |u| <= 1}``, ray integration of the module docstring; the contract of
-    :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error`.
+    Same contract as :func:`ctxmatch_lib.blob.overlap.ellipse_overlap_error`, by ray integration.
 
     Parameters
     ----------
@@ -81,12 +63,12 @@ def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.nda
     A1, A2 : array_like of shape (P, 2, 2)
         Affine shapes (non-singular).
     reject_above : float
-        Pairs whose overlap error provably exceeds this get 1 without integration (default 1: none).
+        Errors provably above this are returned as 1 without integration.
 
     Returns
     -------
     ndarray of shape (P,)
-        Overlap errors in [0, 1]; 1 where a shape is not finite (or the error exceeds ``reject_above``).
+        In [0, 1]; 1 where a shape is not finite.
 
     Examples
     --------
@@ -110,19 +92,9 @@ def region_overlap_error(c1, A1, c2, A2, *, reject_above: float = 1.0) -> np.nda
 
 
 def homography_ellipses(H, centres, shapes) -> tuple[np.ndarray, np.ndarray]:
-    """Exact images of ellipses ``{c + A u : |u| <= 1}`` under a homography.
+    """Exact images of ellipses ``{c + A u : |u| <= 1}`` (``centres`` (P, 2), ``shapes`` (P, 2, 2)) under ``H``.
 
-    Parameters
-    ----------
-    H : array_like of shape (3, 3)
-    centres : array_like of shape (P, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    shapes : array_like of shape (P, 2, 2)
-
-    Returns
-    -------
-    centres, shapes : ndarray of shape (P, 2), (P, 2, 2)
-        The image ellipses, shapes as lower Cholesky factors; NaN where unbounded or ``H`` is singular.
+    Returns the image centres and shapes (lower Cholesky factors), NaN where unbounded or ``H`` is singular.
     """
     H = np.asarray(H, dtype=np.float64)
     if H.shape != (3, 3):
@@ -140,14 +112,9 @@ def homography_ellipses(H, centres, shapes) -> tuple[np.ndarray, np.ndarray]:
 class RegionErrors:
     """Per-match quantities of methods B and C.
 
-    Attributes
-    ----------
-    overlap : ndarray of shape (K,)
-        Overlap error in [0, 1] of the (scaled) support regions, 1 where it cannot be computed.
-    centre : ndarray of shape (K,)
-        Centre distance of method C in pixels (reprojection, epipolar or flow transfer), inf if unknown.
-    centres2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
-        The scaled image-1 region carried into image 2 (NaN where unknown; dashed in the Appendix figure).
+    ``overlap`` (K,): overlap error of the scaled regions, 1 where unknown; ``centre`` (K,): centre distance
+    of method C in pixels, inf if unknown; ``centres2``, ``shapes2`` (K, 2), (K, 2, 2): the scaled image-1
+    region carried into image 2, NaN where unknown.
     """
 
     overlap: np.ndarray
@@ -168,8 +135,7 @@ def _as_flow(flow, name):
 
 
 def _as_shapes(shapes, n, name):
-    """``(N, 2, 2)`` float64 shapes (radii converted); bad shapes are not rejected (checking each would cost
-    more than method D), they get overlap error 1."""
+    """``(N, 2, 2)`` float64 shapes (radii converted); bad shapes are not rejected but get overlap error 1."""
     arr = np.asarray(shapes, dtype=np.float64)
     if arr.ndim == 3:
         if arr.shape != (n, 2, 2):
@@ -297,11 +263,7 @@ def label_regions(
     """Method B (overlap error at most ``overlap``) or C (B and centre distance at most ``centre_threshold``).
 
     Parameters are those of :func:`region_errors`, plus ``method`` ("B" or "C"), ``overlap`` (0.5 in the
-    paper) and ``centre_threshold`` (30 px in the paper, inclusive).
-
-    Returns
-    -------
-    ndarray of shape (K,), bool
+    paper) and ``centre_threshold`` (30 px in the paper, inclusive). Returns a (K,) bool array.
     """
     if method not in ("B", "C"):
         raise ValueError(f"method must be 'B' or 'C', got {method!r}")
@@ -324,8 +286,7 @@ def label_regions(
 
 
 def _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method, overlap, centre_threshold, rej):
-    """:func:`label_regions` on a flow pair, fused in one compiled pass (:func:`.flow_label_kernel`), plus
-    the polygon fallback where needed."""
+    """:func:`label_regions` on a flow pair in one compiled pass, plus the polygon fallback."""
     kpts1, kpts2, S1, S2, matches = _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
     flow12 = _as_flow(gt.flow12, "gt.flow12")
     flow21 = np.empty((0, 0, 2)) if gt.flow21 is None else _as_flow(gt.flow21, "gt.flow21")

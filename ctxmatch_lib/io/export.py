@@ -1,17 +1,12 @@
 """Exports for structure-from-motion pipelines: hloc's HDF5 files and a COLMAP database.
 
-- **hloc** (:func:`write_hloc`, :func:`read_hloc`, needs ``h5py``): ``features.h5`` with ``keypoints``
-  (float32, hloc's origin is ours) and ``image_size`` per image; ``matches.h5`` with ``matches0`` (int16, -1
-  when unmatched) and ``matching_scores0`` (float16 confidence ``1 - score``) per pair
-  (:func:`names_to_pair`), as hloc's ``match_features`` writes them. ``matches0`` holds one match per
-  image-0 keypoint, so ``duplicates="best"`` reduces many-to-many matches to the best-scored one.
-- **COLMAP** (:func:`write_colmap`, :func:`read_colmap`): its documented SQLite schema (``doc/database.rst``)
-  through ``sqlite3``: one ``SIMPLE_RADIAL`` camera per image (focal 1.2 max(w, h), COLMAP's guess without
-  EXIF), keypoints in COLMAP's corner origin (+0.5), uint32 matches under :func:`colmap_pair_id`, columns
-  swapped when ``id1 > id2``; many-to-many kept. COLMAP 4.x adds its rig and frame tables on opening.
+- hloc (:func:`write_hloc`, :func:`read_hloc`, needs ``h5py``): ``keypoints`` per image, ``matches0``
+  (int16, one match per image-0 keypoint) and ``matching_scores0`` (``1 - score``) per pair.
+- COLMAP (:func:`write_colmap`, :func:`read_colmap`): its documented SQLite schema through ``sqlite3``; one
+  ``SIMPLE_RADIAL`` camera per image (focal 1.2 max(w, h), COLMAP's guess without EXIF), keypoints +0.5 px
+  (corner origin), many-to-many matches kept.
 
-Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; scores are lower-is-better.
-Formats and commands: ``docs/interop.md``.
+Formats and commands: docs/interop.md.
 """
 
 from __future__ import annotations
@@ -48,9 +43,8 @@ def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
     Parameters
     ----------
     name0, name1 : str
-        Image names (paths relative to the image folder).
     separator : str, default "/"
-        hloc's separator (``"_"`` in its older files).
+        ``"_"`` in hloc's older files.
 
     Examples
     --------
@@ -105,11 +99,11 @@ def check_export_paths(h5_dir=None, colmap_db=None, *, h5_name: str = "h5_dir",
     Parameters
     ----------
     h5_dir : str or Path, optional
-        A (creatable) folder whose ``features.h5`` / ``matches.h5``, where they exist, are HDF5.
+        A creatable folder; its ``features.h5`` / ``matches.h5``, where present, must be HDF5.
     colmap_db : str or Path, optional
         A new or empty file, or an SQLite database.
     h5_name, colmap_name : str
-        The names the ``ValueError`` messages start with (``"--export-h5"`` from the command line).
+        The names the ``ValueError`` messages start with.
     """
     if h5_dir is not None:
         from ..cache import check_writable
@@ -149,28 +143,21 @@ def _write_h5_features(fd, name: str, kpts: np.ndarray, image_size) -> None:
 @shared_doc
 def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2, matches, scores=None, *,
                image_size1=None, image_size2=None, duplicates: str = "error") -> int:
-    """Add one pair to hloc-style ``features.h5`` and ``matches.h5`` files (created when absent).
+    """Add one pair to hloc's ``features.h5`` and ``matches.h5``; return the number of matches written.
 
     Parameters
     ----------
     features_path, matches_path : str or Path
-        hloc's features and matches files. An image already present must have the same keypoints.
+        An image already present must have the same keypoints.
     name1, name2 : str
-        Image names (hloc: paths relative to the image folder).
+        Image names, relative to the image folder.
     %(kpts)s
     %(matches)s
     scores : array_like of shape (K,), optional
-        Lower is better; stored as the confidence ``1 - score``. Default 0 (confidence 1).
+        Lower is better, stored as ``1 - score``; default 0.
     image_size1, image_size2 : (int, int), optional
-        (width, height), stored as hloc's ``image_size``.
     duplicates : {"error", "best"}
-        An image-1 keypoint with several matches, which ``matches0`` cannot hold: raise ``ValueError``, or
-        keep its best-scored match.
-
-    Returns
-    -------
-    int
-        The number of matches written.
+        For an image-1 keypoint with several matches: raise ``ValueError``, or keep the best-scored one.
     """
     import h5py
 
@@ -209,21 +196,15 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
 
 
 def read_hloc(features_path, matches_path, name1: str, name2: str):
-    """Read one pair back from hloc's files, as hloc's ``get_keypoints`` / ``get_matches`` do.
+    """``(kpts1, kpts2, matches, scores)`` of one pair, read as hloc's ``get_keypoints`` / ``get_matches`` do.
+
+    Matches are sorted by image-1 row; scores are ``1 - matching_scores0`` (float16 precision).
 
     Parameters
     ----------
     features_path, matches_path : str or Path
     name1, name2 : str
         A pair stored in either order.
-
-    Returns
-    -------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
-    matches : ndarray of shape (K, 2), int64
-        Sorted by image-1 row.
-    scores : ndarray of shape (K,), float64
-        ``1 - matching_scores0`` (lower is better; float16 precision).
     """
     import h5py
 
@@ -264,7 +245,6 @@ def colmap_pair_id(image_id1: int, image_id2: int) -> int:
     Parameters
     ----------
     image_id1, image_id2 : int
-        COLMAP image ids (1 <= id < 2147483647).
 
     Examples
     --------
@@ -330,31 +310,18 @@ def _colmap_image(con: sqlite3.Connection, name: str, kpts: np.ndarray, image_si
 @shared_doc
 def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *, image_size1=None,
                  image_size2=None) -> tuple[int, int]:
-    """Add one pair to a COLMAP database (created with COLMAP's schema when absent).
+    """Add one pair to a COLMAP database (created when absent); return the two image ids.
 
     Parameters
     ----------
     database_path : str or Path
-        An existing COLMAP database (images found by name reuse their ids and must have the same
-        keypoints) or a new file.
+        A COLMAP database (known images keep their ids and must have the same keypoints) or a new file.
     name1, name2 : str
-        Image names: paths relative to COLMAP's image folder.
+        Image names, relative to COLMAP's image folder.
     %(kpts)s
     %(matches)s
-        Stored in ``matches``; COLMAP's geometric verification (``colmap matches_importer``) fills
-        ``two_view_geometries`` from it.
     image_size1, image_size2 : (int, int), optional
-        (width, height); required for an image not yet in the database (its camera).
-
-    Returns
-    -------
-    (int, int)
-        The COLMAP image ids of ``name1`` and ``name2``.
-
-    Raises
-    ------
-    ValueError
-        Bad arrays or names, or a ``database_path`` that cannot be written (not writable, not SQLite, locked).
+        Required for an image not yet in the database (its camera).
     """
     k1, k2, m, _ = _check_pair(kpts1, kpts2, matches, None)
     if name1 == name2:
@@ -379,19 +346,12 @@ def write_colmap(database_path, name1: str, name2: str, kpts1, kpts2, matches, *
 
 
 def read_colmap(database_path, name1: str, name2: str):
-    """Read one pair back from a COLMAP database.
+    """``(kpts1, kpts2, matches)`` of one pair of a COLMAP database, keypoints back in the pixel-centre origin.
 
     Parameters
     ----------
     database_path : str or Path
     name1, name2 : str
-
-    Returns
-    -------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2), float64
-        Back in the pixel-centre origin (COLMAP's x - 0.5, y - 0.5).
-    matches : ndarray of shape (K, 2), int64
-        Rows into ``kpts1`` and ``kpts2``, in the stored order.
     """
     if not Path(database_path).is_file():
         raise FileNotFoundError(f"database_path: file not found: {database_path}")
@@ -427,7 +387,7 @@ def read_colmap(database_path, name1: str, name2: str):
 
 
 def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates: str = "best") -> list[str]:
-    """Export ``.npz`` results of :func:`ctxmatch_lib.match.save_result` to hloc and/or COLMAP.
+    """Export :func:`ctxmatch_lib.match.save_result` files to hloc and/or COLMAP; one summary line each.
 
     Parameters
     ----------
@@ -436,14 +396,8 @@ def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates:
     h5_dir : str or Path, optional
         Folder for hloc's ``features.h5`` and ``matches.h5``.
     colmap_db : str or Path, optional
-        COLMAP database file.
     duplicates : {"best", "error"}
         As in :func:`write_hloc`.
-
-    Returns
-    -------
-    list of str
-        One summary line per export.
     """
     from ..match import load_result
 

@@ -1,21 +1,11 @@
 """Glue to OpenCV and kornia: keypoints, matches and local affine frames in their formats and back.
 
-Keypoints are (x, y) pixels, origin at the centre of the top-left pixel (OpenCV's and kornia's too, so never
-shifted); the patch of keypoint ``k`` is ``{kpts[k] + shapes[k] @ u : |u| <= 1}`` with ``shapes[k] =
-patch_radius * sigma * R(angle)`` (``patch_radius = 3``, :class:`~ctxmatch_lib.features.FeatureConfig`).
-
-- OpenCV: :func:`from_cv2_keypoints` / :func:`to_cv2_keypoints` (``size`` is the diameter ``2 sigma``,
-  ``angle`` degrees in [0, 360) clockwise on screen, ``-1`` for none); :func:`to_cv2_matches` /
-  :func:`from_cv2_matches` (``queryIdx`` in image 1, ``trainIdx`` in image 2, ``distance`` the score).
-- kornia (``pip install 'ctxmatch[kornia]'``, imported when called): :func:`from_kornia_lafs` /
-  :func:`to_kornia_lafs` (``[A | c]`` frames); :func:`match_blob`, blob matching (Sec. 3) returning
-  ``(dists, idxs)`` like ``kornia.feature.match_smnn``.
-
-``mr_size``, the LAF half-size in keypoint sigmas (``A = mr_size * sigma * R``), has no default: kornia's
-scale-space detectors use 6, kornia_moons' ``laf_from_opencv_SIFT_kpts`` 12, and reading such LAFs as
-ctxmatch shapes would silently change the overlap-FGINN (``t_o_kind="overlap"``), the only step that reads
-the LAF size. For detectors with a fixed LAF size per level (``SIFTFeature``, ``KeyNet``) pick the value
-that makes the patch the region to compare.
+OpenCV: :func:`from_cv2_keypoints` / :func:`to_cv2_keypoints` (``size`` = 2 sigma, ``angle`` in degrees
+clockwise on screen, -1 for none), :func:`to_cv2_matches` / :func:`from_cv2_matches`. kornia (imported when
+called): :func:`from_kornia_lafs` / :func:`to_kornia_lafs` and :func:`match_blob`, blob matching (Sec. 3)
+behind ``kornia.feature.match_smnn``'s interface. Shapes are ``patch_radius * sigma * R(angle)``; the LAF
+scale ``mr_size`` has no default (kornia: 6, kornia_moons: 12; a wrong one changes the overlap-FGINN).
+See docs/interop.md.
 """
 
 from __future__ import annotations
@@ -60,21 +50,17 @@ def from_cv2_keypoints(keypoints, *, patch_radius: float = 3.0):
     Parameters
     ----------
     keypoints : sequence of cv2.KeyPoint
-        E.g. the output of ``cv2.SIFT_create().detect(img)``.
     patch_radius : float, default 3
-        Radius of the patch in keypoint sigmas (OpenCV's ``size / 2``).
+        Patch radius in keypoint sigmas (OpenCV's ``size / 2``).
 
     Returns
     -------
-    kpts : ndarray of shape (N, 2), float64
-        ``KeyPoint.pt``.
-    shapes : ndarray of shape (N, 2, 2), float64
-        ``patch_radius * size / 2 * R(angle)``; keypoints with no orientation (``angle == -1``) get angle 0.
-    angles : ndarray of shape (N,), float64
-        Radians in (-pi, pi], in the image frame (positive turns clockwise on screen, as
-        :attr:`Features.angles <ctxmatch_lib.features.Features>`); NaN where OpenCV has ``-1``.
-    responses : ndarray of shape (N,), float64
-        ``KeyPoint.response``.
+    kpts : ndarray of shape (N, 2)
+    shapes : ndarray of shape (N, 2, 2)
+        ``patch_radius * size / 2 * R(angle)``; angle 0 where OpenCV has none (``-1``).
+    angles : ndarray of shape (N,)
+        Radians in (-pi, pi], clockwise on screen; NaN where OpenCV has ``-1``.
+    responses : ndarray of shape (N,)
 
     Examples
     --------
@@ -103,26 +89,17 @@ def from_cv2_keypoints(keypoints, *, patch_radius: float = 3.0):
 
 @shared_doc
 def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_radius: float = 3.0) -> list:
-    """A list of ``cv2.KeyPoint`` from ctxmatch keypoints.
+    """A list of ``cv2.KeyPoint``, the exact inverse of :func:`from_cv2_keypoints`.
 
     Parameters
     ----------
     %(kpts_one)s
     shapes : array_like of shape (N, 2, 2), optional
-        Affine shapes: ``size = 2 sqrt(|det A|) / patch_radius``, ``angle`` that of the first axis (an
-        anisotropic shape keeps only its area and first axis). Default: ``size = 1``, ``angle = -1``.
+        ``size = 2 sqrt(|det A|) / patch_radius``, ``angle`` of the first axis; default size 1, angle -1.
     angles : array_like of shape (N,), optional
-        Radians as returned by :func:`from_cv2_keypoints`; overrides the angle of ``shapes`` (NaN -> -1).
+        Radians (:func:`from_cv2_keypoints`); override the angle of ``shapes`` (NaN -> -1).
     responses : array_like of shape (N,), optional
-        ``KeyPoint.response`` (default 0).
     patch_radius : float, default 3
-        As in :func:`from_cv2_keypoints`.
-
-    Returns
-    -------
-    list of cv2.KeyPoint
-        ``octave`` 0. ``to_cv2_keypoints(*from_cv2_keypoints(kps)[:2], angles=..., responses=...)`` gives
-        back ``pt``, ``size``, ``angle`` and ``response`` exactly.
     """
     import cv2
 
@@ -159,14 +136,8 @@ def to_cv2_matches(matches, scores=None) -> list:
     Parameters
     ----------
     matches : array_like of shape (K, 2), int
-        Rows into the keypoints of image 1 and image 2.
     scores : array_like of shape (K,), optional
-        Lower is better, as OpenCV's distance; 0 when omitted.
-
-    Returns
-    -------
-    list of cv2.DMatch
-        Ready for ``cv2.drawMatches``.
+        Lower is better; 0 when omitted.
 
     Examples
     --------
@@ -181,22 +152,14 @@ def to_cv2_matches(matches, scores=None) -> list:
 
 
 def from_cv2_matches(dmatches, *, return_scores: bool = False):
-    """``(K, 2)`` int64 matches from a list of ``cv2.DMatch``.
+    """``(K, 2)`` int64 ``(queryIdx, trainIdx)`` matches from a list of ``cv2.DMatch``.
 
     Parameters
     ----------
     dmatches : sequence of cv2.DMatch, or of sequences of them
-        E.g. ``cv2.BFMatcher().match(d1, d2)``; the nested lists of ``knnMatch`` are flattened (every
-        neighbour becomes a match).
+        ``knnMatch``'s nested lists are flattened (every neighbour becomes a match).
     return_scores : bool, default False
-        Also return the distances as ``(K,)`` float64 scores (lower is better).
-
-    Returns
-    -------
-    matches : ndarray of shape (K, 2), int64
-        ``(queryIdx, trainIdx)`` rows.
-    scores : ndarray of shape (K,), float64
-        Only with ``return_scores=True``.
+        Also return the distances as ``(K,)`` scores.
 
     Examples
     --------
@@ -236,23 +199,15 @@ def _check_mr_size(mr_size) -> float:
 
 
 def from_kornia_lafs(lafs, *, mr_size: float, patch_radius: float = 3.0):
-    """Keypoints and shapes from kornia local affine frames.
+    """``(kpts, shapes)``, ``(N, 2)`` and ``(N, 2, 2)``, from kornia local affine frames ``[A | c]``.
 
     Parameters
     ----------
     lafs : torch.Tensor or ndarray of shape (1, N, 2, 3) or (N, 2, 3)
-        ``[A | c]``: centre ``c`` (x, y) pixels, ``A`` mapping the unit disc onto the region.
     mr_size : float
-        Scale convention of ``lafs``, ``A = mr_size * sigma * R`` (kornia's ``ScaleSpaceDetector``: 6;
-        kornia_moons' ``laf_from_opencv_SIFT_kpts``: 12).
+        ``A = mr_size * sigma * R`` (kornia's ``ScaleSpaceDetector``: 6; kornia_moons: 12).
     patch_radius : float, default 3
-        Radius of the returned shapes in sigmas.
-
-    Returns
-    -------
-    kpts : ndarray of shape (N, 2), float64
-    shapes : ndarray of shape (N, 2, 2), float64
-        ``A * patch_radius / mr_size``.
+        Radius of the returned shapes in sigmas (``A * patch_radius / mr_size``).
     """
     mr = _check_mr_size(mr_size)
     r = _check_patch_radius(patch_radius)
@@ -277,9 +232,8 @@ def to_kornia_lafs(kpts, shapes, *, mr_size: float, patch_radius: float = 3.0, d
     ----------
     %(kpts_one)s
     shapes : array_like of shape (N, 2, 2)
-        ctxmatch shapes (``patch_radius`` sigmas).
     mr_size : float
-        Scale convention of the LAFs (:func:`from_kornia_lafs`); ``mr_size=patch_radius`` keeps the shapes.
+        As in :func:`from_kornia_lafs`; ``mr_size=patch_radius`` keeps the shapes.
     patch_radius : float, default 3
     dtype, device : torch dtype and device, optional
         Default ``torch.float64`` (exact round trips) on the CPU.
@@ -304,24 +258,22 @@ def match_blob(desc1, desc2, lafs1=None, lafs2=None, dm=None, *, mr_size: float 
     Parameters
     ----------
     desc1, desc2 : torch.Tensor or ndarray of shape (B1, D) and (B2, D)
-        Descriptors (their L2 distance is the matching distance unless ``dm`` is given).
+        Descriptors, compared by L2 distance unless ``dm`` is given.
     lafs1, lafs2 : torch.Tensor of shape (1, B1, 2, 3) and (1, B2, 2, 3), optional
-        Local affine frames; their centres are the keypoints that FGINN needs (``t_o`` set), their shapes
-        (through ``mr_size``) the patches of overlap-FGINN. Required by setups with FGINN, like the default.
+        Local affine frames; required by setups with FGINN (``t_o`` set), like the default.
     dm : torch.Tensor or ndarray of shape (B1, B2), optional
-        Precomputed distance matrix (then ``desc1``/``desc2`` are not used).
+        Precomputed distance matrix (replaces the descriptors).
     mr_size : float, optional
-        Scale convention of the LAFs (:func:`from_kornia_lafs`); required when the setup uses the patches
-        (``t_o_kind="overlap"``).
+        As in :func:`from_kornia_lafs`; required when ``t_o_kind="overlap"``.
     blob : str, dict or BlobConfig, default "paper-best"
         Blob-matching setup (:func:`ctxmatch_lib.match.resolve_blob`).
 
     Returns
     -------
     dists : torch.Tensor of shape (K, 1)
-        Blob scores (lower is better), sorted; float64 (float32 inputs are computed in float64 as well).
+        Blob scores (lower is better), sorted, float64.
     idxs : torch.Tensor of shape (K, 2), long
-        Rows into ``desc1`` and ``desc2``. Many-to-many unless the setup has f' = 1.
+        Rows into ``desc1`` and ``desc2``; many-to-many unless f' = 1.
     """
     import torch
 

@@ -20,27 +20,9 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     column per configuration, methods styled as in :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`; each
     title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.paper.method_rank_agreement`).
 
-    Parameters
-    ----------
-    side : DataFrame
-        A :func:`ctxmatch_lib.report.paper.side_by_side` frame (index setup, kind, model, method).
-    setups : sequence of str, optional
-        The configurations (default: those in ``side``).
-    models : sequence of str
-        ``"none"`` drawn hollow, any other filled.
-    blob : bool
-        Draw the blob candidates too (their recall is 100 % by definition).
-    ms : float
-        Marker area in points².
-    panel_size : float
-        Panel side in inches when ``figsize`` is not given.
-    figsize : (float, float), optional
-        The figure's size, e.g. :func:`~ctxmatch_lib.plots.base.figsize`.
-    metrics : sequence of {"precision", "recall"}
-
-    Returns
-    -------
-    Figure
+    ``side``: a :func:`ctxmatch_lib.report.paper.side_by_side` frame; ``setups`` default: all of it. Model
+    ``"none"`` is drawn hollow; ``blob`` adds the blob candidates (recall 100 % by definition); ``ms`` is the
+    marker area (points²); ``figsize`` defaults to ``panel_size`` inches per panel. Returns the Figure.
     """
     from ..report.tables import MODEL_LABELS
 

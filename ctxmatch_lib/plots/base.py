@@ -247,27 +247,22 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
     Parameters
     ----------
     name : str
-        File stem (a suffix is dropped; ``formats`` decides).
+        File stem (a suffix is dropped).
     output_dir : path, optional
         See :func:`figure_path`.
     dpi : int
-        Resolution of the PNG (and of images embedded in the PDF).
+        Resolution of the PNG and of images embedded in the PDF.
     formats : sequence of str
         Formats written; the first one's path is returned.
     provenance : dict, optional
-        Merged into :func:`provenance`; the record goes as JSON into the PNG text chunk
-        ``ctxmatch:provenance`` and the PDF ``Subject``.
+        Merged into :func:`provenance`; stored as JSON in the PNG chunk ``ctxmatch:provenance`` and the PDF
+        ``Subject``.
     columns : {1, 2}, optional
-        A paper figure: checked with :func:`check_paper_figure` and saved at its exact size.
+        A paper figure: checked by :func:`check_paper_figure`, saved at its exact size.
     show : bool, optional
         Display before saving; default: in a Jupyter kernel.
     png_colors : int, optional
-        Store the PNG with an adaptive palette of this many colours (≤ 256): photo figures shrink several
-        times; the PDF keeps full colour.
-
-    Returns
-    -------
-    Path
+        An adaptive PNG palette of this many colours (≤ 256), for photo figures; the PDF keeps full colour.
     """
     if columns is not None:
         check_paper_figure(fig, columns)

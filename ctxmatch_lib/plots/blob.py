@@ -59,23 +59,9 @@ def plot_blob_heatmap(ax, matrix, *, title: str = "", vmin=None, vmax=None, cmap
     """Draw one detector+descriptor block of the heat map of Fig. 5; key strips (no room for texts) give each
     column its D and W colour and each row its f' grey, explained by :func:`heatmap_key`.
 
-    Parameters
-    ----------
-    matrix : DataFrame
-        mAP (%), rows (f, f'), columns (t_o, D, W) (:func:`~ctxmatch_lib.report.blob.heatmap_matrix`).
-    vmin, vmax : float, optional
-        Colour range (default: the block's own; a shared one washes out the better blocks).
-    mark_best : bool
-        Outline the best cell and mark its column above the block.
-    row_labels, col_labels : bool
-        Tick labels on the left (f) and at the bottom (t_o).
-    key_strips : bool
-        The D, W and f' key strips.
-
-    Returns
-    -------
-    matplotlib.image.AxesImage
-        For a colour bar.
+    ``matrix``: :func:`~ctxmatch_lib.report.blob.heatmap_matrix`. ``vmin``/``vmax`` default to the block's own
+    range (a shared one washes out the better blocks); ``mark_best`` outlines the best cell. Returns the
+    ``AxesImage``, for a colour bar.
     """
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Rectangle

@@ -1,7 +1,7 @@
-"""Overlays for DTM (Sec. 4): the boundary construction of Fig. 2 / Appendix A and the DTM1/DTM2 steps of
-Fig. 3, drawn on an ``ax`` (image first: :func:`ctxmatch_lib.plots.viz2d.plot_image`). Points are (x, y)
-pixels, origin at the centre of the top-left pixel. Colours: :data:`DTM_COLORS` (Okabe–Ito) and the match code
-of :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS`; DTM2's re-added matches are dashed."""
+"""Overlays for DTM (Sec. 4) on an ``ax``: the boundary construction of Fig. 2 / Appendix A
+(:func:`plot_boundary_steps`, :func:`plot_boundary_mesh`) and the DTM1/DTM2 steps of Fig. 3
+(:func:`plot_dtm_iteration_flow`, :func:`plot_dtm_clusters`, :func:`plot_dtm_final`). Colours:
+:data:`DTM_COLORS` and :data:`~ctxmatch_lib.plots.viz2d.MATCH_COLORS`."""
 
 from __future__ import annotations
 
@@ -175,27 +175,10 @@ def plot_boundary_mesh(ax, boundary, *, ps: float = 6, lw: float = 0.7) -> None:
 def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw: float = 0.9,
                             ps: float = 4, tri_lw: float = 0.4, dropped_lw: float = 0.5,
                             dropped_alpha: float = 0.35, max_dropped_lines: int | None = 300) -> bool:
-    """Fig. 3 left column: triangulation ``T_1`` (grey) of iteration ``i`` and the flow vectors of its
-    input matches ``M^{i-1}``: kept in ``M^i`` correct / wrong, removed correct / wrong (:data:`MATCH_COLORS`).
-
-    Parameters
-    ----------
-    iteration : DTM1Iteration
-        From ``dtm(..., trace=True).trace.iterations``.
-    p1, p2 : ndarray of shape (K, 2)
-        Image-1 and image-2 keypoint of every input match (``kpts1[matches[:, 0]]``, ...), (x, y) pixels.
-    labels : ndarray of shape (K,) bool
-        Ground-truth correctness of every input match.
-    image : {1, 2}
-        Which image the overlay is for (its triangulation; flows start at its keypoints).
-    max_dropped_lines : int or None
-        Above this many removed matches they are drawn as dots at their keypoints (thousands of long lines
-        would hide everything); ``None``: always lines.
-
-    Returns
-    -------
-    bool
-        Whether the removed matches were drawn as dots only.
+    """Fig. 3 left column: triangulation ``T_1`` (grey) of a DTM1 ``iteration`` (from ``trace=True``) and the
+    flows of its input matches ``M^{i-1}`` on image ``image``, coloured kept/removed × correct/wrong
+    (:data:`MATCH_COLORS`, ``labels``). ``p1``, ``p2``: the keypoints ``(K, 2)`` of every input match. Above
+    ``max_dropped_lines`` removed matches are dots (long lines would hide everything); returns whether.
     """
     tri = iteration.tri1 if image == 1 else iteration.tri2
     plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)

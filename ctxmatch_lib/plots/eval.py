@@ -1,7 +1,6 @@
-"""Plots of the filter evaluation (Sec. 5.3, Appendix "DTM evaluation") from :mod:`ctxmatch_lib.report`
-tables: the precision/recall scatter of Fig. 7 (``pr_plot``) and the inlier-ratio histograms (``inl_plot``).
-As in Fig. 7, each method has one colour and marker (:func:`method_style`) named in one legend; hollow
-markers mean no model, filled ones 1SAC.
+"""Plots of the filter evaluation (Sec. 5.3, Appendix "DTM evaluation"): the precision/recall scatter of
+Fig. 7 (:func:`plot_pr_scatter`) and the inlier-ratio histograms (:func:`plot_inlier_method`). Each method
+has one colour and marker (:func:`method_style`); hollow: no model, filled: 1SAC.
 """
 
 from __future__ import annotations
@@ -125,25 +124,10 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
                     lim=None, xlim=None, ylim=None, connect: bool = False) -> list:
     """Mean precision (y) against mean recall (x) per method and model, as Fig. 7 (names: :func:`pr_legend`).
 
-    Parameters
-    ----------
-    table : DataFrame
-        A :func:`ctxmatch_lib.report.method_table` of one kind, index (model, method) or (kind, model, method).
-    models : sequence of str
-        ``"none"`` drawn hollow, any other filled.
-    ms : float
-        Marker area (points²).
-    lim : (float, float) or None
-        Limits of both axes; ``None``: fitted to every point (:func:`fit_limits`).
-    xlim, ylim : (float, float) or None
-        Limits of one axis over ``lim``, e.g. from :func:`row_limits`.
-    connect : bool
-        A thin grey line from each method's no-model point to its 1SAC point.
-
-    Returns
-    -------
-    list of (model, method, recall, precision)
-        The points drawn.
+    ``table``: a :func:`ctxmatch_lib.report.method_table` of one kind. Model ``"none"`` is drawn hollow, any
+    other filled; ``ms`` is the marker area (points²). ``lim`` sets both axes (default :func:`fit_limits`),
+    ``xlim``/``ylim`` one (e.g. :func:`row_limits`); ``connect`` joins each method's no-model and 1SAC points.
+    Returns the points drawn, ``(model, method, recall, precision)``.
     """
     t = table.droplevel("kind") if "kind" in table.index.names else table
     methods = method_order(t.index.get_level_values("method"))
@@ -240,20 +224,10 @@ def _bin_edge_ticks(ax, bins, labels: bool = True) -> None:
 def plot_inlier_method(ax, table, method: str, *, bins=None, models=("none", "1sac"),
                        metrics=("precision (%)", "recall (%)"), title: str | None = None, min_n: int = 1,
                        tick_labels: bool = True) -> None:
-    """One method's panel of the inlier-ratio histograms (``inl_plot``): per bin a bar per metric
-    (:data:`METRIC_COLORS`) and model (hollow: no model, filled: 1SAC).
-
-    Parameters
-    ----------
-    table : DataFrame
-        A :func:`ctxmatch_lib.report.inlier_bin_table` (index bin, model, method).
-    bins : sequence, optional
-        The bins drawn (:func:`shared_bins`); default: the populated bins of ``table``.
-    min_n : int
-        A bin with fewer cases, or without a value (nothing kept), gets a grey cross; a true 0 % a stroke.
-    tick_labels : bool
-        Bin names under the axis (bottom row of a grid).
-    """
+    """One method's panel of the inlier-ratio histograms (``inl_plot``) of a
+    :func:`ctxmatch_lib.report.inlier_bin_table`: per bin a bar per metric (:data:`METRIC_COLORS`) and model
+    (hollow: no model). ``bins`` default: the populated ones (:func:`shared_bins`); a bin under ``min_n``
+    cases or without a value gets a grey cross, a true 0 % a stroke."""
     bins = list(bins) if bins is not None else _bins(table, True)
     width = 0.84 / (len(metrics) * len(models))
     x = np.arange(len(bins))

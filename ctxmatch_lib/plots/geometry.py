@@ -1,6 +1,5 @@
-"""Plots of the model's accuracy after the model step: per-method AUCs, accuracy against the time to
-geometry, and cumulative corner-error curves, from engine rows or
-:func:`~ctxmatch_lib.geometry_metrics.geometry_table`; methods keep their :func:`~.eval.method_style`."""
+"""Plots of the accuracy after the model step (:func:`plot_accuracy_by_method`, :func:`plot_accuracy_vs_time`,
+:func:`plot_cumulative_errors`); methods keep their :func:`~.eval.method_style`."""
 
 from __future__ import annotations
 
@@ -63,27 +62,11 @@ POSE_MARKERS = {5: "^", 10: "v", 20: "*"}
 
 
 def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | None = None, order=None) -> list:
-    """The model's accuracy, one row per method, best on top: planar, the AUC of the corner error at 1/3/5/10 px
-    (:data:`THRESHOLD_MARKERS`, sorted by 5 px); calibrated, the AUC of the pose error at 5/10/20°
-    (:data:`POSE_MARKERS`, sorted by 5° then 10°); otherwise the share of GT correspondences consistent with F
-    at 1/3/5/10 px and its 1-19 px mean as a bar (sorted by it). The method's marker stands left of its row;
-    pairs without a model are counted after its name.
-
-    Parameters
-    ----------
-    table : DataFrame
-        :func:`~ctxmatch_lib.geometry_metrics.geometry_table` indexed by (kind, method, model).
-    kind : {"planar", "nonplanar", "depth", "calibrated"}
-    model : str
-        The model step whose rows are drawn.
-    title : str, optional
-    order : sequence of str, optional
-        The methods top to bottom instead of sorting (so side-by-side panels share rows); missing ones stay empty.
-
-    Returns
-    -------
-    list of str
-        The methods, top to bottom.
+    """The accuracy of step ``model``, one row per method of a
+    :func:`~ctxmatch_lib.geometry_metrics.geometry_table`, best on top: planar, the AUC of the corner error
+    at 1/3/5/10 px (:data:`THRESHOLD_MARKERS`); calibrated, the AUC of the pose error at 5/10/20°
+    (:data:`POSE_MARKERS`); otherwise the share of GT points consistent with F per threshold and its 1-19 px
+    mean as a bar. ``order`` fixes the rows (side-by-side panels). Returns the methods, top to bottom.
     """
     t = table.xs((kind, model), level=("kind", "model"))
     planar, posed = kind == "planar", kind == "calibrated"
@@ -146,10 +129,9 @@ def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kw
 
 def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5.0, ms: float = 22,
                           title: str | None = None) -> list:
-    """The model's accuracy (y, :func:`accuracy_column` with ``auc_px``) against the mean time to geometry per
-    pair (x, log), one point (area ``ms``) per method of a :func:`~ctxmatch_lib.geometry_metrics.geometry_table`
-    (index kind, method, model; one blob setup). Returns the ``(method, time, accuracy)`` points drawn
-    (methods without a finite time or accuracy are left out)."""
+    """The model's accuracy (y, :func:`accuracy_column`) against the mean time to geometry per pair (x, log),
+    one point per method of a :func:`~ctxmatch_lib.geometry_metrics.geometry_table`; returns the
+    ``(method, time, accuracy)`` points drawn (finite ones only)."""
     col, label = accuracy_column(kind, auc_px)
     t = table.xs((kind, model), level=("kind", "model"))
     pts = []
@@ -170,10 +152,9 @@ def plot_accuracy_vs_time(ax, table, kind: str, *, model: str, auc_px: float = 5
 
 
 def plot_cumulative_errors(ax, rows, methods, *, model: str, max_px: float = 10.0, title: str | None = None) -> dict:
-    """The share of planar pairs whose mean corner error is below ``e`` (y) for ``e`` in [0, ``max_px``]: the
-    curve whose area :func:`~ctxmatch_lib.geometry_metrics.pose_auc` measures (pairs without a model count in
-    the denominator only). ``rows``: engine rows of planar pairs, one blob setup. Returns, per method, the
-    share of pairs below ``max_px``."""
+    """The share of planar pairs (engine ``rows``) whose mean corner error is below ``e``, ``e`` in [0,
+    ``max_px``]: the curve :func:`~ctxmatch_lib.geometry_metrics.pose_auc` integrates (pairs without a model
+    count in the denominator). Returns, per method, the share below ``max_px``."""
     out = {}
     for method in methods:
         e = np.sort(rows.loc[(rows["method"] == method) & (rows["model"] == model), "corner_error"].to_numpy())

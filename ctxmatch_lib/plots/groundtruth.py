@@ -41,22 +41,11 @@ def ellipse_polylines(centres, shapes, n: int = 48) -> np.ndarray:
 
 def plot_gt_flows(ax, img, kpts1, kpts2, groups, *, colors=None, lw: float = 0.7, ps: float = 2.0,
                   dim: float = 0.55, counts: bool = True, legend: bool = True) -> None:
-    """Each group's matches as flows on image 1 (:func:`~ctxmatch_lib.plots.viz2d.plot_flow`), one colour per group.
+    """Each group's matches ``kpts1`` -> ``kpts2`` ``(K, 2)`` as flows on image 1 ``img``, one colour per group.
 
-    Parameters
-    ----------
-    img : ndarray
-        Image 1.
-    kpts1, kpts2 : ndarray of shape (K, 2)
-        Matched keypoints, (x, y) pixels.
-    groups : dict of str to ndarray of shape (K,), bool
-        Disjoint groups (:func:`ctxmatch_lib.report.gt_compare.method_groups`), drawn in order.
-    colors : dict, optional
-        Group name -> colour (default :data:`GROUP_COLORS`).
-    counts : bool
-        Put each group's size in the legend label.
-    legend : bool
-        A legend on the photo; without it use :func:`groups_legend`.
+    ``groups``: name -> mask ``(K,)`` (:func:`ctxmatch_lib.report.gt_compare.method_groups`), drawn in order;
+    ``colors`` default :data:`GROUP_COLORS`; ``counts`` puts each group's size in the legend, drawn on the
+    photo with ``legend`` (else use :func:`groups_legend`).
     """
     colors = GROUP_COLORS if colors is None else colors
     plot_image(ax, img, dim=dim)
@@ -83,20 +72,10 @@ def groups_legend(fig_or_ax, names, *, colors=None, **kwargs):
 
 def plot_support_regions(ax, img, kpts2, shapes2, carried_centres, carried_shapes, groups, worst, *,
                          colors=None, dim: float = 0.55, lw: float = 0.35, lw_worst: float = 1.4) -> None:
-    """Support regions on image 2: thin for every match of a group; for its worst match, thick, with its
-    image-1 region carried into image 2 by the ground truth dashed.
-
-    Parameters
-    ----------
-    img : ndarray
-        Image 2.
-    kpts2, shapes2 : ndarray of shape (K, 2), (K, 2, 2)
-        The image-2 keypoint of each match and its (already scaled) region.
-    carried_centres, carried_shapes : ndarray of shape (K, 2), (K, 2, 2)
-        The image-1 regions carried into image 2 (:class:`ctxmatch_lib.groundtruth.RegionErrors`).
-    groups : dict of str to ndarray of shape (K,), bool
-    worst : dict of str to int
-        The match drawn thick in each group (:func:`ctxmatch_lib.report.gt_compare.worst_in_groups`).
+    """Support regions on image 2 ``img``: thin for every match of a group; thick for its ``worst`` match
+    (:func:`ctxmatch_lib.report.gt_compare.worst_in_groups`), with its image-1 region carried by the ground
+    truth dashed. ``kpts2``, ``shapes2``: ``(K, 2)``, ``(K, 2, 2)`` regions (scaled); ``carried_centres``,
+    ``carried_shapes``: the same carried from image 1 (:class:`ctxmatch_lib.groundtruth.RegionErrors`).
     """
     colors = GROUP_COLORS if colors is None else colors
     plot_image(ax, img, dim=dim)

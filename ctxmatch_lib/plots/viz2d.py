@@ -1,9 +1,6 @@
-"""Drawing images, keypoints and matches on an ``ax``, after LightGlue's ``viz2d``.
-
-Keypoints are (x, y) pixels with the origin at the centre of the top-left pixel, where ``imshow`` puts pixel
-``(0, 0)``, so they are drawn unshifted. A pair is drawn side by side in one axes (:func:`plot_image_pair`),
-image-2 points shifted by the returned offset. Match colours keep the paper's four roles (Fig. 3, appendix
-grids) in Okabe–Ito colours (:data:`MATCH_COLORS`).
+"""Drawing images, keypoints and matches on an ``ax``, after LightGlue's ``viz2d``. Keypoints, (x, y)
+pixels with (0, 0) the centre of the top-left pixel, are drawn unshifted; image-2 points of a pair shift by
+the offset :func:`plot_image_pair` returns. Match colours: :data:`MATCH_COLORS` (the paper's four roles).
 """
 
 from __future__ import annotations
@@ -182,24 +179,10 @@ def plot_scored_matches(ax, kpts1, kpts2, scores, *, offset=(0.0, 0.0), cmap="vi
 
 def plot_match_result(result, image1, image2, *, ax=None, cmap="viridis_r", lw: float = 0.7,
                       title: str | None = None):
-    """The picture of ``ctxmatch match --plot``: both images side by side, the kept matches coloured by their
-    blob-matching score (colour bar; lower is better) and, after a model step, the matches it rejected dashed in
-    vermillion (:data:`REJECTED_STYLE`), with a legend counting both.
-
-    Parameters
-    ----------
-    result : MatchResult
-        Of :func:`ctxmatch_lib.match.match_images` (``model_input``: the candidates given to the model step).
-    image1, image2 : ndarray
-        ``(H, W)`` gray or ``(H, W, 3)`` RGB.
-    ax : matplotlib Axes, optional
-        Default: a new figure.
-    title : str, optional
-        Default: the counts, filters and model.
-
-    Returns
-    -------
-    matplotlib Figure
+    """The picture of ``ctxmatch match --plot`` for a :func:`ctxmatch_lib.match.match_images` ``result``: the
+    images side by side, kept matches coloured by blob score (colour bar; lower is better) and, after a model
+    step, those it rejected dashed (:data:`REJECTED_STYLE`). ``ax`` default: a new figure; ``title`` default:
+    the counts, filters and model. Returns the Figure.
     """
     import matplotlib.pyplot as plt
     from matplotlib.colors import Normalize

@@ -1,12 +1,6 @@
-"""Tables and reports built from evaluation rows.
-
-* :mod:`.tables`: the paper's tables (Tables 1-3 and the Appendix's), method labels and Markdown output; its
-  names are re-exported here;
-* :mod:`.blob`: the Fig. 5 heat-map tables of the blob-matching sweep;
-* :mod:`.paper`: the paper's Tables 1-3 parsed from its LaTeX, side by side with ours, and the claims of
-  Sec. 5.3;
-* :mod:`.gt_compare`: the comparison of the ground-truth methods A-D of the Appendix.
-"""
+"""Tables and reports built from evaluation rows: :mod:`.tables` (Tables 1-3, re-exported here),
+:mod:`.blob` (Fig. 5), :mod:`.paper` (the paper's tables and Sec. 5.3's claims), :mod:`.gt_compare`
+(ground-truth methods A-D)."""
 
 from .tables import *  # noqa: F401,F403
 from .tables import __all__  # noqa: F401

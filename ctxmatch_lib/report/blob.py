@@ -9,12 +9,10 @@ __all__ = ["blob_map", "heatmap_matrix"]
 
 
 def blob_map(df, *, metric: str = "ap_star", method: str = "blob", model: str = "none"):
-    """mAP of every (features, blob setup): the mean over pairs of the AP (NaN APs skipped), in %.
+    """mAP in % of every (features, blob setup), NaN APs skipped.
 
-    ``metric="ap_star"`` (default, Fig. 5) ranks each setup's candidates against the correct matches of all
-    setups on the pair (the recall* reference), so a setup that misses correct matches is penalised;
-    ``"ap"`` uses each setup's own correct candidates, which rewards small, precise sets. Returns the blob
-    fields, ``mAP`` and ``pairs`` (with a defined AP), in the order of first appearance.
+    ``metric="ap_star"`` (Fig. 5) measures against the correct matches of all setups, so a setup that misses
+    some is penalised; ``"ap"`` against each setup's own, which rewards small, precise sets.
     """
     import pandas as pd
 
@@ -48,13 +46,12 @@ def heatmap_matrix(maps, features: str | None = None):
     maps : DataFrame
         :func:`blob_map` output.
     features : str, optional
-        Which feature configuration; required when ``maps`` holds several.
+        Required when ``maps`` holds several feature configurations.
 
     Returns
     -------
     DataFrame
-        mAP in %, indexed by ``(f, f')`` labels (``"10∪", 5``) and with ``(t_o, D, W)`` label columns,
-        both in the grid order of Sec. 5.2 restricted to the setups present; missing setups are NaN.
+        mAP in %, ``(f, f')`` rows and ``(t_o, D, W)`` columns in the grid order of Sec. 5.2.
     """
     import pandas as pd
 

@@ -1,11 +1,8 @@
 """Comparing the ground-truth methods A, B, C and D (Sec. 5.1, Appendix "Ground truth estimation methods").
 
-For the notebook ``fig_gt_methods``: :func:`method_groups`, the disjoint groups of matches the caption of
-the Appendix figure ``setup_imgs`` colours; :func:`correct_per_pair`, mean correct matches per pair under
-each method; :func:`setup_rank_agreement`, the Spearman correlation of the blob setups' mAP under two
-methods (Sec. 5.2: "for method C a similar ranking has been obtained"). By construction
-(:mod:`ctxmatch_lib.groundtruth`) ``C = B ∩ {centre <= 30 px}`` and D's centre rule implies C's, so
-``B ∩ D ⊆ C``: the groups "B ∖ C" and "D ∖ C" never share a match.
+:func:`method_groups` (the disjoint groups the Appendix figure ``setup_imgs`` colours; ``B ∩ D ⊆ C`` by
+construction, so "B ∖ C" and "D ∖ C" never share a match), :func:`correct_per_pair` and
+:func:`setup_rank_agreement` (Sec. 5.2: "for method C a similar ranking has been obtained").
 """
 
 from __future__ import annotations
@@ -31,14 +28,9 @@ def method_groups(labels: Mapping[str, np.ndarray], scheme: str = "BCD") -> dict
     Parameters
     ----------
     labels : mapping of str to ndarray of shape (K,), bool
-        Labels of the same K matches under the methods the scheme names ("A", "B", "C", "D").
+        Labels of the same matches under methods "A" ... "D".
     scheme : {"BCD", "AD"}
-        ``"BCD"``: C ∩ D, C ∖ D, B ∖ C, D ∖ C (rows 1 and 4); ``"AD"``: A ∩ D, A ∖ D, D ∖ A (row 3).
-
-    Returns
-    -------
-    dict of str to ndarray of shape (K,), bool
-        In the scheme's order.
+        :data:`GROUP_SCHEMES`.
 
     Examples
     --------
@@ -63,8 +55,7 @@ def method_groups(labels: Mapping[str, np.ndarray], scheme: str = "BCD") -> dict
 
 
 def worst_in_groups(groups: Mapping[str, np.ndarray], error) -> dict[str, int]:
-    """Index of the match with the largest ``error`` in each non-empty group (the caption's "worst match
-    according to the reprojection error"); NaN errors are never the worst unless all are NaN."""
+    """Index of the match with the largest ``error`` (NaN last) in each non-empty group."""
     error = np.asarray(error, np.float64)
     out = {}
     for name, mask in groups.items():
@@ -76,12 +67,8 @@ def worst_in_groups(groups: Mapping[str, np.ndarray], error) -> dict[str, int]:
 
 
 def correct_per_pair(rows: pd.DataFrame, *, method: str = "blob", model: str = "none") -> pd.DataFrame:
-    """Mean correct matches per pair, per dataset kind, feature block and ground-truth method.
-
-    ``rows`` are sweep rows of runs that differ by ``gt_method``, one blob setup per feature block;
-    ``method`` and ``model`` select the rows counted (default: the blob candidates). Index (kind, features),
-    one column per ground-truth method (A, B, C, D), plus ``pairs``.
-    """
+    """Mean correct matches per pair of ``method`` and ``model``: index (kind, features), one column per
+    ``gt_method`` of ``rows``, plus ``pairs``."""
     need = {"kind", "features", "gt_method", "correct", "pair_id", "method", "model"}
     if missing := need - set(rows.columns):
         raise ValueError(f"rows lacks columns {sorted(missing)}")
@@ -95,11 +82,8 @@ def correct_per_pair(rows: pd.DataFrame, *, method: str = "blob", model: str = "
 
 
 def setup_rank_agreement(map_a: pd.DataFrame, map_b: pd.DataFrame, *, value: str = "mAP") -> pd.DataFrame:
-    """Spearman rank correlation of the blob setups' ``value`` under two ground-truth methods, per block.
-
-    ``map_a``, ``map_b`` are :func:`ctxmatch_lib.report.blob.blob_map` tables; one row per feature block:
-    ``setups`` (compared), ``spearman`` and the best setup under each.
-    """
+    """Spearman correlation of the blob setups' ``value`` in two :func:`~ctxmatch_lib.report.blob.blob_map`
+    tables, per feature block, with the best setup of each."""
     from scipy.stats import spearmanr
 
     m = map_a.merge(map_b, on=["features", "blob"], suffixes=("_a", "_b"))

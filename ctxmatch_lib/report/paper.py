@@ -1,13 +1,8 @@
 """Our results side by side with the paper's Tables 1-3 (Appendix "DTM evaluation") and the claims of Sec. 5.3.
 
-- :func:`parse_paper_tables` and :func:`parse_paper_gt_counts` read Tables 1-3 and the ground-truth counts of
-  their captions from the paper's LaTeX source; ``python -m ctxmatch_lib.report.paper TEX`` writes them to the
-  package data ``ctxmatch_lib/data/paper_tables.csv`` and ``paper_gt_counts.csv`` that
-  :func:`ctxmatch_lib.report.paper_table` and :data:`ctxmatch_lib.report.PAPER_GT_COUNTS` read.
-- :func:`side_by_side` puts each cell of our :func:`~ctxmatch_lib.report.method_table` beside the paper's
-  (precision, recall, failures as a share of the pairs, since the pair counts differ, :data:`PAPER_PAIRS`);
-  :func:`method_rank_agreement` gives Spearman's ρ over the 17 filters per (configuration, kind, model).
-- :func:`check_claims` checks the observations of Sec. 5.3 (a)-(h) on our tables and on the paper's own.
+:func:`parse_paper_tables` / :func:`parse_paper_gt_counts` read Tables 1-3 from the paper's LaTeX
+(``python -m ctxmatch_lib.report.paper TEX`` writes them to ``ctxmatch_lib/data``); :func:`side_by_side` and
+:func:`method_rank_agreement` compare our tables with them; :func:`check_claims` tests Sec. 5.3 (a)-(h).
 """
 
 from __future__ import annotations
@@ -107,8 +102,7 @@ def _number(cell: str, label: str, line: str) -> float:
 
 
 def _spread(markers, n: int, names: dict, what: str, label: str) -> list:
-    """Each row's value from the ``\\multirow`` markers: a negative span covers the rows ending at the marker
-    (the paper's layout), a positive one those starting at it."""
+    """Each row's value from ``\\multirow`` markers (a negative span covers the rows ending at the marker)."""
     out = [None] * n
     for i, (span, text) in markers:
         value = names.get(_norm(text))
@@ -150,27 +144,11 @@ def _parse_table(block: str, label: str) -> pd.DataFrame:
 
 
 def parse_paper_tables(tex) -> pd.DataFrame:
-    """The paper's Tables 1-3 (Appendix "DTM evaluation"), read from its LaTeX source: each table by its
-    ``\\label`` (:data:`PAPER_TABLE_LABELS`), rows ``& & name & numbers \\\\``, kind and model from the
-    ``\\multirow`` markers of the first two cells (a negative span covers the rows above the marker).
+    """The paper's Tables 1-3 (Appendix "DTM evaluation") read from its LaTeX source (path or text).
 
-    Parameters
-    ----------
-    tex : str or Path
-        Path of ``sift_matching_by_context_exposed.tex`` or its text.
-
-    Returns
-    -------
-    DataFrame
-        Columns ``setup`` (``global``, ``baseline``, ``best``), ``kind`` (``planar`` / ``nonplanar``),
-        ``model`` (``none`` / ``1sac``), ``method`` (our names, :data:`PAPER_FILTERS` and ``blob``),
-        ``precision``, ``recall``, ``recall_star`` (%), ``correct``, ``output``, ``failures`` (int) and
-        ``time_s`` (NaN where the paper prints "--"), in the paper's row order.
-
-    Raises
-    ------
-    ValueError
-        When a table is missing or a row cannot be read (the message names the table).
+    Returns columns ``setup``, ``kind``, ``model``, ``method`` (our names), ``precision``, ``recall``,
+    ``recall_star`` (%), ``correct``, ``output``, ``failures`` and ``time_s`` (NaN for "--"), in the paper's
+    row order; a missing table or unreadable row raises ``ValueError``.
     """
     text = _read_tex(tex)
     parts = []
@@ -183,12 +161,8 @@ def parse_paper_tables(tex) -> pd.DataFrame:
 
 
 def parse_paper_gt_counts(tex) -> pd.DataFrame:
-    """Mean ground-truth matches per pair in the captions of Tables 1-3 ("... is 293/214 (blob, for recall),
-    740/519 (all matches, for recall$^\\star$)").
-
-    Returns a frame with columns ``setup``, ``kind`` (planar first), ``n_gt`` (recall) and ``n_gt_star``
-    (recall*).
-    """
+    """Mean ground-truth matches per pair in the captions of Tables 1-3: columns ``setup``, ``kind``,
+    ``n_gt`` (recall) and ``n_gt_star`` (recall*)."""
     text = _read_tex(tex)
     rows = []
     for setup, label in PAPER_TABLE_LABELS.items():
@@ -217,8 +191,8 @@ def _csv(df: pd.DataFrame) -> str:
 
 
 def write_paper_data(tex, out_dir=None) -> list:
-    """Parse ``tex`` and write ``paper_tables.csv`` and ``paper_gt_counts.csv`` to ``out_dir`` (default: the
-    package data folder ``ctxmatch_lib/data``); the same LaTeX always gives the same bytes. Returns the paths."""
+    """Write ``paper_tables.csv`` and ``paper_gt_counts.csv`` parsed from ``tex`` to ``out_dir`` (default
+    ``ctxmatch_lib/data``), deterministically; return the paths."""
     out_dir = _DATA if out_dir is None else Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -246,25 +220,17 @@ def _failure_count(t: pd.DataFrame) -> pd.Series:
 
 
 def side_by_side(tables: dict, pairs: dict | None = None, *, paper: dict | None = None) -> pd.DataFrame:
-    """Each cell of our tables beside the paper's Tables 1-3: ours, paper, Δ = ours - paper (points).
+    """The rows of our tables and the paper's Tables 1-3 side by side (:data:`SIDE_COLUMNS`): ours, paper,
+    Δ = ours - paper, failures as shares of the pairs in % (the pair counts differ).
 
     Parameters
     ----------
     tables : dict
-        ``{configuration: method_table frame}`` (:func:`~ctxmatch_lib.report.method_table`: index (kind,
-        model, method), columns ``precision (%)``, ``recall (%)``, ``failures``, ``empty``, ``pairs``).
+        ``{configuration: frame}`` of :func:`~ctxmatch_lib.report.method_table`.
     pairs : dict, optional
         The paper's pairs per kind (default :data:`PAPER_PAIRS`, Sec. 5.1).
     paper : dict, optional
-        ``{configuration: the paper's frame}``; default :func:`paper_tables` (via ``PAPER_SETUP``).
-
-    Returns
-    -------
-    DataFrame
-        Index (setup, kind, model, method), the rows present in both ours and the paper's table, in our order;
-        columns :data:`SIDE_COLUMNS`. Failures are shares of the pairs in %: ours (failures + empty) / pairs,
-        the paper's failures / ``pairs[kind]``. ``blob`` flags the blob candidates (not a filter, left out of
-        :func:`method_rank_agreement`).
+        ``{configuration: the paper's frame}``; default :func:`paper_tables`.
     """
     pairs = dict(PAPER_PAIRS if pairs is None else pairs)
     paper = paper_tables(list(tables)) if paper is None else paper
@@ -303,15 +269,8 @@ def _spearman(x, y) -> float:
 
 
 def method_rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
-    """Spearman's ρ between our and the paper's per-method precision and recall, over the filters (the blob
-    row left out), per (setup, kind, model) of a :func:`side_by_side` frame.
-
-    Returns
-    -------
-    DataFrame
-        Index (setup, kind, model); columns ``ρ precision``, ``ρ recall`` (NaN with fewer than 3 methods or a
-        constant column), ``mean |ΔP|``, ``mean |ΔR|`` (points) and ``n`` (methods compared).
-    """
+    """Spearman's ρ of our and the paper's precision and recall over the filters, per (setup, kind, model)
+    of a :func:`side_by_side` frame, with the mean absolute differences and ``n``."""
     d = side[~side["blob"].astype(bool)]
     rows = {}
     for key, g in d.groupby(level=["setup", "kind", "model"], sort=False):
@@ -331,30 +290,17 @@ def method_rank_agreement(side: pd.DataFrame) -> pd.DataFrame:
 
 def tables_markdown(tables: dict, counts: dict, side: pd.DataFrame, rho: pd.DataFrame, *, provenance: dict,
                     data_label: str, pairs_per_kind: pd.Series, features, blobs, max_keypoints=None) -> str:
-    """The Markdown report of the ``tables`` notebook (``tables.md``): Tables 1-3's analogues, next to the paper's.
+    """``tables.md``: Tables 1-3's analogues next to the paper's; the same inputs give the same bytes.
 
     Parameters
     ----------
     tables, counts : dict
-        ``{configuration: frame}``: :func:`~ctxmatch_lib.report.method_table` without the time column and
-        :func:`~ctxmatch_lib.report.gt_counts` (mean ground-truth matches per pair and kind).
+        ``{configuration: frame}`` of :func:`~ctxmatch_lib.report.method_table` (no time column) and
+        :func:`~ctxmatch_lib.report.gt_counts`.
     side, rho : DataFrame
-        :func:`side_by_side` of ``tables`` and its :func:`method_rank_agreement`.
-    provenance : dict
-        Printed on the provenance line (:func:`~ctxmatch_lib.plots.base.provenance`).
-    data_label : str
-        The dataset (or results file) named in the text.
-    pairs_per_kind : Series
-        Pairs per kind of pair (index: ``planar``, ``nonplanar``, ...).
-    features, blobs : sequence of str
-        The feature blocks and blob setups evaluated.
-    max_keypoints : int or str, optional
-        The keypoint budget (``None``: the presets' 8000).
-
-    Returns
-    -------
-    str
-        The same inputs give the same bytes (no clock, no running time).
+        :func:`side_by_side` and :func:`method_rank_agreement`.
+    provenance, data_label, pairs_per_kind, features, blobs, max_keypoints
+        What the text names (``max_keypoints=None``: the presets' 8000).
     """
     kinds = ", ".join(f"{n} {KIND_LABELS[k]}" for k, n in pairs_per_kind.items())
     parts = [
@@ -551,35 +497,25 @@ def _verdict(fn, tabs, setup, kind, model):
 def check_claims(tables: dict, *, paper: dict | None = None) -> pd.DataFrame:
     """The observations of Sec. 5.3 (Fig. 7, Tables 1-3) checked on our tables and on the paper's own.
 
-    Criteria (precision P and recall R in %, "filters" = the 17 of :data:`PAPER_FILTERS` present; a rank is
-    1 + the number of filters strictly better, so ties share the best rank):
-
-    (a) every filter's no-model P > blob's P (per configuration and kind);
-    (b) no model: |P(DTM2) - P(DTM1)| <= 5 points and R(DTM2) > R(DTM1);
-    (c) non-planar, no model: AdaLAM's P ranks among the 3 highest of the filters and R(AdaLAM) < R(DTM2);
-    (d) no model: R(PFM) < R(th) and |P(PFM) - P(th)| <= 10 points;
-    (e) no model, every configuration compared with the paper's "best" table against ``"baseline"``:
-        R(GMS) < R(th) in the baseline and R(GMS) - R(th) is larger in the best configuration than in the
-        baseline;
-    (f) going from no model to 1SAC, blob's P rises and R falls, and so do those of >= 80 % of the filters;
-    (g) planar, 1SAC: blob's R is the highest of the 1SAC rows and its P within 5 points of the highest;
-    (h) no model and 1SAC: DTM2's failures (failures + empty) rank among the 6 lowest of the filters.
+    Criteria (P, R in %; ranks among the 17 :data:`PAPER_FILTERS`, ties sharing the best rank):
+    (a) no model: every filter's P > blob's; (b) no model: |P(DTM2) - P(DTM1)| <= 5, R(DTM2) > R(DTM1);
+    (c) non-planar, no model: AdaLAM's P in the top 3, R(AdaLAM) < R(DTM2); (d) no model: R(PFM) < R(th),
+    |P(PFM) - P(th)| <= 10; (e) R(GMS) < R(th) in "baseline" and the gap R(GMS) - R(th) larger in "best";
+    (f) no model -> 1SAC raises P and lowers R for blob and >= 80 % of the filters; (g) planar, 1SAC: blob's R
+    the highest, its P within 5 of the highest; (h) DTM2's failures + empty among the 6 lowest.
 
     Parameters
     ----------
     tables : dict
-        ``{configuration: method_table frame}`` (index (kind, model, method)).
+        ``{configuration: method_table frame}``.
     paper : dict, optional
-        ``{configuration: the paper's frame}`` for the ``paper_*`` columns; default :func:`paper_tables` for
-        the configurations of :data:`~ctxmatch_lib.report.PAPER_SETUP` (others get "not testable").
+        ``{configuration: the paper's frame}``; default :func:`paper_tables`.
 
     Returns
     -------
     DataFrame
-        One row per claim and scope: ``claim`` (a-h), ``statement`` (the paper's words), ``scope``
-        ("configuration, kind, model", the model by its display name), ``verdict`` ("supported",
-        "contradicted" or "not testable" when a row is missing), ``evidence`` (the numbers),
-        ``paper_verdict`` and ``paper_evidence`` (the same test on the paper's table).
+        One row per claim and scope: ``claim``, ``statement``, ``scope``, ``verdict`` ("supported",
+        "contradicted", "not testable"), ``evidence``, ``paper_verdict``, ``paper_evidence``.
     """
     if paper is None:
         paper = paper_tables([s for s in tables if s in PAPER_SETUP])

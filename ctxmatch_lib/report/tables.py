@@ -1,10 +1,8 @@
-"""Tables and per-figure summaries of the result rows of :mod:`ctxmatch_lib.pipeline`: pure pandas.
+"""Tables of evaluation result rows (one per pair, feature setup, blob setup, method, model): pure pandas.
 
-The input is a results frame, one row per (pair, feature setup, blob setup, method, model), as written by
-``ctxmatch eval`` or :func:`ctxmatch_lib.evaluation.evaluate_cached`. :func:`setup_rows` selects the paper's
-configurations (Sec. 5.3, :data:`SETUPS`); :func:`method_table` builds the analogue of Tables 1-3 and
-:func:`markdown_table` renders it; :func:`paper_table` and :data:`PAPER_GT_COUNTS` hold the paper's own;
-:func:`with_inlier_ratio` and :func:`inlier_bin_table` give the inlier-ratio histograms of ``inl_plot``.
+:func:`setup_rows` selects the paper's configurations (Sec. 5.3, :data:`SETUPS`), :func:`method_table` builds
+the analogue of Tables 1-3, :func:`markdown_table` renders it, :func:`paper_table` holds the paper's own;
+:func:`inlier_bin_table` gives the inlier-ratio histograms.
 """
 
 from __future__ import annotations
@@ -62,10 +60,8 @@ KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (s
 MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC", "magsac": "MAGSAC",
                 "essential": "MAGSAC on E"}
 
-#: Row selections of the paper's three configurations (Sec. 5.3, Tables 1-3): column -> required value (or a
-#: tuple of accepted values). "global" pools every feature block under the two blob setups of the others
-#: (Table 1's candidate and correct counts lie near the means of Tables 2 and 3). "best" is Table 3's
-#: HarrisZ + SOSNet (stand-in weights here); "best-rootsgloh2" the same on HarrisZ + RootsGLOH2 (no stand-in).
+#: Row selections of the paper's configurations (Sec. 5.3, Tables 1-3): column -> value (or tuple of values).
+#: "global" pools every feature block under the blob setups of the other two.
 SETUPS = {
     "global": {"blob": ("baseline", "paper-best-overlap")},
     "baseline": {"blob": "baseline", "features": "sift-rootsift"},
@@ -112,8 +108,7 @@ def method_order(names) -> list:
 
 
 def setup_rows(df: pd.DataFrame, setup="global") -> pd.DataFrame:
-    """The rows of one setting: a name of :data:`SETUPS` or a dict column -> value (or a tuple of values); a
-    column the frame lacks (``features`` in a ``ctxmatch eval`` file) is ignored."""
+    """The rows of a :data:`SETUPS` name or a dict column -> value(s); columns ``df`` lacks are ignored."""
     if isinstance(setup, str) and setup not in SETUPS:
         raise ValueError(f"setup must be one of {list(SETUPS)} or a dict column -> value, got {setup!r}")
     cond = SETUPS[setup] if isinstance(setup, str) else dict(setup)
@@ -130,28 +125,21 @@ def _config_keys(df: pd.DataFrame) -> list:
 
 
 def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
-    """The analogue of the paper's Tables 1-3 for the given rows.
+    """The analogue of the paper's Tables 1-3: means per (kind, model, method), rows with an ``error`` left out.
 
-    Means over each (kind, model, method) group: precision, recall and recall* in % (an empty output counts
-    0 %, as the paper; NaN recalls skipped), correct and output counts. ``failures`` (non-empty outputs
-    without a correct match) and ``empty`` (empty outputs) count pairs, divided by the number of (feature,
-    blob) setups pooled (the paper's failures are their sum). Rows with an ``error`` are left out. ``time
-    (s)`` is the method's own mean time, on the "no model" rows only (the paper's "--" on 1SAC rows);
-    ``pairs`` counts distinct pairs.
+    ``failures`` and ``empty`` count pairs per pooled (feature, blob) setup (the paper's failures are their
+    sum); ``time (s)`` is on the "no model" rows only, as the paper's "--".
 
     Parameters
     ----------
     df : DataFrame
-        Result rows.
     models, kinds : sequence of str, optional
-        Restrict and order the models / kinds (default: those present, in :data:`KIND_LABELS`' order;
-        models none, 1sac, ransac).
+        Restrict and order the models / kinds (default: those present).
 
     Returns
     -------
     DataFrame
-        Index (kind, model, method) with raw names, ordered as the paper (blob first); columns
-        :data:`TABLE_COLUMNS` plus ``pairs``.
+        Index (kind, model, method) in the paper's order; columns :data:`TABLE_COLUMNS` plus ``pairs``.
     """
     cols = list(TABLE_COLUMNS) + ["pairs"]
     if df.empty:
@@ -188,8 +176,7 @@ def method_table(df: pd.DataFrame, *, models=None, kinds=None) -> pd.DataFrame:
 
 
 def gt_counts(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean ground-truth matches per pair, one row per kind, as in the captions of Tables 1-3: ``n_gt`` (the
-    recall reference) and ``n_gt_star`` (the recall* reference)."""
+    """Mean ``n_gt`` and ``n_gt_star`` per pair and kind, as in the captions of Tables 1-3."""
     d = df[(df["method"] == "blob") & (df["model"] == df["model"].iloc[0])] if len(df) else df
     return d.groupby("kind", sort=False)[["n_gt", "n_gt_star"]].mean()
 
@@ -202,12 +189,10 @@ def _fmt(value, fmt: str, missing: str = "–") -> str:
 
 def markdown_table(table: pd.DataFrame, *, formats=None, labels: bool = True, blank_repeats: bool = True,
                    missing: str = "–") -> str:
-    """Render a :func:`method_table` (or any frame with a (kind, model, method) index) as a Markdown table.
+    """Render a :func:`method_table` (or any indexed frame) as a Markdown table.
 
-    Index levels become left-aligned columns, columns right-aligned ones. ``formats`` maps columns to format
-    specs (default: 2 decimals for %, 0 for counts, 3 significant digits for failures, 3 decimals for time,
-    ``.4g`` otherwise); ``labels`` shows the paper's display names; ``blank_repeats`` blanks an index cell
-    that repeats the row above (every level but the last); ``missing`` is the cell of a NaN.
+    ``formats`` maps columns to format specs; ``labels`` shows the paper's display names; ``blank_repeats``
+    blanks an index cell repeating the row above; ``missing`` is the cell of a NaN.
     """
     fmts = {"precision (%)": ".2f", "recall (%)": ".2f", "recall* (%)": ".2f", "correct": ".0f", "output": ".0f",
             "failures": ".3g", "empty": ".3g", "time (s)": ".3f", "pairs": ".0f", "n": ".0f"}
@@ -253,11 +238,8 @@ PAPER_GT_COUNTS = _read_gt_counts()
 
 
 def paper_table(setup: str | None = None) -> pd.DataFrame:
-    """The paper's Tables 1-3 (Appendix "DTM evaluation") in :func:`method_table`'s layout: ``setup`` is
-    ``"global"`` (Table 1), ``"baseline"`` (Table 2) or ``"best"`` (Table 3); ``None`` gives all three with a
-    ``setup`` column. ``time (s)`` is NaN where the paper prints "--"; ``empty`` is NaN (the paper's
-    ``failures`` include empty outputs). Read from ``ctxmatch_lib/data/paper_tables.csv``
-    (:mod:`ctxmatch_lib.report.paper`)."""
+    """The paper's Table 1 (``"global"``), 2 (``"baseline"``) or 3 (``"best"``) in :func:`method_table`'s
+    layout; ``None`` gives all three. ``empty`` is NaN (the paper's failures include empty outputs)."""
     t = pd.read_csv(_PAPER_TABLES_CSV)
     t = t.rename(columns={"precision": "precision (%)", "recall": "recall (%)", "recall_star": "recall* (%)",
                           "time_s": "time (s)"})
@@ -271,8 +253,8 @@ def paper_table(setup: str | None = None) -> pd.DataFrame:
 
 
 def with_inlier_ratio(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with an ``inlier_ratio`` column: the precision of the blob candidates (model ``none``) of the
-    same pair and setup (Sec. 5.3: "blob matching precision gives an indication of the average inlier ratio")."""
+    """``df`` with an ``inlier_ratio`` column: the blob candidates' precision on the same pair and setup
+    (Sec. 5.3)."""
     keys = ["pair_id"] + _config_keys(df)
     ref = df[(df["method"] == "blob") & (df["model"] == "none")][keys + ["precision"]]
     ref = ref.rename(columns={"precision": "inlier_ratio"}).drop_duplicates(keys)
@@ -280,20 +262,14 @@ def with_inlier_ratio(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def inlier_bin_table(df: pd.DataFrame, bins=(0.0, 0.1, 0.2, 0.3, 0.5, 1.0)) -> pd.DataFrame:
-    """Precision and recall by inlier-ratio bin (the histograms of ``inl_plot``).
+    """``precision (%)``, ``recall (%)``, ``n`` and ``share (%)`` per (inlier-ratio bin, model, method).
 
     Parameters
     ----------
     df : DataFrame
-        Result rows (``inlier_ratio`` is added by :func:`with_inlier_ratio` when missing).
+        Result rows (:func:`with_inlier_ratio` is applied when needed).
     bins : sequence of float
-        Increasing edges in [0, 1]; bins are closed on the left, the last one on both sides.
-
-    Returns
-    -------
-    DataFrame
-        Index (bin, model, method), bins labelled like ``"10-20 %"``; columns ``precision (%)``, ``recall
-        (%)`` (means in the bin), ``n`` and ``share (%)`` (of all (pair, setup) cases). Empty bins are kept.
+        Increasing edges in [0, 1]; closed on the left, the last bin on both sides.
     """
     edges = np.asarray(bins, np.float64)
     if edges.ndim != 1 or len(edges) < 2 or np.any(np.diff(edges) <= 0):
@@ -326,10 +302,8 @@ GEOMETRY_TIME_COLUMNS = ("geometry_time_s", "geometry_time_median_s")
 
 def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "",
                       keep_times: bool = False) -> str:
-    """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report (``geometry.md``) under
-    the heading ``title``, a provenance line and ``notes``. The running times
-    (:data:`GEOMETRY_TIME_COLUMNS`) are left out, so the same numbers give the same bytes, unless
-    ``keep_times`` (``executed/geometry_times.md``)."""
+    """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report, without the running
+    times (:data:`GEOMETRY_TIME_COLUMNS`) unless ``keep_times``."""
     dropped = () if keep_times else GEOMETRY_TIME_COLUMNS
     t = table.drop(columns=[c for c in dropped if c in table.columns]).dropna(axis=1, how="all")
     # Every line names its setup, kind, method and model in full (readable alone in grep or diff).

@@ -1,11 +1,6 @@
-"""Training sets built from the project's own pipeline, above the evaluation engine.
-
-The learned filters sit under the engine and never build candidates; this package builds their training sets
-with the engine's per-pair steps (:mod:`.blobsets`) and hands them over: :func:`blob_training_sets` (training
-and held-out validation sets) and :func:`train_on_blob_candidates` (those sets, then
-:func:`ctxmatch_lib.filters.learned.train_learned_filter` with ``data="blob"``; needs torch). Nothing here
-reads ``CTXMATCH_DATA``.
-"""
+"""Training sets of blob candidates built with the engine's per-pair steps (:mod:`.blobsets`), above the
+learned filters, which never build candidates: :func:`blob_training_sets` and
+:func:`train_on_blob_candidates` (needs torch)."""
 
 from __future__ import annotations
 
@@ -23,18 +18,10 @@ BLOB_MIN_CANDIDATES = 100
 
 def blob_training_sets(n_scenes: int = BLOB_SCENES, seed: int = 0, *, min_candidates: int = BLOB_MIN_CANDIDATES,
                        val_fraction: float = BLOB_VAL_FRACTION, cache_dir=None, progress: bool = False):
-    """Training and validation blob sets of ``n_scenes`` generated scenes (:func:`.blobsets.build_sets`).
-
-    The last ``val_fraction`` of the scenes (at least one when ``n_scenes > 1``) are held out; sets with fewer
-    than ``min_candidates`` rows or no inlier are left out. ``n_scenes``, ``seed``, ``cache_dir``,
-    ``progress``: as in :func:`.blobsets.build_sets`.
-
-    Returns
-    -------
-    (list of BlobSet, list of BlobSet, dict)
-        Training sets, validation sets, description: the ``blob_sets`` argument of
-        :func:`~ctxmatch_lib.filters.learned.train_learned_filter`.
-    """
+    """``(train, validation, description)`` blob sets of :func:`.blobsets.build_sets`: the ``blob_sets``
+    argument of :func:`~ctxmatch_lib.filters.learned.train_learned_filter`. The last ``val_fraction`` of the
+    scenes (at least one when ``n_scenes > 1``) are held out; sets under ``min_candidates`` rows or without
+    an inlier are dropped."""
     if not 0 <= val_fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction!r}")
     sets = build_sets(n_scenes, seed, cache_dir=cache_dir, progress=progress)
@@ -47,12 +34,8 @@ def blob_training_sets(n_scenes: int = BLOB_SCENES, seed: int = 0, *, min_candid
 
 
 def train_on_blob_candidates(arch: str, *, n_scenes: int = BLOB_SCENES, seed: int = 0, cache_dir=None, **kwargs):
-    """Train OANet or ACNe on blob candidate sets: :func:`blob_training_sets` of ``seed``, then
-    :func:`~ctxmatch_lib.filters.learned.train_learned_filter` with ``data="blob"`` and the same ``seed``.
-
-    ``kwargs`` are those of :func:`~ctxmatch_lib.filters.learned.train_learned_filter` (``steps``, ``init``,
-    ``balanced``, ``output``, ...). Needs torch.
-    """
+    """Train OANet or ACNe on :func:`blob_training_sets`: :func:`~ctxmatch_lib.filters.learned.train_learned_filter`
+    with ``data="blob"``, the same ``seed`` and ``kwargs`` (``steps``, ``init``, ``output``, ...). Needs torch."""
     from ..filters.learned import require_torch, train_learned_filter
 
     require_torch()

@@ -1,19 +1,8 @@
-"""Training candidate sets like the real ones: the project's own blob candidates on generated image pairs.
-
-The networks should see in training what they filter (Sec. 5.1): blob candidates (presets ``baseline`` and
-``paper-best-overlap``) of SIFT / HarrisZ features at the paper's budget, with their many-to-many rows,
-orientation copies and near misses on repeated texture. Never reads ``CTXMATCH_DATA``: the images are
-scikit-image's photos (:data:`SOURCE_IMAGES`), longer side 1024 px as the real pairs. A scene
-(:func:`make_scene`) is a random **homography** (:func:`~ctxmatch_lib.filters.learned.data.random_homography`)
-or a **layered** scene (one to three elliptical layers cut from other photos, each with its own homography
-over the background's, drawn in order so each hides what lies behind it); image 2 also gets a photometric
-change. A candidate is an inlier within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` of the true position
-of its image-1 keypoint (none when it leaves the image or is occluded).
-
-Sets are cached as ``.npz`` under ``cache_dir("learned-sets")``, one file per scene, keyed by
-:data:`GENERATOR_VERSION`, the seed and the scene index; scene ``i`` draws from ``SeedSequence([seed, i])``,
-so it is the same whatever the number of scenes. Keypoints are (x, y) pixels, origin at the centre of the
-top-left pixel; image sizes are (width, height).
+"""Training sets like what the learned filters see (Sec. 5.1): the project's blob candidates (:data:`BLOBS`,
+:data:`FEATURES`) on generated pairs of scikit-image photos (:func:`make_scene`), labelled by the known warp
+within :data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX` (:func:`scene_sets`); never reads ``CTXMATCH_DATA``.
+:func:`build_sets` caches one ``.npz`` per scene under ``cache_dir("learned-sets")``, keyed by
+:data:`GENERATOR_VERSION`, the seed and the scene index. Overview: ``docs/filters.md``.
 """
 
 from __future__ import annotations
@@ -144,7 +133,9 @@ class Scene:
 
 
 def make_scene(images, rng, kind: str | None = None) -> Scene:
-    """One random pair from ``images`` (see the module docstring); ``kind`` default: either, equally likely."""
+    """One random pair from ``images``: a ``"homography"`` warp, or ``"layered"`` (one to three elliptical
+    layers of other photos, each with its own homography, hiding what lies behind); image 2 also gets a
+    photometric change. ``kind`` default: either, equally likely."""
     rng = np.random.default_rng(rng)
     kind = kind or ("homography" if rng.uniform() < 0.5 else "layered")
     if kind not in ("homography", "layered"):
@@ -235,23 +226,9 @@ def _load(path: Path) -> list[BlobSet]:
 
 
 def build_sets(n_scenes: int, seed: int = 0, *, cache_dir=None, progress: bool = False) -> list[BlobSet]:
-    """The sets of scenes ``0 .. n_scenes - 1`` of ``seed``, computed once and cached (see the module docstring).
-
-    Parameters
-    ----------
-    n_scenes : int
-        Number of generated pairs; each gives ``len(FEATURES) * len(BLOBS)`` sets.
-    seed : int
-        Scene ``i`` draws from ``np.random.SeedSequence([seed, i])``.
-    cache_dir : str or Path, optional
-        Default ``ctxmatch_lib.cache.cache_dir("learned-sets")``.
-    progress : bool
-        A progress bar.
-
-    Returns
-    -------
-    list of BlobSet
-    """
+    """The sets (:func:`scene_count` per scene) of scenes ``0 .. n_scenes - 1``, computed once and cached in
+    ``cache_dir`` (default ``cache_dir("learned-sets")``). Scene ``i`` draws from ``SeedSequence([seed, i])``,
+    so it is the same whatever ``n_scenes``."""
     if not isinstance(n_scenes, (int, np.integer)) or n_scenes < 1:
         raise ValueError(f"n_scenes must be a positive int, got {n_scenes!r}")
     root = _cache_root(cache_dir)

@@ -1,14 +1,8 @@
 """Learned match filters: OANet (Zhang et al., ICCV 2019) and ACNe (Sun et al., CVPR 2020), with weights trained here.
 
-The paper compares DTM with OANet and ACNe (Sec. 5, Tables 1-3, Fig. 9). The authors' weights cannot be
-obtained here, so the shipped weights (``weights/{oanet,acne}_trained_here.npz``, smaller networks) are
-**trained here** by :func:`train_learned_filter` on generated correspondences (:mod:`.data`); the authors'
-checkpoints load with ``weights=``. The filters run in numpy (:mod:`.npnets`); torch is needed only to
-train, to read ``.pt``/``.pth`` checkpoints and for ``backend="torch"`` (``ImportError`` with the install
-hint otherwise).
-
-Main functions: :func:`oanet_filter`, :func:`acne_filter` (registry ``"oanet"``, ``"acne"``),
-:func:`learned_logits`, :func:`train_learned_filter`, :func:`shipped_weights`.
+Compared with DTM in Sec. 5, Tables 1-3, Fig. 9. The shipped, smaller networks are **trained here**
+(:func:`train_learned_filter`, :mod:`.data`); ``weights=`` loads the authors' checkpoints. Inference is
+numpy (:mod:`.npnets`); torch is needed only to train, to read ``.pt``/``.pth`` and for ``backend="torch"``.
 """
 
 from __future__ import annotations
@@ -44,47 +38,25 @@ def train_learned_filter(arch: str, *, steps: int | None = None, batch_size: int
     Parameters
     ----------
     arch : {"oanet", "acne"}
-    steps : int, optional
-        Optimisation steps; default: those of the shipped weights (:data:`~.training.TRAINED_HERE_STEPS`),
-        which the other defaults then reproduce (same torch version and CPU kind).
-    batch_size : int, default 8
-        Candidate sets per step.
+    steps, batch_size : int, optional, and int, default 8
+        Optimisation steps (default: the shipped weights', :data:`~.training.TRAINED_HERE_STEPS`); sets per step.
     n_candidates : int or (int, int), default (500, 1500)
         K, or the range it is drawn from per step (``data="blob"``: its high end caps K).
-    lr : float, default 1e-3
-        Initial learning rate (the authors' value).
-    seed : int, default 0
-        Seeds the data and the initialisation: same seed and thread count, same weights.
-    config : dict, optional
-        Overrides of the network shape (:data:`~.training.TRAINED_HERE_CONFIGS`).
-    output : str or Path, optional
-        Where to save the weights (labelled "trained here").
-    max_images : int, optional
-        Only the first embedded images as keypoint sources (tiny runs).
-    num_threads, progress : int, bool, default 1, True
-        torch intra-op threads during training; a tqdm progress bar.
-    validate : bool, default True
-        Precision and recall of ``logit > 0`` at the end, on generated sets at 40 % inliers or on the
-        held-out blob sets.
-    data : {"generated", "blob"}, default "generated"
-        The training sets: :mod:`.data`, or ``blob_sets``.
-    balanced : bool, default False
-        The OANet / CNe authors' balanced loss instead of the plain mean binary cross-entropy.
-    init : str or Path, optional
-        Start from these weights (same shape): fine-tuning.
-    blob_sets : (list, list, dict), optional
-        With ``data="blob"``: training sets, validation sets, description
-        (:func:`ctxmatch_lib.training.blob_training_sets`).
+    lr, seed : float, int, default 1e-3 and 0
+        Initial learning rate (the authors'); seed of data and initialisation (same seed, same weights).
+    config, output, init : dict, path, path, optional
+        Network shape overrides (:data:`~.training.TRAINED_HERE_CONFIGS`); where to save; weights to start from.
+    max_images, num_threads, progress : int, int, bool, default None, 1, True
+        Only the first embedded images as keypoint sources; torch threads; a tqdm progress bar.
+    validate, balanced : bool, default True and False
+        Precision and recall of ``logit > 0`` at the end; the OANet / CNe authors' balanced loss.
+    data, blob_sets : {"generated", "blob"}, (list, list, dict)
+        Sets of :mod:`.data`, or ``blob_sets`` (:func:`ctxmatch_lib.training.blob_training_sets`).
 
     Returns
     -------
     TrainResult
-        ``.net`` (eval mode), ``.losses`` per step, ``.validation``, ``.seconds``, ``.path``.
-
-    Raises
-    ------
-    ImportError
-        PyTorch is not installed.
+        ``.net`` (eval mode), ``.losses``, ``.validation``, ``.seconds``, ``.path``; ``ImportError`` without torch.
     """
     require_torch()
     from .training import train

@@ -1,19 +1,10 @@
 """Loading and saving the learned filters' weights (imports torch: reach it through the lazy public face).
 
-The torch side of the weights: training output, torch checkpoints, and their conversion to the ``.npz``
-read without torch (:func:`convert_to_npz`; ``python -m ctxmatch_lib.filters.learned.checkpoints ARCH
-WEIGHTS OUT.npz``). :func:`load_model` reads four formats:
-
-* **ctxmatch .npz** (the shipped weights): ``state_dict`` arrays and a JSON ``__meta__``
-  (:func:`.npnets.save_npz`);
-* **ctxmatch .pt**: a ``torch.save`` dict ``{"format": FORMAT, "version": 1, "arch", "config",
-  "state_dict", "input", "label", "training"}``, ``input`` naming the normalisation and side channels;
-* **OANet release** (zjhthu/OANet): ``model_best.pth`` or a bare ``state_dict``, the shape read off the
-  parameters; their demo's input is ``normalization="hartley"`` and, with side information,
-  ``side="ratio_mutual"``;
-* **ACNe release** (vcg-uvic/acne, TensorFlow 1): a ``tf.train.Saver`` checkpoint read by :mod:`.tfbundle`,
-  ``Matchnet/`` variables mapped onto :class:`~.nets.ACNe`; only the released configuration (group
-  normalisation, no output non-linearity).
+:func:`load_model` reads the ctxmatch ``.npz`` (:func:`.npnets.save_npz`) and ``.pt`` (a ``torch.save``
+dict with ``"format": FORMAT``), the OANet release's ``model_best.pth`` or bare ``state_dict`` (input
+``"hartley"``, side ``"ratio_mutual"`` with side information) and the ACNe release's TensorFlow checkpoint
+(:mod:`.tfbundle`; released configuration only). :func:`convert_to_npz` (``python -m
+ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz``) writes the ``.npz`` read without torch.
 """
 
 from __future__ import annotations
@@ -132,12 +123,7 @@ def convert_to_npz(arch: str, weights, output) -> Path:
 def load_model(arch: str, weights) -> LoadedModel:
     """Load the network ``arch`` ("oanet" or "acne") from ``weights`` in any supported format.
 
-    Raises
-    ------
-    FileNotFoundError
-        ``weights`` does not exist.
-    ValueError
-        The file is not a checkpoint of ``arch`` in a supported format.
+    ``FileNotFoundError`` if ``weights`` does not exist, ``ValueError`` if it is no checkpoint of ``arch``.
     """
     if arch not in ("oanet", "acne"):
         raise ValueError(f"arch must be 'oanet' or 'acne', got {arch!r}")

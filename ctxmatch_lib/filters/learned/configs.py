@@ -9,13 +9,10 @@ __all__ = ["OANetConfig", "ACNeConfig"]
 
 @dataclass(frozen=True)
 class OANetConfig:
-    """Shape of an OANet.
+    """Shape of an OANet (defaults: the authors' release).
 
-    ``net_depth`` counts the layers of all blocks together (each of the ``iter_num + 1`` blocks gets
-    ``net_depth // (iter_num + 1)``), ``clusters`` is the DiffPool size M, ``side_channels`` the side
-    information channels after the 4 coordinates. The authors' release uses 128 channels, depth 12, 500
-    clusters, 1 iteration; the weights trained here use a smaller network
-    (:data:`~ctxmatch_lib.filters.learned.training.TRAINED_HERE_CONFIGS`).
+    ``net_depth``: layers of all ``iter_num + 1`` blocks together; ``clusters``: the DiffPool size M;
+    ``side_channels``: channels after the 4 coordinates.
     """
 
     net_channels: int = 128
@@ -30,10 +27,7 @@ class OANetConfig:
 
 @dataclass(frozen=True)
 class ACNeConfig:
-    """Shape of an ACNe: ``net_depth`` residual blocks of ``num_inner`` ACN layers of ``net_channels``.
-
-    The authors' release uses 128 channels, 12 blocks of 2 layers, group normalisation in 32 groups.
-    """
+    """Shape of an ACNe: ``net_depth`` residual blocks of ``num_inner`` ACN layers (defaults: the release)."""
 
     net_channels: int = 128
     net_depth: int = 12

@@ -1,17 +1,10 @@
 """Training correspondences the project generates itself (numpy only), for the learned filters trained here.
 
-Never reads ``CTXMATCH_DATA``. Keypoint positions are OpenCV SIFT keypoints of the embedded dataset's
-images (:func:`keypoint_pool`), so correspondences sit where real keypoints sit. Each set
-(:func:`random_training_set`) draws its geometry: a random **homography**, or a **layered** scene (one or
-two elliptical foreground layers moving on their own over the background, with occlusion). Inliers: true
-positions plus Gaussian noise (0.3-2.5 px); outliers, in random proportions: a uniform position, another
-keypoint's position (descriptor outliers land on keypoints), or a near miss 20-100 px off that shares an
-inlier's image-1 keypoint (many-to-many). Inlier ratio uniform in 5-60 %; labels by the evaluation's
-:data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX`. Scores (lower is better) carry a random informativeness
-``q``: inliers ``u ** (1 + 3q)``, outliers ``u ** (1 / (1 + 3q))``; one set in ten has none. The networks
-read only their ranks (:func:`score_rank`).
-
-Keypoints are (x, y) pixels, origin at the centre of the top-left pixel; image sizes are (width, height).
+SIFT keypoints of the embedded images (:func:`keypoint_pool`; never ``CTXMATCH_DATA``) moved by a random
+homography or layered scene with occlusion (:func:`random_training_set`); 0.3-2.5 px inlier noise; outliers
+uniform, on other keypoints, or near misses 20-100 px off; 5-60 % inliers, labelled by
+:data:`~ctxmatch_lib.groundtruth.GT_THRESHOLD_PX`; scores of random informativeness ``q`` (inliers
+``u ** (1 + 3q)``, outliers ``u ** (1 / (1 + 3q))``).
 """
 
 from __future__ import annotations
@@ -47,22 +40,15 @@ class TrainingSet:
 
 # ----------------------------------------------------------------------------------- network input
 def normalise_coordinates(pts: np.ndarray, image_size, mode: str = "image") -> np.ndarray:
-    """Keypoints in the coordinates the networks read.
+    """Keypoints (K, 2) in the coordinates the networks read (float64).
 
     Parameters
     ----------
-    pts : ndarray of shape (K, 2)
-        (x, y) pixels, origin at the centre of the top-left pixel.
-    image_size : (int, int)
-        (width, height) of the image the points belong to.
+    pts, image_size : ndarray of shape (K, 2), (int, int)
+        (x, y) pixels (origin at the centre of the top-left pixel) and their image's (width, height).
     mode : {"image", "hartley"}
-        ``"image"`` (the weights trained here): ``(p + 0.5 - size / 2) / (max(width, height) / 2)``, the
-        longer side spanning [-1, 1]. ``"hartley"`` (the OANet authors' demo): zero mean, mean distance
-        sqrt(2).
-
-    Returns
-    -------
-    ndarray of shape (K, 2), float64
+        ``"image"`` (weights trained here): the longer side spans [-1, 1]; ``"hartley"`` (OANet authors'
+        demo): zero mean, mean distance sqrt(2).
 
     Examples
     --------
@@ -104,9 +90,8 @@ def score_rank(scores: np.ndarray) -> np.ndarray:
 def network_input(x1, x2, scores, size1, size2, *, normalization: str = "image", side: str = "none") -> np.ndarray:
     """The ``(C, K)`` float32 input of a network: normalised x1, y1, x2, y2, then the side channels.
 
-    ``side``: ``"none"``; ``"score_rank"`` (the OANet trained here: :func:`score_rank` of the scores);
-    ``"ratio_mutual"`` (the OANet authors' side-information models: the score as the ratio-test value and
-    1 as the mutual-nearest-neighbour flag).
+    ``side``: ``"none"``, ``"score_rank"`` (OANet trained here) or ``"ratio_mutual"`` (the OANet authors'
+    models: the score as ratio-test value, 1 as mutual-check flag).
     """
     a = normalise_coordinates(x1, size1, normalization)
     b = normalise_coordinates(x2, size2, normalization)
@@ -124,11 +109,7 @@ def network_input(x1, x2, scores, size1, size2, *, normalization: str = "image",
 # ------------------------------------------------------------------------------------ keypoint pool
 @lru_cache(maxsize=4)
 def keypoint_pool(max_images: int | None = None, max_keypoints: int = 3000) -> tuple:
-    """SIFT keypoint positions of the embedded dataset's images: a tuple of ``(points (M, 2), (w, h))``.
-
-    Images are taken in the order of the embedded dataset's pairs (both images of each pair, each image
-    once); ``max_images`` keeps the first ones (tiny runs). Deterministic.
-    """
+    """SIFT keypoint positions of the embedded images, in pair order: a tuple of ``(points (M, 2), (w, h))``."""
     import cv2
 
     from ...datasets import load_dataset
@@ -233,10 +214,9 @@ def _true_positions(pts, size, rng, kind):
 
 def random_training_set(pool, n_candidates: int, rng=None, *, kind: str | None = None,
                         inlier_ratio: float | None = None) -> TrainingSet:
-    """One generated :class:`TrainingSet` of ``n_candidates`` rows (see the module notes).
+    """One generated :class:`TrainingSet` of ``n_candidates`` rows from ``pool`` (:func:`keypoint_pool`).
 
-    ``pool``: keypoint positions and size per image (:func:`keypoint_pool`); ``rng``: None, int or Generator;
-    ``kind`` (default: either, equally likely) and ``inlier_ratio`` (default: uniform in 5-60 %) fix a draw.
+    ``kind`` (default: either) and ``inlier_ratio`` (default: uniform in 5-60 %) fix those draws.
     """
     rng = np.random.default_rng(rng)
     kind = kind or ("homography" if rng.uniform() < 0.5 else "layered")

@@ -1,10 +1,8 @@
 """The ``oanet`` and ``acne`` entries of the filter registry (numpy inference: torch is not needed).
 
-Both filters score every candidate with a permutation-equivariant network and keep those whose inlier logit
-exceeds ``threshold`` (default 0: inlier probability above 1/2, the authors' test threshold). Default
-weights: **trained here** (``weights/``); ``weights=`` also reads the authors' checkpoints
-(:mod:`.checkpoints`). Inference is numpy (:mod:`.npnets`); ``learned_logits(..., backend="torch")`` runs
-the training modules of :mod:`.nets` instead, to check that the two agree.
+Both keep the candidates whose inlier logit exceeds ``threshold`` (default 0, the authors' test threshold).
+Default weights: **trained here** (``weights/``). Inference is numpy (:mod:`.npnets`);
+``learned_logits(..., backend="torch")`` runs the torch modules of :mod:`.nets`, to check that they agree.
 """
 
 from __future__ import annotations
@@ -15,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..._numerics.docstrings import shared_doc
 from ..._numerics.order import canonical_order, spread_back
 from .._common import prepare
 
@@ -84,8 +83,7 @@ def _load_numpy(arch: str, path: Path):
 
 
 def load_numpy_model_cached(arch: str, weights=None):
-    """The :class:`~.npnets.NumpyModel` for ``arch`` from ``weights`` (default: trained here), cached by
-    path and modification time; reading a ``.pt``/``.pth`` checkpoint needs torch."""
+    """The :class:`~.npnets.NumpyModel` of ``weights`` (default: trained here), cached by path and mtime."""
     return _cached("numpy", _load_numpy, arch, weights)
 
 
@@ -112,8 +110,8 @@ def learned_logits(arch: str, kpts1, kpts2, matches, scores=None, *, image_size1
                    normalization: str | None = None, backend: str = "numpy") -> np.ndarray:
     """Inlier logits of the candidates, shape ``(K,)``, from the network ``arch`` ("oanet" or "acne").
 
-    Parameters are those of :func:`oanet_filter`, and ``backend``: ``"numpy"`` (default) or ``"torch"`` (the
-    training modules; a single candidate is scored by numpy, torch's instance norm refuses K = 1).
+    Parameters as :func:`oanet_filter`; ``backend``: ``"numpy"`` or ``"torch"`` (the training modules;
+    K = 1 is scored by numpy, as torch's instance norm refuses it).
     """
     if backend not in _BACKENDS:
         raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
@@ -148,21 +146,17 @@ def _filter(arch, kpts1, kpts2, matches, scores, image_size1, image_size2, weigh
     return spread_back(logits > threshold, order, twins)
 
 
+@shared_doc
 def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2, shapes1=None, shapes2=None,
                  weights=None, threshold: float = 0.0, normalization: str | None = None) -> np.ndarray:
     """OANet (Zhang et al., ICCV 2019) as a match filter; default weights **trained here**.
 
-    The network reads each candidate's normalised coordinates and, as side information, its score rank (the
-    weights trained here; the authors' side-information models read the ratio-test value and the
-    mutual-check flag). The second stage adds the epipolar residuals of the first stage's weighted
-    eight-point fit; the candidates whose last-stage logit exceeds ``threshold`` are kept.
+    Reads coordinates and score ranks; the second stage adds the first's epipolar residuals (Eq. (9)).
 
     Parameters
     ----------
-    kpts1, kpts2 : ndarray of shape (N1, 2) and (N2, 2)
-        Keypoints as (x, y) pixels, origin at the centre of the top-left pixel.
-    matches : ndarray of shape (K, 2)
-        Indices into ``kpts1`` and ``kpts2`` (many-to-many allowed).
+    %(kpts)s
+    %(matches)s
     scores : ndarray of shape (K,) or None
         Lower is better; only their ranks are used. ``None``: all equal.
     image_size1, image_size2 : (int, int)
@@ -170,8 +164,8 @@ def oanet_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2
     shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
         Unused.
     weights : str or Path, optional
-        Ours (``.npz`` or ``.pt``) or the authors' ``model_best.pth`` (``.pt``/``.pth`` need torch: else
-        ``ImportError``). Default: ``weights/oanet_trained_here.npz``.
+        Ours (``.npz``, ``.pt``) or the authors' ``model_best.pth`` (``.pt``/``.pth`` need torch).
+        Default: ``weights/oanet_trained_here.npz``.
     threshold : float, default 0
         Keep ``logit > threshold``.
     normalization : {"image", "hartley"}, optional
@@ -193,9 +187,8 @@ def acne_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
                 weights=None, threshold: float = 0.0, normalization: str | None = None) -> np.ndarray:
     """ACNe (Sun et al., CVPR 2020) as a match filter; default weights **trained here**.
 
-    The network reads only the normalised coordinates (no side information: ``scores`` are validated and
-    ignored) and keeps the candidates whose inlier logit (the output layer's local attention) exceeds
-    ``threshold``.
+    Reads only the normalised coordinates (``scores`` are validated, unused); the inlier logit is the
+    output layer's local attention.
 
     Parameters
     ----------
@@ -211,8 +204,7 @@ def acne_filter(kpts1, kpts2, matches, scores=None, *, image_size1, image_size2,
 
     References
     ----------
-    W. Sun et al., "ACNe: Attentive context normalization for robust permutation-equivariant learning",
-    CVPR 2020.
+    W. Sun et al., "ACNe: Attentive context normalization for robust permutation-equivariant learning", CVPR 2020.
     """
     return _filter("acne", kpts1, kpts2, matches, scores, image_size1, image_size2, weights, threshold,
                    normalization)

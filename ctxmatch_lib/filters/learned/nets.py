@@ -1,16 +1,8 @@
 """The OANet and ACNe networks as torch modules (imports torch: load it through the lazy public face).
 
-Both are permutation equivariant: every layer is a 1x1 convolution or a normalisation/pooling over the
-correspondences. Input ``(B, 4 + side, N)`` (normalised x1, y1, x2, y2, then side channels), output inlier
-logits ``(B, N)``.
-
-:class:`OANet` (Zhang et al., ICCV 2019, Sec. 3-4): PointCN blocks, DiffPool to M clusters (Eq. (3)),
-Order-Aware Filtering on the clusters, DiffUnpool (Eq. (6)), PointCN on the concatenation; the second stage
-adds the epipolar residual of the first's weighted eight-point fit (Eq. (9)) and its weights
-``relu(tanh(logit))``. Names follow the authors' release, so their ``state_dict`` loads unchanged.
-
-:class:`ACNe` (Sun et al., CVPR 2020, Sec. 3-4): residual blocks of (1x1 conv, ACN, group norm, ReLU)
-layers; ACN normalises by the statistics weighted by ``softmax_i(g_i) * sigmoid(l_i)`` (Eq. (5)-(7)).
+Input ``(B, 4 + side, N)`` (normalised x1, y1, x2, y2, side channels), output inlier logits ``(B, N)``.
+:class:`OANet` (Zhang et al., ICCV 2019, Sec. 3-4), named as the authors' release so their ``state_dict``
+loads; :class:`ACNe` (Sun et al., CVPR 2020, Sec. 3-4).
 """
 
 from __future__ import annotations
@@ -26,11 +18,8 @@ __all__ = ["OANetConfig", "ACNeConfig", "OANet", "ACNe", "weighted_eight_point",
 
 # --------------------------------------------------------------------------------------------- geometry
 def weighted_eight_point(x: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Weighted eight-point estimate (OANet Eq. (9), after Yi et al.), in float64.
-
-    ``x`` (B, N, 4) normalised (x1, y1, x2, y2), ``weights`` (B, N) non-negative; returns (B, 3, 3) unit
-    Frobenius norm ``F`` minimising ``sum_i w_i (x2_i^T F x1_i)^2`` (smallest eigenvector of ``X^T W X``).
-    """
+    """Weighted eight-point estimate (OANet Eq. (9)): unit-norm ``F`` (B, 3, 3), float64, minimising
+    ``sum_i w_i (x2_i^T F x1_i)^2`` for ``x`` (B, N, 4) and ``weights`` (B, N)."""
     x = x.double()
     x1, y1, x2, y2 = x.unbind(-1)
     one = torch.ones_like(x1)
@@ -42,10 +31,7 @@ def weighted_eight_point(x: torch.Tensor, weights: torch.Tensor) -> torch.Tensor
 
 
 def epipolar_residual(x: torch.Tensor, F: torch.Tensor) -> torch.Tensor:
-    """Squared symmetric epipolar distance of each correspondence, shape ``(B, N)``.
-
-    ``(x2^T F x1)^2 (1 / |(F x1)_{1:2}|^2 + 1 / |(F^T x2)_{1:2}|^2)`` in normalised coordinates.
-    """
+    """Squared symmetric epipolar distance ``(B, N)``: ``(x2' F x1)^2 (1 / |(F x1)_12|^2 + 1 / |(F' x2)_12|^2)``."""
     x = x.double()
     F = F.double()
     one = torch.ones_like(x[..., :1])

@@ -1,15 +1,8 @@
 """OANet and ACNe inference in numpy: the default engine of the ``oanet`` and ``acne`` filters (no torch).
 
-The layers of :mod:`.nets` on one candidate set ``(C, K)``, from the same parameters (``state_dict`` names,
-float32 arrays); the input is rounded to float32 as in training, but :meth:`NumpyModel.logits` evaluates in
-float64, so that the decision ``logit > threshold`` does not follow the BLAS kernel (docs/filters.md). A 1x1
-convolution is ``W @ x + b``; context normalisation uses the biased variance over the K candidates (0 for
-one candidate, which torch refuses); batch normalisation its running statistics, group normalisation
-(ACNe) each group's statistics over the candidates; OANet's second stage reads
-the epipolar residual of the first's weighted eight-point fit (Eq. (9)).
-
-Weights: the ctxmatch ``.npz`` (:func:`save_npz`, :func:`load_npz`), the ACNe authors' TensorFlow
-checkpoints (:mod:`.tfbundle`), or a torch checkpoint through :func:`.checkpoints.load_model` (needs torch).
+The layers of :mod:`.nets` on one candidate set ``(C, K)`` from the same ``state_dict``, evaluated in
+float64 (input rounded to float32 as in training) so that ``logit > threshold`` does not follow the BLAS
+kernel; one candidate is allowed. Weights: :func:`save_npz` / :func:`load_npz`, or :mod:`.tfbundle`.
 """
 
 from __future__ import annotations
@@ -64,8 +57,7 @@ def _softmax(x: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _gated(s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``s * sigmoid(x)`` without overflow: ``s / (1 + exp(-x))`` for ``x >= -80``, ``s exp(x) / (1 + exp(x))``
-    below (``exp(-x)`` overflows float32 from -88.7)."""
+    """``s * sigmoid(x)`` without overflow (``exp(-x)`` overflows float32 below -88.7)."""
     low = x < _F32(-80)
     e = np.exp(np.where(low, x, -x))
     return np.where(low, s * e, s) / (_F32(1) + e)
@@ -111,8 +103,7 @@ def _oan_block(p, name, data):
 
 
 def weighted_eight_point(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Weighted eight-point estimate (OANet Eq. (9)) of ``x`` (K, 4) with ``weights`` (K,): ``F`` (3, 3),
-    float64, defined up to sign; the numpy twin of :func:`.nets.weighted_eight_point` (one set, no batch)."""
+    """:func:`.nets.weighted_eight_point` of one set: ``x`` (K, 4), ``weights`` (K,) -> ``F`` (3, 3), up to sign."""
     x1, y1, x2, y2 = np.asarray(x, np.float64).T
     X = np.stack([x2 * x1, x2 * y1, x2, y2 * x1, y2 * y1, y2, x1, y1, np.ones_like(x1)], axis=1)
     XwX = X.T @ (np.asarray(weights, np.float64)[:, None] * X)
@@ -193,8 +184,7 @@ class NumpyModel:
     source: str
 
     def logits(self, x: np.ndarray) -> np.ndarray:
-        """Inlier logits ``(K,)`` of the input ``(C_in, K)``, in float64 on one BLAS thread (the float32
-        products would round differently under each BLAS kernel and thread count)."""
+        """Inlier logits ``(K,)`` of the input ``(C_in, K)``, in float64 on one BLAS thread."""
         params = self._float64_params()
         with one_blas_thread():
             if self.arch == "oanet":
@@ -234,13 +224,7 @@ def save_npz(path, arch: str, config: dict, params: dict, *, normalization: str,
 
 
 def load_npz(arch: str, path) -> NumpyModel:
-    """Read a network written by :func:`save_npz`.
-
-    Raises
-    ------
-    ValueError
-        The file is not a ctxmatch ``.npz`` network, or holds another architecture than ``arch``.
-    """
+    """Read a network written by :func:`save_npz` (``ValueError`` if it is not one, or not ``arch``)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -334,15 +318,9 @@ def from_state_dict(arch: str, config: dict, sd: dict, *, normalization: str, si
 
 
 def load_numpy_model(arch: str, weights) -> NumpyModel:
-    """The :class:`NumpyModel` of ``weights``: a ctxmatch ``.npz`` or an ACNe authors' TensorFlow checkpoint
-    (torch checkpoints: :func:`.filters.load_numpy_model_cached`).
+    """The :class:`NumpyModel` of a ctxmatch ``.npz`` or an ACNe authors' TensorFlow checkpoint.
 
-    Raises
-    ------
-    FileNotFoundError
-        ``weights`` does not exist.
-    ValueError
-        Not a checkpoint of ``arch`` in one of these formats.
+    ``FileNotFoundError`` if ``weights`` does not exist, ``ValueError`` if it is no such checkpoint of ``arch``.
     """
     from .tfbundle import read_tf_checkpoint
 

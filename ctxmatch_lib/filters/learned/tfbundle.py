@@ -1,14 +1,8 @@
 """TensorFlow checkpoints (tensor bundles) read and written with numpy alone, for the ACNe weights.
 
-The ACNe authors publish ``tf.train.Saver`` checkpoints: a prefix ``P`` with ``P.index`` and
-``P.data-00000-of-00001`` (``P.meta`` is not needed). :func:`read_tf_checkpoint` reads them without
-TensorFlow; :func:`write_tf_checkpoint` writes the same layout (for the tests and for TensorFlow users).
-Format (TensorFlow's ``core/util/tensor_bundle`` and ``core/lib/io/table``): ``P.index`` is a LevelDB-style
-sorted table (blocks of prefix-compressed entries and restart offsets, each with a 5-byte trailer of
-compression type and masked CRC32C; a 48-byte footer with the block handles and the magic number); the
-empty key holds a ``BundleHeaderProto``, every tensor name a ``BundleEntryProto`` (dtype, shape, shard,
-offset, size, CRC); ``P.data-*`` holds the raw little-endian bytes. Compressed tables and partitioned
-tensors raise ``ValueError``; non-numeric tensors are skipped.
+:func:`read_tf_checkpoint` / :func:`write_tf_checkpoint`: a prefix ``P`` with ``P.index``, a LevelDB-style
+table (TensorFlow's ``core/lib/io/table``) of ``BundleEntryProto`` per tensor name, and ``P.data-*``, the
+raw little-endian bytes. Compressed tables and partitioned tensors raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -196,11 +190,8 @@ def _with_trailer(block: bytes) -> bytes:
 
 # ----------------------------------------------------------------------------------------------- API
 def resolve_tf_prefix(path) -> Path:
-    """The checkpoint prefix ``P`` from ``P``, ``P.index``, ``P.data-…`` or a folder.
-
-    A folder is resolved through its ``checkpoint`` state file (``model_checkpoint_path: "…"``) when there is
-    one, else to its single ``*.index`` file.
-    """
+    """The checkpoint prefix ``P`` from ``P``, ``P.index``, ``P.data-…`` or a folder (through its
+    ``checkpoint`` state file, else its single ``*.index`` file)."""
     path = Path(path)
     if path.is_dir():
         state = path / "checkpoint"
@@ -224,24 +215,9 @@ def resolve_tf_prefix(path) -> Path:
 
 
 def read_tf_checkpoint(path) -> dict[str, np.ndarray]:
-    """Every tensor of a TensorFlow checkpoint as ``{variable name: ndarray}``.
+    """Every numeric tensor of the TensorFlow checkpoint at ``path`` (:func:`resolve_tf_prefix`) by name.
 
-    Parameters
-    ----------
-    path : str or Path
-        The checkpoint prefix, its ``.index`` file, a data shard, or a folder (see :func:`resolve_tf_prefix`).
-
-    Returns
-    -------
-    dict of str -> ndarray
-        Numeric tensors with their stored shapes; string tensors are skipped.
-
-    Raises
-    ------
-    FileNotFoundError
-        The index or a data shard is missing.
-    ValueError
-        The file is not a TensorFlow checkpoint, or uses a feature this reader does not support.
+    ``FileNotFoundError`` for a missing index or shard; ``ValueError`` for anything else unreadable.
     """
     prefix = resolve_tf_prefix(path)
     index_path = prefix.with_name(prefix.name + ".index")
@@ -280,19 +256,9 @@ def read_tf_checkpoint(path) -> dict[str, np.ndarray]:
 
 
 def write_tf_checkpoint(prefix, tensors: dict[str, np.ndarray]) -> Path:
-    """Write ``tensors`` as a TensorFlow checkpoint ``prefix.index`` + ``prefix.data-00000-of-00001``.
+    """Write ``tensors`` (name -> numeric array) as ``prefix.index`` + ``prefix.data-00000-of-00001``.
 
-    Parameters
-    ----------
-    prefix : str or Path
-        Checkpoint prefix; its folder must exist.
-    tensors : dict of str -> array_like
-        Variable name -> numeric array (float32, float64, int32, int64, …).
-
-    Returns
-    -------
-    Path
-        The prefix, readable by :func:`read_tf_checkpoint` and by TensorFlow's ``tf.train.load_checkpoint``.
+    Returns ``prefix`` (its folder must exist), readable by TensorFlow's ``tf.train.load_checkpoint``.
     """
     prefix = Path(prefix)
     data = bytearray()

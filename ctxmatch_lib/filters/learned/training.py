@@ -1,15 +1,8 @@
 """Training OANet and ACNe here (imports torch).
 
-Reach it through :func:`ctxmatch_lib.filters.learned.train_learned_filter` or ``ctxmatch train oanet|acne``.
-Training sets (never from ``CTXMATCH_DATA``): ``data="generated"`` (the shipped weights) draws the sets of
-:mod:`.data` afresh at every step; ``data="blob"`` draws ``batch_size`` of the given ``blob_sets`` (built
-above the evaluation engine by :mod:`ctxmatch_lib.training`) and cuts them to a common K.
-
-Loss: binary cross-entropy of every stage's inlier logits (OANet: both stages, the authors'
-classification loss; ACNe: the output plus the mean over the ACN layers' local-attention logits, the
-authors' "multi-logit" loss), optionally balanced as the OANet / CNe authors do. The authors' geometric
-loss is not used: the labels here are exact. Adam, cosine decay from ``lr`` to ``lr / 10``. Runs are
-deterministic for a given seed and thread count.
+Entry points: :func:`ctxmatch_lib.filters.learned.train_learned_filter`, ``ctxmatch train oanet|acne``.
+Loss: binary cross-entropy of every OANet stage, or of ACNe's output plus the mean over its local-attention
+logits (the authors' losses); no geometric loss (the labels are exact). Adam, cosine decay to ``lr / 10``.
 """
 
 from __future__ import annotations
@@ -159,11 +152,8 @@ def train(arch: str, *, steps: int | None = None, batch_size: int = 8, n_candida
           seed: int = 0, config: dict | None = None, output=None, max_images: int | None = None,
           num_threads: int = 1, progress: bool = True, validate: bool = True, data: str = "generated",
           balanced: bool = False, init=None, blob_sets=None) -> TrainResult:
-    """Train ``arch`` ("oanet" or "acne"); see :func:`ctxmatch_lib.filters.learned.train_learned_filter`.
-
-    ``blob_sets`` holds objects with ``x1``, ``x2``, ``scores``, ``is_inlier``, ``size1``, ``size2``,
-    ``inlier_ratio`` (:class:`ctxmatch_lib.training.BlobSet`).
-    """
+    """Train ``arch``; see :func:`ctxmatch_lib.filters.learned.train_learned_filter` (``blob_sets``: of
+    :class:`ctxmatch_lib.training.BlobSet`)."""
     steps = TRAINED_HERE_STEPS[arch] if steps is None and arch in TRAINED_HERE_STEPS else steps
     k_lo, k_hi = _check(arch, steps, batch_size, num_threads, n_candidates, lr, data)
     cfg = dict(TRAINED_HERE_CONFIGS[arch], **(config or {}))
