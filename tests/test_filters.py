@@ -381,8 +381,8 @@ def test_lmr_exported_trees_predict_as_scikit_learn():
     rng = np.random.default_rng(1)
     x, y, inl = lmr.synthetic_pair(rng)
     F = lmr.lmr_features(x, y)
-    clf = lmr._fit(F, inl, 0, 15, 3, 0.2)
-    np.testing.assert_allclose(lmr.LMRModel(lmr._export(clf, 1)).proba(1, F), clf.predict_proba(F)[:, 1],
+    clf = lmr.training._fit(F, inl, 0, 15, 3, 0.2)
+    np.testing.assert_allclose(lmr.LMRModel(lmr.model._export(clf, 1)).proba(1, F), clf.predict_proba(F)[:, 1],
                                rtol=0, atol=1e-12)
 
 

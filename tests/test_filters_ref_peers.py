@@ -178,7 +178,7 @@ def _random_net(rng, dims):
 def test_lmr_network_forward_pass_matches_the_transfer_definitions(tmp_path):
     from scipy.io import loadmat
 
-    from ctxmatch_lib.filters._lmr_network import parse_network
+    from ctxmatch_lib.filters.lmr._network import parse_network
 
     rng = np.random.default_rng(0)
     w, b = _random_net(rng, [3, 4, 3, 2])
@@ -211,7 +211,7 @@ def test_lmr_with_a_network_keeps_the_rows_whose_first_output_wins(tmp_path):
 def test_mpc_exact_features_are_mpc_m_values():
     # MPC.m's direction: atan of the shifted ratio moved to [0, 2 pi) by its quadrant rules = atan2 mod 2 pi
     # away from the axes; its maps are gaussmf(r, [0.4 1]) and gaussmf(angle, [0.8 0]).
-    from ctxmatch_lib.filters._lmr_network import gaussmf, mpc_motion
+    from ctxmatch_lib.filters.lmr._network import gaussmf, mpc_motion
     from ctxmatch_lib.filters.lmr import mpc_features
 
     v = np.array([[3.0, 4.0], [-3.0, 4.0], [-3.0, -4.0], [3.0, -4.0], [0.5, -7.0]])

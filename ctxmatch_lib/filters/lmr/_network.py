@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._numerics.fixedmath import atan, exp
+from ..._numerics.fixedmath import atan, exp
 
 #: Transfer functions of the Deep Learning Toolbox, by their documented definitions (the exponential is
 #: ``_fixedmath``'s, the same bits on any CPU: the outputs are compared with each other).
