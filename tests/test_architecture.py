@@ -310,3 +310,12 @@ def test_removed_faces_are_gone():
     for name in ("ctxmatch_lib.sweep", "ctxmatch_lib.evalcache"):
         with pytest.raises(ModuleNotFoundError):
             importlib.import_module(name)
+
+
+def test_names_moved_out_of_report_paper_still_resolve_with_a_warning():
+    from ctxmatch_lib.report import claims, paper
+
+    with pytest.warns(FutureWarning, match="moved to ctxmatch_lib.report.claims"):
+        assert paper.check_claims is claims.check_claims
+    with pytest.raises(AttributeError):
+        paper.no_such_name

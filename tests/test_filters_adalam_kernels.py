@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ctxmatch_lib.filters import adalam
-from ctxmatch_lib.filters._adalam_kernels import beaten_by_neighbours, best_confident_maps, half_keys
+from ctxmatch_lib.filters.adalam._kernels import beaten_by_neighbours, best_confident_maps, half_keys
 
 
 def _half(x: float) -> float:

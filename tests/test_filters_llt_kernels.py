@@ -15,7 +15,7 @@ from numba.core.errors import TypingError
 from ctxmatch_lib._numerics.simd import load4 as _load4
 from ctxmatch_lib.filters._common import knn_without_self
 from ctxmatch_lib.filters._em_kernels import matmul_t, solve_batched, weighted_gram, weighted_gram_t
-from ctxmatch_lib.filters._llt_kernels import em_residuals, lle_solve, offset_norms
+from ctxmatch_lib.filters.llt._kernels import em_residuals, lle_solve, offset_norms
 from ctxmatch_lib.filters.llt import lle_weights
 
 

@@ -1,11 +1,11 @@
-"""Tests of PGM's compiled pairwise-affinity kernel (``ctxmatch_lib.filters._pgm_kernels``)."""
+"""Tests of PGM's compiled pairwise-affinity kernel (``ctxmatch_lib.filters.pgm._kernels``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ctxmatch_lib.filters._pgm_kernels import pair_affinity, sinkhorn
+from ctxmatch_lib.filters.pgm._kernels import pair_affinity, sinkhorn
 from ctxmatch_lib.filters.pgm import _local_affines
 
 
@@ -121,7 +121,7 @@ def test_sinkhorn_bit_identical_to_arrays(n1, n2, max_iter):
 
 def test_pairwise_sum_is_numpys_sum():
     # The kernel's normalisations must sum as numpy does (pairwise, blockwise) to stay bit-identical.
-    from ctxmatch_lib.filters._pgm_kernels import _pairwise_sum
+    from ctxmatch_lib.filters.pgm._kernels import _pairwise_sum
 
     rng = np.random.default_rng(0)
     for n in [0, 1, 7, 8, 9, 127, 128, 129, 255, 256, 1000, 4099, 40000]:

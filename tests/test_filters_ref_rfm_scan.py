@@ -203,10 +203,10 @@ def _assert_dense_clustering(got, space, scale, n, k, mu):
 @pytest.mark.parametrize("cells_per_member", [4.0, 0.01])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_grid_counts_equal_a_plain_count_and_bracket_the_float32_one(seed, cells_per_member):
-    # The compiled grid counts (ctxmatch_lib.filters._rfm_kernels) against every pair in float64 (same
+    # The compiled grid counts (ctxmatch_lib.filters.rfm_scan._kernels) against every pair in float64 (same
     # formula, same float32-rounded points), and the filter's float32 count between their sure and possible
     # counts; coarse grids (few cells per member) and queries outside the members' extent included.
-    from ctxmatch_lib.filters._rfm_kernels import MARGIN, MotionGrid, count_within
+    from ctxmatch_lib.filters.rfm_scan._kernels import MARGIN, MotionGrid, count_within
 
     rng = np.random.default_rng(seed)
     centres = rng.uniform(0, 1, (3, 6))
@@ -241,9 +241,9 @@ def test_grid_counts_equal_a_plain_count_and_bracket_the_float32_one(seed, cells
 
 @pytest.mark.parametrize("m", [8, 13])
 def test_upper_kth_bounds_the_float32_kth_and_equals_a_plain_float64_one(m):
-    # The compiled upper bound of L (ctxmatch_lib.filters._rfm_kernels.upper_kth) against numpy: the k-th
+    # The compiled upper bound of L (ctxmatch_lib.filters.rfm_scan._kernels.upper_kth) against numpy: the k-th
     # smallest of the float64 distances times 1 + MARGIN, at least the filter's float32 k-th smallest.
-    from ctxmatch_lib.filters._rfm_kernels import MARGIN, upper_kth
+    from ctxmatch_lib.filters.rfm_scan._kernels import MARGIN, upper_kth
 
     rng = np.random.default_rng(m)
     space = _MotionSpace(rng.uniform(0, 1, (200, 6)), 10.0)
@@ -267,7 +267,7 @@ def test_upper_kth_bounds_the_float32_kth_and_equals_a_plain_float64_one(m):
 def test_round_settles_what_the_grid_counts_leave_open_as_the_dense_definition(monkeypatch, few_rows):
     # A wide margin leaves many grid counts open: the exact float32 tests that settle them (whole rows for a
     # few queries, ball searches for more) give the dense definition's clustered set.
-    from ctxmatch_lib.filters import _rfm_kernels
+    from ctxmatch_lib.filters.rfm_scan import _kernels as _rfm_kernels
 
     monkeypatch.setattr(_rfm_kernels, "MARGIN", 0.3)
     monkeypatch.setattr(rfm_module, "_FEW_ROWS", few_rows)

@@ -9,8 +9,9 @@ import pandas as pd
 import pytest
 
 from ctxmatch_lib import report
-from ctxmatch_lib.report.paper import (PAPER_PAIRS, SIDE_COLUMNS, check_claims, parse_paper_gt_counts,
-                                       parse_paper_tables, method_rank_agreement, side_by_side, write_paper_data)
+from ctxmatch_lib.report.claims import check_claims
+from ctxmatch_lib.report.paper import PAPER_PAIRS, parse_paper_gt_counts, parse_paper_tables, write_paper_data
+from ctxmatch_lib.report.side_by_side import SIDE_COLUMNS, method_rank_agreement, side_by_side
 
 matplotlib.use("Agg")
 

@@ -14,13 +14,53 @@ from . import _kernels, _select_kernels, _walk_kernels
 from ._fused_kernels import fused_product_fast
 from ._pass import fused_pass, tile_pass
 from ._workspace import give_back, take_codes
-from ._lines import LineMemo, coded_lines
 from ._lists import _column_group_minima, _first_t, _group_size, _row_thresholds
 from .overlap import _largest_singular_value, circle_overlap_bounds, ellipse_overlap_error
 
 __all__ = ["BlobContext", "SortedLists"]
 
 _MiB = 1 << 20
+
+
+#: The most memory per side that :class:`LineMemo` keeps computed lines in (2 bytes an entry).
+LINE_MEMO_BYTES = 32 * _MiB
+
+
+def coded_lines(own: np.ndarray, other: np.ndarray, n_own: np.ndarray, n_other: np.ndarray, which: np.ndarray,
+                qoff, qinv) -> np.ndarray:
+    """Codes (:func:`._kernels.encode`) of ``|a|² + |b|² − 2 a·b`` from the float32 rows ``own[which]`` to
+    every row of ``other``, about 8 MiB of float32 at a time on one BLAS thread."""
+    out, step = np.empty((len(which), len(other)), np.uint16), max(1, (8 * _MiB) // (4 * len(other)))
+    for s in range(0, len(which), step):
+        w = which[s : s + step]
+        with one_blas_thread():
+            g = own[w] @ other.T
+        g *= np.float32(-2)
+        g += n_own[w][:, None]
+        out[s : s + step] = _kernels.encode(g + n_other[None, :], qoff, qinv)
+    return out
+
+
+class LineMemo:
+    """The lines of one side computed so far (up to :data:`LINE_MEMO_BYTES`): :meth:`get` computes the
+    missing ones and returns copies, so a sweep computes each line once."""
+
+    def __init__(self, n_lines: int, line_len: int):
+        self.keep = n_lines * line_len * 2 <= LINE_MEMO_BYTES
+        self._shape = (n_lines, line_len)
+        self._codes = self._have = None
+
+    def get(self, which: np.ndarray, compute) -> np.ndarray:
+        which = np.asarray(which, np.int64)
+        if not self.keep:
+            return compute(which)
+        if self._codes is None:
+            self._codes, self._have = np.empty(self._shape, np.uint16), np.zeros(self._shape[0], bool)
+        need = np.unique(which[~self._have[which]])
+        if len(need):
+            self._codes[need] = compute(need)
+            self._have[need] = True
+        return self._codes[which]
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import numpy as np
 from .._numerics.jit import user_cache
 from .._numerics.simd import load4 as _load4, mul4 as _mul4, muladd4 as _muladd4, store4 as _store4
 
-__all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched"]
+__all__ = ["weighted_gram", "weighted_gram_t", "matmul", "matmul_t", "dot", "solve", "solve_batched", "solve_kernel"]
 
 
 #: Rows of H per tile of a Gram matrix (a multiple of 4): the tile's columns stay in the L2 cache.
@@ -130,7 +130,7 @@ with user_cache() as _cache:
         return acc
 
     @_jit
-    def _solve(A, B):
+    def solve_kernel(A, B):
         n = A.shape[0]
         M = A.copy()
         X = B.copy()
@@ -169,7 +169,7 @@ with user_cache() as _cache:
         X = np.empty_like(B)
         ok = np.empty(A.shape[0], np.bool_)
         for t in range(A.shape[0]):
-            X[t], ok[t] = _solve(A[t], B[t])
+            X[t], ok[t] = solve_kernel(A[t], B[t])
         return X, ok
 
 
@@ -205,7 +205,7 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
 def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A^-1 B`` of ``A`` (n, n) and ``B`` (n, r) by Gaussian elimination with partial pivoting; an exactly
     singular (or non-finite) ``A`` by LAPACK's least squares, which may depend on the BLAS kernel."""
-    X, ok = _solve(_f64(A), _f64(B))
+    X, ok = solve_kernel(_f64(A), _f64(B))
     if ok and np.isfinite(X).all():
         return X
     return np.linalg.lstsq(A, B, rcond=None)[0]

@@ -7,7 +7,7 @@ from matplotlib.legend_handler import HandlerTuple
 from matplotlib.lines import Line2D
 
 from ..report.tables import KIND_LABELS, method_label, method_order
-from ..report.paper import method_rank_agreement
+from ..report.side_by_side import method_rank_agreement
 from .eval import method_style
 
 __all__ = ["plot_agreement"]
@@ -18,9 +18,9 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
                    metrics=("precision", "recall")):
     """Ours (y) against the paper (x) per method, around y = x: one row of panels per kind and metric, one
     column per configuration, methods styled as in :func:`~ctxmatch_lib.plots.eval.plot_pr_scatter`; each
-    title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.paper.method_rank_agreement`).
+    title gives Spearman's ρ over the filters (:func:`ctxmatch_lib.report.side_by_side.method_rank_agreement`).
 
-    ``side``: a :func:`ctxmatch_lib.report.paper.side_by_side` frame; ``setups`` default: all of it. Model
+    ``side``: a :func:`ctxmatch_lib.report.side_by_side.side_by_side` frame; ``setups`` default: all of it. Model
     ``"none"`` is drawn hollow; ``blob`` adds the blob candidates (recall 100 % by definition); ``ms`` is the
     marker area (points²); ``figsize`` defaults to ``panel_size`` inches per panel. Returns the Figure.
     """

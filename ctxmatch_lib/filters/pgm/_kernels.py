@@ -10,7 +10,7 @@ import math
 import numba
 import numpy as np
 
-from .._numerics.jit import user_cache
+from ..._numerics.jit import user_cache
 
 __all__ = ["pair_affinity", "sinkhorn", "votes"]
 

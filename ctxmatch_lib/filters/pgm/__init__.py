@@ -12,11 +12,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .._numerics.fixedmath import exp
-from ._common import MatchSet, check_positive, knn_without_self, match_filter
-from ._pgm_kernels import pair_affinity as _pair_affinity
-from ._pgm_kernels import sinkhorn as _pgm_sinkhorn
-from ._pgm_kernels import votes as _pgm_votes
+from ..._numerics.fixedmath import exp
+from .._common import MatchSet, check_positive, knn_without_self, match_filter
+from ._kernels import pair_affinity as _pair_affinity
+from ._kernels import sinkhorn as _pgm_sinkhorn
+from ._kernels import votes as _pgm_votes
 
 __all__ = ["pgm_filter", "rrwm"]
 

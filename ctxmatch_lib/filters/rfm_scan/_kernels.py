@@ -14,7 +14,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numerics.jit import user_cache
+from ..._numerics.jit import user_cache
 
 __all__ = ["MARGIN", "MotionGrid", "count_within", "upper_kth"]
 

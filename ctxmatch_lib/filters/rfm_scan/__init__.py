@@ -4,7 +4,7 @@ Matches are points ``[x, y, y - x]`` of a min-max normalised motion space (Sec. 
 of Eq. (3), ``|dx| + |dy| + (1 + gamma exp(-min(|dx|, |dy|))) |dv|``. DBSCAN (Ester et al., KDD 1996) with
 adaptive ``MinPts`` and ``eps = min L + mu (max L - min L)`` (Sec. III-B) clusters them twice, the second
 time with the unclustered pushed away (Sec. III-C). Seeded random matches are added as in the authors' demo.
-No K x K matrix is built, yet every decision is the dense float32 computation's (bounds, :mod:`._rfm_kernels`).
+No K x K matrix is built, yet every decision is the dense float32 computation's (bounds, :mod:`._kernels`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._common import MatchSet, check_positive, match_filter
-from ._rfm_kernels import MotionGrid, count_within, upper_kth
+from .._common import MatchSet, check_positive, match_filter
+from ._kernels import MotionGrid, count_within, upper_kth
 
 __all__ = ["rfm_scan_filter"]
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._numerics.fixedmath import atan2
-from ._adalam_kernels import beaten_by_neighbours, best_confident_maps
-from ._common import MatchSet, check_positive, match_filter
+from ..._numerics.fixedmath import atan2
+from ._kernels import beaten_by_neighbours, best_confident_maps
+from .._common import MatchSet, check_positive, match_filter
 
 __all__ = ["adalam_filter"]
 
@@ -69,7 +69,7 @@ def _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf: float):
     """Confidence-based inlier count of the best map of each neighbourhood (Sec. 3.3), as the reference counts.
 
     A member is good when ``r^2 * min_conf`` is at most the inlier rate so far along the sorted residuals.
-    Arguments and returns: see :func:`._adalam_kernels.best_confident_maps`."""
+    Arguments and returns: see :func:`._kernels.best_confident_maps`."""
     return best_confident_maps(np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(Ub, dtype=np.float64),
                               np.ascontiguousarray(Vb, dtype=np.float64), np.ascontiguousarray(nb, dtype=np.int64),
                               np.ascontiguousarray(usable, dtype=np.bool_),

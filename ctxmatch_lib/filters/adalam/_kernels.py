@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of AdaLAM (:mod:`.adalam`): the confidence-based inlier count of the local maps
 (:func:`best_confident_maps`) and the seed test (:func:`beaten_by_neighbours`). Same expressions and
-summation order as the array form, no fast-math: bit-identical (``tests/test_filters_adalam_kernels.py``).
+summation order as the array form, no fast-math: bit-identical (``tests/test_filters_kernels.py``).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 import numba
 import numpy as np
 
-from .._numerics.jit import user_cache
+from ..._numerics.jit import user_cache
 
 __all__ = ["beaten_by_neighbours", "best_confident_maps", "half_keys"]
 

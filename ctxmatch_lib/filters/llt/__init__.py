@@ -10,12 +10,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .._numerics.blas import one_blas_thread
-from .._numerics.fixedmath import log
-from ._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
-from ._em_kernels import dot, solve, solve_batched, weighted_gram_t
-from ._llt_kernels import em_residuals, lle_solve, offset_norms
-from .vfc import control_points, gaussian_kernel, posterior
+from ..._numerics.blas import one_blas_thread
+from ..._numerics.fixedmath import log
+from .._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
+from .._em_kernels import dot, solve, solve_batched, weighted_gram_t
+from ._kernels import em_residuals, lle_solve, offset_norms
+from ..vfc import control_points, gaussian_kernel, posterior
 
 __all__ = ["llt_filter", "lle_weights", "m_step"]
 

@@ -11,9 +11,9 @@ from functools import partial
 import numba
 import numpy as np
 
-from .._numerics.jit import user_cache
-from .._numerics.simd import load4 as _load4, muladd4 as _muladd4, store4 as _store4
-from ._em_kernels import _solve
+from ..._numerics.jit import user_cache
+from ..._numerics.simd import load4 as _load4, muladd4 as _muladd4, store4 as _store4
+from .._em_kernels import solve_kernel
 
 __all__ = ["offset_norms", "lle_solve", "em_residuals"]
 
@@ -48,7 +48,7 @@ with user_cache() as _cache:
                     g = z[a, 0] * z[b, 0] + z[a, 1] * z[b, 1]
                     g += t[i] * (1.0 if a == b else 0.0)
                     gram[a, b] = g
-            X, ok[i] = _solve(gram, ones)
+            X, ok[i] = solve_kernel(gram, ones)
             for a in range(kk):
                 w[i, a] = X[a, 0]
                 ok[i] = ok[i] and np.isfinite(X[a, 0])
