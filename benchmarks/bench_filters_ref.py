@@ -168,7 +168,8 @@ for f in files:
 #: that read ``X``, ``Y`` (K, 2), ``small`` (K,) and ``info`` = [w1 h1 w2 h2] and set ``keep`` (1-based row
 #: indices) and ``cpu`` (``cputime`` around the filtering)) and optionally ``compile_mex(root, dst)``. The
 #: module runs with this script's helpers as its global ``host`` (set by :func:`plugin`): it calls
-#: ``host.find_reference_file``, ``host.demo_block``, ``host.octave_assignments``, ``host.compile_octave_mex``.
+#: ``host.find_reference_file``, ``host.demo_block``, ``host.block_bounds``, ``host.octave_assignments``,
+#: ``host.compile_octave_mex``.
 PLUGIN_REFERENCES = ("llt", "rfm_scan", "lmr")
 
 REFERENCES = ("gms", "adalam", "lpm", "glpm", "vfc", *PLUGIN_REFERENCES)
@@ -186,7 +187,8 @@ def plugin(name: str):
     spec = importlib.util.spec_from_file_location(f"ref_{name}", path)
     mod = importlib.util.module_from_spec(spec)
     mod.host = SimpleNamespace(find_reference_file=find_reference_file, demo_block=demo_block,
-                               octave_assignments=octave_assignments, compile_octave_mex=compile_octave_mex)
+                               block_bounds=block_bounds, octave_assignments=octave_assignments,
+                               compile_octave_mex=compile_octave_mex)
     spec.loader.exec_module(mod)
     return mod
 
@@ -281,17 +283,25 @@ def find_reference_file(root: Path, name: str) -> Path:
     return hits[0]
 
 
-def demo_block(text: str, start: str, stop: str, *, include_stop: bool = False, after: int = 0) -> str:
-    """The lines of ``text`` after the first line (at or after line ``after``) that starts with ``start`` and
-    before the next line that starts with ``stop`` (included if ``include_stop``); marker matching ignores
-    leading blanks. A ValueError names a missing marker."""
-    lines = text.splitlines()
+def block_bounds(lines: list[str], start: str, stop: str, *, after: int = 0) -> tuple[int, int]:
+    """``(i, j)``: the index of the first of ``lines`` (at or after ``after``) that starts with ``start`` and of
+    the next one that starts with ``stop``; marker matching ignores leading blanks. A ValueError names a
+    missing marker."""
     strip = [ln.strip() for ln in lines]
     try:
         i = next(n for n in range(after, len(lines)) if strip[n].startswith(start))
         j = next(n for n in range(i + 1, len(lines)) if strip[n].startswith(stop))
     except StopIteration:
         raise ValueError(f"demo has no block from {start!r} to {stop!r}") from None
+    return i, j
+
+
+def demo_block(text: str, start: str, stop: str, *, include_stop: bool = False, after: int = 0) -> str:
+    """The lines of ``text`` after the first line (at or after line ``after``) that starts with ``start`` and
+    before the next line that starts with ``stop`` (included if ``include_stop``), as :func:`block_bounds`
+    finds them."""
+    lines = text.splitlines()
+    i, j = block_bounds(lines, start, stop, after=after)
     return "\n".join(lines[i + 1:j + 1 if include_stop else j])
 
 

@@ -13,12 +13,12 @@ Run: ``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_groundtruth.py [--can
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from ctxmatch_lib.datasets.base import EpipolarGT, FlowGT, HomographyGT
 from ctxmatch_lib.groundtruth import label_matches
+from _common import best_of
 
 
 def _shapes(rng, n):
@@ -79,15 +79,6 @@ def flow(rng, k, correct):
     return k1, k1 + d + rng.normal(0, 1.0, (n, 2)), s1, s1, _candidates(rng, k, n, correct), FlowGT(flow12=fl)
 
 
-def _best(fn, repeat):
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--candidates", type=int, default=15000)
@@ -102,7 +93,7 @@ def main(argv=None):
         k1, k2, s1, s2, m, gt = make(rng, args.candidates, args.correct)
         times, counts = {}, {}
         for meth in ("D", "B", "C"):
-            t, lab = _best(lambda: label_matches(k1, k2, m, gt, method=meth, shapes1=s1, shapes2=s2), args.repeat)
+            t, lab = best_of(lambda: label_matches(k1, k2, m, gt, method=meth, shapes1=s1, shapes2=s2), args.repeat)
             times[meth], counts[meth] = t, int(lab.sum())
         print(f"{name:<10} {times['D']:9.4f} {times['B']:9.4f} {times['C']:9.4f} "
               f"{times['B'] / times['D']:6.2f} {times['C'] / times['D']:6.2f}  "

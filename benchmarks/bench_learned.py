@@ -19,24 +19,14 @@ numpy time / torch time, measured in the same run.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.testing import planted_homography_matches
+from _common import best_of
 
 LEARNED = ["oanet", "acne"]
-
-
-def _best(fn, repeat):
-    out = fn()  # warm-up
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def _filters(sizes, repeat, seed):
@@ -49,10 +39,10 @@ def _filters(sizes, repeat, seed):
         pm = planted_homography_matches(k, 0.4, noise=0.5, image_size=(640, 480), informative_scores=True, rng=seed)
         args = (pm.kpts1, pm.kpts2, pm.matches, pm.scores)
         kw = dict(image_size1=pm.image_size, image_size2=pm.image_size)
-        t_dtm, _ = _best(lambda: FILTERS["dtm"](*args, **kw), repeat)
+        t_dtm, _ = best_of(lambda: FILTERS["dtm"](*args, **kw), repeat, warmup=True)
         for name in LEARNED:
-            t_np, lg_np = _best(lambda: learned_logits(name, *args, **kw), repeat)
-            t_t, lg_t = _best(lambda: learned_logits(name, *args, backend="torch", **kw), repeat)
+            t_np, lg_np = best_of(lambda: learned_logits(name, *args, **kw), repeat, warmup=True)
+            t_t, lg_t = best_of(lambda: learned_logits(name, *args, backend="torch", **kw), repeat, warmup=True)
             keep = lg_np > 0
             tp = int((keep & pm.is_inlier).sum())
             prec, rec = tp / max(int(keep.sum()), 1), tp / max(int(pm.is_inlier.sum()), 1)
@@ -78,8 +68,8 @@ def _deep(n, repeat, seed):
         runs.append((f"{net} ({desc} stand-in)", lambda b, desc=desc, net=net, w=w: deep_descriptors(
             img, kp, A, descriptor=desc, net=net, weights=w, backend=b)))
     for label, fn in runs:
-        t_np, a = _best(lambda: fn("numpy"), repeat)
-        t_t, b = _best(lambda: fn("torch"), repeat)
+        t_np, a = best_of(lambda: fn("numpy"), repeat, warmup=True)
+        t_t, b = best_of(lambda: fn("torch"), repeat, warmup=True)
         diff = np.abs(np.angle(np.exp(1j * (a - b)))) if a.ndim == 1 else np.abs(a - b)
         print(f"{label:>30} {t_np:>9.2f} {t_t:>9.2f} {t_np / t_t:>8.2f} {diff.max():>10.2e}")
 

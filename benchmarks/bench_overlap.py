@@ -9,9 +9,10 @@ Run: ``.venv/bin/python benchmarks/bench_overlap.py [--pairs P]``.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+
+from _common import best_of
 
 
 def _disk_samples(n: int = 400) -> np.ndarray:
@@ -54,15 +55,6 @@ def reference(c1, A1, c2, A2, k: int = 2048):
         p, q = shapely.Polygon(c1[i] + u @ A1[i].T), shapely.Polygon(c2[i] + u @ A2[i].T)
         out[i] = 1 - p.intersection(q).area / p.union(q).area
     return out
-
-
-def best_of(fn, repeat=3):
-    t = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        t = min(t, time.perf_counter() - t0)
-    return t, out
 
 
 def main(argv=None) -> None:

@@ -53,13 +53,11 @@ end
 
 def _lines_from(lines: list[str], start: str, stop: str, *, include_stop: bool, after: int = 0) -> tuple[list[str], int]:
     """Lines from the first one (at or after ``after``) starting with ``start`` (included) up to the next one
-    starting with ``stop``, and the index of the stop line; blanks ignored when matching."""
-    strip = [ln.strip() for ln in lines]
+    starting with ``stop``, and the index of the stop line (``host.block_bounds``)."""
     try:
-        i = next(n for n in range(after, len(lines)) if strip[n].startswith(start))
-        j = next(n for n in range(i + 1, len(lines)) if strip[n].startswith(stop))
-    except StopIteration:
-        raise ValueError(f"Demo_main.m: no block from {start!r} to {stop!r}") from None
+        i, j = host.block_bounds(lines, start, stop, after=after)
+    except ValueError as err:
+        raise ValueError(f"Demo_main.m: {err}") from None
     return lines[i:j + 1 if include_stop else j], j
 
 

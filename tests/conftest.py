@@ -1,5 +1,7 @@
 import importlib.util
 import os
+import signal
+import time
 from pathlib import Path
 
 import matplotlib
@@ -56,3 +58,28 @@ def load_benchmark():
         return module
 
     return load
+
+
+@pytest.fixture(scope="session")
+def kill_after_first_part():
+    """``kill(proc, parts, poll)``: SIGKILL the process ``proc`` once a ``*.parquet`` part stands in the folder
+    ``parts`` (or when it has ended, or after 120 s, looking every ``poll`` seconds); returns how many parts
+    it left there."""
+
+    def kill(proc, parts: Path, poll: float) -> int:
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None:
+            if parts.is_dir() and len(list(parts.glob("*.parquet"))) >= 1:
+                break
+            time.sleep(poll)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        return len(list(parts.glob("*.parquet")))
+
+    return kill
+
+
+@pytest.fixture(scope="module")
+def bench(load_benchmark):
+    """``benchmarks/bench_filters_ref.py``, the reference-filter benchmark, once per test module."""
+    return load_benchmark("bench_filters_ref")

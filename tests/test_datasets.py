@@ -258,38 +258,35 @@ def test_custom_optional_F_column(tmp_path):
     np.testing.assert_allclose(p.gt.F, F_true / np.linalg.norm(F_true))
 
 
+def _load_fails(root, pairs_csv, error, match):
+    """``load_dataset(root)`` with ``pairs.csv`` holding ``pairs_csv`` raises ``error`` matching ``match``."""
+    (root / "pairs.csv").write_text(pairs_csv)
+    with pytest.raises(error, match=match):
+        load_dataset(root)
+
+
 def test_empty_pairs_csv_names_the_file(tmp_path):
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\n")
-    with pytest.raises(ValueError, match=r"pairs\.csv.*no pairs"):
-        load_dataset(tmp_path)
-    (tmp_path / "pairs.csv").write_text("")
-    with pytest.raises(ValueError, match=r"pairs\.csv.* empty"):
-        load_dataset(tmp_path)
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2\nx,a.png,b.png\n")
-    with pytest.raises(ValueError, match="kind, gt"):
-        load_dataset(tmp_path)
+    _load_fails(tmp_path, "pair_id,image1,image2,kind,gt\n", ValueError, r"pairs\.csv.*no pairs")
+    _load_fails(tmp_path, "", ValueError, r"pairs\.csv.* empty")
+    _load_fails(tmp_path, "pair_id,image1,image2\nx,a.png,b.png\n", ValueError, "kind, gt")
 
 
 def test_missing_gt_file_names_the_file(tmp_path):
     _write_image(tmp_path / "a.png")
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\np,a.png,a.png,planar,gone/H_1_2.txt\n")
-    with pytest.raises(FileNotFoundError, match="H_1_2.txt"):
-        load_dataset(tmp_path)
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\np,a.png,a.png,nonplanar,pts.txt\n")
-    with pytest.raises(FileNotFoundError, match="pts.txt"):
-        load_dataset(tmp_path)
+    _load_fails(tmp_path, "pair_id,image1,image2,kind,gt\np,a.png,a.png,planar,gone/H_1_2.txt\n",
+                FileNotFoundError, "H_1_2.txt")
+    _load_fails(tmp_path, "pair_id,image1,image2,kind,gt\np,a.png,a.png,nonplanar,pts.txt\n",
+                FileNotFoundError, "pts.txt")
 
 
 def test_corrupt_or_missing_image_names_the_file(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\nnot really")
     _write_image(tmp_path / "a.png")
     np.savetxt(tmp_path / "H.txt", np.eye(3))
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\np,a.png,bad.png,planar,H.txt\n")
-    with pytest.raises(ValueError, match="bad.png"):
-        load_dataset(tmp_path)
-    (tmp_path / "pairs.csv").write_text("pair_id,image1,image2,kind,gt\np,a.png,nothere.png,planar,H.txt\n")
-    with pytest.raises(FileNotFoundError, match="nothere.png"):
-        load_dataset(tmp_path)
+    _load_fails(tmp_path, "pair_id,image1,image2,kind,gt\np,a.png,bad.png,planar,H.txt\n",
+                ValueError, "bad.png")
+    _load_fails(tmp_path, "pair_id,image1,image2,kind,gt\np,a.png,nothere.png,planar,H.txt\n",
+                FileNotFoundError, "nothere.png")
 
 
 @pytest.mark.parametrize(

@@ -404,14 +404,12 @@ def test_progress_bar_names_the_pair_in_progress(tiny_dataset, tmp_path, monkeyp
     assert [s.split("/")[-1].split(" ")[0] for s in seen] == ["warp", "layers"]
 
 
-def test_cli_eval_resumes_after_sigkill(tiny_dataset, tmp_path, monkeypatch):
+def test_cli_eval_resumes_after_sigkill(tiny_dataset, tmp_path, monkeypatch, kill_after_first_part):
     """A real kill -9 of `ctxmatch eval` mid-run; the rerun completes it with no lost or duplicated row."""
     import os
     import shutil
-    import signal
     import subprocess
     import sys
-    import time
 
     root = tmp_path / "four"
     shutil.copytree(tiny_dataset, root)
@@ -424,15 +422,7 @@ def test_cli_eval_resumes_after_sigkill(tiny_dataset, tmp_path, monkeypatch):
     proc = subprocess.Popen([sys.executable, "-m", "ctxmatch_lib.cli", "eval", *argv, "--out",
                              str(tmp_path / "a.parquet")], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
-    parts = tmp_path / "killed" / "sweep" / "results"
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None:
-        if parts.is_dir() and len(list(parts.glob("*.parquet"))) >= 1:
-            break
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    n_parts = len(list(parts.glob("*.parquet")))
+    n_parts = kill_after_first_part(proc, tmp_path / "killed" / "sweep" / "results", 0.02)
     assert 1 <= n_parts <= 5
     monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "killed"))
     assert _cli([*argv, "--out", str(tmp_path / "a.parquet")]) == 0

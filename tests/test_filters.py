@@ -9,7 +9,7 @@ import pytest
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.testing import apply_homography, planted_homography_matches
-from filter_cases import SIZE, grid_translation, identity_matches, run_filter
+from filter_cases import SIZE, grid_translation, identity_matches, many_to_many_case, run_filter
 
 PEERS = ["th", "gms", "lpm", "glpm", "vfc", "llt", "adalam", "rfm_scan", "pfm", "lmr"]
 SPATIAL = [name for name in PEERS if name != "th"]
@@ -91,14 +91,7 @@ def test_identical_images_keep_most(name):
 
 @pytest.mark.parametrize("name", PEERS)
 def test_many_to_many_input(name):
-    # Every image-1 keypoint matched to its true image-2 keypoint and to a random one.
-    pm = planted_homography_matches(800, 1.0, noise=0.3, image_size=SIZE, rng=7)
-    rng = np.random.default_rng(7)
-    wrong = np.c_[np.arange(800), rng.permutation(800)]
-    matches = np.vstack([pm.matches, wrong])
-    truth = np.r_[np.ones(800, bool), wrong[:, 0] == wrong[:, 1]]
-    scores = np.r_[rng.uniform(0, 0.6, 800), rng.uniform(0.3, 1.0, 800)]
-    keep = run_filter(name, pm.kpts1, pm.kpts2, matches, scores)
+    keep, truth = many_to_many_case(name)
     assert (keep & truth).sum() / max(keep.sum(), 1) > (0.55 if name == "th" else 0.9)
 
 

@@ -17,13 +17,9 @@ import pytest
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.testing import planted_homography_matches
+from filter_cases import planted_similarity
 
 SIZE = (640, 480)
-
-
-@pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
 
 
 def duplicated_outlier(copies: int, *, same_row: bool = False, seed: int = 0):
@@ -183,11 +179,7 @@ def _brute_lpm_code(x, y, k=6, lambdas=(0.8, 0.5), tau=0.2):
 
 
 def _planted(n=150, outliers=40, seed=0):
-    rng = np.random.default_rng(seed)
-    x = rng.uniform(0, 600, (n, 2))
-    y = x * 1.05 + (12.0, -7.0) + rng.normal(0, 0.5, (n, 2))
-    y[:outliers] = rng.uniform(0, 600, (outliers, 2))
-    return x, y, np.c_[np.arange(n), np.arange(n)]
+    return planted_similarity(n, outliers, seed)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 
 from ctxmatch_lib.filters import FILTERS
 from ctxmatch_lib.filters.llt import lle_weights, llt_filter, m_step
+from filter_cases import planted_similarity
 
 SIZE = (640, 480)
 REF_DIR = os.environ.get("CTXMATCH_LLT_REF")
@@ -37,11 +38,6 @@ switch method
 end
 VecFld.TX=(VecFld.TX)*normal.yscale;
 """
-
-
-@pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
 
 
 def _fake_checkout(root: Path) -> Path:
@@ -87,11 +83,7 @@ def test_plugin_names_a_missing_file_or_marker(bench, tmp_path):
 
 
 def _planted(n=200, outliers=50, seed=6):
-    rng = np.random.default_rng(seed)
-    x = rng.uniform(0, 600, (n, 2))
-    y = x * 1.05 + (12.0, -7.0) + rng.normal(0, 0.5, (n, 2))
-    y[:outliers] = rng.uniform(0, 600, (outliers, 2))
-    return x, y, np.c_[np.arange(n), np.arange(n)]
+    return planted_similarity(n, outliers, seed)
 
 
 def test_octave_reference_agrees_on_one_to_one_matches(bench):

@@ -22,11 +22,6 @@ LMR_REF = os.environ.get("CTXMATCH_LMR_REF")
 
 
 @pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
-
-
-@pytest.fixture(scope="module")
 def ref_lmr(bench):
     return bench.plugin("lmr")
 

@@ -45,11 +45,6 @@ disp(1)
 
 
 @pytest.fixture(scope="module")
-def bench(load_benchmark):
-    return load_benchmark("bench_filters_ref")
-
-
-@pytest.fixture(scope="module")
 def plugin(bench):
     return bench.plugin("rfm_scan")
 

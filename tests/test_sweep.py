@@ -3,10 +3,8 @@ after a kill, joblib/Dask == serial, one surface with ctxmatch eval."""
 
 import os
 import pickle
-import signal
 import subprocess
 import sys
-import time
 
 from pathlib import Path
 
@@ -178,22 +176,14 @@ def test_resume_after_interrupt_in_process(serial, tmp_path, monkeypatch):
     pd.testing.assert_frame_equal(_numbers(resumed), _numbers(ref))
 
 
-def test_resume_after_sigkill(serial, tmp_path):
+def test_resume_after_sigkill(serial, tmp_path, kill_after_first_part):
     """A real kill -9 of `ctxmatch sweep` in the middle of a run; the rerun completes it exactly."""
     _, ref = serial
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     code = ("import pickle, sys; from ctxmatch_lib.evaluation import run_sweep; "
             "run_sweep('embedded', cache_dir=sys.argv[1], **pickle.loads(bytes.fromhex(sys.argv[2])))")
     proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path), pickle.dumps(KW).hex()], env=env)
-    parts = tmp_path / "results"
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None:
-        if parts.is_dir() and len(list(parts.glob("*.parquet"))) >= 1:
-            break
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    n_parts = len(list(parts.glob("*.parquet")))
+    n_parts = kill_after_first_part(proc, tmp_path / "results", 0.05)
     assert 1 <= n_parts <= 3
     resumed = sweep.run_sweep("embedded", cache_dir=tmp_path, **KW)
     assert not resumed.duplicated(KEYS).any()

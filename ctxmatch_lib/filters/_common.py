@@ -217,6 +217,9 @@ image_size1, image_size2 : (int, int)
 shapes1, shapes2 : ndarray of shape (N, 2, 2), optional
     Unused.""",
     "common_unused": "%(kpts)s\n%(matches)s\n%(scores_unused)s\n%(image_sizes)s\n%(shapes_unused)s",
+    # Section openings: the Parameters of every filter start with the keypoints and matches.
+    "parameters": "Parameters\n----------\n%(kpts)s\n%(matches)s",
+    "parameters_unused": "Parameters\n----------\n%(common_unused)s",
     "merge_option": """\
 merge_coincident : bool, default True
     Decide coincident rows as one match (see Notes); ``False`` decides every row as given, as the
@@ -228,6 +231,9 @@ keep : ndarray of shape (K,), bool
 Rows whose keypoints coincide in both images (SIFT's orientation copies, repeated rows) are decided
 as one match, with the best score of its copies, so a wrong correspondence cannot support itself
 through its own copies.""",
+    # The Returns section and the Notes opening of the filters that decide coincident rows as one match.
+    "keep_coincident": "Returns\n-------\n%(keep)s\n\nNotes\n-----\n%(coincident)s",
+    "merge_keep_coincident": "%(merge_option)s\n\n%(keep_coincident)s",
     # The EM of VFC and LLT: a Gaussian-inlier / uniform-outlier mixture on normalised coordinates.
     "em_mixture": """\
 beta : float, default 0.1

@@ -78,10 +78,7 @@ def bm_filter(
 ) -> np.ndarray:
     r"""Bilateral-function motion model fitted robustly on a bilateral grid.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
     %(scores_unused)s
     image_size1, image_size2 : (int, int)
         Image sizes (width, height): the grid cells are fractions of the image diagonals.

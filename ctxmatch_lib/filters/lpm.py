@@ -125,9 +125,7 @@ def lpm_filter(
 ) -> np.ndarray:
     """Locality Preserving Matching, two iterations with multi-scale neighbourhoods.
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     k : int, default 6
         Central neighbourhood size; the scales are ``k + 2, k, k - 2`` (Sec. 5.1).
     lambdas : (float, float), default (0.8, 0.5)
@@ -140,13 +138,7 @@ def lpm_filter(
         With ``"code"``: the tree answer dropped as "self" is the smallest-index row at the query's
         location (True), or always the query (False).
 
-    Returns
-    -------
-    %(keep)s
-
-    Notes
-    -----
-    %(coincident)s
+    %(keep_coincident)s
     A location counts once in the neighbourhoods.
 
     The paper ran the authors' code, so ``reading="code"`` follows ``demo_LPM_v2.m``/``LPM_cosF.m``:
@@ -206,10 +198,7 @@ def glpm_filter(
 ) -> np.ndarray:
     """Guided Locality Preserving Matching.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better; ``scores <= ratio`` make the small set (``None``: every match).
         %(nnr_scale)s
@@ -225,13 +214,7 @@ def glpm_filter(
     tree_ties : bool, default True
         As in :func:`lpm_filter`, for ``ffm2``'s skipped answer.
 
-    Returns
-    -------
-    %(keep)s
-
-    Notes
-    -----
-    %(coincident)s
+    %(keep_coincident)s
     A location counts once in the neighbourhoods and in the guide. Passes, schedule and cost follow the
     authors' ``demo.m`` with ``ffm2.cpp``, as do ``guide`` and ``tree_ties``. Agreement: ``docs/filters.md``.
 

@@ -200,10 +200,7 @@ def pfm_filter(
 ) -> np.ndarray:
     """Progressive Feature Matching: incremental Delaunay graph and exact min-cut labelling.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
     scores : ndarray of shape (K,) or None
         Lower is better: the order in which candidates join the graph, and a small bias of the labelling.
     %(image_sizes)s

@@ -38,9 +38,7 @@ def scv_filter(
 ) -> np.ndarray:
     """Sequential correspondence verification by growing co-segmented match regions (geometric stand-in).
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     growth : sequence of int, default (4, 8, 16, 32, 64)
         Increasing region sizes, in matches, of the growth steps (capped at ``K - 1``).
     p1, p0 : float, default 0.15 and 0.03

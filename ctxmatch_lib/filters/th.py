@@ -14,10 +14,7 @@ __all__ = ["th_filter"]
 def th_filter(ms: MatchSet, *, threshold: float = 0.8) -> np.ndarray:
     """Keep the matches whose score is at most ``threshold``.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better. ``None`` means all equal (every match is kept).
         %(nnr_scale)s

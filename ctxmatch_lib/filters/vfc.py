@@ -56,9 +56,7 @@ def vfc_filter(
 ) -> np.ndarray:
     """Vector Field Consensus (SparseVFC).
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     %(em_mixture)s
     lam : float, default 3
         Weight of the RKHS regulariser (Sec. V).

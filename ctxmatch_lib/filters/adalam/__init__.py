@@ -95,10 +95,7 @@ def adalam_filter(
 ) -> np.ndarray:
     """Adaptive Locally-Affine Matching.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
     scores : ndarray of shape (K,) or None
         NNR-like scores, lower is better (seeds, sampling order); ``None``: all equal.
     image_size1, image_size2 : (int, int)

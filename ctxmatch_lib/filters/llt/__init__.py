@@ -64,9 +64,7 @@ def llt_filter(
 ) -> np.ndarray:
     """Locally Linear Transforming, non-rigid, with the sparse kernel approximation.
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     n_neighbors, reg : int, float, default 15 and 1e-5
         Neighbours (``conf.Kn``) and regulariser (times the local Gram trace) of the linear reconstruction.
     lam : float, default 9e9

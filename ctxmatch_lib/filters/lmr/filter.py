@@ -25,9 +25,7 @@ def lmr_filter(
 ) -> np.ndarray:
     """LMR: classify every match from its multi-scale neighbourhood features.
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     threshold, model : float, default 0.5, and LMRModel, optional
         Inlier probability above which a match is kept; the classifiers (default: the shipped model).
     features : {"mpc", "lpm"}, default "mpc"
@@ -35,15 +33,7 @@ def lmr_filter(
     network : path-like, optional
         The authors' ``Trained_Model/Net.mat`` (not shipped), classifying ``mpc_features(..., exact=True)``
         instead of ``model`` (first output above the second: inlier).
-    %(merge_option)s
-
-    Returns
-    -------
-    %(keep)s
-
-    Notes
-    -----
-    %(coincident)s
+    %(merge_keep_coincident)s
     ``MPC.m`` counts every row, so there the copies of a wrong match are each other's shared neighbours.
     Agreement with the authors' code and with the paper's Table 2: ``docs/filters.md``.
 

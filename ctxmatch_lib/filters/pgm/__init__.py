@@ -177,10 +177,7 @@ def pgm_filter(
 ) -> np.ndarray:
     """Progressive Graph Matching with RRWM on a sparse k-NN affinity.
 
-    Parameters
-    ----------
-    %(kpts)s
-    %(matches)s
+    %(parameters)s
         Candidates sharing a keypoint are RRWM's conflict groups; the output is one-to-one.
     scores : ndarray of shape (K,) or None
         Lower is better; they pick the initial active set. ``None``: all equal.

@@ -345,9 +345,7 @@ def rfm_scan_filter(
 ) -> np.ndarray:
     """RFM-SCAN: density clustering of the matches in a normalised motion space.
 
-    Parameters
-    ----------
-    %(common_unused)s
+    %(parameters_unused)s
     gamma : float, default 10
         Amplification of the motion distance of nearby matches, Eq. (3) (Sec. IV-A).
     pct, min_pts_bounds : float and (int, int), default 0.05 and (3, 30)
@@ -358,15 +356,7 @@ def rfm_scan_filter(
         Add ``round(min(0.05 K, 20))`` uniform random matches before clustering (authors' demo).
     rng : None, int or numpy.random.Generator, default 0
         Seed of the added matches; an integer draws as Octave's ``rand('state', s)`` (the authors' demo).
-    %(merge_option)s
-
-    Returns
-    -------
-    %(keep)s
-
-    Notes
-    -----
-    %(coincident)s
+    %(merge_keep_coincident)s
     A location counts once in the density counts and in ``N``. Where the papers are silent, the authors'
     code (StaRainJ/RFM-SCAN) is followed: Euclidean distances in Eq. (3), MATLAB's ``round``, ``L``
     including itself, ``<=`` against ``eps``, added matches always pushed away in the second round.
