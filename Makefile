@@ -11,7 +11,8 @@ STAMP  := $(VENV)/.ctxmatch-installed
 # environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
 TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
-# The suite runs on every core (pytest-xdist); a file's tests, and a notebook's cells, stay on one worker in order.
+# The suite runs on every core (pytest-xdist): a file's tests, and a notebook's cells, stay on one worker in order, and
+# the files start in the order tests/conftest.py gives them (the longest first).
 TEST_WORKERS ?= auto
 # Real data: CTXMATCH_DATA from the environment, else ../shared/data when that folder exists.
 export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
@@ -42,7 +43,7 @@ figures-paper: $(STAMP)
 
 test: $(TEST_STAMP)
 	mkdir -p build
-	CTXMATCH_FIGURES=$(abspath build/figures) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --durations=15 tests notebooks --nbval-lax --doctest-modules ctxmatch_lib --junitxml=build/junit.xml
+	CTXMATCH_FIGURES=$(abspath build/figures) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=15 tests notebooks --nbval-lax --doctest-modules ctxmatch_lib --junitxml=build/junit.xml
 
 test-fast: $(TEST_STAMP)
 	$(BIN)/python -m pytest tests -m "not slow" -x -q
