@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -739,6 +741,39 @@ def test_compiled_kernels_cache_in_the_user_cache_directory(tmp_path):
     assert any(f.suffix == ".nbi" for f in cached)
     package = os.path.dirname(ctxmatch_lib.__file__)
     assert not [f for _, _, files in os.walk(package) for f in files if f.endswith((".nbi", ".nbc"))]
+
+
+def test_two_checkouts_share_compiled_kernels_and_an_edit_compiles_anew(tmp_path):
+    """Two copies of the package at different paths load each other's machine code (numba's own locators
+    would file them apart by absolute path); an edit in a module that feeds kernels, not the kernel's own
+    file, is a miss (numba's own stamp covers only the kernel's file)."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    import ctxmatch_lib
+
+    src = Path(ctxmatch_lib.__file__).parent
+    for name in ("a", "b", "c"):
+        shutil.copytree(src, tmp_path / name / "ctxmatch_lib", ignore=shutil.ignore_patterns("__pycache__"))
+    fed = tmp_path / "c" / "ctxmatch_lib" / "dtm" / "_point_kernels.py"
+    fed.write_text(fed.read_text() + "\n_EDITED_CONSTANT = 1\n")
+    code = ("import numpy as np; from ctxmatch_lib.dtm._kernels import circumradii_kernel as k; "
+            "k(np.array([[0.0, 0], [2, 0], [0, 2]]), np.array([[0, 1, 2]])); "
+            "print(sum(k.stats.cache_hits.values()), sum(k.stats.cache_misses.values()))")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["CTXMATCH_CACHE"] = str(tmp_path / "cache")
+
+    def hits_misses(name):
+        out = subprocess.run([sys.executable, "-c", code], env=dict(env, PYTHONPATH=str(tmp_path / name)),
+                             cwd=tmp_path, capture_output=True, text=True, check=True)
+        return tuple(map(int, out.stdout.split()))
+
+    assert hits_misses("a") == (0, 1)
+    assert hits_misses("b") == (1, 0)
+    assert hits_misses("c") == (0, 1)
+    assert len(list((tmp_path / "cache" / "numba").glob("ctxmatch_lib-*"))) == 2
 
 
 def test_neighbourhood_pairs_match_their_definition():

@@ -68,44 +68,46 @@ _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 
 
 @functools.lru_cache(maxsize=4)
-def _import_graph(root: Path = _PACKAGE_ROOT) -> tuple[Path, dict]:
-    """The modules of the package at ``root`` and what each imports, read from the source (imports inside
-    functions included): ``(root, {module: (path, {imported modules})})``."""
+def _modules(root: Path = _PACKAGE_ROOT) -> dict[str, Path]:
+    """The modules of the package at ``root``: ``{dotted name: path}``."""
     paths = {}
     for path in root.rglob("*.py"):
         parts = list(path.relative_to(root.parent).with_suffix("").parts)
         if parts[-1] == "__init__":
             parts.pop()
         paths[".".join(parts)] = path
-    graph = {}
-    for name, path in paths.items():
-        package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
-        edges = set()
-        for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
-            if isinstance(node, ast.Import):
-                edges.update(a.name for a in node.names)
-            elif isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                    target = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    target = node.module or ""
-                edges.update(f"{target}.{a.name}" if f"{target}.{a.name}" in paths else target for a in node.names)
-        graph[name] = (path, {e for e in edges if e in paths and e != name})
-    return root, graph
+    return paths
+
+
+def _imports(name: str, paths: dict[str, Path]) -> set[str]:
+    """The modules of ``paths`` that module ``name`` imports, read from its source (imports inside functions
+    included)."""
+    path = paths[name]
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    edges = set()
+    for level, module, names in _source_facts(path.read_bytes())[0]:
+        if level:
+            base = package.split(".")[: len(package.split(".")) - level + 1]
+            target = ".".join(base + ([module] if module else []))
+        else:
+            target = module
+        edges.update(f"{target}.{a}" if f"{target}.{a}" in paths else target for a in names)
+        if not names:  # import a.b
+            edges.add(target)
+    return {e for e in edges if e in paths and e != name}
 
 
 def code_closure(roots, *, package_root: Path = _PACKAGE_ROOT) -> list[str]:
     """The library modules that ``roots`` run: the roots and everything they import, transitively, without
     entering :data:`_KEY_CUTS` (a root may be inside one)."""
-    _, graph = _import_graph(package_root)
-    seen, todo = set(), [r for r in roots if r in graph]
+    paths = _modules(package_root)
+    seen, todo = set(), [r for r in roots if r in paths]
     while todo:
         name = todo.pop()
         if name in seen:
             continue
         seen.add(name)
-        todo.extend(e for e in graph[name][1] if e not in seen and e not in _KEY_CUTS)
+        todo.extend(e for e in _imports(name, paths) if e not in seen and e not in _KEY_CUTS)
     return sorted(seen)
 
 
@@ -124,17 +126,18 @@ def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAG
     """SHA-1 of the code a unit runs: the import closure (:func:`code_closure`) of the unit and its
     ``filters``, and the shipped ``.npz`` models in it; documentation edits keep the cache (:func:`_code_bytes`).
     """
-    root, graph = _import_graph(Path(package_root))
+    root = Path(package_root)
+    paths = _modules(root)
     modules = [_filter_module(n) for n in filters]
-    closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in graph)], package_root=Path(package_root))
+    closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in paths)], package_root=root)
     h = hashlib.sha1()
     for name in closure:
         h.update(name.encode())
-        h.update(_code_bytes(graph[name][0]))
+        h.update(_code_bytes(paths[name]))
     for name in modules:
-        if name not in graph:
+        if name not in paths:
             h.update(repr(name).encode())
-    packages = {graph[name][0].parent for name in closure}
+    packages = {paths[name].parent for name in closure}
     for path in sorted(root.rglob("*.npz")):
         if any(folder in path.parents for folder in packages):
             h.update(str(path.relative_to(root)).encode())
@@ -144,14 +147,31 @@ def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAG
 
 def _code_bytes(path: Path) -> bytes:
     """The syntax tree of a Python file without docstrings, comments and layout, dumped."""
-    tree = ast.parse(path.read_bytes(), filename=str(path))
+    return _dumped(path.read_bytes())
+
+
+@functools.lru_cache(maxsize=1024)
+def _dumped(source: bytes) -> bytes:
+    return ast.dump(_source_facts(source)[1]).encode()
+
+
+@functools.lru_cache(maxsize=1024)
+def _source_facts(source: bytes) -> tuple[tuple, ast.Module]:
+    """What the cache key reads of one module's source, parsed once per content: its imports as
+    ``(level, module, names)`` (``import a.b`` is ``(0, "a.b", ())``) and its syntax tree without docstrings."""
+    tree = ast.parse(source)
+    imports = []
     for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imports.extend((0, a.name, ()) for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            imports.append((node.level, node.module or "", tuple(a.name for a in node.names)))
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
             body = node.body
             if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
                     and isinstance(body[0].value.value, str):
                 node.body = body[1:] or [ast.Pass()]
-    return ast.dump(tree).encode()
+    return tuple(imports), tree
 
 
 def save_npz(path: Path, arrays: dict) -> None:
