@@ -11,6 +11,9 @@ STAMP  := $(VENV)/.ctxmatch-installed
 # environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
 TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
+# pip without byte-compiling every installed module (most of the time torch takes to install, docs/costs.md);
+# Python compiles what a run imports, once.
+PIP := $(BIN)/python -m pip install -q --no-compile
 # The suite runs on every core (pytest-xdist): a file's tests, and a notebook's cells, stay on one worker in order, and
 # the files start in the order tests/conftest.py gives them (the longest first).
 TEST_WORKERS ?= auto
@@ -27,12 +30,12 @@ $(STAMP): environment.txt pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "ctxmatch needs Python >= 3.11 but $(PYTHON) is " + sys.version.split()[0] + "; choose one with make PYTHON=python3.11 (or newer)")'
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -r environment.txt
-	$(BIN)/python -m pip install -q --no-deps --no-build-isolation -e .
+	$(PIP) -r environment.txt
+	$(PIP) --no-deps --no-build-isolation -e .
 	touch $@
 
 $(TEST_STAMP): $(STAMP) Makefile
-	$(BIN)/python -m pip install -q $(TEST_EXTRAS)
+	$(PIP) $(TEST_EXTRAS)
 	touch $@
 
 figures: $(STAMP)
@@ -59,7 +62,7 @@ DOC_MODULES := ctxmatch_lib \
 	$(filter-out ctxmatch_lib.dtm ctxmatch_lib._numerics,$(subst /,.,$(patsubst %/__init__.py,%,$(wildcard ctxmatch_lib/*/__init__.py))))
 
 docs: $(STAMP)
-	$(BIN)/python -m pip install -q "pdoc>=14"
+	$(PIP) "pdoc>=14"
 	rm -rf build/docs
 	$(BIN)/pdoc --docformat numpy --no-show-source -o build/docs $(DOC_MODULES)
 	$(BIN)/python docs/render_guide.py build/docs
