@@ -59,6 +59,13 @@ def test_stored_as_jupyterlab_saves_them(path):
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_pairs_are_looked_up_by_select_pairs(path):
+    """A bad pair id is select_pairs' ValueError listing the valid ids, never a KeyError of a notebook's dict."""
+    source = "\n".join("".join(c["source"]) for c in _cells(path) if c["cell_type"] == "code")
+    assert "p.pair_id: p for" not in source, path.name
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_parameters_are_typed(path):
     papermill = pytest.importorskip("papermill")
     tagged = [c for c in _cells(path) if "parameters" in c.get("metadata", {}).get("tags", [])]
