@@ -59,6 +59,18 @@ def test_stored_as_jupyterlab_saves_them(path):
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_parameters_are_documented_above_their_cell(path):
+    """A Markdown cell headed "Parameters" right above the parameters cell names every parameter."""
+    papermill = pytest.importorskip("papermill")
+    cells = _cells(path)
+    at = next(k for k, c in enumerate(cells) if "parameters" in c.get("metadata", {}).get("tags", []))
+    above = "".join(cells[at - 1]["source"]) if at else ""
+    assert cells[at - 1]["cell_type"] == "markdown" and above.lstrip("# ").startswith("Parameters"), path.name
+    missing = [name for name in papermill.inspect_notebook(str(path)) if f"`{name}`" not in above]
+    assert not missing, f"{path.name}: the Parameters cell does not name {missing}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_pairs_are_looked_up_by_select_pairs(path):
     """A bad pair id is select_pairs' ValueError listing the valid ids, never a KeyError of a notebook's dict."""
     source = "\n".join("".join(c["source"]) for c in _cells(path) if c["cell_type"] == "code")
