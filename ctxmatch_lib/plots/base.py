@@ -132,7 +132,8 @@ def source_commit() -> str:
 
 def provenance(**fields) -> dict:
     """What produced a figure or table: ``version``, ``git_commit`` (:func:`source_commit`) and ``fields``
-    (lists joined with ", "). No date or time, so a rerun with the same numbers writes the same record.
+    (lists joined with ", "; a ``None`` left out, never an empty value). No date or time, so a rerun with the
+    same numbers writes the same record.
 
     Examples
     --------
@@ -140,6 +141,8 @@ def provenance(**fields) -> dict:
     ['blob', 'dataset', 'git_commit', 'version']
     >>> provenance(blob=["paper-best", "baseline"])["blob"]
     'paper-best, baseline'
+    >>> "max_keypoints" in provenance(max_keypoints=None)
+    False
     """
     from .. import __version__
 
@@ -147,7 +150,8 @@ def provenance(**fields) -> dict:
     for key, value in fields.items():
         if isinstance(value, (list, tuple)):
             value = ", ".join(map(str, value))
-        out[key] = "" if value is None else str(value)
+        if value is not None:
+            out[key] = str(value)
     return out
 
 
