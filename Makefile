@@ -2,6 +2,7 @@
 #   make figures   virtual environment + package + every figure on the embedded offline default dataset
 #                  (rewrites the tracked figures/)
 #   make test      same environment, the whole test suite including the notebooks under nbval
+#   make lab       same environment, JupyterLab on notebooks/
 # Any Python >= 3.11 builds the environment: make PYTHON=python3.12 (default: python3).
 PYTHON ?= python3
 VENV   ?= .venv
@@ -22,7 +23,7 @@ export CTXMATCH_DATA ?= $(abspath $(wildcard ../shared/data))
 export MPLBACKEND := Agg
 export PYTHONHASHSEED := 0
 
-.PHONY: env figures figures-paper test test-fast bench docs clean
+.PHONY: env figures figures-paper lab test test-fast bench docs clean
 
 env: $(STAMP)
 
@@ -43,6 +44,11 @@ figures: $(STAMP)
 
 figures-paper: $(STAMP)
 	$(BIN)/ctxmatch figures --params paper
+
+# The kernels draw inline: MPLBACKEND (Agg, for the batch runs above) is left out. JupyterLab refuses to run as root
+# unless told to.
+lab: $(STAMP)
+	env -u MPLBACKEND $(BIN)/jupyter lab notebooks/ $(if $(filter 0,$(shell id -u)),--allow-root)
 
 test: $(TEST_STAMP)
 	mkdir -p build

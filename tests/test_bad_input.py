@@ -4,6 +4,7 @@ argument or the flag, before any work; nothing is silently accepted."""
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import pytest
 
@@ -394,3 +395,32 @@ def test_match_missing_optional_dependency_is_one_line(images, tmp_path, monkeyp
     assert main(["match", str(images / "a.png"), str(images / "b.png"), "--out", str(tmp_path / "m.npz"),
                  "--features", "sift-hardnet2"]) == 2
     assert "pip install 'ctxmatch[kornia]'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------- pair ids
+def test_unknown_pair_id_names_the_argument_and_lists_valid_ids():
+    """A pair id the dataset lacks is a ValueError naming ``pair_ids`` and the valid ids closest to it (as a bad
+    dataset name lists the names), not a bare KeyError."""
+    from ctxmatch_lib.evaluation import select_pairs
+
+    with pytest.raises(ValueError) as info:
+        select_pairs("embedded", pair_ids=["nonplanar/nosuch"])
+    message = str(info.value)
+    assert "pair_ids" in message and "'nonplanar/nosuch'" in message
+    assert "nonplanar/cards" in message and "(20 in all)" in message  # the non-planar ids come first
+    with pytest.raises(ValueError, match="holds no pair"):
+        select_pairs("embedded", pair_ids=["planar/lab/1-2"], kinds=["calibrated"])
+    assert [p.pair_id for p in select_pairs("embedded", pair_ids=["nonplanar/cards"])] == ["nonplanar/cards"]
+
+
+def test_notebook_with_an_unknown_pair_id_fails_naming_it(tmp_path):
+    """The notebooks look their pairs up with select_pairs: a bad ``pair_id`` parameter stops the run with the
+    same ValueError, before any feature is computed."""
+    papermill = pytest.importorskip("papermill")
+    notebook = Path(__file__).resolve().parents[1] / "notebooks" / "fig_boundary.ipynb"
+    with pytest.raises(papermill.PapermillExecutionError) as info:
+        papermill.execute_notebook(str(notebook), str(tmp_path / "out.ipynb"), kernel_name="python3",
+                                   parameters={"pair_id": "nonplanar/nosuch", "output_dir": str(tmp_path)},
+                                   progress_bar=False)
+    assert info.value.ename == "ValueError" and "pair_ids" in info.value.evalue
+    assert "nonplanar/cards" in info.value.evalue

@@ -2,16 +2,41 @@
 working directory, and paper figures written through ``save_figure`` (PNG + PDF with provenance)."""
 
 import json
+import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+#: The kernelspec JupyterLab 4 records for the project's kernel (ipykernel's ``python3``).
+KERNELSPEC = {"display_name": "Python 3 (ipykernel)", "language": "python", "name": "python3"}
 
 
 def _cells(path):
     return json.loads(path.read_text())["cells"]
+
+
+def as_jupyterlab_saves(path: Path) -> str:
+    """The text JupyterLab 4 saves for the notebook ``path`` (nbformat 4.5 through ``nbformat.write``: 1-space
+    JSON with sorted keys and a final newline), outputs stripped. Every cell gets the id ``<stem>-<position>``
+    (stable, never random), the metadata the kernelspec and language_info that the project's kernel reports
+    (the Python version: the stored one, else this interpreter's), so that opening the notebook and starting
+    its kernel marks nothing modified."""
+    import nbformat
+    from ipykernel.ipkernel import IPythonKernel
+
+    nb = nbformat.read(path, as_version=4)
+    nb.nbformat, nb.nbformat_minor = 4, 5
+    info = dict(IPythonKernel.language_info)
+    info["version"] = nb.metadata.get("language_info", {}).get("version", info["version"])
+    nb.metadata["kernelspec"], nb.metadata["language_info"] = dict(KERNELSPEC), info
+    for k, cell in enumerate(nb.cells):
+        cell["id"] = f"{path.stem}-{k:02d}"
+        if cell.cell_type == "code":
+            cell.outputs, cell.execution_count = [], None
+    nbformat.validate(nb)
+    return nbformat.writes(nb) + "\n"
 
 
 def test_there_are_notebooks():
@@ -24,6 +49,32 @@ def test_committed_without_outputs(path):
         if cell["cell_type"] == "code":
             assert cell.get("outputs", []) == [], f"{path.name} cell {k} has outputs: strip them before committing"
             assert cell.get("execution_count") is None, f"{path.name} cell {k} has an execution count"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_stored_as_jupyterlab_saves_them(path):
+    pytest.importorskip("ipykernel")
+    assert path.read_text() == as_jupyterlab_saves(path), \
+        f"{path.name} is not stored as JupyterLab saves it: `python tests/test_notebooks.py` rewrites it so"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_parameters_are_documented_above_their_cell(path):
+    """A Markdown cell headed "Parameters" right above the parameters cell names every parameter."""
+    papermill = pytest.importorskip("papermill")
+    cells = _cells(path)
+    at = next(k for k, c in enumerate(cells) if "parameters" in c.get("metadata", {}).get("tags", []))
+    above = "".join(cells[at - 1]["source"]) if at else ""
+    assert cells[at - 1]["cell_type"] == "markdown" and above.lstrip("# ").startswith("Parameters"), path.name
+    missing = [name for name in papermill.inspect_notebook(str(path)) if f"`{name}`" not in above]
+    assert not missing, f"{path.name}: the Parameters cell does not name {missing}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_pairs_are_looked_up_by_select_pairs(path):
+    """A bad pair id is select_pairs' ValueError listing the valid ids, never a KeyError of a notebook's dict."""
+    source = "\n".join("".join(c["source"]) for c in _cells(path) if c["cell_type"] == "code")
+    assert "p.pair_id: p for" not in source, path.name
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
@@ -231,3 +282,11 @@ def test_paper_scale_runs_share_one_keypoint_budget():
     for stem in evaluations:
         params = yaml.safe_load((ROOT / "notebooks" / "params" / f"{stem}.yaml").read_text())
         assert keypoint_budget(params["max_keypoints"]) == KEYPOINT_BUDGETS["paper"], stem
+
+
+if __name__ == "__main__":  # rewrite the notebooks as JupyterLab saves them
+    for nb_path in NOTEBOOKS:
+        text = as_jupyterlab_saves(nb_path)
+        if text != nb_path.read_text():
+            nb_path.write_text(text)
+            print(f"normalised {nb_path.relative_to(ROOT)}", file=sys.stderr)

@@ -472,6 +472,25 @@ def test_save_figure_shows_before_closing(tmp_path, monkeypatch):
     assert not (tmp_path / "shown.pdf").exists()
 
 
+def test_save_figure_says_where_it_wrote(tmp_path, monkeypatch, capsys):
+    """In a notebook (``show``) one line names every file written, relative to the checkout when inside it;
+    outside a notebook nothing is printed."""
+    import IPython.display
+
+    from ctxmatch_lib.cache import repo_root
+    from ctxmatch_lib.plots import base
+
+    monkeypatch.setattr(IPython.display, "display", lambda obj: None)
+    fig, ax = plt.subplots()
+    base.save_figure(fig, "said", tmp_path, show=True)
+    assert capsys.readouterr().out == f"wrote {tmp_path / 'said.png'}, {tmp_path / 'said.pdf'}\n"
+    fig, ax = plt.subplots()
+    base.save_figure(fig, "quiet", tmp_path, formats=("png",), show=False)
+    assert capsys.readouterr().out == ""
+    if repo_root() is not None:
+        assert base.written(repo_root() / "figures" / "tables.csv") == "wrote figures/tables.csv"
+
+
 def test_parquet_carries_provenance(tmp_path):
     import pyarrow.parquet as pq
 

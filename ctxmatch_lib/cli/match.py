@@ -152,10 +152,12 @@ def _settings(args) -> dict:
     except ValueError as exc:
         raise ValueError(f"--filter: {exc}") from None
     if args.export_h5 is not None:
+        from .._numerics.extras import require
+
         try:
-            import h5py  # noqa: F401
-        except ImportError:
-            raise ValueError("--export-h5 needs h5py: pip install 'ctxmatch[export]'") from None
+            require("h5py", "export", "--export-h5")
+        except ImportError as exc:
+            raise ValueError(str(exc)) from None
     return settings
 
 

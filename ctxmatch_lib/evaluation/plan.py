@@ -78,6 +78,11 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
     step, kinds, pair_ids
         Every ``step``-th pair of each kind; only these kinds (applied first); as strings in ``select``.
 
+    Raises
+    ------
+    ValueError
+        An unknown pair id (the message lists the valid ids closest to it), a bad ``step`` or ``select``.
+
     Examples
     --------
     >>> [p.pair_id for p in select_pairs("embedded", step=5, kinds=["planar"])]
@@ -107,8 +112,8 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
         by_id = {p.pair_id: p for p in pairs}
         unknown = [w for w in wanted if w not in by_id]
         if unknown:
-            raise ValueError(f"unknown pair ids (pair_ids): {', '.join(map(str, unknown[:5]))}; "
-                             f"known: {', '.join(sorted(by_id)[:10])} ...")
+            raise ValueError(f"unknown pair ids (pair_ids): {', '.join(map(repr, unknown[:5]))}; "
+                             + _valid_ids(by_id, str(unknown[0])))
         return [by_id[w] for w in wanted]
     if step > 1:
         out, seen = [], {}
@@ -126,6 +131,17 @@ def select_pairs(dataset, select=None, *, step: int = 1, kinds=None, pair_ids: S
         return pairs
     idx = np.unique(np.round(np.linspace(0, len(pairs) - 1, int(select))).astype(int))
     return [pairs[i] for i in idx]
+
+
+def _valid_ids(ids, wanted: str, shown: int = 10) -> str:
+    """Some of the valid pair ids for an error message: those closest to ``wanted`` first."""
+    import difflib
+
+    if not ids:
+        return "the selection holds no pair"
+    near = difflib.get_close_matches(wanted, sorted(ids), n=shown, cutoff=0)
+    more = f", ... ({len(ids)} in all)" if len(ids) > len(near) else ""
+    return f"valid ids, the closest first: {', '.join(near)}{more}"
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .._numerics.extras import require
 from ..cache import write_parquet_atomic
 from .cache import engine_cache
 from .plan import SweepUnit, keyed
@@ -24,12 +25,12 @@ def _unit_task(unit, cache_dir, feature_cache_dir):
     return unit.key, df, time.perf_counter() - t0
 
 
+def _distributed():
+    return require("distributed", "dask", "running units on a Dask cluster")
+
+
 def _connect_dask(dask):
-    try:
-        from distributed import Client
-    except ImportError as exc:  # optional dependency
-        raise ImportError("--dask needs the optional 'distributed' package: pip install 'dask[distributed]'") \
-            from exc
+    Client = _distributed().Client
     if isinstance(dask, Client):
         return dask, False
     if not isinstance(dask, str) or "://" not in dask:
@@ -64,8 +65,7 @@ def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> No
     if todo and dask is not None:
         client, own = _connect_dask(dask)
         try:
-            from distributed import as_completed
-
+            as_completed = _distributed().as_completed
             bar.set_postfix_str(f"{len(todo)} pairs on the cluster", refresh=True)
             futures = [client.submit(_unit_task, u, cache_arg, feature_cache_dir, pure=False) for u in todo]
             for fut in as_completed(futures):

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._numerics.extras import require
+
 __all__ = ["weights_dir", "shipped_weights_dir", "resolve_weights", "weights_digest", "load_numpy_net",
            "load_descriptor_net", "load_orinet", "orinet_angles", "deep_descriptors", "describe_patches",
            "export_npz", "NUMPY_IMPL"]
@@ -41,14 +43,21 @@ _SHIPPED_SOURCES = {
 }
 
 
+_NEEDS_KORNIA = "the torch backend of the deep features (kornia's modules and published weights, .pth/.params files)"
+
+
+def _torch():
+    return require("torch", "kornia", _NEEDS_KORNIA)
+
+
+def _kornia_feature():
+    return require("kornia.feature", "kornia", _NEEDS_KORNIA)
+
+
 def _require_torch():
-    try:
-        import kornia  # noqa: F401
-        import torch  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - exercised where torch is absent
-        raise ImportError(
-            "this needs the optional torch extra (the kornia backend, kornia's published weights, or reading a "
-            f".pth/.params file): pip install 'ctxmatch[kornia]' ({exc})") from exc
+    """Check, before any work, that the torch backend can run: torch and kornia import."""
+    _torch()
+    _kornia_feature()
 
 
 def weights_dir() -> Path | None:
@@ -148,8 +157,8 @@ def _use_numpy(backend: str, weights, arch: str) -> bool:
 
 def _hardtfeat():
     """The torch module of HardTFeat, as its authors define it (see :func:`._nn.hardtfeat`)."""
-    import torch
-    from torch import nn
+    torch = _torch()
+    nn = torch.nn
 
     class HardTFeat(nn.Module):
         def __init__(self):
@@ -168,7 +177,7 @@ def _hardtfeat():
 
 
 def _state_dict(path: Path):
-    import torch
+    torch = _torch()
 
     if str(path).endswith(".npz"):  # a shipped copy: the same arrays under the same names
         return {k: torch.from_numpy(v) for k, v in load_numpy_net(path, "auto")[1].items()}
@@ -178,7 +187,7 @@ def _state_dict(path: Path):
 
 @lru_cache(maxsize=8)
 def _descriptor_net(descriptor: str, net: str, path: str | None):
-    import kornia.feature as KF
+    KF = _kornia_feature()
 
     arch = _DEFAULT_NET[descriptor] if net == "auto" else net
     if path is None:  # the published weights, as kornia loads them (needs network access)
@@ -208,8 +217,7 @@ def load_descriptor_net(descriptor: str, *, net: str = "auto", weights=None):
 
 @lru_cache(maxsize=4)
 def _orinet(path: str | None):
-    import torch
-    import kornia.feature as KF
+    KF = _kornia_feature()
 
     if path is None:
         return KF.OriNet(pretrained=True).eval()
@@ -227,7 +235,7 @@ def load_orinet(weights=None):
 
 
 def _lafs(kpts, shapes, support):
-    import torch
+    torch = _torch()
 
     A = np.asarray(shapes, np.float64) * float(support)
     laf = np.concatenate([A, np.asarray(kpts, np.float64)[:, :, None]], axis=2)  # (N, 2, 3) = [A | c]
@@ -235,7 +243,7 @@ def _lafs(kpts, shapes, support):
 
 
 def _image(gray):
-    import torch
+    torch = _torch()
 
     return torch.from_numpy(np.ascontiguousarray(gray, np.float32) / 255.0)[None, None]
 
@@ -263,9 +271,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
             sin, cos = _fixedmath.sincos(a)
             out[s : s + batch] = _fixedmath.atan2(-sin, cos)
         return out
-    _require_torch()
-    import torch
-    import kornia.feature as KF
+    torch = _torch()
+    KF = _kornia_feature()
 
     model = load_orinet(weights)
     orienter = KF.LAFOrienter(PATCH_SIZE, angle_detector=model).eval()
@@ -297,7 +304,7 @@ def describe_patches(patches, descriptor: str, *, net: str = "auto", weights=Non
         for s in range(0, len(p), batch):
             out.append(_nn.NETS[arch](params, p[s : s + batch]).astype(np.float64))
     else:
-        import torch
+        torch = _torch()
 
         model = load_descriptor_net(descriptor, net=net, weights=weights)
         t = torch.as_tensor(p)[:, None]
@@ -331,9 +338,8 @@ def deep_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, 
             patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
             out.append(describe_patches(patches, descriptor, **kw))
         return np.concatenate(out)
-    _require_torch()
-    import torch
-    import kornia.feature as KF
+    torch = _torch()
+    KF = _kornia_feature()
 
     img = _image(gray)
     with torch.no_grad():

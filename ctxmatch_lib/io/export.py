@@ -1,7 +1,7 @@
 """Exports for structure-from-motion pipelines: hloc's HDF5 files and a COLMAP database.
 
-- hloc (:func:`write_hloc`, :func:`read_hloc`, needs ``h5py``): ``keypoints`` per image, ``matches0``
-  (int16, one match per image-0 keypoint) and ``matching_scores0`` (``1 - score``) per pair.
+- hloc (:func:`write_hloc`, :func:`read_hloc`, needs ``h5py``: the ``export`` extra): ``keypoints`` per image,
+  ``matches0`` (int16, one match per image-0 keypoint) and ``matching_scores0`` (``1 - score``) per pair.
 - COLMAP (:func:`write_colmap`, :func:`read_colmap`): its documented SQLite schema through ``sqlite3``; one
   ``SIMPLE_RADIAL`` camera per image (focal 1.2 max(w, h), COLMAP's guess without EXIF), keypoints +0.5 px
   (corner origin), many-to-many matches kept.
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .._numerics.docstrings import shared_doc
+from .._numerics.extras import require
 from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
 __all__ = [
@@ -35,6 +36,10 @@ __all__ = [
 COLMAP_MAX_IMAGE_ID = 2147483647
 #: COLMAP camera model id of SIMPLE_RADIAL (f, cx, cy, k).
 _SIMPLE_RADIAL = 2
+
+
+def _h5py():
+    return require("h5py", "export", "writing or reading hloc's HDF5 files (write_hloc, read_hloc, --export-h5)")
 
 
 def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
@@ -85,8 +90,7 @@ def _check_h5_path(path, name: str) -> Path:
 
     path = check_writable(path, name)
     if path.is_file() and path.stat().st_size:
-        import h5py
-
+        h5py = _h5py()
         if not h5py.is_hdf5(str(path)):
             raise ValueError(f"{name}: {path} exists and is not an HDF5 file (hloc's format)")
     return path
@@ -159,7 +163,7 @@ def write_hloc(features_path, matches_path, name1: str, name2: str, kpts1, kpts2
     duplicates : {"error", "best"}
         For an image-1 keypoint with several matches: raise ``ValueError``, or keep the best-scored one.
     """
-    import h5py
+    h5py = _h5py()
 
     k1, k2, m, s = _check_pair(kpts1, kpts2, matches, scores)
     if duplicates not in ("error", "best"):
@@ -206,7 +210,7 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
     name1, name2 : str
         A pair stored in either order.
     """
-    import h5py
+    h5py = _h5py()
 
     for arg, path in (("features_path", features_path), ("matches_path", matches_path)):
         if not Path(path).is_file():

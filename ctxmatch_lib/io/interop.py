@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._numerics.docstrings import shared_doc
+from .._numerics.extras import require
 from .._numerics.validation import as_matches, as_points, as_scores
 
 __all__ = [
@@ -27,6 +28,10 @@ __all__ = [
 
 #: ``mr_size`` of the project's own shapes (``FeatureConfig.patch_radius``): a 3 sigma patch.
 CTXMATCH_MR_SIZE = 3.0
+
+
+def _torch():
+    return require("torch", "kornia", "kornia interop (to_kornia_lafs, match_blob)")
 
 
 def _rotation(angles: np.ndarray) -> np.ndarray:
@@ -238,7 +243,7 @@ def to_kornia_lafs(kpts, shapes, *, mr_size: float, patch_radius: float = 3.0, d
     dtype, device : torch dtype and device, optional
         Default ``torch.float64`` (exact round trips) on the CPU.
     """
-    import torch
+    torch = _torch()
 
     mr = _check_mr_size(mr_size)
     r = _check_patch_radius(patch_radius)
@@ -275,7 +280,7 @@ def match_blob(desc1, desc2, lafs1=None, lafs2=None, dm=None, *, mr_size: float 
     idxs : torch.Tensor of shape (K, 2), long
         Rows into ``desc1`` and ``desc2``; many-to-many unless f' = 1.
     """
-    import torch
+    torch = _torch()
 
     from ..blob import blob_matching
     from ..match import resolve_blob

@@ -28,6 +28,7 @@ __all__ = [
     "provenance",
     "default_figure_dir",
     "figure_path",
+    "written",
     "save_figure",
     "plot_toy_matrix",
     "plot_toy_table",
@@ -131,7 +132,8 @@ def source_commit() -> str:
 
 def provenance(**fields) -> dict:
     """What produced a figure or table: ``version``, ``git_commit`` (:func:`source_commit`) and ``fields``
-    (lists joined with ", "). No date or time, so a rerun with the same numbers writes the same record.
+    (lists joined with ", "; a ``None`` left out, never an empty value). No date or time, so a rerun with the
+    same numbers writes the same record.
 
     Examples
     --------
@@ -139,6 +141,8 @@ def provenance(**fields) -> dict:
     ['blob', 'dataset', 'git_commit', 'version']
     >>> provenance(blob=["paper-best", "baseline"])["blob"]
     'paper-best, baseline'
+    >>> "max_keypoints" in provenance(max_keypoints=None)
+    False
     """
     from .. import __version__
 
@@ -146,7 +150,8 @@ def provenance(**fields) -> dict:
     for key, value in fields.items():
         if isinstance(value, (list, tuple)):
             value = ", ".join(map(str, value))
-        out[key] = "" if value is None else str(value)
+        if value is not None:
+            out[key] = str(value)
     return out
 
 
@@ -169,6 +174,25 @@ def figure_path(name: str, output_dir: str | os.PathLike | None = None) -> Path:
     path = base / name
     path.parent.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def written(*paths) -> str:
+    """``"wrote a, b"``: the line a notebook prints after writing ``paths``, each relative to the checkout when
+    inside it, else absolute.
+
+    Examples
+    --------
+    >>> written("/tmp/x/tables.csv", "/tmp/x/tables.md")
+    'wrote /tmp/x/tables.csv, /tmp/x/tables.md'
+    """
+    root = repo_root()
+    shown = []
+    for path in paths:
+        path = Path(path).expanduser().absolute()
+        if root is not None and path.is_relative_to(root):
+            path = path.relative_to(root)
+        shown.append(path.as_posix())
+    return "wrote " + ", ".join(shown)
 
 
 def _in_notebook() -> bool:
@@ -242,7 +266,8 @@ def _quantize_png(path: Path, colors: int, meta: dict, keep=()) -> None:
 def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, dpi: int = 300,
                 formats=("png", "pdf"), provenance: dict | None = None, columns: int | None = None,
                 show: bool | None = None, png_colors: int | None = None) -> Path:
-    """Show ``fig`` (in a notebook), write ``<output_dir>/<name>.png`` and a vector ``.pdf`` atomically, close it.
+    """Show ``fig`` (in a notebook), write ``<output_dir>/<name>.png`` and a vector ``.pdf`` atomically, close it,
+    and say where (in a notebook: one line, :func:`written`).
 
     Parameters
     ----------
@@ -260,7 +285,7 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
     columns : {1, 2}, optional
         A paper figure: checked by :func:`check_paper_figure`, saved at its exact size.
     show : bool, optional
-        Display before saving; default: in a Jupyter kernel.
+        Display before saving and print the paths written; default: in a Jupyter kernel.
     png_colors : int, optional
         An adaptive PNG palette of this many colours (≤ 256), for photo figures; the PDF keeps full colour.
     """
@@ -269,7 +294,8 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
     record = _provenance(**(provenance or {}))
     record["figure"] = Path(name).stem
     text = json.dumps(record, sort_keys=True)
-    if show if show is not None else _in_notebook():
+    show = show if show is not None else _in_notebook()
+    if show:
         from IPython.display import Image, display
 
         buf = io.BytesIO()
@@ -294,6 +320,8 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
                 _quantize_png(tmp, png_colors, meta, keep=_figure_colors(fig))
         paths.append(path)
     plt.close(fig)
+    if show:
+        print(written(*paths))
     return paths[0]
 
 

@@ -14,13 +14,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from ..._numerics.extras import require
 from .configs import ACNeConfig, OANetConfig  # noqa: F401  (re-exported)
 from .nets import ACNe, OANet, build_network
 from .npnets import (acne_params_from_tf_tensors, is_tf_checkpoint, oanet_config_from_state_dict, save_npz,
                      tf_name_map)
 from .tfbundle import read_tf_checkpoint, write_tf_checkpoint
+
+torch = require("torch", "torch", "reading or writing a torch checkpoint of the learned filters")
 
 __all__ = ["LoadedModel", "load_model", "save_model", "convert_to_npz", "oanet_config_from_state_dict", "acne_from_tf_tensors",
            "acne_to_tf_tensors", "FORMAT"]

@@ -14,14 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from ..._numerics.docstrings import shared_doc
+from ..._numerics.extras import install_hint, require
 from ..._numerics.order import canonical_order, spread_back
 from .._common import prepare
 
 __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
            "shipped_weights", "require_torch", "TORCH_HINT"]
 
-TORCH_HINT = ("training the learned filters (and their torch backend) needs PyTorch: pip install torch==2.13.0 "
-              "(or install ctxmatch with the 'torch' extra: pip install 'ctxmatch[torch]')")
+_NEEDS_TORCH = "training the learned filters (and their torch backend)"
+#: What to install when torch is missing.
+TORCH_HINT = install_hint("torch", "torch", _NEEDS_TORCH)
 _BACKENDS = ("numpy", "torch")
 _WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 _CACHE: dict = {}
@@ -29,12 +31,8 @@ _LOCK = threading.Lock()
 
 
 def require_torch():
-    """Import and return ``torch``, or raise ``ImportError`` saying how to install it."""
-    try:
-        import torch
-    except ImportError as e:
-        raise ImportError(TORCH_HINT) from e
-    return torch
+    """Import and return ``torch``, or raise ``ImportError`` saying how to install it (:data:`TORCH_HINT`)."""
+    return require("torch", "torch", _NEEDS_TORCH)
 
 
 def shipped_weights(arch: str) -> Path:
@@ -68,12 +66,9 @@ def _load_numpy(arch: str, path: Path):
     if path.suffix == ".npz" or not path.is_file() or (arch == "acne" and is_tf_checkpoint(path)):
         return load_numpy_model(arch, path)
     # A torch checkpoint (ours, the OANet authors'): read with torch, run in numpy.
-    try:
-        import torch  # noqa: F401
-    except ImportError as e:
-        raise ImportError(f"weights {path} is a torch checkpoint: reading it needs PyTorch (pip install "
-                          "torch==2.13.0); or convert it once to .npz with python -m "
-                          "ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz") from e
+    require("torch", "torch", f"reading the torch checkpoint {path}",
+            alternative="convert it once to .npz, where torch is installed, with python -m "
+                        "ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz")
     from .checkpoints import load_model
 
     m = load_model(arch, path)

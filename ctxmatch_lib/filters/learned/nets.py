@@ -7,10 +7,11 @@ loads; :class:`ACNe` (Sun et al., CVPR 2020, Sec. 3-4).
 
 from __future__ import annotations
 
-import torch
-from torch import nn
-
+from ..._numerics.extras import require
 from .configs import ACNeConfig, OANetConfig
+
+torch = require("torch", "torch", "defining the learned filters' torch networks")
+nn = torch.nn
 
 __all__ = ["OANetConfig", "ACNeConfig", "OANet", "ACNe", "weighted_eight_point", "epipolar_residual",
            "build_network"]

@@ -12,12 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
+from ..._numerics.extras import require
 from .checkpoints import save_model
 from .data import keypoint_pool, network_input, random_training_set
 from .nets import ACNe, build_network
+
+torch = require("torch", "torch", "training the learned filters")
+F = torch.nn.functional
 
 __all__ = ["TRAINED_HERE_CONFIGS", "TRAINED_HERE_STEPS", "TrainResult", "train", "evaluate_generated",
            "evaluate_blob_sets"]
