@@ -12,9 +12,7 @@ STAMP  := $(VENV)/.ctxmatch-installed
 # environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
 TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
-# pip without byte-compiling every installed module (most of the time torch takes to install, docs/costs.md);
-# Python compiles what a run imports, once.
-PIP := $(BIN)/python -m pip install -q --no-compile
+PIP := $(BIN)/python -m pip install -q
 # The suite runs on every core (pytest-xdist): a file's tests, and a notebook's cells, stay on one worker in order, and
 # the files start in the order tests/conftest.py gives them (the longest first).
 TEST_WORKERS ?= auto
