@@ -105,7 +105,7 @@ def docs_env(tmp_path_factory):
 
 
 def _workdir(env, page: Path) -> Path:
-    # One folder for every page: what one page's commands write (data/embedded-v2 from `ctxmatch data
+    # One folder for every page: what one page's commands write (data/embedded-v3 from `ctxmatch data
     # embedded --root data`) is reused by the next, as in a user's shell; each page also runs alone.
     d = env["base"] / "work"
     d.mkdir(exist_ok=True)

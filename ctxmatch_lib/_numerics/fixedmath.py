@@ -1,4 +1,5 @@
-"""Elementary functions whose bits do not depend on the CPU: ``exp``, ``log``, ``tanh``, ``sin``/``cos``, ``atan2``.
+"""Elementary functions whose bits do not depend on the CPU: ``exp``, ``log``, ``tanh``, ``sin``/``cos``, ``atan2``,
+``acos``, ``cbrt``, ``power``.
 
 numpy's transcendental ufuncs dispatch by CPU and differ in the last bit; these use fdlibm's algorithms (as
 in musl, error below 1 ulp) with only correctly rounded IEEE operations, one ufunc per operation (``exp`` and
@@ -16,7 +17,8 @@ import numpy as np
 # fdlibm's exp constants, shared with the compiled loop (fixedmath_kernels) that exp and tanh call.
 from .fdlibm import _INVLN2, _LN2HI, _LN2LO, _P
 
-__all__ = ["atan", "atan2", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "sin", "sincos", "tanh"]
+__all__ = ["acos", "atan", "atan2", "cbrt", "cos", "exp", "floor_log2", "hypot", "log", "opencv_baseline", "power",
+           "sin", "sincos", "tanh"]
 
 _CV_LOCK = threading.Lock()
 _CV_USERS = [0, True, 1]  # blocks inside opencv_baseline; the settings to restore when the last one leaves
@@ -185,6 +187,56 @@ def atan2(y, x) -> np.ndarray:
     out = np.where(steep & (ay > 0), _ATANHI[3] + _ATANLO[3], out)
     out = np.where((ay == 0) & ~neg_x, 0.0, out)
     return np.where(np.isnan(x) | np.isnan(y), np.nan, np.copysign(out, y))
+
+
+def acos(x) -> np.ndarray:
+    """``arccos x`` in ``[0, pi]`` for ``x`` in ``[-1, 1]`` (NaN outside), the same bits on any CPU:
+    ``atan2(sqrt((1 - x)(1 + x)), x)``, within two units in the last place.
+
+    Examples
+    --------
+    >>> np.round(acos([1.0, 0.5, 0.0, -1.0]) / np.pi, 12).tolist()
+    [0.0, 0.333333333333, 0.5, 1.0]
+    """
+    x = _f64(x)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.abs(x) <= 1.0, atan2(np.sqrt((1.0 - x) * (1.0 + x)), x), np.nan)
+
+
+def cbrt(x) -> np.ndarray:
+    """Cube root, the same bits on any CPU: ``exp(log|x| / 3)`` and one Newton step, the sign of ``x``.
+
+    Examples
+    --------
+    >>> np.round(cbrt([27.0, -8.0, 0.0, 0.001]), 12).tolist()
+    [3.0, -2.0, 0.0, 0.1]
+    """
+    x = _f64(x)
+    a = np.abs(x)
+    pos = np.isfinite(a) & (a > 0)
+    y = exp(log(np.where(pos, a, 1.0)) / 3.0)
+    y = y - (y * y * y - np.where(pos, a, 1.0)) / (3.0 * y * y)
+    return np.copysign(np.where(pos, y, a), x)
+
+
+def power(x, p: float) -> np.ndarray:
+    """``x ** p`` for ``x >= 0`` (float64), the same bits on any CPU: ``exp(p log x)``, exact at ``x = 0`` and 1.
+
+    numpy's ``**`` with an exponent other than 2, 0.5, 1, 0 or -1 runs the ``power`` ufunc, whose AVX-512 loop
+    rounds differently from its baseline loop (and whose float32 loop is not correctly rounded).
+
+    Examples
+    --------
+    >>> np.round(power([0.0, 0.25, 1.0, 4.0], 1.5), 12).tolist()
+    [0.0, 0.125, 1.0, 8.0]
+    """
+    x = _f64(x)
+    p = float(p)
+    if p <= 0:
+        raise ValueError(f"p must be positive, got {p}")
+    pos = x > 0
+    out = exp(p * log(np.where(pos, x, 1.0)))
+    return np.where(pos, out, np.where(x == 0, 0.0, np.nan))
 
 
 def exp(x) -> np.ndarray:

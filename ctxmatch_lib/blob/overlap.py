@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numerics.fixedmath import hypot, sincos
+from .._numerics.fixedmath import acos, hypot, sincos
 
 __all__ = ["as_shapes", "shapes_from_scale_angle", "ellipse_overlap_error", "circle_overlap_bounds"]
 
@@ -123,7 +123,7 @@ def _lens_area(r1: np.ndarray, r2: np.ndarray, dist: np.ndarray) -> np.ndarray:
     u = np.clip((t * t + a * a - b * b) / (2 * t * a), -1.0, 1.0)
     v = np.clip((t * t + b * b - a * a) / (2 * t * b), -1.0, 1.0)
     k = np.maximum((-t + a + b) * (t + a - b) * (t - a + b) * (t + a + b), 0.0)
-    out[cut] = a * a * np.arccos(u) + b * b * np.arccos(v) - 0.5 * np.sqrt(k)
+    out[cut] = a * a * acos(u) + b * b * acos(v) - 0.5 * np.sqrt(k)
     return out
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._numerics.fixedmath import sincos
+
 __all__ = ["read_matrix", "read_vpts", "image_size", "fundamental_from_hand_points", "find_image",
            "homography_gt", "epipolar_gt", "fitted_epipolar_gt", "flow_gt"]
 
@@ -153,7 +155,8 @@ def _rotation(w):
         return np.eye(3)
     k = w / theta
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
+    s, c = sincos(theta)
+    return np.eye(3) + s * K + (1 - c) * K @ K
 
 
 def _line_residuals(F, x1, x2):

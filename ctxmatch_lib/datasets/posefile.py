@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cache import atomic_path
+from .._numerics.fixedmath import acos
 from .._numerics.validation import as_rotation
 from ._io import image_size
 from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, nearest_rotation
@@ -46,7 +47,7 @@ def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = No
     R = nearest_rotation(as_rotation(T[:3, :3] / T[3, 3], "the rotation of T_0to1", ROTATION_TEXT_TOL))
     t = T[:3, 3] / T[3, 3]
     if difficulty is None:
-        difficulty = rotation_band(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))))
+        difficulty = rotation_band(float(np.degrees(acos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))))
     for name, K in (("K0", K0), ("K1", K1)):
         if K[0, 0] == 0 or K[1, 1] == 0:
             raise ValueError(f"{name} has a zero focal length (fx = {K[0, 0]:g}, fy = {K[1, 1]:g})")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._numerics.fixedmath import acos
 from .._numerics.validation import as_intrinsics, as_rotation
 from ._io import IMAGE_SUFFIXES, image_size
 from .base import ROTATION_TEXT_TOL, Pair, PoseGT, nearest_rotation
@@ -110,7 +111,7 @@ def pair_geometry(cam1: Camera, cam2: Camera) -> tuple[float, float, float, floa
     """Quantities of the pair rule: rotation angle (degrees), depths ``d1``, ``d2`` of the closest points of
     the optical axes along each axis (``nan`` for parallel axes), and the baseline ``|C2 - C1|``."""
     R, _ = relative_pose(cam1, cam2)
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+    angle = float(np.degrees(acos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
     a1, a2 = cam1.R[:, 2], cam2.R[:, 2]  # optical axes in world coordinates
     b = cam2.C - cam1.C
     c = float(a1 @ a2)
@@ -139,7 +140,7 @@ def pose_difficulty(pair) -> str:
         return ""
     if gt.difficulty:
         return gt.difficulty
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(gt.R) - 1) / 2, -1.0, 1.0))))
+    angle = float(np.degrees(acos(np.clip((np.trace(gt.R) - 1) / 2, -1.0, 1.0))))
     return rotation_band(angle)
 
 

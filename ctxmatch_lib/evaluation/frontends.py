@@ -129,6 +129,7 @@ def evaluate_cached(
     filters = resolve_filters(filters)
     blob_cfgs = resolve_blobs(list(blobs) if not isinstance(blobs, str) else blobs)
     units = plan_units(list(pairs), features=list(features) if not isinstance(features, str) else features,
-                       blobs=blob_cfgs, filters=filters, models=models, max_keypoints=max_keypoints, **kwargs)
+                       blobs=blob_cfgs, filters=filters, models=models, max_keypoints=max_keypoints,
+                       salt=None if cache else "", **kwargs)  # the code's digest keys the cache alone
     return run_units(units, cache_dir=cache_dir if cache else False, progress=progress, desc="evaluate",
                      n_jobs=n_jobs)

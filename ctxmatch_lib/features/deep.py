@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._numerics.extras import require
+from .._numerics import fixedmath
 
 __all__ = ["weights_dir", "shipped_weights_dir", "resolve_weights", "weights_digest", "load_numpy_net",
            "load_descriptor_net", "load_orinet", "orinet_angles", "deep_descriptors", "describe_patches",
@@ -257,7 +258,6 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
     if n == 0:
         return np.empty(0)
     if _use_numpy(backend, weights, "orinet"):
-        from .._numerics import fixedmath as _fixedmath
         from . import _nn
 
         _, params = load_numpy_net(weights, "orinet")
@@ -268,8 +268,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
             patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
             a = _nn.orinet(params, patches).astype(np.float64)
             # kornia turns the LAF by R(-a) in our convention; fixedmath: numpy's last bit follows the CPU.
-            sin, cos = _fixedmath.sincos(a)
-            out[s : s + batch] = _fixedmath.atan2(-sin, cos)
+            sin, cos = fixedmath.sincos(a)
+            out[s : s + batch] = fixedmath.atan2(-sin, cos)
         return out
     torch = _torch()
     KF = _kornia_feature()
@@ -284,7 +284,7 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
             new = orienter(laf, img)[0, :, :, :2].double().numpy()
             old = laf[0, :, :, :2].double().numpy()
             R = np.linalg.solve(old, new)  # old @ R = new
-            out[s : s + batch] = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+            out[s : s + batch] = fixedmath.atan2(R[:, 1, 0], R[:, 0, 0])
     return out
 
 

@@ -173,7 +173,7 @@ def _fit_homography(pts1: np.ndarray, pts2: np.ndarray) -> np.ndarray | None:
         return None
     h, T1, T2 = solved
     H = np.linalg.solve(T2, h @ T1)
-    if abs(np.linalg.det(H)) < 1e-12 * np.abs(H).max() ** 3:
+    if abs(np.linalg.det(H)) < 1e-12 * float(np.abs(H).max()) ** 3:
         return None
     if abs(H[2, 2]) > 1e-12 * np.abs(H).max():
         H = H / H[2, 2]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numerics.fixedmath import acos
 from .._numerics.validation import as_intrinsics, as_matrix3, as_points, as_vector3
 
 __all__ = [
@@ -137,15 +138,15 @@ def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, n
 
 
 def _rotation_angle_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
-    # SuperGlue's arccos of the trace, so the errors are the field's to the last digit (an atan2 would be
-    # less sensitive to a ground truth that is a rotation only to its printed digits).
+    # SuperGlue's arccos of the trace, so the errors are the field's (an atan2 would be less sensitive to a
+    # ground truth that is a rotation only to its printed digits); fixedmath's, the same bits on any CPU.
     cos = np.clip((np.trace(R_est.T @ R_gt) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos)))
+    return float(np.degrees(acos(cos)))
 
 
 def _direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     cos = np.clip(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos)))
+    return float(np.degrees(acos(cos)))
 
 
 def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:

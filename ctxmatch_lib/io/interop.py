@@ -14,6 +14,7 @@ import numpy as np
 
 from .._numerics.docstrings import shared_doc
 from .._numerics.extras import require
+from .._numerics.fixedmath import atan2, sincos
 from .._numerics.validation import as_matches, as_points, as_scores
 
 __all__ = [
@@ -35,7 +36,7 @@ def _torch():
 
 
 def _rotation(angles: np.ndarray) -> np.ndarray:
-    c, s = np.cos(angles), np.sin(angles)
+    s, c = sincos(angles)
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # columns: the patch axes
 
 
@@ -121,7 +122,7 @@ def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_ra
             raise ValueError(f"shapes must have shape ({n}, 2, 2), got {A.shape}")
         det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
         size = 2 * np.sqrt(np.abs(det)) / r
-        deg, oriented = np.rad2deg(np.arctan2(A[:, 1, 0], A[:, 0, 0])), np.ones(n, bool)
+        deg, oriented = np.rad2deg(atan2(A[:, 1, 0], A[:, 0, 0])), np.ones(n, bool)
     if angles is not None:
         a = np.asarray(angles, np.float64).reshape(-1)
         if len(a) != n:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..._numerics.blas import one_blas_thread
+from ..._numerics.fixedmath import exp, tanh
 from .configs import ACNeConfig, OANetConfig
 
 __all__ = ["NumpyModel", "oanet_logits", "acne_logits", "weighted_eight_point", "epipolar_residual",
@@ -51,15 +52,20 @@ def _relu(x):
     return np.maximum(x, _F32(0))
 
 
+def _exp(x: np.ndarray) -> np.ndarray:
+    """fixedmath's ``exp`` in the dtype of ``x`` (numpy's follows the CPU's SIMD loop in the last bit)."""
+    return exp(x).astype(np.result_type(x, np.float32), copy=False)
+
+
 def _softmax(x: np.ndarray, axis: int) -> np.ndarray:
-    e = np.exp(x - x.max(axis=axis, keepdims=True))
+    e = _exp(x - x.max(axis=axis, keepdims=True))
     return e / e.sum(axis=axis, keepdims=True)
 
 
 def _gated(s: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``s * sigmoid(x)`` without overflow (``exp(-x)`` overflows float32 below -88.7)."""
     low = x < _F32(-80)
-    e = np.exp(np.where(low, x, -x))
+    e = _exp(np.where(low, x, -x))
     return np.where(low, s * e, s) / (_F32(1) + e)
 
 
@@ -130,7 +136,7 @@ def oanet_logits(params: dict, x: np.ndarray) -> list[np.ndarray]:
     data = np.asarray(x, _F32)
     logits = [_oan_block(params, "weights_init", data)]
     for k in range(_count(params, "weights_iter.")):
-        w = np.maximum(np.tanh(logits[-1]), 0)
+        w = np.maximum(tanh(logits[-1]), 0)
         res = epipolar_residual(data[:4].T, weighted_eight_point(data[:4].T, w)).astype(_F32)
         logits.append(_oan_block(params, f"weights_iter.{k}", np.concatenate([data, res[None], w[None]])))
     return logits

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..._numerics.fixedmath import exp
+from ..._numerics.fixedmath import exp, log
 
 __all__ = ["LMRModel", "MODEL_PATH"]
 
@@ -75,7 +75,7 @@ def _export(clf, stage: int) -> dict:
         "feature": np.concatenate([np.maximum(t.feature, 0) for t in trees]).astype(np.int64),
         "threshold": np.concatenate([t.threshold for t in trees]).astype(np.float64),
         "value": np.concatenate([t.value.reshape(-1) for t in trees]).astype(np.float64),
-        "init": np.float64(np.log(prior / (1 - prior))),
+        "init": np.float64(log(prior / (1 - prior))),
         "learning_rate": np.float64(clf.learning_rate),
         "depth": np.int64(max(t.max_depth for t in trees) + 1),
     }

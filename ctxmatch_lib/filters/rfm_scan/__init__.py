@@ -15,6 +15,7 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..._numerics.fixedmath import exp
 from .._common import MatchSet, check_positive, match_filter
 from ._kernels import MotionGrid, count_within, upper_kth
 
@@ -55,10 +56,11 @@ class _MotionSpace:
             return np.sqrt(dx * dx + dy * dy)
 
         d1, d2, dv = pair_dist(0), pair_dist(2), pair_dist(4)
-        return d1 + d2 + (1.0 + np.float32(self.gamma) * np.exp(-np.minimum(d1, d2))) * dv
+        # fixedmath's exp rounded to float32 (numpy's float32 exp follows the CPU's SIMD loop).
+        return d1 + d2 + (1.0 + np.float32(self.gamma) * exp(-np.minimum(d1, d2)).astype(np.float32)) * dv
 
     def embed(self, idx: np.ndarray, level: float) -> np.ndarray:
-        c = 1.0 + self.gamma * np.exp(-level / 2.0)
+        c = 1.0 + self.gamma * float(exp(-level / 2.0))
         return self.feats[idx] * np.array([1.0, 1.0, 1.0, 1.0, c, c])
 
     def tree(self, key, members: np.ndarray, level: float) -> cKDTree:
@@ -72,7 +74,9 @@ class _MotionSpace:
         ``sel``: positions in ``queries``; ``lens``: members found for each; ``j``: their indices, concatenated."""
         r = np.asarray(radius, np.float64) * (1 + 1e-5) + 1e-6  # float32 rounding of the true distances
         # One tree per power-of-two level: c(level) holds for every radius up to the level.
-        levels = np.exp2(np.ceil(np.log2(np.maximum(r, 1e-3))))
+        # 2^ceil(log2 r), from the binary exponent (exact: np.log2 follows the CPU in its last bit).
+        m, e = np.frexp(np.maximum(r, 1e-3))
+        levels = np.ldexp(1.0, e - (m == 0.5))
         for level in np.unique(levels):
             tree = self.tree(key, members, float(level))
             for b in range(0, int((levels == level).sum()), chunk):

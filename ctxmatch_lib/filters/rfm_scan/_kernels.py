@@ -9,11 +9,13 @@ caller decides the open cases on its exact float32 distances.
 
 from __future__ import annotations
 
+import math
 from functools import partial
 
 import numba
 import numpy as np
 
+from ..._numerics.fixedmath import exp
 from ..._numerics.jit import user_cache
 
 __all__ = ["MARGIN", "MotionGrid", "count_within", "upper_kth"]
@@ -27,7 +29,7 @@ _DIMS = (0, 1, 4, 5)
 
 def _box_radii(radius: float, gamma: float) -> np.ndarray:
     """Half-widths of the box of ``(x, v)`` around a query holding every point within ``radius``."""
-    c = 1.0 + gamma * np.exp(-radius / 2.0)
+    c = 1.0 + gamma * float(exp(-radius / 2.0))
     return np.array([radius, radius, radius / c, radius / c])
 
 
@@ -48,7 +50,7 @@ class MotionGrid:
             shape = np.floor(extent / size).astype(np.int64) + 1
             if np.prod(shape.astype(np.float64)) <= budget:
                 break
-            size = size * max(1.05, (np.prod(shape.astype(np.float64)) / budget) ** 0.25)
+            size = size * max(1.05, float(np.prod(shape.astype(np.float64)) / budget) ** 0.25)
         self.size, self.shape = size, shape
         order, self.starts = _sort_by_cell(pts, self.origin, size, shape)
         self.members = members[order]
@@ -100,7 +102,7 @@ with user_cache() as _cache:
                 a = f[i, 4] - f[j, 4]
                 b = f[i, 5] - f[j, 5]
                 dv = np.sqrt(a * a + b * b)
-                buf[c] = (d1 + d2 + (1.0 + gamma * np.exp(-min(d1, d2))) * dv) * cscale[r, c]
+                buf[c] = (d1 + d2 + (1.0 + gamma * math.exp(-min(d1, d2))) * dv) * cscale[r, c]
                 top = max(top, buf[c])
             if k == m:  # the k-th smallest of k: the largest
                 out[r] = top
@@ -126,7 +128,7 @@ with user_cache() as _cache:
             lo_d = lo_t / s
             hi_d = hi_t / s
             box = hi_d * (1.0 + 1e-9) + 1e-12  # the cell geometry's rounding
-            c_min = 1.0 + gamma * np.exp(-hi_d / 2.0)
+            c_min = 1.0 + gamma * math.exp(-hi_d / 2.0)
             x0, x1, y0, y1, v0, v1 = qf[q, 0], qf[q, 1], qf[q, 2], qf[q, 3], qf[q, 4], qf[q, 5]
             a0 = max(np.int64(np.floor((x0 - box - origin[0]) / size[0])), 0)
             b0 = min(np.int64(np.floor((x0 + box - origin[0]) / size[0])), shape[0] - 1)
@@ -173,7 +175,7 @@ with user_cache() as _cache:
                             d2 = np.sqrt(a * a + b * b)
                             if d1 + d2 + c_min * dv > hi_d:
                                 continue
-                            d = d1 + d2 + (1.0 + gamma * np.exp(-min(d1, d2))) * dv
+                            d = d1 + d2 + (1.0 + gamma * math.exp(-min(d1, d2))) * dv
                             if d <= hi_d:
                                 npos += 1
                                 if d <= lo_d:
