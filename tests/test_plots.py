@@ -597,3 +597,14 @@ def test_match_picture_colours_by_score_and_shows_the_rejected():
     with pytest.raises(ValueError, match="same length"):
         viz2d.plot_scored_matches(plt.gca(), np.zeros((2, 2)), np.zeros((2, 2)), [0.1])
     plt.close("all")
+
+
+def test_ellipse_polylines_trace_each_ellipse_and_drop_nan_rows():
+    from ctxmatch_lib.plots.groundtruth import ellipse_polylines
+
+    centres = np.array([[1.0, 2.0], [np.nan, 0.0], [0.0, 0.0]])
+    shapes = np.stack([3 * np.eye(2), np.eye(2), np.diag([2.0, 0.5])])
+    lines = ellipse_polylines(centres, shapes, n=8)
+    assert lines.shape == (2, 9, 2)
+    np.testing.assert_allclose(np.hypot(*(lines[0] - [1.0, 2.0]).T), 3.0)
+    np.testing.assert_allclose(lines[1][[0, 2, 4]], [[2.0, 0.0], [0.0, 0.5], [-2.0, 0.0]], atol=1e-12)

@@ -36,8 +36,8 @@ def ellipse_polylines(centres, shapes, n: int = 48) -> np.ndarray:
     A = np.asarray(shapes, np.float64).reshape(-1, 2, 2)
     keep = np.isfinite(c).all(1) & np.isfinite(A).all((1, 2))
     t = np.linspace(0.0, 2.0 * np.pi, n + 1)
-    s, c = sincos(t)
-    u = np.stack([c, s], axis=1)
+    sin, cos = sincos(t)
+    u = np.stack([cos, sin], axis=1)
     return c[keep, None, :] + np.einsum("pij,tj->pti", A[keep], u)
 
 
