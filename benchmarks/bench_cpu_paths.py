@@ -17,7 +17,7 @@ patch, and numba kernels (they call the C library, whose variants ``bench_blas_k
 
 Run::
 
-    .venv/bin/python benchmarks/bench_cpu_paths.py            # the embedded pairs of tests/test_cpu_paths.py
+    .venv/bin/python benchmarks/bench_cpu_paths.py            # the pairs and setups of tests/test_blas_kernels.py
     .venv/bin/python benchmarks/bench_cpu_paths.py --all      # every embedded pair, every feature setup
 
 The exit status is 1 when a library frame outside :data:`ALLOWED` reaches one of them.

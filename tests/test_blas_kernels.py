@@ -14,6 +14,9 @@ geometry: inliers, corner error, epipolar share) on one embedded pair of each ki
 networks run in numpy) and the paper-best-overlap blob setup of the tables, must be identical (the corner
 error to 1e-9: ``bench_blas_kernels.ROW_RTOL`` says why).
 
+Every generation's run also traces numpy's ufuncs with AVX-512 loops (``benchmarks/bench_cpu_paths.py``):
+no call from the library may reach one, directly or through scipy (``tests/test_cpu_paths.py`` says why).
+
 The check runs on x86-64 (the switches name x86-64 code paths); elsewhere it skips with the reason. A CPU can
 only emulate older generations than its own: on an AVX2 host, AVX-512 code is not exercised, and the AVX2
 generation is the default run itself, so it is not run twice.
@@ -50,15 +53,18 @@ _WORKER = textwrap.dedent("""
     sys.path.insert(0, sys.argv[1])
     import numpy as np
     from bench_blas_kernels import ROW_KEYS, ROW_VALUES, blas_architecture, feature_arrays
+    from bench_cpu_paths import offending, traced
     from ctxmatch_lib.evaluation import evaluate_cached, select_pairs
 
     out, features, only, blobs, pair_ids = sys.argv[2], *map(json.loads, sys.argv[3:7])
-    pairs = select_pairs("embedded", pair_ids=pair_ids)
-    df = evaluate_cached(pairs, features=features, blobs=blobs, filters="all", models=("none", "1sac", "magsac"),
-                         cache=False, progress=False)
+    with traced() as hits:  # numpy's ufuncs with AVX-512 loops, counted where the library reaches them
+        pairs = select_pairs("embedded", pair_ids=pair_ids)
+        df = evaluate_cached(pairs, features=features, blobs=blobs, filters="all",
+                             models=("none", "1sac", "magsac"), cache=False, progress=False)
+        arrays = feature_arrays(pairs[:1], features + only)
     df[ROW_KEYS + ROW_VALUES].to_parquet(out + ".parquet")
-    np.savez(out + ".npz", **feature_arrays(pairs[:1], features + only))
-    print(json.dumps(blas_architecture()))
+    np.savez(out + ".npz", **arrays)
+    print(json.dumps({"arch": blas_architecture(), "avx512_ufuncs": sorted(map(list, offending(hits)))}))
 """)
 
 
@@ -72,7 +78,9 @@ def _run(bench, generation: str, tmp: Path):
                            *(json.dumps(v) for v in (FEATURES, FEATURES_ONLY, BLOBS, PAIRS))],
                           env=env, capture_output=True, text=True, timeout=1500)
     assert proc.returncode == 0, f"{generation}: the evaluation failed:\n{proc.stderr[-3000:]}"
-    arch = json.loads(proc.stdout.strip().splitlines()[-1])
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    arch, reached = report["arch"], report["avx512_ufuncs"]
+    assert not reached, f"{generation}: the library reaches numpy ufuncs with AVX-512 loops: {reached}"
     with np.load(out.with_suffix(".npz")) as z:
         feats = {k: z[k] for k in z.files}
     return arch, feats, pd.read_parquet(out.with_suffix(".parquet"))

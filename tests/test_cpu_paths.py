@@ -4,16 +4,15 @@ numpy's transcendental ufuncs (``exp``, ``log``, ``sin``, ``arccos``, ``arctan2`
 loops whose last bit differs from their AVX2 and baseline loops; an AVX2 host cannot run them, so the CPU
 emulations of ``test_blas_kernels.py`` do not see them. Here they are found by name (the list is numpy's own,
 ``numpy.lib.introspect.opt_func_info()``, read by ``benchmarks/bench_cpu_paths.py``): no module of the
-package names one outside the training and test helpers, and an embedded evaluation (a planar, a non-planar and a
-SIFT and sGLOH2 features; every filter under no model, 1SAC and MAGSAC) reaches none, directly or through scipy.
+package names one outside the training and test helpers; and ``test_blas_kernels.py`` runs its embedded
+evaluations (a planar, a non-planar and a depth pair; SIFT, sGLOH2 and the numpy networks; every filter under no
+model, 1SAC and MAGSAC) with these ufuncs traced, and fails if the library reaches one, directly or through scipy.
 """
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
-
-import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "ctxmatch_lib"
@@ -109,13 +108,3 @@ def test_the_recorder_counts_library_calls_only(load_benchmark):
     assert [k[0] for k in hits] == ["cos"] and next(iter(hits))[1].startswith("ctxmatch_lib/testing.py:")
     assert not bench.offending(hits)
     assert isinstance(np.exp, np.ufunc) and isinstance(np.cos, np.ufunc)  # restored
-
-
-@pytest.mark.slow
-def test_an_embedded_evaluation_reaches_no_cpu_rounded_ufunc(load_benchmark):
-    bench = load_benchmark("bench_cpu_paths")
-    # SIFT and sGLOH2 (scipy's blur); the numpy networks' features reach no ufunc of the list (the benchmark's run).
-    df, hits = bench.run(bench.PAIRS[:2], ["sift-rootsift", "harrisz-rootsgloh2"])
-    assert len(df) > 0 and set(df.model) == {"none", "1sac", "magsac"}
-    bad = bench.offending(hits)
-    assert not bad, "\n".join(f"{name} at {where}: {n} calls" for (name, where), n in sorted(bad.items()))
