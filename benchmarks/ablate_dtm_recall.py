@@ -1,4 +1,4 @@
-"""Ablation of DTM's recall gap against the paper (issue 21, item 6): DTM1 / DTM2 next to Tables 2 and 3.
+"""Ablation of DTM's recall gap against the paper: DTM1 / DTM2 next to Tables 2 and 3.
 
 DTM1 recall was 6-28 points below the paper's in every cell at the earlier budget of 8000 keypoints per image.
 This script asks which input factor moves DTM1 and DTM2 (no model) toward the paper. For the paper's baseline

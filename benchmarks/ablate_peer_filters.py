@@ -1,6 +1,6 @@
 """Sweeps of one constant of a peer filter on the shared real pairs: which setting moves us to the paper's row.
 
-Issue 22, item 2: where the authors' code of a filter is not public or cannot run here (BM, SCV, PFM; LMR
+Where the authors' code of a filter is not public or cannot run here (BM, SCV, PFM; LMR
 runs, see ``benchmarks/ref_lmr.py``), the filter's Notes explain its distance from the paper's Table 2 with a
 measurement. This script prints it: for every ``--sweep NAME:KEY=V1,V2,...`` it runs the registered filter
 ``NAME`` with ``KEY`` set to each value (every other keyword at its default, or as ``--param NAME:KEY=JSON``)

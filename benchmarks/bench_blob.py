@@ -1,4 +1,4 @@
-"""Speed and memory of blob matching against its floor, the float32 GEMM ``d1 @ d2.T`` (issue 33).
+"""Speed and memory of blob matching against its floor, the float32 GEMM ``d1 @ d2.T``.
 
 For n = m = 5000 and 8000 planted RootSIFT-like descriptors (d = 128) it times, in the same process and
 interleaved (round-robin, ``--repeat`` rounds, median of each):

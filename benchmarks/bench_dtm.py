@@ -1,4 +1,4 @@
-"""DTM speed on the planted-outlier case (issue 3): ratios against the Delaunay floor and, when its checkout
+"""DTM speed on the planted-outlier case: ratios against the Delaunay floor and, when its checkout
 is given, the author's port, both measured in this run.
 
 Prints, for 1500 and 5000 matches (640x480, 40 % inliers, 0.5 px noise): DTM's CPU time (one thread; the

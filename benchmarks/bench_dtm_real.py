@@ -1,4 +1,4 @@
-"""DTM side by side with its author's public Python port on the real pairs (issue 14).
+"""DTM side by side with its author's public Python port on the real pairs.
 
 For every pair of the real datasets under ``CTXMATCH_DATA`` (planar: HPatches, Oxford, homogr; non-planar:
 kusvod2) and each blob preset (``baseline``, ``paper-best``), the blob candidates are computed once (SIFT +

@@ -1,4 +1,4 @@
-"""How often DTM keeps a whole set of matches that agree (issue 14, small sets; quoted in ``dtm``'s Notes).
+"""How often DTM keeps a whole set of matches that agree (small sets; quoted in ``dtm``'s Notes).
 
 For K = 4 ... 300 matches related by the identity, a random similarity (rotation up to 0.5 rad, scale
 0.7-1.3 about the image centre) or a random homography (the same plus a perspective part), drawn in the

@@ -1,5 +1,5 @@
 """Extraction time of HarrisZ and RootsGLOH2 as ratios to SIFT+RootSIFT, and the memory of RootsGLOH2 blob
-matching (issue 9: "HarrisZ and RootsGLOH2 each at most 3x SIFT+RootSIFT's extraction time on an 800x640
+matching ("HarrisZ and RootsGLOH2 each at most 3x SIFT+RootSIFT's extraction time on an 800x640
 image (Oxford graf)"; "n = m = 8000 within 2.5 GB").
 
 All timings are best-of-N wall times of the same process on Oxford graf img1 (800x640, from $CTXMATCH_DATA;

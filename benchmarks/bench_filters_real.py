@@ -1,4 +1,4 @@
-"""Every registered filter timed on real candidate sets of 15 000 - 32 000 rows, next to DTM (issue 22, item 5).
+"""Every registered filter timed on real candidate sets of 15 000 - 32 000 rows, next to DTM.
 
 The issue's target: every filter within 5x DTM's time at real paper-best sizes. The candidates are the blob
 candidates (``--blob``, default ``paper-best-overlap``) of ``--features`` (default ``sift-rootsift``) at
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
         worst = float(np.max(t / np.maximum(dtm_t, 1e-9)))
         kept = 100 * np.mean([k.mean() for k in masks[name]])
         flag = (f"  > {TARGET:g}x" if ratio > TARGET else f"  one pair > {TARGET:g}x" if worst > TARGET else "")
-        if worst > TARGET:  # the target holds on every pair (issue 33: the worst pair, not the sum)
+        if worst > TARGET:  # the target holds on every pair (the worst pair, not the sum)
             missing.append(f"{name} ({worst:.2f}x on its worst pair)")
         print(f"{name:<9} {len(t):>5} {np.mean([len(k) for k in masks[name]]):>6.0f} {t.sum():>9.2f} "
               f"{ratio:>6.2f}x {worst:>9.2f}x {kept:>7.1f}{flag}")

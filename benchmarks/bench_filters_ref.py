@@ -1,4 +1,4 @@
-"""Peer filters side by side with their authors' reference implementations on real candidates (issue 22).
+"""Peer filters side by side with their authors' reference implementations on real candidates.
 
 For every ``--ref NAME=SPEC`` the filter ``NAME`` of :data:`ctxmatch_lib.filters.FILTERS` and its reference run
 on the SAME blob candidates of the shared real pairs (``CTXMATCH_DATA``; datasets ``planar`` and ``nonplanar``,

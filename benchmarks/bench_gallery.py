@@ -1,4 +1,4 @@
-"""The paper-scale gallery's two big costs, measured on single units and projected (issue 33).
+"""The paper-scale gallery's two big costs, measured on single units and projected.
 
 `make figures-paper` spends its time in two places: extracting the paper's eight feature blocks of every
 real image (from an empty feature cache), and fig_blob_bands' sweep of the 2430-setup blob grid over every

@@ -1,4 +1,4 @@
-"""Time and peak memory of ``geometry.fit_homography`` next to ``cv2.findHomography(method=0)`` (issue 12).
+"""Time and peak memory of ``geometry.fit_homography`` next to ``cv2.findHomography(method=0)``.
 
 Both fit the least-squares homography of the same noisy correspondences (all inliers), at 2000, 6000 and
 20 000 points. Each size runs in a fresh process so that its peak resident memory (``ru_maxrss``, less

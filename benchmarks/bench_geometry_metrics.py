@@ -1,4 +1,4 @@
-"""The geometry metrics of issue 30 side by side with the functions they follow, on the same inputs.
+"""The geometry metrics side by side with the functions they follow, on the same inputs.
 
 * AUC over pairs: :func:`ctxmatch_lib.geometry_metrics.pose_auc` against SuperGlue's ``pose_auc``
   (magicleap/SuperGluePretrainedNetwork, ``models/utils.py``) and glue-factory's ``cal_error_auc``

@@ -1,4 +1,4 @@
-"""How much the geometry ranking of the methods depends on the robust estimator (issue 30, item 3).
+"""How much the geometry ranking of the methods depends on the robust estimator.
 
 Every method's output (the blob candidates, the filters, OpenCV's ratio test and mutual nearest neighbours on
 the same descriptors) goes to each estimator at each threshold: OpenCV's USAC as the ``ransac`` (uniform
@@ -6,7 +6,7 @@ sampling), ``prosac`` (PROSAC by the match ranking) and ``magsac`` (confidence 0
 model steps, and PoseLib's LO-RANSAC (``estimate_homography`` / ``estimate_fundamental``, confidence 0.9999,
 100 000 iterations) when ``poselib`` is installed (the ``geometry`` extra pins 2.0.5). The score of a method
 is the AUC of the mean corner error at 5 px on planar pairs (failures at infinity) and the mean share of the
-ground-truth correspondences within 1 ... 19 px of the estimated F on the others (issue 30's metrics,
+ground-truth correspondences within 1 ... 19 px of the estimated F on the others (the metrics of ``geometry_metrics``,
 :mod:`ctxmatch_lib.geometry_metrics`). For each (estimator, threshold) the methods are ranked per kind, and the
 ranking is compared with that of the default, ``magsac`` at 1 px (fb82/MiHo's MAGSAC settings), by Spearman's
 rho. The default is fixed from that source, not chosen here: this script shows how far the conclusions move

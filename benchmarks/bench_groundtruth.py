@@ -1,4 +1,4 @@
-"""Speed of the ground-truth methods B and C against method D at 15 000 candidates (issue 25).
+"""Speed of the ground-truth methods B and C against method D at 15 000 candidates.
 
 For each ground-truth kind (planar homography, non-planar F with hand-taken points, dense flow) a synthetic
 pair with K candidate matches is built, a fraction ``--correct`` of them near-true correspondences (their

@@ -1,4 +1,4 @@
-"""Speed and accuracy of ``blob.overlap.ellipse_overlap_error`` (FGINN by overlap), issue 12.
+"""Speed and accuracy of ``blob.overlap.ellipse_overlap_error`` (FGINN by overlap).
 
 Prints, for P pairs of random ellipses (many overlapping), the time of the library function next to the
 400-point quadrature it replaced (reproduced below, as it was) and their ratio, and each one's largest

@@ -1,4 +1,4 @@
-"""The whole pipeline against OpenCV's, per pair, on the shared planar pairs (issue 33).
+"""The whole pipeline against OpenCV's, per pair, on the shared planar pairs.
 
 Per pair of ``--dataset`` (default ``planar``: the 31 shared HPatches / Oxford / homogr pairs under
 ``CTXMATCH_DATA``), in one process and one run:
@@ -31,7 +31,7 @@ averaged over ``--seeds`` estimator seeds (default 5): one sample of a randomise
 
 The matcher and the metrics are the library's: :func:`ctxmatch_lib.opencv_matchers.opencv_ratio_matches`,
 :func:`ctxmatch_lib.geometry_metrics.homography_corner_error` and :func:`~ctxmatch_lib.geometry_metrics.pose_auc`
-(the engine's ``opencv_ratio`` rows and geometry columns, issue 30).
+(the engine's ``opencv_ratio`` rows and geometry columns).
 
 Run::
 

@@ -1,4 +1,4 @@
-"""The pose error and its AUC side by side with SuperGlue's reference code on the same inputs (issue 44, item 3).
+"""The pose error and its AUC side by side with SuperGlue's reference code on the same inputs.
 
 SuperGlue's ``estimate_pose``, ``compute_pose_error`` and ``pose_auc`` (``models/utils.py`` of
 magicleap/SuperGluePretrainedNetwork) are imported at run time from a checkout outside this repository; their

@@ -1,4 +1,4 @@
-"""Wall time of the full blob grid (issue 6, section 4).
+"""Wall time of the full blob grid.
 
 The 2430 blob-matching setups of Sec. 5.2 for SIFT+RootSIFT (8000 keypoints per image) on every pair of the
 shared real data (planar: HPatches, Oxford graf, homogr; non-planar: kusvod2), through `ctxmatch_lib.evaluation`

@@ -1,4 +1,4 @@
-"""Calibrate the keypoint budget of the paper-scale runs on the counts of the paper's Table 2 (issue 21).
+"""Calibrate the keypoint budget of the paper-scale runs on the counts of the paper's Table 2.
 
 The paper's baseline (SIFT + RootSIFT, one-to-one NNR blob matching: f = Ω, f' = 1, t_o = ∞, D≥, W = a) has,
 per pair, 1329 / 1370 candidate matches and 293 / 214 ground-truth (method D) matches among them on its planar

@@ -1,6 +1,6 @@
 """Keep masks of every registered filter on real and planted candidate sets: save them, or compare with saved ones.
 
-The check that a refactoring of the filters (issue 32: one wrapper around each filter's core) left every
+The check that a refactoring of the filters (one wrapper around each filter's core) left every
 decision unchanged. ``--save OUT.npz`` writes, for every filter of :data:`ctxmatch_lib.filters.FILTERS` (or
 ``--filters a,b``), its keep mask on every candidate set; ``--compare OUT.npz`` recomputes them and prints, per
 filter, whether every mask is identical (exit status 1 if one differs).

@@ -1,4 +1,4 @@
-"""RFM-SCAN's reference for ``bench_filters_ref.py --ref rfm_scan=DIR`` (issue 22): the authors' MATLAB code.
+"""RFM-SCAN's reference for ``bench_filters_ref.py --ref rfm_scan=DIR``: the authors' MATLAB code.
 
 ``DIR`` is a checkout of StaRainJ/RFM-SCAN (Jiang et al., TIP 2020), outside this repository, read at run time
 and never copied here. The filtering is the one of their ``Demo_main.m``, taken from the checkout when the run

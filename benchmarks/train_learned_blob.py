@@ -1,4 +1,4 @@
-"""Fine-tune the OANet / ACNe weights trained here on blob candidate sets like the real ones (issue 22, item 3).
+"""Fine-tune the OANet / ACNe weights trained here on blob candidate sets like the real ones.
 
 Two stages per network, both seeded:
 

@@ -1,4 +1,4 @@
-"""The bad-input corpus of issue 23, case by case: each bad input fails at once with an error naming the
+"""The bad-input corpus, case by case: each bad input fails at once with an error naming the
 argument or the flag, before any work; nothing is silently accepted."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Blob matching's decisions do not depend on the BLAS kernel (issue 31) and equal a dense float64 reference."""
+"""Blob matching's decisions do not depend on the BLAS kernel and equal a dense float64 reference."""
 
 import json
 import os

@@ -1,4 +1,4 @@
-"""A COLMAP reconstruction from ctxmatch's matches registers the images of a real six-image sequence (issue 30).
+"""A COLMAP reconstruction from ctxmatch's matches registers the images of a real six-image sequence.
 
 Skipped without ``CTXMATCH_DATA`` (the shared real data) or without pycolmap (the test extras pin it).
 """

@@ -248,7 +248,7 @@ def test_deep_presets_extract(name, tmp_path):
 
 def test_shared_steps_kept_for_the_next_block_give_the_same_features(tmp_path):
     # A cold cache: the HarrisZ detections and OriNet angles of harrisz-hardnet2 are kept and read back by
-    # harrisz-sosnet and harrisz-rootsift (issue 33), SIFT's merged detections and OriNet angles of sift-hardnet2
+    # harrisz-sosnet and harrisz-rootsift, SIFT's merged detections and OriNet angles of sift-hardnet2
     # by sift-sosnet and sift-rootsgloh2; every block equals its extraction without any cache.
     from skimage.data import camera
 

@@ -97,10 +97,20 @@ def _param(block: Block):
 # ------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def docs_env(tmp_path_factory):
-    """Working folders per page and one cache for the whole module (CTXMATCH_CACHE)."""
+    """Working folders per page and one cache for the whole module (CTXMATCH_CACHE), holding the embedded
+    dataset of the user's cache when it is there (generating it is the 10 s the README announces, run by
+    ``test_datasets.py``; here the examples are the test)."""
+    import shutil
+
+    from ctxmatch_lib.cache import cache_dir
+    from ctxmatch_lib.datasets.embedded import EMBEDDED_VERSION
+
     base = tmp_path_factory.mktemp("docs")
     cache = base / "cache"
     cache.mkdir()
+    made = cache_dir("datasets") / f"embedded-v{EMBEDDED_VERSION}"
+    if (made / "pairs.csv").is_file():
+        shutil.copytree(made, cache / "datasets" / made.name)
     return {"base": base, "cache": cache, "namespaces": {}, "done": {}}
 
 

@@ -574,7 +574,7 @@ def test_small_sets_in_agreement_are_kept_with_the_keypoint_boundary(k):
 # --- small sets: the whole-set rule ------------------------------------------------------------------
 
 def test_issue_case_five_identical_matches_are_kept():
-    """The case of issue 14: DTM alone keeps 3 of these 5 identical matches (the alpha boundary falls
+    """DTM alone keeps 3 of these 5 identical matches (the alpha boundary falls
     between vertices further apart than about 2 s); one homography (the identity) explains all 5."""
     k = np.random.default_rng(0).random((5, 2)) * 400 + 50
     m = np.c_[np.arange(5), np.arange(5)]
@@ -800,7 +800,7 @@ def test_neighbourhood_pairs_match_their_definition():
     assert list(zip(rows.tolist(), others.tolist(), both.tolist())) == [(m, int(o), bool(b)) for m, o, b in expected]
 
 
-# --- compiled stand-ins of the boundary construction (issue 33): same output as what they replaced ---------
+# --- compiled stand-ins of the boundary construction: same output as what they replaced ---------
 
 
 def _shapely_rings(points, edges):

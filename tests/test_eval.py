@@ -461,7 +461,7 @@ def test_keypoints_outside_the_image_size_are_rejected(tiny_dataset, tmp_path):
     assert df.loc[df.pair_id == "swapped", "error"].str.contains(r"\(width, height\) = \(240, 320\)").all()
 
 
-# ------------------------------------------------------------------ one command surface, one cache (issue 24)
+# ------------------------------------------------------------------ one command surface, one cache
 
 
 @pytest.mark.parametrize("command", ["eval", "sweep"])
@@ -528,7 +528,7 @@ def test_engine_rows_identical_to_before_the_refactor():
     path (2 embedded pairs, paper-best + baseline, filters dtm/th/adalam, models none/1sac, 400 keypoints)
     and the sweep path (39 grid setups with every t_o kind, 1 pair, 300 keypoints). Every column but the
     running times is compared as text written with 17 significant digits, i.e. bit for bit. The 8 AdaLAM rows
-    were rewritten once, when AdaLAM's defaults were aligned with kornia's AdaLAM (issue 22), and the AP of 5
+    were rewritten once, when AdaLAM's defaults were aligned with kornia's AdaLAM, and the AP of 5
     rows once, when blob matching's scores became exact float64 distances instead of float32 GEMM values (issue
     31: the AP ranks by score, and scores moved by under 1e-5, reordering near ties; AP moved by under 6e-6,
     every other column stayed bit for bit). Every row was rewritten once more when the features and the
@@ -551,7 +551,7 @@ def test_engine_rows_identical_to_before_the_refactor():
     df2 = run_sweep("embedded", blobs=grid, pairs=[pp[1].pair_id], max_keypoints=300, cache_dir=False,
                     progress=False)
     df1["source"], df2["source"] = "eval", "sweep"
-    from ctxmatch_lib.evaluation.rows import GEOMETRY_COLUMNS  # added by issue 30, after the reference
+    from ctxmatch_lib.evaluation.rows import GEOMETRY_COLUMNS  # added after the reference
 
     df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s", *GEOMETRY_COLUMNS])
     buf = io.StringIO()

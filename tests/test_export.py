@@ -134,7 +134,7 @@ def test_cli_exports(tmp_path):
     assert set(hm[:, 0].tolist()) == set(d["matches"][:, 0].tolist())
 
 
-# ---------------------------------------------------------------- bad output paths (issue 23, case 4)
+# ---------------------------------------------------------------- bad output paths
 @pytest.mark.parametrize("where, reason", [
     ("file/db.db", "is a file, not a folder"),        # the corpus' case: a regular file in the path
     ("file/sub/db.db", "is a file, not a folder"),

@@ -1,4 +1,4 @@
-"""The filter registry offers the names the command line accepts (issue 32)."""
+"""The filter registry offers the names the command line accepts."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Duplicated candidates (issue 22, item 4): a wrong correspondence must not support itself through its copies.
+"""Duplicated candidates: a wrong correspondence must not support itself through its copies.
 
 SIFT keeps one keypoint per dominant orientation, so a single correspondence can appear as several candidate
 rows whose keypoints coincide in both images (distinct keypoint indices, same coordinates), and a

@@ -1,6 +1,6 @@
 """The compiled kernels behind LLT (and VFC) give the bits of their documented summation order.
 
-The EM of LLT amplifies the last bits of its products into decisions (issue 31), so its kernels are checked
+The EM of LLT amplifies the last bits of its products into decisions, so its kernels are checked
 for exact equality against references written with numpy operations whose order is fixed: elementwise
 products, and ``np.cumsum`` (a running sum, one addition after the other).
 """

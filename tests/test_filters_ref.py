@@ -1,4 +1,4 @@
-"""Filters against their authors' code (issue 22): the duplicated-outlier case of GMS and AdaLAM, and the helpers of
+"""Filters against their authors' code: the duplicated-outlier case of GMS and AdaLAM, and the helpers of
 ``benchmarks/bench_filters_ref.py`` (reference runner, Jaccard, precision / recall) on tiny synthetic cases.
 
 The comparison with ``cv2.xfeatures2d.matchGMS`` runs only when ``CTXMATCH_GMS_REF_PYTHON`` names an

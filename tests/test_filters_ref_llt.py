@@ -1,4 +1,4 @@
-"""LLT against its authors' code (issue 22): the reference plugin ``benchmarks/ref_llt.py`` and the parts of
+"""LLT against its authors' code: the reference plugin ``benchmarks/ref_llt.py`` and the parts of
 ``ctxmatch_lib.filters.llt`` aligned with the authors' ``LLTV.m``.
 
 The comparison with the authors' MATLAB code runs only when ``CTXMATCH_LLT_REF`` names a checkout of

@@ -1,4 +1,4 @@
-"""LMR against its authors' code, and the sweep script of BM / SCV / PFM / LMR (issue 22, items 1 and 2).
+"""LMR against its authors' code, and the sweep script of BM / SCV / PFM / LMR.
 
 ``benchmarks/ref_lmr.py`` runs the authors' MATLAB code (StaRainJ/LMR) under GNU Octave for
 ``benchmarks/bench_filters_ref.py --ref lmr=DIR``; the Octave tests run only when ``octave`` is on PATH and

@@ -1,4 +1,4 @@
-"""RFM-SCAN against its authors' code (issue 22): the reference plugin ``benchmarks/ref_rfm_scan.py`` and what the
+"""RFM-SCAN against its authors' code: the reference plugin ``benchmarks/ref_rfm_scan.py`` and what the
 alignment with StaRainJ/RFM-SCAN changed in :func:`ctxmatch_lib.filters.rfm_scan.rfm_scan_filter`.
 
 The comparison with the authors' MATLAB code runs only when GNU Octave is on PATH and ``CTXMATCH_RFM_SCAN_REF``

@@ -1,4 +1,4 @@
-"""One wrapper around every filter's core (issue 32): the masks it gives are those of a plain reference, the
+"""One wrapper around every filter's core: the masks it gives are those of a plain reference, the
 public signatures and docstrings are composed from the shared parts, and the scores carry their scale.
 
 The reference for the filters that merge coincident rows is written out here by hand: the distinct

@@ -1,4 +1,4 @@
-"""The accuracy of an estimated model (issue 30): corner error, epipolar consistency, AUC over pairs, and the
+"""The accuracy of an estimated model: corner error, epipolar consistency, AUC over pairs, and the
 engine rows that carry them; the OpenCV matchers and the USAC presets."""
 
 import numpy as np

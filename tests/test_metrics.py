@@ -139,7 +139,7 @@ def test_recall_and_ap_bounded_for_subsets(pairs, seed):
 
 
 def _direct_ap(m, lab, scores, den):
-    """The definition of average_precision walked over the whole stable ranking (the code before issue 33's
+    """The definition of average_precision walked over the whole stable ranking (the code before the
     value-search ranking): the reference the fast one must equal bit for bit."""
     order = np.argsort(scores, kind="stable")
     lab = lab[order]

@@ -272,7 +272,7 @@ def test_provenance_names_the_source_never_the_clock():
 
 
 def test_paper_scale_runs_share_one_keypoint_budget():
-    """Every paper-scale evaluation runs at the calibrated budget "paper" (issue 21: the same budget for every
+    """Every paper-scale evaluation runs at the calibrated budget "paper" (the same budget for every
     block and figure; the illustrations of one pair, fig_boundary and fig_dtm_steps, excepted)."""
     yaml = pytest.importorskip("yaml")
     from ctxmatch_lib.features import KEYPOINT_BUDGETS, keypoint_budget

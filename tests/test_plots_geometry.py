@@ -1,4 +1,4 @@
-"""The geometry plots (issue 30) on hand-built rows: what is drawn, where."""
+"""The geometry plots on hand-built rows: what is drawn, where."""
 
 import matplotlib
 

@@ -1,4 +1,4 @@
-"""Relative pose of calibrated pairs (issue 44, item 3): the pose error as SuperGlue's compute_pose_error,
+"""Relative pose of calibrated pairs: the pose error as SuperGlue's compute_pose_error,
 pose recovery from E or F with the intrinsics, and the ``essential`` model step."""
 
 import numpy as np
