@@ -7,6 +7,8 @@ of ground-truth correspondences consistent with F), :func:`pose_auc` (SuperGlue'
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._numerics.docstrings import shared_doc
@@ -26,7 +28,11 @@ __all__ = [
     "gt_correspondences",
     "pose_auc",
     "time_to_geometry",
+    "bootstrap_interval",
     "geometry_table",
+    "paired_differences",
+    "BOOTSTRAP_RESAMPLES",
+    "BOOTSTRAP_SEED",
 ]
 
 #: The thresholds of the epipolar consistency, in pixels: 1 ... 19 (WxBS's 0 gives 0 for any real estimate).
@@ -37,6 +43,10 @@ CORNER_AUC_THRESHOLDS_PX = (1.0, 3.0, 5.0, 10.0)
 
 #: The thresholds of the AUC of the pose error (degrees) that SuperGlue, LoFTR, glue-factory and fb82/MiHo report.
 POSE_AUC_THRESHOLDS_DEG = (5.0, 10.0, 20.0)
+
+#: Resamples and seed of the intervals of :func:`geometry_table` and :func:`paired_differences`.
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0
 
 #: How many correspondences :func:`gt_correspondences` samples from a dense ground truth.
 FLOW_SAMPLE_POINTS = 2000
@@ -229,50 +239,236 @@ def time_to_geometry(rows, *, standalone=("blob", "opencv_ratio", "opencv_mnn"))
     return total.where(rows["model"] != "none")
 
 
+def _auc_sorted(e: np.ndarray, t: float) -> np.ndarray:
+    """:func:`pose_auc` at ``t`` of each row of ``e`` (B, M), sorted ascending (``inf`` for a failure)."""
+    m = e.shape[1]
+    below = e < t
+    k = below.sum(axis=1)
+    prev = np.concatenate([np.zeros((len(e), 1)), e[:, :-1]], axis=1)
+    with np.errstate(invalid="ignore"):
+        steps = np.where(below, e - prev, 0.0)
+    area = steps @ ((2 * np.arange(1, m + 1) - 1) / (2 * m)) if m else np.zeros(len(e))
+    last = np.take_along_axis(e, np.maximum(k - 1, 0)[:, None], axis=1)[:, 0] if m else np.zeros(len(e))
+    area += (t - np.where(k > 0, last, 0.0)) * k / max(m, 1)
+    return area / t
+
+
+def _statistic(values: np.ndarray, auc_at: float | None) -> np.ndarray:
+    """Each row's statistic in %: the mean of ``values`` (B, M), or their AUC at ``auc_at`` (no NaN)."""
+    if auc_at is None:
+        return 100 * values.mean(axis=1)
+    return 100 * _auc_sorted(np.sort(values, axis=1), auc_at)
+
+
+def _by_pair(g, column: str):
+    """``column`` of rows ``g`` as a (pairs, runs) array, pairs and runs sorted, NaN where a run is missing; the
+    number of runs of each pair; and the pair keys. Rows where ``column`` is NaN are left out."""
+    g = g[g[column].notna()]
+    if g.empty:
+        return np.empty((0, 1)), np.zeros(0, np.int64), []
+    keys = list(zip(g["dataset"], g["pair_id"]))
+    pairs = sorted(set(keys))
+    index = {p: i for i, p in enumerate(pairs)}
+    rank = g.assign(_p=[index[k] for k in keys]).sort_values(["_p", "run"], kind="stable")
+    counts = np.bincount(rank["_p"].to_numpy(), minlength=len(pairs))
+    out = np.full((len(pairs), counts.max()), np.nan)
+    col = np.concatenate([np.arange(c) for c in counts])
+    out[rank["_p"].to_numpy(), col] = rank[column].to_numpy(np.float64)
+    return out, counts, pairs
+
+
+def _resamples(counts: np.ndarray, n_resamples: int, seed: int, runs: int):
+    """Two-stage bootstrap indices: pairs drawn with replacement, then ``runs`` runs within each drawn pair
+    (among its own), (B, P) and (B, P, runs); a fixed ``seed``, so an interval repeats."""
+    rng = np.random.default_rng(seed)
+    n = len(counts)
+    pi = rng.integers(0, n, (n_resamples, n))
+    si = np.floor(rng.random((n_resamples, n, runs)) * counts[pi][..., None]).astype(np.int64)
+    return pi, si
+
+
+def bootstrap_interval(values, counts=None, *, auc_at: float | None = None, confidence: float = 0.95,
+                       n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED):
+    """The 95 % (``confidence``) percentile bootstrap interval of a statistic over pairs and runs, in %.
+
+    Pairs are resampled with replacement, then runs within each drawn pair (a two-stage bootstrap: the pairs
+    and the estimator's seeds both vary); the statistic is the mean of the values pooled over pairs and runs,
+    or (``auc_at``) :func:`pose_auc` of the pooled errors at ``auc_at``.
+
+    Parameters
+    ----------
+    values : array_like of shape (P, R)
+        One row per pair, one column per run; NaN pads a pair with fewer runs (``counts``).
+    counts : array_like of shape (P,), optional
+        Runs of each pair (default: its non-NaN values, which must come first).
+
+    Returns
+    -------
+    tuple of float
+        ``(lo, hi)``; NaN without pairs.
+
+    Examples
+    --------
+    >>> lo, hi = bootstrap_interval(np.full((10, 3), 0.5))
+    >>> float(lo), float(hi)
+    (50.0, 50.0)
+    """
+    v = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    counts = (~np.isnan(v)).sum(axis=1) if counts is None else np.asarray(counts, np.int64)
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    if len(v) == 0 or v.size == 0 or (counts < 1).any():
+        return float("nan"), float("nan")
+    pi, si = _resamples(counts, n_resamples, seed, v.shape[1])
+    stats = _statistic(v[pi[..., None], si].reshape(n_resamples, -1), auc_at)
+    lo, hi = np.quantile(stats, [(1 - confidence) / 2, (1 + confidence) / 2])
+    return float(lo), float(hi)
+
+
+def _metrics(rows, thresholds, pose_thresholds) -> list[tuple[str, str, float | None]]:
+    """``(name, row column, AUC threshold or None for a mean)`` of each metric of :func:`geometry_table`."""
+    shares = [c for c in rows.columns if c.startswith("epi_share_")]
+    return [*((f"auc_{t:g}px", "corner_error", float(t)) for t in thresholds), *((c, c, None) for c in shares),
+            *((f"auc_{t:g}deg", "pose_err", float(t)) for t in pose_thresholds)]
+
+
 def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=CORNER_AUC_THRESHOLDS_PX,
-                   pose_thresholds=POSE_AUC_THRESHOLDS_DEG):
-    """The model's accuracy over pairs, per group of ``by`` columns.
+                   pose_thresholds=POSE_AUC_THRESHOLDS_DEG, confidence: float = 0.95,
+                   n_resamples: int = BOOTSTRAP_RESAMPLES):
+    """The model's accuracy over pairs and runs, per group of ``by`` columns, with bootstrap intervals.
 
     Parameters
     ----------
     rows : pandas.DataFrame
-        Evaluation rows; those with model ``none`` or an ``error`` are left out.
+        Evaluation rows; those with model ``none`` or an ``error`` are left out. A random model step's runs
+        (column ``run``) are pooled: every (pair, run) error enters the AUC, every share the mean.
     by : sequence of str
     thresholds : sequence of float
         Of the AUC of the corner error, in pixels.
     pose_thresholds : sequence of float
         Of the AUC of the pose error, in degrees.
+    confidence, n_resamples
+        Of the intervals (:func:`bootstrap_interval`, pairs then runs resampled, a fixed seed).
 
     Returns
     -------
     pandas.DataFrame
-        Indexed by ``by``: ``pairs``, ``auc_<t>px_pct`` (planar), ``epi_share_*_pct`` (other kinds),
-        ``auc_<t>deg_pct`` (calibrated), ``no_model``, mean and median :func:`time_to_geometry`; in %.
+        Indexed by ``by``: ``pairs``, ``runs`` (per pair, at most), then per metric its value ``<m>_pct`` and
+        interval ``<m>_lo``, ``<m>_hi``: ``auc_<t>px`` (planar), ``epi_share_*`` (other kinds),
+        ``auc_<t>deg`` (calibrated), all in %; ``no_model`` (fits, over pairs and runs, without a model); mean
+        and median :func:`time_to_geometry`.
     """
     import pandas as pd
 
     by = list(by)
+    if "run" not in rows.columns:
+        rows = rows.assign(run=0)
     ok = rows[(rows["model"] != "none") & (rows["error"] == "")].copy()
     ok["_t"] = time_to_geometry(rows).loc[ok.index]
-    share_cols = [c for c in ok.columns if c.startswith("epi_share_")]
+    metrics = _metrics(ok, thresholds, pose_thresholds)
     out = []
     for key, g in ok.groupby(by, sort=False):
         rec = dict(zip(by, key if isinstance(key, tuple) else (key,)))
-        planar = g["corner_error"].notna()
-        rec["pairs"] = len(g)
-        aucs = pose_auc(g.loc[planar, "corner_error"].to_numpy(), thresholds) if planar.any() else \
-            np.full(len(thresholds), np.nan)
-        rec.update({f"auc_{t:g}px_pct": 100 * a for t, a in zip(thresholds, aucs)})
-        rec.update({f"{c}_pct": 100 * g.loc[~planar, c].mean() for c in share_cols})
-        posed = g["pose_err"].notna() if "pose_err" in g.columns else pd.Series(False, index=g.index)
-        aucs = pose_auc(g.loc[posed, "pose_err"].to_numpy(), pose_thresholds) if posed.any() else \
-            np.full(len(pose_thresholds), np.nan)
-        rec.update({f"auc_{t:g}deg_pct": 100 * a for t, a in zip(pose_thresholds, aucs)})
+        rec["pairs"] = len(set(zip(g["dataset"], g["pair_id"])))
+        rec["runs"] = int(g.groupby(["dataset", "pair_id"])["run"].nunique().max())
+        for name, column, auc_at in metrics:
+            values, counts, _ = _by_pair(g, column) if column in g.columns else (None, [], [])
+            if not len(counts):
+                rec.update({f"{name}_pct": np.nan, f"{name}_lo": np.nan, f"{name}_hi": np.nan})
+                continue
+            pooled = g.loc[g[column].notna(), column]
+            rec[f"{name}_pct"] = 100 * (pooled.mean() if auc_at is None else pose_auc(pooled.to_numpy(), [auc_at])[0])
+            rec[f"{name}_lo"], rec[f"{name}_hi"] = bootstrap_interval(values, counts, auc_at=auc_at,
+                                                                      confidence=confidence, n_resamples=n_resamples)
         rec["no_model"] = int((g["model_inliers"] == 0).sum())
         rec["geometry_time_s"] = g["_t"].mean()
         rec["geometry_time_median_s"] = g["_t"].median()
         out.append(rec)
-    cols = [*by, "pairs", *(f"auc_{t:g}px_pct" for t in thresholds), *(f"{c}_pct" for c in share_cols),
-            *(f"auc_{t:g}deg_pct" for t in pose_thresholds), "no_model",
-            "geometry_time_s", "geometry_time_median_s"]
+    cols = [*by, "pairs", "runs", *(f"{name}_{s}" for name, _, _ in metrics for s in ("pct", "lo", "hi")),
+            "no_model", "geometry_time_s", "geometry_time_median_s"]
     return pd.DataFrame(out, columns=cols).set_index(by)
+
+
+def paired_differences(rows, *, references=("th", "dtm2"), by=("kind", "blob", "model"), metrics=None,
+                       confidence: float = 0.95, n_resamples: int = BOOTSTRAP_RESAMPLES):
+    """Each method against each of ``references`` on the same pairs and runs: the mean paired difference of a
+    metric with its bootstrap interval, and whether the interval excludes 0.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Evaluation rows, as :func:`geometry_table`; a method and a reference are compared on the (pair, run)
+        rows both have.
+    references : sequence of str
+        Methods compared against (those absent from a group are skipped).
+    by : sequence of str
+        The groups (``method`` is not one of them).
+    metrics : sequence of str, optional
+        Metric names of :func:`geometry_table` (``auc_5px``, ``epi_share_mean``, ``auc_5deg``, ...); default:
+        ``auc_5px``, ``epi_share_mean`` and ``auc_5deg``, each where its rows have values.
+    confidence, n_resamples
+        As :func:`geometry_table`; both sides are resampled with the same pairs and runs.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per (``by``, method, reference, metric): ``pairs``, ``runs``, ``value`` and ``reference_value``
+        (% as :func:`geometry_table`), ``difference``, ``lo``, ``hi`` and ``resolved`` (the interval excludes 0).
+    """
+    import pandas as pd
+
+    by = list(by)
+    if "run" not in rows.columns:
+        rows = rows.assign(run=0)
+    ok = rows[(rows["model"] != "none") & (rows["error"] == "")]
+    chosen = list(metrics) if metrics is not None else ["auc_5px", "epi_share_mean", "auc_5deg"]
+    known = {m: (m, None) if m.startswith("epi_share_") else _auc_metric(m) for m in chosen}
+    out = []
+    for key, g in ok.groupby(by, sort=False):
+        group = dict(zip(by, key if isinstance(key, tuple) else (key,)))
+        present = list(dict.fromkeys(g["method"]))
+        for name in chosen:
+            column, auc_at = known[name]
+            if column not in g.columns or g[column].isna().all():
+                continue
+            for ref in (r for r in references if r in present):
+                for method in (m for m in present if m != ref):
+                    rec = _paired(g, method, ref, column, auc_at, confidence, n_resamples)
+                    if rec is not None:
+                        out.append({**group, "method": method, "reference": ref, "metric": name, **rec})
+    cols = [*by, "method", "reference", "metric", "pairs", "runs", "value", "reference_value", "difference", "lo",
+            "hi", "resolved"]
+    return pd.DataFrame(out, columns=cols)
+
+
+def _auc_metric(name: str) -> tuple[str, float]:
+    """``(column, threshold)`` of a metric ``auc_<t>px`` or ``auc_<t>deg``, any positive ``t``."""
+    unit = "px" if name.endswith("px") else "deg" if name.endswith("deg") else None
+    try:
+        t = float(name[len("auc_"):-len(unit)]) if name.startswith("auc_") else None
+    except (TypeError, ValueError):
+        t = None
+    if t is None or not (math.isfinite(t) and t > 0):
+        raise ValueError(f"metrics must be auc_<t>px, auc_<t>deg or epi_share_* (geometry_table's), got {name!r}")
+    return ("corner_error" if unit == "px" else "pose_err"), t
+
+
+def _paired(g, method, ref, column, auc_at, confidence, n_resamples) -> dict | None:
+    """:func:`paired_differences`' record of one method against one reference (None: no common rows)."""
+    a = g[g["method"] == method]
+    b = g[g["method"] == ref]
+    common = a[["dataset", "pair_id", "run", column]].merge(b[["dataset", "pair_id", "run", column]],
+                                                            on=["dataset", "pair_id", "run"], suffixes=("", "_ref"))
+    common = common[common[column].notna() & common[f"{column}_ref"].notna()]
+    if common.empty:
+        return None
+    va, counts, _ = _by_pair(common, column)
+    vb, _, _ = _by_pair(common.drop(columns=column).rename(columns={f"{column}_ref": column}), column)
+    pi, si = _resamples(counts, n_resamples, BOOTSTRAP_SEED, va.shape[1])
+    diff = (_statistic(va[pi[..., None], si].reshape(n_resamples, -1), auc_at)
+            - _statistic(vb[pi[..., None], si].reshape(n_resamples, -1), auc_at))
+    lo, hi = np.quantile(diff, [(1 - confidence) / 2, (1 + confidence) / 2])
+    value = _statistic(va[~np.isnan(va)][None], auc_at)[0]
+    reference = _statistic(vb[~np.isnan(vb)][None], auc_at)[0]
+    return {"pairs": len(counts), "runs": int(counts.max()), "value": value, "reference_value": reference,
+            "difference": value - reference, "lo": float(lo), "hi": float(hi), "resolved": bool(lo > 0 or hi < 0)}

@@ -327,6 +327,7 @@ def test_evaluate_dataset_warns_with_pair_and_reason(broken_dataset, tmp_path):
     (["--max-keypoints", "-5"], "--max-keypoints"),
     (["--max-keypoints", "sparse"], "--max-keypoints must be a non-negative integer or a budget name (paper, dense)"),
     (["--seed", "-1"], "--seed"),
+    (["--runs", "0"], "--runs must be a positive number of estimator runs"),
     (["--limit", "0"], "--limit"),
     (["--model-threshold", "-1"], "--model-threshold must be a positive number"),
     (["--jobs", "0"], "--jobs must be a positive number"),
@@ -522,15 +523,15 @@ def test_eval_accepts_all_filters_and_several_datasets(tmp_path):
 
 
 def test_engine_rows_identical_to_before_the_refactor():
-    """The rows of the engine, recomputed now, against those computed before the issue-24 refactor.
+    """The rows of the engine, recomputed now, against those computed before its refactor into units.
 
     tests/data/engine_rows_before.csv was written by the engine as it was before (commit 4315919): the eval
     path (2 embedded pairs, paper-best + baseline, filters dtm/th/adalam, models none/1sac, 400 keypoints)
     and the sweep path (39 grid setups with every t_o kind, 1 pair, 300 keypoints). Every column but the
     running times is compared as text written with 17 significant digits, i.e. bit for bit. The 8 AdaLAM rows
     were rewritten once, when AdaLAM's defaults were aligned with kornia's AdaLAM, and the AP of 5
-    rows once, when blob matching's scores became exact float64 distances instead of float32 GEMM values (issue
-    31: the AP ranks by score, and scores moved by under 1e-5, reordering near ties; AP moved by under 6e-6,
+    rows once, when blob matching's scores became exact float64 distances instead of float32 GEMM values (the
+    AP ranks by score, and scores moved by under 1e-5, reordering near ties; AP moved by under 6e-6,
     every other column stayed bit for bit). Every row was rewritten once more when the features and the
     embedded dataset were made the same on any CPU (dataset version 2: new images; features from IEEE basic
     operations and OpenCV's baseline build): the inputs changed, the engine did not, and the rows are again
@@ -551,9 +552,9 @@ def test_engine_rows_identical_to_before_the_refactor():
     df2 = run_sweep("embedded", blobs=grid, pairs=[pp[1].pair_id], max_keypoints=300, cache_dir=False,
                     progress=False)
     df1["source"], df2["source"] = "eval", "sweep"
-    from ctxmatch_lib.evaluation.rows import GEOMETRY_COLUMNS  # added after the reference
+    from ctxmatch_lib.evaluation.rows import GEOMETRY_COLUMNS  # added after the reference, as "run"
 
-    df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s", *GEOMETRY_COLUMNS])
+    df = pd.concat([df1, df2], ignore_index=True).drop(columns=["time_s", "model_time_s", "run", *GEOMETRY_COLUMNS])
     buf = io.StringIO()
     df.to_csv(buf, index=False, float_format="%.17g")
     before = (Path(__file__).parent / "data" / "engine_rows_before.csv").read_text()

@@ -73,7 +73,7 @@ def test_accuracy_by_method_sorts_by_auc_and_names_pairs_without_a_model():
     # Top to bottom by AUC at 5 px: OpenCV (every pair at 1 px), DTM (0.2, 1.5, 4, failure), blob.
     assert order == ["opencv_ratio", "dtm", "blob"]
     labels = [t.get_text() for t in ax.get_yticklabels()][::-1]
-    assert labels == ["OpenCV ratio 0.8", "DTM (1 w/o model)", "blob (1 w/o model)"]
+    assert labels == ["OpenCV ratio 0.8", "DTM (1 of 4 w/o model)", "blob (1 of 4 w/o model)"]
     plt.close(fig)
 
 

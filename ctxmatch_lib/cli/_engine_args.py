@@ -63,6 +63,10 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--model-threshold", type=float, default=15.0,
                    help="1SAC/RANSAC consistency threshold in px (default: 15)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
+    p.add_argument("--runs", type=int, default=1,
+                   help="seeded runs of each random model step (ransac, prosac, magsac, essential) per pair and "
+                        "method, one row each (column run); the tables give means over pairs and runs with 95 %% "
+                        "bootstrap intervals (default: 1)")
     p.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib); -1: all cores (default: 1)")
     p.add_argument("--dask", default=None, metavar="ADDRESS",
                    help="run on a Dask cluster at this scheduler address, e.g. tcp://host:8786")
@@ -103,6 +107,8 @@ def check_numbers(args) -> str | None:
         return str(exc)
     if args.seed < 0:
         return f"--seed must be >= 0, got {args.seed}"
+    if args.runs < 1:
+        return f"--runs must be a positive number of estimator runs, got {args.runs}"
     if args.jobs == 0 or args.jobs < -1:
         return f"--jobs must be a positive number of processes or -1 (all cores), got {args.jobs}"
     if args.dask is not None and args.jobs != 1:
@@ -179,7 +185,8 @@ def plan(args, settings: dict, *, limit: int | None = None):
     kw = dict(features=settings["features"], blobs=settings["blobs"], filters=settings["filters"],
               models=settings["models"], gt_method=args.gt, gt_threshold=args.gt_threshold,
               model_threshold=args.model_threshold, seed=args.seed, max_keypoints=args.max_keypoints,
-              data_root=args.data_root, matchers=settings["matchers"], estimator=settings["estimator"])
+              data_root=args.data_root, matchers=settings["matchers"], estimator=settings["estimator"],
+              runs=args.runs)
     units = []
     for name in csv(args.dataset) or ["embedded"]:
         try:

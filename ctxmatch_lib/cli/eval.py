@@ -110,7 +110,8 @@ def run(args) -> int:
                                            else len(blobs)),
         "filters": list(settings["filters"]), "models": list(settings["models"]), "gt_method": args.gt,
         "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold,
-        "features": {u.features_name: u.features.key() for u in units}, "seed": args.seed, "pairs": n_pairs,
+        "features": {u.features_name: u.features.key() for u in units}, "seed": args.seed, "runs": args.runs,
+        "pairs": n_pairs,
         "matchers": list(settings["matchers"]), "estimator": settings["estimator"],
         "units": "precision, recall, recall_star, ap, ap_star: fractions in [0, 1]",
     }
@@ -139,8 +140,9 @@ def _print_summary(df, args, out, n_pairs: int, summary_table) -> None:
                   "in % (pairs without a model count as failures); epi_share_*_pct (other kinds): ground-truth "
                   "correspondences consistent with the estimated F, mean over 1..19 px and at t px, in %; "
                   "auc_*deg_pct (calibrated): AUC of the pose error up to t degrees in % (F: pose through "
-                  "E = K2^T F K1, MiHo's AUC^F; essential: E on normalised points, its AUC^E); no_model: pairs without a model; geometry_time_(median_)s: blob (or matcher) + filter + model "
-                  "step, mean (median) per pair")
+                  "E = K2^T F K1, MiHo's AUC^F; essential: E on normalised points, its AUC^E), over pairs and --runs; "
+                  "*_lo, *_hi: their 95 % bootstrap interval; no_model: fits without a model; "
+                  "geometry_time_(median_)s: blob (or matcher) + filter + model step, mean (median) per pair")
             print(geometry_table(df).dropna(axis=1, how="all").to_string(formatters={c: "{:.4f}".format
                                                            for c in ("geometry_time_s", "geometry_time_median_s")}))
     if n_failed:

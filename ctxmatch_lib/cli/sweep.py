@@ -66,7 +66,7 @@ def run(args) -> int:
     meta = {"datasets": args.dataset, "features": {u.features_name: u.features.key() for u in units},
             "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
             "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": args.gt,
-            "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold, "seed": args.seed,
+            "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold, "seed": args.seed, "runs": args.runs,
             "format": FORMAT}
     out = settings["out"]
     write_parquet_atomic(df, out, meta)

@@ -26,7 +26,7 @@ __all__ = ["FORMAT", "digest", "pair_digest", "features_digest", "source_digest"
            "engine_cache", "candidate_sets", "code_closure"]
 
 # Bump when the rows or the cached intermediates change meaning: old parts and caches are then ignored.
-FORMAT = 4
+FORMAT = 5
 
 
 def digest(*parts) -> str:

@@ -29,7 +29,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
               model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
               max_keypoints: int | str | None = None, n_jobs: int = 1, dask=None, cache_dir=None,
               feature_cache_dir=None, out=None, progress: bool = True, data_root=None, recompute: bool = False,
-              matchers=(), estimator=None):
+              matchers=(), estimator=None, runs: int = 1):
     """Run (or resume) a sweep and return its rows as a ``pandas.DataFrame`` (:data:`SWEEP_COLUMNS`).
 
     Parameters
@@ -46,6 +46,10 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
         Model steps (:data:`~ctxmatch_lib.geometry.MODEL_STEPS`); extra matchers (:mod:`ctxmatch_lib.opencv_matchers`).
     estimator : dict, optional
         USAC overrides of the robust model steps (``threshold``, ``confidence``, ``max_iters``).
+    runs : int
+        Seeded runs of each random model step (:data:`~ctxmatch_lib.geometry.ROBUST_STEPS`) per pair and
+        method, one row each (column ``run``; :func:`~ctxmatch_lib.evaluation.steps.run_seed`); the
+        features, candidates and filters run once.
     max_keypoints : int or str, optional
         Keypoint cap (0: none) or a name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS`.
     pairs, kinds
@@ -64,7 +68,7 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     Returns
     -------
     pandas.DataFrame
-        One row per (pair, features, blob setup, method, model), in the sweep's order.
+        One row per (pair, features, blob setup, method, model, run), in the sweep's order.
     """
     check_runner(n_jobs, dask)
     if out is not None:
@@ -72,7 +76,8 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
     units = plan_sweep(datasets, features=features, blobs=blobs, filters=filters, models=models,
                        pairs=pairs, kinds=kinds, gt_method=gt_method, gt_threshold=gt_threshold,
                        model_threshold=model_threshold, filter_params=filter_params, seed=seed,
-                       max_keypoints=max_keypoints, data_root=data_root, matchers=matchers, estimator=estimator)
+                       max_keypoints=max_keypoints, data_root=data_root, matchers=matchers, estimator=estimator,
+                       runs=runs)
     df = run_units(units, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir, n_jobs=n_jobs, dask=dask,
                    progress=progress, recompute=recompute, desc="ctxmatch sweep")
     if out is not None:
@@ -80,7 +85,8 @@ def run_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", fi
                 "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
                 "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": gt_method,
                 "gt_threshold": gt_threshold, "model_threshold": model_threshold, "seed": seed,
-                "matchers": list(units[0].matchers), "estimator": dict(units[0].estimator), "format": FORMAT}
+                "matchers": list(units[0].matchers), "estimator": dict(units[0].estimator), "runs": runs,
+                "format": FORMAT}
         write_parquet_atomic(df, out, meta)
     return df
 
@@ -109,7 +115,8 @@ def evaluate_cached(
         Feature setups (names of :data:`~ctxmatch_lib.features.FEATURE_PRESETS`), named in ``features``.
     blobs, models, kwargs
         As :func:`ctxmatch_lib.pipeline.evaluate_pair` (``gt_method``, ``gt_threshold``,
-        ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``).
+        ``model_threshold``, ``filter_params``, ``seed``) and :func:`run_sweep` (``matchers``, ``estimator``,
+        ``runs``).
     filters : "all" or sequence of str
         See :func:`~ctxmatch_lib.evaluation.steps.resolve_filters`.
     max_keypoints, cache_dir, progress, n_jobs
@@ -122,7 +129,7 @@ def evaluate_cached(
     pandas.DataFrame
         :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`; ``time_s`` as measured when the row was computed.
     """
-    known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed", "matchers", "estimator"}
+    known = {"gt_method", "gt_threshold", "model_threshold", "filter_params", "seed", "matchers", "estimator", "runs"}
     unknown = sorted(set(kwargs) - known)
     if unknown:
         raise TypeError(f"evaluate_cached got unexpected arguments {unknown}; known: {sorted(known)}")

@@ -17,6 +17,7 @@ from ..blob import BLOB_PRESETS, BlobConfig, blob_grid
 from ..datasets import load_dataset
 from ..datasets.base import Pair
 from ..features import FEATURE_PRESETS, FeatureConfig, keypoint_budget
+from ..geometry import ROBUST_STEPS
 from ..groundtruth import GT_METHODS, GT_THRESHOLD_PX
 from .cache import FORMAT, digest, pair_digest, source_digest
 from .steps import check_estimator, check_matchers, check_models, named_configs, resolve_filters
@@ -170,6 +171,7 @@ class SweepUnit:
     salt: str = ""
     matchers: tuple = ()
     estimator: tuple = ()  # ((key, value), ...), sorted
+    runs: int = 1  # seeded runs of each random model step (ROBUST_STEPS) per method
 
     def label(self) -> str:
         where = self.dataset or self.pair.dataset
@@ -183,11 +185,12 @@ def unit_key(u: SweepUnit, pair_hash: str) -> str:
         FORMAT, u.pair.dataset or u.dataset, u.pair.pair_id, pair_hash, u.features.key(),
         [c.kwargs() for c in u.blobs], u.filters, u.models, u.filter_params, u.gt_method, float(u.gt_threshold),
         float(u.model_threshold), int(u.seed), u.salt, u.matchers, u.estimator,
+        int(u.runs) if any(m in ROBUST_STEPS for m in u.models) else 1,  # runs repeat the random steps only
     )
 
 
 def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold, model_threshold,
-                    filter_params, seed, max_keypoints, matchers=(), estimator=None) -> dict:
+                    filter_params, seed, max_keypoints, matchers=(), estimator=None, runs=1) -> dict:
     """Validate every setting of an evaluation before any work; returns them resolved."""
     if gt_method not in GT_METHODS:
         raise ValueError(f"gt_method must be one of {GT_METHODS}, got {gt_method!r}")
@@ -201,6 +204,8 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
             raise ValueError(f"{name} must be a positive number of pixels, got {value!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1:
+        raise ValueError(f"runs must be a positive integer, got {runs!r}")
     max_keypoints = keypoint_budget(max_keypoints)  # a budget name ("paper", "dense") or an int
     feats = resolve_feature_configs(features)
     if max_keypoints is not None:
@@ -222,7 +227,8 @@ def check_settings(*, features, blobs, filters, models, gt_method, gt_threshold,
     fparams = tuple((k, json.dumps(params[k], sort_keys=True)) for k in filters if k in params)
     return dict(feats=feats, blobs=blob_cfgs, blob_names=names, filters=filters, models=models, fparams=fparams,
                 gt_method=gt_method, gt_threshold=float(gt_threshold), model_threshold=float(model_threshold),
-                seed=int(seed), matchers=check_matchers(matchers), estimator=check_estimator(estimator))
+                seed=int(seed), matchers=check_matchers(matchers), estimator=check_estimator(estimator),
+                runs=int(runs))
 
 
 def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
@@ -230,7 +236,8 @@ def _units(dataset_name, pairs, st, salt: str | None) -> list[SweepUnit]:
     salt = source_digest(tuple(st["filters"])) if salt is None else salt
     return [SweepUnit(str(dataset_name), pair, fname, fcfg, st["blobs"], st["filters"], st["models"], st["fparams"],
                       st["gt_method"], st["gt_threshold"], st["model_threshold"], st["seed"],
-                      blob_names=st["blob_names"], salt=salt, matchers=st["matchers"], estimator=st["estimator"])
+                      blob_names=st["blob_names"], salt=salt, matchers=st["matchers"], estimator=st["estimator"],
+                      runs=st["runs"])
             for fname, fcfg in st["feats"].items() for pair in pairs]
 
 
@@ -238,7 +245,7 @@ def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(
                gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX, model_threshold: float = 15.0,
                filter_params: Mapping[str, dict] | None = None, seed: int = 0,
                max_keypoints: int | None = None, salt: str | None = None, matchers=(),
-               estimator: Mapping | None = None) -> list[SweepUnit]:
+               estimator: Mapping | None = None, runs: int = 1) -> list[SweepUnit]:
     """The work units evaluating ``pairs`` (a list of :class:`Pair`), in table order (features, pair).
 
     Arguments as :func:`~ctxmatch_lib.evaluation.frontends.run_sweep`, validated before any work; ``blobs``
@@ -246,7 +253,8 @@ def plan_units(pairs, *, features="sift-rootsift", blobs="paper-best", filters=(
     """
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
-                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator)
+                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator,
+                         runs=runs)
     pairs = list(pairs)
     for p in pairs:
         if not isinstance(p, Pair):
@@ -258,12 +266,13 @@ def plan_sweep(datasets="embedded", *, features="sift-rootsift", blobs="grid", f
                pairs=None, kinds=None, gt_method: str = "D", gt_threshold: float = GT_THRESHOLD_PX,
                model_threshold: float = 15.0, filter_params: Mapping[str, dict] | None = None, seed: int = 0,
                max_keypoints: int | None = None, data_root=None, salt: str | None = None, matchers=(),
-               estimator: Mapping | None = None) -> list[SweepUnit]:
+               estimator: Mapping | None = None, runs: int = 1) -> list[SweepUnit]:
     """The work units of a sweep, in table order (dataset, features, pair); arguments as
     :func:`~ctxmatch_lib.evaluation.frontends.run_sweep` and :func:`plan_units`, validated before any work."""
     st = check_settings(features=features, blobs=blobs, filters=filters, models=models, gt_method=gt_method,
                          gt_threshold=gt_threshold, model_threshold=model_threshold, filter_params=filter_params,
-                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator)
+                         seed=seed, max_keypoints=max_keypoints, matchers=matchers, estimator=estimator,
+                         runs=runs)
     if isinstance(datasets, str):
         datasets = [d.strip() for d in datasets.split(",") if d.strip()]
     datasets = list(datasets)

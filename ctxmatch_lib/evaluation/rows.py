@@ -21,13 +21,13 @@ GEOMETRY_COLUMNS = ("model_inliers", "corner_error", "epi_share_mean", *(f"epi_s
 #: Columns of a sweep row, in order. Blob-setup fields are spelled out so results can be grouped by them.
 SWEEP_COLUMNS = (
     "dataset", "pair_id", "kind", "features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind",
-    "combine", "method", "model", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
+    "combine", "method", "model", "run", "precision", "recall", "recall_star", "ap", "ap_star", "correct",
     "correct_norm", "output", "failure", "empty_output", "time_s", "model_time_s", *GEOMETRY_COLUMNS, "n_kpts1",
     "n_kpts2", "n_candidates", "n_gt", "n_gt_star", "gt_method", "error",
 )
 
 
-INT_COLUMNS = ("f_prime", "correct", "correct_norm", "output", "n_kpts1", "n_kpts2", "n_candidates", "n_gt",
+INT_COLUMNS = ("run", "f_prime", "correct", "correct_norm", "output", "n_kpts1", "n_kpts2", "n_candidates", "n_gt",
                 "n_gt_star")
 
 
@@ -51,7 +51,7 @@ def error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
     pair = unit.pair
     nan = float("nan")
     row = {"dataset": pair.dataset or unit.dataset, "pair_id": pair.pair_id, "kind": pair.kind,
-           "features": unit.features_name, **blob_record(cfg), "method": method, "model": model,
+           "features": unit.features_name, **blob_record(cfg), "method": method, "model": model, "run": 0,
            "precision": nan, "recall": nan, "recall_star": nan, "ap": nan, "ap_star": nan, "correct": 0,
            "correct_norm": 0, "output": 0, "failure": False, "empty_output": False, "time_s": nan, "model_time_s": nan,
            **{c: nan for c in GEOMETRY_COLUMNS}, "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0,

@@ -29,6 +29,7 @@ __all__ = [
     "check_estimator",
     "check_pair_keypoints",
     "pair_seed",
+    "run_seed",
     "pair_features",
     "blob_candidates",
     "run_filter",
@@ -173,6 +174,23 @@ def check_pair_keypoints(pair: Pair, f1: Features, f2: Features) -> None:
 def pair_seed(seed: int, pair_id: str) -> int:
     """Per-pair seed independent of the order pairs are run in (so sweeps can cache per pair)."""
     return int(np.random.SeedSequence([int(seed), zlib.crc32(pair_id.encode())]).generate_state(1)[0])
+
+
+def run_seed(pair_seed_: int, method: str, model: str, run: int) -> int:
+    """The seed of run ``run`` of a random model step on ``method``'s output: run 0 takes the pair's seed (a
+    single run's), run ``r > 0`` one derived from the pair's seed, the method, the step and ``r``.
+
+    Examples
+    --------
+    >>> run_seed(7, "dtm2", "magsac", 0)
+    7
+    >>> run_seed(7, "dtm2", "magsac", 1) != run_seed(7, "th", "magsac", 1)
+    True
+    """
+    if run == 0:
+        return int(pair_seed_)
+    words = [int(pair_seed_), zlib.crc32(method.encode()), zlib.crc32(model.encode()), int(run)]
+    return int(np.random.SeedSequence(words).generate_state(1)[0])
 
 
 # ------------------------------------------------------------------------------------------------ steps

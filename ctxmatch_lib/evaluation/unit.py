@@ -16,6 +16,7 @@ from threadpoolctl import threadpool_limits
 
 from ..blob import combine_ratios, rank_candidates
 from ..datasets.base import PoseGT
+from ..geometry import ROBUST_STEPS
 from ..geometry_metrics import gt_correspondences
 from ..metrics import average_precision, evaluate_matches, normalised_count
 from .cache import FORMAT, candidate_sets, digest, engine_cache, features_digest, load_npz, save_npz
@@ -23,7 +24,7 @@ from .overlap import TabulatedContext, overlap_table
 from .plan import SweepUnit
 from .rows import blob_record, error_row, error_rows, frame, ranked_aps
 from .steps import (check_pair_keypoints, label_candidates, model_accuracy, pair_seed, run_filter, run_matcher,
-                    run_model)
+                    run_model, run_seed)
 
 __all__ = ["BlobStage", "PairError", "unit_features", "run_unit"]
 
@@ -33,7 +34,7 @@ class BlobStage:
     """Everything computed for one blob setup on one pair (:func:`run_unit`'s ``stages``).
 
     ``matches``, ``scores``, ``labels``: the candidates in score order; ``keeps[method]``: a mask over them
-    (or an error message); ``fits[(method, model)]``: the :class:`~ctxmatch_lib.geometry.ModelFit`.
+    (or an error message); ``fits[(method, model)]``: the :class:`~ctxmatch_lib.geometry.ModelFit` (of run 0).
     """
 
     name: str
@@ -96,7 +97,7 @@ class _PairData:
     filter_params: dict
     rng_seed: int
     corr: object = None  # the ground-truth correspondences the epipolar share is measured on, or None
-    fits: dict = None  # (method, model) -> (fit, seconds) of the matcher rows, shared by the blob setups
+    fits: dict = None  # (method, model, run) -> (fit, seconds) of the matcher rows, shared by the blob setups
     matcher_sets: dict = None  # what _matcher_sets returns, once computed
 
 
@@ -149,7 +150,7 @@ def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: fl
     """The blob row of a setup of a unit without filters and models (the grid), both APs from one ranking."""
     correct = int(lab.sum())
     ap, ap_star = ranked_aps(mt[:, 0], mt[:, 1], lab, scores, (n_gt, d.n_gt_star))
-    return {**common, "method": "blob", "model": "none",
+    return {**common, "method": "blob", "model": "none", "run": 0,
             "precision": correct / len(mt) if len(mt) else 0.0,
             "recall": 1.0 if n_gt else float("nan"),
             "recall_star": n_gt / d.n_gt_star if d.n_gt_star else float("nan"),
@@ -187,26 +188,28 @@ def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage
     ref = sm[sl]
     sets = [(method, sm, ss, sl, keep, t, False) for method, (keep, t) in keeps.items()]
     sets += [(name, *alt, True) for name, alt in _matcher_sets(d).items()]
+    # A random model step runs unit.runs times, each seeded by run_seed; the other steps once.
+    steps = [(model, r) for model in unit.models for r in range(unit.runs if model in ROBUST_STEPS else 1)]
     rows = []
     for method, cm, cs, cl, keep, t_method, shared in sets:
-        for model in unit.models:
+        for model, run in steps:
             if isinstance(keep, str):
-                rows.append(error_row(unit, cfg, method, model, keep, n, m, **known))
+                rows.append(error_row(unit, cfg, method, model, keep, n, m, **known, run=run))
                 continue
             try:
-                fit, t_model = _fit(d, method, model, cm[keep], cs[keep], shared)
+                fit, t_model = _fit(d, method, model, run, cm[keep], cs[keep], shared)
             except Exception as exc:
                 rows.append(error_row(unit, cfg, method, model,
                                       f"model {model!r} raised {type(exc).__name__}: {exc}", n, m,
-                                      **known, time_s=t_method))
+                                      **known, time_s=t_method, run=run))
                 continue
-            if stage is not None and not shared:
+            if stage is not None and not shared and run == 0:
                 stage.fits[method, model], stage.model_times[method, model] = fit, t_model
             final = keep.copy()
             final[np.flatnonzero(keep)] = fit.keep
             mm = evaluate_matches(cm[final], cl[final], reference=ref, reference_star=d.ref_star,
                                   scores=cs[final], time_s=t_method)
-            rows.append({**common, "method": method, "model": model, "precision": mm.precision,
+            rows.append({**common, "method": method, "model": model, "run": run, "precision": mm.precision,
                          "recall": mm.recall, "recall_star": mm.recall_star, "ap": mm.ap,
                          "ap_star": average_precision(cm[final], cl[final], cs[final], d.ref_star),
                          "correct": mm.correct, "correct_norm": mm.correct_norm, "output": mm.output,
@@ -216,17 +219,18 @@ def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage
     return rows
 
 
-def _fit(d: _PairData, method: str, model: str, matches, scores, shared: bool):
-    """The model step on a method's output; a matcher's (the same for every blob setup) is fitted once."""
-    if shared and (method, model) in d.fits:
-        return d.fits[method, model]
+def _fit(d: _PairData, method: str, model: str, run: int, matches, scores, shared: bool):
+    """Run ``run`` of the model step on a method's output (seeded by
+    :func:`~ctxmatch_lib.evaluation.steps.run_seed`); a matcher's (the same for every blob setup) is fitted once."""
+    if shared and (method, model, run) in d.fits:
+        return d.fits[method, model, run]
     unit = d.unit
     gt = unit.pair.gt
     out = run_model(model, d.f1, d.f2, matches, scores, pair_kind=unit.pair.kind, threshold=unit.model_threshold,
-                    rng=d.rng_seed, estimator=unit.estimator,
+                    rng=run_seed(d.rng_seed, method, model, run), estimator=unit.estimator,
                     intrinsics=(gt.K1, gt.K2) if isinstance(gt, PoseGT) else None)
     if shared:
-        d.fits[method, model] = out
+        d.fits[method, model, run] = out
     return out
 
 
@@ -263,7 +267,7 @@ def _mask_store(unit: SweepUnit, feats_digest: str, cache):
 def run_unit(unit: SweepUnit, *, cache_dir=None, feature_cache_dir=None, features=None, stages=None):
     """Evaluate one :class:`~ctxmatch_lib.evaluation.plan.SweepUnit` into a ``pandas.DataFrame`` of
     :data:`~ctxmatch_lib.evaluation.rows.SWEEP_COLUMNS`: per blob setup, method ``"blob"`` then each filter,
-    each with the unit's models.
+    each with the unit's models (a random one ``unit.runs`` times, column ``run``).
 
     A pair or method that fails gives rows with NaN metrics and an ``error``, never an exception.
     ``cache_dir``: ``None`` the default, ``False`` none; ``features``: the two images' features, used as

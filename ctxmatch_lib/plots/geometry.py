@@ -66,7 +66,8 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
     :func:`~ctxmatch_lib.geometry_metrics.geometry_table`, best on top: planar, the AUC of the corner error
     at 1/3/5/10 px (:data:`THRESHOLD_MARKERS`); calibrated, the AUC of the pose error at 5/10/20°
     (:data:`POSE_MARKERS`); otherwise the share of GT points consistent with F per threshold and its 1-19 px
-    mean as a bar. ``order`` fixes the rows (side-by-side panels). Returns the methods, top to bottom.
+    mean as a bar. A whisker under each row is the 95 % interval of the 5 px AUC, the mean share or the 5° AUC
+    (the table's ``_lo``, ``_hi`` columns). ``order`` fixes the rows (side-by-side panels). Returns the methods, top to bottom.
     """
     t = table.xs((kind, model), level=("kind", "model"))
     planar, posed = kind == "planar", kind == "calibrated"
@@ -86,6 +87,9 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
             ax.barh(y, row[keys[0]], height=0.55, color=colour, alpha=0.35, lw=0)
         if vals:
             ax.plot([min(vals), max(vals)], [y, y], color=colour, lw=1.0, zorder=2)
+        lo, hi = keys[0][:-len("pct")] + "lo", keys[0][:-len("pct")] + "hi"
+        if lo in row.index and np.isfinite(row[lo]) and np.isfinite(row[hi]):  # the 95 % interval of keys[0]
+            ax.plot([row[lo], row[hi]], [y - 0.3, y - 0.3], color=colour, lw=1.3, marker="|", ms=4, zorder=2)
         for th, c in cols.items():
             if c in row.index and np.isfinite(row[c]):
                 ax.plot(row[c], y, marker=markers[th], ms=3.5, color=colour, mec=colour, ls="none",
@@ -93,8 +97,9 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
         # x in axes fraction, y in data: just left of the axis.
         ax.plot(-0.06, y, marker=marker, ms=3.2, color=colour, mec=colour, ls="none", clip_on=False,
                 transform=ax.get_yaxis_transform(), zorder=3)
-    names = [method_name(m) + (f" ({int(r['no_model'])} w/o model)" if r["no_model"] > 0 else "")
-             for m, r in t.iterrows()]
+    fits = t["pairs"] * t["runs"] if "runs" in t.columns else t["pairs"]
+    names = [method_name(m) + (f" ({int(r['no_model'])} of {int(n)} w/o model)" if r["no_model"] > 0 else "")
+             for (m, r), n in zip(t.iterrows(), fits)]
     ax.set_yticks(range(len(t)), names)
     ax.tick_params(axis="y", pad=10)
     ax.set_ylim(-0.7, len(t) - 0.3)
@@ -109,7 +114,7 @@ def plot_accuracy_by_method(ax, table, kind: str, *, model: str, title: str | No
 
 def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kwargs):
     """The key of :func:`plot_accuracy_by_method`'s markers: pixel thresholds and the mean-share bar
-    (``pixels``), pose thresholds in degrees (``pose``)."""
+    (``pixels``), pose thresholds in degrees (``pose``), and the interval band."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -124,6 +129,9 @@ def threshold_legend(fig_or_ax, *, pose: bool = False, pixels: bool = True, **kw
         handles += [Line2D([], [], ls="none", marker=m, ms=4, color="0.2", mfc="white" if deg == 10 else "0.2")
                     for deg, m in POSE_MARKERS.items()]
         labels += [f"pose at {deg}°" for deg in POSE_MARKERS]
+    handles.append(Line2D([0, 1], [0, 0], color="0.2", lw=1.3, marker="|", ms=4))
+    labels.append("95 % interval (" + ", ".join([*(["5 px", "mean share"] if pixels else []),
+                                                 *(["5°"] if pose else [])]) + ")")
     return fig_or_ax.legend(handles, labels, **kwargs)
 
 

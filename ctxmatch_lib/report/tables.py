@@ -34,6 +34,7 @@ __all__ = [
     "inlier_bin_table",
     "GEOMETRY_TIME_COLUMNS",
     "geometry_markdown",
+    "paired_markdown",
 ]
 
 #: Display names of the methods, as in the paper; models trained here and stand-ins say so in their name.
@@ -303,17 +304,42 @@ GEOMETRY_TIME_COLUMNS = ("geometry_time_s", "geometry_time_median_s")
 def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "",
                       keep_times: bool = False) -> str:
     """A :func:`~ctxmatch_lib.geometry_metrics.geometry_table` as a Markdown report, without the running
-    times (:data:`GEOMETRY_TIME_COLUMNS`) unless ``keep_times``."""
+    times (:data:`GEOMETRY_TIME_COLUMNS`) unless ``keep_times``; a metric with its interval is one cell,
+    ``value [lo, hi]``."""
     dropped = () if keep_times else GEOMETRY_TIME_COLUMNS
     t = table.drop(columns=[c for c in dropped if c in table.columns]).dropna(axis=1, how="all")
+    for c in [c for c in t.columns if c.endswith("_pct")]:
+        lo, hi = c[:-len("pct")] + "lo", c[:-len("pct")] + "hi"
+        if lo in t.columns and hi in t.columns:
+            t[c] = [f"{v:.2f} [{a:.1f}, {b:.1f}]" if np.isfinite(v) else "" for v, a, b in zip(t[c], t[lo], t[hi])]
+            t = t.drop(columns=[lo, hi])
     # Every line names its setup, kind, method and model in full (readable alone in grep or diff).
     for level, names in (("kind", KIND_LABELS), ("model", MODEL_LABELS), ("method", METHOD_LABELS)):
         if level in t.index.names:
             t = t.rename(index=names, level=level)
-    formats = {c: ".0f" if c in ("pairs", "no_model") else ".3f" if c in GEOMETRY_TIME_COLUMNS else ".2f"
+    formats = {c: ".0f" if c in ("pairs", "runs", "no_model") else ".3f" if c in GEOMETRY_TIME_COLUMNS else ".2f"
                for c in t.columns}
     lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
     if notes:
         lines.append(notes + "\n")
     return "\n".join(lines) + "\n" + markdown_table(t, formats=formats, labels=False, blank_repeats=False,
                                                      missing="")
+
+
+def paired_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "") -> str:
+    """A :func:`~ctxmatch_lib.geometry_metrics.paired_differences` table as a Markdown report: per comparison
+    the two values, ``difference [lo, hi]`` and whether the interval excludes 0 (``resolved``)."""
+    t = table.copy()
+    for level, names in (("kind", KIND_LABELS), ("model", MODEL_LABELS), ("method", METHOD_LABELS),
+                         ("reference", METHOD_LABELS)):
+        if level in t.columns:
+            t[level] = t[level].map(lambda v, names=names: names.get(v, v))
+    t["difference"] = [f"{d:+.2f} [{a:+.1f}, {b:+.1f}]" for d, a, b in zip(t["difference"], t["lo"], t["hi"])]
+    t["resolved"] = t["resolved"].map({True: "yes", False: "not resolved"})
+    t = t.drop(columns=["lo", "hi"])
+    lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
+    if notes:
+        lines.append(notes + "\n")
+    formats = {"pairs": ".0f", "runs": ".0f", "value": ".2f", "reference_value": ".2f"}
+    return "\n".join(lines) + "\n" + markdown_table(t.set_index(list(t.columns[:1])), formats=formats, labels=False,
+                                                     blank_repeats=False, missing="")
