@@ -33,6 +33,7 @@ __all__ = [
     "paired_differences",
     "BOOTSTRAP_RESAMPLES",
     "BOOTSTRAP_SEED",
+    "MIN_RESOLVING_PAIRS",
 ]
 
 #: The thresholds of the epipolar consistency, in pixels: 1 ... 19 (WxBS's 0 gives 0 for any real estimate).
@@ -47,6 +48,10 @@ POSE_AUC_THRESHOLDS_DEG = (5.0, 10.0, 20.0)
 #: Resamples and seed of the intervals of :func:`geometry_table` and :func:`paired_differences`.
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
+
+#: Fewer pairs than this never resolve a paired difference: a bootstrap over so few pairs has too few distinct
+#: resamples for its interval to cover the pairs' variation.
+MIN_RESOLVING_PAIRS = 5
 
 #: How many correspondences :func:`gt_correspondences` samples from a dense ground truth.
 FLOW_SAMPLE_POINTS = 2000
@@ -413,7 +418,8 @@ def paired_differences(rows, *, references=("th", "dtm2"), by=("kind", "blob", "
     -------
     pandas.DataFrame
         One row per (``by``, method, reference, metric): ``pairs``, ``runs``, ``value`` and ``reference_value``
-        (% as :func:`geometry_table`), ``difference``, ``lo``, ``hi`` and ``resolved`` (the interval excludes 0).
+        (% as :func:`geometry_table`), ``difference``, ``lo``, ``hi`` and ``resolved`` (the interval excludes 0,
+        over at least :data:`MIN_RESOLVING_PAIRS` pairs).
     """
     import pandas as pd
 
@@ -471,4 +477,5 @@ def _paired(g, method, ref, column, auc_at, confidence, n_resamples) -> dict | N
     value = _statistic(va[~np.isnan(va)][None], auc_at)[0]
     reference = _statistic(vb[~np.isnan(vb)][None], auc_at)[0]
     return {"pairs": len(counts), "runs": int(counts.max()), "value": value, "reference_value": reference,
-            "difference": value - reference, "lo": float(lo), "hi": float(hi), "resolved": bool(lo > 0 or hi < 0)}
+            "difference": value - reference, "lo": float(lo), "hi": float(hi),
+            "resolved": bool((lo > 0 or hi < 0) and len(counts) >= MIN_RESOLVING_PAIRS)}

@@ -126,3 +126,12 @@ def test_paired_differences_name_a_bad_metric():
         paired_differences(_planted_rows(0.0), metrics=["precision"])
     with pytest.raises(ValueError, match="'auc_xpx'"):
         paired_differences(_planted_rows(0.0), metrics=["auc_xpx"])
+
+
+def test_too_few_pairs_never_resolve():
+    rows = _planted_rows(1.0)
+    few = rows[rows.pair_id.isin(["p00", "p01", "p02"])]
+    out = paired_differences(few, references=("a",), by=("kind", "model"), metrics=["auc_5px"])
+    b = out[out.method == "b"].iloc[0]
+    assert b.hi < 0 and not b.resolved and b.pairs == 3
+    assert "too few pairs" in paired_markdown(out, title="p", provenance={})

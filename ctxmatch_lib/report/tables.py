@@ -328,14 +328,18 @@ def geometry_markdown(table: pd.DataFrame, *, title: str, provenance: dict, note
 
 def paired_markdown(table: pd.DataFrame, *, title: str, provenance: dict, notes: str = "") -> str:
     """A :func:`~ctxmatch_lib.geometry_metrics.paired_differences` table as a Markdown report: per comparison
-    the two values, ``difference [lo, hi]`` and whether the interval excludes 0 (``resolved``)."""
+    the two values, ``difference [lo, hi]`` and whether the interval excludes 0 (``resolved``; "too few pairs"
+    under :data:`~ctxmatch_lib.geometry_metrics.MIN_RESOLVING_PAIRS`)."""
     t = table.copy()
     for level, names in (("kind", KIND_LABELS), ("model", MODEL_LABELS), ("method", METHOD_LABELS),
                          ("reference", METHOD_LABELS)):
         if level in t.columns:
             t[level] = t[level].map(lambda v, names=names: names.get(v, v))
     t["difference"] = [f"{d:+.2f} [{a:+.1f}, {b:+.1f}]" for d, a, b in zip(t["difference"], t["lo"], t["hi"])]
-    t["resolved"] = t["resolved"].map({True: "yes", False: "not resolved"})
+    from ..geometry_metrics import MIN_RESOLVING_PAIRS
+
+    t["resolved"] = ["yes" if r else "too few pairs" if n < MIN_RESOLVING_PAIRS else "not resolved"
+                     for r, n in zip(t["resolved"], t["pairs"])]
     t = t.drop(columns=["lo", "hi"])
     lines = [f"# {title}\n", "Provenance: " + "; ".join(f"{k} {v}" for k, v in provenance.items()) + "\n"]
     if notes:
