@@ -8,15 +8,17 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.ctxmatch-installed
-# The tests also cover the optional extras (learned filters, kornia interop, hloc and COLMAP export): the test
-# environment adds them; the default install and `make figures` do not need them. torch 2.13.0 is the CPU build.
-TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1
+# The tests also cover the optional extras (learned filters, kornia interop, hloc and COLMAP export) and drive
+# JupyterLab in a browser (selenium): the test environment adds them; the default install and `make figures` do not
+# need them. torch 2.13.0 is the CPU build.
+TEST_EXTRAS := torch==2.13.0 kornia==0.9.0 kornia_rs==0.2.0 h5py==3.16.0 pycolmap==4.2.1 selenium==4.50.0
 TEST_STAMP  := $(VENV)/.ctxmatch-test-extras
 # pip installs without byte-compiling, and compileall then byte-compiles the environment on every core (pip does
 # it on one); with PYTHONDONTWRITEBYTECODE set, a module without its .pyc would be compiled anew on every import.
-# A file that does not compile (pip skips those too) leaves compileall's exit status non-zero: ignored.
+# The packages' own tests/ folders (a third of the files, never imported here) are left out. A file that does not
+# compile (pip skips those too) leaves compileall's exit status non-zero: ignored.
 PIP := $(BIN)/python -m pip install -q --no-compile
-COMPILE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib > /dev/null || true
+COMPILE := $(BIN)/python -m compileall -q -j 0 -x '/tests/' $(VENV)/lib > /dev/null || true
 # The suite runs on every core (pytest-xdist): a file's tests, and a notebook's cells, stay on one worker in order, and
 # the files start in the order tests/conftest.py gives them (the longest first).
 TEST_WORKERS ?= auto

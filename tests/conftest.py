@@ -22,7 +22,8 @@ if "NUMBA_CACHE_DIR" not in os.environ:
 # started last would keep one worker busy after the other has finished.
 _LONG_FIRST = ("test_blas_kernels.py", "fig_blob_heatmap.ipynb", "test_docs.py", "fig_geometry.ipynb",
                "fig_gt_methods.ipynb", "test_sweep.py", "test_match_cli.py", "test_datasets_calibrated.py",
-               "fig_agreement.ipynb", "test_notebooks.py", "test_eval.py", "fig_match_examples.ipynb")
+               "fig_agreement.ipynb", "test_notebooks.py", "test_jupyterlab.py", "test_eval.py",
+               "fig_match_examples.ipynb")
 
 
 def pytest_collection_modifyitems(session, config, items):
