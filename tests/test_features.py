@@ -93,6 +93,43 @@ def test_keypoint_cap_keeps_the_strongest(gray, feats):
     assert len(huge) == len(everything)
 
 
+def test_one_pass_descriptors_equal_compute_on_the_kept_keypoints(gray):
+    # Detected and described in one pass, the kept keypoints carry the descriptors that OpenCV's compute() gives
+    # them on their own (its scale space starts at the lowest kept octave), whether the cap binds or not.
+    import cv2
+
+    from ctxmatch_lib._numerics.fixedmath import opencv_baseline
+    from ctxmatch_lib.features.sift import _sift_detect
+
+    for cap in (40, 0):
+        config = FeatureConfig(descriptor="sift", max_keypoints=cap)
+        with opencv_baseline():
+            sift, (pts, size, ang, resp, octave) = _sift_detect(gray, config, merge=False)
+            kps = [cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o))
+                   for (x, y), s, a, r, o in zip(pts, size, ang, resp, octave)]
+            _, desc = sift.compute(gray, kps)
+        got = extract_features(gray, config, cache_dir=False)
+        np.testing.assert_array_equal(got.kpts, pts)
+        want = desc.astype(np.float64)
+        want /= np.maximum(np.linalg.norm(want, axis=1, keepdims=True), 1e-12)
+        np.testing.assert_array_equal(got.desc, want.astype(np.float32))
+
+
+def test_features_in_threads_equal_features_in_turn():
+    # OpenCV keeps its IPP switch per thread: opencv_baseline must switch it off in every thread it covers.
+    from concurrent.futures import ThreadPoolExecutor
+
+    from skimage.data import astronaut, coffee
+
+    images = [np.ascontiguousarray(astronaut()[..., 1]), np.ascontiguousarray(coffee()[..., 0])]
+    in_turn = [extract_features(g, cache_dir=False) for g in images]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        side_by_side = list(pool.map(lambda g: extract_features(g, cache_dir=False), images))
+    for a, b in zip(in_turn, side_by_side):
+        for field in ("kpts", "shapes", "desc", "angles", "responses"):
+            assert getattr(a, field).tobytes() == getattr(b, field).tobytes(), field
+
+
 def test_upright(gray, feats):
     up = extract_features(gray, FeatureConfig(upright=True), cache_dir=False)
     assert np.all(up.angles == 0)

@@ -26,16 +26,20 @@ _CV_USERS = [0, True, 1]  # blocks inside opencv_baseline; the settings to resto
 
 @contextmanager
 def opencv_baseline():
-    """Run the block with OpenCV on its baseline code and one thread (dispatched builds move SIFT's last
-    bits); the global settings are shared by concurrent blocks and restored by the last one to leave."""
+    """Run the block with OpenCV on its baseline code and one thread (dispatched builds and IPP move SIFT's
+    last bits). The global settings are shared by concurrent blocks and restored by the last one to leave; IPP
+    is switched per thread (OpenCV keeps that switch in thread-local storage), so every thread inside the block
+    runs without it."""
     import cv2
 
+    ipp = cv2.ipp.useIPP()
     with _CV_LOCK:
         if _CV_USERS[0] == 0:
             _CV_USERS[1:] = [cv2.useOptimized(), cv2.getNumThreads()]
             cv2.setUseOptimized(False)
             cv2.setNumThreads(1)
         _CV_USERS[0] += 1
+    cv2.ipp.setUseIPP(False)
     try:
         yield
     finally:
@@ -44,6 +48,7 @@ def opencv_baseline():
             if _CV_USERS[0] == 0:
                 cv2.setUseOptimized(_CV_USERS[1])
                 cv2.setNumThreads(_CV_USERS[2])
+            cv2.ipp.setUseIPP(ipp)
 
 # fdlibm's __kernel_sin / __kernel_cos minimax coefficients on [-pi/4, pi/4].
 _S = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,

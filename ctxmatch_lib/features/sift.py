@@ -17,32 +17,46 @@ def _shapes(scales: np.ndarray, angles: np.ndarray, radius: float) -> np.ndarray
     return rot * (radius * scales)[:, None, None]
 
 
-def _sift_detect(gray: np.ndarray, config: FeatureConfig, *, merge: bool):
-    """OpenCV SIFT keypoints sorted strongest first and capped; ``merge`` folds orientation duplicates."""
+def _sift(config: FeatureConfig):
     import cv2
 
-    sift = cv2.SIFT_create(
+    return cv2.SIFT_create(
         0, int(config.n_octave_layers), float(config.contrast_threshold), float(config.edge_threshold),
         float(config.sigma), bool(config.precise_upscale),
     )
-    kps = sift.detect(gray, None)
-    if not kps:
-        return sift, None
+
+
+def _keypoint_arrays(kps) -> tuple[np.ndarray, ...]:
+    """``(pts, size, angle, |response|, octave)`` of OpenCV keypoints (``octave``: OpenCV's packed field)."""
     pts = np.array([k.pt for k in kps], np.float64).reshape(-1, 2)
     size = np.array([k.size for k in kps], np.float64)
     ang = np.array([k.angle for k in kps], np.float64)
     resp = np.abs(np.array([k.response for k in kps], np.float64))
     octave = np.array([k.octave for k in kps], np.int64)  # compute() reads the pyramid level from it
+    return pts, size, ang, resp, octave
+
+
+def _strongest(pts, size, ang, resp, config: FeatureConfig) -> np.ndarray:
+    """Indices of the keypoints strongest first, capped at ``config.max_keypoints``; ties broken by position,
+    size and angle, so the order never depends on OpenCV's."""
+    order = np.lexsort((ang, size, pts[:, 1], pts[:, 0], -resp))
+    return order[: int(config.max_keypoints)] if config.max_keypoints else order
+
+
+def _sift_detect(gray: np.ndarray, config: FeatureConfig, *, merge: bool):
+    """OpenCV SIFT keypoints sorted strongest first and capped; ``merge`` folds orientation duplicates."""
+    sift = _sift(config)
+    kps = sift.detect(gray, None)
+    if not kps:
+        return sift, None
+    pts, size, ang, resp, octave = _keypoint_arrays(kps)
     if merge:
         ang = np.zeros_like(ang)
         # SIFT duplicates a blob for each secondary orientation peak; without its orientation they are one.
         _, first = np.unique(np.c_[pts, size], axis=0, return_index=True)
         keep = np.sort(first)
         pts, size, ang, resp, octave = pts[keep], size[keep], ang[keep], resp[keep], octave[keep]
-    # Strongest first; ties broken by position, size and angle so the order never depends on OpenCV's.
-    order = np.lexsort((ang, size, pts[:, 1], pts[:, 0], -resp))
-    if config.max_keypoints:
-        order = order[: int(config.max_keypoints)]
+    order = _strongest(pts, size, ang, resp, config)
     return sift, (pts[order], size[order], ang[order], resp[order], octave[order])
 
 
@@ -53,27 +67,52 @@ def _normalise(desc: np.ndarray, root: bool) -> np.ndarray:
     return desc / np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
 
 
-def _extract_sift(gray: np.ndarray, config: FeatureConfig, *, upright: bool) -> Features:
-    """SIFT keypoints described by OpenCV's SIFT at their own orientation (or upright)."""
+def _described(gray: np.ndarray, config: FeatureConfig, *, upright: bool):
+    """The capped keypoints (as :func:`_sift_detect`) and their SIFT descriptors (uint8-valued float32).
+
+    Oriented keypoints are detected and described in one pass over one scale space. OpenCV's ``compute`` on
+    a given keypoint set builds its scale space from the lowest octave among them: the one pass gives the same
+    descriptors where that octave is the upsampled one (-1), which it is unless upsampling is off or every kept
+    keypoint lies higher; then the kept keypoints are described on their own scale space, as ``compute`` does.
+    Upright keypoints (angle 0) need a second pass.
+    """
     import cv2
 
-    sift, det = _sift_detect(gray, config, merge=upright)
-    if det is None:
-        return Features.empty()
+    if not upright:
+        sift = _sift(config)
+        kps, desc = sift.detectAndCompute(gray, None)
+        if not kps or desc is None or len(desc) != len(kps):
+            return None
+        pts, size, ang, resp, octave = _keypoint_arrays(kps)
+        order = _strongest(pts, size, ang, resp, config)
+        octave_index = (octave[order] & 255).astype(np.int64)
+        octave_index = np.where(octave_index < 128, octave_index, octave_index - 256)
+        if octave_index.min() < 0:
+            return pts[order], size[order], ang[order], resp[order], desc[order]
+        det = (pts[order], size[order], ang[order], resp[order], octave[order])
+    else:
+        sift, det = _sift_detect(gray, config, merge=True)
+        if det is None:
+            return None
     pts, size, ang, resp, octave = det
     kps = [
         cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o))
         for (x, y), s, a, r, o in zip(pts, size, ang, resp, octave)
     ]
     kps_out, desc = sift.compute(gray, kps)
-    if desc is None or len(kps_out) != len(kps):
-        # compute() may drop keypoints; re-align on what it kept.
-        if desc is None or not kps_out:
-            return Features.empty()
-        pts = np.array([k.pt for k in kps_out], np.float64)
-        size = np.array([k.size for k in kps_out], np.float64)
-        ang = np.array([k.angle for k in kps_out], np.float64)
-        resp = np.abs(np.array([k.response for k in kps_out], np.float64))
+    if desc is None or not kps_out:
+        return None
+    if len(kps_out) != len(kps):  # compute() may drop keypoints; re-align on what it kept
+        pts, size, ang, resp, _ = _keypoint_arrays(kps_out)
+    return pts, size, ang, resp, desc
+
+
+def _extract_sift(gray: np.ndarray, config: FeatureConfig, *, upright: bool) -> Features:
+    """SIFT keypoints described by OpenCV's SIFT at their own orientation (or upright)."""
+    det = _described(gray, config, upright=upright)
+    if det is None:
+        return Features.empty()
+    pts, size, ang, resp, desc = det
     desc = _normalise(desc, config.descriptor == "rootsift")
     scales = size / 2.0  # OpenCV's KeyPoint.size is twice the detection sigma
     # OpenCV angles are degrees measured in the image frame (clockwise on screen, y down).
