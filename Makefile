@@ -45,10 +45,14 @@ $(TEST_STAMP): $(STAMP) Makefile
 	$(COMPILE)
 	touch $@
 
+# `ctxmatch warmup` compiles the kernels of `ctxmatch match` first (once per machine and version of the kernel
+# code; seconds when they are in the cache), so that a first `ctxmatch match` afterwards does not wait for them.
 figures: $(STAMP)
+	$(BIN)/ctxmatch warmup
 	$(BIN)/ctxmatch figures
 
 figures-paper: $(STAMP)
+	$(BIN)/ctxmatch warmup
 	$(BIN)/ctxmatch figures --params paper
 
 # The kernels draw inline: MPLBACKEND (Agg, for the batch runs above) is left out. JupyterLab refuses to run as root

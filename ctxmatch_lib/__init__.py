@@ -9,20 +9,22 @@ are ``(N, 2)`` float arrays of (x, y) pixels, origin at the centre of the top-le
 # The one source of the version (pyproject.toml and ``ctxmatch --version`` read it).
 __version__ = "0.1.0"
 
-from .blob import BLOB_PRESETS, BlobConfig, BlobContext, BlobMatches, blob_grid, blob_matching
-from .datasets import Dataset, Pair, list_datasets, load_dataset
-# Only names from the subpackage: binding the function ``dtm`` here would shadow the subpackage itself
-# (``import ctxmatch_lib.dtm.boundary`` would then fail).
-from . import dtm
-from .dtm import DTMResult, DTMTrace, dtm_boundary
-from .features import FeatureConfig, Features, extract_features, load_image
-from .filters import FILTERS, register_filter
-from .geometry import fit_fundamental, fit_homography, one_sac, ransac
-from .geometry_metrics import epipolar_consistency, geometry_table, homography_corner_error, pose_auc
-from .groundtruth import label_matches
-from .metrics import average_precision, evaluate_matches, mean_average_precision
-from .match import MatchResult, match_images
-from .pipeline import evaluate_dataset, evaluate_pair, summary_table
+# The public names, imported on first use (PEP 562): ``import ctxmatch_lib`` and ``ctxmatch match`` start without
+# loading the compiled kernels of every step.
+_EXPORTS = {
+    "blob": ("BLOB_PRESETS", "BlobConfig", "BlobContext", "BlobMatches", "blob_grid", "blob_matching"),
+    "datasets": ("Dataset", "Pair", "list_datasets", "load_dataset"),
+    "dtm": ("DTMResult", "DTMTrace", "dtm_boundary"),
+    "features": ("FeatureConfig", "Features", "extract_features", "load_image"),
+    "filters": ("FILTERS", "register_filter"),
+    "geometry": ("fit_fundamental", "fit_homography", "one_sac", "ransac"),
+    "geometry_metrics": ("epipolar_consistency", "geometry_table", "homography_corner_error", "pose_auc"),
+    "groundtruth": ("label_matches",),
+    "metrics": ("average_precision", "evaluate_matches", "mean_average_precision"),
+    "match": ("MatchResult", "match_images"),
+    "pipeline": ("evaluate_dataset", "evaluate_pair", "summary_table"),
+}
+_SOURCE = {name: module for module, names in _EXPORTS.items() for name in names}
 
 __all__ = [
     "BLOB_PRESETS",
@@ -64,6 +66,25 @@ __all__ = [
     "summary_table",
     "__version__",
 ]
+
+
+def __getattr__(name: str):
+    import importlib
+    import importlib.util
+
+    if name in _SOURCE:
+        value = getattr(importlib.import_module(f".{_SOURCE[name]}", __name__), name)
+    elif not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        value = importlib.import_module(f".{name}", __name__)  # a subpackage or module, ``dtm`` included
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 
 # ----------------------------------------------------------------------------------- moved modules

@@ -18,6 +18,7 @@ import numpy as np
 
 __all__ = [
     "MatchResult",
+    "PairFeatures",
     "match_images",
     "resolve_features",
     "resolve_blob",
@@ -27,6 +28,8 @@ __all__ = [
     "read_pairs",
     "pair_filename",
     "match_pairs",
+    "kernels_ready",
+    "warm_up",
 ]
 
 #: Keys of the ``.npz`` written by :func:`save_result`.
@@ -242,25 +245,92 @@ def match_images(
     >>> np.median(shift, axis=0).round().tolist()  # image 2 is image 1 cropped by 12 columns and 10 rows
     [12.0, 10.0]
     """
-    from .features import extract_features
-    from .geometry import MODEL_STEPS, apply_model_step
-    from .evaluation.steps import blob_candidates, run_filter
+    from .geometry import MODEL_STEPS
 
-    cfg_feat = resolve_features(features, max_keypoints=max_keypoints)
-    cfg_blob = resolve_blob(blob)
-    names = as_filter_list(filters)
     if model not in MODEL_STEPS:
         raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
     if model_kind not in ("F", "H"):
         raise ValueError(f"model_kind must be 'F' or 'H', got {model_kind!r}")
-    threshold = _threshold(model_threshold)
-    filter_params = dict(filter_params or {})
+    pending = PairFeatures(image1, image2, features=features, max_keypoints=max_keypoints, cache_dir=cache_dir)
+    return pending.match(blob=blob, filters=filters, model=model, model_kind=model_kind,
+                         model_threshold=model_threshold, filter_params=filter_params, rng=rng)
 
-    gray1, gray2 = _read(image1, "image1"), _read(image2, "image2")
-    size1 = (int(gray1.shape[1]), int(gray1.shape[0]))
-    size2 = (int(gray2.shape[1]), int(gray2.shape[0]))
-    f1 = extract_features(gray1, cfg_feat, cache_dir=cache_dir)
-    f2 = extract_features(gray2, cfg_feat, cache_dir=cache_dir)
+
+def _checked(*, features="sift-rootsift", blob="paper-best", filters=("dtm",), model="none", model_kind="F",
+             model_threshold=None, filter_params=None, max_keypoints=None) -> dict:
+    """:func:`match_images`' settings resolved and checked once (errors name the argument)."""
+    from .geometry import MODEL_STEPS
+
+    if model not in MODEL_STEPS:
+        raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
+    if model_kind not in ("F", "H"):
+        raise ValueError(f"model_kind must be 'F' or 'H', got {model_kind!r}")
+    return {"features": resolve_features(features, max_keypoints=max_keypoints), "blob": resolve_blob(blob),
+            "filters": as_filter_list(filters), "model": model, "model_kind": model_kind,
+            "model_threshold": _threshold(model_threshold), "filter_params": dict(filter_params or {})}
+
+
+class PairFeatures:
+    """The features of two images, extracted side by side from construction, one thread each, while the caller
+    goes on; :meth:`match` then runs the rest of :func:`match_images` on them.
+
+    OpenCV and the compiled kernels release the GIL, so the two images take the time of one on two cores, and
+    the later steps load meanwhile; the features do not depend on it. The threads are daemons: a process that
+    stops meanwhile does not wait for them (a feature cache entry is written atomically).
+
+    Parameters
+    ----------
+    image1, image2, features, max_keypoints, cache_dir
+        As in :func:`match_images`; a bad image or feature setting raises here.
+    """
+
+    def __init__(self, image1, image2, *, features="sift-rootsift", max_keypoints: int | None = None,
+                 cache_dir=None):
+        import threading
+
+        self.config = resolve_features(features, max_keypoints=max_keypoints)
+        grays = (_read(image1, "image1"), _read(image2, "image2"))
+        self._out: list = [None, None]
+        self._threads = [threading.Thread(target=self._extract, args=(i, g, cache_dir), daemon=True)
+                         for i, g in enumerate(grays)]
+        for t in self._threads:
+            t.start()
+
+    def _extract(self, i: int, gray, cache_dir) -> None:
+        from .features import extract_features
+
+        try:
+            self._out[i] = extract_features(gray, self.config, cache_dir=cache_dir)
+        except BaseException as exc:  # raised in the caller's thread by result()
+            self._out[i] = exc
+
+    def result(self) -> tuple:
+        """The two images' :class:`~ctxmatch_lib.features.Features`, once extracted."""
+        for t in self._threads:
+            t.join()
+        for out in self._out:
+            if isinstance(out, BaseException):
+                raise out
+        return tuple(self._out)
+
+    def match(self, *, blob="paper-best", filters=("dtm",), model: str = "none", model_kind: str = "F",
+              model_threshold: float | None = None, filter_params=None, rng=0) -> MatchResult:
+        """:func:`match_images` from here on (same parameters); the settings are checked, and their steps loaded,
+        while the features are extracted."""
+        steps = _checked(features=self.config, blob=blob, filters=filters, model=model, model_kind=model_kind,
+                         model_threshold=model_threshold, filter_params=filter_params)
+        f1, f2 = self.result()
+        return _match_features(f1, f2, rng=rng, **steps)
+
+
+def _match_features(f1, f2, *, features, blob, filters, model, model_kind, model_threshold, filter_params,
+                    rng) -> MatchResult:
+    """:func:`match_images` from the two images' features and the settings of :func:`_checked`."""
+    from .evaluation.steps import blob_candidates, run_filter
+    from .geometry import apply_model_step
+
+    cfg_feat, cfg_blob, names, threshold = features, blob, filters, model_threshold
+    size1, size2 = f1.image_size, f2.image_size
     cand, cand_scores, _ = blob_candidates(f1, f2, cfg_blob)
     keep = np.ones(len(cand), bool)
     for name in names:
@@ -474,27 +544,78 @@ def match_pairs(
     if missing:
         raise FileNotFoundError(f"{len(missing)} image(s) of the pairs file not found under {image_dir}: "
                                 f"{', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
+    cache_dir, rng = kwargs.pop("cache_dir", None), kwargs.pop("rng", 0)
+    steps = _checked(**kwargs)
     # The settings of this run, to tell a finished pair from one computed with other settings.
     wanted = _settings_key(kwargs)
     out_dir.mkdir(parents=True, exist_ok=True)
+    todo = [p for p in pairs if not (files[p].is_file() and _stored_key(files[p]) == wanted)]
     done = skipped = 0
     bar = tqdm(pairs, desc="ctxmatch match", unit="pair", disable=not progress, dynamic_ncols=True)
-    for name1, name2 in bar:
-        path = files[(name1, name2)]
-        bar.set_postfix_str(f"{name1} {name2}", refresh=False)
-        if path.is_file() and _stored_key(path) == wanted:
-            skipped += 1
+    with _Prefetch([image_dir / n for p in todo for n in p], steps["features"], cache_dir) as feats:
+        for name1, name2 in bar:
+            path = files[(name1, name2)]
+            bar.set_postfix_str(f"{name1} {name2}", refresh=False)
+            if path.is_file() and _stored_key(path) == wanted:
+                skipped += 1
+                if on_pair is not None:
+                    on_pair(name1, name2, path, True)
+                continue
+            for stale in out_dir.glob(f".{path.name}.*.tmp"):  # left by a run killed while writing
+                stale.unlink(missing_ok=True)
+            f1, f2 = feats.get(image_dir / name1), feats.get(image_dir / name2)
+            res = _match_features(f1, f2, rng=rng, **steps)
+            save_result(res, path, name1=np.array(name1), name2=np.array(name2))
+            done += 1
             if on_pair is not None:
-                on_pair(name1, name2, path, True)
-            continue
-        for stale in out_dir.glob(f".{path.name}.*.tmp"):  # left by a run killed while writing
-            stale.unlink(missing_ok=True)
-        res = match_images(image_dir / name1, image_dir / name2, **kwargs)
-        save_result(res, path, name1=np.array(name1), name2=np.array(name2))
-        done += 1
-        if on_pair is not None:
-            on_pair(name1, name2, path, False)
+                on_pair(name1, name2, path, False)
     return {"done": done, "skipped": skipped, "files": files}
+
+
+class _Prefetch:
+    """The features of a sequence of image uses (repeats allowed), extracted ahead in worker threads while the
+    caller matches; an image's features stay in memory while it is used again within the next ``ahead`` uses."""
+
+    def __init__(self, uses: list, config, cache_dir, *, ahead: int = 4):
+        import os
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)))
+        self._uses = deque(uses)
+        self._futures: dict = {}
+        self._ahead = ahead
+        self._config, self._cache_dir = config, cache_dir
+
+    def _extract(self, path):
+        from .features import extract_features
+
+        return extract_features(_read(path, str(path)), self._config, cache_dir=self._cache_dir)
+
+    def _fill(self) -> None:
+        for path in list(self._uses)[: self._ahead]:
+            if path not in self._futures:
+                self._futures[path] = self._pool.submit(self._extract, path)
+
+    def get(self, path):
+        """The features of the next use, ``path``."""
+        if self._uses and self._uses[0] == path:
+            self._uses.popleft()
+        if path not in self._futures:
+            self._futures[path] = self._pool.submit(self._extract, path)
+        future = self._futures[path]
+        if path not in list(self._uses)[: self._ahead]:
+            del self._futures[path]
+        self._fill()
+        return future.result()
+
+    def __enter__(self):
+        self._fill()
+        return self
+
+    def __exit__(self, *exc):
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        return False
 
 
 def _settings_key(kwargs: Mapping) -> str:
@@ -519,3 +640,42 @@ def _stored_key(path: Path) -> str | None:
     return json.dumps({k: s.get(k) for k in ("features", "blob", "filters", "filter_params", "model", "model_kind",
                                              "model_threshold")},
                       sort_keys=True, default=str)
+
+
+# ----------------------------------------------------------------------------------------------- kernels
+
+
+def kernels_ready() -> bool:
+    """Whether the kernel cache (``$NUMBA_CACHE_DIR``, else ``cache_dir("numba")``) holds compiled kernels of blob
+    matching and DTM for this code (on a new machine, or after an edit of kernel code, the first
+    :func:`match_images` compiles them: about half a minute)."""
+    import os
+
+    from ._numerics.jit import kernel_sources_digest
+    from .cache import cache_dir
+
+    try:
+        base = Path(os.environ.get("NUMBA_CACHE_DIR") or cache_dir("numba"))
+    except OSError:
+        return False
+    root = base / f"{Path(__file__).resolve().parent.name}-{kernel_sources_digest()[:16]}"
+    return all(any((root / part).glob("*.nbi")) for part in ("blob", "dtm"))
+
+
+def warm_up(*, filters: Sequence[str] | str = ("dtm",), models: Sequence[str] = ("magsac",)) -> None:
+    """Compile the kernels that :func:`match_images` runs, or load them from numba's cache, on a small pair
+    (scikit-image's camera and a shifted crop of it); nothing is written but numba's cache.
+
+    Parameters
+    ----------
+    filters : sequence of str or str
+        As in :func:`match_images`.
+    models : sequence of str
+        Model steps, one :func:`match_images` call each.
+    """
+    from skimage.data import camera
+
+    img = np.ascontiguousarray(camera()[::2, ::2])
+    crop = np.ascontiguousarray(img[10:, 12:])
+    for model in models:
+        match_images(img, crop, filters=filters, model=model, cache_dir=False)

@@ -41,13 +41,15 @@ def test_preset_dicts_stay_dicts(name):
 
 # ------------------------------------------------------------------- output paths, checked before work
 def _no_work(monkeypatch):
-    """Make any matching fail the test: the error must come before it."""
+    """Make any matching fail the test: the error must come before it (the two images' features may have
+    started, in the background)."""
     import ctxmatch_lib.match as match
 
     def boom(*args, **kwargs):
         raise AssertionError("matching ran before the bad output path was reported")
 
     monkeypatch.setattr(match, "match_images", boom)
+    monkeypatch.setattr(match.PairFeatures, "match", boom)
 
 
 @pytest.fixture
@@ -392,6 +394,7 @@ def test_match_missing_optional_dependency_is_one_line(images, tmp_path, monkeyp
         raise ImportError("the deep descriptors need kornia: pip install 'ctxmatch[kornia]'")
 
     monkeypatch.setattr(match, "match_images", no_kornia)
+    monkeypatch.setattr(match.PairFeatures, "match", no_kornia)
     assert main(["match", str(images / "a.png"), str(images / "b.png"), "--out", str(tmp_path / "m.npz"),
                  "--features", "sift-hardnet2"]) == 2
     assert "pip install 'ctxmatch[kornia]'" in capsys.readouterr().err

@@ -161,7 +161,7 @@ def test_ctrl_c_prints_one_line_and_the_rerun_resumes(tmp_path, monkeypatch, cap
 
     args = _six_pairs(tmp_path)
     monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
-    real, calls = match.match_images, []
+    real, calls = match._match_features, []  # the folder mode's step after the features, once per pair
 
     def interrupted_third(*a, **k):
         calls.append(a)
@@ -169,7 +169,7 @@ def test_ctrl_c_prints_one_line_and_the_rerun_resumes(tmp_path, monkeypatch, cap
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(match, "match_images", interrupted_third)
+    monkeypatch.setattr(match, "_match_features", interrupted_third)
     assert main(args) == 130
     err = capsys.readouterr().err.strip()
     assert err == ("ctxmatch match: interrupted; rerun the same command to resume (finished work is kept, "
@@ -177,7 +177,7 @@ def test_ctrl_c_prints_one_line_and_the_rerun_resumes(tmp_path, monkeypatch, cap
     out = tmp_path / "out"
     before = {p.name: p.read_bytes() for p in out.glob("*.npz")}
     assert len(before) == 2 and not list(out.glob(".*"))  # no temporary file left
-    monkeypatch.setattr(match, "match_images", real)
+    monkeypatch.setattr(match, "_match_features", real)
     assert main(args) == 0
     assert "4 matched, 2 already done" in capsys.readouterr().out
     assert len(list(out.glob("*.npz"))) == 6
@@ -188,8 +188,8 @@ def test_sigint_in_a_real_process_has_no_traceback(tmp_path):
     out = tmp_path / "out"
     # Each pair made to last at least 0.3 s, so that the signal lands between the first and the last pair
     # (with warm caches a pair of these small images takes milliseconds: all six could finish first).
-    slow = ("import sys, time; import ctxmatch_lib.match as m; real = m.match_images; "
-            "m.match_images = lambda *a, **k: (time.sleep(0.3), real(*a, **k))[1]; "
+    slow = ("import sys, time; import ctxmatch_lib.match as m; real = m._match_features; "
+            "m._match_features = lambda *a, **k: (time.sleep(0.3), real(*a, **k))[1]; "
             "from ctxmatch_lib.cli import main; sys.exit(main(sys.argv[1:]))")
     cmd = [sys.executable, "-c", slow] + _six_pairs(tmp_path)
     env = {**os.environ, "CTXMATCH_CACHE": str(tmp_path / "cache")}
@@ -208,3 +208,56 @@ def test_sigint_in_a_real_process_has_no_traceback(tmp_path):
     assert "Traceback" not in err and err.strip().splitlines() == [
         "ctxmatch match: interrupted; rerun the same command to resume (finished work is kept, nothing "
         "half-written)"]
+
+
+def test_folder_mode_equals_one_pair_at_a_time(tmp_path):
+    # The folder mode extracts the images ahead in threads and keeps an image's features for its next pairs:
+    # each pair's file holds what match_images gives for that pair alone.
+    from ctxmatch_lib.match import PairFeatures, match_pairs
+
+    args = _six_pairs(tmp_path)
+    imgs = Path(args[args.index("--images") + 1])
+    pairs = read_pairs(tmp_path / "pairs.txt")
+    summary = match_pairs(pairs, imgs, tmp_path / "out", progress=False, max_keypoints=300, cache_dir=False)
+    assert summary["done"] == len(pairs) == 6
+    for (a, b), path in summary["files"].items():
+        alone = match_images(imgs / a, imgs / b, max_keypoints=300, cache_dir=False)
+        started = PairFeatures(imgs / a, imgs / b, max_keypoints=300, cache_dir=False).match()
+        saved = load_result(path)
+        for res in (alone, started):
+            np.testing.assert_array_equal(saved["matches"], res.matches)
+            np.testing.assert_array_equal(saved["kpts1"], res.kpts1)
+            np.testing.assert_array_equal(saved["kpts2"], res.kpts2)
+
+
+def test_pair_features_report_a_bad_image_by_its_argument(tmp_path):
+    from ctxmatch_lib.match import PairFeatures
+
+    with pytest.raises(FileNotFoundError, match="image2"):
+        PairFeatures(np.zeros((40, 40), np.uint8), tmp_path / "missing.png")
+
+
+def test_kernels_ready_and_warmup(tmp_path, monkeypatch, capsys):
+    # With an empty numba cache the kernels are not ready (ctxmatch match says it compiles them); the suite's
+    # cache has them after a match, and `ctxmatch warmup` loads (or compiles) them.
+    from ctxmatch_lib.match import kernels_ready
+
+    assert main(["warmup"]) == 0
+    out = capsys.readouterr().out
+    assert "ctxmatch warmup: done in" in out
+    assert kernels_ready()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
+    assert not kernels_ready()
+
+
+def test_match_says_when_it_compiles_the_kernels(pair, tmp_path, monkeypatch, capsys):
+    import ctxmatch_lib.match as match
+
+    args = ["match", str(pair[0]), str(pair[1]), "--out", str(tmp_path / "m.npz"), "--max-keypoints", "300",
+            "--no-cache", "--no-progress"]
+    monkeypatch.setattr(match, "kernels_ready", lambda: False)
+    assert main(args) == 0
+    assert "compiling the kernels of matching, once per machine" in capsys.readouterr().err
+    monkeypatch.setattr(match, "kernels_ready", lambda: True)
+    assert main(args) == 0
+    assert "compiling" not in capsys.readouterr().err

@@ -8,7 +8,7 @@ import importlib
 import sys
 
 # Sub-command modules, in the order shown by --help.
-_COMMANDS = ["match", "eval", "sweep", "figures", "data", "train", "cache"]
+_COMMANDS = ["match", "eval", "sweep", "figures", "data", "train", "cache", "warmup"]
 
 
 def build_parser() -> argparse.ArgumentParser:

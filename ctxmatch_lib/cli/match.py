@@ -130,15 +130,19 @@ def _filters(values) -> list[str]:
     return [n for n in names if n.lower() != "none"]
 
 
+def _check_numbers(args) -> None:
+    if args.max_keypoints is not None and args.max_keypoints < 0:
+        raise ValueError(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
+    if args.model_threshold is not None and not (args.model_threshold > 0 and args.model_threshold < float("inf")):
+        raise ValueError(f"--model-threshold must be a positive number of pixels, got {args.model_threshold}")
+
+
 def _settings(args) -> dict:
     """The library settings of the flags, each resolved here so that its error names the flag (the library's
     errors name its parameter). Raises ``ValueError`` with the message to print."""
     from ..match import as_filter_list, resolve_blob, resolve_features
 
-    if args.max_keypoints is not None and args.max_keypoints < 0:
-        raise ValueError(f"--max-keypoints must be >= 0, got {args.max_keypoints}")
-    if args.model_threshold is not None and not (args.model_threshold > 0 and args.model_threshold < float("inf")):
-        raise ValueError(f"--model-threshold must be a positive number of pixels, got {args.model_threshold}")
+    _check_numbers(args)
     settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
                     model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
                     cache_dir=False if args.no_cache else None)
@@ -161,12 +165,30 @@ def _settings(args) -> dict:
     return settings
 
 
-def _run_one(args, settings) -> dict:
+def _start_features(args):
+    """The two images' features, started before the other settings load (a second of imports on a cold
+    start); ``None`` where a flag or an image is wrong, which the checks that follow report by its flag."""
+    from ..match import PairFeatures
+
+    if not all(Path(image).is_file() for image in args.images_pair):
+        return None
+    try:
+        return PairFeatures(*args.images_pair, features=args.features, max_keypoints=args.max_keypoints,
+                            cache_dir=False if args.no_cache else None)
+    except (ValueError, OSError, ImportError):
+        return None
+
+
+def _run_one(args, settings, pending=None) -> dict:
     """Two images: match, save, plot. Returns ``{(name1, name2): npz path}`` for the exports."""
     from ..match import match_images, plot_result, save_plot, save_result
 
     img1, img2 = (Path(a) for a in args.images_pair)
-    res = match_images(img1, img2, **settings)
+    if pending is not None:
+        rest = {k: v for k, v in settings.items() if k not in ("features", "max_keypoints", "cache_dir")}
+        res = pending.match(**rest)
+    else:
+        res = match_images(img1, img2, **settings)
     out = Path(args.out or "matches.npz")
     save_result(res, out)
     print(f"{len(res.kpts1)} + {len(res.kpts2)} keypoints, {len(res.candidates)} blob candidates, "
@@ -228,12 +250,19 @@ def run(args) -> int:
     elif len(args.images_pair) != 2:
         return _error(f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
     try:
-        settings = _settings(args)
         _check_inputs_and_outputs(args, folder)
+        _check_numbers(args)
+        pending = None if folder else _start_features(args)
+        settings = _settings(args)
     except ValueError as exc:
         return _error(str(exc))
+    from ..match import kernels_ready
+
+    if not kernels_ready():
+        print("ctxmatch match: compiling the kernels of matching, once per machine (about half a minute; "
+              "'ctxmatch warmup' does it ahead)", file=sys.stderr, flush=True)
     try:
-        results = _run_folder(args, settings) if folder else _run_one(args, settings)
+        results = _run_folder(args, settings) if folder else _run_one(args, settings, pending)
     except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a missing optional dependency (published deep weights need kornia)
         return _error(str(exc))
 
