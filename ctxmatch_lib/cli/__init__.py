@@ -11,7 +11,9 @@ import sys
 _COMMANDS = ["match", "eval", "sweep", "figures", "data", "train", "cache", "warmup"]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``ctxmatch`` parser: every sub-command, or only ``command`` (what a run of it needs: the other
+    sub-commands' modules are not imported)."""
     parser = argparse.ArgumentParser(
         prog="ctxmatch",
         description="SIFT Matching by Context Exposed: blob matching, DTM and the benchmark.",
@@ -20,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser.add_argument("--version", action="version", version=f"ctxmatch {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    for name in _COMMANDS:
+    for name in _COMMANDS if command not in _COMMANDS else [command]:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)
     return parser
 
@@ -32,7 +34,9 @@ EXIT_INTERRUPTED = 130
 def main(argv: list[str] | None = None) -> int:
     """Run one ``ctxmatch`` command and return its exit status; Ctrl-C gives one line and status 130 (results
     are written atomically, so a rerun resumes)."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(first).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -7,8 +7,11 @@ from __future__ import annotations
 import math
 import sys
 
-from ..datasets.base import PAIR_KINDS
-from ..evaluation.frontends import check_output
+
+def _check_output(path, flag: str):
+    from ..evaluation.frontends import check_output
+
+    return check_output(path, flag)
 
 
 def csv(text: str) -> list[str]:
@@ -132,7 +135,7 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
     if len(names) > 1 and {"all", "none"} & {n.lower() for n in names}:
         return None, f"--filters: 'all' and 'none' stand alone, got {args.filters!r}"
     steps = (
-        ("--out", lambda: check_output(args.out, "--out")),
+        ("--out", lambda: _check_output(args.out, "--out")),
         ("--filters", lambda: resolve_filters("all" if [n.lower() for n in names] == ["all"] else
                                               [] if [n.lower() for n in names] in ([], ["none"]) else names)),
         ("--model", lambda: check_models(csv(args.model))),
@@ -156,6 +159,8 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         if pairs == 0:
             return None, "--pairs must be a positive number of pairs or pair ids, got 0"
     kinds = csv(args.kind) if args.kind else None
+    from ..datasets.base import PAIR_KINDS
+
     unknown = sorted(set(kinds or ()) - set(PAIR_KINDS))
     if unknown:
         return None, f"--kind must be among {', '.join(PAIR_KINDS)}, got {', '.join(unknown)}"
