@@ -319,8 +319,25 @@ class PairFeatures:
         while the features are extracted."""
         steps = _checked(features=self.config, blob=blob, filters=filters, model=model, model_kind=model_kind,
                          model_threshold=model_threshold, filter_params=filter_params)
+        if any(t.is_alive() for t in self._threads):
+            _load_kernels(steps)
         f1, f2 = self.result()
         return _match_features(f1, f2, rng=rng, **steps)
+
+
+def _load_kernels(steps: dict) -> None:
+    """Run the steps on a small pair of the same settings, so that their compiled kernels are loaded (or
+    compiled) while the features of the real pair are extracted; its result is dropped."""
+    from dataclasses import replace
+
+    from skimage.data import camera
+
+    from .features import extract_features
+
+    img = np.ascontiguousarray(camera()[::4, ::4])
+    config = replace(steps["features"], max_keypoints=200)
+    small = [extract_features(g, config, cache_dir=False) for g in (img, np.ascontiguousarray(img[6:, 5:]))]
+    _match_features(*small, rng=0, **steps)
 
 
 def _match_features(f1, f2, *, features, blob, filters, model, model_kind, model_threshold, filter_params,
