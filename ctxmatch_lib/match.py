@@ -8,6 +8,8 @@ Image sizes are (width, height), read from the images; scores are lower-is-bette
 
 from __future__ import annotations
 
+import functools
+import itertools
 import json
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -326,18 +328,31 @@ class PairFeatures:
 
 
 def _load_kernels(steps: dict) -> None:
-    """Run the steps on a small pair of the same settings, so that their compiled kernels are loaded (or
-    compiled) while the features of the real pair are extracted; its result is dropped."""
+    """Run blob matching and the library's own filters on a small pair of the same settings, so that their
+    compiled kernels are loaded (or compiled) while the features of the real pair are extracted; the result is
+    dropped, and so is any error (the real pair reports its own). A registered filter from outside the library
+    is not called on the small pair."""
     from dataclasses import replace
 
     from skimage.data import camera
 
     from .features import extract_features
+    from .filters import FILTERS
 
-    img = np.ascontiguousarray(camera()[::4, ::4])
-    config = replace(steps["features"], max_keypoints=200)
-    small = [extract_features(g, config, cache_dir=False) for g in (img, np.ascontiguousarray(img[6:, 5:]))]
-    _match_features(*small, rng=0, **steps)
+    def own(name: str) -> bool:
+        func = FILTERS.get(name)
+        while func is not None and (hasattr(func, "__wrapped__") or isinstance(func, functools.partial)):
+            func = func.func if isinstance(func, functools.partial) else func.__wrapped__
+        return (getattr(func, "__module__", None) or "").startswith(__name__.rsplit(".", 1)[0] + ".")
+
+    try:
+        img = np.ascontiguousarray(camera()[::4, ::4])
+        config = replace(steps["features"], max_keypoints=200)
+        small = [extract_features(g, config, cache_dir=False) for g in (img, np.ascontiguousarray(img[6:, 5:]))]
+        _match_features(*small, rng=0, **{**steps, "filters": tuple(f for f in steps["filters"] if own(f)),
+                                          "model": "none"})
+    except Exception:  # only a head start: the real pair runs every step anyway
+        pass
 
 
 def _match_features(f1, f2, *, features, blob, filters, model, model_kind, model_threshold, filter_params,
@@ -566,14 +581,15 @@ def match_pairs(
     # The settings of this run, to tell a finished pair from one computed with other settings.
     wanted = _settings_key(kwargs)
     out_dir.mkdir(parents=True, exist_ok=True)
-    todo = [p for p in pairs if not (files[p].is_file() and _stored_key(files[p]) == wanted)]
+    finished = {p for p in pairs if files[p].is_file() and _stored_key(files[p]) == wanted}
+    todo = [p for p in pairs if p not in finished]
     done = skipped = 0
     bar = tqdm(pairs, desc="ctxmatch match", unit="pair", disable=not progress, dynamic_ncols=True)
     with _Prefetch([image_dir / n for p in todo for n in p], steps["features"], cache_dir) as feats:
         for name1, name2 in bar:
             path = files[(name1, name2)]
             bar.set_postfix_str(f"{name1} {name2}", refresh=False)
-            if path.is_file() and _stored_key(path) == wanted:
+            if (name1, name2) in finished:
                 skipped += 1
                 if on_pair is not None:
                     on_pair(name1, name2, path, True)
@@ -610,7 +626,7 @@ class _Prefetch:
         return extract_features(_read(path, str(path)), self._config, cache_dir=self._cache_dir)
 
     def _fill(self) -> None:
-        for path in list(self._uses)[: self._ahead]:
+        for path in itertools.islice(self._uses, self._ahead):
             if path not in self._futures:
                 self._futures[path] = self._pool.submit(self._extract, path)
 
@@ -621,7 +637,7 @@ class _Prefetch:
         if path not in self._futures:
             self._futures[path] = self._pool.submit(self._extract, path)
         future = self._futures[path]
-        if path not in list(self._uses)[: self._ahead]:
+        if path not in itertools.islice(self._uses, self._ahead):
             del self._futures[path]
         self._fill()
         return future.result()

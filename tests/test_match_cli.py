@@ -261,3 +261,29 @@ def test_match_says_when_it_compiles_the_kernels(pair, tmp_path, monkeypatch, ca
     monkeypatch.setattr(match, "kernels_ready", lambda: True)
     assert main(args) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_a_users_filter_sees_only_the_real_pair(monkeypatch):
+    # While the features are extracted, the library's own steps run on a small pair to load their kernels; a
+    # filter registered from outside the library is never called on it.
+    from ctxmatch_lib.filters import FILTERS, register_filter
+
+    seen = []
+
+    def mine(kpts1, kpts2, matches, scores, **kwargs):
+        seen.append(len(matches))
+        return np.ones(len(matches), bool)
+
+    monkeypatch.setitem(FILTERS._loaded, "test-mine", mine)
+    assert FILTERS["test-mine"] is mine and callable(register_filter)
+    from skimage.data import camera
+
+    img = np.ascontiguousarray(camera()[::2, ::2])
+    res = match_images(img, np.ascontiguousarray(img[10:, 12:]), filters=("dtm", "test-mine"), max_keypoints=300,
+                       cache_dir=False)
+    assert seen and set(seen) == {len(res.matches)}
+    import ctxmatch_lib.match as match
+
+    seen.clear()
+    match._load_kernels(match._checked(filters=("dtm", "test-mine")))  # the small pair itself
+    assert seen == []
