@@ -86,7 +86,6 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
 
-
 # ----------------------------------------------------------------------------------- moved modules
 # Modules the README and the docs named under their former paths keep importing, with a FutureWarning, until the
 # next release: ``import ctxmatch_lib.export`` gives ``ctxmatch_lib.io.export`` itself.

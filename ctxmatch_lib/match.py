@@ -247,26 +247,34 @@ def match_images(
     >>> np.median(shift, axis=0).round().tolist()  # image 2 is image 1 cropped by 12 columns and 10 rows
     [12.0, 10.0]
     """
-    from .geometry import MODEL_STEPS
-
-    if model not in MODEL_STEPS:
-        raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
-    if model_kind not in ("F", "H"):
-        raise ValueError(f"model_kind must be 'F' or 'H', got {model_kind!r}")
+    _check_model(model, model_kind)
     pending = PairFeatures(image1, image2, features=features, max_keypoints=max_keypoints, cache_dir=cache_dir)
     return pending.match(blob=blob, filters=filters, model=model, model_kind=model_kind,
                          model_threshold=model_threshold, filter_params=filter_params, rng=rng)
 
 
-def _checked(*, features="sift-rootsift", blob="paper-best", filters=("dtm",), model="none", model_kind="F",
-             model_threshold=None, filter_params=None, max_keypoints=None) -> dict:
-    """:func:`match_images`' settings resolved and checked once (errors name the argument)."""
+def _check_model(model: str, model_kind: str) -> None:
     from .geometry import MODEL_STEPS
 
     if model not in MODEL_STEPS:
         raise ValueError(f"model must be one of {', '.join(MODEL_STEPS)}, got {model!r}")
     if model_kind not in ("F", "H"):
         raise ValueError(f"model_kind must be 'F' or 'H', got {model_kind!r}")
+
+
+def _small_pair(step: int) -> tuple[np.ndarray, np.ndarray]:
+    """scikit-image's camera taken every ``step``-th pixel, and the same shifted by a crop: a pair that runs
+    every step in a fraction of a second."""
+    from skimage.data import camera
+
+    img = np.ascontiguousarray(camera()[::step, ::step])
+    return img, np.ascontiguousarray(img[12 // step:, 12 // step:])
+
+
+def _checked(*, features="sift-rootsift", blob="paper-best", filters=("dtm",), model="none", model_kind="F",
+             model_threshold=None, filter_params=None, max_keypoints=None) -> dict:
+    """:func:`match_images`' settings resolved and checked once (errors name the argument)."""
+    _check_model(model, model_kind)
     return {"features": resolve_features(features, max_keypoints=max_keypoints), "blob": resolve_blob(blob),
             "filters": as_filter_list(filters), "model": model, "model_kind": model_kind,
             "model_threshold": _threshold(model_threshold), "filter_params": dict(filter_params or {})}
@@ -334,8 +342,6 @@ def _load_kernels(steps: dict) -> None:
     is not called on the small pair."""
     from dataclasses import replace
 
-    from skimage.data import camera
-
     from .features import extract_features
     from .filters import FILTERS
 
@@ -346,9 +352,8 @@ def _load_kernels(steps: dict) -> None:
         return (getattr(func, "__module__", None) or "").startswith(__name__.rsplit(".", 1)[0] + ".")
 
     try:
-        img = np.ascontiguousarray(camera()[::4, ::4])
         config = replace(steps["features"], max_keypoints=200)
-        small = [extract_features(g, config, cache_dir=False) for g in (img, np.ascontiguousarray(img[6:, 5:]))]
+        small = [extract_features(g, config, cache_dir=False) for g in _small_pair(4)]
         _match_features(*small, rng=0, **{**steps, "filters": tuple(f for f in steps["filters"] if own(f)),
                                           "model": "none"})
     except Exception:  # only a head start: the real pair runs every step anyway
@@ -704,11 +709,8 @@ def warm_up(*, filters: Sequence[str] | str = ("dtm",), models: Sequence[str] = 
     filters : sequence of str or str
         As in :func:`match_images`.
     models : sequence of str
-        Model steps, one :func:`match_images` call each.
+        Model steps, each run on the pair's features (extracted once).
     """
-    from skimage.data import camera
-
-    img = np.ascontiguousarray(camera()[::2, ::2])
-    crop = np.ascontiguousarray(img[10:, 12:])
+    pending = PairFeatures(*_small_pair(2), cache_dir=False)
     for model in models:
-        match_images(img, crop, filters=filters, model=model, cache_dir=False)
+        pending.match(filters=filters, model=model)

@@ -139,10 +139,10 @@ def _check_numbers(args) -> None:
 
 def _settings(args) -> dict:
     """The library settings of the flags, each resolved here so that its error names the flag (the library's
-    errors name its parameter). Raises ``ValueError`` with the message to print."""
+    errors name its parameter; :func:`_check_numbers` ran first). Raises ``ValueError`` with the message to
+    print."""
     from ..match import as_filter_list, resolve_blob, resolve_features
 
-    _check_numbers(args)
     settings = dict(filters=_filters(args.filters), model=args.model, model_kind=args.model_kind,
                     model_threshold=args.model_threshold, max_keypoints=args.max_keypoints, rng=args.seed,
                     cache_dir=False if args.no_cache else None)

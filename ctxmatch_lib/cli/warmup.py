@@ -1,5 +1,5 @@
-"""``ctxmatch warmup``: compile the kernels ahead, once per machine, so that the first ``ctxmatch match`` (or
-``ctxmatch eval``) does not wait for them."""
+"""``ctxmatch warmup``: compile the kernels ahead, once per machine, so that the first ``ctxmatch match`` (with
+``--all``, also ``ctxmatch eval``) does not wait for them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ DESCRIPTION = """\
 Compile ctxmatch's kernels into the user's cache folder, once per machine and per version of the code:
 the kernels of 'ctxmatch match' (blob matching, DTM, the model steps) on a small scikit-image pair, and with
 --all those of every filter and of the ground truth, through one embedded evaluation pair. The first command
-that needs a kernel compiles it anyway; this only moves the wait. 'make figures' and 'make test' run it."""
+that needs a kernel compiles it anyway; this only moves the wait. 'make figures' runs it."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
