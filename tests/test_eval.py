@@ -646,3 +646,38 @@ def test_run_filter_times_after_a_warm_up_call():
     np.testing.assert_array_equal(keep, [True, False, True])
     run_filter("test-counting", f, f, m, z, image_size1=(10, 10), image_size2=(10, 10))
     assert _COUNTED == [3, 3, 3]
+
+
+def test_cli_eval_ranks_a_filter_given_by_its_import_path(tiny_dataset, tmp_path, monkeypatch, capsys):
+    # A filter defined outside the package, named by module:function: its rows carry the path, it sees the
+    # same candidates as the others (keep-all: the blob's numbers), and editing it recomputes its rows only.
+    import sys
+
+    module = tmp_path / "userfilters_eval.py"
+    module.write_text("import numpy as np\n\n\ndef keep(kpts1, kpts2, matches, scores, *, image_size1, image_size2, "
+                      "shapes1=None, shapes2=None):\n    return np.ones(len(matches), bool)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r.parquet"
+    argv = ["--dataset", str(tiny_dataset), "--filters", "th,userfilters_eval:keep", "--model", "none",
+            "--out", str(out), "--max-keypoints", "600", "--no-progress"]
+    try:
+        assert _cli(argv) == 0
+        df = pd.read_parquet(out).set_index(["pair_id", "method"])
+        assert set(df.index.get_level_values("method")) == {"blob", "th", "userfilters_eval:keep"}
+        for col in ("precision", "recall", "output", "correct"):
+            assert (df.xs("userfilters_eval:keep", level="method")[col] == df.xs("blob", level="method")[col]).all()
+        assert "userfilters_eval:keep" in capsys.readouterr().out
+        # The filter's code is part of its rows' key: keep none now.
+        module.write_text(module.read_text().replace("np.ones", "np.zeros"))
+        sys.modules.pop("userfilters_eval", None)
+        from ctxmatch_lib.filters import FILTERS
+
+        FILTERS._by_path.pop("userfilters_eval:keep", None)
+        assert _cli(argv) == 0
+        df2 = pd.read_parquet(out).set_index(["pair_id", "method"])
+        assert (df2.xs("userfilters_eval:keep", level="method").output == 0).all()
+        same = [c for c in df.columns if not c.endswith("time_s")]
+        assert df2.xs("th", level="method")[same].equals(df.xs("th", level="method")[same])
+    finally:
+        sys.modules.pop("userfilters_eval", None)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import sys
 import time
 from pathlib import Path
 
@@ -121,12 +122,31 @@ def _filter_module(name: str) -> str | None:
     return getattr(func, "__module__", None)
 
 
-@functools.lru_cache(maxsize=64)
 def source_digest(filters: tuple[str, ...] = (), *, package_root: Path = _PACKAGE_ROOT) -> str:
     """SHA-1 of the code a unit runs: the import closure (:func:`code_closure`) of the unit and its
     ``filters``, and the shipped ``.npz`` models in it; documentation edits keep the cache (:func:`_code_bytes`).
-    """
-    root = Path(package_root)
+    A filter from outside the package (a user's, by import path) adds its own module's code, read anew at
+    each call, so that editing it recomputes its rows."""
+    outside = [_outside_code(m) for m in map(_filter_module, filters)
+               if m is not None and not m.startswith(_PACKAGE_ROOT.name + ".")]
+    inside = _package_digest(tuple(filters), Path(package_root))
+    return digest(inside, *outside) if outside else inside
+
+
+def _outside_code(module: str) -> bytes:
+    """The syntax tree of a module from outside the package (:func:`_code_bytes`), or its name alone when it
+    has no readable source file."""
+    path = getattr(sys.modules.get(module), "__file__", None)
+    try:
+        return module.encode() + b"\0" + _code_bytes(Path(path))
+    except (TypeError, OSError, SyntaxError, ValueError):
+        return module.encode()
+
+
+@functools.lru_cache(maxsize=64)
+def _package_digest(filters: tuple[str, ...], package_root: Path) -> str:
+    """:func:`source_digest` of the package's own code."""
+    root = package_root
     paths = _modules(root)
     modules = [_filter_module(n) for n in filters]
     closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in paths)], package_root=root)

@@ -8,7 +8,9 @@ Every filter has the same signature::
 ``kpts*`` are ``(N, 2)`` (x, y) pixels, origin at the centre of the top-left pixel; ``matches`` ``(K, 2)``
 indices (many-to-many allowed); ``scores`` ``(K,)``, lower is better; ``matches[keep]`` are kept. NNR
 thresholds (``th``, ``glpm``, ``adalam``) are read on the scores' scale (:func:`nnr_scores`). Filters are
-imported on first use; :func:`register_filter` adds one. Guide: ``docs/filters.md``.
+imported on first use. A filter from outside the library enters by :func:`register_filter`, by its import
+path (``FILTERS["mypkg.mymodule:myfilter"]``, :func:`load_filter`) or through the ``ctxmatch.filters``
+entry-point group of an installed package. Guides: ``docs/filters.md``, ``docs/own-filter.md``.
 
 Every spatial filter drops the one outlier of a translated grid and keeps the rest:
 
@@ -29,11 +31,18 @@ from __future__ import annotations
 
 import functools
 import importlib
+import inspect
+import os
+import sys
 from collections.abc import Callable, Iterator, Mapping
+from importlib.metadata import entry_points
 
 from .._numerics.scores import nnr_scores
 
-__all__ = ["FILTERS", "register_filter", "nnr_scores"]
+__all__ = ["FILTERS", "register_filter", "load_filter", "nnr_scores", "ENTRY_POINT_GROUP"]
+
+#: The entry-point group through which an installed package registers filters (``name = "module:function"``).
+ENTRY_POINT_GROUP = "ctxmatch.filters"
 
 # name -> "module:function[:stages]"; ``dtm1`` (DTM1) and ``dtm2`` (DTM1 + DTM2, as ``dtm``) as in Tables 1-3.
 _BUILTIN: dict[str, str] = {
@@ -60,27 +69,45 @@ _BUILTIN: dict[str, str] = {
 
 
 class _Registry(Mapping):
-    """Read-only mapping name -> filter function that imports built-in filters on first access."""
+    """Read-only mapping name -> filter function that imports built-in filters on first access. Import paths
+    resolve too (:func:`load_filter`) but are not listed: ``"all"`` means the registered filters."""
 
     def __init__(self) -> None:
         self._loaded: dict[str, Callable] = {}
+        self._by_path: dict[str, Callable] = {}
 
     def __getitem__(self, name: str) -> Callable:
         if name in self._loaded:
             return self._loaded[name]
-        if name not in _BUILTIN:
-            raise KeyError(f"unknown filter {name!r}; known filters: {', '.join(self)}")
-        module, func, *stages = _BUILTIN[name].split(":")
-        f = getattr(importlib.import_module(module), func)
-        self._loaded[name] = functools.partial(f, stages=int(stages[0])) if stages else f
+        if name in self._by_path:
+            return self._by_path[name]
+        if name in _BUILTIN:
+            module, func, *stages = _BUILTIN[name].split(":")
+            f = getattr(importlib.import_module(module), func)
+            self._loaded[name] = functools.partial(f, stages=int(stages[0])) if stages else f
+        elif name in _entry_points():
+            self._loaded[name] = load_filter(_entry_points()[name], name=name)
+        elif ":" in name:
+            self._by_path[name] = load_filter(name)
+            return self._by_path[name]
+        else:
+            raise KeyError(f"unknown filter {name!r}; known filters: {', '.join(self)} (or 'module:function')")
         return self._loaded[name]
+
+    def __contains__(self, name) -> bool:
+        try:
+            self[name]
+        except (KeyError, ValueError):
+            return False
+        return True
 
     def __iter__(self) -> Iterator[str]:
         yield from _BUILTIN
-        yield from (k for k in self._loaded if k not in _BUILTIN)
+        yield from (k for k in _entry_points() if k not in _BUILTIN)
+        yield from (k for k in self._loaded if k not in _BUILTIN and k not in _entry_points())
 
     def __len__(self) -> int:
-        return len(set(_BUILTIN) | set(self._loaded))
+        return sum(1 for _ in self)
 
 
 FILTERS = _Registry()
@@ -102,3 +129,73 @@ def register_filter(name: str, func: Callable | None = None):
         return f
 
     return _add if func is None else _add(func)
+
+
+_SIGNATURE = "(kpts1, kpts2, matches, scores, *, image_size1, image_size2, shapes1=None, shapes2=None, **params)"
+
+
+@functools.cache
+def _entry_points() -> dict[str, str]:
+    """name -> ``"module:function"`` of the filters that installed packages register (:data:`ENTRY_POINT_GROUP`)."""
+    return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_filter(path: str, *, name: str | None = None) -> Callable:
+    """The filter function at the import path ``"package.module:function"``, checked against the common
+    signature (module docstring). A module that is not importable otherwise is looked for in the current
+    folder, as a script's own module would be.
+
+    Parameters
+    ----------
+    path : str
+        ``module:attribute``, the attribute possibly dotted (``module:Class.method``).
+    name : str, optional
+        The registry name the errors give (default: ``path``).
+
+    Raises
+    ------
+    ValueError
+        Naming the path, when the module does not import, the attribute is missing or not callable, or the
+        function cannot take a filter's arguments.
+
+    Examples
+    --------
+    >>> load_filter("ctxmatch_lib.filters.th:th_filter").__name__
+    'th_filter'
+    """
+    label = f"filter {name or path!r}" + (f" ({path})" if name and name != path else "")
+    module_name, sep, attr = path.partition(":")
+    if not (sep and module_name and attr):
+        raise ValueError(f"{label}: an import path is 'module:function', got {path!r}")
+    try:
+        obj = _import(module_name)
+        for part in attr.split("."):
+            obj = getattr(obj, part)
+    except ImportError as exc:
+        raise ValueError(f"{label}: cannot import {module_name!r}: {exc}") from None
+    except AttributeError:
+        raise ValueError(f"{label}: module {module_name!r} has no attribute {attr!r}") from None
+    if not callable(obj):
+        raise ValueError(f"{label}: {attr!r} is a {type(obj).__name__}, not a function")
+    try:
+        signature = inspect.signature(obj)
+    except (TypeError, ValueError):  # a callable without a signature (a C function) is taken as it is
+        return obj
+    try:
+        signature.bind(None, None, None, None, image_size1=None, image_size2=None, shapes1=None, shapes2=None)
+    except TypeError as exc:
+        raise ValueError(f"{label}: a filter takes {_SIGNATURE}; {attr}{signature} does not ({exc})") from None
+    return obj
+
+
+def _import(module_name: str):
+    """``importlib.import_module``, then once more with the current folder on ``sys.path`` when the module is
+    not found elsewhere."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        here = os.getcwd()
+        if exc.name != module_name.split(".")[0] or here in sys.path or "" in sys.path:
+            raise
+        sys.path.append(here)
+        return importlib.import_module(module_name)
