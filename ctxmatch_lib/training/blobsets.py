@@ -191,17 +191,6 @@ def scene_sets(scene: Scene, features=FEATURES, blobs=BLOBS, max_keypoints: int 
     return out
 
 
-def _cache_root(cache_dir) -> Path:
-    from ..cache import cache_dir as _cache_dir
-
-    root = Path(cache_dir) if cache_dir is not None else _cache_dir("learned-sets")
-    return root / f"v{GENERATOR_VERSION}"
-
-
-def _scene_path(root: Path, seed: int, index: int) -> Path:
-    return root / f"seed{seed}" / f"scene{index:05d}.npz"
-
-
 def _save(path: Path, sets: list[BlobSet]) -> None:
     from ..cache import atomic_path
 
@@ -211,7 +200,6 @@ def _save(path: Path, sets: list[BlobSet]) -> None:
         arrays.update({f"x1_{j}": s.x1.astype(np.float32), f"x2_{j}": s.x2.astype(np.float32),
                        f"scores_{j}": s.scores.astype(np.float32), f"lab_{j}": s.is_inlier})
         meta.append({"size1": s.size1, "size2": s.size2, "kind": s.kind, "features": s.features, "blob": s.blob})
-    path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, __meta__=np.array(json.dumps(meta)), **arrays)
@@ -229,9 +217,11 @@ def build_sets(n_scenes: int, seed: int = 0, *, cache_dir=None, progress: bool =
     """The sets (:func:`scene_count` per scene) of scenes ``0 .. n_scenes - 1``, computed once and cached in
     ``cache_dir`` (default ``cache_dir("learned-sets")``). Scene ``i`` draws from ``SeedSequence([seed, i])``,
     so it is the same whatever ``n_scenes``."""
+    from ..cache import cache_dir as default_cache_dir
+
     if not isinstance(n_scenes, (int, np.integer)) or n_scenes < 1:
         raise ValueError(f"n_scenes must be a positive int, got {n_scenes!r}")
-    root = _cache_root(cache_dir)
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir("learned-sets")
     images = None
     out = []
     it = range(int(n_scenes))
@@ -240,7 +230,7 @@ def build_sets(n_scenes: int, seed: int = 0, *, cache_dir=None, progress: bool =
 
         it = tqdm(it, desc="blob training sets", unit="scene")
     for i in it:
-        path = _scene_path(root, int(seed), i)
+        path = root / f"v{GENERATOR_VERSION}" / f"seed{int(seed)}" / f"scene{i:05d}.npz"
         if not path.is_file():
             images = source_images() if images is None else images
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), i]))

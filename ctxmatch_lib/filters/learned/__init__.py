@@ -13,8 +13,7 @@ from .filters import (TORCH_HINT, acne_filter, learned_logits, load_learned_mode
                       oanet_filter, require_torch, shipped_weights)
 
 __all__ = ["oanet_filter", "acne_filter", "learned_logits", "load_learned_model", "load_numpy_model_cached",
-           "shipped_weights",
-           "train_learned_filter", "torch_available", "LEARNED_FILTERS", "TORCH_HINT"]
+           "shipped_weights", "train_learned_filter", "torch_available", "LEARNED_FILTERS", "TORCH_HINT"]
 
 #: Registry names of the learned filters (numpy inference: always available).
 LEARNED_FILTERS = ("oanet", "acne")

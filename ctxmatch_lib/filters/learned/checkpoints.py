@@ -9,7 +9,6 @@ ctxmatch_lib.filters.learned.checkpoints ARCH WEIGHTS OUT.npz``) writes the ``.n
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,14 +17,14 @@ import numpy as np
 from ..._numerics.extras import require
 from .configs import ACNeConfig, OANetConfig  # noqa: F401  (re-exported)
 from .nets import ACNe, OANet, build_network
-from .npnets import (acne_params_from_tf_tensors, is_tf_checkpoint, oanet_config_from_state_dict, save_npz,
-                     tf_name_map)
+from .npnets import (acne_params_from_tf_tensors, is_tf_checkpoint, load_numpy_model, oanet_config_from_state_dict,
+                     save_npz, tf_name_map)
 from .tfbundle import read_tf_checkpoint, write_tf_checkpoint
 
 torch = require("torch", "torch", "reading or writing a torch checkpoint of the learned filters")
 
-__all__ = ["LoadedModel", "load_model", "save_model", "convert_to_npz", "oanet_config_from_state_dict", "acne_from_tf_tensors",
-           "acne_to_tf_tensors", "FORMAT"]
+__all__ = ["LoadedModel", "load_model", "save_model", "convert_to_npz", "oanet_config_from_state_dict",
+           "acne_from_tf_tensors", "acne_to_tf_tensors", "FORMAT"]
 
 FORMAT = "ctxmatch-learned-filter"
 
@@ -42,12 +41,8 @@ class LoadedModel:
     source: str  # the file it came from
 
 
-def _strip_module(sd: dict) -> dict:
-    return {k[len("module."):] if k.startswith("module.") else k: v for k, v in sd.items()}
-
-
-def _as_tensor_sd(sd: dict) -> dict:
-    return {k: torch.as_tensor(v) for k, v in sd.items()}
+def _numpy_state_dict(net: torch.nn.Module) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy() for k, v in net.state_dict().items()}
 
 
 # ------------------------------------------------------------------------------------------- ACNe / TF
@@ -67,7 +62,7 @@ def acne_from_tf_tensors(tensors: dict[str, np.ndarray], *, groups: int = 32) ->
 
 def acne_to_tf_tensors(net: ACNe) -> dict[str, np.ndarray]:
     """The variables of an ACNe TensorFlow checkpoint holding ``net``'s weights (inverse of the above)."""
-    sd = {k: v.detach().cpu().numpy() for k, v in net.state_dict().items()}
+    sd = _numpy_state_dict(net)
     out = {}
     for tf_name, (pt_name, kind) in tf_name_map(net.config).items():
         arr = sd[pt_name].astype(np.float32)
@@ -86,27 +81,22 @@ def save_model(path, arch: str, net: torch.nn.Module, *, training: dict | None =
     if side is None:
         side = "score_rank" if getattr(net.config, "side_channels", 0) == 1 else "none"
     label = f"{'OANet' if arch == 'oanet' else 'ACNe'} (trained here)"
-    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
     path = Path(path)
     if path.suffix == ".npz":
-        return save_npz(path, arch, net.config.to_dict(), {k: v.numpy() for k, v in state.items()},
-                        normalization=normalization, side=side, label=label, training=training)
+        return save_npz(path, arch, net.config.to_dict(), _numpy_state_dict(net), normalization=normalization,
+                        side=side, label=label, training=training)
     payload = {
         "format": FORMAT,
         "version": 1,
         "arch": arch,
         "config": net.config.to_dict(),
-        "state_dict": state,
+        "state_dict": {k: v.detach().cpu().clone() for k, v in net.state_dict().items()},
         "input": {"normalization": normalization, "side": side},
         "label": label,
         "training": training or {},
     }
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        # The temporary file is created private (0600); give the result the permissions the umask allows.
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
     return path
 
 
@@ -114,12 +104,11 @@ def convert_to_npz(arch: str, weights, output) -> Path:
     """Convert a checkpoint :func:`load_model` reads to the ``.npz`` read without torch, metadata kept."""
     m = load_model(arch, weights)
     training = {}
-    if Path(weights).suffix not in (".npz",) and not is_tf_checkpoint(Path(weights)):
+    if Path(weights).suffix != ".npz" and not is_tf_checkpoint(Path(weights)):
         ckpt = torch.load(weights, map_location="cpu", weights_only=True)
         training = ckpt.get("training", {}) if isinstance(ckpt, dict) else {}
-    sd = {k: v.detach().cpu().numpy() for k, v in m.net.state_dict().items()}
-    return save_npz(output, arch, m.net.config.to_dict(), sd, normalization=m.normalization, side=m.side,
-                    label=m.label, training=training)
+    return save_npz(output, arch, m.net.config.to_dict(), _numpy_state_dict(m.net), normalization=m.normalization,
+                    side=m.side, label=m.label, training=training)
 
 
 def load_model(arch: str, weights) -> LoadedModel:
@@ -134,14 +123,8 @@ def load_model(arch: str, weights) -> LoadedModel:
         net = acne_from_tf_tensors(read_tf_checkpoint(path))
         net.eval()
         return LoadedModel("acne", net, "hartley", "none", "ACNe (authors' weights)", str(path))
-    if not path.exists():
-        raise FileNotFoundError(f"weights not found: {path}")
-    if path.is_dir():
-        raise ValueError(f"weights must be a checkpoint file, got the folder {path}")
-    if path.suffix == ".npz":
-        from .npnets import load_npz
-
-        nm = load_npz(arch, path)
+    if path.suffix == ".npz" or not path.is_file():  # the numpy loader's checks: missing file, folder
+        nm = load_numpy_model(arch, path)
         net = build_network(arch, nm.config)
         net.load_state_dict({**net.state_dict(), **{k: torch.from_numpy(v) for k, v in nm.params.items()}},
                             strict=True)
@@ -168,7 +151,7 @@ def load_model(arch: str, weights) -> LoadedModel:
     sd = ckpt.get("state_dict", ckpt)
     if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
         raise ValueError(f"weights {path} hold no OANet state_dict")
-    sd = _strip_module(sd)
+    sd = {k.removeprefix("module."): v for k, v in sd.items()}
     config = oanet_config_from_state_dict(sd)
     net = OANet(config)
     try:

@@ -115,11 +115,7 @@ def keypoint_pool(max_images: int | None = None, max_keypoints: int = 3000) -> t
     from ...datasets import load_dataset
     from ...features import load_image
 
-    paths = []
-    for pair in load_dataset("embedded"):
-        for p in (pair.image1, pair.image2):
-            if p not in paths:
-                paths.append(p)
+    paths = list(dict.fromkeys(p for pair in load_dataset("embedded") for p in (pair.image1, pair.image2)))
     if max_images is not None:
         paths = paths[:max_images]
     # A low contrast threshold: dense pools, so that sets of 2000 candidates at 60 % inliers can be drawn.

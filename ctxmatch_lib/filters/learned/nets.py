@@ -102,12 +102,8 @@ class DiffPool(nn.Module):
         return (x.squeeze(3) @ S.transpose(1, 2)).unsqueeze(3)  # (B, C, M, 1)
 
 
-class DiffUnpool(nn.Module):
-    """Back from M clusters to N correspondences, softmax over the clusters (Eq. (6))."""
-
-    def __init__(self, channels: int, clusters: int):
-        super().__init__()
-        self.conv = nn.Sequential(*_cn_bn_relu(channels), nn.Conv2d(channels, clusters, 1))
+class DiffUnpool(DiffPool):
+    """Back from M clusters to N correspondences, softmax over the clusters (Eq. (6)); layers as DiffPool's."""
 
     def forward(self, x_up, x_down):
         S = torch.softmax(self.conv(x_up), dim=1).squeeze(3)  # (B, M, N)

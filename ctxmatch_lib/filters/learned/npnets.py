@@ -8,7 +8,6 @@ kernel; one candidate is allowed. Weights: :func:`save_npz` / :func:`load_npz`, 
 from __future__ import annotations
 
 import json
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,8 @@ from ..._numerics.fixedmath import exp, tanh
 from .configs import ACNeConfig, OANetConfig
 
 __all__ = ["NumpyModel", "oanet_logits", "acne_logits", "weighted_eight_point", "epipolar_residual",
-           "save_npz", "load_npz", "load_numpy_model", "from_state_dict", "is_tf_checkpoint", "tf_name_map", "acne_params_from_tf_tensors", "oanet_config_from_state_dict", "NPZ_FORMAT"]
+           "save_npz", "load_npz", "load_numpy_model", "from_state_dict", "is_tf_checkpoint", "tf_name_map",
+           "acne_params_from_tf_tensors", "oanet_config_from_state_dict", "NPZ_FORMAT"]
 
 NPZ_FORMAT = "ctxmatch-learned-filter-npz"
 _F32 = np.float32
@@ -35,7 +35,7 @@ def _conv(p: dict, name: str, x: np.ndarray) -> np.ndarray:
 
 
 def _context_norm(x: np.ndarray, eps: float = 1e-3) -> np.ndarray:
-    # Instance normalisation over the candidates (axis 1), biased variance: torch's InstanceNorm2d(eps=1e-3).
+    # Normalisation of each row, biased variance: torch's InstanceNorm2d(eps=1e-3) over the candidates.
     mean = x.mean(axis=1, keepdims=True)
     d = x - mean
     var = (d * d).mean(axis=1, keepdims=True)
@@ -143,13 +143,8 @@ def oanet_logits(params: dict, x: np.ndarray) -> list[np.ndarray]:
 
 
 # ----------------------------------------------------------------------------------------------- ACNe
-def _group_norm(p, name, x, groups, eps=1e-5):
-    c, k = x.shape
-    g = x.reshape(groups, -1)
-    mean = g.mean(axis=1, keepdims=True)
-    d = g - mean
-    var = (d * d).mean(axis=1, keepdims=True)
-    out = (d / np.sqrt(var + _F32(eps))).reshape(c, k)
+def _group_norm(p, name, x, groups):
+    out = _context_norm(x.reshape(groups, -1), eps=1e-5).reshape(x.shape)
     return out * p[name + ".weight"][:, None] + p[name + ".bias"][:, None]
 
 
@@ -223,9 +218,6 @@ def save_npz(path, arch: str, config: dict, params: dict, *, normalization: str,
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, __meta__=np.array(json.dumps(meta, sort_keys=True)), **arrays)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
     return path
 
 
@@ -254,8 +246,8 @@ def oanet_config_from_state_dict(sd: dict) -> OANetConfig:
         clusters = sd["weights_init.down1.conv.3.weight"].shape[0]
     except KeyError as e:
         raise ValueError(f"weights are not an OANet state_dict (missing {e.args[0]!r})") from None
-    half = len({k.split(".")[2] for k in sd if k.startswith("weights_init.l1_1.")})
-    iters = len({k.split(".")[1] for k in sd if k.startswith("weights_iter.")})
+    half = _count(sd, "weights_init.l1_1.")
+    iters = _count(sd, "weights_iter.")
     return OANetConfig(net_channels=int(w.shape[0]), net_depth=2 * half * (iters + 1), clusters=int(clusters),
                        iter_num=iters, side_channels=int(w.shape[1]) - 4)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import struct
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -24,23 +25,18 @@ _DTYPE_CODES = {np.dtype(v): k for k, v in _DTYPES.items()}
 
 
 # ------------------------------------------------------------------------------------------ CRC32C
-def _crc_table() -> np.ndarray:
+@lru_cache(maxsize=1)
+def _crc_table() -> list[int]:
     poly = 0x82F63B78  # Castagnoli, reflected
     table = np.arange(256, dtype=np.uint64)
     for _ in range(8):
         table = np.where(table & 1, (table >> 1) ^ poly, table >> 1)
-    return table.astype(np.uint32)
-
-
-_CRC_TABLE = None
+    return [int(v) for v in table]
 
 
 def crc32c(data: bytes) -> int:
     """CRC-32C (Castagnoli) of ``data``; pure Python, for the small blocks of an index file."""
-    global _CRC_TABLE
-    if _CRC_TABLE is None:
-        _CRC_TABLE = [int(v) for v in _crc_table()]
-    t = _CRC_TABLE
+    t = _crc_table()
     crc = 0xFFFFFFFF
     for b in data:
         crc = t[(crc ^ b) & 0xFF] ^ (crc >> 8)
@@ -67,14 +63,11 @@ def _varint(buf: bytes, pos: int) -> tuple[int, int]:
 
 def _enc_varint(v: int) -> bytes:
     out = bytearray()
-    while True:
-        b = v & 0x7F
+    while v > 0x7F:
+        out.append((v & 0x7F) | 0x80)
         v >>= 7
-        if v:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
+    out.append(v)
+    return bytes(out)
 
 
 def _proto_fields(buf: bytes) -> list[tuple[int, int, object]]:
@@ -111,9 +104,10 @@ def _enc_field(field: int, wire: int, val) -> bytes:
 
 def _parse_entry(buf: bytes) -> dict:
     entry = {"dtype": 0, "shape": [], "shard_id": 0, "offset": 0, "size": 0, "sliced": False}
+    scalars = {1: "dtype", 3: "shard_id", 4: "offset", 5: "size"}  # BundleEntryProto field numbers
     for field, _, val in _proto_fields(buf):
-        if field == 1:
-            entry["dtype"] = val
+        if field in scalars:
+            entry[scalars[field]] = val
         elif field == 2:
             for f2, _, dim in _proto_fields(val):
                 if f2 == 2:  # TensorShapeProto.dim
@@ -121,12 +115,6 @@ def _parse_entry(buf: bytes) -> dict:
                     entry["shape"].append(size - (1 << 64) if size >= 1 << 63 else size)
                 elif f2 == 3 and val:
                     raise ValueError("TensorFlow checkpoint holds a tensor of unknown rank")
-        elif field == 3:
-            entry["shard_id"] = val
-        elif field == 4:
-            entry["offset"] = val
-        elif field == 5:
-            entry["size"] = val
         elif field == 7:
             entry["sliced"] = True
     return entry
@@ -176,12 +164,8 @@ def _block(entries: list[tuple[bytes, bytes]]) -> bytes:
     for key, value in entries:  # every entry a restart point: no prefix sharing, simplest valid layout
         restarts.append(len(body))
         body += _enc_varint(0) + _enc_varint(len(key)) + _enc_varint(len(value)) + key + value
-    if not restarts:
-        restarts = [0]
-    for r in restarts:
-        body += struct.pack("<I", r)
-    body += struct.pack("<I", len(restarts))
-    return bytes(body)
+    restarts = restarts or [0]
+    return bytes(body + struct.pack(f"<{len(restarts) + 1}I", *restarts, len(restarts)))
 
 
 def _with_trailer(block: bytes) -> bytes:
@@ -276,22 +260,16 @@ def write_tf_checkpoint(prefix, tensors: dict[str, np.ndarray]) -> Path:
         data += raw
     # Header: one shard, little endian, version {producer: 1}.
     header = _enc_field(1, 0, 1) + _enc_field(3, 2, _enc_field(1, 0, 1))
-    out = bytearray()
+    # The index file: data block, meta-index block (empty), index block, footer (block handles, magic).
     data_block = _with_trailer(_block([(b"", header)] + entries))
-    out += data_block
-    meta_off = len(out)
     meta_block = _with_trailer(_block([]))
-    out += meta_block
     last_key = entries[-1][0] if entries else b""
-    handle = _enc_varint(0) + _enc_varint(len(data_block) - 5)
-    index_off = len(out)
-    index_block = _with_trailer(_block([(last_key, handle)]))
-    out += index_block
-    footer = (_enc_varint(meta_off) + _enc_varint(len(meta_block) - 5) + _enc_varint(index_off)
-              + _enc_varint(len(index_block) - 5))
-    out += footer + b"\x00" * (40 - len(footer)) + struct.pack("<Q", _MAGIC)
+    index_block = _with_trailer(_block([(last_key, _enc_varint(0) + _enc_varint(len(data_block) - 5))]))
+    footer = (_enc_varint(len(data_block)) + _enc_varint(len(meta_block) - 5)
+              + _enc_varint(len(data_block) + len(meta_block)) + _enc_varint(len(index_block) - 5))
+    index = data_block + meta_block + index_block + footer + b"\x00" * (40 - len(footer)) + struct.pack("<Q", _MAGIC)
     _write(prefix.with_name(prefix.name + ".data-00000-of-00001"), bytes(data))
-    _write(prefix.with_name(prefix.name + ".index"), bytes(out))
+    _write(prefix.with_name(prefix.name + ".index"), index)
     return prefix
 
 

@@ -35,7 +35,6 @@ TRAINED_HERE_CONFIGS = {
 TRAINED_HERE_STEPS = {"oanet": 400, "acne": 2000}
 
 
-
 @dataclass
 class TrainResult:
     """Outcome of :func:`train`."""
@@ -89,36 +88,33 @@ def _loss(net, x, y, balanced=False):
     return torch.stack([_bce(lg, y, balanced) for lg in net(x)]).sum()
 
 
+def _precision_recall(net, labelled_inputs) -> dict:
+    """Pooled precision and recall of ``logit > 0`` over ``(input (C, K), is_inlier (K,))`` pairs."""
+    tp = fp = fn = 0
+    net.eval()
+    with torch.no_grad():
+        for x, is_inlier in labelled_inputs:
+            keep = net(torch.from_numpy(x)[None])[-1][0].numpy() > 0
+            tp += int((keep & is_inlier).sum())
+            fp += int((keep & ~is_inlier).sum())
+            fn += int((~keep & is_inlier).sum())
+    return {"precision": tp / max(tp + fp, 1), "recall": tp / max(tp + fn, 1)}
+
+
 def evaluate_generated(net, pool, *, side: str, n_sets: int = 20, n_candidates: int = 1000,
                        inlier_ratio: float = 0.4, seed: int = 12345) -> dict:
     """Pooled precision and recall of ``logit > 0`` on generated sets at a fixed inlier ratio."""
     rng = np.random.default_rng(seed)
-    tp = fp = fn = 0
-    net.eval()
-    with torch.no_grad():
-        for _ in range(n_sets):
-            s = random_training_set(pool, n_candidates, rng, inlier_ratio=inlier_ratio)
-            x = torch.from_numpy(network_input(s.x1, s.x2, s.scores, s.image_size, s.image_size, side=side))
-            keep = net(x[None])[-1][0].numpy() > 0
-            tp += int((keep & s.is_inlier).sum())
-            fp += int((keep & ~s.is_inlier).sum())
-            fn += int((~keep & s.is_inlier).sum())
-    return {"precision": tp / max(tp + fp, 1), "recall": tp / max(tp + fn, 1), "inlier_ratio": inlier_ratio,
-            "n_sets": n_sets, "n_candidates": n_candidates}
+    sets = (random_training_set(pool, n_candidates, rng, inlier_ratio=inlier_ratio) for _ in range(n_sets))
+    inputs = ((network_input(s.x1, s.x2, s.scores, s.image_size, s.image_size, side=side), s.is_inlier) for s in sets)
+    return {**_precision_recall(net, inputs), "inlier_ratio": inlier_ratio, "n_sets": n_sets,
+            "n_candidates": n_candidates}
 
 
 def evaluate_blob_sets(net, sets, *, side: str) -> dict:
     """Pooled precision and recall of ``logit > 0`` on blob sets (whole sets, every row)."""
-    tp = fp = fn = 0
-    net.eval()
-    with torch.no_grad():
-        for s in sets:
-            x = torch.from_numpy(network_input(s.x1, s.x2, s.scores, s.size1, s.size2, side=side))
-            keep = net(x[None])[-1][0].numpy() > 0
-            tp += int((keep & s.is_inlier).sum())
-            fp += int((keep & ~s.is_inlier).sum())
-            fn += int((~keep & s.is_inlier).sum())
-    return {"precision": tp / max(tp + fp, 1), "recall": tp / max(tp + fn, 1), "n_sets": len(sets),
+    inputs = ((network_input(s.x1, s.x2, s.scores, s.size1, s.size2, side=side), s.is_inlier) for s in sets)
+    return {**_precision_recall(net, inputs), "n_sets": len(sets),
             "inlier_ratio": float(np.mean([s.inlier_ratio for s in sets])) if sets else float("nan")}
 
 
