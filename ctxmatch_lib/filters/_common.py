@@ -8,11 +8,10 @@ composes its docstring from :data:`DOCS`.
 from __future__ import annotations
 
 import inspect
-import re
 import types
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -22,7 +21,7 @@ from .._numerics.docstrings import SHARED, compose_doc as _compose_doc
 from .._numerics.order import canonical_order, spread_back
 from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "check_positive",
+__all__ = ["MatchSet", "prepare", "knn_without_self", "zero_mean_unit_rms", "inverse_2x2", "check_positive",
            "coincident_groups", "merge_coincident", "first_of_pair", "canonical_order", "spread_back",
            "match_filter", "compose_doc", "DOCS"]
 
@@ -112,15 +111,6 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
         qlocs, qinv = np.unique(pts[queries], axis=0, return_inverse=True)
         qinv = qinv.reshape(-1)
     kq = kk + 1
-
-    def ranked(rows, jj, valid):
-        """``cand[jj]`` and squared distances to ``qlocs[rows]`` by (distance, index), not ``valid`` last."""
-        idx = cand[jj]
-        d2 = ((pts[idx] - qlocs[rows][:, None, :]) ** 2).sum(-1)
-        d2[~valid] = np.inf
-        key = np.lexsort((idx, d2), axis=1)
-        return np.take_along_axis(idx, key, axis=1), np.take_along_axis(d2, key, axis=1)
-
     order = np.lexsort((cand, inv))
     start = np.r_[0, np.cumsum(cnt)[:-1]]
     # kq locations hold kq candidates at least; one more shows whether the last one needed is tied.
@@ -149,7 +139,11 @@ def knn_without_self(points: np.ndarray, candidates: np.ndarray, k: int, queries
         jj = np.zeros((len(unsure), width), np.int64)
         ok = np.arange(width)[None, :] < lens[:, None]
         jj[ok] = np.concatenate([np.asarray(b, np.int64) for b in balls])
-        near_idx[unsure] = ranked(unsure, jj, ok)[0][:, :kq]
+        # Ranked by (distance, index), the padding last.
+        idx = cand[jj]
+        d2 = ((pts[idx] - qlocs[unsure][:, None, :]) ** 2).sum(-1)
+        d2[~ok] = np.inf
+        near_idx[unsure] = np.take_along_axis(idx, np.lexsort((idx, d2), axis=1), axis=1)[:, :kq]
     lists = near_idx[qinv]
     is_self = lists == queries[:, None]
     drop = np.argsort(is_self, axis=1, kind="stable")
@@ -163,11 +157,18 @@ def zero_mean_unit_rms(p: np.ndarray) -> np.ndarray:
     return c / scale if scale > 1e-12 else c
 
 
+def inverse_2x2(A: np.ndarray) -> np.ndarray:
+    """Inverses of the (K, 2, 2) matrices ``A`` by the adjugate; inf or NaN where ``A`` is singular."""
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    inv = np.stack([np.stack([A[:, 1, 1], -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0]], -1)], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return inv / det[:, None, None]
+
+
 def coincident_groups(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Group the matches whose keypoints ``x``, ``y`` (K, 2) coincide exactly in both images (:data:`DOCS`
     ``["coincident"]``): ``first`` (G,), the first row of each group, increasing, and ``group`` (K,)."""
-    n = len(x)
-    if n == 0:
+    if len(x) == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64)
     _, first, group = np.unique(np.c_[x, y], axis=0, return_index=True, return_inverse=True)
     group = group.reshape(-1)
@@ -260,7 +261,6 @@ def compose_doc(doc: str | None, **fields) -> str | None:
 
 
 _P = inspect.Parameter
-_REQUIRED = _P.empty
 
 
 def _common_parameters(scores_default) -> list[inspect.Parameter]:
@@ -271,14 +271,17 @@ def _common_parameters(scores_default) -> list[inspect.Parameter]:
 
 
 def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = False, nnr: tuple[str, ...] = (),
-                 ratio_param: str | None = None, shapes: str = "match", scores_required: bool = False):
+                 ratio_param: str | None = None, shapes: str = "match", scores_required: bool = False,
+                 positive: tuple[str, ...] = (), non_negative: tuple[str, ...] = (), integer: tuple[str, ...] = ()):
     """Decorator: the public filter with the common signature around ``core(ms, *, **params) -> keep``.
 
-    The public function (1) validates the common arguments (:func:`prepare`); (2) reads the NNR thresholds
-    named in ``nnr`` on the scores' scale (:func:`_scale`); (3) sorts the rows canonically; (4) merges
-    coincident rows when ``merge`` is True or names a public boolean parameter (``one_to_one``: keep
-    :func:`first_of_pair` only); (5) spreads the mask back. ``shapes``: ``"match"`` (``ms.A1``/``ms.A2``),
-    ``"check"`` (validated only) or ``"both"`` (both or neither). Docstring: the core's, composed.
+    The public function (1) validates the common arguments (:func:`prepare`) and, by :func:`check_positive`,
+    the core's parameters named in ``positive``, ``non_negative``, ``integer`` (positive) and ``nnr``; (2)
+    reads the NNR thresholds named in ``nnr`` on the scores' scale (:func:`_scale`); (3) sorts the rows
+    canonically; (4) merges coincident rows when ``merge`` is True or names a public boolean parameter
+    (``one_to_one``: keep :func:`first_of_pair` only); (5) spreads the mask back. ``shapes``: ``"match"``
+    (``ms.A1``/``ms.A2``), ``"check"`` (validated only) or ``"both"`` (both or neither). Docstring: the
+    core's, composed.
     """
     if shapes not in ("match", "check", "both"):
         raise ValueError(f"shapes must be 'match', 'check' or 'both', got {shapes!r}")
@@ -291,10 +294,14 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
             extra.append(_P(ratio_param, _P.KEYWORD_ONLY, default=None, annotation="str | None"))
         if isinstance(merge, str):
             extra.append(_P(merge, _P.KEYWORD_ONLY, default=True, annotation="bool"))
-        sig = inspect.Signature(_common_parameters(_REQUIRED if scores_required else None) + own + extra,
+        sig = inspect.Signature(_common_parameters(_P.empty if scores_required else None) + own + extra,
                                 return_annotation=csig.return_annotation)
         core_names = [p.name for p in own]
         name = core.__name__
+        checks = {**dict.fromkeys(positive + nnr, {}), **dict.fromkeys(non_negative, {"allow_zero": True}),
+                  **dict.fromkeys(integer, {"integer": True})}
+        if not set(checks) <= set(core_names):
+            raise TypeError(f"{name} has no parameter {sorted(set(checks) - set(core_names))}")
 
         def run(args, kwargs):
             try:
@@ -304,21 +311,17 @@ def match_filter(*, label: str, merge: bool | str = False, one_to_one: bool = Fa
             bound.apply_defaults()
             a = bound.arguments
             sh1, sh2 = a["shapes1"], a["shapes2"]
+            ms = prepare(a["kpts1"], a["kpts2"], a["matches"], a["scores"], a["image_size1"], a["image_size2"],
+                         sh1, sh2)
             if shapes == "check":
-                ms = prepare(a["kpts1"], a["kpts2"], a["matches"], a["scores"], a["image_size1"], a["image_size2"])
-                _as_shapes(sh1, np.shape(a["kpts1"])[0], "shapes1")
-                _as_shapes(sh2, np.shape(a["kpts2"])[0], "shapes2")
-            else:
-                ms = prepare(a["kpts1"], a["kpts2"], a["matches"], a["scores"], a["image_size1"], a["image_size2"],
-                             sh1, sh2)
+                ms = replace(ms, A1=None, A2=None)  # validated only
             if shapes == "both" and (sh1 is None) != (sh2 is None):
                 raise ValueError("shapes1 and shapes2 must be given together")
-            params = {k: a[k] for k in core_names}
+            params = {k: check_positive(a[k], k, **checks[k]) if k in checks else a[k] for k in core_names}
             if nnr:
-                checked = {k: check_positive(params[k], k) for k in nnr}
-                ratio = _scale(a["scores"], ms, a[ratio_param] if ratio_param else None, ratio_param, checked,
-                               name)
-                params.update({k: nnr_threshold(v, ratio) for k, v in checked.items()})
+                given = a[ratio_param] if ratio_param else None
+                ratio = _scale(a["scores"], ms, given, ratio_param, {k: params[k] for k in nnr}, name)
+                params.update({k: nnr_threshold(params[k], ratio) for k in nnr})
             order, twins = canonical_order(ms.x, ms.y, ms.matches, ms.scores)
             ms = ms.take(order)  # scores were read for their scale above; the core sees the canonical order
             merged = merge_coincident(ms) if (a[merge] if isinstance(merge, str) else merge) else None

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from .._numerics.fixedmath import exp, hypot
-from ._common import MatchSet, check_positive, match_filter
+from ._common import MatchSet, match_filter
 
 __all__ = ["bm_filter"]
 
@@ -64,7 +64,8 @@ def _local_affine_fit(flat, shape, u, v, w, ridge: float):
     return s0, coef[:, 0, :]
 
 
-@match_filter(label="BM", merge=True)
+@match_filter(label="BM", merge=True, positive=("sigma_s", "sigma_r", "tau"), integer=("n_iter",),
+              non_negative=("min_support", "density_ratio", "ridge"))
 def bm_filter(
     ms: MatchSet,
     *,
@@ -113,13 +114,6 @@ def bm_filter(
     W.-Y. D. Lin et al., "Bilateral functions for global motion modeling", ECCV 2014.
     J. Chen, S. Paris, F. Durand, "Real-time edge-aware image processing with the bilateral grid", SIGGRAPH 2007.
     """
-    sigma_s = check_positive(sigma_s, "sigma_s")
-    sigma_r = check_positive(sigma_r, "sigma_r")
-    tau = check_positive(tau, "tau")
-    n_iter = check_positive(n_iter, "n_iter", integer=True)
-    min_support = check_positive(min_support, "min_support", allow_zero=True)
-    density_ratio = check_positive(density_ratio, "density_ratio", allow_zero=True)
-    ridge = check_positive(ridge, "ridge", allow_zero=True)
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)

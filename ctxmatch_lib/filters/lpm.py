@@ -16,13 +16,6 @@ from ._common import MatchSet, check_positive, knn_without_self, match_filter
 __all__ = ["lpm_filter", "glpm_filter", "GLPM_SCHEDULE"]
 
 
-def _common_neighbours(nx: np.ndarray, ny: np.ndarray):
-    """Sorted concatenation of the two neighbour lists and the mask of the entries present in both."""
-    both = np.sort(np.concatenate([nx, ny], axis=1), axis=1)
-    dup = both[:, 1:] == both[:, :-1]  # a match index appears twice: a common neighbour
-    return both[:, :-1], dup
-
-
 def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: bool) -> np.ndarray:
     """The authors' demos' neighbour lists: the ``k + 1`` nearest ``candidates``, the first dropped as "self".
 
@@ -31,7 +24,7 @@ def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: 
     q = np.arange(len(points)) if queries is None else np.asarray(queries)
     cand = np.asarray(candidates)
     nb = knn_without_self(points, cand, k + 1, queries=q)
-    n, w = nb.shape
+    w = nb.shape[1]
     if w == 0:
         return nb
     member = np.zeros(len(points), bool)
@@ -46,16 +39,14 @@ def _tree_neighbours(points, candidates, k: int, queries=None, *, drop_outside: 
     count = np.zeros(len(points), np.int64)
     count[sc] = np.arange(len(sc)) - run_start
     before = np.where(inside, np.minimum(count[q], w), 0)
-    if not before.any():  # every candidate query is the first at its location: it is the answer dropped
-        width = min(k, w) if not drop_outside or inside.all() else min(k, w - 1)
-        if inside.all():
-            return nb[:, :width]
-        return np.where(inside[:, None], nb[:, :width], nb[:, 1:1 + width] if drop_outside else nb[:, :width])
-    cols = np.arange(w + 1)[None, :]
-    src = np.clip(np.where(cols < before[:, None], cols, cols - 1), 0, w - 1)
-    with_self = np.where(cols == before[:, None], q[:, None], np.take_along_axis(nb, src, axis=1))
     width = min(k, w) if not drop_outside or inside.all() else min(k, w - 1)
-    out = with_self[:, 1:1 + width]
+    if before.any():
+        cols = np.arange(w + 1)[None, :]
+        src = np.clip(np.where(cols < before[:, None], cols, cols - 1), 0, w - 1)
+        with_self = np.where(cols == before[:, None], q[:, None], np.take_along_axis(nb, src, axis=1))
+        out = with_self[:, 1:1 + width]
+    else:  # every candidate query is the first at its location: it is the answer dropped
+        out = nb[:, :width]
     if not inside.all():
         outside = nb[:, 1:1 + width] if drop_outside else nb[:, :width]
         out = np.where(inside[:, None], out, outside)
@@ -72,17 +63,14 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
     if code and tree_ties:
         # The demo asks the tree for K + 3 answers and drops the first one: the query itself when it is a
         # candidate and first among the rows at its location, its nearest candidate otherwise.
-        nx_all = _tree_neighbours(x, candidates, max(scales), drop_outside=True)
-        ny_all = _tree_neighbours(y, candidates, max(scales), drop_outside=True)
+        nx_all, ny_all = (_tree_neighbours(p, candidates, max(scales), drop_outside=True) for p in (x, y))
     else:
-        nx_all = knn_without_self(x, candidates, max(scales) + (1 if code else 0))
-        ny_all = knn_without_self(y, candidates, max(scales) + (1 if code else 0))
+        nx_all, ny_all = (knn_without_self(p, candidates, max(scales) + (1 if code else 0)) for p in (x, y))
     if code and not tree_ties:  # the query always excluded, the nearest candidate of an outside query dropped
         outside = np.ones(len(x), bool)
         outside[candidates] = False
         if outside.any() and nx_all.shape[1] > 0:
-            nx_all = np.where(outside[:, None], nx_all[:, 1:], nx_all[:, :-1])
-            ny_all = np.where(outside[:, None], ny_all[:, 1:], ny_all[:, :-1])
+            nx_all, ny_all = (np.where(outside[:, None], nb[:, 1:], nb[:, :-1]) for nb in (nx_all, ny_all))
     # Motion similarity of every query to each of its image-1 neighbours (a common neighbour is one of them).
     nbr = nx_all
     vj = v[nbr]
@@ -113,7 +101,7 @@ def _lpm_cost(x, y, candidates, k: int, tau: float, reading: str = "code",
     return cost / len(scales)
 
 
-@match_filter(label="LPM", merge=True)
+@match_filter(label="LPM", merge=True, integer=("k",))
 def lpm_filter(
     ms: MatchSet,
     *,
@@ -149,7 +137,6 @@ def lpm_filter(
     ----------
     J. Ma, J. Zhao, J. Jiang, H. Zhou, X. Guo, "Locality preserving matching", IJCV 127(5), 2019.
     """
-    k = check_positive(k, "k", integer=True)
     lam = [check_positive(v, "lambdas", allow_zero=True) for v in np.atleast_1d(lambdas)]
     if len(lam) != 2:
         raise ValueError(f"lambdas must hold two thresholds, got {lambdas!r}")
@@ -158,8 +145,7 @@ def lpm_filter(
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
-    everyone = np.arange(n)
-    keep = _lpm_cost(ms.x, ms.y, everyone, k, tau, reading, tree_ties) <= lam[0]
+    keep = _lpm_cost(ms.x, ms.y, np.arange(n), k, tau, reading, tree_ties) <= lam[0]
     # Second iteration on the neighbourhoods of the first-pass inliers, when enough (demo code: k + 4).
     if keep.sum() >= k + 4:
         keep = _lpm_cost(ms.x, ms.y, np.flatnonzero(keep), k, tau, reading, tree_ties) <= lam[1]
@@ -171,14 +157,12 @@ def _glpm_pass(x, y, subset, candidates, k: int, lam: float, tree_ties: bool = T
     if len(subset) == 0 or len(candidates) < 2:
         return np.zeros(len(subset), bool)
     if tree_ties:
-        nx = _tree_neighbours(x, candidates, k, queries=subset, drop_outside=False)
-        ny = _tree_neighbours(y, candidates, k, queries=subset, drop_outside=False)
+        nx, ny = (_tree_neighbours(p, candidates, k, queries=subset, drop_outside=False) for p in (x, y))
     else:
-        nx = knn_without_self(x, candidates, k, queries=subset)
-        ny = knn_without_self(y, candidates, k, queries=subset)
+        nx, ny = (knn_without_self(p, candidates, k, queries=subset) for p in (x, y))
     kk = nx.shape[1]
-    _, dup = _common_neighbours(nx, ny)
-    n_common = dup.sum(1)
+    both = np.sort(np.concatenate([nx, ny], axis=1), axis=1)
+    n_common = (both[:, 1:] == both[:, :-1]).sum(1)  # a match index twice: a common neighbour
     # Eq. (4): every neighbour missing from the other image's neighbourhood costs 1, in both images.
     return 2 * (kk - n_common) <= lam * kk / k
 
@@ -223,7 +207,6 @@ def glpm_filter(
     J. Ma, J. Jiang, H. Zhou, J. Zhao, X. Guo, "Guided locality preserving feature matching for remote
     sensing image registration", IEEE TGRS 56(8), 2018.
     """
-    ratio = check_positive(ratio, "ratio")
     sched = [(check_positive(kk, "schedule", integer=True), check_positive(lam, "schedule", allow_zero=True))
              for kk, lam in schedule]
     if len(sched) != 4:

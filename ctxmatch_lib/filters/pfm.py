@@ -19,20 +19,13 @@ from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from .._numerics.blas import one_blas_thread
 from .._numerics.fixedmath import exp
-from ._common import MatchSet, check_positive, knn_without_self, match_filter
+from ._common import MatchSet, inverse_2x2, knn_without_self, match_filter
 
 __all__ = ["pfm_filter", "local_affines"]
 
 _CAP_SCALE = 10_000  # max-flow capacities are integers: energies are multiplied by this and rounded
 #: Without keypoint shapes, the share of candidates with no local map above which PFM warns.
 NO_MAP_WARN = 0.9
-
-
-def _inv2(A: np.ndarray) -> np.ndarray:
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-    inv = np.stack([np.stack([A[:, 1, 1], -A[:, 0, 1]], -1), np.stack([-A[:, 1, 0], A[:, 0, 0]], -1)], 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return inv / det[:, None, None]
 
 
 def local_affines(x: np.ndarray, y: np.ndarray, A1=None, A2=None, k: int = 8) -> np.ndarray:
@@ -42,12 +35,11 @@ def local_affines(x: np.ndarray, y: np.ndarray, A1=None, A2=None, k: int = 8) ->
     nearest in both images (at least two, not collinear)."""
     n = len(x)
     if A1 is not None and A2 is not None:
-        out = A2 @ _inv2(A1)
+        out = A2 @ inverse_2x2(A1)
         out[~np.isfinite(out).all(axis=(1, 2))] = np.nan
         return out
     out = np.full((n, 2, 2), np.nan)
-    nx = knn_without_self(x, np.arange(n), k)
-    ny = knn_without_self(y, np.arange(n), k)
+    nx, ny = (knn_without_self(p, np.arange(n), k) for p in (x, y))
     if nx.shape[1] < 2:
         return out
     shared = (nx[:, :, None] == ny[:, None, :]).any(-1)  # (n, k): neighbour in image 1 also near in image 2
@@ -58,7 +50,7 @@ def local_affines(x: np.ndarray, y: np.ndarray, A1=None, A2=None, k: int = 8) ->
     det = sxx[:, 0, 0] * sxx[:, 1, 1] - sxx[:, 0, 1] ** 2
     scale = np.trace(sxx, axis1=1, axis2=2)
     ok = (shared.sum(1) >= 2) & (det > 1e-9 * np.maximum(scale, 1e-12) ** 2)
-    out[ok] = syx[ok] @ _inv2(sxx[ok])
+    out[ok] = syx[ok] @ inverse_2x2(sxx[ok])
     return out
 
 
@@ -102,22 +94,28 @@ def _point_edges(pts: np.ndarray) -> np.ndarray:
     return np.unique(e[e[:, 0] != e[:, 1]], axis=0)
 
 
-def _expand(edges_pts: np.ndarray, point_of: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """Match edges from point edges: every match of point p with every match of point q."""
-    if len(edges_pts) == 0 or len(members) == 0:
-        return np.empty((0, 2), np.int64)
+def _matches_at(points: np.ndarray, point_of: np.ndarray, members: np.ndarray):
+    """``(e, match)``: every match of each point ``points[e]``, ``members[i]`` being at point ``point_of[i]``;
+    points in turn, the matches of a point in the order of ``members``."""
     order = np.argsort(point_of, kind="stable")
-    sorted_pts = point_of[order]
-    starts = np.searchsorted(sorted_pts, np.arange(point_of.max() + 1))
-    counts = np.bincount(point_of, minlength=point_of.max() + 1)
-    p, q = edges_pts[:, 0], edges_pts[:, 1]
-    cp, cq = counts[p], counts[q]
-    reps = cp * cq
-    e_idx = np.repeat(np.arange(len(p)), reps)
+    counts = np.bincount(point_of)
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    reps = counts[points]
+    e = np.repeat(np.arange(len(points)), reps)
     within = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps)
-    a = members[order[starts[p[e_idx]] + within // cq[e_idx]]]
-    b = members[order[starts[q[e_idx]] + within % cq[e_idx]]]
-    return np.c_[a, b]
+    return e, members[order[starts[points[e]] + within]]
+
+
+def _graph_edges(x: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """Match edges of the Delaunay graph of the image-1 keypoints of ``members``: every match of point p
+    with every match of point q, for every point edge (p, q)."""
+    pts, point_of = _point_groups(x, members)
+    edges_pts = _point_edges(pts)
+    if len(edges_pts) == 0:
+        return np.empty((0, 2), np.int64)
+    e, a = _matches_at(edges_pts[:, 0], point_of, members)
+    f, b = _matches_at(edges_pts[e, 1], point_of, members)
+    return np.c_[a[f], b]
 
 
 def _insertion_edges(x: np.ndarray, kept: np.ndarray, new: np.ndarray) -> np.ndarray:
@@ -144,17 +142,8 @@ def _insertion_edges(x: np.ndarray, kept: np.ndarray, new: np.ndarray) -> np.nda
         _, nb = cKDTree(pts).query(q[out], k=kk)
         verts[np.flatnonzero(out)[:, None], np.arange(kk)[None, :]] = nb.reshape(-1, kk)
     cand, vert = np.nonzero(verts >= 0)
-    point_edges = np.c_[np.arange(len(new))[cand], verts[cand, vert]]
-    # Every kept match at the vertex point; the candidate side is a single match.
-    order = np.argsort(point_of, kind="stable")
-    counts = np.bincount(point_of, minlength=len(pts))
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    reps = counts[point_edges[:, 1]]
-    e_idx = np.repeat(np.arange(len(point_edges)), reps)
-    within = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps)
-    a = new[point_edges[e_idx, 0]]
-    b = kept[order[starts[point_edges[e_idx, 1]] + within]]
-    return np.c_[a, b]
+    e, b = _matches_at(verts[cand, vert], point_of, kept)  # every kept match at the vertex point
+    return np.c_[new[cand[e]], b]
 
 
 def _min_cut(n: int, unary: np.ndarray, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -187,7 +176,8 @@ def _min_cut(n: int, unary: np.ndarray, edges: np.ndarray, weights: np.ndarray) 
     return labels[:n]
 
 
-@match_filter(label="PFM", shapes="both")
+@match_filter(label="PFM", shapes="both", positive=("sigma", "t", "lam", "seed_fraction"), non_negative=("beta",),
+              integer=("k",))
 def pfm_filter(
     ms: MatchSet,
     *,
@@ -231,13 +221,8 @@ def pfm_filter(
     optimization", IEEE TIP 29, 2020. Y. Boykov, V. Kolmogorov, "An experimental comparison of
     min-cut/max-flow algorithms for energy minimization in vision", IEEE TPAMI 26(9), 2004.
     """
-    sigma, lam = check_positive(sigma, "sigma"), check_positive(lam, "lam")
-    t = check_positive(t, "t")
-    beta = check_positive(beta, "beta", allow_zero=True)
-    seed_fraction = check_positive(seed_fraction, "seed_fraction")
     if seed_fraction > 1:
         raise ValueError(f"seed_fraction must be in (0, 1], got {seed_fraction!r}")
-    k = check_positive(k, "k", integer=True)
     n = len(ms)
     if n < 3:
         return np.zeros(n, bool)
@@ -279,18 +264,15 @@ def _pfm(ms, sigma: float, t: float, lam: float, beta: float, seed_fraction: flo
 
     size = max(3, int(np.ceil(seed_fraction * n)))
     active = order[:size]
-    pts, point_of = _point_groups(x, active)
-    kept = optimise(active, _expand(_point_edges(pts), point_of, active))
+    kept = optimise(active, _graph_edges(x, active))
     while size < n:
         size = min(n, 2 * size)
         new = order[len(active) : size]
         active = order[:size]
         if len(kept) < 3:  # nothing reliable yet: the larger candidate set is a fresh seed graph
-            pts, point_of = _point_groups(x, active)
-            kept = optimise(active, _expand(_point_edges(pts), point_of, active))
+            kept = optimise(active, _graph_edges(x, active))
             continue
-        pts, point_of = _point_groups(x, kept)
-        edges = np.vstack([_expand(_point_edges(pts), point_of, kept), _insertion_edges(x, kept, new)])
+        edges = np.vstack([_graph_edges(x, kept), _insertion_edges(x, kept, new)])
         kept = optimise(np.sort(np.r_[kept, new]), edges)
     keep = np.zeros(n, bool)
     keep[kept] = True

@@ -26,7 +26,7 @@ def _shared_counts(n1: np.ndarray, n2: np.ndarray, sizes) -> np.ndarray:
     return out
 
 
-@match_filter(label="SCV", merge=True)
+@match_filter(label="SCV", merge=True, positive=("p1", "p0", "alpha", "beta"))
 def scv_filter(
     ms: MatchSet,
     *,
@@ -68,19 +68,15 @@ def scv_filter(
     sizes = [check_positive(s, "growth", integer=True) for s in np.atleast_1d(growth)]
     if not sizes or any(b <= a for a, b in zip(sizes, sizes[1:])):
         raise ValueError(f"growth must be a non-empty increasing sequence of sizes, got {growth!r}")
-    p1, p0 = check_positive(p1, "p1"), check_positive(p0, "p0")
     if not p0 < p1 < 1:
         raise ValueError(f"p0 and p1 must satisfy 0 < p0 < p1 < 1, got p0={p0}, p1={p1}")
-    alpha, beta = check_positive(alpha, "alpha"), check_positive(beta, "beta")
     if alpha >= 1 or beta >= 1:
         raise ValueError(f"alpha and beta must be below 1, got alpha={alpha}, beta={beta}")
     n = len(ms)
     sizes = sorted({min(s, n - 1) for s in sizes if min(s, n - 1) > 0})
     if not sizes:
         return np.zeros(n, bool)
-    everyone = np.arange(n)
-    n1 = knn_without_self(ms.x, everyone, sizes[-1])
-    n2 = knn_without_self(ms.y, everyone, sizes[-1])
+    n1, n2 = (knn_without_self(p, np.arange(n), sizes[-1]) for p in (ms.x, ms.y))
     shared = _shared_counts(n1, n2, sizes)
     # _fixedmath's logarithm: the likelihood ratios meet their bounds the same way on any CPU.
     upper, lower = float(log((1 - beta) / alpha)), float(log(beta / (1 - alpha)))

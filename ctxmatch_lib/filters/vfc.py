@@ -11,7 +11,7 @@ import numpy as np
 
 from .._numerics import fixedmath as _fixedmath
 from .._numerics.blas import one_blas_thread
-from ._common import MatchSet, check_positive, match_filter, zero_mean_unit_rms
+from ._common import MatchSet, match_filter, zero_mean_unit_rms
 from ._em_kernels import dot, matmul, matmul_t, solve, weighted_gram_t
 
 __all__ = ["vfc_filter"]
@@ -39,7 +39,8 @@ def posterior(residual2: np.ndarray, sigma2: float, gamma: float, a: float, dim:
     return inl / (inl + out)
 
 
-@match_filter(label="VFC")
+@match_filter(label="VFC", positive=("beta", "gamma", "a"), non_negative=("lam", "tau"),
+              integer=("n_control", "max_iter"))
 def vfc_filter(
     ms: MatchSet,
     *,
@@ -79,12 +80,6 @@ def vfc_filter(
     ----------
     J. Ma et al., "Robust point matching via vector field consensus", IEEE TIP 23(4), 2014.
     """
-    beta, a = check_positive(beta, "beta"), check_positive(a, "a")
-    lam = check_positive(lam, "lam", allow_zero=True)
-    tau = check_positive(tau, "tau", allow_zero=True)
-    gamma = check_positive(gamma, "gamma")
-    n_control = check_positive(n_control, "n_control", integer=True)
-    max_iter = check_positive(max_iter, "max_iter", integer=True)
     rng = np.random.default_rng(rng)
     n = len(ms)
     if n == 0:

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from ..._numerics.fixedmath import atan2
 from ._kernels import beaten_by_neighbours, best_confident_maps
-from .._common import MatchSet, check_positive, match_filter
+from .._common import MatchSet, match_filter
 
 __all__ = ["adalam_filter"]
 
@@ -30,27 +30,26 @@ def _couples(n: int) -> np.ndarray:
     return np.array([js, is_], dtype=np.int64).T.reshape(-1, 2)
 
 
+def _orientation_scale(A: np.ndarray):
+    """Rotation (degrees, polar decomposition, _fixedmath's atan2) and ``sqrt(|det A|)`` of each (2, 2) ``A``."""
+    return (np.degrees(atan2(A[:, 1, 0] - A[:, 0, 1], A[:, 0, 0] + A[:, 1, 1])),
+            np.sqrt(np.abs(A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])))
+
+
 def _relative_similarity(A1: np.ndarray, A2: np.ndarray):
     """Rotation (degrees) and scale of ``L = A2 A1^-1`` per match; NaN where ``A1`` is singular."""
     det1 = A1[:, 0, 0] * A1[:, 1, 1] - A1[:, 0, 1] * A1[:, 1, 0]
     ok = np.abs(det1) > 1e-12
     inv1 = np.stack([np.stack([A1[:, 1, 1], -A1[:, 0, 1]], -1), np.stack([-A1[:, 1, 0], A1[:, 0, 0]], -1)], 1)
-    inv1 = inv1 / np.where(ok, det1, 1.0)[:, None, None]
-    L = A2 @ inv1
-    angle = np.degrees(atan2(L[:, 1, 0] - L[:, 0, 1], L[:, 0, 0] + L[:, 1, 1]))  # _fixedmath's
-    scale = np.sqrt(np.abs(L[:, 0, 0] * L[:, 1, 1] - L[:, 0, 1] * L[:, 1, 0]))
+    angle, scale = _orientation_scale(A2 @ (inv1 / np.where(ok, det1, 1.0)[:, None, None]))
     angle[~ok] = np.nan
     scale[~ok | (scale <= 0)] = np.nan
     return angle, scale
 
 
 def _keypoint_similarity(A1: np.ndarray, A2: np.ndarray):
-    """Orientation difference (degrees, polar decomposition) and ratio of ``sqrt(|det A|)``; NaN if singular."""
-    def orient_scale(A):
-        return (np.degrees(atan2(A[:, 1, 0] - A[:, 0, 1], A[:, 0, 0] + A[:, 1, 1])),
-                np.sqrt(np.abs(A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])))
-
-    (o1, s1), (o2, s2) = orient_scale(A1), orient_scale(A2)
+    """Orientation difference (degrees) and scale ratio (:func:`_orientation_scale`); NaN if singular."""
+    (o1, s1), (o2, s2) = _orientation_scale(A1), _orientation_scale(A2)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where((s1 > 1e-12) & (s2 > 0), s2 / s1, np.nan)
     return np.where(np.isfinite(scale), o2 - o1, np.nan), scale
@@ -76,7 +75,9 @@ def _confident_inliers(A, usable, distinct, Ub, Vb, nb, min_conf: float):
                               np.ascontiguousarray(distinct, dtype=np.bool_), float(min_conf))
 
 
-@match_filter(label="AdaLAM", nnr=("seed_threshold",), shapes="both")
+@match_filter(label="AdaLAM", nnr=("seed_threshold",), shapes="both", integer=("ransac_iters",),
+              positive=("area_ratio", "search_expansion", "min_confidence", "detected_scale_rate_threshold"),
+              non_negative=("min_inliers",))
 def adalam_filter(
     ms: MatchSet,
     *,
@@ -129,13 +130,7 @@ def adalam_filter(
     ----------
     L. Cavalli et al., "Handcrafted outlier detection revisited", ECCV 2020.
     """
-    area_ratio = check_positive(area_ratio, "area_ratio")
-    lam = check_positive(search_expansion, "search_expansion")
-    iters = check_positive(ransac_iters, "ransac_iters", integer=True)
-    min_inliers = check_positive(min_inliers, "min_inliers", allow_zero=True)
-    min_conf = check_positive(min_confidence, "min_confidence")
-    det_thr = check_positive(detected_scale_rate_threshold, "detected_scale_rate_threshold")
-    # ``seed_threshold`` comes checked and on the scores' scale (match_filter).
+    # ``seed_threshold`` comes on the scores' scale (match_filter).
     rng = np.random.default_rng(rng)
     if similarity not in ("keypoints", "map"):
         raise ValueError(f"similarity must be 'keypoints' or 'map', got {similarity!r}")
@@ -144,7 +139,8 @@ def adalam_filter(
     if n < 3:
         return keep
     R1 = np.sqrt(ms.size1[0] * ms.size1[1] / (np.pi * area_ratio))
-    R2 = np.sqrt(ms.size2[0] * ms.size2[1] / (np.pi * area_ratio))
+    r1 = search_expansion * R1  # the neighbourhood radii (Sec. 3.2)
+    r2 = search_expansion * np.sqrt(ms.size2[0] * ms.size2[1] / (np.pi * area_ratio))
 
     # 1. Seeds: no strictly better score within R1 in image 1. ``rank`` orders the members of each
     # neighbourhood (step 3), equal scores in a seeded random order rather than by index.
@@ -156,16 +152,16 @@ def adalam_filter(
         return keep
 
     # 2. Neighbourhoods, with the orientation and scale agreement of the seed when shapes are known.
-    hood = _neighbourhoods(ms, locs, seeds, rank, lam * R1, lam * R2, min_inliers, orientation_threshold,
+    hood = _neighbourhoods(ms, locs, seeds, rank, r1, r2, min_inliers, orientation_threshold,
                            scale_rate_threshold, similarity)
     if hood is None:
         return keep
     seeds, sid, mid, sizes, pos = hood
-    u = (ms.x[mid] - ms.x[seeds[sid]]) / (lam * R1)
-    v = (ms.y[mid] - ms.y[seeds[sid]]) / (lam * R2)
+    u = (ms.x[mid] - ms.x[seeds[sid]]) / r1
+    v = (ms.y[mid] - ms.y[seeds[sid]]) / r2
 
     # 3. Local affine RANSACs, a block of seeds at a time to bound memory.
-    couples = _couples(iters)
+    couples = _couples(ransac_iters)
     m_max = int(sizes.max())
     U = np.zeros((len(seeds), m_max, 2))
     V = np.zeros((len(seeds), m_max, 2))
@@ -173,11 +169,11 @@ def adalam_filter(
     present = np.zeros((len(seeds), m_max), bool)
     present[sid, pos] = True
     accepted = np.zeros((len(seeds), m_max), bool)
-    block = max(1, int(2e6 // (iters * m_max)))
+    block = max(1, int(2e6 // (ransac_iters * m_max)))
     for b0 in range(0, len(seeds), block):
         sl = slice(b0, b0 + block)
-        accepted[sl] = _local_ransac(U[sl], V[sl], present[sl], sizes[sl], couples, min_conf, min_inliers,
-                                     det_thr, refit)
+        accepted[sl] = _local_ransac(U[sl], V[sl], present[sl], sizes[sl], couples, min_confidence, min_inliers,
+                                     detected_scale_rate_threshold, refit)
 
     # 4. Union of the accepted inliers of every neighbourhood.
     keep[mid[accepted[sid, pos]]] = True

@@ -12,7 +12,7 @@ import scipy.sparse as sp
 
 from ..._numerics.blas import one_blas_thread
 from ..._numerics.fixedmath import log
-from .._common import MatchSet, check_positive, knn_without_self, match_filter, zero_mean_unit_rms
+from .._common import MatchSet, knn_without_self, match_filter, zero_mean_unit_rms
 from .._em_kernels import dot, solve, solve_batched, weighted_gram_t
 from ._kernels import em_residuals, lle_solve, offset_norms
 from ..vfc import control_points, gaussian_kernel, posterior
@@ -45,7 +45,8 @@ def lle_weights(x: np.ndarray, k: int, reg: float = 1e-5) -> sp.csr_matrix:
     return sp.csr_matrix((w.ravel(), (rows, nb.ravel())), shape=(n, n))
 
 
-@match_filter(label="LLT")
+@match_filter(label="LLT", integer=("n_neighbors", "n_control", "max_iter"), positive=("beta", "gamma", "a"),
+              non_negative=("lam", "tau", "reg"))
 def llt_filter(
     ms: MatchSet,
     *,
@@ -91,15 +92,8 @@ def llt_filter(
     J. Ma et al., "Robust feature matching for remote sensing image registration via locally linear
     transforming", IEEE TGRS 53(12), 2015.
     """
-    n_neighbors = check_positive(n_neighbors, "n_neighbors", integer=True)
-    lam = check_positive(lam, "lam", allow_zero=True)
-    beta, a, gamma = check_positive(beta, "beta"), check_positive(a, "a"), check_positive(gamma, "gamma")
     if gamma >= 1:
         raise ValueError(f"gamma must lie in (0, 1), got {gamma!r}")
-    tau = check_positive(tau, "tau", allow_zero=True)
-    n_control = check_positive(n_control, "n_control", integer=True)
-    max_iter = check_positive(max_iter, "max_iter", integer=True)
-    reg = check_positive(reg, "reg", allow_zero=True)
     rng = np.random.default_rng(rng)
     n = len(ms)
     if n == 0:

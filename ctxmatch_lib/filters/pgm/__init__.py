@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..._numerics.fixedmath import exp
-from .._common import MatchSet, check_positive, knn_without_self, match_filter
+from .._common import MatchSet, inverse_2x2, knn_without_self, match_filter
 from ._kernels import pair_affinity as _pair_affinity
 from ._kernels import sinkhorn as _pgm_sinkhorn
 from ._kernels import votes as _pgm_votes
@@ -25,11 +25,7 @@ def _local_affines(A1: np.ndarray | None, A2: np.ndarray | None) -> np.ndarray |
     """Image-1 -> image-2 local affine transformation ``A2 inv(A1)`` of every match, or None."""
     if A1 is None or A2 is None:
         return None
-    det = A1[:, 0, 0] * A1[:, 1, 1] - A1[:, 0, 1] * A1[:, 1, 0]
-    inv = np.stack([np.stack([A1[:, 1, 1], -A1[:, 0, 1]], -1), np.stack([-A1[:, 1, 0], A1[:, 0, 0]], -1)], -2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = inv / det[:, None, None]
-    T = A2 @ inv
+    T = A2 @ inverse_2x2(A1)
     # A singular image-1 shape gives no transformation: such a match predicts nothing (infinite error).
     T[~np.isfinite(T).all(axis=(1, 2))] = np.inf
     return T
@@ -160,7 +156,8 @@ def _top_per_keypoint(vote: np.ndarray, key: np.ndarray, per_node: int, positive
     return sel & (vote > 0) if positive else sel
 
 
-@match_filter(label="PGM", merge=True, one_to_one=True)
+@match_filter(label="PGM", merge=True, one_to_one=True, integer=("k", "max_rounds", "per_node", "n_init", "max_iter"),
+              positive=("tau", "rho", "amp_max"), non_negative=("min_support", "c"))
 def pgm_filter(
     ms: MatchSet,
     *,
@@ -213,16 +210,6 @@ def pgm_filter(
     M. Cho, J. Lee, K. M. Lee, "Reweighted random walks for graph matching", ECCV 2010; "Feature correspondence
     and deformable object matching via agglomerative correspondence clustering", ICCV 2009.
     """
-    k = check_positive(k, "k", integer=True)
-    tau = check_positive(tau, "tau")
-    rho = check_positive(rho, "rho")
-    max_rounds = check_positive(max_rounds, "max_rounds", integer=True)
-    per_node = check_positive(per_node, "per_node", integer=True)
-    n_init = check_positive(n_init, "n_init", integer=True)
-    min_support = check_positive(min_support, "min_support", allow_zero=True)
-    c = check_positive(c, "c", allow_zero=True)
-    amp_max = check_positive(amp_max, "amp_max")
-    max_iter = check_positive(max_iter, "max_iter", integer=True)
     n = len(ms)
     if n < 2:
         return np.zeros(n, bool)
@@ -230,14 +217,13 @@ def pgm_filter(
     T = _local_affines(ms.A1, ms.A2)
     # Initial active set: the best-scored candidate of every image-1 keypoint.
     active = _top_per_keypoint(-ms.scores, m[:, 0], n_init, positive=False)
-    solution = np.zeros(n, bool)
+    sol = np.empty(0, np.int64)  # the current matching
     best = -1.0
     for _ in range(max_rounds):
         idx = np.flatnonzero(active)
         if len(idx) < 2:
             break
-        Ta = None if T is None else T[idx]
-        W = _affinity(x[idx], y[idx], Ta, m[idx], k, tau, rho)
+        W = _affinity(x[idx], y[idx], None if T is None else T[idx], m[idx], k, tau, rho)
         s = rrwm(W, m[idx, 0], m[idx, 1], c=c, amp_max=amp_max, max_iter=max_iter)
         assigned = greedy_assignment(s, m[idx])
         # The graph matching objective X' W X of the discrete solution; PGM stops when it no longer grows.
@@ -245,20 +231,16 @@ def pgm_filter(
         if objective <= best:
             break
         best = objective
-        solution[:] = False
-        solution[idx[assigned]] = True
-        # Graph progression (CVPR 2012): the current matches vote for every candidate.
-        sol = np.flatnonzero(solution)
+        sol = idx[assigned]
         if len(sol) < 2:
             break
-        score = np.zeros(n)
-        score[idx] = s
-        vote = _votes(x, y, T, m, sol, score[sol], k, tau, rho)
-        new_active = _top_per_keypoint(vote, m[:, 0], per_node) | solution
+        # Graph progression (CVPR 2012): the current matches vote for every candidate.
+        vote = _votes(x, y, T, m, sol, s[assigned], k, tau, rho)
+        new_active = _top_per_keypoint(vote, m[:, 0], per_node)
+        new_active[sol] = True
         if np.array_equal(new_active, active):
             break
         active = new_active
-    sol = np.flatnonzero(solution)
     if len(sol) < 2:
         return np.zeros(n, bool)
     # Support of each output match: consistent matches of the solution among its neighbours.

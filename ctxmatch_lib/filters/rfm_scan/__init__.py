@@ -121,8 +121,7 @@ class _Round:
             _, nb = tree.query(sp.embed(rows, 0.0), k=m, eps=1.0)
             cand.append(g[nb.reshape(-1, m)])
             cscale.append(np.full(cand[-1].shape, float(s)))
-        cand = cand[0] if len(cand) == 1 else np.hstack(cand)
-        cscale = cscale[0] if len(cscale) == 1 else np.hstack(cscale)
+        cand, cscale = np.hstack(cand), np.hstack(cscale)
         if len(rows) == n:
             sp.prev_cand = rows, cand
         out = np.empty(n, np.float32)
@@ -165,18 +164,24 @@ class _Round:
             upper[rows] = np.minimum(upper[rows], self.tree_upper(rows))
         self.coarse[:] = False
 
-    def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
-        rows, vals = [], []
-        for s, g in self.groups:
+    def ball_distances(self, groups, queries: np.ndarray, radius: np.ndarray):
+        """``(rows, vals)``: the position in ``queries`` and scaled float32 distance of every member of
+        ``groups`` the ball search of ``radius`` (per query) finds around each query."""
+        rows, vals = [np.empty(0, np.int64)], [np.empty(0, np.float32)]
+        for s, g in groups:
             for sel, lens, j in self.space.ball(s, g, queries, radius / s):
                 rows.append(np.repeat(sel, lens))
                 vals.append(self.space.dist(queries[rows[-1]], j) * s)
+        return np.concatenate(rows), np.concatenate(vals)
+
+    def ball_kth(self, queries: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Exact ``L`` of ``queries`` where it is at most ``radius``, else NaN."""
+        rows, vals = self.ball_distances(self.groups, queries, radius)
         out = np.full(len(queries), np.nan, np.float32)
         # Sorted by (row, value) in one uint64 sort: the row in the high word, the float32 bits in the low word
         # (the bits of non-negative floats order as the floats; ``+ 0`` turns a -0.0 into +0.0).
-        vals = np.concatenate(vals) + np.float32(0)
-        key = np.concatenate(rows).astype(np.uint64) << np.uint64(32)
+        vals = vals + np.float32(0)
+        key = rows.astype(np.uint64) << np.uint64(32)
         key |= vals.view(np.uint32)
         key.sort()
         vals = (key & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32)
@@ -238,13 +243,7 @@ class _Round:
             if not split:
                 out[b : b + step] = np.partition(d, k - 1, axis=1)[:, k - 1]
                 continue
-            rows, vals = [], []
-            for s, g in self.groups[1:]:
-                for sel, lens, j in self.space.ball(s, g, q, upper[q] / s):
-                    rows.append(np.repeat(sel, lens))
-                    vals.append(self.space.dist(q[rows[-1]], j) * s)
-            rows = np.concatenate(rows) if rows else np.empty(0, np.int64)
-            vals = np.concatenate(vals) if vals else np.empty(0, np.float32)
+            rows, vals = self.ball_distances(self.groups[1:], q, upper[q])
             # The k smallest of each whole row, then each row's ball matches, padded with inf.
             counts = np.bincount(rows, minlength=len(q))
             both = np.full((len(q), k + int(counts.max(initial=0))), np.inf, np.float32)
@@ -317,12 +316,6 @@ class _Round:
         return reached
 
 
-def _clustered(space: _MotionSpace, min_pts: int, mu: float, col_scale: np.ndarray | None) -> np.ndarray:
-    """DBSCAN round of Sec. III-B, distances *to* each match times ``col_scale`` (second round: 1 or 100)."""
-    scale = np.ones(space.n, np.float32) if col_scale is None else col_scale.astype(np.float32)
-    return _Round(space, scale, min_pts).clustered(mu)
-
-
 def _added_matches(x: np.ndarray, y: np.ndarray, n_noise: int, rng) -> tuple[np.ndarray, np.ndarray]:
     """The demo's random matches, uniform in ``[0, max]`` of each coordinate, image 1 first.
 
@@ -336,7 +329,7 @@ def _added_matches(x: np.ndarray, y: np.ndarray, n_noise: int, rng) -> tuple[np.
     return u[0].T * x.max(0), u[1].T * y.max(0)
 
 
-@match_filter(label="RFM-SCAN", merge="merge_coincident")
+@match_filter(label="RFM-SCAN", merge="merge_coincident", non_negative=("gamma", "pct"))
 def rfm_scan_filter(
     ms: MatchSet,
     *,
@@ -372,8 +365,6 @@ def rfm_scan_filter(
     outliers", IEEE TIP 29, 2020. M. Ester et al., "A density-based algorithm for discovering clusters in
     large spatial databases with noise", KDD 1996.
     """
-    gamma = check_positive(gamma, "gamma", allow_zero=True)
-    pct = check_positive(pct, "pct", allow_zero=True)
     lo_pts, hi_pts = (check_positive(v, "min_pts_bounds", integer=True) for v in min_pts_bounds)
     if lo_pts > hi_pts:
         raise ValueError(f"min_pts_bounds must be increasing, got {min_pts_bounds!r}")
@@ -400,8 +391,7 @@ def rfm_scan_filter(
     if n_all < min_pts:
         return np.zeros(n, bool)
     space = _MotionSpace(feats, gamma)
-    first = _clustered(space, min_pts, mu[0], None)
-    # Second round: only first-round clustered real matches stay near (Sec. III-C).
-    ci = np.zeros(n_all, bool)
-    ci[:n] = first[:n]
-    return _clustered(space, min_pts, mu[1], np.where(ci, 1.0, 100.0).astype(np.float32))[:n]
+    first = _Round(space, np.ones(n_all, np.float32), min_pts).clustered(mu[0])  # Sec. III-B
+    # Second round: distances to the matches other than the first-round clustered real ones times 100 (Sec. III-C).
+    scale = np.where(first & (np.arange(n_all) < n), 1.0, 100.0).astype(np.float32)
+    return _Round(space, scale, min_pts).clustered(mu[1])[:n]
