@@ -20,7 +20,8 @@ from .strecha import DIFFICULTY_BANDS, load_strecha_folder, pose_difficulty, str
 __all__ = [
     "Dataset", "EpipolarGT", "FlowGT", "GroundTruth", "HomographyGT", "Pair", "PairKind", "PAIR_KINDS", "PoseGT",
     "DEFAULT_DATASET", "load_dataset", "list_datasets", "read_custom_dataset", "write_custom_dataset",
-    "load_strecha", "load_strecha_half", "downscale_pairs", "read_pairs_with_gt", "write_pairs_with_gt", "pose_difficulty", "DIFFICULTY_BANDS",
+    "load_strecha", "load_strecha_half", "downscale_pairs", "read_pairs_with_gt", "write_pairs_with_gt",
+    "pose_difficulty", "DIFFICULTY_BANDS",
 ]
 
 DEFAULT_DATASET = "embedded"

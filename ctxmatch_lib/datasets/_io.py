@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -33,30 +34,35 @@ def read_matrix(path, shape=(3, 3), *, what: str = "matrix") -> np.ndarray:
     return arr
 
 
+@contextmanager
+def named_errors(where):
+    """Re-raise a ValueError inside the block as ``ValueError(f"{where}: {exc}")`` (``where``: file, line)."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
 def homography_gt(H, source, pts1=None, pts2=None):
     """A :class:`~.base.HomographyGT` scaled to ``H[2, 2] = 1``, or a ValueError naming ``source`` (the
     file it came from) when ``H`` is not finite and invertible or the hand points ``pts1``, ``pts2`` bad."""
     from .base import HomographyGT, _check_matrix
 
-    try:
+    with named_errors(source):
         _check_matrix(H, "H", "homography", min_rank=3)
         H = np.asarray(H, np.float64)
         return HomographyGT(H / H[2, 2] if H[2, 2] != 0 else H / np.linalg.norm(H), pts1, pts2)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
 
 
 def epipolar_gt(F, source, pts1, pts2):
     """An :class:`~.base.EpipolarGT` scaled to unit Frobenius norm, or a ValueError naming ``source``."""
     from .base import EpipolarGT, _check_matrix
 
-    try:
+    with named_errors(source):
         _check_matrix(F, "F", "fundamental matrix", min_rank=2)
         F = np.asarray(F, np.float64)
         return EpipolarGT(F / np.linalg.norm(F), np.asarray(pts1, np.float64).copy(),
                           np.asarray(pts2, np.float64).copy())
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
 
 
 def fitted_epipolar_gt(pts1, pts2, source):
@@ -74,10 +80,8 @@ def flow_gt(flow12, flow21, source):
     """A :class:`~.base.FlowGT`, or a ValueError naming ``source`` (wrong shape, infinities, nothing known)."""
     from .base import FlowGT
 
-    try:
+    with named_errors(source):
         return FlowGT(flow12, flow21)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
 
 
 def read_vpts(path):

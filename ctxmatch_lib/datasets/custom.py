@@ -9,6 +9,7 @@ with ``pair_id,image1,image2,kind,gt[,F]``, described in ``docs/evaluation.md`` 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from ..cache import atomic_path
 
-from ._io import epipolar_gt, fitted_epipolar_gt, flow_gt, homography_gt, image_size, read_matrix
+from ._io import epipolar_gt, fitted_epipolar_gt, flow_gt, homography_gt, image_size, named_errors, read_matrix
 from .base import PAIR_KINDS, Dataset, EpipolarGT, FlowGT, HomographyGT, Pair, PoseGT
 
 __all__ = ["read_custom_dataset", "write_custom_dataset", "read_flow", "write_flow", "REQUIRED_COLUMNS"]
@@ -56,15 +57,7 @@ def _read_points(path) -> np.ndarray:
     return pts
 
 
-def _gt_for(folder: Path, row: dict, csv_path: Path, line: int):
-    try:
-        return _read_gt(folder, row, csv_path, line)
-    except ValueError as exc:
-        pair_id = (row.get("pair_id") or "").strip()
-        raise ValueError(f"{csv_path}, line {line}, pair {pair_id!r}: {exc}") from None
-
-
-def _read_gt(folder: Path, row: dict, csv_path: Path, line: int):
+def _read_gt(folder: Path, row: dict):
     kind = row["kind"].strip().lower()
     if kind not in PAIR_KINDS:
         raise ValueError(f"kind must be one of {PAIR_KINDS}, got {row['kind']!r}")
@@ -98,18 +91,15 @@ def _read_pose(path: Path) -> PoseGT:
     lines = [(k, ln) for k, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
              if ln.strip() and not ln.lstrip().startswith("#")]
     tokens = [t for _, ln in lines for t in ln.split()]
-    try:
+    with named_errors(f"{path}{f', line {lines[0][0]}' if len(lines) == 1 else ''}"):
         return parse_pose_tokens(tokens)
-    except ValueError as exc:
-        raise ValueError(f"{path}{f', line {lines[0][0]}' if len(lines) == 1 else ''}: {exc}") from None
 
 
 def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
     """Load the folder holding ``pairs.csv``, named ``name`` (default: the folder's). A missing file raises
     FileNotFoundError, a bad ``pairs.csv``, image or gt file ValueError; both name the file."""
     folder = Path(folder).expanduser()
-    csv_path = folder / "pairs.csv"
-    if not csv_path.is_file():
+    if not (folder / "pairs.csv").is_file():
         raise FileNotFoundError(f"pairs.csv not found in {folder}")
     folder = folder.resolve()  # pairs keep absolute paths, valid whatever the working directory
     csv_path = folder / "pairs.csv"
@@ -125,7 +115,7 @@ def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
         raise ValueError(f"{csv_path} misses the column(s) {', '.join(missing)}; header is {','.join(header)}")
     if not rows:
         raise ValueError(f"{csv_path} lists no pairs: add one row per pair under the header")
-    name = name or folder.resolve().name
+    name = name or folder.name
     pairs, seen = [], set()
     for line, row in rows:
         pair_id = (row["pair_id"] or "").strip()
@@ -141,18 +131,17 @@ def read_custom_dataset(folder, *, name: str | None = None) -> Dataset:
                 raise ValueError(f"{csv_path}, line {line}: the {col} column is empty")
             images.append(folder / value)
         sizes = [image_size(p) for p in images]  # raises naming a missing or corrupt image
-        kind, gt = _gt_for(folder, row, csv_path, line)
+        with named_errors(f"{csv_path}, line {line}, pair {pair_id!r}"):
+            kind, gt = _read_gt(folder, row)
         if isinstance(gt, FlowGT):
             w, h = sizes[0]
             if gt.flow12.shape[:2] != (h, w):
-                raise ValueError(
-                    f"{folder / row['gt'].strip()}: flow12 has shape {gt.flow12.shape[:2]} but image1 is {h}x{w}"
-                )
+                raise ValueError(f"{folder / row['gt'].strip()}: flow12 has shape {gt.flow12.shape[:2]} but image1 "
+                                 f"is {h}x{w}")
         if isinstance(gt, PoseGT):  # the pixel thresholds scale with the images (see posefile)
             from .strecha import threshold_scale_for
 
-            gt = PoseGT(gt.K1, gt.K2, gt.R, gt.t, threshold_scale=threshold_scale_for((*sizes[0], *sizes[1])),
-                        difficulty=gt.difficulty, rotations=gt.rotations)
+            gt = dataclasses.replace(gt, threshold_scale=threshold_scale_for((*sizes[0], *sizes[1])))
         pairs.append(Pair(pair_id, images[0], images[1], sizes[0], sizes[1], kind, gt, dataset=name))
     return Dataset(name, pairs, folder)
 

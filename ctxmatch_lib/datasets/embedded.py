@@ -33,12 +33,8 @@ def _photo(name: str) -> np.ndarray:
     """A bundled scikit-image photo as float32 RGB in [0, 1]."""
     from skimage import data
 
-    img = getattr(data, name)()
-    img = np.asarray(img)
-    if img.dtype == np.bool_:
-        img = img.astype(np.float32)
-    else:
-        img = img.astype(np.float32) / 255.0
+    img = np.asarray(getattr(data, name)())
+    img = img.astype(np.float32) if img.dtype == np.bool_ else img.astype(np.float32) / 255.0
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     return np.ascontiguousarray(img[..., :3])

@@ -14,7 +14,7 @@ import numpy as np
 from ..cache import atomic_path
 from .._numerics.fixedmath import acos
 from .._numerics.validation import as_rotation
-from ._io import image_size
+from ._io import image_size, named_errors
 from .base import ROTATION_TEXT_TOL, Dataset, Pair, PoseGT, nearest_rotation
 from .strecha import rotation_band, threshold_scale_for
 
@@ -31,11 +31,13 @@ def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = No
     if len(tokens) != POSE_LINE_TOKENS - 2:
         raise ValueError(f"expected {POSE_LINE_TOKENS - 2} numbers 'rot0 rot1 K0(9) K1(9) T_0to1(16)', "
                          f"got {len(tokens)}")
-    try:
-        values = np.array([float(v) for v in tokens], np.float64)
-    except ValueError:
-        bad = next(v for v in tokens if not _is_float(v))
-        raise ValueError(f"not a number: {bad!r}") from None
+    values = []
+    for v in tokens:
+        try:
+            values.append(float(v))
+        except ValueError:
+            raise ValueError(f"not a number: {v!r}") from None
+    values = np.array(values, np.float64)
     if not np.isfinite(values).all():
         raise ValueError("NaN or infinite value")
     rots = values[:2]
@@ -53,14 +55,6 @@ def parse_pose_tokens(tokens, *, scale: float = 1.0, difficulty: str | None = No
             raise ValueError(f"{name} has a zero focal length (fx = {K[0, 0]:g}, fy = {K[1, 1]:g})")
     return PoseGT(K0, K1, R, t, threshold_scale=scale, difficulty=difficulty,
                   rotations=(int(rots[0]), int(rots[1])))
-
-
-def _is_float(v: str) -> bool:
-    try:
-        float(v)
-    except ValueError:
-        return False
-    return True
 
 
 def format_pose_tokens(gt: PoseGT) -> list[str]:
@@ -94,10 +88,8 @@ def read_pairs_with_gt(path, *, image_dir=None, name: str | None = None) -> Data
             sizes = [image_size(p) for p in images]
         except (FileNotFoundError, ValueError) as exc:
             raise type(exc)(f"{where}: {exc}") from None
-        try:
+        with named_errors(where):
             gt = parse_pose_tokens(tokens[2:], scale=threshold_scale_for((*sizes[0], *sizes[1])))
-        except ValueError as exc:
-            raise ValueError(f"{where}: {exc}") from None
         stem0 = Path(tokens[0]).stem if Path(tokens[0]).is_absolute() else Path(tokens[0]).with_suffix("").as_posix()
         pair_id = f"{name}/{stem0}-{Path(tokens[1]).stem}"
         if pair_id in seen:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cache import data_root
-from ._io import epipolar_gt, fitted_epipolar_gt, homography_gt, image_size, read_matrix, read_vpts
+from ._io import epipolar_gt, fitted_epipolar_gt, homography_gt, image_size, named_errors, read_matrix, read_vpts
 from .base import Pair, _check_matrix
 
 __all__ = ["load_hpatches", "load_oxford", "load_homogr", "load_kusvod2", "REAL_LOADERS"]
@@ -61,33 +61,28 @@ def _sequence_pairs(seq: Path, images: dict[str, Path], gt_name, dataset: str) -
     return pairs
 
 
+def _sequences(folder: Path, dataset: str, image_prefix: str, gt_name) -> list[Pair]:
+    """The pairs 1→k of every sequence folder in ``folder`` (one holding ``gt_name(2)``)."""
+    pairs = []
+    for seq in sorted(s for s in folder.iterdir() if s.is_dir() and (s / gt_name(2)).is_file()):
+        images = _images_in(seq, image_prefix + r"(\d+)\.(?:ppm|png|jpg|pgm)")
+        pairs += _sequence_pairs(seq, images, gt_name, dataset)
+    return pairs
+
+
 def load_hpatches(root=None) -> list[Pair]:
     """HPatches sequences (Balntas et al., CVPR 2017), pairs 1→k; ``root`` may also be the extracted
     ``hpatches-sequences-release`` folder."""
-    def is_seq(p):
-        return (p / "H_1_2").is_file()
-
-    folder = _resolve(root, "planar/hpatches", lambda d: any(is_seq(s) for s in d.iterdir() if s.is_dir()))
+    folder = _resolve(root, "planar/hpatches", lambda d: any((s / "H_1_2").is_file() for s in d.iterdir()))
     if not (folder / "planar").exists() and (folder / "hpatches-sequences-release").is_dir():
         folder = folder / "hpatches-sequences-release"
-    pairs = []
-    for seq in sorted(s for s in folder.iterdir() if s.is_dir() and is_seq(s)):
-        images = _images_in(seq, r"(\d+)\.(?:ppm|png|jpg|pgm)")
-        pairs += _sequence_pairs(seq, images, lambda k: f"H_1_{k}", "hpatches")
-    return pairs
+    return _sequences(folder, "hpatches", "", lambda k: f"H_1_{k}")
 
 
 def load_oxford(root=None) -> list[Pair]:
     """Oxford affine sequences (Mikolajczyk et al., IJCV 2005): ``img1 … img6`` with ``H1tokp``, pairs 1→k."""
-    def is_seq(p):
-        return (p / "H1to2p").is_file()
-
-    folder = _resolve(root, "planar/oxford", lambda d: any(is_seq(s) for s in d.iterdir() if s.is_dir()))
-    pairs = []
-    for seq in sorted(s for s in folder.iterdir() if s.is_dir() and is_seq(s)):
-        images = _images_in(seq, r"img(\d+)\.(?:ppm|png|jpg|pgm)")
-        pairs += _sequence_pairs(seq, images, lambda k: f"H1to{k}p", "oxford")
-    return pairs
+    folder = _resolve(root, "planar/oxford", lambda d: any((s / "H1to2p").is_file() for s in d.iterdir()))
+    return _sequences(folder, "oxford", "img", lambda k: f"H1to{k}p")
 
 
 def _ab_pairs(folder: Path):
@@ -125,10 +120,8 @@ def load_homogr(root=None) -> list[Pair]:
         ptsA, ptsB, mat_model = read_vpts(vpts)
         model, source = _model_file(folder, name, mat_model)
         if model is not None:
-            try:  # inverted below: a singular model must fail here, naming its file
+            with named_errors(source):  # inverted below: a singular model must fail here, naming its file
                 _check_matrix(model, "model", "homography", min_rank=3)
-            except ValueError as exc:
-                raise ValueError(f"{source}: {exc}") from None
             H = np.linalg.inv(model)
         else:
             if len(ptsA) < 4:

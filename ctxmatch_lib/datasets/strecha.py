@@ -14,15 +14,13 @@ import numpy as np
 
 from .._numerics.fixedmath import acos
 from .._numerics.validation import as_intrinsics, as_rotation
-from ._io import IMAGE_SUFFIXES, image_size
+from ._io import IMAGE_SUFFIXES, image_size, named_errors
 from .base import ROTATION_TEXT_TOL, Pair, PoseGT, nearest_rotation
 
-__all__ = [
-    "STRECHA_SCENES", "DIFFICULTY_BANDS", "MAX_PAIRS_PER_BAND", "MAX_ROTATION_DEG", "MIN_BASELINE_RATIO",
-    "REFERENCE_SIDE", "Camera", "read_strecha_camera", "relative_pose", "pair_geometry", "rotation_band",
-    "pose_difficulty", "select_pairs", "threshold_scale_for", "is_strecha_scene", "strecha_scenes",
-    "load_strecha_folder",
-]
+__all__ = ["STRECHA_SCENES", "DIFFICULTY_BANDS", "MAX_PAIRS_PER_BAND", "MAX_ROTATION_DEG", "MIN_BASELINE_RATIO",
+           "REFERENCE_SIDE", "Camera", "read_strecha_camera", "relative_pose", "pair_geometry", "rotation_band",
+           "pose_difficulty", "select_pairs", "threshold_scale_for", "is_strecha_scene", "strecha_scenes",
+           "load_strecha_folder"]
 
 #: The six scenes openMVG/SfM_quality_evaluation distributes (``ctxmatch data download strecha``).
 STRECHA_SCENES = ("fountain-P11", "Herz-Jesus-P8", "castle-P19", "entry-P10", "Herz-Jesus-P25", "castle-P30")
@@ -76,7 +74,7 @@ def read_strecha_camera(path) -> Camera:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"camera file not found: {path}")
-    lines = [ln for ln in path.read_text(encoding="utf-8", errors="replace").splitlines()]
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
     if len(lines) != 9:
@@ -87,16 +85,12 @@ def read_strecha_camera(path) -> Camera:
     R = _numbers(lines, 4, 7, 3, path)
     C = _numbers(lines, 7, 8, 3, path)[0]
     size = _numbers(lines, 8, 9, 2, path)[0]
-    try:
+    with named_errors(f"{path}, lines 1-3"):
         K = as_intrinsics(K, "K")
-    except ValueError as exc:
-        raise ValueError(f"{path}, lines 1-3: {exc}") from None
     if np.any(dist):
         raise ValueError(f"{path}, line 4: non-zero distortion {dist[0].tolist()}; the images must be undistorted")
-    try:
+    with named_errors(f"{path}, lines 5-7"):
         R = nearest_rotation(as_rotation(R, "R", ROTATION_TEXT_TOL))
-    except ValueError as exc:
-        raise ValueError(f"{path}, lines 5-7: {exc}") from None
     if np.any(size <= 0) or np.any(size != np.round(size)):
         raise ValueError(f"{path}, line 9: 'width height' must be positive integers, got {lines[8]!r}")
     return Camera(K, R, C, (int(size[0]), int(size[1])), path)

@@ -21,16 +21,8 @@ from .._numerics.docstrings import shared_doc
 from .._numerics.extras import require
 from .._numerics.validation import as_image_size, as_matches, as_points, as_scores
 
-__all__ = [
-    "names_to_pair",
-    "write_hloc",
-    "read_hloc",
-    "write_colmap",
-    "read_colmap",
-    "colmap_pair_id",
-    "check_export_paths",
-    "export_results",
-]
+__all__ = ["names_to_pair", "write_hloc", "read_hloc", "write_colmap", "read_colmap", "colmap_pair_id",
+           "check_export_paths", "export_results"]
 
 #: COLMAP's bound on image ids, the base of its pair ids.
 COLMAP_MAX_IMAGE_ID = 2147483647
@@ -128,8 +120,6 @@ def _reduce_one_per_row(m: np.ndarray, s: np.ndarray):
 
 
 # -------------------------------------------------------------------------------------------------- hloc
-
-
 def _write_h5_features(fd, name: str, kpts: np.ndarray, image_size) -> None:
     kp = np.asarray(kpts, np.float32)
     if name in fd and "keypoints" in fd[name]:
@@ -241,8 +231,6 @@ def read_hloc(features_path, matches_path, name1: str, name2: str):
 
 
 # ------------------------------------------------------------------------------------------------ COLMAP
-
-
 def colmap_pair_id(image_id1: int, image_id2: int) -> int:
     """COLMAP's symmetric ``pair_id``: ``2147483647 * min(ids) + max(ids)`` (COLMAP's ``doc/database.rst``).
 
@@ -388,8 +376,6 @@ def read_colmap(database_path, name1: str, name2: str):
 
 
 # ---------------------------------------------------------------------------------------- from the CLI
-
-
 def export_results(results: Mapping, *, h5_dir=None, colmap_db=None, duplicates: str = "best") -> list[str]:
     """Export :func:`ctxmatch_lib.match.save_result` files to hloc and/or COLMAP; one summary line each.
 

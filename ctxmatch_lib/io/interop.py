@@ -17,15 +17,8 @@ from .._numerics.extras import require
 from .._numerics.fixedmath import atan2, sincos
 from .._numerics.validation import as_matches, as_points, as_scores
 
-__all__ = [
-    "from_cv2_keypoints",
-    "to_cv2_keypoints",
-    "to_cv2_matches",
-    "from_cv2_matches",
-    "from_kornia_lafs",
-    "to_kornia_lafs",
-    "match_blob",
-]
+__all__ = ["from_cv2_keypoints", "to_cv2_keypoints", "to_cv2_matches", "from_cv2_matches", "from_kornia_lafs",
+           "to_kornia_lafs", "match_blob"]
 
 #: ``mr_size`` of the project's own shapes (``FeatureConfig.patch_radius``): a 3 sigma patch.
 CTXMATCH_MR_SIZE = 3.0
@@ -40,6 +33,20 @@ def _rotation(angles: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # columns: the patch axes
 
 
+def _numpy(x):
+    """A torch tensor or an array_like as an ndarray; ``None`` stays ``None``."""
+    return None if x is None else (x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x))
+
+
+def _as_shapes(shapes, n: int) -> np.ndarray:
+    A = np.asarray(shapes, np.float64)
+    if A.size == 0 and n == 0:
+        A = A.reshape(0, 2, 2)
+    if A.shape != (n, 2, 2):
+        raise ValueError(f"shapes must have shape ({n}, 2, 2), got {A.shape}")
+    return A
+
+
 def _check_patch_radius(patch_radius) -> float:
     r = float(patch_radius)
     if not np.isfinite(r) or r <= 0:
@@ -48,8 +55,6 @@ def _check_patch_radius(patch_radius) -> float:
 
 
 # ------------------------------------------------------------------------------------------------ OpenCV
-
-
 def from_cv2_keypoints(keypoints, *, patch_radius: float = 3.0):
     """Arrays from a list of ``cv2.KeyPoint``.
 
@@ -115,11 +120,7 @@ def to_cv2_keypoints(kpts, shapes=None, *, angles=None, responses=None, patch_ra
     if shapes is None:
         size, deg, oriented = np.ones(n), np.zeros(n), np.zeros(n, bool)
     else:
-        A = np.asarray(shapes, np.float64)
-        if A.size == 0 and n == 0:
-            A = A.reshape(0, 2, 2)
-        if A.shape != (n, 2, 2):
-            raise ValueError(f"shapes must have shape ({n}, 2, 2), got {A.shape}")
+        A = _as_shapes(shapes, n)
         det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
         size = 2 * np.sqrt(np.abs(det)) / r
         deg, oriented = np.rad2deg(atan2(A[:, 1, 0], A[:, 0, 0])), np.ones(n, bool)
@@ -192,8 +193,6 @@ def from_cv2_matches(dmatches, *, return_scores: bool = False):
 
 
 # ------------------------------------------------------------------------------------------------ kornia
-
-
 def _check_mr_size(mr_size) -> float:
     if mr_size is None:
         raise ValueError("mr_size is required: the LAF half-size in keypoint sigmas (ctxmatch shapes: 3, kornia's "
@@ -217,8 +216,7 @@ def from_kornia_lafs(lafs, *, mr_size: float, patch_radius: float = 3.0):
     """
     mr = _check_mr_size(mr_size)
     r = _check_patch_radius(patch_radius)
-    arr = lafs.detach().cpu().numpy() if hasattr(lafs, "detach") else np.asarray(lafs)
-    arr = np.asarray(arr, np.float64)
+    arr = np.asarray(_numpy(lafs), np.float64)
     if arr.ndim == 4:
         if arr.shape[0] != 1:
             raise ValueError(f"lafs must hold one image (B = 1), got B = {arr.shape[0]}; pass lafs[i:i+1]")
@@ -249,11 +247,7 @@ def to_kornia_lafs(kpts, shapes, *, mr_size: float, patch_radius: float = 3.0, d
     mr = _check_mr_size(mr_size)
     r = _check_patch_radius(patch_radius)
     k = as_points(kpts, "kpts")
-    A = np.asarray(shapes, np.float64)
-    if A.size == 0 and len(k) == 0:
-        A = A.reshape(0, 2, 2)
-    if A.shape != (len(k), 2, 2):
-        raise ValueError(f"shapes must have shape ({len(k)}, 2, 2), got {A.shape}")
+    A = _as_shapes(shapes, len(k))
     laf = np.concatenate([A * (mr / r), k[:, :, None]], axis=2)[None]
     return torch.as_tensor(laf, dtype=dtype or torch.float64, device=device)
 
@@ -287,10 +281,6 @@ def match_blob(desc1, desc2, lafs1=None, lafs2=None, dm=None, *, mr_size: float 
     from ..match import resolve_blob
 
     cfg = resolve_blob(blob)
-
-    def _np(x):
-        return None if x is None else (x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x))
-
     kwargs = cfg.kwargs()
     kp1 = kp2 = sh1 = sh2 = None
     if lafs1 is not None or lafs2 is not None:
@@ -306,9 +296,9 @@ def match_blob(desc1, desc2, lafs1=None, lafs2=None, dm=None, *, mr_size: float 
         raise ValueError(f"lafs1 and lafs2 are required by the blob setup {cfg.label!r} (FGINN, t_o set); "
                          "pass them or a setup with t_o=None")
     if dm is not None:
-        out = blob_matching(distances=_np(dm), kpts1=kp1, kpts2=kp2, shapes1=sh1, shapes2=sh2, **kwargs)
+        out = blob_matching(distances=_numpy(dm), kpts1=kp1, kpts2=kp2, shapes1=sh1, shapes2=sh2, **kwargs)
     else:
-        out = blob_matching(_np(desc1), _np(desc2), kpts1=kp1, kpts2=kp2, shapes1=sh1, shapes2=sh2, **kwargs)
+        out = blob_matching(_numpy(desc1), _numpy(desc2), kpts1=kp1, kpts2=kp2, shapes1=sh1, shapes2=sh2, **kwargs)
     device = next((x.device for x in (desc1, desc2, dm) if hasattr(x, "device")), None)
     dists = torch.as_tensor(out.scores, dtype=torch.float64, device=device).reshape(-1, 1)
     idxs = torch.as_tensor(out.matches, dtype=torch.long, device=device).reshape(-1, 2)

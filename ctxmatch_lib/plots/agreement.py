@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import matplotlib.pyplot as plt
-from matplotlib.legend_handler import HandlerTuple
-from matplotlib.lines import Line2D
 
-from ..report.tables import KIND_LABELS, method_label, method_order
+from ..report.tables import KIND_LABELS, method_order
 from ..report.side_by_side import method_rank_agreement
-from .eval import method_style
+from .eval import method_style, pr_legend
 
 __all__ = ["plot_agreement"]
 
@@ -24,17 +22,15 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
     ``"none"`` is drawn hollow; ``blob`` adds the blob candidates (recall 100 % by definition); ``ms`` is the
     marker area (points²); ``figsize`` defaults to ``panel_size`` inches per panel. Returns the Figure.
     """
-    from ..report.tables import MODEL_LABELS
-
-    setups = list(dict.fromkeys(side.index.get_level_values("setup"))) if setups is None else list(setups)
-    unknown = [s for s in setups if s not in set(side.index.get_level_values("setup"))]
+    present = list(dict.fromkeys(side.index.get_level_values("setup")))
+    setups = present if setups is None else list(setups)
+    unknown = [s for s in setups if s not in present]
     if unknown:
-        raise ValueError(f"setups: {unknown} not in side (has {sorted(set(side.index.get_level_values('setup')))})")
+        raise ValueError(f"setups: {unknown} not in side (has {sorted(present)})")
     bad = [m for m in metrics if m not in ("precision", "recall")]
     if bad:
         raise ValueError(f"metrics must be 'precision' and/or 'recall', got {bad}")
-    kinds = [k for k in dict.fromkeys(side.index.get_level_values("kind"))]
-    rows = [(kind, metric) for kind in kinds for metric in metrics]
+    rows = [(kind, metric) for kind in dict.fromkeys(side.index.get_level_values("kind")) for metric in metrics]
     rho = method_rank_agreement(side)
     if figsize is None:
         figsize = (panel_size * len(setups), panel_size * len(rows) + 0.8)
@@ -61,8 +57,7 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
                                linewidths=0.3 if filled else 0.8, zorder=3 if filled else 4)
                     shown.append(method)
             key = (setup, kind, models[0])
-            col = f"ρ {metric}"
-            text = f"ρ = {rho.loc[key, col]:.2f}" if key in rho.index else "ρ –"
+            text = f"ρ = {rho.loc[key, f'ρ {metric}']:.2f}" if key in rho.index else "ρ –"
             ax.set_title((f"{setup}\n" if r == 0 else "") + f"{KIND_LABELS.get(kind, kind)} {metric}: {text}",
                          fontsize=7)
             ax.set_xlim(0, 102)
@@ -73,14 +68,6 @@ def plot_agreement(side, setups=None, *, models=("none",), blob: bool = False, m
                 ax.set_xlabel("paper (%)", fontsize=7)
             if c == 0:
                 ax.set_ylabel(f"ours, {metric} (%)", fontsize=7)
-    order = method_order(shown)
-    handles = [tuple(Line2D([], [], ls="", marker=method_style(m)[1], ms=4.5, mec=method_style(m)[0], mew=0.8,
-                            mfc="none" if model == "none" else method_style(m)[0]) for model in models)
-               for m in order]
-    labels = [method_label(m) for m in order]
-    fill = ", ".join(f"{'hollow' if model == 'none' else 'filled'}: {MODEL_LABELS.get(model, model)}"
-                     for model in models)
-    fig.legend(handles, labels, loc="outside lower center", ncol=6, fontsize=7, frameon=False,
-               columnspacing=1.0, handletextpad=0.4, title=f"method ({fill})", title_fontsize=7,
-               handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)}, handlelength=2.2 if len(models) > 1 else 1.2)
+    pr_legend(fig, shown, models=models, ms=4.5, loc="outside lower center", ncol=6, fontsize=7, frameon=False,
+              columnspacing=1.0, handletextpad=0.4, title_fontsize=7, handlelength=2.2 if len(models) > 1 else 1.2)
     return fig

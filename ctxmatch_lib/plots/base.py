@@ -15,24 +15,9 @@ import numpy as np
 
 from ..cache import atomic_path, repo_root
 
-__all__ = [
-    "COLUMN_WIDTHS",
-    "MIN_FONT_PT",
-    "PAPER_RC",
-    "paper_style",
-    "figsize",
-    "min_font_size",
-    "check_paper_figure",
-    "SOURCE_PATHS",
-    "source_commit",
-    "provenance",
-    "default_figure_dir",
-    "figure_path",
-    "written",
-    "save_figure",
-    "plot_toy_matrix",
-    "plot_toy_table",
-]
+__all__ = ["COLUMN_WIDTHS", "MIN_FONT_PT", "PAPER_RC", "paper_style", "figsize", "min_font_size",
+           "check_paper_figure", "SOURCE_PATHS", "source_commit", "provenance", "default_figure_dir", "figure_path",
+           "written", "save_figure", "plot_toy_matrix", "plot_toy_table"]
 
 #: Figure widths in inches of one and two columns of an IEEE journal page (IEEEtran: 3.5 in and 7.16 in).
 COLUMN_WIDTHS = {1: 3.5, 2: 7.16}
@@ -41,28 +26,12 @@ MIN_FONT_PT = 7.0
 #: Matplotlib settings of the paper figures: 7-8 pt text, thin lines, embedded TrueType fonts (publishers
 #: reject Type-3), constrained layout.
 PAPER_RC = {
-    "font.size": 7.5,
-    "axes.titlesize": 7.5,
-    "axes.labelsize": 7.5,
-    "xtick.labelsize": 7,
-    "ytick.labelsize": 7,
-    "legend.fontsize": 7,
-    "legend.title_fontsize": 7,
-    "figure.titlesize": 8,
-    "axes.linewidth": 0.6,
-    "lines.linewidth": 1.0,
-    "lines.markersize": 4,
-    "xtick.major.width": 0.6,
-    "ytick.major.width": 0.6,
-    "xtick.major.size": 2.5,
-    "ytick.major.size": 2.5,
-    "grid.linewidth": 0.4,
-    "legend.frameon": False,
-    "figure.constrained_layout.use": True,
-    "figure.constrained_layout.h_pad": 0.02,
-    "figure.constrained_layout.w_pad": 0.02,
-    "pdf.fonttype": 42,
-    "ps.fonttype": 42,
+    "font.size": 7.5, "axes.titlesize": 7.5, "axes.labelsize": 7.5, "xtick.labelsize": 7, "ytick.labelsize": 7,
+    "legend.fontsize": 7, "legend.title_fontsize": 7, "figure.titlesize": 8,
+    "axes.linewidth": 0.6, "lines.linewidth": 1.0, "lines.markersize": 4, "grid.linewidth": 0.4,
+    "xtick.major.width": 0.6, "ytick.major.width": 0.6, "xtick.major.size": 2.5, "ytick.major.size": 2.5,
+    "legend.frameon": False, "figure.constrained_layout.use": True, "figure.constrained_layout.h_pad": 0.02,
+    "figure.constrained_layout.w_pad": 0.02, "pdf.fonttype": 42, "ps.fonttype": 42,
 }
 
 
@@ -229,10 +198,7 @@ def _figure_colors(fig, limit: int = 96) -> list:
         if isinstance(art, Line2D):
             add(art.get_color())
             add(art.get_markerfacecolor())
-        elif isinstance(art, Collection):
-            add(art.get_edgecolor())
-            add(art.get_facecolor())
-        elif isinstance(art, Patch):
+        elif isinstance(art, (Collection, Patch)):
             add(art.get_edgecolor())
             add(art.get_facecolor())
         elif isinstance(art, Text):
@@ -295,13 +261,13 @@ def save_figure(fig, name: str, output_dir: str | os.PathLike | None = None, *, 
     record["figure"] = Path(name).stem
     text = json.dumps(record, sort_keys=True)
     show = show if show is not None else _in_notebook()
+    bbox = None if columns is not None else "tight"
     if show:
         from IPython.display import Image, display
 
         buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110, bbox_inches=None if columns else "tight")
+        fig.savefig(buf, format="png", dpi=110, bbox_inches=bbox)
         display(Image(data=buf.getvalue()))
-    bbox = None if columns is not None else "tight"
     creator = f"ctxmatch {record['version']} ({record['git_commit']})"
     paths = []
     for fmt in formats:

@@ -125,16 +125,9 @@ def heatmap_key(fig_or_ax, *, best: bool = True, **kwargs):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    handles, labels = [], []
-    for d, c in _D_COLOURS.items():
-        handles.append(Patch(fc=c, ec="none"))
-        labels.append(d)
-    for w, g in _W_COLOURS.items():
-        handles.append(Patch(fc=g, ec="0.5", lw=0.3))
-        labels.append(f"W = {W_LABELS[w]}")
-    for fp, g in zip((1, 3, 5), _FP_GREYS):
-        handles.append(Patch(fc=g, ec="0.5", lw=0.3))
-        labels.append(f"f' = {fp}")
+    handles = [Patch(fc=c, ec="none") for c in _D_COLOURS.values()]
+    handles += [Patch(fc=g, ec="0.5", lw=0.3) for g in (*_W_COLOURS.values(), *_FP_GREYS)]
+    labels = [*_D_COLOURS, *(f"W = {W_LABELS[w]}" for w in _W_COLOURS), *(f"f' = {fp}" for fp in (1, 3, 5))]
     if best:
         handles.append(Line2D([], [], ls="", marker="s", mfc="none", mec=_BEST_COLOR, ms=6, mew=1.0))
         labels.append("best setup of the block")
@@ -156,14 +149,14 @@ def plot_blob_bands(ax, row, *, title: str = "", ylim=None, legend: bool = True)
             ax.axvspan(a - 0.5, b - 0.5, color="0.93", zorder=0)
         ax.text((a + b - 1) / 2, 1.005, f"$t_o$ = {lab}", transform=ax.get_xaxis_transform(), ha="center",
                 va="bottom", fontsize=7)
-    for a, b, (_, d) in _groups([c[:2] for c in labels]):
+    d_groups = _groups([c[:2] for c in labels])
+    for a, b, (_, d) in d_groups:
         colour = _D_COLOURS.get(d, "k")
         ax.plot(x[a:b], y[a:b], "-", color=colour, lw=0.9, zorder=2)
         for k in range(a, b):
             ax.plot(x[k], y[k], _W_MARKERS.get(labels[k][2], "o"), color=colour, ms=3, zorder=3)
     ax.set_xlim(-0.5, len(y) - 0.5)
-    ax.set_xticks([(a + b - 1) / 2 for a, b, _ in _groups([c[:2] for c in labels])],
-                  [d for _, _, (_, d) in _groups([c[:2] for c in labels])], fontsize=7)
+    ax.set_xticks([(a + b - 1) / 2 for a, b, _ in d_groups], [d for _, _, (_, d) in d_groups], fontsize=7)
     ax.set_ylabel("mAP (%)")
     if ylim is not None:
         ax.set_ylim(*ylim)

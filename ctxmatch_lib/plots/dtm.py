@@ -12,20 +12,9 @@ from matplotlib.patches import Rectangle
 from .palette import OKABE_ITO
 from .viz2d import MATCH_COLORS, match_colors, plot_flow
 
-__all__ = [
-    "DTM_COLORS",
-    "triangulation_edges",
-    "plot_triangulation",
-    "plot_canvas",
-    "outer_fattening",
-    "plot_boundary_steps",
-    "plot_boundary_mesh",
-    "plot_dtm_iteration_flow",
-    "plot_dtm_clusters",
-    "plot_dtm_final",
-    "plot_dtm_mesh",
-    "mesh_border_distance",
-]
+__all__ = ["DTM_COLORS", "triangulation_edges", "plot_triangulation", "plot_canvas", "outer_fattening",
+           "plot_boundary_steps", "plot_boundary_mesh", "plot_dtm_iteration_flow", "plot_dtm_clusters",
+           "plot_dtm_final", "plot_dtm_mesh", "mesh_border_distance"]
 
 #: Colours of Figs. 2-3 in Okabe–Ito: the paper's red hull / orange alpha shape become vermillion / sky blue,
 #: which dichromats tell apart too.
@@ -172,6 +161,11 @@ def plot_boundary_mesh(ax, boundary, *, ps: float = 6, lw: float = 0.7) -> None:
     _fit_view(ax, tri.points)
 
 
+def _plot_mesh(ax, tri, lw: float) -> None:
+    """A triangulation drawn grey under the flows of Fig. 3."""
+    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=lw, alpha=0.6)
+
+
 def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw: float = 0.9,
                             ps: float = 4, tri_lw: float = 0.4, dropped_lw: float = 0.5,
                             dropped_alpha: float = 0.35, max_dropped_lines: int | None = 300) -> bool:
@@ -180,8 +174,7 @@ def plot_dtm_iteration_flow(ax, iteration, p1, p2, labels, *, image: int = 1, lw
     (:data:`MATCH_COLORS`, ``labels``). ``p1``, ``p2``: the keypoints ``(K, 2)`` of every input match. Above
     ``max_dropped_lines`` removed matches are dots (long lines would hide everything); returns whether.
     """
-    tri = iteration.tri1 if image == 1 else iteration.tri2
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
+    _plot_mesh(ax, iteration.tri1 if image == 1 else iteration.tri2, tri_lw)
     active = iteration.active
     kept = np.isin(active, iteration.kept)
     src, dst = (p1, p2) if image == 1 else (p2, p1)
@@ -205,9 +198,8 @@ def plot_dtm_clusters(ax, iteration, p1, p2, *, image: int = 2, lw: float = 0.9,
     """Fig. 3 right column: triangulation ``T_2`` (grey) of iteration ``i``, the contraction set ``T``
     (white dots) and each expansion cluster ``M_{A^1} ∩ M_{A^2}`` (bluish green: segments from the contraction
     match to its cluster members, members as dots), drawn at the keypoints of image ``image``."""
-    tri = iteration.tri2 if image == 2 else iteration.tri1
     pts = p2 if image == 2 else p1
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
+    _plot_mesh(ax, iteration.tri2 if image == 2 else iteration.tri1, tri_lw)
     ptr, members, t = iteration.cluster_ptr, iteration.cluster_members, iteration.contraction
     centre = np.repeat(t, np.diff(ptr))
     ax.add_collection(LineCollection(np.stack([pts[centre], pts[members]], axis=1),
@@ -222,13 +214,8 @@ def plot_dtm_final(ax, result, p1, p2, labels, *, stage: int = 1, image: int = 1
     (``stage=1``), or the DTM2 output, re-added matches dashed, over the last DTM2 level's (``stage=2``).
     ``result``: a :class:`~ctxmatch_lib.dtm.DTMResult` with ``trace=True``."""
     tr = result.trace
-    if stage == 1 or not tr.levels:
-        last = tr.iterations[-1]
-        tri = last.tri1 if image == 1 else last.tri2
-    else:
-        lev = tr.levels[-1]
-        tri = lev.tri1 if image == 1 else lev.tri2
-    plot_triangulation(ax, tri.points, tri.simplices, color=DTM_COLORS["mesh"], lw=tri_lw, alpha=0.6)
+    last = tr.iterations[-1] if stage == 1 or not tr.levels else tr.levels[-1]
+    _plot_mesh(ax, last.tri1 if image == 1 else last.tri2, tri_lw)
     dtm1 = np.flatnonzero(result.removed_at == 0)
     src, dst = (p1, p2) if image == 1 else (p2, p1)
     plot_flow(ax, src[dtm1], dst[dtm1], color=match_colors(labels[dtm1]), lw=lw, ps=ps)

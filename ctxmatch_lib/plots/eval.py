@@ -7,26 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..report.tables import method_label, method_order
+from ..report.tables import MODEL_LABELS, method_label, method_order
 from .palette import OKABE_ITO
 
-__all__ = [
-    "METHOD_COLORS",
-    "METHOD_MARKERS",
-    "PAPER_METHOD_STYLES",
-    "SETUP_HEADERS",
-    "row_limits",
-    "METRIC_COLORS",
-    "method_style",
-    "plot_pr_scatter",
-    "fit_limits",
-    "pr_legend",
-    "shared_bins",
-    "plot_inlier_method",
-    "inlier_legend",
-    "bin_axis_label",
-    "plot_pair_share",
-]
+__all__ = ["METHOD_COLORS", "METHOD_MARKERS", "PAPER_METHOD_STYLES", "SETUP_HEADERS", "row_limits", "METRIC_COLORS",
+           "method_style", "plot_pr_scatter", "fit_limits", "pr_legend", "shared_bins", "plot_inlier_method",
+           "inlier_legend", "bin_axis_label", "plot_pair_share"]
 
 #: The colours of the methods: Okabe–Ito without yellow (too pale on white) plus Paul Tol's indigo and wine.
 METHOD_COLORS = tuple(OKABE_ITO[k] for k in ("black", "blue", "vermillion", "bluish_green", "reddish_purple",
@@ -42,7 +28,6 @@ PAPER_METHOD_STYLES = {
     "adalam": (_V, "s"), "oanet": (_G, "o"), "acne": (_P, "s"), "pfm": (_O, "v"), "pgm": (_S, "D"),
     "scv": (_I, "p"), "bm": (_W, "D"), "dtm": (_K, "s"),
 }
-_PAPER_METHODS = tuple(PAPER_METHOD_STYLES)
 #: Colours of the inlier-ratio bars: precision and recall.
 METRIC_COLORS = {"precision (%)": OKABE_ITO["blue"], "recall (%)": OKABE_ITO["orange"]}
 #: Colour of the cross that marks a bin without a value in the inlier-ratio panels.
@@ -64,11 +49,6 @@ def method_style(name: str) -> tuple[str, str]:
     taken = set(PAPER_METHOD_STYLES.values())
     free = [(c, m) for m in METHOD_MARKERS for c in METHOD_COLORS if (c, m) not in taken]
     return free[sum(map(ord, name)) % len(free)]
-
-
-def _label(name: str, fmt: bool = True) -> str:
-    lab = method_label(name)
-    return lab if fmt else lab.replace("$_1$", "1").replace("$_2$", "2")
 
 
 def fit_limits(values, *, pad: float = 0.06, min_span: float = 10.0, bounds=(0.0, 100.0)) -> tuple[float, float]:
@@ -129,13 +109,8 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
     ``xlim``/``ylim`` one (e.g. :func:`row_limits`); ``connect`` joins each method's no-model and 1SAC points.
     Returns the points drawn, ``(model, method, recall, precision)``.
     """
-    t = table.droplevel("kind") if "kind" in table.index.names else table
-    methods = method_order(t.index.get_level_values("method"))
-    pts = _points(t, models)
-    if lim is None:
-        fx, fy = fit_limits([p[2] for p in pts]), fit_limits([p[3] for p in pts])
-    else:
-        fx = fy = tuple(lim)
+    pts = _points(table, models)
+    fx, fy = row_limits([table], models) if lim is None else (tuple(lim), tuple(lim))
     xlim = tuple(xlim) if xlim is not None else fx
     ylim = tuple(ylim) if ylim is not None else fy
     for model, m, x, y in pts:
@@ -146,7 +121,7 @@ def plot_pr_scatter(ax, table, *, title: str | None = None, models=("none", "1sa
                    linewidths=0.3 if filled else 0.8, zorder=3 if filled else 4, clip_on=False)
     if connect and {"none", "1sac"} <= set(models):
         at = {(model, m): (x, y) for model, m, x, y in pts}
-        for m in methods:
+        for m in method_order(p[1] for p in pts):
             if ("none", m) in at and ("1sac", m) in at:
                 (x0, y0), (x1, y1) = at["none", m], at["1sac", m]
                 ax.plot([x0, x1], [y0, y1], color="0.7", lw=0.4, zorder=2)
@@ -169,15 +144,13 @@ def pr_legend(fig_or_ax, methods, *, times: dict | None = None, models=("none", 
     from matplotlib.legend_handler import HandlerTuple
     from matplotlib.lines import Line2D
 
-    from ..report.tables import MODEL_LABELS
-
     handles, labels = [], []
     for m in method_order(methods):
         colour, marker = method_style(m)
         pair = tuple(Line2D([], [], ls="", marker=marker, ms=ms, mec=colour, mew=0.8,
                             mfc="none" if model == "none" else colour) for model in models)
         handles.append(pair)
-        labels.append(_label(m) + (f" ({times[m]})" if times and m in times else ""))
+        labels.append(method_label(m) + (f" ({times[m]})" if times and m in times else ""))
     fill = ", ".join(f"{'hollow' if model == 'none' else 'filled'}: {MODEL_LABELS.get(model, model)}"
                      for model in models)
     kwargs.setdefault("title", f"method ({fill})")
@@ -265,8 +238,6 @@ def inlier_legend(fig_or_ax, *, models=("none", "1sac"), metrics=("precision (%)
     without a value."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
-
-    from ..report.tables import MODEL_LABELS
 
     handles, labels = [], []
     for metric in metrics:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .eval import _label, method_style
+from ..report.tables import method_label
+from .eval import method_style
 
 __all__ = ["MATCHER_LABELS", "MATCHER_STYLES", "method_name", "geometry_style", "accuracy_column",
            "plot_accuracy_by_method", "plot_accuracy_vs_time", "plot_cumulative_errors", "geometry_legend",
@@ -36,7 +37,7 @@ def method_name(name: str) -> str:
     >>> method_name("opencv_ratio"), method_name("rfm_scan")
     ('OpenCV ratio 0.8', 'RFM-SCAN')
     """
-    return MATCHER_LABELS.get(name) or _label(name)
+    return MATCHER_LABELS.get(name) or method_label(name)
 
 
 def accuracy_column(kind: str, auc_px: float = 5.0) -> tuple[str, str]:

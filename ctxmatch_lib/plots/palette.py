@@ -9,16 +9,8 @@ import numpy as np
 __all__ = ["OKABE_ITO", "simulate_cvd", "to_lab", "delta_e"]
 
 #: The eight colours of the Okabe–Ito palette.
-OKABE_ITO = {
-    "black": "#000000",
-    "orange": "#E69F00",
-    "sky_blue": "#56B4E9",
-    "bluish_green": "#009E73",
-    "yellow": "#F0E442",
-    "blue": "#0072B2",
-    "vermillion": "#D55E00",
-    "reddish_purple": "#CC79A7",
-}
+OKABE_ITO = {"black": "#000000", "orange": "#E69F00", "sky_blue": "#56B4E9", "bluish_green": "#009E73",
+             "yellow": "#F0E442", "blue": "#0072B2", "vermillion": "#D55E00", "reddish_purple": "#CC79A7"}
 
 # Machado et al. 2009, Table 1, severity 1.0 (linear RGB -> simulated linear RGB).
 _CVD_MATRICES = {

@@ -10,19 +10,8 @@ from matplotlib.collections import LineCollection
 
 from .palette import OKABE_ITO
 
-__all__ = [
-    "MATCH_COLORS",
-    "match_colors",
-    "plot_image",
-    "plot_image_pair",
-    "plot_keypoints",
-    "plot_matches",
-    "plot_flow",
-    "add_text",
-    "color_legend",
-    "plot_scored_matches",
-    "plot_match_result",
-]
+__all__ = ["MATCH_COLORS", "match_colors", "plot_image", "plot_image_pair", "plot_keypoints", "plot_matches",
+           "plot_flow", "add_text", "color_legend", "plot_scored_matches", "plot_match_result"]
 
 #: The four-colour code of the paper's match figures, colour-blind safe (the paper's colour in comments).
 MATCH_COLORS = {
@@ -210,8 +199,7 @@ def plot_match_result(result, image1, image2, *, ax=None, cmap="viridis_r", lw: 
     k1, k2 = np.asarray(result.kpts1, np.float64), np.asarray(result.kpts2, np.float64)
     if rejected.any():
         r = cand[rejected]
-        plot_matches(ax, k1[r[:, 0]], k2[r[:, 1]], color=REJECTED_STYLE["color"], lw=REJECTED_STYLE["lw"],
-                     alpha=REJECTED_STYLE["alpha"], linestyle=REJECTED_STYLE["linestyle"], offset=offset, zorder=2)
+        plot_matches(ax, k1[r[:, 0]], k2[r[:, 1]], **REJECTED_STYLE, offset=offset, zorder=2)
     m = cand[keep]
     mappable = plot_scored_matches(ax, k1[m[:, 0]], k2[m[:, 1]], cand_scores[keep], offset=offset, cmap=cmap,
                                    norm=norm, lw=lw)

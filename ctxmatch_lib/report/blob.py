@@ -21,8 +21,7 @@ def blob_map(df, *, metric: str = "ap_star", method: str = "blob", model: str = 
     d = df[(df["method"] == method) & (df["model"] == model)]
     keys = ["features", "blob", "f", "prefilter", "f_prime", "ratio", "t_o", "t_o_kind", "combine"]
     g = d.groupby(keys, sort=False, dropna=False)[metric]
-    out = pd.DataFrame({"mAP": 100 * g.mean(), "pairs": g.count()}).reset_index()
-    return out
+    return pd.DataFrame({"mAP": 100 * g.mean(), "pairs": g.count()}).reset_index()
 
 
 def _f_label(f, prefilter) -> str:

@@ -14,18 +14,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .tables import PAPER_SETUP, paper_table
+from .tables import _PAPER_DATA, PAPER_SETUP, paper_table
 
-__all__ = [
-    "PAPER_TABLE_LABELS",
-    "PAPER_PAIRS",
-    "PAPER_FILTERS",
-    "parse_paper_tables",
-    "parse_paper_gt_counts",
-    "write_paper_data",
-    "paper_tables",
-    "failure_count",
-]
+__all__ = ["PAPER_TABLE_LABELS", "PAPER_PAIRS", "PAPER_FILTERS", "parse_paper_tables", "parse_paper_gt_counts",
+           "write_paper_data", "paper_tables", "failure_count"]
 
 #: The ``\\label`` of each of the paper's tables: Table 1 (global), 2 (baseline, SIFT+RootSIFT), 3 (best,
 #: HarrisZ+SOSNet).
@@ -42,7 +34,6 @@ _INT_COLUMNS = ("correct", "output", "failures")
 _DECIMALS = {"precision": 2, "recall": 2, "recall_star": 2, "time_s": 3}
 _KINDS = {"planar": "planar", "nonplanar": "nonplanar"}
 _MODELS = {"nomodel": "none", "1sac": "1sac"}
-_DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _norm(text: str) -> str:
@@ -142,10 +133,8 @@ def parse_paper_tables(tex) -> pd.DataFrame:
     row order; a missing table or unreadable row raises ``ValueError``.
     """
     text = _read_tex(tex)
-    parts = []
-    for setup, label in PAPER_TABLE_LABELS.items():
-        t = _parse_table(_table_block(text, label), label)
-        parts.append(t.assign(setup=setup))
+    parts = [_parse_table(_table_block(text, label), label).assign(setup=setup)
+             for setup, label in PAPER_TABLE_LABELS.items()]
     out = pd.concat(parts, ignore_index=True)
     out = out[["setup", "kind", "model", "method", *_TABLE_COLUMNS]]
     return out.astype({c: np.int64 for c in _INT_COLUMNS})
@@ -184,7 +173,7 @@ def _csv(df: pd.DataFrame) -> str:
 def write_paper_data(tex, out_dir=None) -> list:
     """Write ``paper_tables.csv`` and ``paper_gt_counts.csv`` parsed from ``tex`` to ``out_dir`` (default
     ``ctxmatch_lib/data``), deterministically; return the paths."""
-    out_dir = _DATA if out_dir is None else Path(out_dir)
+    out_dir = _PAPER_DATA if out_dir is None else Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, frame in (("paper_tables.csv", parse_paper_tables(tex)), ("paper_gt_counts.csv",

@@ -13,29 +13,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = [
-    "METHOD_LABELS",
-    "KIND_LABELS",
-    "FEATURE_LABELS",
-    "MODEL_LABELS",
-    "SETUPS",
-    "SETUP_TITLES",
-    "PAPER_SETUP",
-    "TABLE_COLUMNS",
-    "method_label",
-    "method_order",
-    "setup_rows",
-    "method_table",
-    "gt_counts",
-    "markdown_table",
-    "paper_table",
-    "PAPER_GT_COUNTS",
-    "with_inlier_ratio",
-    "inlier_bin_table",
-    "GEOMETRY_TIME_COLUMNS",
-    "geometry_markdown",
-    "paired_markdown",
-]
+__all__ = ["METHOD_LABELS", "KIND_LABELS", "FEATURE_LABELS", "MODEL_LABELS", "SETUPS", "SETUP_TITLES", "PAPER_SETUP",
+           "TABLE_COLUMNS", "method_label", "method_order", "setup_rows", "method_table", "gt_counts",
+           "markdown_table", "paper_table", "PAPER_GT_COUNTS", "with_inlier_ratio", "inlier_bin_table",
+           "GEOMETRY_TIME_COLUMNS", "geometry_markdown", "paired_markdown"]
 
 #: Display names of the methods, as in the paper; models trained here and stand-ins say so in their name.
 METHOD_LABELS = {
