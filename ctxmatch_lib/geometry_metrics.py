@@ -17,23 +17,10 @@ from .datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
 from .geometry import epipolar_distances
 
 __all__ = [
-    "EPIPOLAR_THRESHOLDS_PX",
-    "CORNER_AUC_THRESHOLDS_PX",
-    "POSE_AUC_THRESHOLDS_DEG",
-    "FLOW_SAMPLE_POINTS",
-    "image_corners",
-    "homography_corner_error",
-    "symmetric_epipolar_distance",
-    "epipolar_consistency",
-    "gt_correspondences",
-    "pose_auc",
-    "time_to_geometry",
-    "bootstrap_interval",
-    "geometry_table",
-    "paired_differences",
-    "BOOTSTRAP_RESAMPLES",
-    "BOOTSTRAP_SEED",
-    "MIN_RESOLVING_PAIRS",
+    "EPIPOLAR_THRESHOLDS_PX", "CORNER_AUC_THRESHOLDS_PX", "POSE_AUC_THRESHOLDS_DEG", "FLOW_SAMPLE_POINTS",
+    "image_corners", "homography_corner_error", "symmetric_epipolar_distance", "epipolar_consistency",
+    "gt_correspondences", "pose_auc", "time_to_geometry", "bootstrap_interval", "geometry_table",
+    "paired_differences", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "MIN_RESOLVING_PAIRS",
 ]
 
 #: The thresholds of the epipolar consistency, in pixels: 1 ... 19 (WxBS's 0 gives 0 for any real estimate).
@@ -266,11 +253,11 @@ def _statistic(values: np.ndarray, auc_at: float | None) -> np.ndarray:
 
 
 def _by_pair(g, column: str):
-    """``column`` of rows ``g`` as a (pairs, runs) array, pairs and runs sorted, NaN where a run is missing; the
-    number of runs of each pair; and the pair keys. Rows where ``column`` is NaN are left out."""
+    """``column`` of rows ``g`` as a (pairs, runs) array, pairs and runs sorted, NaN where a run is missing, and
+    the number of runs of each pair. Rows where ``column`` is NaN are left out."""
     g = g[g[column].notna()]
     if g.empty:
-        return np.empty((0, 1)), np.zeros(0, np.int64), []
+        return np.empty((0, 1)), np.zeros(0, np.int64)
     keys = list(zip(g["dataset"], g["pair_id"]))
     pairs = sorted(set(keys))
     index = {p: i for i, p in enumerate(pairs)}
@@ -279,7 +266,7 @@ def _by_pair(g, column: str):
     out = np.full((len(pairs), counts.max()), np.nan)
     col = np.concatenate([np.arange(c) for c in counts])
     out[rank["_p"].to_numpy(), col] = rank[column].to_numpy(np.float64)
-    return out, counts, pairs
+    return out, counts
 
 
 def _resamples(counts: np.ndarray, n_resamples: int, seed: int, runs: int):
@@ -330,6 +317,13 @@ def bootstrap_interval(values, counts=None, *, auc_at: float | None = None, conf
     return float(lo), float(hi)
 
 
+def _fitted(rows):
+    """The rows with a model and no error, with a ``run`` column (0 where the rows have none)."""
+    if "run" not in rows.columns:
+        rows = rows.assign(run=0)
+    return rows[(rows["model"] != "none") & (rows["error"] == "")]
+
+
 def _metrics(rows, thresholds, pose_thresholds) -> list[tuple[str, str, float | None]]:
     """``(name, row column, AUC threshold or None for a mean)`` of each metric of :func:`geometry_table`."""
     shares = [c for c in rows.columns if c.startswith("epi_share_")]
@@ -366,9 +360,7 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
     import pandas as pd
 
     by = list(by)
-    if "run" not in rows.columns:
-        rows = rows.assign(run=0)
-    ok = rows[(rows["model"] != "none") & (rows["error"] == "")].copy()
+    ok = _fitted(rows).copy()
     ok["_t"] = time_to_geometry(rows).loc[ok.index]
     metrics = _metrics(ok, thresholds, pose_thresholds)
     out = []
@@ -377,7 +369,7 @@ def geometry_table(rows, *, by=("kind", "blob", "method", "model"), thresholds=C
         rec["pairs"] = len(set(zip(g["dataset"], g["pair_id"])))
         rec["runs"] = int(g.groupby(["dataset", "pair_id"])["run"].nunique().max())
         for name, column, auc_at in metrics:
-            values, counts, _ = _by_pair(g, column) if column in g.columns else (None, [], [])
+            values, counts = _by_pair(g, column) if column in g.columns else (None, [])
             if not len(counts):
                 rec.update({f"{name}_pct": np.nan, f"{name}_lo": np.nan, f"{name}_hi": np.nan})
                 continue
@@ -424,9 +416,7 @@ def paired_differences(rows, *, references=("th", "dtm2"), by=("kind", "blob", "
     import pandas as pd
 
     by = list(by)
-    if "run" not in rows.columns:
-        rows = rows.assign(run=0)
-    ok = rows[(rows["model"] != "none") & (rows["error"] == "")]
+    ok = _fitted(rows)
     chosen = list(metrics) if metrics is not None else ["auc_5px", "epi_share_mean", "auc_5deg"]
     known = {m: (m, None) if m.startswith("epi_share_") else _auc_metric(m) for m in chosen}
     out = []
@@ -468,8 +458,8 @@ def _paired(g, method, ref, column, auc_at, confidence, n_resamples) -> dict | N
     common = common[common[column].notna() & common[f"{column}_ref"].notna()]
     if common.empty:
         return None
-    va, counts, _ = _by_pair(common, column)
-    vb, _, _ = _by_pair(common.drop(columns=column).rename(columns={f"{column}_ref": column}), column)
+    va, counts = _by_pair(common, column)
+    vb, _ = _by_pair(common.drop(columns=column).rename(columns={f"{column}_ref": column}), column)
     pi, si = _resamples(counts, n_resamples, BOOTSTRAP_SEED, va.shape[1])
     diff = (_statistic(va[pi[..., None], si].reshape(n_resamples, -1), auc_at)
             - _statistic(vb[pi[..., None], si].reshape(n_resamples, -1), auc_at))

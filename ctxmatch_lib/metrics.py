@@ -17,15 +17,8 @@ from ._numerics.ranking import area_terms
 from ._numerics.validation import as_matches, as_scores, cumulative_distinct
 
 __all__ = [
-    "MatchMetrics",
-    "normalised_count",
-    "cumulative_normalised_count",
-    "precision",
-    "recall",
-    "ground_truth_union",
-    "average_precision",
-    "mean_average_precision",
-    "evaluate_matches",
+    "MatchMetrics", "normalised_count", "cumulative_normalised_count", "precision", "recall", "ground_truth_union",
+    "average_precision", "mean_average_precision", "evaluate_matches",
 ]
 
 
@@ -38,16 +31,12 @@ def normalised_count(matches) -> int:
     4
     """
     m = as_matches(matches)
-    if len(m) == 0:
-        return 0
     return int(min(len(np.unique(m[:, 0])), len(np.unique(m[:, 1]))))
 
 
 def cumulative_normalised_count(matches) -> np.ndarray:
     """``out[k]`` = :func:`normalised_count` of ``matches[:k + 1]`` (int64, for ranked lists)."""
     m = as_matches(matches)
-    if len(m) == 0:
-        return np.empty(0, np.int64)
     return np.minimum(cumulative_distinct(m[:, 0]), cumulative_distinct(m[:, 1])).astype(np.int64)
 
 
@@ -98,10 +87,7 @@ def ground_truth_union(*correct_sets) -> np.ndarray:
     sets = [as_matches(s, name=f"correct_sets[{i}]") for i, s in enumerate(correct_sets)]
     if not sets:
         return np.empty((0, 2), np.int64)
-    allm = np.concatenate(sets, axis=0)
-    if len(allm) == 0:
-        return allm
-    return np.unique(allm, axis=0)
+    return np.unique(np.concatenate(sets, axis=0), axis=0)
 
 
 def average_precision(matches, is_correct, scores, reference) -> float:
@@ -201,15 +187,8 @@ class MatchMetrics:
         return asdict(self)
 
 
-def evaluate_matches(
-    matches,
-    is_correct,
-    *,
-    reference,
-    reference_star=None,
-    scores=None,
-    time_s: float = float("nan"),
-) -> MatchMetrics:
+def evaluate_matches(matches, is_correct, *, reference, reference_star=None, scores=None,
+                     time_s: float = float("nan")) -> MatchMetrics:
     """All statistics of one output match set.
 
     Parameters
@@ -235,16 +214,8 @@ def evaluate_matches(
     ref_star = reference if reference_star is None else reference_star
     correct = int(lab.sum())
     return MatchMetrics(
-        precision=precision(lab),
-        recall=recall(m, lab, reference),
-        recall_star=recall(m, lab, ref_star),
-        ap=average_precision(m, lab, scores, reference),
-        correct=correct,
-        correct_norm=normalised_count(m[lab]),
-        output=len(m),
-        failure=len(m) > 0 and correct == 0,
-        empty_output=len(m) == 0,
-        n_gt=normalised_count(reference),
-        n_gt_star=normalised_count(ref_star),
-        time_s=float(time_s),
+        precision=precision(lab), recall=recall(m, lab, reference), recall_star=recall(m, lab, ref_star),
+        ap=average_precision(m, lab, scores, reference), correct=correct, correct_norm=normalised_count(m[lab]),
+        output=len(m), failure=len(m) > 0 and correct == 0, empty_output=len(m) == 0,
+        n_gt=normalised_count(reference), n_gt_star=normalised_count(ref_star), time_s=float(time_s),
     )

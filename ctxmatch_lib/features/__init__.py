@@ -15,7 +15,7 @@ from .config import (FEATURE_DESCRIPTIONS, FEATURE_PRESETS, KEYPOINT_BUDGETS, PA
 from .io import as_gray_uint8, load_image
 
 __all__ = [
-    "FeatureConfig", "Features", "extract_features", "load_image", "as_gray_uint8", "FEATURE_PRESETS", "FEATURE_DESCRIPTIONS",
-    "KEYPOINT_BUDGETS", "keypoint_budget",
-    "descriptor_distance", "feature_cache_path", "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
+    "FeatureConfig", "Features", "extract_features", "load_image", "as_gray_uint8", "FEATURE_PRESETS",
+    "FEATURE_DESCRIPTIONS", "KEYPOINT_BUDGETS", "keypoint_budget", "descriptor_distance", "feature_cache_path",
+    "PAPER_FEATURE_BLOCKS", "paper_feature_blocks",
 ]

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cache import atomic_path
+from ..cache import cache_dir as default_cache_dir
 from .base import Features
 from .config import FeatureConfig
 from .extract import _extract
@@ -50,12 +51,7 @@ def feature_cache_path(image, config: FeatureConfig = FeatureConfig(), *, cache_
 
 
 def _entry_path(digest: str, config: FeatureConfig, cache_dir) -> Path:
-    if cache_dir is None:
-        from ..cache import cache_dir as default_cache_dir
-
-        base = default_cache_dir("features")
-    else:
-        base = Path(cache_dir)
+    base = default_cache_dir("features") if cache_dir is None else Path(cache_dir)
     # SIFT's keypoints and descriptors change between OpenCV releases: the version is part of the key.
     return base / f"opencv-{_opencv_version()}" / config.key() / digest[:2] / f"{digest}.e{_ENTRY_FORMAT}.npz"
 

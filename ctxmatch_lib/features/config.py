@@ -24,8 +24,7 @@ _ORIENTATIONS = ("auto", "sift", "dominant", "orinet", "none")
 _NETS = ("auto", "hardnet", "sosnet", "tfeat", "hardtfeat")
 
 # Left out of the key digest at their defaults, so the keys of the SIFT configurations stay stable.
-_NEW_FIELDS = {"orientation": "auto", "weights": None, "net": "auto", "orinet_weights": None,
-               "support": 2.0}
+_NEW_FIELDS = {"orientation": "auto", "weights": None, "net": "auto", "orinet_weights": None, "support": 2.0}
 
 
 @dataclass(frozen=True)
@@ -73,14 +72,10 @@ class FeatureConfig:
     support: float = 2.0
 
     def __post_init__(self):
-        if self.detector not in _DETECTORS:
-            raise ValueError(f"detector must be one of {_DETECTORS}, got {self.detector!r}")
-        if self.descriptor not in _DESCRIPTORS:
-            raise ValueError(f"descriptor must be one of {_DESCRIPTORS}, got {self.descriptor!r}")
-        if self.orientation not in _ORIENTATIONS:
-            raise ValueError(f"orientation must be one of {_ORIENTATIONS}, got {self.orientation!r}")
-        if self.net not in _NETS:
-            raise ValueError(f"net must be one of {_NETS}, got {self.net!r}")
+        for name, allowed in (("detector", _DETECTORS), ("descriptor", _DESCRIPTORS),
+                              ("orientation", _ORIENTATIONS), ("net", _NETS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.orientation == "sift" and self.detector != "sift":
             raise ValueError("orientation='sift' needs detector='sift'")
         if self.descriptor == "rootsgloh2" and self.orientation not in ("auto", "none"):
@@ -108,13 +103,13 @@ class FeatureConfig:
         'sift-rootsift-k8000-v2-441d0e9b'
         """
         items = sorted((k, v) for k, v in asdict(self).items() if not (k in _NEW_FIELDS and v == _NEW_FIELDS[k]))
+        orinet = self.resolved_orientation() == "orinet"
         for field in ("weights", "orinet_weights"):
-            if getattr(self, field) is not None or (field == "orinet_weights"
-                                                    and self.resolved_orientation() == "orinet"):
+            if getattr(self, field) is not None or (field == "orinet_weights" and orinet):
                 from .deep import weights_digest
 
                 items.append((field + "_sha1", weights_digest(getattr(self, field), field)))
-        if self.detector != "sift" or self.descriptor not in ("sift", "rootsift") or self.resolved_orientation() == "orinet":
+        if self.detector != "sift" or self.descriptor not in ("sift", "rootsift") or orinet:
             # Marks the features computed without BLAS's float32 or batched products (last bits differ).
             items.append(("blas_independent", 1))
         digest = hashlib.sha1(repr(items).encode()).hexdigest()[:8]
@@ -213,11 +208,8 @@ def keypoint_budget(value, *, argument: str = "max_keypoints") -> int | None:
         name = value.strip()
         if name in KEYPOINT_BUDGETS:
             return KEYPOINT_BUDGETS[name]
-        if name.isdigit():
-            return int(name)
-        raise ValueError(f"{argument} must be a non-negative integer or a budget name "
-                         f"({', '.join(KEYPOINT_BUDGETS)}), got {value!r}")
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        value = int(name) if name.isdigit() else value
+    if isinstance(value, (str, bool)) or not isinstance(value, (int, np.integer)) or value < 0:
         raise ValueError(f"{argument} must be a non-negative integer or a budget name "
                          f"({', '.join(KEYPOINT_BUDGETS)}), got {value!r}")
     return int(value)

@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._numerics.extras import require
 from .._numerics import fixedmath
+from .._numerics.extras import require
+from ..cache import atomic_path
 
 __all__ = ["weights_dir", "shipped_weights_dir", "resolve_weights", "weights_digest", "load_numpy_net",
            "load_descriptor_net", "load_orinet", "orinet_angles", "deep_descriptors", "describe_patches",
@@ -186,19 +187,24 @@ def _state_dict(path: Path):
     return sd["state_dict"] if isinstance(sd, dict) and "state_dict" in sd else sd
 
 
+def _architecture(descriptor: str, net: str) -> str:
+    """The network of ``descriptor`` (``"hardnet2"``, ``"sosnet"``): ``net``, or kornia's for ``"auto"``."""
+    if descriptor not in _DEFAULT_NET:
+        raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
+    return _DEFAULT_NET[descriptor] if net == "auto" else net
+
+
 @lru_cache(maxsize=8)
 def _descriptor_net(descriptor: str, net: str, path: str | None):
     KF = _kornia_feature()
 
-    arch = _DEFAULT_NET[descriptor] if net == "auto" else net
+    arch = _architecture(descriptor, net)
+    kornia_nets = {"hardnet": KF.HardNet, "sosnet": KF.SOSNet, "tfeat": KF.TFeat}
     if path is None:  # the published weights, as kornia loads them (needs network access)
-        model = {"hardnet": lambda: KF.HardNet(pretrained=True), "sosnet": lambda: KF.SOSNet(pretrained=True),
-                 "tfeat": lambda: KF.TFeat(pretrained=True)}.get(arch)
-        if model is None:
+        if arch not in kornia_nets:
             raise ValueError(f"net {arch!r} has no published kornia weights; give weights=")
-        return model().eval()
-    model = {"hardnet": lambda: KF.HardNet(pretrained=False), "sosnet": lambda: KF.SOSNet(pretrained=False),
-             "tfeat": lambda: KF.TFeat(pretrained=False), "hardtfeat": _hardtfeat}[arch]()
+        return kornia_nets[arch](pretrained=True).eval()
+    model = _hardtfeat() if arch == "hardtfeat" else kornia_nets[arch](pretrained=False)
     sd = _state_dict(Path(path))
     if arch == "hardtfeat":  # the file also holds an unused SIFT-gradient helper
         sd = {k: v for k, v in sd.items() if k.split(".")[0] in ("features", "classifier")}
@@ -210,8 +216,7 @@ def load_descriptor_net(descriptor: str, *, net: str = "auto", weights=None):
     """The torch module of ``descriptor`` (``"hardnet2"``, ``"sosnet"``) in evaluation mode, cached; ``net``
     ``"auto"``: kornia's architecture; ``weights=None``: kornia's published weights."""
     _require_torch()
-    if descriptor not in _DEFAULT_NET:
-        raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
+    _architecture(descriptor, net)
     path = None if weights is None else str(resolve_weights(weights, "descriptor weights").resolve())
     return _descriptor_net(descriptor, net, path)
 
@@ -249,6 +254,17 @@ def _image(gray):
     return torch.from_numpy(np.ascontiguousarray(gray, np.float32) / 255.0)[None, None]
 
 
+def _numpy_patches(gray, kpts, shapes, support: float, batch: int):
+    """``(start, patches)``: the 32×32 patches of ``support × A`` (:func:`._nn.pyramid_patches`), ``batch`` at
+    a time."""
+    from . import _nn
+
+    img = np.ascontiguousarray(gray, np.float32) / np.float32(255.0)
+    A = np.asarray(shapes, np.float64) * float(support)
+    for s in range(0, len(kpts), batch):
+        yield s, _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
+
+
 def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, weights=None, support: float = 2.0,
                   batch: int = 512, backend: str = "auto") -> np.ndarray:
     """OriNet angle θ of each keypoint's patch ``support × A`` (kornia's LAFOrienter): the oriented shape is
@@ -261,11 +277,8 @@ def orinet_angles(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, wei
         from . import _nn
 
         _, params = load_numpy_net(weights, "orinet")
-        img = np.ascontiguousarray(gray, np.float32) / np.float32(255.0)
-        A = np.asarray(shapes, np.float64) * float(support)
         out = np.empty(n)
-        for s in range(0, n, batch):
-            patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
+        for s, patches in _numpy_patches(gray, kpts, shapes, support, batch):
             a = _nn.orinet(params, patches).astype(np.float64)
             # kornia turns the LAF by R(-a) in our convention; fixedmath: numpy's last bit follows the CPU.
             sin, cos = fixedmath.sincos(a)
@@ -292,9 +305,7 @@ def describe_patches(patches, descriptor: str, *, net: str = "auto", weights=Non
                      backend: str = "auto") -> np.ndarray:
     """Deep descriptors of ``(N, 32, 32)`` patches, unit L2 norm, float32; ``backend="auto"`` runs numpy for
     the TFeat-architecture nets with given ``weights``, torch otherwise."""
-    if descriptor not in _DEFAULT_NET:
-        raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
-    arch = _DEFAULT_NET[descriptor] if net == "auto" else net
+    arch = _architecture(descriptor, net)
     p = np.asarray(patches, np.float32).reshape(-1, PATCH_SIZE, PATCH_SIZE)
     out = []
     if _use_numpy(backend, weights, arch):
@@ -324,24 +335,16 @@ def deep_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *, 
     n = len(kpts)
     if n == 0:
         return np.empty((0, 128), np.float32)
-    if descriptor not in _DEFAULT_NET:
-        raise ValueError(f"descriptor must be one of {tuple(_DEFAULT_NET)}, got {descriptor!r}")
-    arch = _DEFAULT_NET[descriptor] if net == "auto" else net
+    arch = _architecture(descriptor, net)
     kw = dict(net=net, weights=weights, backend=backend)
-    out = []
     if _use_numpy(backend, weights, arch):
-        from . import _nn
-
-        img = np.ascontiguousarray(gray, np.float32) / np.float32(255.0)
-        A = np.asarray(shapes, np.float64) * float(support)
-        for s in range(0, n, batch):
-            patches = _nn.pyramid_patches(img, kpts[s : s + batch], A[s : s + batch], PATCH_SIZE)
-            out.append(describe_patches(patches, descriptor, **kw))
-        return np.concatenate(out)
+        return np.concatenate([describe_patches(patches, descriptor, **kw)
+                               for _, patches in _numpy_patches(gray, kpts, shapes, support, batch)])
     torch = _torch()
     KF = _kornia_feature()
 
     img = _image(gray)
+    out = []
     with torch.no_grad():
         for s in range(0, n, batch):
             laf = _lafs(kpts[s : s + batch], shapes[s : s + batch], support)
@@ -355,8 +358,6 @@ def export_npz(source, output, net: str) -> Path:
 
     Arrays: the loaded ``state_dict``; ``__meta__`` (JSON): architecture, source name and SHA-1, licence.
     """
-    from ..cache import atomic_path
-
     if net not in (*_NUMPY_NETS, "orinet"):
         raise ValueError(f"net must be one of {(*_NUMPY_NETS, 'orinet')}, got {net!r}")
     _require_torch()

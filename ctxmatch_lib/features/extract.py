@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from .._numerics.fixedmath import opencv_baseline
+from ..cache import atomic_path
 from .base import Features
-from .config import _DEEP, FeatureConfig
+from .config import _CACHE_FORMAT, _DEEP, FeatureConfig
+from .harrisz import harrisz
 from .io import _image_size
 from .sift import _extract_sift, _normalise, _shapes, _sift_detect
 
@@ -40,8 +42,6 @@ def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
     """
     if memo is None:
         return compute()
-    from ..cache import atomic_path
-
     h = hashlib.sha1(what.encode())
     for part in parts:
         h.update(np.ascontiguousarray(part).tobytes() if isinstance(part, np.ndarray) else repr(part).encode())
@@ -63,8 +63,6 @@ def _memo(memo: Path | None, what: str, parts: tuple, compute, check) -> dict:
 
 def _harrisz(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
     """HarrisZ's (kpts, scales, responses, shapes), shared by the four HarrisZ blocks of an image."""
-    from .config import _CACHE_FORMAT
-    from .harrisz import harrisz
 
     def compute():
         hz = harrisz(gray, patch_radius=float(config.patch_radius), max_keypoints=int(config.max_keypoints))
@@ -81,7 +79,6 @@ _DETECTION = ("pts", "size", "ang", "resp", "octave")
 
 def _sift_merged(gray: np.ndarray, config: FeatureConfig, memo: Path | None):
     """SIFT's detections with orientation duplicates merged, shared by the patch-described SIFT blocks."""
-    from .config import _CACHE_FORMAT
 
     def compute():
         _, det = _sift_detect(gray, config, merge=True)
@@ -148,11 +145,7 @@ def _extract_patches(gray: np.ndarray, config: FeatureConfig, ori: str, metric: 
         desc = _normalise(sift_from_patches(gray, pts, shapes, support=config.support),
                           config.descriptor == "rootsift")
     return Features(
-        kpts=np.ascontiguousarray(pts, dtype=np.float64),
-        shapes=np.ascontiguousarray(shapes, dtype=np.float64),
-        desc=np.ascontiguousarray(desc, dtype=np.float32),
-        scales=np.asarray(scales, np.float64),
-        angles=np.asarray(angles, np.float64),
-        responses=np.asarray(resp, np.float64),
-        metric=metric,
+        kpts=np.ascontiguousarray(pts, dtype=np.float64), shapes=np.ascontiguousarray(shapes, dtype=np.float64),
+        desc=np.ascontiguousarray(desc, dtype=np.float32), scales=np.asarray(scales, np.float64),
+        angles=np.asarray(angles, np.float64), responses=np.asarray(resp, np.float64), metric=metric,
     )

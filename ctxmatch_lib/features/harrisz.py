@@ -160,7 +160,6 @@ def harrisz(image, *, base: float = np.sqrt(2), levels=range(3, 9), diff_ratio: 
     img = img.astype(np.float32)
     dx, dy = _derivatives(img)
     out = []
-    kernels: dict[int, np.ndarray] = {}
     for level in levels:
         s_i = float(base) ** int(level)
         s_d = s_i * diff_ratio
@@ -176,10 +175,8 @@ def harrisz(image, *, base: float = np.sqrt(2), levels=range(3, 9), diff_ratio: 
         # Strict local maxima: the only local maximum of its (2 rad + 1)^2 window.
         rad = min(3, max(1, int(np.floor(rd / np.sqrt(2) + 0.5))))
         k = 2 * rad + 1
-        if k not in kernels:
-            kernels[k] = np.ones((k, k), np.uint8)
         r32 = resp.astype(np.float32)
-        ismax = cv2.dilate(r32, kernels[k], borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf) == r32
+        ismax = cv2.dilate(r32, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf) == r32
         count = cv2.boxFilter(ismax.astype(np.float32), -1, (k, k), normalize=False,
                               borderType=cv2.BORDER_CONSTANT)
         cand = ismax & (count < 1.5) & (resp > 0) & (mask > mask_threshold)

@@ -24,6 +24,7 @@ _RINGS = (12.0, 20.0)  # outer radius of each ring in patch pixels
 _HALF = len(_RINGS) * _M * _M  # 128
 SGLOH_DIM = 2 * _HALF  # 256
 _PATCH_RADIUS = int(_RINGS[-1])  # 20: descriptor grid 41 x 41
+_SIDE = 2 * _PATCH_RADIUS + 3  # 43: the grid plus a margin pixel for the differences
 _BIN_SIGMA = 0.7  # Gaussian soft binning, in bins
 _FINE = 8  # (power of two) sub-bins per orientation bin of the fine histogram the soft binning is computed from
 
@@ -79,9 +80,8 @@ def sgloh_from_patches(patches: np.ndarray, *, root: bool = True, chunk: int = 6
     41×41 grid plus a margin pixel for the differences; each half of the ``(N, 256)`` result has norm 1/√2
     (zero for a flat patch); ``chunk`` patches per step keep the temporaries in cache."""
     p = np.asarray(patches, np.float32)
-    side = 2 * _PATCH_RADIUS + 3
-    if p.ndim != 3 or p.shape[1:] != (side, side):
-        raise ValueError(f"patches must have shape (N, {side}, {side}), got {p.shape}")
+    if p.ndim != 3 or p.shape[1:] != (_SIDE, _SIDE):
+        raise ValueError(f"patches must have shape (N, {_SIDE}, {_SIDE}), got {p.shape}")
     n = len(p)
     out = np.zeros((n, SGLOH_DIM), np.float32)
     if n == 0:
@@ -142,14 +142,13 @@ def sgloh_descriptors(gray: np.ndarray, kpts: np.ndarray, shapes: np.ndarray, *,
     The outer ring covers ``support × A`` of each shape; ``smooth``: blur σ in patch pixels."""
     from .patches import extract_patches
 
-    side = 2 * _PATCH_RADIUS + 3
     pad = int(np.ceil(3 * smooth)) if smooth > 0 else 0
-    size = side + 2 * pad
+    size = _SIDE + 2 * pad
     patches = extract_patches(gray, kpts, shapes, size, radius=_PATCH_RADIUS, support=support)
     if smooth > 0:
         if len(patches):
             patches = _blur(patches, smooth, truncate=3.0)
-        patches = patches[:, pad : pad + side, pad : pad + side]
+        patches = patches[:, pad : pad + _SIDE, pad : pad + _SIDE]
     return sgloh_from_patches(patches, root=root)
 
 

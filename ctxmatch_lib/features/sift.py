@@ -119,10 +119,6 @@ def _extract_sift(gray: np.ndarray, config: FeatureConfig, *, upright: bool) -> 
     angles = np.deg2rad(ang)
     angles = np.where(angles > np.pi, angles - 2 * np.pi, angles)
     return Features(
-        kpts=np.ascontiguousarray(pts),
-        shapes=_shapes(scales, angles, float(config.patch_radius)),
-        desc=np.ascontiguousarray(desc, dtype=np.float32),
-        scales=scales,
-        angles=angles,
-        responses=resp,
+        kpts=np.ascontiguousarray(pts), shapes=_shapes(scales, angles, float(config.patch_radius)),
+        desc=np.ascontiguousarray(desc, dtype=np.float32), scales=scales, angles=angles, responses=resp,
     )

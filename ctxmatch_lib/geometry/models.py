@@ -17,22 +17,9 @@ from .._numerics.validation import as_matches, as_points, as_scores, cumulative_
 from .pose import _fundamental_from_essential, check_intrinsics
 
 __all__ = [
-    "MIN_SAMPLE",
-    "dlt_design",
-    "dlt_normal_matrix",
-    "epipolar_errors",
-    "hartley_normalise",
-    "transfer_errors",
-    "CONSISTENCY_THRESHOLD_PX",
-    "ModelFit",
-    "normalise_points",
-    "fit_homography",
-    "fit_fundamental",
-    "apply_homography",
-    "homography_transfer_errors",
-    "epipolar_distances",
-    "model_errors",
-    "top_ranked_sample",
+    "MIN_SAMPLE", "dlt_design", "dlt_normal_matrix", "epipolar_errors", "hartley_normalise", "transfer_errors",
+    "CONSISTENCY_THRESHOLD_PX", "ModelFit", "normalise_points", "fit_homography", "fit_fundamental",
+    "apply_homography", "homography_transfer_errors", "epipolar_distances", "model_errors", "top_ranked_sample",
     "one_sac",
 ]
 
@@ -329,22 +316,19 @@ def _check_kind(kind, kinds=("H", "F")) -> ModelKind:
     return kind
 
 
+def _too_few_distinct(matches: np.ndarray, q: int) -> bool:
+    """Fewer than ``q`` distinct keypoints on one side of ``matches``: no model of sample size ``q`` fits."""
+    return min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < q
+
+
 def _failed(k: int, kind: str, sample=None) -> ModelFit:
     sample = np.empty(0, np.int64) if sample is None else sample
     return ModelFit(np.zeros(k, bool), None, kind, sample, np.full(k, np.inf))
 
 
 @shared_doc
-def one_sac(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
-    *,
-    kind: ModelKind = "H",
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    sample_factor: int = 3,
-) -> ModelFit:
+def one_sac(kpts1, kpts2, matches, scores=None, *, kind: ModelKind = "H", threshold: float = CONSISTENCY_THRESHOLD_PX,
+            sample_factor: int = 3) -> ModelFit:
     """1SAC: fit one model on the top-ranked matches and keep those consistent with it (Sec. 5.1).
 
     Fits on :func:`top_ranked_sample` of ``sample_factor * q`` matches; keeps those whose
@@ -392,7 +376,7 @@ def _one_sac(kpts1, kpts2, matches, scores, kind, threshold, sample_factor=3) ->
     if len(sample) == 0:
         return _failed(k, kind)
     s = matches[sample]
-    if min(len(np.unique(s[:, 0])), len(np.unique(s[:, 1]))) < q:
+    if _too_few_distinct(s, q):
         return _failed(k, kind, sample)
     model = _fit(kind, kpts1[s[:, 0]], kpts2[s[:, 1]])
     if model is None:

@@ -12,16 +12,8 @@ from .._numerics.fixedmath import acos
 from .._numerics.validation import as_intrinsics, as_matrix3, as_points, as_vector3
 
 __all__ = [
-    "POSE_FAILURE_DEG",
-    "POSE_MIN_POINTS",
-    "check_intrinsics",
-    "normalise_by_intrinsics",
-    "essential_from_fundamental",
-    "fundamental_from_essential",
-    "recover_relative_pose",
-    "pose_from_model",
-    "relative_pose_error",
-    "pose_error",
+    "POSE_FAILURE_DEG", "POSE_MIN_POINTS", "check_intrinsics", "normalise_by_intrinsics", "essential_from_fundamental",
+    "fundamental_from_essential", "recover_relative_pose", "pose_from_model", "relative_pose_error", "pose_error",
 ]
 
 #: Rotation and translation errors (degrees) of a pair without a pose: a failure at every AUC threshold, as
@@ -137,16 +129,10 @@ def pose_from_model(model, kind: str, pts1, pts2, K1, K2) -> tuple[np.ndarray, n
     return None if pose is None else pose[:2]
 
 
-def _rotation_angle_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:
-    # SuperGlue's arccos of the trace, so the errors are the field's (an atan2 would be less sensitive to a
-    # ground truth that is a rotation only to its printed digits); fixedmath's, the same bits on any CPU.
-    cos = np.clip((np.trace(R_est.T @ R_gt) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.degrees(acos(cos)))
-
-
-def _direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cos = np.clip(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0)
-    return float(np.degrees(acos(cos)))
+def _angle_deg(cos) -> float:
+    # SuperGlue's arccos (of the trace for R), so the errors are the field's (an atan2 would be less sensitive
+    # to a ground truth that is a rotation only to its printed digits); fixedmath's, the same bits on any CPU.
+    return float(np.degrees(acos(np.clip(cos, -1.0, 1.0))))
 
 
 def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
@@ -179,10 +165,10 @@ def relative_pose_error(R_est, t_est, R_gt, t_gt) -> tuple[float, float]:
     t_est = t_est.reshape(3)
     if not (np.isfinite(R_est).all() and np.isfinite(t_est).all()):
         return POSE_FAILURE_DEG, POSE_FAILURE_DEG
-    err_R = _rotation_angle_deg(R_est, R_gt)
+    err_R = _angle_deg((np.trace(R_est.T @ R_gt) - 1.0) / 2.0)
     if not np.any(t_est):
         return err_R, POSE_FAILURE_DEG
-    e = _direction_angle_deg(t_est, t_gt)
+    e = _angle_deg(float(t_est @ t_gt) / (np.linalg.norm(t_est) * np.linalg.norm(t_gt)))
     return err_R, min(e, 180.0 - e)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from .._numerics.validation import as_matches
 from .models import (CONSISTENCY_THRESHOLD_PX, MIN_SAMPLE, ModelFit, ModelKind, _check_kind, _check_step, _failed,
-                     _model_errors, _one_sac)
+                     _model_errors, _one_sac, _too_few_distinct)
 from .pose import _fundamental_from_essential, _normalise_by_intrinsics, check_intrinsics
 
 __all__ = ["MODEL_STEPS", "ROBUST_STEPS", "UsacSettings", "USAC_PRESETS", "usac_settings", "ransac",
@@ -72,20 +72,9 @@ def usac_settings(name: str, overrides: Mapping | None = None) -> UsacSettings:
     return replace(s, threshold=float(s.threshold), confidence=float(s.confidence), max_iters=int(s.max_iters))
 
 
-def ransac(
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
-    *,
-    kind: ModelKind = "H",
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    magsac_threshold: float = UsacSettings.threshold,
-    confidence: float = UsacSettings.confidence,
-    max_iters: int = UsacSettings.max_iters,
-    sampler: str = UsacSettings.sampler,
-    rng=None,
-) -> ModelFit:
+def ransac(kpts1, kpts2, matches, scores=None, *, kind: ModelKind = "H", threshold: float = CONSISTENCY_THRESHOLD_PX,
+           magsac_threshold: float = UsacSettings.threshold, confidence: float = UsacSettings.confidence,
+           max_iters: int = UsacSettings.max_iters, sampler: str = UsacSettings.sampler, rng=None) -> ModelFit:
     """Seeded robust model fitting with OpenCV's USAC (MAGSAC++ scoring, sigma-consensus local optimisation).
 
     The :class:`ModelFit` keeps the matches within ``threshold`` pixels (:func:`one_sac`'s rule); its
@@ -126,23 +115,19 @@ def _usac_params(settings: UsacSettings, rng, threshold: float | None = None):
     return params
 
 
-def _ransac(kpts1, kpts2, matches, scores, kind, threshold, settings: UsacSettings, rng) -> ModelFit:
+def _usac_fit(kind: str, kpts1, kpts2, matches, scores, threshold, estimate, errors) -> ModelFit:
+    """A USAC model step: ``estimate(p1, p2)``, OpenCV's ``(model, mask)`` on the matched points best first
+    (PROSAC expects that order; uniform sampling ignores it), then ``errors(model, p1, p2)`` of the matches."""
     import cv2
 
     k = len(matches)
-    q = MIN_SAMPLE[kind]
-    if k == 0 or min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < q:
+    if _too_few_distinct(matches, MIN_SAMPLE[kind]):
         return _failed(k, kind)
-    params = _usac_params(settings, rng)
-    # PROSAC expects the correspondences best first; uniform sampling does not care about the order.
     order = np.argsort(scores, kind="stable")
     p1 = np.ascontiguousarray(kpts1[matches[order, 0]], np.float64)
     p2 = np.ascontiguousarray(kpts2[matches[order, 1]], np.float64)
     try:
-        if kind == "H":
-            model, mask = cv2.findHomography(p1, p2, params)
-        else:
-            model, mask = cv2.findFundamentalMat(p1, p2, params)
+        model, mask = estimate(p1, p2)
     except cv2.error:
         return _failed(k, kind)
     if model is None or np.asarray(model).shape != (3, 3) or not np.isfinite(model).all():
@@ -150,35 +135,38 @@ def _ransac(kpts1, kpts2, matches, scores, kind, threshold, settings: UsacSettin
     model = np.asarray(model, np.float64)
     inl = np.flatnonzero(np.asarray(mask).reshape(-1) > 0) if mask is not None else np.empty(0, np.int64)
     err = np.empty(k)
-    err[order] = _model_errors(model, kind, p1, p2)
+    err[order] = errors(model, p1, p2)
     return ModelFit(err <= threshold, model, kind, np.sort(order[inl]).astype(np.int64), err)
+
+
+def _ransac(kpts1, kpts2, matches, scores, kind, threshold, settings: UsacSettings, rng) -> ModelFit:
+    import cv2
+
+    def estimate(p1, p2):
+        find = cv2.findHomography if kind == "H" else cv2.findFundamentalMat
+        return find(p1, p2, _usac_params(settings, rng))
+
+    def errors(model, p1, p2):
+        return _model_errors(model, kind, p1, p2)
+
+    return _usac_fit(kind, kpts1, kpts2, matches, scores, threshold, estimate, errors)
 
 
 def _essential(kpts1, kpts2, matches, scores, threshold, settings: UsacSettings, rng, K1, K2) -> ModelFit:
     """The ``essential`` step (see :func:`apply_model_step`); ``K1``, ``K2`` validated by the caller."""
     import cv2
 
-    k = len(matches)
-    if k == 0 or min(len(np.unique(matches[:, 0])), len(np.unique(matches[:, 1]))) < MIN_SAMPLE["E"]:
-        return _failed(k, "E")
-    focal = np.mean([K1[0, 0], K1[1, 1], K2[0, 0], K2[1, 1]])
-    params = _usac_params(settings, rng, threshold=settings.threshold / abs(focal))
-    order = np.argsort(scores, kind="stable")  # best first, for PROSAC
-    p1 = np.ascontiguousarray(kpts1[matches[order, 0]])
-    p2 = np.ascontiguousarray(kpts2[matches[order, 1]])
-    n1, n2 = _normalise_by_intrinsics(p1, K1), _normalise_by_intrinsics(p2, K2)
-    eye, no_distortion = np.eye(3), np.zeros(5)
-    try:
-        model, mask = cv2.findEssentialMat(n1, n2, eye, eye, no_distortion, no_distortion, params)
-    except cv2.error:
-        return _failed(k, "E")
-    if model is None or np.asarray(model).shape != (3, 3) or not np.isfinite(model).all():
-        return _failed(k, "E")
-    model = np.asarray(model, np.float64)
-    inl = np.flatnonzero(np.asarray(mask).reshape(-1) > 0) if mask is not None else np.empty(0, np.int64)
-    err = np.empty(k)
-    err[order] = _model_errors(_fundamental_from_essential(model, K1, K2), "F", p1, p2)
-    return ModelFit(err <= threshold, model, "E", np.sort(order[inl]).astype(np.int64), err)
+    def estimate(p1, p2):
+        focal = np.mean([K1[0, 0], K1[1, 1], K2[0, 0], K2[1, 1]])
+        params = _usac_params(settings, rng, threshold=settings.threshold / abs(focal))
+        eye, no_distortion = np.eye(3), np.zeros(5)
+        return cv2.findEssentialMat(_normalise_by_intrinsics(p1, K1), _normalise_by_intrinsics(p2, K2), eye, eye,
+                                    no_distortion, no_distortion, params)
+
+    def errors(model, p1, p2):
+        return _model_errors(_fundamental_from_essential(model, K1, K2), "F", p1, p2)
+
+    return _usac_fit("E", kpts1, kpts2, matches, scores, threshold, estimate, errors)
 
 
 def model_kind_for(pair_kind: str) -> ModelKind:
@@ -190,20 +178,9 @@ def model_kind_for(pair_kind: str) -> ModelKind:
     raise ValueError(f"pair kind must be 'planar', 'nonplanar', 'depth' or 'calibrated', got {pair_kind!r}")
 
 
-def apply_model_step(
-    name: str,
-    kpts1,
-    kpts2,
-    matches,
-    scores=None,
-    *,
-    kind: ModelKind,
-    threshold: float = CONSISTENCY_THRESHOLD_PX,
-    rng=None,
-    estimator: Mapping | None = None,
-    K1=None,
-    K2=None,
-) -> ModelFit:
+def apply_model_step(name: str, kpts1, kpts2, matches, scores=None, *, kind: ModelKind,
+                     threshold: float = CONSISTENCY_THRESHOLD_PX, rng=None, estimator: Mapping | None = None, K1=None,
+                     K2=None) -> ModelFit:
     """Run the model step ``name`` (one of :data:`MODEL_STEPS`) on the matches.
 
     ``"none"`` keeps every match; ``"1sac"`` is :func:`one_sac`; ``"ransac"``, ``"prosac"``, ``"magsac"`` are

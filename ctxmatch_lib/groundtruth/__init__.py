@@ -12,45 +12,15 @@ import numpy as np
 
 from .._numerics.docstrings import shared_doc
 from ..datasets.base import EpipolarGT, FlowGT, HomographyGT, PoseGT
-from .core import (
-    GT_THRESHOLD_PX,
-    LOCALISATION_RATIO,
-    PiecewiseAffineMap,
-    label_epipolar,
-    label_flow,
-    label_homography,
-    localisation_check,
-    sample_flow,
-)
-from .regions import (
-    CENTRE_THRESHOLD_PX,
-    OVERLAP_MAX,
-    SHAPE_SCALE,
-    RegionErrors,
-    homography_ellipses,
-    label_regions,
-    region_errors,
-    region_overlap_error,
-)
+from .core import (GT_THRESHOLD_PX, LOCALISATION_RATIO, PiecewiseAffineMap, label_epipolar, label_flow,
+                   label_homography, localisation_check, sample_flow)
+from .regions import (CENTRE_THRESHOLD_PX, OVERLAP_MAX, SHAPE_SCALE, RegionErrors, homography_ellipses, label_regions,
+                      region_errors, region_overlap_error)
 
 __all__ = [
-    "GT_THRESHOLD_PX",
-    "GT_METHODS",
-    "LOCALISATION_RATIO",
-    "OVERLAP_MAX",
-    "CENTRE_THRESHOLD_PX",
-    "SHAPE_SCALE",
-    "label_matches",
-    "label_homography",
-    "label_epipolar",
-    "label_flow",
-    "label_regions",
-    "localisation_check",
-    "PiecewiseAffineMap",
-    "RegionErrors",
-    "region_errors",
-    "region_overlap_error",
-    "homography_ellipses",
+    "GT_THRESHOLD_PX", "GT_METHODS", "LOCALISATION_RATIO", "OVERLAP_MAX", "CENTRE_THRESHOLD_PX", "SHAPE_SCALE",
+    "label_matches", "label_homography", "label_epipolar", "label_flow", "label_regions", "localisation_check",
+    "PiecewiseAffineMap", "RegionErrors", "region_errors", "region_overlap_error", "homography_ellipses",
     "sample_flow",
 ]
 
@@ -59,21 +29,9 @@ GT_METHODS = ("D", "A", "B", "C")
 
 
 @shared_doc
-def label_matches(
-    kpts1,
-    kpts2,
-    matches,
-    gt,
-    *,
-    method: str = "D",
-    threshold: float = GT_THRESHOLD_PX,
-    ratio: float = LOCALISATION_RATIO,
-    shapes1=None,
-    shapes2=None,
-    overlap: float = OVERLAP_MAX,
-    centre_threshold: float = CENTRE_THRESHOLD_PX,
-    shape_scale: float = SHAPE_SCALE,
-) -> np.ndarray:
+def label_matches(kpts1, kpts2, matches, gt, *, method: str = "D", threshold: float = GT_THRESHOLD_PX,
+                  ratio: float = LOCALISATION_RATIO, shapes1=None, shapes2=None, overlap: float = OVERLAP_MAX,
+                  centre_threshold: float = CENTRE_THRESHOLD_PX, shape_scale: float = SHAPE_SCALE) -> np.ndarray:
     """Correct/incorrect label of each match under the pair's ground truth (see the module docstring).
 
     Parameters
@@ -109,17 +67,8 @@ def label_matches(
     if isinstance(gt, HomographyGT):
         return label_homography(kpts1, kpts2, matches, gt.H, threshold=threshold)
     if isinstance(gt, EpipolarGT):
-        return label_epipolar(
-            kpts1,
-            kpts2,
-            matches,
-            gt.F,
-            hand_pts1=gt.pts1,
-            hand_pts2=gt.pts2,
-            threshold=threshold,
-            localise=method == "D",
-            ratio=ratio,
-        )
+        return label_epipolar(kpts1, kpts2, matches, gt.F, hand_pts1=gt.pts1, hand_pts2=gt.pts2, threshold=threshold,
+                              localise=method == "D", ratio=ratio)
     if isinstance(gt, FlowGT):
         return label_flow(kpts1, kpts2, matches, gt.flow12, gt.flow21, threshold=threshold)
     if isinstance(gt, PoseGT):  # Sec. 5.1, SUN3D without depth: the larger epipolar distance

@@ -12,18 +12,11 @@ import numpy as np
 
 from .._numerics.docstrings import shared_doc
 from .._numerics.validation import as_matches, as_points
-from ..datasets.base import EpipolarGT, FlowGT, HomographyGT
 from ..geometry import epipolar_errors, transfer_errors
 
 __all__ = [
-    "GT_THRESHOLD_PX",
-    "LOCALISATION_RATIO",
-    "label_homography",
-    "label_epipolar",
-    "label_flow",
-    "localisation_check",
-    "PiecewiseAffineMap",
-    "sample_flow",
+    "GT_THRESHOLD_PX", "LOCALISATION_RATIO", "label_homography", "label_epipolar", "label_flow", "localisation_check",
+    "PiecewiseAffineMap", "sample_flow",
 ]
 
 #: Method-D distance threshold in pixels (Sec. 5.1).
@@ -72,18 +65,8 @@ def label_homography(kpts1, kpts2, matches, H, *, threshold: float = GT_THRESHOL
 
 
 @shared_doc
-def label_epipolar(
-    kpts1,
-    kpts2,
-    matches,
-    F,
-    *,
-    hand_pts1=None,
-    hand_pts2=None,
-    threshold: float = GT_THRESHOLD_PX,
-    localise: bool = True,
-    ratio: float = LOCALISATION_RATIO,
-) -> np.ndarray:
+def label_epipolar(kpts1, kpts2, matches, F, *, hand_pts1=None, hand_pts2=None, threshold: float = GT_THRESHOLD_PX,
+                   localise: bool = True, ratio: float = LOCALISATION_RATIO) -> np.ndarray:
     """Method D, non-planar (``localise=True``) or method A (``localise=False``).
 
     Parameters
@@ -110,9 +93,7 @@ def label_epipolar(
         if hand_pts1 is None or hand_pts2 is None:
             raise ValueError("hand_pts1 and hand_pts2 are required for the localisation check (method D)")
         if ok.any():
-            ok[ok] = localisation_check(
-                hand_pts1, hand_pts2, p1[ok], p2[ok], threshold=threshold, ratio=ratio
-            )
+            ok[ok] = localisation_check(hand_pts1, hand_pts2, p1[ok], p2[ok], threshold=threshold, ratio=ratio)
     return ok
 
 
@@ -181,15 +162,8 @@ class PiecewiseAffineMap:
 
 
 @shared_doc
-def localisation_check(
-    hand_pts1,
-    hand_pts2,
-    pts1,
-    pts2,
-    *,
-    threshold: float = GT_THRESHOLD_PX,
-    ratio: float = LOCALISATION_RATIO,
-) -> np.ndarray:
+def localisation_check(hand_pts1, hand_pts2, pts1, pts2, *, threshold: float = GT_THRESHOLD_PX,
+                       ratio: float = LOCALISATION_RATIO) -> np.ndarray:
     """Spatial-localisation check of method D against hand-taken correspondences (our rule).
 
     ``(x1, x2)`` passes when, in both directions, ``||A_T(x1) - x2|| <= max(threshold, ratio * L_T) + s_T *

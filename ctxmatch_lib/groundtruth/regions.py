@@ -25,15 +25,8 @@ from ._kernels import flow_label_kernel, flow_transfer_kernel, homography_ellips
 from .core import PiecewiseAffineMap
 
 __all__ = [
-    "OVERLAP_MAX",
-    "CENTRE_THRESHOLD_PX",
-    "SHAPE_SCALE",
-    "N_ANGLES",
-    "RegionErrors",
-    "region_overlap_error",
-    "homography_ellipses",
-    "region_errors",
-    "label_regions",
+    "OVERLAP_MAX", "CENTRE_THRESHOLD_PX", "SHAPE_SCALE", "N_ANGLES", "RegionErrors", "region_overlap_error",
+    "homography_ellipses", "region_errors", "label_regions",
 ]
 
 #: Method B/C: largest overlap error of a correct match (Sec. 5.1).
@@ -123,8 +116,9 @@ class RegionErrors:
     shapes2: np.ndarray
 
 
-def _flow_transfer(flow, c, A):
-    return flow_transfer_kernel(flow, np.ascontiguousarray(c), np.ascontiguousarray(A))
+def _flow_transfer(flow, name, c, A):
+    """Regions ``c``, ``A`` carried by the flow field ``flow`` (the argument ``name``)."""
+    return flow_transfer_kernel(_as_flow(flow, name), np.ascontiguousarray(c), np.ascontiguousarray(A))
 
 
 def _as_flow(flow, name):
@@ -145,9 +139,7 @@ def _as_shapes(shapes, n, name):
 
 
 @shared_doc
-def region_errors(
-    kpts1, kpts2, matches, gt, shapes1, shapes2, *, shape_scale: float = SHAPE_SCALE
-) -> RegionErrors:
+def region_errors(kpts1, kpts2, matches, gt, shapes1, shapes2, *, shape_scale: float = SHAPE_SCALE) -> RegionErrors:
     """Overlap error and centre distance of each match (methods B and C; see the module docstring).
 
     Parameters
@@ -164,16 +156,15 @@ def region_errors(
     -------
     RegionErrors
     """
-    p1, p2, A1, A2 = _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    p1, p2, A1, A2 = _matched(*_validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale), shape_scale)
     q, B = _carry(gt, p1, A1)
     back = _carry_back(gt, p2, A2)
     overlap = _overlap(q, B, p2, A2, back, p1, A1)
     return RegionErrors(overlap=overlap, centre=_centre(gt, p1, p2, q, back), centres2=q, shapes2=B)
 
 
-def _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale):
-    """Validated matched centres and scaled shapes ``p1, p2, A1, A2``."""
-    kpts1, kpts2, S1, S2, matches = _validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+def _matched(kpts1, kpts2, S1, S2, matches, shape_scale):
+    """The matched centres and scaled shapes ``p1, p2, A1, A2`` of validated arrays."""
     i, j = matches[:, 0], matches[:, 1]
     return kpts1[i], kpts2[j], S1[i] * shape_scale, S2[j] * shape_scale
 
@@ -200,7 +191,7 @@ def _carry(gt, p1, A1):
     if isinstance(gt, HomographyGT):
         return homography_ellipses(np.asarray(gt.H, float), p1, A1)
     if isinstance(gt, FlowGT):
-        return _flow_transfer(_as_flow(gt.flow12, "gt.flow12"), p1, A1)
+        return _flow_transfer(gt.flow12, "gt.flow12", p1, A1)
     q, B = np.full((K, 2), np.nan), np.full((K, 2, 2), np.nan)
     try:
         pam = PiecewiseAffineMap(gt.pts1, gt.pts2)
@@ -223,7 +214,7 @@ def _carry(gt, p1, A1):
 def _carry_back(gt, p2, A2):
     """Regions of image 2 carried into image 1 (flow pairs with ``flow21`` only), else None."""
     if isinstance(gt, FlowGT) and gt.flow21 is not None:
-        return _flow_transfer(_as_flow(gt.flow21, "gt.flow21"), p2, A2)
+        return _flow_transfer(gt.flow21, "gt.flow21", p2, A2)
     return None
 
 
@@ -247,19 +238,8 @@ def _centre(gt, p1, p2, q=None, back=None):
     return np.where(np.isnan(centre), np.inf, centre)
 
 
-def label_regions(
-    kpts1,
-    kpts2,
-    matches,
-    gt,
-    shapes1,
-    shapes2,
-    *,
-    method: str = "C",
-    overlap: float = OVERLAP_MAX,
-    centre_threshold: float = CENTRE_THRESHOLD_PX,
-    shape_scale: float = SHAPE_SCALE,
-) -> np.ndarray:
+def label_regions(kpts1, kpts2, matches, gt, shapes1, shapes2, *, method: str = "C", overlap: float = OVERLAP_MAX,
+                  centre_threshold: float = CENTRE_THRESHOLD_PX, shape_scale: float = SHAPE_SCALE) -> np.ndarray:
     """Method B (overlap error at most ``overlap``) or C (B and centre distance at most ``centre_threshold``).
 
     Parameters are those of :func:`region_errors`, plus ``method`` ("B" or "C"), ``overlap`` (0.5 in the
@@ -275,7 +255,7 @@ def label_regions(
     if isinstance(gt, FlowGT):
         return _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method, overlap,
                            centre_threshold, rej)
-    p1, p2, A1, A2 = _matched(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale)
+    p1, p2, A1, A2 = _matched(*_validated(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale), shape_scale)
     if method == "B":
         return _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1, rej) <= overlap
     # C: the centre constraint first, the overlap only where it holds (same labels, less work).
@@ -295,8 +275,7 @@ def _label_flow(kpts1, kpts2, matches, gt, shapes1, shapes2, shape_scale, method
                                     float(shape_scale), float(cmax), _COS, _SIN, float(rej))
     todo = np.flatnonzero(np.isnan(err))
     if len(todo):
-        p1, p2, A1, A2 = kpts1[matches[todo, 0]], kpts2[matches[todo, 1]], S1[matches[todo, 0]], S2[matches[todo, 1]]
-        A1, A2 = A1 * shape_scale, A2 * shape_scale
+        p1, p2, A1, A2 = _matched(kpts1, kpts2, S1, S2, matches[todo], shape_scale)
         err[todo] = _overlap(*_carry(gt, p1, A1), p2, A2, _carry_back(gt, p2, A2), p1, A1, rej)
     ok = err <= overlap
     if method == "C":
