@@ -77,7 +77,7 @@ def opencv_ratio_matches(desc1, desc2, *, ratio: float = LOWE_RATIO) -> tuple[np
             rows.append(a.queryIdx)
             cols.append(a.trainIdx)
             scores.append(a.distance / b.distance if b.distance > 0 else 0.0)
-    return _sorted(rows, cols, scores) if rows else _empty()
+    return _sorted(rows, cols, scores)
 
 
 def opencv_mnn_matches(desc1, desc2) -> tuple[np.ndarray, np.ndarray]:
@@ -96,8 +96,6 @@ def opencv_mnn_matches(desc1, desc2) -> tuple[np.ndarray, np.ndarray]:
     import cv2
 
     found = cv2.BFMatcher(cv2.NORM_L2, crossCheck=True).match(d1, d2)
-    if not found:
-        return _empty()
     return _sorted([m.queryIdx for m in found], [m.trainIdx for m in found], [m.distance for m in found])
 
 

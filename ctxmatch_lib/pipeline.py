@@ -24,25 +24,9 @@ from .geometry import CONSISTENCY_THRESHOLD_PX
 from .groundtruth import GT_THRESHOLD_PX
 from .metrics import ground_truth_union
 
-__all__ = [
-    "BLOB_METHOD",
-    "ROW_COLUMNS",
-    "BlobStage",
-    "PairEvaluation",
-    "resolve_blobs",
-    "check_filters",
-    "check_pair_keypoints",
-    "check_models",
-    "pair_features",
-    "blob_candidates",
-    "run_filter",
-    "run_model",
-    "label_candidates",
-    "evaluate_pair",
-    "evaluate_dataset",
-    "summary_table",
-    "pair_seed",
-]
+__all__ = ["BLOB_METHOD", "ROW_COLUMNS", "BlobStage", "PairEvaluation", "resolve_blobs", "check_filters",
+           "check_pair_keypoints", "check_models", "pair_features", "blob_candidates", "run_filter", "run_model",
+           "label_candidates", "evaluate_pair", "evaluate_dataset", "summary_table", "pair_seed"]
 
 #: Columns of a result row, in order.
 ROW_COLUMNS = (
@@ -115,11 +99,10 @@ def evaluate_pair(
                          models=tuple(models), gt_method=gt_method, gt_threshold=gt_threshold,
                          model_threshold=model_threshold, filter_params=filter_params, seed=seed, salt="")
     if precomputed_features is not None:
-        check_pair_keypoints(pair, *precomputed_features)
         feats = tuple(precomputed_features)
     else:
         feats = pair_features(pair, unit.features, cache_dir=cache_dir)
-        check_pair_keypoints(pair, *feats)
+    check_pair_keypoints(pair, *feats)
     stages = {}
     df = named_rows(run_unit(unit, cache_dir=False, features=feats, stages=stages), unit)
     errors = df["error"].astype(str)

@@ -31,6 +31,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 EXIT_INTERRUPTED = 130
 
 
+def error(command: str, msg: str, status: int = 2) -> int:
+    """Print ``ctxmatch <command>: error: msg`` on stderr and return ``status`` (2: a bad argument)."""
+    print(f"ctxmatch {command}: error: {msg}", file=sys.stderr)
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one ``ctxmatch`` command and return its exit status; Ctrl-C gives one line and status 130 (results
     are written atomically, so a rerun resumes)."""

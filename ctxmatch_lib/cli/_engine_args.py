@@ -5,13 +5,6 @@ settings give the same unit keys, so either command reuses what the other comput
 from __future__ import annotations
 
 import math
-import sys
-
-
-def _check_output(path, flag: str):
-    from ..evaluation.frontends import check_output
-
-    return check_output(path, flag)
 
 
 def csv(text: str) -> list[str]:
@@ -62,7 +55,8 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--kind", default=None,
                    help="comma-separated pair kinds to keep: planar, nonplanar, depth, calibrated")
     p.add_argument("--gt", default="D", choices=list(GT_METHODS), help="ground-truth method (default: D)")
-    p.add_argument("--gt-threshold", type=float, default=15.0, help="ground-truth distance in px for --gt D and A (default: 15)")
+    p.add_argument("--gt-threshold", type=float, default=15.0,
+                   help="ground-truth distance in px for --gt D and A (default: 15)")
     p.add_argument("--model-threshold", type=float, default=15.0,
                    help="1SAC/RANSAC consistency threshold in px (default: 15)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
@@ -80,23 +74,15 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
-def error(prog: str, msg: str) -> int:
-    """Print ``ctxmatch <prog>: error: msg`` on stderr; the exit status of a bad argument (2)."""
-    print(f"ctxmatch {prog}: error: {msg}", file=sys.stderr)
-    return 2
-
-
 def check_numbers(args) -> str | None:
     """The first invalid numeric flag, as a message naming it; ``None`` when all are valid (``--max-keypoints``
     is resolved to an int in place: a budget name of :data:`~ctxmatch_lib.features.KEYPOINT_BUDGETS` or a number)."""
     from ..features import keypoint_budget
 
-    for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold)):
-        if not (math.isfinite(value) and value > 0):
+    for flag, value in (("--gt-threshold", args.gt_threshold), ("--model-threshold", args.model_threshold),
+                        ("--estimator-threshold", args.estimator_threshold)):
+        if value is not None and not (math.isfinite(value) and value > 0):
             return f"{flag} must be a positive number of pixels, got {value:g}"
-    if args.estimator_threshold is not None and not (math.isfinite(args.estimator_threshold)
-                                                     and args.estimator_threshold > 0):
-        return f"--estimator-threshold must be a positive number of pixels, got {args.estimator_threshold:g}"
     if args.estimator_confidence is not None and not 0 < args.estimator_confidence < 1:
         return f"--estimator-confidence must lie strictly between 0 and 1, got {args.estimator_confidence:g}"
     if args.estimator_iterations is not None and args.estimator_iterations < 1:
@@ -124,6 +110,8 @@ def check_numbers(args) -> str | None:
 def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
     """``(settings, None)`` for the planner, or ``(None, message naming the flag)``; ``--out`` is checked too.
     ``features`` replaces ``--features`` (eval's ``--descriptor``/``--upright``)."""
+    from ..datasets.base import PAIR_KINDS
+    from ..evaluation.frontends import check_output
     from ..evaluation.plan import resolve_blob_configs, resolve_feature_configs
     from ..evaluation.steps import check_estimator, check_matchers, check_models, resolve_blobs, resolve_filters
 
@@ -131,21 +119,24 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
     if msg:
         return None, msg
     out = {}
-    names = csv(args.filters)
-    if len(names) > 1 and {"all", "none"} & {n.lower() for n in names}:
+    names, matchers = csv(args.filters), csv(args.matchers)
+    lowered = [n.lower() for n in names]
+    if len(names) > 1 and {"all", "none"} & set(lowered):
         return None, f"--filters: 'all' and 'none' stand alone, got {args.filters!r}"
+    filters = "all" if lowered == ["all"] else [] if lowered == ["none"] else names
+    if [m.lower() for m in matchers] == ["none"]:
+        matchers = []
     steps = (
-        ("--out", lambda: _check_output(args.out, "--out")),
-        ("--filters", lambda: resolve_filters("all" if [n.lower() for n in names] == ["all"] else
-                                              [] if [n.lower() for n in names] in ([], ["none"]) else names)),
+        ("--out", lambda: check_output(args.out, "--out")),
+        ("--filters", lambda: resolve_filters(filters)),
         ("--model", lambda: check_models(csv(args.model))),
-        ("--matchers", lambda: check_matchers([] if [n.lower() for n in csv(args.matchers)] in ([], ["none"])
-                                              else csv(args.matchers))),
+        ("--matchers", lambda: check_matchers(matchers)),
         ("--estimator", lambda: check_estimator(estimator_overrides(args))),
         # Named presets keep their names in the blob column; the grid is labelled by each setup's fields.
-        ("--blob", lambda: resolve_blob_configs("grid") if args.blob.strip() == "grid" else resolve_blobs(csv(args.blob))),
-        ("--features", lambda: resolve_feature_configs(features if features is not None else
-                                                csv(args.features or "sift-rootsift"))),
+        ("--blob", lambda: resolve_blob_configs("grid") if args.blob.strip() == "grid"
+                   else resolve_blobs(csv(args.blob))),
+        ("--features", lambda: resolve_feature_configs(features if features is not None
+                                                       else csv(args.features or "sift-rootsift"))),
     )
     for flag, step in steps:
         try:
@@ -159,8 +150,6 @@ def resolve_args(args, features=None) -> tuple[dict | None, str | None]:
         if pairs == 0:
             return None, "--pairs must be a positive number of pairs or pair ids, got 0"
     kinds = csv(args.kind) if args.kind else None
-    from ..datasets.base import PAIR_KINDS
-
     unknown = sorted(set(kinds or ()) - set(PAIR_KINDS))
     if unknown:
         return None, f"--kind must be among {', '.join(PAIR_KINDS)}, got {', '.join(unknown)}"

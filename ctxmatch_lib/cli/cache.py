@@ -4,7 +4,8 @@ what is older than an age (:mod:`ctxmatch_lib.cache`)."""
 from __future__ import annotations
 
 import argparse
-import sys
+
+from . import error
 
 DESCRIPTION = """\
 Show the cache folder ($CTXMATCH_CACHE, else $XDG_CACHE_HOME/ctxmatch or ~/.cache/ctxmatch) and the size of each
@@ -72,11 +73,6 @@ def _files(n: int) -> str:
     return f"{n} file" if n == 1 else f"{n} files"
 
 
-def _error(msg: str, status: int = 2) -> int:
-    print(f"ctxmatch cache clear: error: {msg}", file=sys.stderr)
-    return status
-
-
 def _show(args) -> int:
     from ..cache import cache_usage
 
@@ -102,20 +98,21 @@ def _clear(args) -> int:
 
     unknown = [p for p in args.parts if p not in CACHE_PARTS]
     if unknown:
-        return _error(f"unknown part {unknown[0]!r}: the parts are {', '.join(CACHE_PARTS)}")
+        return error("cache clear", f"unknown part {unknown[0]!r}: the parts are {', '.join(CACHE_PARTS)}")
     if args.all and args.parts:
-        return _error("give parts or --all, not both")
+        return error("cache clear", "give parts or --all, not both")
     if args.older_than is not None:
         try:
             parse_age(args.older_than)
         except ValueError as exc:
-            return _error("--older-than" + str(exc).removeprefix("older_than"))
+            return error("cache clear", "--older-than" + str(exc).removeprefix("older_than"))
     if not args.parts and not args.all and args.older_than is None:
-        return _error(f"name the parts to clear ({', '.join(CACHE_PARTS)}), or --all, or --older-than AGE")
+        return error("cache clear",
+                     f"name the parts to clear ({', '.join(CACHE_PARTS)}), or --all, or --older-than AGE")
     try:
         result = clear_cache(args.parts or "all", older_than=args.older_than, dry_run=args.dry_run)
     except ValueError as exc:  # a folder that is not the cache: refused
-        return _error(str(exc), status=1)
+        return error("cache clear", str(exc), status=1)
     verb = "would remove" if args.dry_run else "removed"
     age = f", files not modified for {args.older_than}" if args.older_than else ""
     print(f"{verb} {_size(result.bytes)} in {_files(result.files)} from {result.root}{age}"

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
+
+from . import error
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -74,26 +75,24 @@ def _list(args) -> int:
     return 0
 
 
-def _check_root(args, command: str) -> str | None:
-    """``--root`` as a folder that can be filled, checked before any work; the error line, or ``None``."""
-    if args.root is None:
-        return None
+def _check_root(args) -> str | None:
+    """``--root`` as a folder that can be filled, checked before any work; the error, or ``None``."""
     from ..cache import check_writable
 
     try:
-        check_writable(args.root, "--root", folder=True)
+        if args.root is not None:
+            check_writable(args.root, "--root", folder=True)
     except ValueError as exc:
-        return f"ctxmatch data {command}: error: {exc}"
+        return str(exc)
     return None
 
 
 def _embedded(args) -> int:
     from ..datasets import load_dataset
 
-    problem = _check_root(args, "embedded")
+    problem = _check_root(args)
     if problem:
-        print(problem, file=sys.stderr)
-        return 2
+        return error("data embedded", problem)
     ds = load_dataset("embedded", root=args.root)
     print(f"{ds!r} at {ds.root}")
     return 0
@@ -118,23 +117,20 @@ def _with(args, **changes):
 def _download(args, command: str = "download") -> int:
     from ..datasets.download import download_dataset
 
-    problem = _check_root(args, command)
+    problem = _check_root(args)
     if args.sha256 is not None and not re.fullmatch(r"[0-9a-fA-F]{64}", args.sha256):
-        problem = f"ctxmatch data {command}: error: --sha256 must be 64 hexadecimal digits, got {args.sha256!r}"
+        problem = f"--sha256 must be 64 hexadecimal digits, got {args.sha256!r}"
     if args.url is not None and not re.match(r"(https?|ftp|file)://", args.url):
-        problem = (f"ctxmatch data {command}: error: --url must start with http://, https://, ftp:// or file://, "
-                   f"got {args.url!r}")
+        problem = f"--url must start with http://, https://, ftp:// or file://, got {args.url!r}"
     if problem:
-        print(problem, file=sys.stderr)
-        return 2
+        return error(f"data {command}", problem)
     try:
         paths = download_dataset(
             args.name, root=args.root, url=args.url, sha256=args.sha256, allow_unpinned=args.allow_unpinned,
             force=args.force, progress=args.progress,
         )
     except (ValueError, OSError) as exc:  # OSError: also the network errors (requests' derive from it)
-        print(f"ctxmatch data {command}: error: {exc}", file=sys.stderr)
-        return 1
+        return error(f"data {command}", str(exc), status=1)
     for p in paths:
         print(p)
     return 0

@@ -7,7 +7,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._engine_args import add_engine_arguments, error, plan, resolve_args
+from . import error
+from ._engine_args import add_engine_arguments, plan, resolve_args
 
 DESCRIPTION = """\
 Evaluate spatial match filters: features -> blob matching -> filters -> model (none/1sac/ransac/prosac/
@@ -74,8 +75,6 @@ def _sift_features(args):
 def run(args) -> int:
     import warnings
 
-    import pandas as pd
-
     from ..cache import write_parquet_atomic
     from ..evaluation.rows import SWEEP_COLUMNS
     from ..evaluation.run import run_units
@@ -111,8 +110,7 @@ def run(args) -> int:
         "filters": list(settings["filters"]), "models": list(settings["models"]), "gt_method": args.gt,
         "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold,
         "features": {u.features_name: u.features.key() for u in units}, "seed": args.seed, "runs": args.runs,
-        "pairs": n_pairs,
-        "matchers": list(settings["matchers"]), "estimator": settings["estimator"],
+        "pairs": n_pairs, "matchers": list(settings["matchers"]), "estimator": settings["estimator"],
         "units": "precision, recall, recall_star, ap, ap_star: fractions in [0, 1]",
     }
     write_parquet_atomic(df, settings["out"], meta)

@@ -127,8 +127,7 @@ class _Status:
     def _show(self) -> None:
         text = self.line()
         if self.tty:
-            pad = max(0, self._width - len(text))
-            sys.stderr.write("\r" + text + " " * pad)
+            sys.stderr.write("\r" + text + " " * (self._width - len(text)))
             self._width = len(text)
         else:
             sys.stderr.write(text + "\n")

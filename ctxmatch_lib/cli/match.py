@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from . import error
+
 DESCRIPTION = """\
 Match two images with the paper's pipeline: SIFT features -> blob matching (Sec. 3) -> spatial filter(s)
 (DTM by default, Sec. 4) -> optional model step (1SAC, Sec. 5.1, or OpenCV's USAC: ransac, prosac, magsac).
@@ -69,11 +71,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar (folder mode)")
     p.set_defaults(func=run)
     return p
-
-
-def _error(msg: str) -> int:
-    print(f"ctxmatch match: error: {msg}", file=sys.stderr)
-    return 2
 
 
 def _check_plot_suffix(path) -> None:
@@ -244,18 +241,18 @@ def run(args) -> int:
     folder = args.pairs is not None
     if folder:
         if args.images_pair:
-            return _error("give either two images or --pairs/--images, not both")
+            return error("match", "give either two images or --pairs/--images, not both")
         if args.images is None:
-            return _error("--pairs needs --images DIR (the folder the names are relative to)")
+            return error("match", "--pairs needs --images DIR (the folder the names are relative to)")
     elif len(args.images_pair) != 2:
-        return _error(f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
+        return error("match", f"give two images (or --pairs FILE --images DIR), got {len(args.images_pair)}")
     try:
         _check_inputs_and_outputs(args, folder)
         _check_numbers(args)
         pending = None if folder else _start_features(args)
         settings = _settings(args)
     except ValueError as exc:
-        return _error(str(exc))
+        return error("match", str(exc))
     from ..match import kernels_ready
 
     if not kernels_ready():
@@ -263,8 +260,8 @@ def run(args) -> int:
               "'ctxmatch warmup' does it ahead)", file=sys.stderr, flush=True)
     try:
         results = _run_folder(args, settings) if folder else _run_one(args, settings, pending)
-    except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a missing optional dependency (published deep weights need kornia)
-        return _error(str(exc))
+    except (FileNotFoundError, ValueError, ImportError) as exc:  # ImportError: a missing optional dependency
+        return error("match", str(exc))
 
     if args.export_h5 is not None or args.export_colmap is not None:
         from ..io.export import export_results
@@ -272,7 +269,7 @@ def run(args) -> int:
         try:
             report = export_results(results, h5_dir=args.export_h5, colmap_db=args.export_colmap)
         except (ValueError, OSError) as exc:
-            return _error(f"export failed: {exc}")
+            return error("match", f"export failed: {exc}")
         for line in report:
             print(line)
     return 0

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._engine_args import add_engine_arguments, error, plan, resolve_args
+from . import error
+from ._engine_args import add_engine_arguments, plan, resolve_args
 
 DESCRIPTION = """\
 Sweep blob-matching setups (default: the 2430 of Sec. 5.2) and optionally filters and model steps over a
@@ -66,8 +67,8 @@ def run(args) -> int:
     meta = {"datasets": args.dataset, "features": {u.features_name: u.features.key() for u in units},
             "blobs": len(units[0].blobs), "filters": list(units[0].filters), "models": list(units[0].models),
             "pairs": len({(u.dataset, u.pair.pair_id) for u in units}), "gt_method": args.gt,
-            "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold, "seed": args.seed, "runs": args.runs,
-            "format": FORMAT}
+            "gt_threshold": args.gt_threshold, "model_threshold": args.model_threshold, "seed": args.seed,
+            "runs": args.runs, "format": FORMAT}
     out = settings["out"]
     write_parquet_atomic(df, out, meta)
     maps = blob_map(df)

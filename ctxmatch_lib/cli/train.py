@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
+
+from . import error
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -44,11 +45,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _error(msg: str) -> int:
-    print(f"ctxmatch train: error: {msg}", file=sys.stderr)
-    return 2
-
-
 def default_output(arch: str, seed: int = 0, steps: int | None = None) -> Path:
     """Where ``ctxmatch train`` writes without ``--output``, never the package:
     ``cache_dir("weights") / "<arch>_trained_here_seed<seed>[_steps<steps>].npz"`` (steps only when given)."""
@@ -78,14 +74,14 @@ def _train(args) -> int:
 
     problem = _check_args(args)
     if problem:
-        return _error(problem)
+        return error("train", problem)
     output = Path(args.output) if args.output else default_output(args.arch, args.seed, args.steps)
     try:
         check_writable(output, "--output")
     except ValueError as exc:
-        return _error(str(exc))
+        return error("train", str(exc))
     if not torch_available():
-        return _error(TORCH_HINT)
+        return error("train", TORCH_HINT)
 
     from ..filters.learned import train_learned_filter
 

@@ -13,22 +13,6 @@ from .run import run_units
 from .steps import PAPER_FILTER_ORDER, resolve_blobs, resolve_filters
 from .unit import PairError, run_unit
 
-__all__ = [
-    "PAPER_FILTER_ORDER",
-    "SWEEP_COLUMNS",
-    "PairError",
-    "SweepUnit",
-    "check_output",
-    "evaluate_cached",
-    "plan_sweep",
-    "plan_units",
-    "resolve_blob_configs",
-    "resolve_blobs",
-    "resolve_feature_configs",
-    "resolve_filters",
-    "run_sweep",
-    "run_unit",
-    "run_units",
-    "select_pairs",
-    "source_digest",
-]
+__all__ = ["PAPER_FILTER_ORDER", "SWEEP_COLUMNS", "PairError", "SweepUnit", "check_output", "evaluate_cached",
+           "plan_sweep", "plan_units", "resolve_blob_configs", "resolve_blobs", "resolve_feature_configs",
+           "resolve_filters", "run_sweep", "run_unit", "run_units", "select_pairs", "source_digest"]

@@ -144,9 +144,8 @@ def _outside_code(module: str) -> bytes:
 
 
 @functools.lru_cache(maxsize=64)
-def _package_digest(filters: tuple[str, ...], package_root: Path) -> str:
+def _package_digest(filters: tuple[str, ...], root: Path) -> str:
     """:func:`source_digest` of the package's own code."""
-    root = package_root
     paths = _modules(root)
     modules = [_filter_module(n) for n in filters]
     closure = code_closure([_UNIT_ROOT, *(m for m in modules if m in paths)], package_root=root)

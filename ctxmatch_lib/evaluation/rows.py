@@ -39,12 +39,8 @@ def blob_record(cfg: BlobConfig) -> dict:
 
 def error_rows(unit, message: str, n: int = 0, m: int = 0) -> list[dict]:
     """Rows of a unit that could not be evaluated: NaN metrics, zero counts, ``error`` set."""
-    rows = []
-    for cfg in unit.blobs:
-        for method in ("blob", *unit.filters, *unit.matchers):
-            for model in unit.models:
-                rows.append(error_row(unit, cfg, method, model, message, n, m))
-    return rows
+    return [error_row(unit, cfg, method, model, message, n, m)
+            for cfg in unit.blobs for method in ("blob", *unit.filters, *unit.matchers) for model in unit.models]
 
 
 def error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
@@ -55,8 +51,7 @@ def error_row(unit, cfg, method, model, message, n, m, **known) -> dict:
            "precision": nan, "recall": nan, "recall_star": nan, "ap": nan, "ap_star": nan, "correct": 0,
            "correct_norm": 0, "output": 0, "failure": False, "empty_output": False, "time_s": nan, "model_time_s": nan,
            **{c: nan for c in GEOMETRY_COLUMNS}, "n_kpts1": n, "n_kpts2": m, "n_candidates": 0, "n_gt": 0,
-           "n_gt_star": 0, "gt_method": unit.gt_method,
-           "error": message}
+           "n_gt_star": 0, "gt_method": unit.gt_method, "error": message}
     row.update(known)
     return row
 
@@ -65,12 +60,11 @@ def frame(rows):
     """The rows as a ``pandas.DataFrame`` with :data:`SWEEP_COLUMNS` and their dtypes."""
     import pandas as pd
 
+    floats = ("t_o", "precision", "recall", "recall_star", "ap", "ap_star", "time_s", "model_time_s",
+              *GEOMETRY_COLUMNS)
     df = pd.DataFrame(rows, columns=list(SWEEP_COLUMNS))
-    return df.astype({**{c: "int64" for c in INT_COLUMNS}, "failure": "bool", "empty_output": "bool", "t_o": "float64",
-                      "precision": "float64", "recall": "float64", "recall_star": "float64", "ap": "float64",
-                      "ap_star": "float64", "time_s": "float64", "model_time_s": "float64",
-                      **{c: "float64" for c in GEOMETRY_COLUMNS},
-                      "error": "str"})
+    return df.astype({**dict.fromkeys(INT_COLUMNS, "int64"), "failure": "bool", "empty_output": "bool",
+                      **dict.fromkeys(floats, "float64"), "error": "str"})
 
 
 def ranked_ap(rows, cols, lab, scores, den: int, n: int, m: int) -> float:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 import warnings
 from collections.abc import Sequence
 
@@ -20,9 +19,7 @@ __all__ = ["check_runner", "run_units"]
 
 def _unit_task(unit, cache_dir, feature_cache_dir):
     """What a worker runs: the rows of one unit (the driver writes the part file)."""
-    t0 = time.perf_counter()
-    df = run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir)
-    return unit.key, df, time.perf_counter() - t0
+    return unit.key, run_unit(unit, cache_dir=cache_dir, feature_cache_dir=feature_cache_dir)
 
 
 def _distributed():
@@ -69,8 +66,7 @@ def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> No
             bar.set_postfix_str(f"{len(todo)} pairs on the cluster", refresh=True)
             futures = [client.submit(_unit_task, u, cache_arg, feature_cache_dir, pure=False) for u in todo]
             for fut in as_completed(futures):
-                key, df, _ = fut.result()
-                done(key, df)
+                done(*fut.result())
         finally:
             if own:
                 client.close()
@@ -79,13 +75,12 @@ def _dispatch(todo, n_jobs, dask, cache_arg, feature_cache_dir, bar, done) -> No
 
         bar.set_postfix_str(f"{len(todo)} pairs on {n_jobs if n_jobs > 0 else 'all'} workers", refresh=True)
         par = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
-        for key, df, _ in par(delayed(_unit_task)(u, cache_arg, feature_cache_dir) for u in todo):
+        for key, df in par(delayed(_unit_task)(u, cache_arg, feature_cache_dir) for u in todo):
             done(key, df)
     else:
         for u in todo:
             bar.set_postfix_str(u.label(), refresh=True)
-            key, df, _ = _unit_task(u, cache_arg, feature_cache_dir)
-            done(key, df)
+            done(*_unit_task(u, cache_arg, feature_cache_dir))
 
 
 def run_units(units: Sequence[SweepUnit], *, cache_dir=None, feature_cache_dir=None, n_jobs: int = 1, dask=None,

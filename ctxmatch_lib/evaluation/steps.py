@@ -4,6 +4,7 @@ checks shared with the command line; the bottom layer of the engine, above the m
 
 from __future__ import annotations
 
+import functools
 import time
 import zlib
 from collections.abc import Callable, Iterable, Mapping
@@ -18,28 +19,10 @@ from ..geometry import (CONSISTENCY_THRESHOLD_PX, MODEL_STEPS, ROBUST_STEPS, Mod
 from ..geometry_metrics import EPIPOLAR_THRESHOLDS_PX, epipolar_consistency, homography_corner_error
 from ..groundtruth import GT_THRESHOLD_PX, label_matches
 
-__all__ = [
-    "BLOB_METHOD",
-    "PAPER_FILTER_ORDER",
-    "resolve_blobs",
-    "resolve_filters",
-    "check_filters",
-    "check_models",
-    "check_matchers",
-    "check_estimator",
-    "check_pair_keypoints",
-    "pair_seed",
-    "run_seed",
-    "pair_features",
-    "blob_candidates",
-    "run_filter",
-    "run_model",
-    "run_matcher",
-    "model_accuracy",
-    "EPI_SHARE_AT_PX",
-    "POSE_COLUMNS",
-    "label_candidates",
-]
+__all__ = ["BLOB_METHOD", "PAPER_FILTER_ORDER", "resolve_blobs", "resolve_filters", "check_filters", "check_models",
+           "check_matchers", "check_estimator", "check_pair_keypoints", "pair_seed", "run_seed", "pair_features",
+           "blob_candidates", "run_filter", "run_model", "run_matcher", "model_accuracy", "EPI_SHARE_AT_PX",
+           "POSE_COLUMNS", "label_candidates"]
 
 #: Thresholds (px) with their own ``epi_share_<t>`` column, beside the mean over 1 ... 19 px.
 EPI_SHARE_AT_PX = (1, 3, 5, 10)
@@ -250,14 +233,13 @@ def run_filter(
     k = len(matches)
     if k == 0:
         return np.zeros(0, bool), 0.0
-    call = (name, func)
-    if call not in _WARM:  # compile / load the filter's kernels outside the timing
-        func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
-             shapes1=f1.shapes, shapes2=f2.shapes, **params)
-        _WARM.add(call)
+    call = functools.partial(func, f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1),
+                             image_size2=tuple(image_size2), shapes1=f1.shapes, shapes2=f2.shapes, **params)
+    if (name, func) not in _WARM:  # compile / load the filter's kernels outside the timing
+        call()
+        _WARM.add((name, func))
     t0 = time.perf_counter()
-    out = func(f1.kpts, f2.kpts, matches, scores, image_size1=tuple(image_size1), image_size2=tuple(image_size2),
-               shapes1=f1.shapes, shapes2=f2.shapes, **params)
+    out = call()
     elapsed = time.perf_counter() - t0
     keep = np.asarray(getattr(out, "keep", out))
     if keep.shape != (k,) or keep.dtype != bool:

@@ -160,9 +160,9 @@ def _fast_row(d: _PairData, common: dict, mt, lab, scores, n_gt: int, t_blob: fl
             "time_s": t_blob, "model_time_s": 0.0, **model_accuracy("none", None, d.unit.pair, None)}
 
 
-def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tuple[dict, bool]:
-    """Each method's mask (or error) and time, cached in ``masks``; and whether ``masks`` grew."""
-    pair, added = d.unit.pair, False
+def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> dict:
+    """Each method's mask (or error) and time, cached in ``masks``."""
+    pair = d.unit.pair
     keeps = {"blob": (np.ones(len(sm), bool), t_blob)}
     for name in d.unit.filters:
         mkey = f"{name}__{digest(cfg.kwargs())}"
@@ -177,8 +177,8 @@ def _filter_keeps(d: _PairData, cfg, sm, ss, t_blob: float, masks: dict) -> tupl
             keeps[name] = (f"filter {name!r} raised {type(exc).__name__}: {exc}", float("nan"))
             continue
         keeps[name] = (keep, t)
-        masks[mkey], masks[f"t_{mkey}"], added = keep, np.float64(t), True
-    return keeps, added
+        masks[mkey], masks[f"t_{mkey}"] = keep, np.float64(t)
+    return keeps
 
 
 def _method_rows(d: _PairData, cfg, common: dict, keeps: dict, sm, ss, sl, stage=None) -> list[dict]:
@@ -301,7 +301,7 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir, features, stages
     fast = not unit.filters and not unit.matchers and unit.models == ("none",) and stages is None
     names = unit.blob_names or tuple(cfg.label for cfg in unit.blobs)
     masks, mask_path = _mask_store(unit, feats_digest, cache)
-    masks_added = False
+    n_masks = len(masks)
     ranks: dict = {}
     rows = []
     for name, cfg in zip(names, unit.blobs):
@@ -324,13 +324,12 @@ def _run_unit(unit: SweepUnit, *, cache_dir, feature_cache_dir, features, stages
             continue
         order = np.argsort(scores, kind="stable")
         sm, ss, sl = mt[order], scores[order], lab[order]
-        keeps, added = _filter_keeps(d, cfg, sm, ss, t_blob, masks)
-        masks_added |= added
+        keeps = _filter_keeps(d, cfg, sm, ss, t_blob, masks)
         stage = None
         if stages is not None:
             stage = stages[name] = BlobStage(name, cfg, sm, ss, sl, t_blob, {m: k for m, (k, _) in keeps.items()},
                                              {m: t for m, (_, t) in keeps.items()})
         rows.extend(_method_rows(d, cfg, common, keeps, sm, ss, sl, stage))
-    if masks_added and mask_path is not None:
+    if len(masks) > n_masks and mask_path is not None:
         save_npz(mask_path, masks)
     return frame(rows)
