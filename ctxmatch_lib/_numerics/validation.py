@@ -120,16 +120,13 @@ def _first_cv2_object(x, cls: str) -> bool:
 
 def as_points(x, name: str, *, n: int | None = None) -> np.ndarray:
     """Keypoints as float64 ``(N, 2)``; extra columns are dropped, ``None`` gives ``(0, 2)``."""
-    if x is None:
-        arr = np.empty((0, 2))
-    else:
-        if _first_cv2_object(x, "KeyPoint"):
-            raise ValueError(
-                f"{name} must be an (N, 2) array of (x, y) pixels, got a list of cv2.KeyPoint; convert it with "
-                f"ctxmatch_lib.io.interop.from_cv2_keypoints({name}) (returns kpts, shapes, angles, responses)")
-        arr = np.asarray(x, dtype=np.float64)
-        if arr.size == 0:
-            arr = arr.reshape(0, 2)
+    if _first_cv2_object(x, "KeyPoint"):
+        raise ValueError(
+            f"{name} must be an (N, 2) array of (x, y) pixels, got a list of cv2.KeyPoint; convert it with "
+            f"ctxmatch_lib.io.interop.from_cv2_keypoints({name}) (returns kpts, shapes, angles, responses)")
+    arr = np.empty((0, 2)) if x is None else np.asarray(x, dtype=np.float64)
+    if arr.size == 0:
+        arr = arr.reshape(0, 2)
     if arr.ndim != 2 or arr.shape[1] < 2:
         raise ValueError(f"{name} must have shape (N, 2), got {arr.shape}")
     arr = arr[:, :2]
@@ -150,9 +147,8 @@ def as_matches(matches, n1: int | None = None, n2: int | None = None, name: str 
         return np.empty((0, 2), np.int64)
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"{name} must have shape (K, 2), got {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        if not np.all(np.equal(np.mod(arr, 1), 0)):
-            raise ValueError(f"{name} must hold integer indices")
+    if not np.issubdtype(arr.dtype, np.integer) and not np.all(np.equal(np.mod(arr, 1), 0)):
+        raise ValueError(f"{name} must hold integer indices")
     arr = arr.astype(np.int64)
     if arr.min() < 0:
         raise ValueError(f"{name} holds negative indices")

@@ -42,9 +42,8 @@ def _check_t_o(t_o, t_o_kind: str) -> float | None:
 
 @dataclass(frozen=True)
 class BlobConfig:
-    """One blob-matching setup (Sec. 3, steps 1-4): the keywords of :func:`~ctxmatch_lib.blob.blob_matching`
-    (``f``, ``prefilter``, ``f_prime``, ``ratio``, ``t_o``, ``t_o_kind``, ``combine``), validated and
-    normalised (``"∩"``/``"∪"`` aliases, ``t_o = math.inf`` as ``None``)."""
+    """One blob-matching setup (Sec. 3, steps 1-4): the keywords of :func:`~ctxmatch_lib.blob.blob_matching`,
+    validated and normalised (``"∩"``/``"∪"`` aliases, ``t_o = math.inf`` as ``None``)."""
 
     f: int | str = 10
     prefilter: str = "cup"

@@ -112,13 +112,12 @@ class BlobContext:
         self._radii = [None, None]
         self._line_memo: list = [None, None]  # LineMemo per side, made with the first whole-line look-up
         self.max_dense_bytes = int(max_dense_bytes)
-        self._metric = None
+        self._metric = self._A = self._B = self._dense = None
         if distances is not None:
             D = np.asarray(distances)
             if D.dtype not in (np.float32, np.float64):
                 D = D.astype(np.float64)
             self.n, self.m = D.shape
-            self._A = self._B = None
             self._dtype = D.dtype
             self._dense = D
         elif distance is not None:
@@ -129,7 +128,6 @@ class BlobContext:
             self._A = np.asarray(desc1, self._dtype)
             self._B = np.asarray(desc2, self._dtype)
             self.n, self.m = len(self._A), len(self._B)
-            self._dense = None
             dense_bytes = self.n * self.m * self._dtype.itemsize
             if keep_dense is None:
                 keep_dense = dense_bytes <= 256 * _MiB
@@ -140,9 +138,6 @@ class BlobContext:
             dtype = np.result_type(desc1.dtype, desc2.dtype, np.float32)
             self._X = (np.ascontiguousarray(desc1, dtype), np.ascontiguousarray(desc2, dtype))
             self.n, self.m = len(self._X[0]), len(self._X[1])
-            self._A = self._B = None
-            self._dtype = np.dtype(np.float32)
-            self._dense = None
             if keep_dense:  # fail fast, before any work
                 self._check_dense(self.n * self.m * 2, "f='omega' (keep_dense=True)")
         self._exact = distances is None and distance is None
@@ -153,19 +148,15 @@ class BlobContext:
             if self._exact:
                 self._scan_exact(bool(keep_dense))
             else:
-                self._scan(bool(keep_dense) if distances is None else True, block_bytes)
+                self._scan(bool(keep_dense), block_bytes)
 
     # -- the one pass over D ------------------------------------------------------------------------
-    def _block(self, r0: int, r1: int, out: np.ndarray | None = None) -> np.ndarray:
-        if self._dense is not None:
-            return self._dense[r0:r1]
-        if self._metric is not None:
-            blk = self._hook(self._A[r0:r1], self._B)
-            if out is None:
-                return blk
-            out[...] = blk
-            return out
-        return np.matmul(self._A[r0:r1], self._B.T, out=out)
+    def _blocks(self, step: int):
+        """``(r0, D[r0 : r0 + step])`` for every block of ``step`` rows of a precomputed D or of the distance
+        hook's (the L2 path has its own pass)."""
+        for r0 in range(0, self.n, step):
+            yield r0, (self._dense[r0 : r0 + step] if self._dense is not None
+                       else self._hook(self._A[r0 : r0 + step], self._B))
 
     def _hook(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         blk = np.asarray(self._metric(a, b))
@@ -175,18 +166,14 @@ class BlobContext:
 
     def _scan(self, keep_dense: bool, block_bytes: int) -> None:
         n, m = self.n, self.m
-        Tr = min(m, self.depth + self.margin)
-        Tc = min(n, self.depth + self.margin)
+        Tr, Tc = min(m, self.depth + self.margin), min(n, self.depth + self.margin)
         Gr, Gc = _group_size(m, Tr), _group_size(n, Tc)
-        itemsize = self._dtype.itemsize
-        rows_per_block = max(Gc, (block_bytes // max(1, m * itemsize)) // Gc * Gc)
-        dense = None
-        if keep_dense and self._dense is None:
-            dense = np.empty((n, m), self._dtype)
+        rows_per_block = max(Gc, (block_bytes // max(1, m * self._dtype.itemsize)) // Gc * Gc)
+        dense = np.empty((n, m), self._dtype) if keep_dense and self._dense is None else None
         r_g, r_o, r_v, col_min = [], [], [], []
-        for r0 in range(0, n, rows_per_block):
-            r1 = min(n, r0 + rows_per_block)
-            blk = self._block(r0, r1, out=None if dense is None else dense[r0:r1])
+        for r0, blk in self._blocks(rows_per_block):
+            if dense is not None:
+                dense[r0 : r0 + len(blk)] = blk
             tau = _row_thresholds(blk, Tr, Gr)
             flat = np.flatnonzero(blk <= tau[:, None])
             r_g.append(flat // m + r0)
@@ -204,9 +191,7 @@ class BlobContext:
         tau_c = (np.partition(np.vstack(col_min), Tc - 1, axis=0)[Tc - 1] if Tc < n
                  else np.full(m, np.inf))
         c_g, c_o, c_v = [], [], []
-        for r0 in range(0, n, rows_per_block):
-            r1 = min(n, r0 + rows_per_block)
-            blk = self._block(r0, r1)
+        for r0, blk in self._blocks(rows_per_block):
             flat = np.flatnonzero(blk <= tau_c[None, :])
             c_g.append(flat % m)
             c_o.append(flat // m + r0)
@@ -287,16 +272,9 @@ class BlobContext:
         own, other = self._norms[side], self._norms[1 - side]
         return self._scale * (own + other.max()) + self._qstep
 
-    def _approx_dense(self) -> np.ndarray:
-        """The coded approximate squared distances of the L2 path (f = Ω), computed on demand."""
-        if self._approx is None:
-            self._check_dense(self.n * self.m * 2, "f='omega'")
-            self._approx = self._compute_lines(0, np.arange(self.n))
-        return self._approx
-
     def _approx_lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Coded approximate squared distances of rows (side 0) or columns (side 1) ``which`` of D, within
-        :meth:`_line_bounds` of the exact ones (:func:`._lines.coded_lines`), kept by :class:`._lines.LineMemo`."""
+        :meth:`_line_bounds` of the exact ones (:func:`coded_lines`), kept by :class:`LineMemo`."""
         if self._approx is not None and side == 0:
             return self._approx[which]
         if self._line_memo[side] is None:
@@ -318,31 +296,24 @@ class BlobContext:
             )
 
     def _ensure_dense(self) -> np.ndarray:
+        """D itself (precomputed, or the distance hook's, computed on demand)."""
         if self._dense is None:
+            self._check_dense(self.n * self.m * self._dtype.itemsize, "f='omega'")
+            dense = np.empty((self.n, self.m), self._dtype)
+            step = max(1, (64 * _MiB) // max(1, self.m * self._dtype.itemsize))
             with one_blas_thread():
-                self._dense = self._dense_matrix()
+                for r0, blk in self._blocks(step):
+                    dense[r0 : r0 + len(blk)] = blk
+            self._dense = dense
         return self._dense
-
-    def _dense_matrix(self) -> np.ndarray:
-        self._check_dense(self.n * self.m * self._dtype.itemsize, "f='omega'")
-        if self._metric is None:
-            return self._A @ self._B.T
-        dense = np.empty((self.n, self.m), self._dtype)
-        step = max(1, (64 * _MiB) // max(1, self.m * self._dtype.itemsize))
-        for r0 in range(0, self.n, step):
-            dense[r0 : r0 + step] = self._hook(self._A[r0 : r0 + step], self._B)
-        return dense
 
     def _lines(self, side: int, which: np.ndarray) -> np.ndarray:
         """Whole rows (side 0) or columns (side 1) of D as float64 (precomputed D or distance hook only)."""
         if self._dense is not None:
             raw = self._dense[which] if side == 0 else self._dense[:, which].T
-        elif self._metric is not None:
-            # Columns as distance(desc1, desc2[cols]): the hook need not be symmetric.
+        else:  # columns as distance(desc1, desc2[cols]): the hook need not be symmetric
             with one_blas_thread():
                 raw = self._hook(self._A[which], self._B) if side == 0 else self._hook(self._A, self._B[which]).T
-        else:  # the L2 path proposes with coded float32 rows (_approx_lines), decides on exact distances
-            raise RuntimeError("BlobContext._lines serves precomputed distances and distance hooks only")
         return np.asarray(raw, np.float64)
 
     def _need_columns(self, what: str) -> None:
@@ -377,8 +348,11 @@ class BlobContext:
         """Greedy over all of D (f = Ω) without sorting it: a heap of each row's next entry in (value, column)
         order, skipping saturated columns."""
         if self._exact:
+            if self._approx is None:  # the codes of all of D, computed on demand
+                self._check_dense(self.n * self.m * 2, "f='omega'")
+                self._approx = self._compute_lines(0, np.arange(self.n))
             X1, X2 = self._X
-            gi, gj, gd = _walk_kernels.greedy_dense(self._approx_dense(), X1, X2, self.rows.idx, self.rows.val,
+            gi, gj, gd = _walk_kernels.greedy_dense(self._approx, X1, X2, self.rows.idx, self.rows.val,
                                                     self._line_bounds(0), int(f_prime), self._qoff, self._qstep)
             return np.stack([gi, gj], axis=1).reshape(-1, 2), gd
         D = self._ensure_dense()

@@ -173,9 +173,8 @@ def blob_matching(desc1=None, desc2=None, *, distances=None, kpts1=None, kpts2=N
             raise ValueError(
                 f"desc1 and desc2 must have the same dimension, got {desc1.shape[1]} and {desc2.shape[1]}")
         n, m = len(desc1), len(desc2)
-    if cfg.t_o is not None:
-        if kpts1 is None or kpts2 is None:
-            raise ValueError("kpts1 and kpts2 are required when t_o is set (FGINN)")
+    if cfg.t_o is not None and (kpts1 is None or kpts2 is None):
+        raise ValueError("kpts1 and kpts2 are required when t_o is set (FGINN)")
     if kpts1 is not None:
         kpts1 = as_points(kpts1, "kpts1", n=n)
     if kpts2 is not None:

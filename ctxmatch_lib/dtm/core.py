@@ -190,11 +190,9 @@ def _dtm1_iteration(i, active, kp1, kp2, score, canon, setup: _Setup, want_recor
     kept_local = np.flatnonzero(kept_flag)
     record = None
     if want_record:
-        is_picked = np.zeros(n, bool)
-        is_picked[picked] = True
-        sel = in_both & is_picked[m_a]
         pos_in_t = np.full(n, -1, np.int64)
         pos_in_t[picked] = np.arange(len(picked))
+        sel = in_both & (pos_in_t[m_a] >= 0)
         cm, co = pos_in_t[m_a[sel]], o_a[sel]
         cptr, corder = _csr_by(cm, len(picked))
         record = dict(iteration=i, active=active, vertex1=vl, vertex2=vr, boundary1=b1, boundary2=b2,

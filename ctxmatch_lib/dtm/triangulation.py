@@ -197,7 +197,7 @@ class IncrementalDelaunay:
         keys = np.ascontiguousarray(self._p32).view(np.int64).reshape(-1)
         tri = np.asarray(self._sub.getTriangleList(), np.float32).reshape(-1, 6)
         if len(tri) == 0:
-            return None if _KeyIndex(keys).has_duplicates else np.empty((0, 3), np.int64)
+            return None if len(np.unique(keys)) < len(keys) else np.empty((0, 3), np.int64)
         tk = np.ascontiguousarray(tri + np.float32(0.0)).view(np.int64).reshape(-1)
         # Every corner must be a point and every point a corner; duplicates go to Qhull.
         idx, status = key_rows_kernel(keys, tk)
@@ -216,55 +216,8 @@ class IncrementalDelaunay:
         return DelaunayMesh(self.points, simplices) if len(simplices) else None
 
 
-_FIBONACCI = np.uint64(0x9E3779B97F4A7C15)
-
-
-def _fibonacci_slot(keys: np.ndarray, shift: np.uint64) -> np.ndarray:
-    """Hash-table slot of each int64 key: the top ``64 - shift`` bits of its Fibonacci hash."""
-    return (keys.view(np.uint64) * _FIBONACCI) >> shift
-
-
-class _KeyIndex:
-    """Row of each of a set of int64 keys: a Fibonacci-hashed table of 8 slots per key (last key wins),
-    the keys that lost their slot sorted for a binary search; every answer is verified."""
-
-    def __init__(self, keys: np.ndarray):
-        n = len(keys)
-        self._keys = keys
-        self._shift = np.uint64(64 - max((8 * n).bit_length(), 4))
-        slot = self._slot(keys)
-        rows = np.arange(n)
-        self._table = np.zeros(1 << (64 - int(self._shift)), np.intp)
-        self._table[slot] = rows  # the last key wins a shared slot
-        winner = self._table[slot]
-        lost = np.flatnonzero(winner != rows)
-        lost_keys = keys[lost]
-        order = np.argsort(lost_keys)
-        self._lost_keys, self._lost_rows = lost_keys[order], lost[order]
-        # A duplicate either lost to an equal key or lost, like its copy, to a different one.
-        self.has_duplicates = bool(np.any(keys[winner[lost]] == lost_keys)
-                                   or np.any(self._lost_keys[1:] == self._lost_keys[:-1]))
-
-    def _slot(self, keys: np.ndarray) -> np.ndarray:
-        return _fibonacci_slot(keys, self._shift)
-
-    def lookup(self, queries: np.ndarray) -> np.ndarray | None:
-        """Rows of the keys equal to ``queries`` (int64), ``None`` if one is not a key."""
-        idx = self._table[self._slot(queries)]
-        miss = np.flatnonzero(self._keys[idx] != queries)
-        if len(miss):
-            if len(self._lost_keys) == 0:
-                return None
-            pos = np.minimum(np.searchsorted(self._lost_keys, queries[miss]), len(self._lost_keys) - 1)
-            if not np.array_equal(self._lost_keys[pos], queries[miss]):
-                return None
-            idx[miss] = self._lost_rows[pos]
-        return idx
-
-
 def _subdiv2d_simplices(points: np.ndarray) -> np.ndarray | None:
     """Subdiv2D triangles of ``points`` or ``None`` when not usable (see :class:`IncrementalDelaunay`)."""
-    points = np.asarray(points, np.float64).reshape(-1, 2)
     inc = IncrementalDelaunay(points)
     return inc._subdiv2d_simplices() if inc._sub is not None else None
 
@@ -277,11 +230,7 @@ def delaunay_simplices(points: np.ndarray) -> np.ndarray:
 
 def delaunay_or_none(points: np.ndarray) -> DelaunayMesh | None:
     """Delaunay triangulation of ``points``, or ``None`` when they are fewer than three or all collinear."""
-    points = np.asarray(points, np.float64).reshape(-1, 2)
-    simplices = delaunay_simplices(points)
-    if len(simplices) == 0:
-        return None
-    return DelaunayMesh(points, simplices)
+    return IncrementalDelaunay(points).mesh()
 
 
 @dataclass(frozen=True)
@@ -357,15 +306,12 @@ def triangulate(vertices: np.ndarray, boundary: np.ndarray | None = None, *,
         tri = delaunay_or_none(points)
     else:
         tri = DelaunayMesh(points, np.asarray(simplices, np.int64).reshape(-1, 3)) if len(simplices) else None
-    if tri is None:
-        simplices = np.empty((0, 3), np.int64)
-        indptr = np.arange(n + 1, dtype=np.int64)
-        indices = np.arange(n, dtype=np.int64)
-        return Triangulation(points, n, simplices, indptr, indices, None)
+    if tri is None:  # no triangles: A_v = {v}
+        return Triangulation(points, n, np.empty((0, 3), np.int64), np.arange(n + 1, dtype=np.int64),
+                             np.arange(n, dtype=np.int64), None)
     # Keypoint-keypoint edges both ways plus the self loops, sorted per vertex: CSR over V (compiled).
-    s = tri.simplices
-    indptr, indices = vertex_csr_kernel(np.ascontiguousarray(s, np.int64), n)
-    return Triangulation(points, n, s, indptr, indices, tri)
+    indptr, indices = vertex_csr_kernel(np.ascontiguousarray(tri.simplices, np.int64), n)
+    return Triangulation(points, n, tri.simplices, indptr, indices, tri)
 
 
 def expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
