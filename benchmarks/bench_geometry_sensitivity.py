@@ -4,7 +4,7 @@ Every method's output (the blob candidates, the filters, OpenCV's ratio test and
 the same descriptors) goes to each estimator at each threshold: OpenCV's USAC as the ``ransac`` (uniform
 sampling), ``prosac`` (PROSAC by the match ranking) and ``magsac`` (confidence 0.9999, 100 000 iterations)
 model steps, and PoseLib's LO-RANSAC (``estimate_homography`` / ``estimate_fundamental``, confidence 0.9999,
-100 000 iterations) when ``poselib`` is installed (the ``geometry`` extra pins 2.0.5). The score of a method
+100 000 iterations) (``poselib``, a dependency pinned at 2.0.5). The score of a method
 is the AUC of the mean corner error at 5 px on planar pairs (failures at infinity) and the mean share of the
 ground-truth correspondences within 1 ... 19 px of the estimated F on the others (the metrics of ``geometry_metrics``,
 :mod:`ctxmatch_lib.geometry_metrics`). For each (estimator, threshold) the methods are ranked per kind, and the
@@ -79,7 +79,7 @@ def run(args) -> pd.DataFrame:
             import poselib  # noqa: F401
         except ImportError:
             estimators.remove("poselib")
-            print("poselib not installed (pip install 'ctxmatch[geometry]'): PoseLib skipped")
+            print("poselib not installed (a core dependency: pip install -r environment.txt): PoseLib skipped")
     feats = FEATURE_PRESETS["sift-rootsift"]
     budget = keypoint_budget(args.max_keypoints)
     if budget is not None:

@@ -221,7 +221,7 @@ def match_images(
         Blob-matching setup (:func:`resolve_blob`); default the paper's best.
     filters, filter_params : sequence of str, str or None; dict of str -> dict, optional
         Registered filters applied in turn (``None``, ``()`` or ``"none"``: none); extra arguments per filter.
-    model, model_kind : {"none", "1sac", "ransac", "prosac", "magsac"}, {"F", "H"}
+    model, model_kind : {"none", "1sac", "ransac", "prosac", "magsac", "poselib"}, {"F", "H"}
         Model step on the filtered matches (:func:`~ctxmatch_lib.geometry.apply_model_step`) and its model.
     model_threshold : float, optional
         Consistency threshold of the model step in pixels (default 15, Sec. 5.1).

@@ -681,3 +681,17 @@ def test_cli_eval_ranks_a_filter_given_by_its_import_path(tiny_dataset, tmp_path
         assert df2.xs("th", level="method")[same].equals(df.xs("th", level="method")[same])
     finally:
         sys.modules.pop("userfilters_eval", None)
+
+
+def test_cli_eval_runs_poselib_beside_magsac(tiny_dataset, tmp_path, monkeypatch, capsys):
+    # The second estimator on the same methods' outputs: a row per (method, model), each with its accuracy.
+    monkeypatch.setenv("CTXMATCH_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r.parquet"
+    assert _cli(["--dataset", str(tiny_dataset), "--filters", "th", "--model", "magsac,poselib", "--out", str(out),
+                 "--max-keypoints", "600", "--no-progress"]) == 0
+    df = pd.read_parquet(out)
+    assert set(df.model) == {"magsac", "poselib"} and len(df) == 2 * 2 * 2
+    planar = df[df.kind == "planar"].set_index(["method", "model"])
+    assert (planar.corner_error < 2.0).all() and (planar.model_inliers > 50).all()
+    text = capsys.readouterr().out
+    assert "poselib" in text and "auc_1px_pct" in text

@@ -39,12 +39,12 @@ def _pair(R, t, tmp_path=None, **gt):
                 PoseGT(K, K, R, t, **gt), "synthetic")
 
 
-@pytest.mark.parametrize("step", ["magsac", "essential"])
+@pytest.mark.parametrize("step", ["magsac", "essential", "poselib", "poselib_essential"])
 def test_model_accuracy_recovers_the_pose(step):
     p1, p2, R, t = _scene()
     matches = np.c_[np.arange(len(p1)), np.arange(len(p1))]
     fit = apply_model_step(step, p1, p2, matches, np.arange(len(p1), dtype=float), kind="F", threshold=1.0, rng=0,
-                           **({"K1": K, "K2": K} if step == "essential" else {}))
+                           **({"K1": K, "K2": K} if "essential" in step else {}))
     out = model_accuracy(step, fit, _pair(R, t), None, (p1, p2))
     assert set(POSE_COLUMNS) <= set(out) and set(out) <= set(GEOMETRY_COLUMNS)
     assert out["pose_err"] == max(out["pose_err_R"], out["pose_err_t"])

@@ -55,10 +55,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--filter", action="append", default=None, dest="filters",
                    help="spatial filter, repeatable or comma-separated, applied in order; 'none' for the blob "
                         "candidates (default: dtm)")
-    p.add_argument("--model", default="none", choices=["none", "1sac", "ransac", "prosac", "magsac"],
+    p.add_argument("--model", default="none", choices=["none", "1sac", "ransac", "prosac", "magsac", "poselib"],
                    help="model step on the filtered matches: 1sac (the paper's), ransac (USAC_MAGSAC, 3 px), prosac "
                         "(the same with PROSAC sampling by score), magsac (USAC_MAGSAC with fb82/MiHo's 1 px, "
-                        "0.9999, 100000) (default: none)")
+                        "0.9999, 100000), poselib (PoseLib's LO-RANSAC, the same settings) (default: none)")
     p.add_argument("--model-kind", default="F", choices=["F", "H"],
                    help="F (any scene, default) or H (planar scene, pure rotation)")
     p.add_argument("--model-threshold", type=float, default=None, help="model step threshold in px (default: 15)")

@@ -1,5 +1,6 @@
 """Seeded robust model fitting with OpenCV's USAC (:func:`ransac`), and the model steps of the evaluation
-(:func:`apply_model_step`). ``magsac`` takes fb82/MiHo's settings (``magsac_module(px_th=1.00)``), untuned."""
+(:func:`apply_model_step`). ``magsac`` takes fb82/MiHo's settings (``magsac_module(px_th=1.00)``), untuned;
+the ``poselib`` steps run PoseLib with the same settings (:mod:`.poselib_steps`)."""
 
 from __future__ import annotations
 
@@ -13,15 +14,16 @@ from .._numerics.validation import as_matches
 from .models import (CONSISTENCY_THRESHOLD_PX, MIN_SAMPLE, ModelFit, ModelKind, _check_kind, _check_step, _failed,
                      _model_errors, _one_sac, _too_few_distinct)
 from .pose import _fundamental_from_essential, _normalise_by_intrinsics, check_intrinsics
+from .poselib_steps import POSELIB_STEPS, poselib_fit
 
 __all__ = ["MODEL_STEPS", "ROBUST_STEPS", "UsacSettings", "USAC_PRESETS", "usac_settings", "ransac",
            "model_kind_for", "apply_model_step"]
 
 #: Names accepted by :func:`apply_model_step` (see there).
-MODEL_STEPS = ("none", "1sac", "ransac", "prosac", "magsac", "essential")
+MODEL_STEPS = ("none", "1sac", "ransac", "prosac", "magsac", "essential", *POSELIB_STEPS)
 
-#: The model steps run by USAC, with settings in :data:`USAC_PRESETS`.
-ROBUST_STEPS = ("ransac", "prosac", "magsac", "essential")
+#: The random model steps (USAC's and PoseLib's), with settings in :data:`USAC_PRESETS`.
+ROBUST_STEPS = ("ransac", "prosac", "magsac", "essential", *POSELIB_STEPS)
 
 
 @dataclass(frozen=True)
@@ -35,13 +37,16 @@ class UsacSettings:
     max_iters: int = 100_000
 
 
-#: The USAC settings of each robust model step (``magsac``: fb82/MiHo's).
+#: The settings of each robust model step (``magsac``: fb82/MiHo's; the PoseLib steps take MAGSAC's, so that
+#: the estimator is the only difference).
 USAC_PRESETS = {
     "ransac": UsacSettings(),
     "prosac": UsacSettings(sampler="prosac"),
     "magsac": UsacSettings(threshold=1.0, confidence=0.9999),
     # The threshold stays in pixels; the essential step divides it by the mean focal length.
     "essential": UsacSettings(threshold=1.0, confidence=0.9999),
+    "poselib": UsacSettings(threshold=1.0, confidence=0.9999),
+    "poselib_essential": UsacSettings(threshold=1.0, confidence=0.9999),
 }
 
 
@@ -188,6 +193,8 @@ def apply_model_step(name: str, kpts1, kpts2, matches, scores=None, *, kind: Mod
     pairs) fits ``E`` by ``cv2.findEssentialMat``'s USAC (Nistér's five-point solver, TPAMI 2004) on points
     normalised by ``K1``, ``K2`` (threshold divided by the mean focal length) and keeps the matches within
     ``threshold`` pixels of the epipolar lines of ``F = K2^-T E K1^-1``; see docs/evaluation.md (Model steps).
+    ``"poselib"`` and ``"poselib_essential"`` are the same two fits by PoseLib's LO-RANSAC
+    (:func:`~ctxmatch_lib.geometry.poselib_steps.poselib_fit`).
     """
     if name not in MODEL_STEPS:
         raise ValueError(f"unknown model step {name!r}; known: {', '.join(MODEL_STEPS)}")
@@ -195,12 +202,19 @@ def apply_model_step(name: str, kpts1, kpts2, matches, scores=None, *, kind: Mod
         k = len(as_matches(matches))
         return ModelFit(np.ones(k, bool), None, _check_kind(kind, MIN_SAMPLE), np.arange(k, dtype=np.int64),
                         np.zeros(k))
-    if name == "essential":
+    if name in ("essential", "poselib_essential"):
         _check_kind(kind, MIN_SAMPLE)
         K1, K2 = check_intrinsics(K1, "K1"), check_intrinsics(K2, "K2")
         _, kpts1, kpts2, matches, scores = _check_step("F", kpts1, kpts2, matches, scores, threshold)
-        return _essential(kpts1, kpts2, matches, scores, threshold, usac_settings(name, estimator), rng, K1, K2)
+        settings = usac_settings(name, estimator)
+        if name == "poselib_essential":
+            return poselib_fit(name, kpts1, kpts2, matches, kind="E", threshold=threshold, settings=settings,
+                               rng=rng, K1=K1, K2=K2)
+        return _essential(kpts1, kpts2, matches, scores, threshold, settings, rng, K1, K2)
     kind, kpts1, kpts2, matches, scores = _check_step(kind, kpts1, kpts2, matches, scores, threshold)
     if name == "1sac":
         return _one_sac(kpts1, kpts2, matches, scores, kind, threshold)
+    if name == "poselib":
+        return poselib_fit(name, kpts1, kpts2, matches, kind=kind, threshold=threshold,
+                           settings=usac_settings(name, estimator), rng=rng)
     return _ransac(kpts1, kpts2, matches, scores, kind, threshold, usac_settings(name, estimator), rng)

@@ -40,7 +40,7 @@ FEATURE_LABELS = {
 }
 KIND_LABELS = {"planar": "planar", "nonplanar": "non-planar", "depth": "depth (stereo)", "calibrated": "calibrated"}
 MODEL_LABELS = {"none": "no model", "1sac": "1SAC", "ransac": "RANSAC", "prosac": "PROSAC", "magsac": "MAGSAC",
-                "essential": "MAGSAC on E"}
+                "essential": "MAGSAC on E", "poselib": "PoseLib", "poselib_essential": "PoseLib on E"}
 
 #: Row selections of the paper's configurations (Sec. 5.3, Tables 1-3): column -> value (or tuple of values).
 #: "global" pools every feature block under the blob setups of the other two.
