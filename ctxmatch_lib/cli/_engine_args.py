@@ -32,24 +32,25 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
                    help=f"'grid' (the 2430 setups of Sec. 5.2) or comma-separated blob presets (default: {blob}); "
                         "recall_star uses the union of their correct candidates")
     p.add_argument("--filters", default=filters,
-                   help="comma-separated registered filters (dtm, dtm1, dtm2, th, lpm, ...), 'all' (every filter "
-                        f"that can run here, in the paper's order) or 'none' (the blob candidates only) "
-                        f"(default: {filters})")
+                   help="comma-separated registered filters (dtm, dtm1, dtm2, th, lpm, ..., mop, mop_miho) or "
+                        "import paths module:function, 'all' (every filter that can run here, in the paper's order, "
+                        f"mop and mop_miho named only) or 'none' (the blob candidates only) (default: {filters})")
     p.add_argument("--model", default=model,
                    help="comma-separated model steps among none, 1sac, ransac (USAC_MAGSAC, 3 px), prosac (MAGSAC++ "
                         "with PROSAC sampling by score, 3 px), magsac (USAC_MAGSAC with fb82/MiHo's 1 px, 0.9999, "
                         "100000 iterations), essential (the same on E, points normalised by K: calibrated pairs "
-                        f"only); rows with a model carry its accuracy (default: {model})")
+                        "only), poselib and poselib_essential (PoseLib's LO-RANSAC on H/F and on E, MAGSAC's "
+                        f"settings); rows with a model carry its accuracy (default: {model})")
     p.add_argument("--matchers", default="none",
                    help="comma-separated alternative matchers evaluated as methods on the same descriptors: "
                         "opencv_ratio (BFMatcher.knnMatch + Lowe's 0.8 ratio), opencv_mnn (mutual nearest "
                         "neighbours), or 'none' (default: none)")
     p.add_argument("--estimator-threshold", type=float, default=None,
-                   help="USAC threshold in px of the ransac/prosac/magsac steps (default: each step's preset)")
+                   help="estimator threshold in px of the random model steps (default: each step's preset)")
     p.add_argument("--estimator-confidence", type=float, default=None,
-                   help="USAC confidence of the ransac/prosac/magsac steps (default: each step's preset)")
+                   help="confidence of the random model steps (default: each step's preset)")
     p.add_argument("--estimator-iterations", type=int, default=None,
-                   help="USAC iteration cap of the ransac/prosac/magsac steps (default: each step's preset)")
+                   help="iteration cap of the random model steps (default: each step's preset)")
     p.add_argument("--pairs", default=None,
                    help="an integer N (N pairs evenly spread over each dataset) or comma-separated pair ids")
     p.add_argument("--kind", default=None,
@@ -61,9 +62,9 @@ def add_engine_arguments(p, *, blob: str, filters: str, model: str, out: str) ->
                    help="1SAC/RANSAC consistency threshold in px (default: 15)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC seed (default: 0)")
     p.add_argument("--runs", type=int, default=1,
-                   help="seeded runs of each random model step (ransac, prosac, magsac, essential) per pair and "
-                        "method, one row each (column run); the tables give means over pairs and runs with 95 %% "
-                        "bootstrap intervals (default: 1)")
+                   help="seeded runs of each random model step (ransac, prosac, magsac, essential, poselib*) per "
+                        "pair and method, one row each (column run); the tables give means over pairs and runs "
+                        "with 95 %% bootstrap intervals (default: 1)")
     p.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib); -1: all cores (default: 1)")
     p.add_argument("--dask", default=None, metavar="ADDRESS",
                    help="run on a Dask cluster at this scheduler address, e.g. tcp://host:8786")

@@ -128,18 +128,19 @@ def check_estimator(estimator) -> tuple:
 
 
 def resolve_filters(filters="all") -> tuple[str, ...]:
-    """Filter names to evaluate: ``"all"`` is every registered filter (``dtm`` as ``dtm1`` and ``dtm2``) in
-    :data:`PAPER_FILTER_ORDER`, then the others alphabetically; a list is validated and kept.
+    """Filter names to evaluate: ``"all"`` is every registered filter (``dtm`` as ``dtm1`` and ``dtm2``) but
+    :data:`~ctxmatch_lib.filters.NOT_IN_ALL`, in :data:`PAPER_FILTER_ORDER`, then the others alphabetically; a
+    list is validated and kept.
 
     Examples
     --------
     >>> resolve_filters(["th", "dtm2"])
     ('th', 'dtm2')
     """
-    from ..filters import FILTERS
+    from ..filters import FILTERS, NOT_IN_ALL
 
     if isinstance(filters, str) and filters == "all":
-        names = [n for n in FILTERS if n != "dtm"]
+        names = [n for n in FILTERS if n != "dtm" and n not in NOT_IN_ALL]
         rank = {n: i for i, n in enumerate(PAPER_FILTER_ORDER)}
         return tuple(sorted(names, key=lambda n: (rank.get(n, len(rank)), n)))
     return check_filters(filters)
