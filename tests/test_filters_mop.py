@@ -1,6 +1,6 @@
 """Tests of MOP and MOP+MiHo (``ctxmatch_lib.filters.mop``): a planted grid with one outlier, two planted planes
 with uniform outliers, determinism, degenerate inputs, parameter errors, many-to-many matches and the
-independence from the order of the rows (and of the scores)."""
+independence from the order of the rows (and of the scores), the authors' float32 stopping count."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import pytest
 
 from ctxmatch_lib.filters.mop import PlanarClusters, mop_clusters, mop_miho_clusters
 from ctxmatch_lib.filters.mop.homography import best_rotation, fit_homographies, fit_minimal, supports
+from ctxmatch_lib.filters.mop import ransac
 from ctxmatch_lib.filters.mop.params import MIHO_DEFAULTS, MOP_DEFAULTS
 
 SIZE = (1000, 800)
@@ -274,3 +275,37 @@ def test_best_rotation_finds_the_quarter_turn(quarter):
     got = best_rotation(p1, p2, 4)
     b = quarter * np.pi / 2
     np.testing.assert_allclose(got[:2, :2], np.round([[np.cos(b), -np.sin(b)], [np.sin(b), np.cos(b)]]))
+
+
+# --- the stopping rule -----------------------------------------------------------------------------------------
+
+def test_stopping_count_is_the_authors_float32():
+    """``log(1 - p) / log(1 - w^4)`` as the authors' float32 ``steps``: -inf once ``1 - w^4`` rounds to 1 in
+    float32 (``w`` below about 1.31 %), the float64 count otherwise (the float32 rounding of ``1 - w^4`` aside)."""
+    n = 100_000
+    assert ransac._iterations_needed(1312, n, 0.9) == -np.inf  # w^4 = 2.963e-8 < 2^-25
+    assert ransac._iterations_needed(1320, n, 0.9) == pytest.approx(3.8e7, rel=0.03)  # 1 - 2^-24: the next float
+    for count in (5_000, 20_000, 50_000):
+        w4 = (count / n) ** 4
+        assert ransac._iterations_needed(count, n, 0.9) == pytest.approx(np.log(0.1) / np.log1p(-w4), rel=5e-3)
+    assert ransac._iterations_needed(n, n, 0.9) == 0.0
+    assert ransac._iterations_needed(3, n, 0.9) == -np.inf
+
+
+def test_a_search_among_outliers_stops_past_min_iterations(monkeypatch):
+    """With the best set below ~1.3 % of the pool the authors' count is -inf: the search ends with the first batch
+    past ``min_iterations`` (here batches of 100000 // 3000 = 33 hypotheses: 66), not at ``max_iterations``."""
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0, 1, (3000, 2)) * SIZE, rng.uniform(0, 1, (3000, 2)) * SIZE
+    seen = []
+    inner = ransac._hypotheses
+
+    def spy(rng_, views, its, *args):
+        seen.append(its.max())
+        return inner(rng_, views, its, *args)
+
+    monkeypatch.setattr(ransac, "CHUNK_ELEMENTS", 1)  # one batch per chunk: the hypotheses drawn are those used
+    monkeypatch.setattr(ransac, "_hypotheses", spy)
+    fit = ransac.fit_plane(ransac.Views(x, y, False), np.zeros((3000, 0), bool), rng, MOP_DEFAULTS)
+    assert fit.H is not None and fit.loose.sum() < 30
+    assert max(seen) == 65

@@ -22,16 +22,13 @@ import warnings
 import numpy as np
 import pytest
 
-from ctxmatch_lib.filters import FILTERS, NOT_IN_ALL, nnr_scores
+from ctxmatch_lib.filters import FILTERS, nnr_scores
 from ctxmatch_lib._numerics.order import canonical_order, spread_back
 from ctxmatch_lib.testing import planted_homography_matches
 
 SIZE = (640, 480)
 # The package's own filters: other test modules register toy filters ("test-...") into the same registry.
 NAMES = [name for name in FILTERS if not name.startswith("test-")]
-# The real candidate sets (20 000-30 000 rows) for the filters "all" runs; MOP's own order test is planted
-# (tests/test_filters_mop.py): its real sets take half a minute a call.
-REAL_NAMES = [name for name in NAMES if name not in NOT_IN_ALL]
 REAL_PAIRS = ("hpatches/v_churchill/1-2", "kusvod2/temple1")
 REAL_BLOBS = ("baseline", "paper-best")
 #: Random permutations per candidate set (real sets cost more: fewer of them).
@@ -144,7 +141,7 @@ REAL_KEYS = [f"{p}@{b}" for p in REAL_PAIRS for b in REAL_BLOBS]
 
 
 @pytest.mark.parametrize("key", REAL_KEYS)
-@pytest.mark.parametrize("name", REAL_NAMES)
+@pytest.mark.parametrize("name", NAMES)
 def test_real_rows_permuted_permute_the_mask(name, key, real_sets):
     d = real_sets[key]
     _assert_equivariant(name, key, d, N_PERM_REAL)
@@ -207,7 +204,7 @@ def _quiet_call(name: str, d: dict, *, shapes: bool):
 
 
 @pytest.mark.parametrize("key", [k for k in REAL_KEYS if k.endswith("@paper-best")])
-@pytest.mark.parametrize("name", REAL_NAMES)
+@pytest.mark.parametrize("name", NAMES)
 def test_without_shapes_a_filter_decides_or_names_them(name, key, real_sets):
     """Called as the README calls DTM (no shapes), a filter keeps something, or keeps nothing as it does with
     the shapes, or says that it needs them: never an empty mask that reads as a verdict."""

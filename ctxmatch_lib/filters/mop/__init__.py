@@ -15,7 +15,10 @@ This is a numpy re-implementation of the authors' PyTorch code (fb82/MiHo: ``src
 ``miho_unduplex``, for MOP; ``src/miho.py``, ``miho_duplex``, for MOP+MiHo) with their default parameters
 (:mod:`.params`) and the demo's "MOP*" setting (no mirror samples). Its RANSAC draws its own samples
 (``numpy.random.default_rng(seed)``), so it reproduces the authors' behaviour, not their samples; the
-decisions are taken in float64 where the authors compute in float32. Left out: the GPU execution (the
+geometry is computed in float64 where the authors compute in float32, except RANSAC's stopping count, which
+is evaluated in float32 as theirs (:func:`.ransac._iterations_needed`): its rounding to ``-inf`` when the best
+set holds less than about 1.3 % of the pool is what ends the searches among outliers after ``min_iterations``
+hypotheses, and with it the outer loop, on heavily contaminated candidate sets. Left out: the GPU execution (the
 authors' batches of ``batch_budget // n`` hypotheses keep their role in the search: sorted offers to the
 buffers and the stopping test at the end of each batch; several batches are scored at once in numpy), the
 assignment variants (``cluster_assign_base``, ``cluster_assign_other``), the VSAC and "half" options of the

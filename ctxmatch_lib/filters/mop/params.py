@@ -28,7 +28,9 @@ class MopParams:
     min_iterations : int, default 50
         Hypotheses per plane at least, and draws per hypothesis for a well-spread sample [``min_iter``].
     confidence : float, default 0.9
-        RANSAC's stopping confidence [``p``].
+        RANSAC's stopping confidence [``p``]; the count ``log(1 - p) / log(1 - w^4)`` is evaluated in float32, as
+        the authors' (``-inf`` for an inlier ratio ``w`` below about 1.3 %: the search stops past
+        ``min_iterations``).
     min_singular_value : float, default 0.05
         A minimal sample is fitted when the second-smallest singular value of its normalised DLT system exceeds
         it [``svd_th``].
