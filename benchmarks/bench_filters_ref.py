@@ -77,7 +77,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -519,25 +518,10 @@ def precision_recall(matches: np.ndarray, labels: np.ndarray, keep: np.ndarray) 
 
 
 def _inputs(dataset: str, config: str, n_pairs: int, max_keypoints):
-    from ctxmatch_lib.blob import BLOB_PRESETS
-    from ctxmatch_lib.evaluation import select_pairs
-    from ctxmatch_lib.evaluation.steps import blob_candidates, label_candidates, pair_features
-    from ctxmatch_lib.features import FEATURE_PRESETS, keypoint_budget
-    from ctxmatch_lib.filters._common import canonical_order
+    """The canonical candidates of ``config`` (:func:`_common.canonical_candidates`), the same rows on both sides."""
+    from _common import canonical_candidates
 
-    feat, blob = CONFIGS[config]
-    fcfg = FEATURE_PRESETS[feat]
-    budget = keypoint_budget(max_keypoints)
-    if budget is not None:
-        fcfg = replace(fcfg, max_keypoints=budget)
-    for pair in select_pairs(dataset, select=n_pairs):
-        f1, f2 = pair_features(pair, fcfg)
-        matches, scores, _ = blob_candidates(f1, f2, BLOB_PRESETS[blob])
-        # The canonical order of the rows (the order our filters decide in) for both sides.
-        order, _ = canonical_order(f1.kpts[matches[:, 0], :2], f2.kpts[matches[:, 1], :2], matches, scores)
-        matches, scores = matches[order], scores[order]  # the scores keep their blob ratio
-        labels = label_candidates(pair, f1, f2, matches)
-        yield pair, f1, f2, matches, scores, labels
+    return canonical_candidates(dataset, *CONFIGS[config], n_pairs, max_keypoints)
 
 
 def _default(name: str, key: str):

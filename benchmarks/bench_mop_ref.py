@@ -56,11 +56,11 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from itertools import combinations, product
 from pathlib import Path
 
 import numpy as np
+from _common import canonical_candidates
 
 #: Kind shown -> dataset name of :func:`ctxmatch_lib.evaluation.select_pairs`.
 KINDS = {"planar": "planar", "kusvod2": "nonplanar", "strecha": "calibrated"}
@@ -97,28 +97,6 @@ def precision_recall(matches: np.ndarray, labels: np.ndarray, keep: np.ndarray) 
     from ctxmatch_lib.metrics import precision, recall
 
     return 100 * precision(labels[keep]), 100 * recall(matches[keep], labels[keep], matches[labels])
-
-
-def candidates(dataset: str, n_pairs: int, max_keypoints):
-    """``(pair, f1, f2, matches, scores, labels)`` of the first ``n_pairs`` pairs of ``dataset`` spread evenly,
-    with the rows in canonical order."""
-    from ctxmatch_lib.blob import BLOB_PRESETS
-    from ctxmatch_lib.evaluation import select_pairs
-    from ctxmatch_lib.evaluation.steps import blob_candidates, label_candidates, pair_features
-    from ctxmatch_lib.features import FEATURE_PRESETS, keypoint_budget
-    from ctxmatch_lib.filters._common import canonical_order
-
-    fcfg = FEATURE_PRESETS[FEATURES]
-    budget = keypoint_budget(max_keypoints)
-    if budget is not None:
-        fcfg = replace(fcfg, max_keypoints=budget)
-    for pair in select_pairs(dataset, select=n_pairs):
-        f1, f2 = pair_features(pair, fcfg)
-        matches, scores, _ = blob_candidates(f1, f2, BLOB_PRESETS[BLOB])
-        order, _ = canonical_order(f1.kpts[matches[:, 0], :2], f2.kpts[matches[:, 1], :2], matches, scores)
-        matches, scores = matches[order], scores[order]  # the scores keep their blob ratio
-        labels = label_candidates(pair, f1, f2, matches)
-        yield pair, f1, f2, matches, scores, labels
 
 
 def run_reference(python: str, runner: str, miho: str, method: str, cases: list[dict]) -> list[dict]:
@@ -195,7 +173,8 @@ def main(argv=None) -> int:
     print("command: " + " ".join([Path(sys.argv[0]).name] + (sys.argv[1:] if argv is None else list(argv))))
     print(f"features {FEATURES} (max {args.max_keypoints} keypoints), blob {BLOB}; check_reflection on; seeds "
           f"0..{args.seeds - 1}; Jaccard: mean [min,max]; CPU: process time per call, one thread")
-    data = {kind: list(candidates(KINDS[kind], args.pairs, args.max_keypoints)) for kind in args.kinds}
+    data = {kind: list(canonical_candidates(KINDS[kind], FEATURES, BLOB, args.pairs, args.max_keypoints))
+            for kind in args.kinds}
     flat = [(kind, d) for kind in args.kinds for d in data[kind]]
     cases = [dict(pt1=f1.kpts[m[:, 0], :2].astype(np.float32), pt2=f2.kpts[m[:, 1], :2].astype(np.float32),
                   seeds=seeds) for _, (_, f1, f2, m, _, _) in flat]
